@@ -1,0 +1,71 @@
+# craterscape: two commands from a fresh Debian machine (as root, or with sudo).
+#   make demo   set everything up, then run the main job on the built-in default scenario
+#   make test   set everything up, then run the whole test suite (what CI runs)
+#   make bench  set everything up, then run the benchmarks (JSON on stdout)
+
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+DEMO_OUT ?= demo-output
+
+# Headless OpenGL (EGL + Mesa llvmpipe; libgl1 because glcontext loads libGL even for EGL),
+# and GDAL's command-line tools as an independent reference in tests.
+APT_PACKAGES := libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri gdal-bin
+
+.PHONY: all setup apt venv demo test lint bench clean distclean
+
+all: test
+
+setup: apt venv
+
+apt:
+	@missing=""; \
+	for p in $(APT_PACKAGES); do \
+	  dpkg-query -W -f='$${Status}' $$p 2>/dev/null | grep -q "install ok installed" || missing="$$missing $$p"; \
+	done; \
+	if [ -n "$$missing" ]; then \
+	  echo "installing apt packages:$$missing"; \
+	  SUDO=""; [ "$$(id -u)" -eq 0 ] || SUDO=sudo; \
+	  $$SUDO apt-get update -qq && \
+	  DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq --no-install-recommends $$missing; \
+	fi
+
+$(PY):
+	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "craterscape needs Python >= 3.11, found " + sys.version.split()[0]'
+	$(PYTHON) -m venv $(VENV) || { \
+	  SUDO=""; [ "$$(id -u)" -eq 0 ] || SUDO=sudo; \
+	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq python3-venv && \
+	  rm -rf $(VENV) && $(PYTHON) -m venv $(VENV); }
+
+$(VENV)/.installed: pyproject.toml | $(PY)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[dev]'
+	@touch $@
+
+venv: $(VENV)/.installed
+
+demo: setup
+	@mkdir -p $(DEMO_OUT)
+	$(VENV)/bin/craterscape terrain synth -o $(DEMO_OUT)/terrain.tif --size 1025 --resolution 1.0 \
+	  --fractal-dimension 2.2 --relief 20 --seed 2014 \
+	  --population examples/population_highlands.toml --catalog $(DEMO_OUT)/craters.csv
+	$(VENV)/bin/craterscape terrain hillshade $(DEMO_OUT)/terrain.tif -o $(DEMO_OUT)/terrain_hillshade.png \
+	  --azimuth 270 --altitude 20
+	@echo "demo: $(DEMO_OUT)/terrain.tif, $(DEMO_OUT)/terrain_hillshade.png, $(DEMO_OUT)/craters.csv"
+
+lint: setup
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/lint-imports
+
+test: lint
+	$(PY) -m pytest -q
+
+bench: setup
+	$(PY) benchmarks/run.py
+
+clean:
+	rm -rf $(DEMO_OUT) .pytest_cache .ruff_cache
+	find . -path ./$(VENV) -prune -o \( -name '*.nbi' -o -name '*.nbc' \) -print -delete
+
+distclean: clean
+	rm -rf $(VENV) *.egg-info

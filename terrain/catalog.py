@@ -1,0 +1,182 @@
+"""Crater records and catalogues.
+
+A :class:`Crater` is one impact as a user names it (position, diameter, age); a
+:class:`CraterTable` is many of them as columns, the form the generator produces and the
+cratering kernel consumes. The catalogue CSV written after cratering adds what the model made
+of each crater (erosion state, depth, rim height, the fitted pre-impact level): ground truth
+for crater-detection navigation.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from terrain.errors import InvalidParameterError
+
+__all__ = ["CATALOG_COLUMNS", "Crater", "CraterTable", "write_catalog"]
+
+
+@dataclass(frozen=True)
+class Crater:
+    """One crater: centre (map metres), diameter (m), age (Gyr), identity.
+
+    >>> Crater(10.0, 20.0, 5.0).age
+    0.0
+    >>> Crater(0, 0, -1)
+    Traceback (most recent call last):
+    ...
+    terrain.errors.InvalidParameterError: crater diameter must be positive and finite; got -1.0
+    """
+
+    x: float
+    y: float
+    diameter: float
+    age: float = 0.0
+    uid: int = 0
+
+    def __post_init__(self):
+        for name in ("x", "y", "diameter", "age"):
+            value = float(getattr(self, name))
+            if not math.isfinite(value):
+                raise InvalidParameterError(f"crater {name} must be finite; got {value}")
+            object.__setattr__(self, name, value)
+        if self.diameter <= 0:
+            raise InvalidParameterError(
+                f"crater diameter must be positive and finite; got {self.diameter}")
+        if self.age < 0:
+            raise InvalidParameterError(f"crater age must be >= 0 Gyr; got {self.age}")
+        object.__setattr__(self, "uid", int(self.uid) & (2**64 - 1))
+
+
+def _readonly(a, dtype):
+    a = np.array(a, dtype=dtype, copy=True).reshape(-1)
+    a.flags.writeable = False
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class CraterTable:
+    """Columns of craters. ``size_class`` orders the composition (larger classes first).
+
+    Parameters
+    ----------
+    x, y : (n,) float64, map metres
+    diameter : (n,) float64, metres
+    age : (n,) float64, Gyr
+    uid : (n,) uint64, the crater's identity (keys its roughness and rim randomness)
+    size_class : (n,) int64, octave bin; craters of a class are fitted to the terrain left by
+        all larger classes (see :mod:`terrain.cratering`)
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    diameter: np.ndarray
+    age: np.ndarray
+    uid: np.ndarray
+    size_class: np.ndarray
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        cols = dict(x=np.float64, y=np.float64, diameter=np.float64, age=np.float64,
+                    uid=np.uint64, size_class=np.int64)
+        n = None
+        for name, dtype in cols.items():
+            a = _readonly(getattr(self, name), dtype)
+            if n is None:
+                n = a.size
+            elif a.size != n:
+                raise InvalidParameterError(
+                    f"crater table column {name} has {a.size} rows; expected {n}")
+            object.__setattr__(self, name, a)
+        if n and not (np.all(np.isfinite(self.x)) and np.all(np.isfinite(self.y))):
+            raise InvalidParameterError("crater positions must be finite")
+        if n and not np.all(self.diameter > 0):
+            raise InvalidParameterError("crater diameters must be positive")
+        if n and not np.all(self.age >= 0):
+            raise InvalidParameterError("crater ages must be >= 0 Gyr")
+
+    def __len__(self) -> int:
+        return int(self.x.size)
+
+    @classmethod
+    def empty(cls) -> CraterTable:
+        z = np.zeros(0)
+        return cls(z, z, z, z, z.astype(np.uint64), z.astype(np.int64))
+
+    @classmethod
+    def from_craters(cls, craters) -> CraterTable:
+        """Table of explicit craters; each gets the octave class floor(log2(D / 1 m))."""
+        craters = list(craters)
+        if not craters:
+            return cls.empty()
+        d = np.array([c.diameter for c in craters])
+        return cls(np.array([c.x for c in craters]), np.array([c.y for c in craters]), d,
+                   np.array([c.age for c in craters]),
+                   np.array([c.uid for c in craters], dtype=np.uint64),
+                   np.floor(np.log2(d)).astype(np.int64))
+
+    def take(self, index) -> CraterTable:
+        return CraterTable(self.x[index], self.y[index], self.diameter[index], self.age[index],
+                           self.uid[index], self.size_class[index], dict(self.meta))
+
+    @staticmethod
+    def concatenate(tables) -> CraterTable:
+        tables = [t for t in tables if len(t)]
+        if not tables:
+            return CraterTable.empty()
+        return CraterTable(*(np.concatenate([getattr(t, n) for t in tables])
+                             for n in ("x", "y", "diameter", "age", "uid", "size_class")))
+
+    def composition_order(self) -> np.ndarray:
+        """Indices in processing order: larger size classes first, then oldest first.
+
+        Ties in age are broken by uid, so the order of any two craters never depends on
+        which other craters are present (a window and the full tile agree).
+        """
+        return np.lexsort((self.uid, -self.age, -self.size_class))
+
+    def __iter__(self):
+        for i in range(len(self)):
+            yield Crater(self.x[i], self.y[i], self.diameter[i], self.age[i], int(self.uid[i]))
+
+
+#: Columns of the catalogue CSV, with units.
+CATALOG_COLUMNS = (
+    "id", "x_m", "y_m", "row", "col", "diameter_m", "age_gyr", "size_class",
+    "depth_fraction", "rim_fraction", "depth_m", "rim_height_m", "alpha", "beta",
+    "reference_elevation_m",
+)
+
+
+def write_catalog(path_or_file, rows: dict) -> None:
+    """Write catalogue columns (dict of equal-length arrays keyed by CATALOG_COLUMNS)."""
+    n = len(rows["id"]) if rows else 0
+    close = False
+    if hasattr(path_or_file, "write"):
+        f = path_or_file
+    else:
+        f = open(path_or_file, "w", newline="", encoding="utf-8")  # noqa: SIM115
+        close = True
+    try:
+        writer = csv.writer(f)
+        writer.writerow(CATALOG_COLUMNS)
+        for i in range(n):
+            out = []
+            for name in CATALOG_COLUMNS:
+                v = rows[name][i]
+                if name == "id":
+                    out.append(f"{int(v):016x}")
+                elif name in ("row", "col"):
+                    out.append(f"{float(v):.3f}")
+                elif isinstance(v, (int, np.integer)):
+                    out.append(str(int(v)))
+                else:
+                    out.append(repr(float(v)) if math.isfinite(float(v)) else "")
+            writer.writerow(out)
+    finally:
+        if close:
+            f.close()

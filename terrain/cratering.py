@@ -1,0 +1,536 @@
+"""Adding craters to terrain: composition order, windows, and the compiled crater kernel.
+
+Each crater is the profile of :mod:`terrain.crater` on a plane fitted to the terrain it
+lands on, with its rim riding on the terrain along every radius (``Tr``, ``Pr``), plus the
+roughness of :mod:`terrain.overlay`. What remains is the order in which craters see each
+other, and that decides whether a window can be computed alone.
+
+Composition order (and why)
+---------------------------
+If every crater were fitted to the terrain left by *all* older craters (the paper's literal
+order), a pixel would depend on chains of overlapping craters that can cross the whole tile,
+and no finite halo would make a window exact. We bound the chain as the paper's nested layers
+do:
+
+1. Craters are grouped into octave size classes and the classes are applied from the largest
+   to the smallest. Every crater of a class is fitted (plane and rim terrain ``Tr``) to the
+   terrain ``T`` as it stood after all larger classes.
+2. Within a class, craters are composed per pixel in age order, oldest first (ties broken by
+   the crater's id). Ejecta adds its change on top of what is there. A bowl replaces what is
+   under it: inside the rim the height becomes the crater's ``P + h_in``, plus the part of the
+   class's earlier changes ``eps = z - T`` that survives an obliteration weight which is 1 on
+   the inner wall and floor (x <= -:data:`OBLITERATION_BLEND`) and falls smoothly (smoothstep)
+   to 0 at the rim. So a younger crater erases older same-class craters inside it, and its rim
+   still rides, continuously, on any older ejecta it lands on.
+
+A pixel therefore depends only on the craters whose footprints cover it and on ``T`` within
+their footprints: a halo of about 1.5 footprint radii per class (a few Dmax in all) makes any
+window exact, bitwise. Only one crater of each class is ever in the same place at once.
+
+What it costs in fidelity: within a class (diameters within a factor of two), a younger
+crater's plane and rim terrain ignore the older craters of the same class, so a crater landing
+on the ejecta of a similar-sized older one is not tilted by it, and older same-class relief
+fades out on the younger crater's upper wall instead of being cut at the rim. Across classes
+(smaller craters on larger ones) the model is the paper's: small craters sit on the slopes,
+rims and floors of larger ones. Ages are respected within a class, not across classes: a
+small old crater is never erased by a large young one (it is fitted onto it instead), which
+on the real Moon is how the oldest small craters look anyway, fully eroded.
+
+Pixels outside the DEM (a crater centred near an edge) are sampled from the nearest edge
+pixel. Invalid pixels stay invalid; a crater whose plane has fewer than three valid samples
+is skipped.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import asdict, dataclass, field
+
+import numba
+import numpy as np
+
+from terrain import memory
+from terrain.catalog import CATALOG_COLUMNS, CraterTable
+from terrain.crater import exterior_height, interior_height, shape_arrays
+from terrain.erosion import ErosionModel
+from terrain.errors import InvalidParameterError
+from terrain.overlay import (
+    MAX_PATCH_LEVEL,
+    RIM_SAMPLES,
+    RimIrregularity,
+    Roughness,
+    crater_params,
+    overlay_patch,
+    patch_value,
+    periodic_sample,
+    rim_table,
+    smooth_periodic,
+)
+from terrain.population import Population
+from terrain.rng import check_seed
+from terrain.tile import DEMTile, Window
+
+__all__ = ["OBLITERATION_BLEND", "CraterModel", "CraterResult", "add_craters",
+           "crater_heights", "describe_craters", "empty_catalog"]
+
+log = logging.getLogger(__name__)
+
+#: Width (in x) of the inner-wall band over which older same-class relief fades out.
+OBLITERATION_BLEND = 0.25
+#: Most rings of the plane-fit sampling pattern (ring k holds 8k points).
+PLANE_RINGS_MAX = 8
+#: Azimuths of the rim-terrain table (Tr - Pr along each radius).
+RIM_TERRAIN_SAMPLES = 64
+#: Bilinear samples averaged into each rim-terrain table entry (spread over one entry's arc).
+RIM_TERRAIN_TAPS = 5
+#: Circular binomial passes over the rim-terrain table (a low-pass of about 1/20 turn).
+RIM_TERRAIN_SMOOTHING = 4
+
+
+@dataclass(frozen=True)
+class CraterModel:
+    """Everything about how a crater looks besides where it is: erosion and roughness."""
+
+    erosion: ErosionModel = field(default_factory=ErosionModel.default)
+    roughness: Roughness = field(default_factory=Roughness)
+    rim: RimIrregularity = field(default_factory=RimIrregularity)
+
+    def smooth(self) -> CraterModel:
+        """The same model with the fractal overlay and the irregular rim switched off."""
+        return CraterModel(self.erosion, Roughness(enabled=False),
+                           RimIrregularity(enabled=False))
+
+    @property
+    def footprint_factor(self) -> float:
+        """Largest footprint radius over D (1 for a circular rim)."""
+        return 1.0 + 2.0 * self.rim.effective_amplitude
+
+    def as_dict(self) -> dict:
+        return dict(erosion=self.erosion.as_dict(), roughness=asdict(self.roughness),
+                    rim=asdict(self.rim))
+
+
+@dataclass(frozen=True, eq=False)
+class CraterResult:
+    """A cratered tile and the catalogue of every crater that touches it."""
+
+    tile: DEMTile
+    catalog: dict
+
+
+# ----------------------------------------------------------------------------------------
+# compiled kernel
+
+
+@numba.njit(cache=True)
+def _bilinear(T, tr0, tc0, nrows, ncols, x0, y0, res, x, y):
+    """Bilinear height of the pre-class terrain at map (x, y), clamped to the DEM's edges."""
+    fr = min(max((y0 - y) / res - 0.5, 0.0), nrows - 1.0)
+    fc = min(max((x - x0) / res - 0.5, 0.0), ncols - 1.0)
+    i0 = int(fr)
+    j0 = int(fc)
+    i1 = min(i0 + 1, nrows - 1)
+    j1 = min(j0 + 1, ncols - 1)
+    ti = fr - i0
+    tj = fc - j0
+    a0 = i0 - tr0
+    a1 = i1 - tr0
+    b0 = j0 - tc0
+    b1 = j1 - tc0
+    if a0 < 0 or b0 < 0 or a1 >= T.shape[0] or b1 >= T.shape[1]:
+        raise IndexError("crater kernel read outside its halo")
+    return ((T[a0, b0] * (1.0 - tj) + T[a0, b1] * tj) * (1.0 - ti)
+            + (T[a1, b0] * (1.0 - tj) + T[a1, b1] * tj) * ti)
+
+
+@numba.njit(cache=True)
+def _laplacian(T, tr0, tc0, nrows, ncols, x0, y0, res, x, y):
+    """Pixel nearest (x, y) minus the mean of its four neighbours (NaN at DEM edges/gaps)."""
+    i = int(math.floor((y0 - y) / res))
+    j = int(math.floor((x - x0) / res))
+    if i < 1 or j < 1 or i > nrows - 2 or j > ncols - 2:
+        return math.nan
+    a = i - tr0
+    b = j - tc0
+    if a < 1 or b < 1 or a > T.shape[0] - 2 or b > T.shape[1] - 2:
+        raise IndexError("crater kernel read outside its halo")
+    return T[a, b] - 0.25 * (T[a - 1, b] + T[a + 1, b] + T[a, b - 1] + T[a, b + 1])
+
+
+@numba.njit(cache=True)
+def _fit_plane(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, radius):
+    """Least-squares plane z = p0 + px dx + py dy over a symmetric polar pattern in the bowl.
+
+    Returns (p0, px, py, valid samples, RMS residual, pixel roughness). The pattern (centre
+    plus rings of 8k points) samples the terrain bilinearly, so the fit does not depend on
+    how the pixel grid falls. Heights are accumulated relative to the first valid sample, so
+    that absolute heights of kilometres do not swamp the residual. The pixel roughness is the
+    RMS of (pixel - mean of its four neighbours) at the pixels nearest the samples.
+    """
+    rings = min(PLANE_RINGS_MAX, max(2, int(math.ceil(radius / res))))
+    n = 0.0
+    ref = math.nan
+    sx = sy = sxx = sxy = syy = sz = sxz = syz = szz = 0.0
+    npix = 0.0
+    spix = 0.0
+    for k in range(rings + 1):
+        count = 1 if k == 0 else 8 * k
+        rk = radius * k / rings
+        for m in range(count):
+            ang = 2.0 * math.pi * (m + 0.5 * (k % 2)) / count
+            dx = rk * math.cos(ang)
+            dy = rk * math.sin(ang)
+            lap = _laplacian(T, tr0, tc0, nrows, ncols, x0, y0, res, cx + dx, cy + dy)
+            if not math.isnan(lap):
+                npix += 1.0
+                spix += lap * lap
+            z = _bilinear(T, tr0, tc0, nrows, ncols, x0, y0, res, cx + dx, cy + dy)
+            if math.isnan(z):
+                continue
+            if n == 0.0:
+                ref = z
+            z -= ref
+            n += 1.0
+            sx += dx
+            sy += dy
+            sxx += dx * dx
+            sxy += dx * dy
+            syy += dy * dy
+            sz += z
+            sxz += dx * z
+            syz += dy * z
+            szz += z * z
+    pix = math.sqrt(spix / npix) if npix > 0 else 0.0
+    if n < 3.0:
+        return math.nan, math.nan, math.nan, n, math.nan, pix
+    det = n * (sxx * syy - sxy * sxy) - sx * (sx * syy - sxy * sy) + sy * (sx * sxy - sxx * sy)
+    if not det > 1e-9 * n * sxx * syy:
+        p0 = sz / n
+        return p0 + ref, 0.0, 0.0, n, math.sqrt(max(0.0, szz / n - p0 * p0)), pix
+    p0 = (sz * (sxx * syy - sxy * sxy) - sx * (sxz * syy - sxy * syz)
+          + sy * (sxz * sxy - sxx * syz)) / det
+    px = (n * (sxz * syy - sxy * syz) - sz * (sx * syy - sxy * sy)
+          + sy * (sx * syz - sxz * sy)) / det
+    py = (n * (sxx * syz - sxz * sxy) - sx * (sx * syz - sxz * sy)
+          + sz * (sx * sxy - sxx * sy)) / det
+    rss = szz - (p0 * sz + px * sxz + py * syz)  # normal-equation identity
+    return p0 + ref, px, py, n, math.sqrt(max(0.0, rss / n)), pix
+
+
+@numba.njit(cache=True)
+def _rim_terrain(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, radius, d, p0, px, py,
+                 irregular, rim, out):
+    """Fill ``out`` with Tr - Pr, the terrain's height above the plane at the rim, per azimuth.
+
+    Entry m belongs to azimuth theta_m = 2 pi m / n - pi and averages RIM_TERRAIN_TAPS
+    bilinear samples spread over its arc: the rim follows the terrain's undulations at the
+    scale of the crater, not pixel noise, which would otherwise streak the inner wall
+    radially; the table is then low-passed (RIM_TERRAIN_SMOOTHING binomial passes) and read
+    with cubic interpolation. Unknown terrain counts as on the plane.
+    """
+    n = out.size
+    for m in range(n):
+        acc = 0.0
+        cnt = 0
+        for q in range(RIM_TERRAIN_TAPS):
+            th = 2.0 * math.pi * (m + (q - (RIM_TERRAIN_TAPS - 1) / 2.0) / RIM_TERRAIN_TAPS) / n
+            th -= math.pi
+            rt = radius + periodic_sample(rim, th) * d if irregular else radius
+            ox = rt * math.cos(th)
+            oy = rt * math.sin(th)
+            z = _bilinear(T, tr0, tc0, nrows, ncols, x0, y0, res, cx + ox, cy + oy)
+            if not math.isnan(z):
+                acc += z - (p0 + px * ox + py * oy)
+                cnt += 1
+        out[m] = acc / cnt if cnt > 0 else 0.0
+    smooth_periodic(out, RIM_TERRAIN_SMOOTHING)
+
+
+@numba.njit(cache=True)
+def _obliteration(x):
+    """1 on the floor and inner wall, smoothstep down to 0 at the rim (x = 0)."""
+    if x <= -OBLITERATION_BLEND:
+        return 1.0
+    t = (x + OBLITERATION_BLEND) / OBLITERATION_BLEND
+    return 1.0 - t * t * (3.0 - 2.0 * t)
+
+
+@numba.njit(cache=True)
+def _apply_class(T, tr0, tc0, out, or0, oc0, nrows, ncols, x0, y0, res,
+                 cx, cy, diam, depth, rim_h, rim_h0, ejecta, beta, ca, cb, c2, c3, alpha,
+                 depth_fraction, uid, seed, irr_amp, irr_hurst, rough, rough_params,
+                 footprint_factor, planes):
+    """Compose one size class of craters (already in age order) onto ``out``.
+
+    ``T`` is the terrain before this class (origin tr0, tc0 in DEM pixels); ``out`` starts as
+    a copy of T over the class's region (origin or0, oc0) and is updated in place.
+    """
+    table = np.zeros(RIM_SAMPLES)
+    rim_terrain = np.zeros(RIM_TERRAIN_SAMPLES)
+    params = np.zeros(7)
+    oy1 = or0 + out.shape[0] - 1
+    ox1 = oc0 + out.shape[1] - 1
+    for n in range(cx.size):
+        d = diam[n]
+        radius = 0.5 * d
+        xc = cx[n]
+        yc = cy[n]
+        p0, px, py, nvalid, rms, pix = _fit_plane(T, tr0, tc0, nrows, ncols, x0, y0, res,
+                                                  xc, yc, radius)
+        planes[n, 0] = p0
+        planes[n, 1] = px
+        planes[n, 2] = py
+        if nvalid < 3.0:
+            continue
+        irregular = irr_amp > 0.0
+        if irregular:
+            rim_table(seed, uid[n], irr_amp, irr_hurst, table)
+        _rim_terrain(T, tr0, tc0, nrows, ncols, x0, y0, res, xc, yc, radius, d, p0, px, py,
+                     irregular, table, rim_terrain)
+        reach = d * footprint_factor
+        if rough:
+            level = int(round(math.log2(max(2.0, 2.0 * (reach + res) / res))))
+            level = min(MAX_PATCH_LEVEL, max(1, level))
+            half_extent = reach + res
+            spacing = 2.0 * half_extent / 2**level
+            patch = np.empty((2**level + 1, 2**level + 1))
+            crater_params(rough_params, d, depth_fraction[n], rms, pix, level, params)
+            overlay_patch(seed, uid[n], level, spacing, d, alpha[n], params, patch)
+        else:
+            half_extent = 0.0
+            spacing = 1.0
+            patch = np.zeros((2, 2))
+        curvature = rim_h0[n] - rim_h[n] + depth[n]
+        floor = rim_h[n] - depth[n]
+        hr = rim_h[n]
+        rc = (y0 - yc) / res - 0.5
+        cc = (xc - x0) / res - 0.5
+        rpix = reach / res
+        i_lo = max(or0, int(math.ceil(rc - rpix)))
+        i_hi = min(oy1, int(math.floor(rc + rpix)))
+        j_lo = max(oc0, int(math.ceil(cc - rpix)))
+        j_hi = min(ox1, int(math.floor(cc + rpix)))
+        for i in range(i_lo, i_hi + 1):
+            dy = (y0 - (i + 0.5) * res) - yc
+            for j in range(j_lo, j_hi + 1):
+                dx = (x0 + (j + 0.5) * res) - xc
+                r = math.sqrt(dx * dx + dy * dy)
+                if r > reach:
+                    continue
+                theta = math.atan2(dy, dx)
+                rt = radius + periodic_sample(table, theta) * d if irregular else radius
+                x = r / rt - 1.0
+                if x > 1.0:
+                    continue
+                t = T[i - tr0, j - tc0]
+                if math.isnan(t):
+                    continue
+                cur = out[i - or0, j - oc0]
+                ov = patch_value(patch, spacing, half_extent, dx, dy) if rough else 0.0
+                if x <= 0.0:
+                    h = interior_height(x, curvature, floor, hr + periodic_sample(rim_terrain, theta))
+                    z_in = p0 + px * dx + py * dy + h + ov
+                    out[i - or0, j - oc0] = z_in + (cur - t) * (1.0 - _obliteration(x))
+                else:
+                    out[i - or0, j - oc0] = cur + exterior_height(
+                        x, hr, ejecta[n], beta[n], ca[n], cb[n], c2[n], c3[n]) + ov * (1.0 - x)
+
+
+# ----------------------------------------------------------------------------------------
+# orchestration
+
+
+class _Classes:
+    """Size classes of a crater source, largest first, and the craters of each in an extent."""
+
+    def __init__(self, source, seed):
+        self.seed = seed
+        if isinstance(source, Population):
+            self.population = source
+            bins = source.bins()
+            self.classes = [(b, float(bins[b][1])) for b in range(len(bins))][::-1]
+            self.table = None
+        elif isinstance(source, CraterTable):
+            self.population = None
+            self.table = source
+            ids = np.unique(source.size_class)[::-1]
+            self.classes = [(int(c), float(source.diameter[source.size_class == c].max()))
+                            for c in ids]
+        else:
+            raise InvalidParameterError(
+                f"craters must be a Population or a CraterTable; got {type(source).__name__}")
+
+    def craters(self, cls, extent, margin) -> CraterTable:
+        if self.population is not None:
+            return self.population.generate(self.seed, extent, margin=margin, bin_index=cls)
+        t = self.table
+        xmin, ymin, xmax, ymax = extent
+        keep = ((t.size_class == cls) & (t.x >= xmin - margin) & (t.x <= xmax + margin)
+                & (t.y >= ymin - margin) & (t.y <= ymax + margin))
+        return t.take(np.flatnonzero(keep))
+
+
+def crater_heights(base, shape, transform, craters, *, seed, model=None, window=None,
+                   progress=None):
+    """Cratered heights of a window, computing only the halo the window depends on.
+
+    Parameters
+    ----------
+    base : callable (row0, row1, col0, col1) -> (row1 - row0, col1 - col0) float64
+        Pre-crater heights of a pixel rectangle of the DEM (NaN where unknown).
+    shape : (nrows, ncols)
+        Size of the whole DEM (the window's frame of reference).
+    transform : affine.Affine
+        The whole DEM's north-up transform (metres).
+    craters : Population or CraterTable
+    seed : int
+    model : CraterModel, optional
+    window : Window, optional
+    progress : callable, optional
+        ``progress(done, total)`` after each size class.
+
+    Returns
+    -------
+    heights : (height, width) float64, metres
+    catalog : dict of column arrays (see :data:`terrain.catalog.CATALOG_COLUMNS`)
+    """
+    seed = check_seed(seed)
+    model = model or CraterModel()
+    nrows, ncols = shape
+    window = window or Window(0, 0, ncols, nrows)
+    window.check_inside(nrows, ncols)
+    res = float(transform.a)
+    x0, y0 = float(transform.c), float(transform.f)
+    classes = _Classes(craters, seed)
+    factor = model.footprint_factor
+
+    # Regions, from the last (smallest) class back to the base: each grows by its halo.
+    regions = [(window.row, window.row + window.height, window.col, window.col + window.width)]
+    for _, d_max in reversed(classes.classes):
+        halo = int(math.ceil(1.5 * d_max * factor / res)) + 2
+        r0, r1, c0, c1 = regions[0]
+        regions.insert(0, (max(0, r0 - halo), min(nrows, r1 + halo),
+                           max(0, c0 - halo), min(ncols, c1 + halo)))
+    r0, r1, c0, c1 = regions[0]
+    memory.require((r1 - r0) * (c1 - c0) * 8 * 3 + window.width * window.height * 4,
+                   f"cratering a {window.width}x{window.height} window")
+
+    terrain = np.ascontiguousarray(base(r0, r1, c0, c1), dtype=np.float64)
+    origin = (r0, c0)
+    rough = model.roughness.enabled
+    rough_params = model.roughness.as_array()
+    placed = []
+    total = len(classes.classes)
+    for done, ((cls, d_max), region) in enumerate(
+            zip(classes.classes, regions[1:], strict=True), start=1):
+        q0, q1, p0, p1 = region
+        extent = (x0 + p0 * res, y0 - q1 * res, x0 + p1 * res, y0 - q0 * res)
+        table = classes.craters(cls, extent, d_max * factor + res)
+        out = terrain[q0 - origin[0]:q1 - origin[0], p0 - origin[1]:p1 - origin[1]].copy()
+        if len(table):
+            table = table.take(table.composition_order())
+            depth_f, rim_f = model.erosion.factors(table.age, table.diameter)
+            s = shape_arrays(table.diameter, depth_f, rim_f)
+            planes = np.full((len(table), 3), np.nan)
+            _apply_class(terrain, origin[0], origin[1], out, q0, p0, nrows, ncols, x0, y0, res,
+                         table.x, table.y, table.diameter, s["depth"], s["rim_height"],
+                         s["fresh_rim_height"], s["ejecta"], s["beta"], s["a"], s["b"],
+                         s["c2"], s["c3"], s["alpha"], depth_f, table.uid, seed,
+                         model.rim.effective_amplitude, model.rim.hurst, rough, rough_params,
+                         factor, planes)
+            placed.append((table, depth_f, rim_f, s, planes))
+            log.debug("size class %d (D <= %.3g m): %d craters", cls, d_max, len(table))
+        terrain, origin = out, (q0, p0)
+        if progress is not None:
+            progress(done, total)
+    catalog = _catalog(placed, window, x0, y0, res, factor)
+    return terrain, catalog
+
+
+def empty_catalog() -> dict:
+    """A catalogue with no rows."""
+    return _catalog([], Window(0, 0, 1, 1), 0.0, 0.0, 1.0, 1.0)
+
+
+def _catalog(placed, window, x0, y0, res, factor) -> dict:
+    """Rows of every placed crater whose footprint touches the window."""
+    cols = {k: [] for k in CATALOG_COLUMNS}
+    wx0 = x0 + window.col * res
+    wx1 = x0 + (window.col + window.width) * res
+    wy1 = y0 - window.row * res
+    wy0 = y0 - (window.row + window.height) * res
+    for table, depth_f, rim_f, s, planes in placed:
+        gx = np.clip(table.x, wx0, wx1) - table.x
+        gy = np.clip(table.y, wy0, wy1) - table.y
+        touch = np.hypot(gx, gy) <= table.diameter * factor
+        touch &= np.isfinite(planes[:, 0])
+        idx = np.flatnonzero(touch)
+        cols["id"].append(table.uid[idx])
+        cols["x_m"].append(table.x[idx])
+        cols["y_m"].append(table.y[idx])
+        cols["row"].append((y0 - table.y[idx]) / res - 0.5 - window.row)
+        cols["col"].append((table.x[idx] - x0) / res - 0.5 - window.col)
+        cols["diameter_m"].append(table.diameter[idx])
+        cols["age_gyr"].append(table.age[idx])
+        cols["size_class"].append(table.size_class[idx])
+        cols["depth_fraction"].append(depth_f[idx])
+        cols["rim_fraction"].append(rim_f[idx])
+        cols["depth_m"].append(s["depth"][idx])
+        cols["rim_height_m"].append(s["rim_height"][idx])
+        cols["alpha"].append(s["alpha"][idx])
+        cols["beta"].append(s["beta"][idx])
+        cols["reference_elevation_m"].append(planes[idx, 0])
+    out = {}
+    for k, parts in cols.items():
+        dtype = np.uint64 if k == "id" else (np.int64 if k == "size_class" else np.float64)
+        out[k] = np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
+    return out  # rows in composition order: largest class first, oldest first
+
+
+def add_craters(tile: DEMTile, craters, *, seed: int, model: CraterModel | None = None,
+                window: Window | None = None, progress=None) -> CraterResult:
+    """Add a crater population or an explicit crater table to a DEM tile.
+
+    Parameters
+    ----------
+    tile : DEMTile
+        Pre-crater terrain (metres). Invalid pixels stay invalid.
+    craters : Population or CraterTable
+        Craters in the tile's map coordinates.
+    seed : int
+        Keys the population and every crater's roughness.
+    model : CraterModel, optional
+        Erosion and roughness (defaults: the shipped Ross profile, roughness on).
+    window : Window, optional
+        Compute only this window of the tile (bitwise equal to the same window of a full run).
+    progress : callable, optional
+        ``progress(done, total)`` after each size class.
+
+    Returns
+    -------
+    CraterResult
+        The cratered tile (the window, if given) and its crater catalogue.
+    """
+    seed = check_seed(seed)
+    model = model or CraterModel()
+    heights = tile.heights
+
+    def base(r0, r1, c0, c1):
+        return heights[r0:r1, c0:c1].astype(np.float64)
+
+    z, catalog = crater_heights(base, tile.shape, tile.transform, craters, seed=seed,
+                                model=model, window=window, progress=progress)
+    sub = tile.window(window) if window is not None else tile
+    out = sub.replace(heights=z.astype(np.float32), valid=sub.valid)
+    out = out.with_metadata(CRATERSCAPE_SEED=str(seed),
+                            CRATERSCAPE_CRATER_MODEL=model.as_dict(),
+                            CRATERSCAPE_CRATERS=describe_craters(craters))
+    return CraterResult(out, catalog)
+
+
+def describe_craters(craters) -> dict:
+    """Provenance record of a crater source."""
+    if isinstance(craters, Population):
+        return {"population": craters.as_dict()}
+    return {"explicit_craters": len(craters)}

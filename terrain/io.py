@@ -1,0 +1,218 @@
+"""Reading and writing DEMs and images; the only module that imports rasterio.
+
+Reading goes through GDAL, so anything GDAL opens works: GeoTIFF, PDS3 labels (``.LBL``),
+ISIS cubes, IMG. Nodata values, NaN and GDAL's per-dataset masks all become the tile's valid
+mask. GDAL scale and offset are applied, except an offset equal to the radius of the CRS's
+reference sphere (PDS products such as LOLA's LDEM store ``radius = DN * scale + offset``):
+heights then stay relative to that sphere, and the offset is recorded in the metadata as
+``CRATERSCAPE_DATUM_RADIUS``.
+
+Writing is atomic: the file is written under a temporary name in the destination folder and
+renamed into place only when complete, so a crash or interrupt never leaves a half-written
+file, and an output path that names an input is refused before any work starts.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import tempfile
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+import numpy as np
+import rasterio
+from rasterio.crs import CRS
+from rasterio.errors import RasterioError, RasterioIOError
+
+from terrain import memory
+from terrain.errors import InvalidDEMError, MissingInputError, OutputPathError
+from terrain.tile import DEMTile
+
+__all__ = ["atomic_path", "check_output_path", "read_dem", "write_dem", "write_png"]
+
+log = logging.getLogger(__name__)
+
+#: GeoTIFF block size of written tiles (pixels).
+BLOCK_SIZE = 256
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__
+
+
+def read_dem(path, *, band: int = 1) -> DEMTile:
+    """Read one band of any GDAL-readable DEM into a :class:`DEMTile`.
+
+    Parameters
+    ----------
+    path : str or Path
+        File to read (GeoTIFF, PDS3 ``.LBL``, ...).
+    band : int
+        1-based band index.
+
+    Returns
+    -------
+    DEMTile
+        float32 heights in metres; nodata, NaN and masked pixels invalid.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise MissingInputError(f"input DEM '{path}' does not exist")
+    if path.is_dir():
+        raise InvalidDEMError(f"input DEM '{path}' is a folder, not a file")
+    try:
+        with rasterio.open(path) as src:
+            if not 1 <= band <= src.count:
+                raise InvalidDEMError(f"DEM '{path}' has {src.count} band(s); band {band} asked")
+            nrows, ncols = src.height, src.width
+            itemsize = np.dtype(src.dtypes[band - 1]).itemsize
+            memory.require(nrows * ncols * (itemsize + 4 + 4 + 2), f"reading DEM '{path}'")
+            raw = src.read(band, masked=True)
+            scale = src.scales[band - 1] if src.scales else 1.0
+            offset = src.offsets[band - 1] if src.offsets else 0.0
+            crs = src.crs
+            transform = src.transform
+            nodata = src.nodata
+            tags = src.tags()
+    except (RasterioIOError, RasterioError) as exc:
+        raise InvalidDEMError(f"cannot read DEM '{path}': {_first_line(exc)}") from exc
+
+    if crs is not None and crs.is_geographic:
+        raise InvalidDEMError(
+            f"DEM '{path}' is in geographic coordinates (degrees); reproject it to a projected "
+            "CRS in metres first (for example with gdalwarp -t_srs)")
+    if transform.b != 0 or transform.d != 0:
+        raise InvalidDEMError(f"DEM '{path}' is rotated; warp it to a north-up grid first")
+
+    data = np.ma.getdata(raw).astype(np.float64)
+    valid = ~np.ma.getmaskarray(raw) & np.isfinite(data)
+    metadata = {k: v for k, v in tags.items() if k.startswith("CRATERSCAPE_")}
+    metadata["CRATERSCAPE_SOURCE"] = str(path)
+    scale = 1.0 if scale is None else float(scale)
+    offset = 0.0 if offset is None else float(offset)
+    if offset != 0.0 and crs is not None and _is_reference_radius(crs, offset):
+        metadata["CRATERSCAPE_DATUM_RADIUS"] = repr(offset)
+        offset = 0.0
+    if scale != 1.0 or offset != 0.0:
+        data = data * scale + offset
+    if not valid.any():
+        raise InvalidDEMError(f"DEM '{path}' band {band} has no valid pixels (all nodata)")
+    # Keep the file's nodata value where it still means "unknown" in float32 metres.
+    out_nodata = float("nan")
+    if nodata is not None and np.isfinite(nodata) and scale == 1.0 and offset == 0.0:
+        if np.isfinite(np.float32(nodata)):
+            out_nodata = float(np.float32(nodata))
+    return DEMTile(data, valid, transform, crs.to_wkt() if crs else None, out_nodata, metadata)
+
+
+def _is_reference_radius(crs: CRS, offset: float) -> bool:
+    try:
+        ellipsoid = crs.to_dict(projjson=True)
+    except Exception:  # pragma: no cover - exotic CRS definitions
+        return False
+    return any(abs(candidate - offset) <= 1.0
+               for key in ("semi_major_axis", "radius")
+               for candidate in _find_numbers(ellipsoid, key))
+
+
+def _find_numbers(obj, key):
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            if k == key and isinstance(v, (int, float)):
+                yield float(v)
+            elif k == key and isinstance(v, dict) and "value" in v:
+                yield float(v["value"])
+            else:
+                yield from _find_numbers(v, key)
+    elif isinstance(obj, list):
+        for item in obj:
+            yield from _find_numbers(item, key)
+
+
+def check_output_path(path, inputs: Iterable = ()) -> Path:
+    """Validate an output path before any work: folder exists, not an input, not a folder."""
+    path = Path(path)
+    if path.is_dir():
+        raise OutputPathError(f"output '{path}' is a folder; give a file name")
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise OutputPathError(f"output folder '{parent}' does not exist")
+    target = path.resolve()
+    for item in inputs:
+        if item is None:
+            continue
+        item = Path(item)
+        same = target == item.resolve()
+        if not same and path.exists() and item.exists():
+            with contextlib.suppress(OSError):
+                same = os.path.samefile(path, item)
+        if same:
+            raise OutputPathError(f"output '{path}' is the same file as input '{item}'; "
+                                  "choose another output name")
+    return path
+
+
+@contextlib.contextmanager
+def atomic_path(path, inputs: Iterable = ()) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; rename it onto ``path`` if the block succeeds."""
+    path = check_output_path(path, inputs)
+    parent = path.parent if str(path.parent) else Path(".")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=parent)
+    os.close(fd)
+    tmp = Path(tmp)
+    try:
+        yield tmp
+        with open(tmp, "rb") as f:
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+
+
+def write_dem(tile: DEMTile, path, *, inputs: Iterable = ()) -> Path:
+    """Write a tile as a tiled, DEFLATE-compressed float32 GeoTIFF, atomically.
+
+    The tile's CRS, transform and nodata value are preserved; its metadata (seed,
+    parameters, provenance) goes into the GeoTIFF's GDAL metadata tags. ``inputs`` lists
+    files the output must not replace.
+    """
+    nrows, ncols = tile.shape
+    nodata = tile.nodata
+    data = tile.heights
+    if np.isfinite(nodata):
+        data = np.where(tile.valid, tile.heights, np.float32(nodata)).astype(np.float32)
+    profile = dict(
+        driver="GTiff", dtype="float32", count=1, width=ncols, height=nrows,
+        crs=CRS.from_wkt(tile.crs) if tile.crs else None, transform=tile.transform,
+        nodata=nodata, compress="deflate", predictor=3, zlevel=6, tiled=True,
+        blockxsize=BLOCK_SIZE, blockysize=BLOCK_SIZE, BIGTIFF="IF_SAFER",
+    )
+    with atomic_path(path, inputs) as tmp:
+        try:
+            with rasterio.open(tmp, "w", **profile) as dst:
+                dst.write(data, 1)
+                dst.update_tags(**dict(tile.metadata))
+                dst.set_band_description(1, "height (m)")
+        except (RasterioIOError, RasterioError) as exc:
+            raise OutputPathError(f"cannot write '{path}': {_first_line(exc)}") from exc
+    log.info("wrote %s (%d x %d)", path, ncols, nrows)
+    return Path(path)
+
+
+def write_png(image: np.ndarray, path, *, inputs: Iterable = ()) -> Path:
+    """Write an 8- or 16-bit grey or BGR image as PNG, atomically."""
+    import cv2  # local: OpenCV is heavy and only needed for images
+
+    image = np.asarray(image)
+    if image.dtype not in (np.uint8, np.uint16):
+        raise ValueError(f"PNG images must be uint8 or uint16; got {image.dtype}")
+    ok, buf = cv2.imencode(".png", image)
+    if not ok:  # pragma: no cover - OpenCV failure
+        raise OutputPathError(f"cannot encode PNG for '{path}'")
+    with atomic_path(path, inputs) as tmp:
+        tmp.write_bytes(buf.tobytes())
+    return Path(path)
