@@ -64,7 +64,7 @@ Examples
 >>> s = CraterShape.from_state(100.0)          # fresh 100 m crater
 >>> x = np.array([-1.0, 0.0, 1.0])
 >>> np.round(profile(x, s), 3)                  # floor, rim crest, ejecta edge
-array([-16.35 ,   3.341,   0.   ])
+array([-15.636,   3.518,   0.   ])
 """
 
 from __future__ import annotations

@@ -80,11 +80,13 @@ log = logging.getLogger(__name__)
 OBLITERATION_BLEND = 0.25
 #: Most rings of the plane-fit sampling pattern (ring k holds 8k points).
 PLANE_RINGS_MAX = 8
-#: Azimuths of the rim-terrain table (Tr - Pr along each radius).
+#: Most azimuths of the rim-terrain table (Tr - Pr along each radius); small craters use
+#: fewer, about one per two pixels of rim, never fewer than RIM_TERRAIN_MIN.
 RIM_TERRAIN_SAMPLES = 64
+RIM_TERRAIN_MIN = 8
 #: Bilinear samples averaged into each rim-terrain table entry (spread over one entry's arc).
-RIM_TERRAIN_TAPS = 5
-#: Circular binomial passes over the rim-terrain table (a low-pass of about 1/20 turn).
+RIM_TERRAIN_TAPS = 3
+#: Circular binomial passes over the rim-terrain table (a low-pass of about 1/12 turn at 64).
 RIM_TERRAIN_SMOOTHING = 4
 
 
@@ -230,15 +232,21 @@ def _rim_terrain(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, radius, d, p0, 
     with cubic interpolation. Unknown terrain counts as on the plane.
     """
     n = out.size
+    taps = RIM_TERRAIN_TAPS
+    step = 2.0 * math.pi / (n * taps)
+    # Unit vectors of the n * taps equally spaced tap azimuths, by rotation.
+    cs, sn = math.cos(step), math.sin(step)
+    th0 = -math.pi - step * (taps - 1) / 2.0
+    c, s = math.cos(th0), math.sin(th0)
     for m in range(n):
         acc = 0.0
         cnt = 0
-        for q in range(RIM_TERRAIN_TAPS):
-            th = 2.0 * math.pi * (m + (q - (RIM_TERRAIN_TAPS - 1) / 2.0) / RIM_TERRAIN_TAPS) / n
-            th -= math.pi
+        for q in range(taps):
+            th = th0 + (m * taps + q) * step
             rt = radius + periodic_sample(rim, th) * d if irregular else radius
-            ox = rt * math.cos(th)
-            oy = rt * math.sin(th)
+            ox = rt * c
+            oy = rt * s
+            c, s = c * cs - s * sn, s * cs + c * sn
             z = _bilinear(T, tr0, tc0, nrows, ncols, x0, y0, res, cx + ox, cy + oy)
             if not math.isnan(z):
                 acc += z - (p0 + px * ox + py * oy)
@@ -267,7 +275,7 @@ def _apply_class(T, tr0, tc0, out, or0, oc0, nrows, ncols, x0, y0, res,
     a copy of T over the class's region (origin or0, oc0) and is updated in place.
     """
     table = np.zeros(RIM_SAMPLES)
-    rim_terrain = np.zeros(RIM_TERRAIN_SAMPLES)
+    rim_terrain_buffer = np.zeros(RIM_TERRAIN_SAMPLES)
     params = np.zeros(7)
     oy1 = or0 + out.shape[0] - 1
     ox1 = oc0 + out.shape[1] - 1
@@ -286,6 +294,10 @@ def _apply_class(T, tr0, tc0, out, or0, oc0, nrows, ncols, x0, y0, res,
         irregular = irr_amp > 0.0
         if irregular:
             rim_table(seed, uid[n], irr_amp, irr_hurst, table)
+        n_az = RIM_TERRAIN_MIN
+        while n_az < RIM_TERRAIN_SAMPLES and n_az * 2.0 * res < math.pi * d:
+            n_az *= 2
+        rim_terrain = rim_terrain_buffer[:n_az]
         _rim_terrain(T, tr0, tc0, nrows, ncols, x0, y0, res, xc, yc, radius, d, p0, px, py,
                      irregular, table, rim_terrain)
         reach = d * footprint_factor
@@ -318,8 +330,12 @@ def _apply_class(T, tr0, tc0, out, or0, oc0, nrows, ncols, x0, y0, res,
                 r = math.sqrt(dx * dx + dy * dy)
                 if r > reach:
                     continue
-                theta = math.atan2(dy, dx)
-                rt = radius + periodic_sample(table, theta) * d if irregular else radius
+                theta = 0.0
+                if irregular:
+                    theta = math.atan2(dy, dx)
+                    rt = radius + periodic_sample(table, theta) * d
+                else:
+                    rt = radius
                 x = r / rt - 1.0
                 if x > 1.0:
                     continue
@@ -329,7 +345,10 @@ def _apply_class(T, tr0, tc0, out, or0, oc0, nrows, ncols, x0, y0, res,
                 cur = out[i - or0, j - oc0]
                 ov = patch_value(patch, spacing, half_extent, dx, dy) if rough else 0.0
                 if x <= 0.0:
-                    h = interior_height(x, curvature, floor, hr + periodic_sample(rim_terrain, theta))
+                    if not irregular:
+                        theta = math.atan2(dy, dx)
+                    h = interior_height(x, curvature, floor,
+                                        hr + periodic_sample(rim_terrain, theta))
                     z_in = p0 + px * dx + py * dy + h + ov
                     out[i - or0, j - oc0] = z_in + (cur - t) * (1.0 - _obliteration(x))
                 else:

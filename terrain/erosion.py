@@ -84,8 +84,8 @@ class ErosionModel:
     Examples
     --------
     >>> m = ErosionModel.default()
-    >>> m.factors(0.0, 100.0)
-    (array(1.), array(1.))
+    >>> [float(f) for f in m.factors(0.0, 100.0)]
+    [1.0, 1.0]
     >>> d, r = m.factors(0.1, 100.0)   # a 100 m crater 100 Myr old
     >>> bool(r < d < 1.0)
     True

@@ -46,5 +46,5 @@ def hillshade(tile: DEMTile, *, azimuth: float = 315.0, altitude: float = 45.0,
     sx, sy, sz = math.sin(az) * math.cos(alt), math.cos(az) * math.cos(alt), math.sin(alt)
     with np.errstate(invalid="ignore"):
         shade = (-dzdx * sx - dzdy * sy + sz) / np.sqrt(1 + dzdx**2 + dzdy**2)
-    out = np.where(np.isfinite(shade), 1 + 254 * np.clip(shade, 0, 1), 0)
+    out = np.where(np.isfinite(shade) & tile.valid, 1 + 254 * np.clip(shade, 0, 1), 0)
     return np.rint(out).astype(np.uint8)

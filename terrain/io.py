@@ -18,13 +18,14 @@ import contextlib
 import logging
 import os
 import tempfile
+import warnings
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
 import rasterio
 from rasterio.crs import CRS
-from rasterio.errors import RasterioError, RasterioIOError
+from rasterio.errors import NotGeoreferencedWarning, RasterioError, RasterioIOError
 
 from terrain import memory
 from terrain.errors import InvalidDEMError, MissingInputError, OutputPathError
@@ -64,7 +65,10 @@ def read_dem(path, *, band: int = 1) -> DEMTile:
     if path.is_dir():
         raise InvalidDEMError(f"input DEM '{path}' is a folder, not a file")
     try:
-        with rasterio.open(path) as src:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            src = rasterio.open(path)
+        with src:
             if not 1 <= band <= src.count:
                 raise InvalidDEMError(f"DEM '{path}' has {src.count} band(s); band {band} asked")
             nrows, ncols = src.height, src.width
@@ -77,9 +81,15 @@ def read_dem(path, *, band: int = 1) -> DEMTile:
             transform = src.transform
             nodata = src.nodata
             tags = src.tags()
+            georeferenced = not (src.transform.is_identity and src.crs is None
+                                 and not src.gcps[0])
     except (RasterioIOError, RasterioError) as exc:
         raise InvalidDEMError(f"cannot read DEM '{path}': {_first_line(exc)}") from exc
 
+    if not georeferenced:
+        raise InvalidDEMError(
+            f"DEM '{path}' has no georeferencing, so its pixel size is unknown; assign one "
+            "first (for example gdal_translate -a_ullr ULX ULY LRX LRY)")
     if crs is not None and crs.is_geographic:
         raise InvalidDEMError(
             f"DEM '{path}' is in geographic coordinates (degrees); reproject it to a projected "

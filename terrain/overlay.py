@@ -8,12 +8,13 @@ roughness and vertical height range": floor (x < alpha), wall (alpha < x < 0) an
 (x > 0). We build it as the paper built its terrain, by diamond-square RMD
 (:mod:`terrain.rmd`), on a square patch centred on the crater and covering its footprint, with
 the displacement scale of every new point set by the region the point lies in: half-step j
-displaces by ``amplitude * D * S_f(F)^(j + 1)`` (eq. 14), amplitude and F blended linearly
-between regions over :attr:`Roughness.blend` in x. The overlay's amplitude fades linearly to
-zero from the rim to the ejecta edge (applied in :mod:`terrain.cratering`), and it scales
-with the crater's depth fraction, so degraded craters are smoother. The patch spacing is
-about one pixel, never finer than the footprint / 2^:data:`MAX_PATCH_LEVEL`; every Gaussian is
-keyed by ``(seed, "crater-overlay", half-step, patch column, patch row, crater uid)``.
+displaces by ``amplitude * S_f(F)^(j + 1)`` (eq. 14) with the region's amplitude (metres,
+:func:`crater_params`) and fractal dimension F; across region boundaries the displacement
+scales are blended linearly over :attr:`Roughness.blend` in x. The overlay's amplitude fades
+linearly to zero from the rim to the ejecta edge (applied in :mod:`terrain.cratering`). The
+patch spacing is about one pixel, never finer than the footprint / 2^:data:`MAX_PATCH_LEVEL`;
+every Gaussian is keyed by
+``(seed, "crater-overlay", half-step, patch column, patch row, crater uid)``.
 
 Irregular rim
 -------------
@@ -177,20 +178,21 @@ def rim_table(seed, uid, amplitude, hurst, out):
 
 @numba.njit(cache=True)
 def periodic_sample(table, theta):
-    """Value of a periodic azimuth table at ``theta`` (radians).
+    """Value of a periodic azimuth table at ``theta`` (radians); the size is a power of two.
 
     Entry i belongs to theta_i = 2 pi i / n - pi. Catmull-Rom cubic interpolation keeps the
     value and its azimuthal slope continuous, so table nodes never show as radial spokes in a
     shaded crater.
     """
     n = table.size
-    t = (theta + math.pi) / (2.0 * math.pi) * n
+    mask = n - 1
+    t = (theta + math.pi) * (n / (2.0 * math.pi))
     i1 = int(math.floor(t))
     f = t - i1
-    p0 = table[(i1 - 1) % n]
-    p1 = table[i1 % n]
-    p2 = table[(i1 + 1) % n]
-    p3 = table[(i1 + 2) % n]
+    p0 = table[(i1 - 1) & mask]
+    p1 = table[i1 & mask]
+    p2 = table[(i1 + 1) & mask]
+    p3 = table[(i1 + 2) & mask]
     return p1 + 0.5 * f * (p2 - p0 + f * (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3
                                           + f * (3.0 * (p1 - p2) + p3 - p0)))
 
@@ -245,19 +247,19 @@ def _region_weights(x, alpha, blend):
 
 
 @numba.njit(cache=True)
-def _patch_sigma(i, j, centre, spacing, radius, alpha, params, step_index):
-    """Displacement scale (m) at patch point (i, j) and half-step ``step_index``.
-
-    amplitude * S_f^(j + 1) with log S_f = -(3 - F) ln(2) / 2 (eq. 14): blending F linearly
-    between regions blends log S_f linearly, so one exp serves.
-    """
+def _patch_sigma(i, j, centre, spacing, radius, alpha, blend, s_floor, s_wall, s_ejecta):
+    """Displacement scale (m) at patch point (i, j), given the three regions' scales."""
     dx = (j - centre) * spacing
     dy = (i - centre) * spacing
     x = math.sqrt(dx * dx + dy * dy) / radius - 1.0
-    wf, ww, we = _region_weights(x, alpha, params[6])
-    amp = wf * params[0] + ww * params[1] + we * params[2]
-    dim = wf * params[3] + ww * params[4] + we * params[5]
-    return amp * math.exp(-(step_index + 1) * (3.0 - dim) * _HALF_LN2)
+    wf, ww, we = _region_weights(x, alpha, blend)
+    return wf * s_floor + ww * s_wall + we * s_ejecta
+
+
+@numba.njit(cache=True)
+def _step_scale(amplitude, dimension, step_index):
+    """amplitude * S_f^(step_index + 1) with S_f = 2^(-(3 - F) / 2) (eq. 14)."""
+    return amplitude * math.exp(-(step_index + 1) * (3.0 - dimension) * _HALF_LN2)
 
 
 @numba.njit(cache=True)
@@ -270,6 +272,7 @@ def overlay_patch(seed, uid, level, spacing, diameter, alpha, params, out):
     n = 2**level
     centre = n // 2
     radius = 0.5 * diameter
+    blend = params[6]
     out[:, :] = 0.0
     step = n
     k = 0
@@ -277,11 +280,18 @@ def overlay_patch(seed, uid, level, spacing, diameter, alpha, params, out):
         h = step // 2
         key_sq = key_prefix(seed, STREAM_OVERLAY, 2 * k, uid)
         key_di = key_prefix(seed, STREAM_OVERLAY, 2 * k + 1, uid)
+        # Each region's displacement at half-steps 2k and 2k + 1: amplitude * S_f^(j + 1).
+        sq_f = _step_scale(params[0], params[3], 2 * k)
+        sq_w = _step_scale(params[1], params[4], 2 * k)
+        sq_e = _step_scale(params[2], params[5], 2 * k)
+        di_f = _step_scale(params[0], params[3], 2 * k + 1)
+        di_w = _step_scale(params[1], params[4], 2 * k + 1)
+        di_e = _step_scale(params[2], params[5], 2 * k + 1)
         for i in range(h, n, step):  # square phase
             for j in range(h, n, step):
                 avg = 0.25 * (out[i - h, j - h] + out[i - h, j + h] + out[i + h, j - h]
                               + out[i + h, j + h])
-                sig = _patch_sigma(i, j, centre, spacing, radius, alpha, params, 2 * k)
+                sig = _patch_sigma(i, j, centre, spacing, radius, alpha, blend, sq_f, sq_w, sq_e)
                 out[i, j] = avg + sig * normal_at(key_sq, j, i)
         for i in range(0, n + 1, h):  # diamond phase
             start = h if (i // h) % 2 == 0 else 0
@@ -300,7 +310,7 @@ def overlay_patch(seed, uid, level, spacing, diameter, alpha, params, out):
                 if i + h <= n:
                     total += out[i + h, j]
                     count += 1
-                sig = _patch_sigma(i, j, centre, spacing, radius, alpha, params, 2 * k + 1)
+                sig = _patch_sigma(i, j, centre, spacing, radius, alpha, blend, di_f, di_w, di_e)
                 out[i, j] = total / count + sig * normal_at(key_di, j, i)
         step = h
         k += 1

@@ -71,8 +71,8 @@ class Population:
     Examples
     --------
     >>> p = Population(dmin=10, dmax=80, density=100.0)
-    >>> [tuple(b) for b in p.bins()]
-    [(10.0, 20.0), (20.0, 40.0), (40.0, 80.0)]
+    >>> p.bins().tolist()
+    [[10.0, 20.0], [20.0, 40.0], [40.0, 80.0]]
     >>> round(p.expected_count(1.0), 6)    # per km^2, D in [10, 80)
     98.4375
     """

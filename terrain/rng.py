@@ -12,7 +12,8 @@ Gaskell 2005, section 2, eq. 7) extended with streams and levels.
 The hash absorbs the six 64-bit words one at a time through the SplitMix64 finaliser
 (Steele, Lea and Flood 2014), a bijective avalanche mixer; uniforms take the top 53 bits and
 Gaussians come from the inverse normal CDF of one uniform (Wichura 1988, algorithm AS241,
-about 1e-16 relative accuracy), so one key gives one Gaussian.
+tabulated in the body of the distribution, see :func:`gaussian`), so one key gives one
+Gaussian.
 
 Examples
 --------
@@ -33,6 +34,7 @@ import numpy as np
 __all__ = [
     "MAX_SEED",
     "check_seed",
+    "gaussian",
     "hash64",
     "hash_at",
     "key_prefix",
@@ -179,16 +181,47 @@ def _ppnd16(p):
     return -val if q < 0.0 else val
 
 
+#: Inverse normal CDF table: _TABLE[i] = PPND16((i + 0.5) / _TABLE_SIZE).
+_TABLE_SIZE = 1 << 14
+#: Below this probability (and above 1 - it) the table is bypassed for the exact AS241 tails.
+_TABLE_TAIL = 1.0 / 1024.0
+
+
+def _build_table():
+    return np.array([_ppnd16((i + 0.5) / _TABLE_SIZE) for i in range(_TABLE_SIZE)])
+
+
+_TABLE = _build_table()
+
+
+@numba.njit(cache=True)
+def gaussian(u):
+    """Standard normal deviate for a uniform u in (0, 1).
+
+    Inverse-CDF sampling: linear interpolation in a 2^14-entry table of AS241 values for
+    1/1024 < u < 1 - 1/1024 (quantile error below 2e-4, about 5x faster than evaluating the
+    rational approximation, whose long dependency chain dominates fractal synthesis), exact
+    AS241 in the tails.
+    """
+    if u < _TABLE_TAIL or u > 1.0 - _TABLE_TAIL:
+        return _ppnd16(u)
+    t = u * _TABLE_SIZE - 0.5
+    i = int(t)
+    f = t - i
+    a = _TABLE[i]
+    return a + f * (_TABLE[i + 1] - a)
+
+
 @numba.njit(cache=True)
 def normal_scalar(seed, stream, level, ix, iy, k):
     """Standard normal deviate of the key."""
-    return _ppnd16(uniform_scalar(seed, stream, level, ix, iy, k))
+    return gaussian(uniform_scalar(seed, stream, level, ix, iy, k))
 
 
 @numba.njit(cache=True)
 def normal_at(prefix, ix, iy):
     """Standard normal deviate of a key prefix at a position (equals normal_scalar)."""
-    return _ppnd16(uniform_at(prefix, ix, iy))
+    return gaussian(uniform_at(prefix, ix, iy))
 
 
 @numba.njit(cache=True)

@@ -80,7 +80,7 @@ def synthesize_tile(size: int, *, resolution: float = 1.0, fractal_dimension: fl
         model = model or CraterModel()
         z, catalog = crater_heights(base, (size, size), transform, craters, seed=seed,
                                     model=model, window=window, progress=progress)
-    sub_transform = transform * Affine.translation(window.col, window.row)
+    sub_transform = transform @ Affine.translation(window.col, window.row)
     tile = DEMTile.from_array(z.astype(np.float32), transform=sub_transform)
     meta = {"CRATERSCAPE_SEED": str(seed), "CRATERSCAPE_RMD": json.dumps(params, sort_keys=True)}
     if window.width != size or window.height != size:

@@ -8,7 +8,7 @@ read the mask, and the file writer turns NaN back into the nodata value.
 Georeferencing follows GDAL: ``transform`` maps (col, row) pixel corners to map (x, y); only
 north-up transforms (no rotation) are accepted, so the pixel spacing is ``(transform.a,
 -transform.e)`` metres. Pixel (row, col) has its centre at
-``transform * (col + 0.5, row + 0.5)``.
+``transform @ (col + 0.5, row + 0.5)``.
 """
 
 from __future__ import annotations
@@ -134,7 +134,8 @@ class DEMTile:
             raise InvalidDEMError(f"DEM transform must be an affine.Affine; got {self.transform!r}")
         t = self.transform
         if t.b != 0 or t.d != 0:
-            raise InvalidDEMError(f"DEM transform must be north-up (no rotation); got {tuple(t)[:6]}")
+            raise InvalidDEMError(
+                f"DEM transform must be north-up (no rotation); got {tuple(t)[:6]}")
         if not (t.a > 0 and t.e < 0 and math.isfinite(t.a) and math.isfinite(t.e)):
             raise InvalidDEMError(
                 "DEM transform must have positive x spacing and negative y spacing; got "
@@ -152,10 +153,15 @@ class DEMTile:
     @classmethod
     def from_array(cls, heights, *, resolution: float = 1.0, valid=None, transform=None,
                    crs=None, nodata=float("nan"), metadata=None) -> DEMTile:
-        """Tile from an array; NaN heights become invalid. Default: a local frame at ``resolution``."""
+        """Tile from an array; NaN heights become invalid.
+
+        Without a transform the tile gets a local frame at ``resolution`` metres per pixel.
+        """
         h = np.asarray(heights)
         if h.ndim != 2:
             raise InvalidDEMError(f"DEM heights must be a 2-D array; got shape {h.shape}")
+        if not np.issubdtype(h.dtype, np.number) or np.iscomplexobj(h):
+            raise InvalidDEMError(f"DEM heights must be real numbers; got dtype {h.dtype}")
         if transform is None:
             resolution = float(resolution)
             if not (resolution > 0 and math.isfinite(resolution)):
@@ -193,8 +199,8 @@ class DEMTile:
     def bounds(self) -> tuple[float, float, float, float]:
         """(left, bottom, right, top) in map units."""
         ny, nx = self.shape
-        left, top = self.transform * (0, 0)
-        right, bottom = self.transform * (nx, ny)
+        left, top = self.transform @ (0, 0)
+        right, bottom = self.transform @ (nx, ny)
         return (left, bottom, right, top)
 
     def xy(self, rows, cols) -> tuple[np.ndarray, np.ndarray]:
@@ -214,7 +220,7 @@ class DEMTile:
         """The sub-tile covered by ``window`` (georeferencing shifted accordingly)."""
         window.check_inside(*self.shape)
         rs, cs = window.slices
-        transform = self.transform * Affine.translation(window.col, window.row)
+        transform = self.transform @ Affine.translation(window.col, window.row)
         return DEMTile(self.heights[rs, cs], self.valid[rs, cs], transform, self.crs,
                        self.nodata, self.metadata)
 

@@ -1,0 +1,200 @@
+"""The `craterscape terrain` commands, as a user runs them (click's CliRunner)."""
+
+import csv
+
+import numpy as np
+import pytest
+import rasterio
+from click.testing import CliRunner
+
+from terrain.cli import main
+from terrain.io import read_dem, write_dem
+from terrain.tile import DEMTile
+
+
+def run(*args, env=None):
+    return CliRunner().invoke(main, [str(a) for a in args], env=env)
+
+
+def one_line_error(result, *fragments):
+    assert result.exit_code == 2, result.output
+    lines = [ln for ln in result.output.splitlines() if ln.strip()]
+    assert len(lines) == 1, result.output
+    assert lines[0].startswith("craterscape: error:") or lines[0].startswith("Error:")
+    for fragment in fragments:
+        assert fragment in lines[0], lines[0]
+    assert "Traceback" not in result.output
+
+
+@pytest.fixture
+def dem(tmp_path):
+    path = tmp_path / "in.tif"
+    r = run("terrain", "synth", "-o", path, "--size", 129, "--resolution", 2.0, "--relief", 5,
+            "--seed", 1)
+    assert r.exit_code == 0, r.output
+    return path
+
+
+def test_synth_with_craters_writes_tile_catalogue_and_provenance(tmp_path):
+    out, cat = tmp_path / "t.tif", tmp_path / "c.csv"
+    r = run("terrain", "synth", "-o", out, "--size", 257, "--resolution", 1.0,
+            "--fractal-dimension", 2.2, "--relief", 8, "--seed", 7, "--dmin", 3, "--dmax", 60,
+            "--density", 3000, "--sfd-exponent", -2, "--catalog", cat)
+    assert r.exit_code == 0, r.output
+    tile = read_dem(out)
+    assert tile.shape == (257, 257) and tile.valid.all()
+    assert tile.metadata["CRATERSCAPE_SEED"] == "7"
+    assert '"density": 3000.0' in tile.metadata["CRATERSCAPE_PARAMETERS"]
+    rows = list(csv.DictReader(cat.open()))
+    assert len(rows) > 50
+    assert {"id", "x_m", "y_m", "diameter_m", "age_gyr", "depth_m", "rim_height_m",
+            "depth_fraction", "rim_fraction"} <= set(rows[0])
+    # same command, same bytes
+    out2 = tmp_path / "t2.tif"
+    run("terrain", "synth", "-o", out2, "--size", 257, "--resolution", 1.0, "--relief", 8,
+        "--seed", 7, "--dmin", 3, "--dmax", 60, "--density", 3000, "--sfd-exponent", -2)
+    assert out2.read_bytes() == out.read_bytes()
+
+
+def test_synth_window_equals_the_window_of_the_full_run(tmp_path):
+    args = ["--size", 129, "--relief", 5, "--seed", 3, "--density", 5000, "--dmin", 3,
+            "--dmax", 40]
+    assert run("terrain", "synth", "-o", tmp_path / "full.tif", *args).exit_code == 0
+    r = run("terrain", "synth", "-o", tmp_path / "win.tif", *args, "--window", "10,20,50,30")
+    assert r.exit_code == 0, r.output
+    full, win = read_dem(tmp_path / "full.tif"), read_dem(tmp_path / "win.tif")
+    assert np.array_equal(win.heights, full.heights[20:50, 10:60])
+    assert win.transform == full.window(__import__("terrain.tile").tile.Window(10, 20, 50, 30)
+                                        ).transform
+
+
+def test_craters_command_and_window(dem, tmp_path):
+    args = ["--dmin", 6, "--dmax", 60, "--density", 800, "--seed", 4]
+    r = run("terrain", "craters", dem, "-o", tmp_path / "c.tif", *args, "--catalog",
+            tmp_path / "c.csv")
+    assert r.exit_code == 0, r.output
+    full = read_dem(tmp_path / "c.tif")
+    assert not np.array_equal(full.heights, read_dem(dem).heights)
+    r = run("terrain", "craters", dem, "-o", tmp_path / "w.tif", *args, "--window", "5,6,40,50")
+    assert r.exit_code == 0, r.output
+    assert np.array_equal(read_dem(tmp_path / "w.tif").heights, full.heights[6:56, 5:45])
+
+
+def test_population_file_and_flags(dem, tmp_path):
+    pop = tmp_path / "pop.toml"
+    pop.write_text("[population]\ndmin = 6.0\ndmax = 50.0\ndensity = 100.0\nmax_age = 0.5\n")
+    r = run("terrain", "craters", dem, "-o", tmp_path / "c.tif", "--population", pop,
+            "--density", 900, "--catalog", tmp_path / "c.csv")
+    assert r.exit_code == 0, r.output
+    ages = [float(row["age_gyr"]) for row in csv.DictReader((tmp_path / "c.csv").open())]
+    assert ages and max(ages) <= 0.5
+
+
+def test_add_crater_fresh_and_without_roughness(dem, tmp_path):
+    base = read_dem(dem)
+    x, y = base.xy(64, 64)
+    out = tmp_path / "one.tif"
+    r = run("terrain", "add-crater", dem, "-o", out, "--at", f"{x},{y}", "--diameter", 80,
+            "--no-roughness", "--catalog", tmp_path / "one.csv")
+    assert r.exit_code == 0, r.output
+    change = read_dem(out).heights - base.heights
+    depth = 0.196 * (80 / 1000) ** 1.01 * 1000
+    assert change.min() < -0.5 * depth
+    row = next(csv.DictReader((tmp_path / "one.csv").open()))
+    assert float(row["age_gyr"]) == 0.0 and float(row["depth_m"]) == pytest.approx(depth)
+    # far from the crater nothing changed
+    assert np.array_equal(change[:10, :10], np.zeros((10, 10), np.float32))
+
+
+def test_hillshade_and_info(dem, tmp_path):
+    r = run("terrain", "hillshade", dem, "-o", tmp_path / "h.png")
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "h.png").read_bytes()[:4] == b"\x89PNG"
+    r = run("terrain", "info", dem)
+    assert r.exit_code == 0 and '"width": 129' in r.output
+
+
+# ---------------------------------------------------------------- bad input: exit 2, one line
+
+
+def test_missing_and_corrupt_inputs(tmp_path):
+    one_line_error(run("terrain", "craters", tmp_path / "nope.tif", "-o", tmp_path / "o.tif",
+                       "--density", 10), "does not exist")
+    bad = tmp_path / "bad.tif"
+    bad.write_bytes(b"not a tiff at all")
+    one_line_error(run("terrain", "craters", bad, "-o", tmp_path / "o.tif", "--density", 10),
+                   "cannot read DEM")
+    assert not (tmp_path / "o.tif").exists()
+
+
+def test_all_nodata_dem(tmp_path):
+    path = tmp_path / "empty.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=4, height=4, count=1, dtype="float32",
+                       nodata=-5.0, transform=rasterio.Affine(1, 0, 0, 0, -1, 4)) as f:
+        f.write(np.full((4, 4), -5.0, np.float32), 1)
+    one_line_error(run("terrain", "add-crater", path, "-o", tmp_path / "o.tif", "--at", "1,1",
+                       "--diameter", 2), "no valid pixels")
+
+
+def test_dem_without_georeferencing(tmp_path):
+    import warnings
+
+    path = tmp_path / "plain.tif"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with rasterio.open(path, "w", driver="GTiff", width=4, height=4, count=1,
+                           dtype="float32") as f:
+            f.write(np.zeros((4, 4), np.float32), 1)
+    one_line_error(run("terrain", "info", path), "no georeferencing")
+
+
+def test_inconsistent_and_non_positive_parameters(dem, tmp_path):
+    o = tmp_path / "o.tif"
+    one_line_error(run("terrain", "craters", dem, "-o", o, "--dmin", 50, "--dmax", 10,
+                       "--density", 5), "dmin", "dmax")
+    one_line_error(run("terrain", "synth", "-o", o, "--size", 0), "size")
+    one_line_error(run("terrain", "synth", "-o", o, "--size", 100), "2^n + 1")
+    one_line_error(run("terrain", "synth", "-o", o, "--resolution", -1), "resolution")
+    one_line_error(run("terrain", "add-crater", dem, "-o", o, "--at", "10,10", "--diameter",
+                       -5), "diameter")
+    one_line_error(run("terrain", "craters", dem, "-o", o, "--density", -3), "density")
+    one_line_error(run("terrain", "craters", dem, "-o", o), "--density")
+    one_line_error(run("terrain", "synth", "-o", o, "--size", 65, "--window", "60,0,10,10"),
+                   "does not fit")
+    one_line_error(run("terrain", "add-crater", dem, "-o", o, "--at", "1e7,0", "--diameter",
+                       5), "does not touch")
+    assert not o.exists()
+
+
+def test_output_equal_to_input_is_refused_and_input_untouched(dem, tmp_path):
+    before = dem.read_bytes()
+    one_line_error(run("terrain", "craters", dem, "-o", dem, "--density", 10), "same file")
+    one_line_error(run("terrain", "craters", dem, "-o", tmp_path / "x.tif", "--density", 10,
+                       "--catalog", dem), "same file")
+    assert dem.read_bytes() == before
+
+
+def test_request_too_large_for_memory(tmp_path):
+    r = run("terrain", "synth", "-o", tmp_path / "big.tif", "--size", 65537,
+            env={"CRATERSCAPE_MEMORY_LIMIT": "1G"})
+    one_line_error(r, "memory")
+    assert not (tmp_path / "big.tif").exists()
+
+
+def test_verbose_shows_the_traceback(tmp_path):
+    r = run("-v", "terrain", "craters", tmp_path / "nope.tif", "-o", tmp_path / "o.tif",
+            "--density", 1)
+    assert r.exit_code == 2
+    assert "Traceback" in r.output
+
+
+def test_nodata_preserved_through_craters(tmp_path):
+    h = np.full((64, 64), 3.0)
+    h[10:20, 10:20] = np.nan
+    src = write_dem(DEMTile.from_array(h, resolution=1.0, nodata=-9999.0), tmp_path / "g.tif")
+    r = run("terrain", "craters", src, "-o", tmp_path / "o.tif", "--density", 2000, "--dmin",
+            3, "--dmax", 20)
+    assert r.exit_code == 0, r.output
+    out = read_dem(tmp_path / "o.tif")
+    assert out.nodata == -9999.0
+    assert np.array_equal(out.valid, read_dem(src).valid)

@@ -1,0 +1,246 @@
+"""The crater profile satisfies the constraints Martin et al. (2014, III.A) state in the text."""
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from terrain.catalog import Crater, CraterTable
+from terrain.crater import (
+    BETA_MAX,
+    CraterShape,
+    ejecta_amplitude,
+    exterior_height,
+    fresh_depth,
+    fresh_rim_height,
+    interior_alpha,
+    profile,
+)
+from terrain.cratering import CraterModel, add_craters
+from terrain.erosion import ErosionModel
+from terrain.tile import DEMTile
+
+EPS = 1e-6
+
+DEGRADED = [(0.9, 0.75), (0.8, 0.55), (0.65, 0.3), (0.45, 0.1), (0.3, 0.03)]
+
+
+def slope(shape, x, side, offset=0.0, h=1e-7):
+    """One-sided derivative of the profile at x from the left (-1) or right (+1)."""
+    if side < 0:
+        return (profile(np.array([x]), shape, offset)[0]
+                - profile(np.array([x - h]), shape, offset)[0]) / h
+    return (profile(np.array([x + h]), shape, offset)[0]
+            - profile(np.array([x]), shape, offset)[0]) / h
+
+
+def curvature(shape, x, side, h=1e-4):
+    xs = x + side * np.array([h, 2 * h, 3 * h])
+    v = profile(np.r_[x, xs], shape)
+    # second derivative from one side (forward/backward difference, second order)
+    return (2 * v[0] - 5 * v[1] + 4 * v[2] - v[3]) / h**2
+
+
+# ---------------------------------------------------------------- eqs. 1-2
+
+
+@pytest.mark.parametrize("d_m", [1.0, 37.0, 1000.0, 12000.0])
+def test_fresh_depth_and_rim_height_follow_melosh_in_kilometres(d_m):
+    d_km = d_m / 1000.0
+    assert fresh_depth(d_m) == pytest.approx(0.196 * d_km**1.01 * 1000.0, rel=1e-12)
+    assert fresh_rim_height(d_m) == pytest.approx(0.036 * d_km**1.01 * 1000.0, rel=1e-12)
+    # depth/diameter ~ 0.2 and rim/depth = 0.036 / 0.196 at every size
+    assert fresh_depth(d_m) / d_m == pytest.approx(0.196, rel=0.08)
+    assert fresh_rim_height(d_m) / fresh_depth(d_m) == pytest.approx(0.036 / 0.196)
+
+
+def test_ejecta_follows_mcgetchin():
+    assert ejecta_amplitude(200.0) == pytest.approx(0.14 * 100.0**0.74)
+
+
+# ---------------------------------------------------------------- fresh crater
+
+
+@pytest.mark.parametrize("d", [4.0, 100.0, 3000.0])
+def test_fresh_crater_values_and_sharp_crest(d):
+    s = CraterShape.from_state(d)
+    assert s.alpha == 0.0 and s.beta == 0.0
+    v = profile(np.array([-1.0, 0.0, 1.0]), s)
+    assert v[0] == pytest.approx(s.rim_height - s.depth)  # floor: depth H below the crest
+    assert v[1] == pytest.approx(s.rim_height)  # crest: rim height above the terrain
+    assert v[2] == pytest.approx(0.0, abs=1e-9)  # ejecta edge: no change
+    assert s.depth == pytest.approx(fresh_depth(d))
+    assert s.rim_height == pytest.approx(fresh_rim_height(d))
+    # continuous value at the crest, with a kink: the bowl rises, the ejecta falls
+    assert profile(np.array([-EPS]), s)[0] == pytest.approx(s.rim_height, abs=1e-4 * d)
+    assert profile(np.array([EPS]), s)[0] == pytest.approx(s.rim_height, abs=1e-4 * d)
+    assert slope(s, 0.0, -1) > 0.1 * s.depth
+    assert slope(s, 0.0, +1) < 0.0
+
+
+# ---------------------------------------------------------------- degraded crater
+
+
+@pytest.mark.parametrize("q", DEGRADED)
+@pytest.mark.parametrize("d", [10.0, 250.0, 8000.0])
+def test_degraded_crater_constraints(d, q):
+    s = CraterShape.from_state(d, *q)
+    scale = s.depth
+    v = profile(np.array([-1.0, 0.0, 1.0]), s)
+    assert v[0] == pytest.approx(s.rim_height - s.depth, abs=1e-9 * scale)
+    assert v[1] == pytest.approx(s.rim_height, abs=1e-9 * scale)
+    assert v[2] == pytest.approx(0.0, abs=1e-9 * scale)
+    # alpha inside, beta outside (the printed eq. 8 would make beta negative)
+    assert -1.0 < s.alpha < 0.0
+    assert 0.0 < s.beta <= BETA_MAX
+    # zero rim gradient from both sides
+    assert abs(slope(s, 0.0, -1)) < 1e-4 * scale
+    assert abs(slope(s, 0.0, +1)) < 1e-4 * scale
+    # value and slope continuous at alpha and beta
+    for x in (s.alpha, s.beta):
+        left = profile(np.array([x - EPS]), s)[0]
+        right = profile(np.array([x + EPS]), s)[0]
+        assert left == pytest.approx(right, abs=1e-4 * scale)
+        assert slope(s, x, -1) == pytest.approx(slope(s, x, +1), abs=1e-3 * scale)
+    # curvature continuous at beta (cubic rim meets ejecta + correction)
+    assert curvature(s, s.beta, -1) == pytest.approx(curvature(s, s.beta, +1), rel=1e-3,
+                                                    abs=1e-3 * scale)
+    # the crest is the highest point and the profile falls to the ejecta edge
+    x = np.linspace(0.0, 1.0, 2001)
+    ext = profile(x, s)
+    assert ext.max() == pytest.approx(s.rim_height)
+    assert np.all(np.diff(ext) <= 1e-12 * scale)
+    # the bowl falls monotonically from the crest to the floor
+    x = np.linspace(-1.0, 0.0, 2001)
+    assert np.all(np.diff(profile(x, s)) >= -1e-12 * scale)
+
+
+def test_fully_eroded_crater_is_a_rimless_depression():
+    s = CraterShape.from_state(500.0, 0.2, 0.0)
+    assert s.rim_height == 0.0
+    x = np.linspace(0.0, 1.0, 101)
+    assert np.all(profile(x, s) == 0.0)
+    assert profile(np.array([-1.0]), s)[0] == pytest.approx(-s.depth)
+    assert profile(np.array([-0.5]), s)[0] < 0.0
+
+
+def test_alpha_and_beta_move_monotonically_with_erosion():
+    erosion = ErosionModel.default()
+    ages = np.linspace(0.0, 4.0, 81)
+    for d in (20.0, 300.0, 5000.0):
+        qd, qr = erosion.factors(ages, np.full_like(ages, d))
+        shapes = [CraterShape.from_state(d, a, b) for a, b in zip(qd, qr, strict=True)]
+        alpha = np.array([s.alpha for s in shapes])
+        beta = np.array([s.beta for s in shapes])
+        assert alpha[0] == 0.0 and beta[0] == 0.0
+        assert np.all(np.diff(alpha) <= 1e-15), "alpha moves towards the centre"
+        assert np.all(np.diff(beta) >= -1e-15), "beta moves outwards"
+
+
+def test_alpha_follows_eq6_with_rim_terrain():
+    s = CraterShape.from_state(120.0, 0.7, 0.4)
+    for offset in (-0.5, 0.0, 0.3):
+        e = s.rim_height + offset
+        expected = (s.rim_height + offset - s.fresh_rim_height) / s.bowl_curvature  # eq. 6
+        assert interior_alpha(s.bowl_curvature, s.floor, e) == pytest.approx(expected)
+        # the interior still reaches the rim at E with zero slope
+        assert profile(np.array([0.0]), s, offset)[0] == pytest.approx(e)
+        assert abs(slope(s, 0.0, -1, offset)) < 1e-4 * s.depth
+
+
+@given(d=st.floats(1.0, 20000.0), qd=st.floats(0.05, 1.0), qr=st.floats(0.0, 1.0),
+       offset=st.floats(-0.1, 0.1))
+def test_profile_joins_hold_for_any_state(d, qd, qr, offset):
+    qr = min(qr, qd)
+    s = CraterShape.from_state(d, qd, qr)
+    off = offset * s.fresh_rim_height
+    scale = s.fresh_depth
+    # ejecta edge and the exterior's join at beta
+    assert profile(np.array([1.0]), s, off)[0] == pytest.approx(0.0, abs=1e-9 * scale)
+    if s.beta > 0:
+        at = s.beta
+        inside = s.rim_height + (s.c2 + s.c3 * at) * at * at
+        outside = exterior_height(at, s.rim_height, s.ejecta, s.beta, s.a, s.b, s.c2, s.c3)
+        assert inside == pytest.approx(outside, abs=1e-7 * scale)
+    # the interior rim reaches E = Hr + Tr - Pr at the crest
+    assert profile(np.array([0.0]), s, off)[0] == pytest.approx(s.rim_height + off,
+                                                             abs=1e-9 * scale)
+    assert np.all(np.isfinite(profile(np.linspace(-1, 1.2, 50), s, off)))
+
+
+# ---------------------------------------------------------------- on a DEM
+
+
+def _plane(n, res, gx, gy, z0=100.0):
+    rows, cols = np.mgrid[0:n, 0:n]
+    x = (cols + 0.5) * res
+    y = (n - rows - 0.5) * res
+    return z0 + gx * x + gy * y, x, y
+
+
+@pytest.mark.parametrize("age", [0.0, 0.02, 0.3])
+@pytest.mark.parametrize("tilt", [(0.0, 0.0), (0.12, -0.07)])
+def test_crater_on_flat_and_tilted_planes_matches_the_profile(age, tilt):
+    n, res, d = 161, 0.5, 36.0
+    z, x, y = _plane(n, res, *tilt)
+    tile = DEMTile.from_array(z, resolution=res)
+    cx, cy = 40.3, 39.7
+    crater = CraterTable.from_craters([Crater(cx, cy, d, age, 9)])
+    out = add_craters(tile, crater, seed=1, model=CraterModel().smooth())
+    qd, qr = ErosionModel.default().factors(age, d)
+    s = CraterShape.from_state(d, float(qd), float(qr))
+    r = np.hypot(x - cx, y - cy)
+    xn = 2 * r / d - 1
+    change = out.tile.heights.astype(np.float64) - tile.heights.astype(np.float64)
+    # inside the rim: plane + h1/h2 - terrain = h (the fitted plane is the terrain);
+    # outside: the change h3/h4 itself
+    expected = profile(xn, s)
+    inside = xn <= 1
+    assert np.max(np.abs(change[inside] - expected[inside])) < 2e-4 * d
+    # unchanged beyond the ejecta edge, bitwise
+    assert np.array_equal(out.tile.heights[~inside], tile.heights[~inside])
+    # the catalogue reports what was built
+    cat = out.catalog
+    assert len(cat["id"]) == 1
+    assert cat["depth_m"][0] == pytest.approx(s.depth)
+    assert cat["rim_height_m"][0] == pytest.approx(s.rim_height)
+    assert cat["reference_elevation_m"][0] == pytest.approx(100 + tilt[0] * cx + tilt[1] * cy,
+                                                           abs=1e-6)
+
+
+def test_rim_rides_on_the_terrain_along_each_radius():
+    """On a slope the rim crest sits Hr above the local terrain, uphill and downhill."""
+    n, res, d = 241, 0.5, 50.0
+    z, x, y = _plane(n, res, 0.3, 0.0)
+    tile = DEMTile.from_array(z, resolution=res)
+    cx, cy = 60.0, 60.0
+    out = add_craters(tile, CraterTable.from_craters([Crater(cx, cy, d, 0.1, 3)]), seed=1,
+                      model=CraterModel().smooth())
+    qd, qr = ErosionModel.default().factors(0.1, d)
+    s = CraterShape.from_state(d, float(qd), float(qr))
+    for sign in (-1, 1):
+        col = int(round((cx + sign * d / 2) / res - 0.5))
+        row = int(round((n * res - cy) / res - 0.5))
+        gain = out.tile.heights[row, col] - tile.heights[row, col]
+        assert gain == pytest.approx(s.rim_height, abs=0.02 * s.rim_height + 1e-3)
+
+
+def test_craters_sit_on_other_craters():
+    """A small crater on a large crater's wall follows the wall (fitted plane is tilted)."""
+    n, res = 401, 1.0
+    tile = DEMTile.from_array(np.zeros((n, n)), resolution=res)
+    big = Crater(200.5, 200.5, 300.0, 0.0, 1)
+    small = Crater(200.5 + 100.0, 200.5, 20.0, 0.0, 2)
+    both = add_craters(tile, CraterTable.from_craters([big, small]), seed=3,
+                       model=CraterModel().smooth())
+    cat = both.catalog
+    row_small = int(np.flatnonzero(cat["diameter_m"] == 20.0)[0])
+    # the small crater's pre-impact level is the big crater's wall there, well below 0
+    assert cat["reference_elevation_m"][row_small] < -10.0
+    heights = both.tile.heights
+    big_only = add_craters(tile, CraterTable.from_craters([big]), seed=3,
+                           model=CraterModel().smooth()).tile.heights
+    # outside the small crater's footprint the big crater is untouched
+    rows, cols = np.mgrid[0:n, 0:n]
+    far = np.hypot(cols + 0.5 - 300.5, (n - rows - 0.5) - 200.5) > 20.0 + 1.0
+    assert np.array_equal(heights[far], big_only[far])
