@@ -152,8 +152,8 @@ CATALOG_COLUMNS = (
 )
 
 
-def write_catalog(path_or_file, rows: dict) -> None:
-    """Write catalogue columns (dict of equal-length arrays keyed by CATALOG_COLUMNS)."""
+def write_catalog(path_or_file, rows: dict, columns=CATALOG_COLUMNS) -> None:
+    """Write catalogue columns (dict of equal-length arrays keyed by ``columns``)."""
     n = len(rows["id"]) if rows else 0
     close = False
     if hasattr(path_or_file, "write"):
@@ -163,10 +163,10 @@ def write_catalog(path_or_file, rows: dict) -> None:
         close = True
     try:
         writer = csv.writer(f)
-        writer.writerow(CATALOG_COLUMNS)
+        writer.writerow(columns)
         for i in range(n):
             out = []
-            for name in CATALOG_COLUMNS:
+            for name in columns:
                 v = rows[name][i]
                 if name == "id":
                     out.append(f"{int(v):016x}")
@@ -180,3 +180,60 @@ def write_catalog(path_or_file, rows: dict) -> None:
     finally:
         if close:
             f.close()
+
+
+def read_catalog(path) -> dict:
+    """Read a catalogue CSV written by :func:`write_catalog` into column arrays."""
+    with open(path, newline="", encoding="utf-8") as f:
+        reader = csv.DictReader(f)
+        names = reader.fieldnames or []
+        cols = {name: [] for name in names}
+        for row in reader:
+            for name in names:
+                cols[name].append(row[name])
+    out = {}
+    for name, values in cols.items():
+        if name == "id":
+            out[name] = np.array([int(v, 16) for v in values], dtype=np.uint64)
+        elif name in ("size_class", "layer"):
+            out[name] = np.array([int(v) for v in values], dtype=np.int64)
+        else:
+            out[name] = np.array([float(v) if v else np.nan for v in values])
+    return out
+
+
+def read_circles(path) -> CraterTable:
+    """Craters from a CSV with columns x, y, diameter and optionally age (map metres, Gyr).
+
+    Used for crater gaps (``craterscape terrain fill --craters-at``). Each crater's identity is
+    keyed by its position and size, so the same file gives the same craters.
+    """
+    from pathlib import Path
+
+    from terrain.errors import MissingInputError
+    from terrain.rng import hash64, stream_id
+
+    path = Path(path)
+    if not path.exists():
+        raise MissingInputError(f"crater list '{path}' does not exist")
+    with open(path, newline="", encoding="utf-8") as f:
+        reader = csv.DictReader(line for line in f if not line.lstrip().startswith("#"))
+        fields = {name.strip().lower(): name for name in (reader.fieldnames or [])}
+        if not {"x", "y", "diameter"} <= set(fields):
+            raise InvalidParameterError(
+                f"crater list '{path}' needs columns x, y, diameter (and optionally age); "
+                f"got {reader.fieldnames}")
+        craters = []
+        for n, row in enumerate(reader, start=2):
+            try:
+                x = float(row[fields["x"]])
+                y = float(row[fields["y"]])
+                d = float(row[fields["diameter"]])
+                age = float(row[fields["age"]]) if "age" in fields and row[fields["age"]] else 0.0
+            except (TypeError, ValueError):
+                raise InvalidParameterError(
+                    f"crater list '{path}' line {n}: x, y, diameter must be numbers") from None
+            uid = int(hash64(0, stream_id("circle"), 0, int(round(x * 1000)),
+                             int(round(y * 1000)), int(round(d * 1000))))
+            craters.append(Crater(x, y, d, age, uid))
+    return CraterTable.from_craters(craters)

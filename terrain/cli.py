@@ -39,7 +39,10 @@ class _Root(click.Group):
             return self.commands[name]
         for ep in entry_points(group=ENTRY_POINT_GROUP):
             if ep.name == name:
-                return ep.load()
+                try:
+                    return ep.load()
+                except Exception as exc:  # a broken stage must not take the others down
+                    return _broken_group(name, exc)
         return None
 
     def invoke(self, ctx):
@@ -54,6 +57,18 @@ class _Root(click.Group):
             ctx.exit(130)
         except (MemoryError, OSError) as exc:
             _fail(ctx, exc, 1)
+
+
+def _broken_group(name, exc):
+    reason = f"{type(exc).__name__}: {exc}"
+
+    @click.command(name=name, help=f"(unavailable: {reason})", context_settings={
+        "ignore_unknown_options": True, "allow_extra_args": True})
+    def broken():
+        raise CraterscapeError(f"the '{name}' commands cannot load ({reason}); reinstall "
+                               "craterscape with `make setup`")
+
+    return broken
 
 
 def _fail(ctx, exc, code):
@@ -169,7 +184,7 @@ def _model(erosion_profile, erosion_exponent, no_roughness):
 
 
 def _population(population_file, *, dmin, dmax, density, sfd_exponent, max_age, resolution,
-                extent, required):
+                extent, required, warn_small=True):
     from terrain.population import Population
 
     if population_file is None and density is None:
@@ -185,7 +200,7 @@ def _population(population_file, *, dmin, dmax, density, sfd_exponent, max_age, 
         values = dict(defaults)
         values.update({k: v for k, v in overrides.items() if v is not None})
         pop = Population(**values)
-    if pop.dmin < 2.0 * resolution:
+    if warn_small and pop.dmin < 2.0 * resolution:
         log.warning("dmin %.3g m is below two pixels (%.3g m): such craters are aliased",
                     pop.dmin, 2.0 * resolution)
     return pop
@@ -424,3 +439,206 @@ def info(input_dem, band):
         height_mean_m=float(np.mean(h)), metadata=dict(tile.metadata),
     )
     click.echo(json.dumps(report, indent=2))
+
+
+def _expansion_params(tile, fractal_dimension, height_scale, uniform_roughness):
+    from terrain.roughness import LOCAL_BOX, ExpansionParameters
+
+    return ExpansionParameters.for_tile(tile, fractal_dimension, height_scale,
+                                        local_box=0 if uniform_roughness else LOCAL_BOX)
+
+
+_roughness_options = [
+    click.option("--fractal-dimension", type=float, default=None,
+                 help="F in [2, 3); measured from the input by default."),
+    click.option("--height-scale", type=float, default=None,
+                 help="H of eq. 15 (height-range factor); measured from the input by default."),
+    click.option("--uniform-roughness", is_flag=True,
+                 help="One roughness everywhere instead of the input's local roughness map."),
+]
+
+
+def _with(options):
+    def decorate(func):
+        for option in reversed(options):
+            func = option(func)
+        return func
+    return decorate
+
+
+@terrain.command()
+@click.argument("input_dem", type=click.Path(path_type=Path))
+@_output_option
+@click.option("--times", type=click.IntRange(1, 16), default=1, show_default=True,
+              help="Number of 2x expansions.")
+@_seed_option
+@_with(_roughness_options)
+@_window_option
+@click.option("--band", type=int, default=1, show_default=True, help="Band of the input.")
+def expand(input_dem, output, times, seed, fractal_dimension, height_scale, uniform_roughness,
+           window, band):
+    """Double a DEM's resolution N times by fractal expansion (known heights kept)."""
+    from terrain.expand import expand as run_expand
+    from terrain.io import check_output_path, read_dem, write_dem
+
+    check_output_path(output, [input_dem])
+    tile = read_dem(input_dem, band=band)
+    if window is not None:
+        window.check_inside(*tile.shape)
+    params = _expansion_params(tile, fractal_dimension, height_scale, uniform_roughness)
+    bar, close = _progress("expand")
+    try:
+        out = run_expand(tile, times, seed=seed, params=params, window=window,
+                         progress=(lambda k, n: bar(k, n)) if bar else None)
+    finally:
+        close()
+    out = out.with_metadata(CRATERSCAPE_COMMAND="terrain expand", CRATERSCAPE_VERSION=_version(),
+                            CRATERSCAPE_PARAMETERS=dict(input=str(input_dem), times=times,
+                                                        seed=seed, **params.as_dict()))
+    write_dem(out, output, inputs=[input_dem])
+    click.echo(f"wrote {output} ({out.shape[1]}x{out.shape[0]} at {out.resolution:.6g} m; "
+               f"F={params.fractal_dimension:.3f}, H={params.height_scale:.4g})", err=True)
+
+
+@terrain.command()
+@click.argument("input_dem", type=click.Path(path_type=Path))
+@click.option("-o", "--output", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Output folder for the layer stack (new or empty).")
+@click.option("--site", type=PAIR, default=None, help="Landing site X,Y in map coordinates.")
+@click.option("--site-lonlat", type=PAIR, default=None,
+              help="Landing site as LON,LAT (degrees) on the DEM's body.")
+@click.option("--levels", type=click.IntRange(0, 30), default=None,
+              help="Number of 2x expansions (layers = levels + 1).")
+@click.option("--finest-resolution", type=float, default=None,
+              help="Expand until the finest layer is at most this many metres per pixel.")
+@click.option("--layer-size", type=int, default=1025, show_default=True,
+              help="Pixels per side of each expanded layer (odd).")
+@_seed_option
+@_with(_roughness_options)
+@click.option("--min-crater-pixels", type=float, default=4.0, show_default=True,
+              help="Smallest crater a layer takes, in its pixels.")
+@click.option("--despike", type=float, default=None,
+              help="Before filling, drop pixels this many robust sigmas from their median.")
+@click.option("--band", type=int, default=1, show_default=True, help="Band of the input.")
+@_crater_options
+def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, layer_size, seed,
+            fractal_dimension, height_scale, uniform_roughness, min_crater_pixels, despike,
+            band, dmin, dmax, density, sfd_exponent, max_age, population, catalog,
+            erosion_profile, erosion_exponent, no_roughness):
+    """Build nested multi-resolution layers around a landing site."""
+    import math
+
+    from terrain.gapfill import despike as run_despike
+    from terrain.io import lonlat_to_xy, read_dem
+    from terrain.layers import build_stack, write_stack
+
+    if (site is None) == (site_lonlat is None):
+        raise InvalidParameterError("give exactly one of --site X,Y and --site-lonlat LON,LAT")
+    if (levels is None) == (finest_resolution is None):
+        raise InvalidParameterError("give exactly one of --levels and --finest-resolution")
+    if catalog is not None:
+        raise InvalidParameterError("enhance writes its catalogue into the output folder "
+                                    "(craters.csv); drop --catalog")
+    if output.exists() and (not output.is_dir() or any(output.iterdir())):
+        raise InvalidParameterError(f"output folder '{output}' exists and is not empty")
+    tile = read_dem(input_dem, band=band)
+    if site_lonlat is not None:
+        site = lonlat_to_xy(tile.crs, *site_lonlat)
+    if finest_resolution is not None:
+        if not finest_resolution > 0:
+            raise InvalidParameterError(
+                f"finest resolution must be positive; got {finest_resolution}")
+        levels = max(0, math.ceil(math.log2(tile.resolution / finest_resolution) - 1e-9))
+    if despike is not None:
+        tile, _ = run_despike(tile, despike)
+    finest = tile.resolution / 2**levels
+    pop = _population(population, dmin=dmin, dmax=dmax, density=density,
+                      sfd_exponent=sfd_exponent, max_age=max_age, resolution=finest,
+                      extent=min(tile.shape) * tile.resolution, required=False,
+                      warn_small=False)
+    model = _model(erosion_profile, erosion_exponent, no_roughness)
+    params = None
+    if tile.valid.all():
+        params = _expansion_params(tile, fractal_dimension, height_scale, uniform_roughness)
+    elif fractal_dimension is not None or height_scale is not None or uniform_roughness:
+        from terrain.gapfill import fill_gaps
+
+        params = _expansion_params(fill_gaps(tile, seed=seed).tile, fractal_dimension,
+                                   height_scale, uniform_roughness)
+    bar, close = _progress("enhance")
+    try:
+        stack = build_stack(tile, site, levels=levels, layer_size=layer_size, seed=seed,
+                            population=pop, model=model, params=params,
+                            min_crater_pixels=min_crater_pixels,
+                            progress=(lambda s, n, label: bar(s, n)) if bar else None)
+    finally:
+        close()
+    stack.info.update(source=str(input_dem), command="terrain enhance",
+                      craterscape_version=_version())
+    write_stack(stack, output, inputs=[input_dem])
+    click.echo(f"wrote {len(stack.tiles)} layers to {output} (finest "
+               f"{stack.tiles[-1].resolution:.4g} m/pixel, {len(stack.catalog['id'])} craters)",
+               err=True)
+
+
+@terrain.command()
+@click.argument("input_dem", type=click.Path(path_type=Path))
+@_output_option
+@click.option("--roughness", type=float, default=None,
+              help="Gaussian per filled pixel, in units of the resolution; measured around "
+                   "each gap by default.")
+@click.option("--craters-at", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="CSV of crater gaps (x, y, diameter[, age]) to fill with craters.")
+@click.option("--despike", type=float, default=None,
+              help="First drop pixels this many robust sigmas from their local median.")
+@click.option("--denoise", type=float, default=None,
+              help="First smooth known pixels with a Gaussian of this many pixels.")
+@_seed_option
+@click.option("--band", type=int, default=1, show_default=True, help="Band of the input.")
+def fill(input_dem, output, roughness, craters_at, despike, denoise, seed, band):
+    """Fill DEM gaps with fractal terrain (and craters), keeping every known height."""
+    from terrain.catalog import read_circles
+    from terrain.gapfill import denoise as run_denoise
+    from terrain.gapfill import despike as run_despike
+    from terrain.gapfill import fill_crater_gaps, fill_gaps
+    from terrain.io import check_output_path, read_dem, write_dem
+
+    check_output_path(output, [input_dem, craters_at])
+    tile = read_dem(input_dem, band=band)
+    circles = read_circles(craters_at) if craters_at is not None else None
+    removed = 0
+    if despike is not None:
+        tile, mask = run_despike(tile, despike)
+        removed = int(mask.sum())
+    if denoise is not None:
+        tile = run_denoise(tile, denoise)
+    if circles is not None:
+        result = fill_crater_gaps(tile, circles, seed=seed, roughness=roughness)
+    else:
+        result = fill_gaps(tile, seed=seed, roughness=roughness)
+    out = result.tile.with_metadata(
+        CRATERSCAPE_COMMAND="terrain fill", CRATERSCAPE_VERSION=_version(),
+        CRATERSCAPE_PARAMETERS=dict(input=str(input_dem), roughness=roughness, seed=seed,
+                                    despike=despike, denoise=denoise,
+                                    craters_at=str(craters_at) if craters_at else None))
+    write_dem(out, output, inputs=[input_dem])
+    click.echo(f"wrote {output} ({int(result.filled.sum())} pixels filled"
+               + (f", {removed} spikes removed" if despike is not None else "") + ")", err=True)
+
+
+@terrain.command("replace-crater")
+@click.argument("stack_dir", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--at", "at", type=PAIR, required=True, help="Crater centre X,Y (map metres).")
+@click.option("--diameter", type=float, required=True, help="Crater diameter (m).")
+@click.option("--age", type=float, default=0.0, show_default=True, help="Age in Gyr.")
+@click.option("--seed", type=click.IntRange(0, 2**63 - 1), default=None,
+              help="Seed (default: the stack's).")
+def replace_crater_cmd(stack_dir, at, diameter, age, seed):
+    """Replace a crater in a layer stack with a sharp synthetic one (edits in place)."""
+    from terrain.layers import replace_crater
+
+    if not stack_dir.is_dir():
+        raise InvalidParameterError(f"'{stack_dir}' is not a layer-stack folder")
+    done = replace_crater(stack_dir, at[0], at[1], diameter, age=age, seed=seed)
+    click.echo(f"replaced crater at {at[0]:.6g},{at[1]:.6g} (D {diameter:g} m) in layer "
+               f"{done['layer']}; updated layers {done['changed_layers']}", err=True)

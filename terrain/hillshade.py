@@ -15,7 +15,24 @@ import numpy as np
 
 from terrain.tile import DEMTile
 
-__all__ = ["hillshade"]
+__all__ = ["hillshade", "horn_gradient"]
+
+
+def horn_gradient(tile: DEMTile, z_factor: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Horn's (1981) 3x3 gradients (dz/dx east, dz/dy north), edges replicated.
+
+    Returns
+    -------
+    dzdx, dzdy : (ny, nx) float64, metres per metre (NaN where the stencil meets a gap)
+    """
+    z = np.pad(tile.heights.astype(np.float64) * float(z_factor), 1, mode="edge")
+    res = tile.resolution
+    # x to the east (columns), y to the north (rows decrease northwards)
+    dzdx = ((z[:-2, 2:] + 2 * z[1:-1, 2:] + z[2:, 2:])
+            - (z[:-2, :-2] + 2 * z[1:-1, :-2] + z[2:, :-2])) / (8 * res)
+    dzdy = ((z[:-2, :-2] + 2 * z[:-2, 1:-1] + z[:-2, 2:])
+            - (z[2:, :-2] + 2 * z[2:, 1:-1] + z[2:, 2:])) / (8 * res)
+    return dzdx, dzdy
 
 
 def hillshade(tile: DEMTile, *, azimuth: float = 315.0, altitude: float = 45.0,
@@ -33,13 +50,7 @@ def hillshade(tile: DEMTile, *, azimuth: float = 315.0, altitude: float = 45.0,
     >>> int(hillshade(flat, altitude=90.0)[1, 1])
     255
     """
-    z = np.pad(tile.heights.astype(np.float64) * float(z_factor), 1, mode="edge")
-    res = tile.resolution
-    # Horn (1981): x to the east (columns), y to the north (rows decrease northwards).
-    dzdx = ((z[:-2, 2:] + 2 * z[1:-1, 2:] + z[2:, 2:])
-            - (z[:-2, :-2] + 2 * z[1:-1, :-2] + z[2:, :-2])) / (8 * res)
-    dzdy = ((z[:-2, :-2] + 2 * z[:-2, 1:-1] + z[:-2, 2:])
-            - (z[2:, :-2] + 2 * z[2:, 1:-1] + z[2:, 2:])) / (8 * res)
+    dzdx, dzdy = horn_gradient(tile, z_factor)
     az = math.radians(azimuth)
     alt = math.radians(altitude)
     # Sun direction (east, north, up) and the surface normal (-dz/dx, -dz/dy, 1).

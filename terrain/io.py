@@ -15,6 +15,7 @@ file, and an output path that names an input is refused before any work starts.
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 import os
 import tempfile
@@ -31,7 +32,8 @@ from terrain import memory
 from terrain.errors import InvalidDEMError, MissingInputError, OutputPathError
 from terrain.tile import DEMTile
 
-__all__ = ["atomic_path", "check_output_path", "read_dem", "write_dem", "write_png"]
+__all__ = ["atomic_path", "check_output_path", "lonlat_to_xy", "read_dem", "write_dem",
+           "write_png"]
 
 log = logging.getLogger(__name__)
 
@@ -226,3 +228,25 @@ def write_png(image: np.ndarray, path, *, inputs: Iterable = ()) -> Path:
     with atomic_path(path, inputs) as tmp:
         tmp.write_bytes(buf.tobytes())
     return Path(path)
+
+
+def lonlat_to_xy(crs_wkt: str | None, lon: float, lat: float) -> tuple[float, float]:
+    """Map coordinates of a longitude/latitude (degrees) on the CRS's own body and datum."""
+    from terrain.errors import InvalidParameterError
+
+    if not crs_wkt:
+        raise InvalidParameterError("the DEM has no CRS, so longitude/latitude cannot be placed "
+                                    "on it; give the site in map coordinates")
+    if not (-360.0 <= lon <= 360.0 and -90.0 <= lat <= 90.0):
+        raise InvalidParameterError(f"longitude/latitude out of range: {lon}, {lat}")
+    from rasterio.warp import transform
+
+    crs = CRS.from_wkt(crs_wkt)
+    base = crs.to_dict(projjson=True).get("base_crs")
+    if base is None:
+        raise InvalidParameterError("the DEM's CRS has no geographic base CRS")
+    xs, ys = transform(CRS.from_user_input(json.dumps(base)), crs, [lon], [lat])
+    if not (np.isfinite(xs[0]) and np.isfinite(ys[0])):
+        raise InvalidParameterError(f"longitude/latitude {lon}, {lat} has no position in the "
+                                    "DEM's projection")
+    return float(xs[0]), float(ys[0])

@@ -168,7 +168,8 @@ class Population:
         n = self.bin_density(d_lo, d_hi)
         return math.sqrt(CELL_EXPECTATION / n) if n > 0 else math.inf
 
-    def generate(self, seed: int, extent, *, margin=0.0, bin_index=None) -> CraterTable:
+    def generate(self, seed: int, extent, *, margin=0.0, bin_index=None,
+                 min_diameter: float = 0.0) -> CraterTable:
         """Every crater whose centre lies in ``extent`` grown by ``margin``.
 
         Parameters
@@ -180,6 +181,10 @@ class Population:
             can ask for every crater whose footprint may touch the extent).
         bin_index : int, optional
             Generate only this bin.
+        min_diameter : float
+            Drop craters smaller than this (metres). Bins wholly below it are skipped, so a
+            coarse layer of a huge area does not enumerate its myriad small craters; the
+            craters kept are exactly those the full population has there.
         """
         seed = check_seed(seed)
         xmin, ymin, xmax, ymax = (float(v) for v in extent)
@@ -187,13 +192,15 @@ class Population:
         bins = self.bins()
         expected = 0.0
         for d_lo, d_hi in bins:
+            if d_hi <= min_diameter:
+                continue
             grow = margin(d_hi) if callable(margin) else float(margin)
             area = (xmax - xmin + 2 * grow) * (ymax - ymin + 2 * grow)
             expected += self.bin_density(d_lo, d_hi) * area
         memory.require(expected * _BYTES_PER_CRATER * 1.5,
                        f"generating about {expected:.3g} craters")
         for b, (d_lo, d_hi) in enumerate(bins):
-            if bin_index is not None and b != bin_index:
+            if (bin_index is not None and b != bin_index) or d_hi <= min_diameter:
                 continue
             cell = self.cell_size(d_lo, d_hi)
             if not math.isfinite(cell):
@@ -210,8 +217,9 @@ class Population:
             out = np.empty((n, 5))
             uid = np.empty(n, np.uint64)
             _generate(*args, out, uid, False)
-            tables.append(CraterTable(out[:, 0], out[:, 1], out[:, 2], out[:, 3], uid,
-                                      np.full(n, b, dtype=np.int64)))
+            keep = out[:, 2] >= min_diameter
+            tables.append(CraterTable(out[keep, 0], out[keep, 1], out[keep, 2], out[keep, 3],
+                                      uid[keep], np.full(int(keep.sum()), b, dtype=np.int64)))
         return CraterTable.concatenate(tables)
 
 

@@ -124,10 +124,17 @@ class DEMTile:
         if v.shape != h.shape:
             raise InvalidDEMError(
                 f"DEM valid mask must have the heights' shape {h.shape}; got {v.shape}")
-        v = np.ascontiguousarray(v, dtype=bool) & np.isfinite(h)
-        h = np.array(h, dtype=np.float32, order="C", copy=True)
-        v = v & np.isfinite(h)  # values beyond float32 range become invalid, never inf
-        h[~v] = np.nan
+        if h.dtype == np.float32 and h.flags.c_contiguous and not h.flags.writeable:
+            pass  # already an immutable float32 array: share it
+        else:
+            h = np.array(h, dtype=np.float32, order="C", copy=True)
+        finite = np.isfinite(h)  # values beyond float32's range are invalid, never inf
+        v = np.logical_and(v, finite)
+        stale = ~v & ~np.isnan(h)  # invalid pixels whose height is not NaN yet (inf, masked)
+        if stale.any():
+            if not h.flags.writeable:
+                h = h.copy()
+            np.copyto(h, np.float32(np.nan), where=stale)
         h.flags.writeable = False
         v.flags.writeable = False
         if not isinstance(self.transform, Affine):

@@ -1,6 +1,7 @@
 """The `craterscape terrain` commands, as a user runs them (click's CliRunner)."""
 
 import csv
+import json
 
 import numpy as np
 import pytest
@@ -198,3 +199,100 @@ def test_nodata_preserved_through_craters(tmp_path):
     out = read_dem(tmp_path / "o.tif")
     assert out.nodata == -9999.0
     assert np.array_equal(out.valid, read_dem(src).valid)
+
+
+# ---------------------------------------------------------------- DEM enhancement commands
+
+
+@pytest.fixture
+def coarse(tmp_path):
+    path = tmp_path / "coarse.tif"
+    r = run("terrain", "synth", "-o", path, "--size", 65, "--resolution", 500.0, "--relief",
+            800, "--seed", 2)
+    assert r.exit_code == 0, r.output
+    return path
+
+
+def test_expand_command_and_window(coarse, tmp_path):
+    r = run("terrain", "expand", coarse, "-o", tmp_path / "e.tif", "--times", 2, "--seed", 3)
+    assert r.exit_code == 0, r.output
+    base, out = read_dem(coarse), read_dem(tmp_path / "e.tif")
+    assert out.shape == (257, 257) and out.resolution == 125.0
+    assert np.array_equal(out.heights[::4, ::4], base.heights)
+    assert "fractal_dimension" in out.metadata["CRATERSCAPE_PARAMETERS"]
+    r = run("terrain", "expand", coarse, "-o", tmp_path / "w.tif", "--times", 2, "--seed", 3,
+            "--window", "10,20,9,5")
+    assert r.exit_code == 0, r.output
+    assert np.array_equal(read_dem(tmp_path / "w.tif").heights, out.heights[80:97, 40:73])
+    r = run("terrain", "expand", coarse, "-o", tmp_path / "f.tif", "--fractal-dimension", 2.3,
+            "--height-scale", 0.001, "--uniform-roughness")
+    assert r.exit_code == 0 and "F=2.300" in r.output
+
+
+def test_enhance_command_writes_a_layer_stack(coarse, tmp_path):
+    out = tmp_path / "stack"
+    r = run("terrain", "enhance", coarse, "-o", out, "--site", "16000,16000", "--levels", 3,
+            "--layer-size", 33, "--seed", 5, "--density", 100000, "--dmin", 1, "--dmax", 5000)
+    assert r.exit_code == 0, r.output
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert len(manifest["layers"]) == 4
+    assert (out / "craters.csv").exists()
+    assert manifest["layers"][-1]["resolution"] == pytest.approx(62.5)
+    r = run("terrain", "replace-crater", out, "--at", "16000,16000", "--diameter", 400)
+    assert r.exit_code == 0, r.output
+    one_line_error(run("terrain", "enhance", coarse, "-o", out, "--site", "16000,16000",
+                       "--levels", 2), "not empty")
+    one_line_error(run("terrain", "enhance", coarse, "-o", tmp_path / "s2", "--site",
+                       "-900000,5", "--levels", 2), "outside the DEM")
+    one_line_error(run("terrain", "enhance", coarse, "-o", tmp_path / "s3", "--site", "5,5"),
+                   "--levels")
+
+
+def test_enhance_site_by_longitude_latitude(shared_file, tmp_path):
+    dem = shared_file("lunar", "southpole_85S_nac_asp_sfs_dem_1p08m.tif")
+    r = run("terrain", "enhance", dem, "-o", tmp_path / "sp", "--site-lonlat", "354.2,-85.005",
+            "--levels", 2, "--layer-size", 65)
+    assert r.exit_code == 0, r.output
+    manifest = json.loads((tmp_path / "sp" / "manifest.json").read_text())
+    left, bottom, right, top = manifest["layers"][-1]["bounds"]
+    x, y = manifest["site"]
+    assert left < x < right and bottom < y < top
+
+
+def test_fill_command_with_crater_gaps_and_despike(tmp_path):
+    h = read_dem_like_hole(tmp_path)
+    circles = tmp_path / "circles.csv"
+    x, y = h.xy(32, 32)
+    circles.write_text(f"x,y,diameter,age\n{x},{y},30,0.1\n")
+    src = write_dem(h, tmp_path / "holey.tif")
+    r = run("terrain", "fill", src, "-o", tmp_path / "filled.tif", "--craters-at", circles,
+            "--seed", 2)
+    assert r.exit_code == 0, r.output
+    out = read_dem(tmp_path / "filled.tif")
+    assert out.valid.all()
+    assert np.array_equal(out.heights[h.valid], h.heights[h.valid])
+    r = run("terrain", "fill", src, "-o", tmp_path / "f2.tif", "--despike", 8, "--roughness",
+            0.05)
+    assert r.exit_code == 0, r.output
+    bad = tmp_path / "bad.csv"
+    bad.write_text("a,b\n1,2\n")
+    one_line_error(run("terrain", "fill", src, "-o", tmp_path / "f3.tif", "--craters-at", bad),
+                   "x, y, diameter")
+
+
+def read_dem_like_hole(tmp_path):
+    from terrain.synthetic import synthesize_tile
+
+    t = synthesize_tile(65, resolution=1.0, relief=3.0, seed=1).tile
+    h = t.heights.copy()
+    h[25:40, 25:40] = np.nan
+    return DEMTile.from_array(h, resolution=1.0)
+
+
+def test_replace_crater_on_a_missing_or_corrupt_stack(tmp_path):
+    one_line_error(run("terrain", "replace-crater", tmp_path / "none", "--at", "1,1",
+                       "--diameter", 10), "layer-stack folder")
+    (tmp_path / "st").mkdir()
+    (tmp_path / "st" / "manifest.json").write_text("[]")
+    one_line_error(run("terrain", "replace-crater", tmp_path / "st", "--at", "1,1",
+                       "--diameter", 10), "corrupt")

@@ -1,0 +1,186 @@
+"""Nested multi-resolution layer stacks: agreement between layers, crater sorting, edits."""
+
+import json
+import multiprocessing
+import os
+
+import numpy as np
+import pytest
+
+from terrain.cratering import CraterModel
+from terrain.errors import InvalidDEMError, InvalidParameterError, MemoryRequestError
+from terrain.layers import (
+    MIN_CRATER_PIXELS,
+    build_stack,
+    read_stack,
+    replace_crater,
+    write_stack,
+)
+from terrain.population import Population
+from terrain.synthetic import synthesize_tile
+
+POP = Population(dmin=1.0, dmax=40000.0, density=1e5, max_age=2.0)
+
+
+def base():
+    tile = synthesize_tile(129, resolution=1000.0, relief=2500.0, seed=1).tile
+    h = tile.heights.copy()
+    h[20:26, 30:40] = np.nan  # a gap in the base
+    return tile.replace(heights=h)
+
+
+SITE = (70500.0, 60500.0)
+
+
+@pytest.fixture(scope="module")
+def stack():
+    return build_stack(base(), SITE, levels=5, layer_size=129, seed=7, population=POP)
+
+
+def test_layers_nest_around_the_site_and_halve_the_resolution(stack):
+    assert len(stack.tiles) == 6
+    for k, tile in enumerate(stack.tiles):
+        assert tile.resolution == pytest.approx(1000.0 / 2**k)
+        left, bottom, right, top = tile.bounds
+        assert left <= SITE[0] <= right and bottom <= SITE[1] <= top
+        assert tile.valid.all()
+        if k:
+            assert tile.shape == (129, 129)
+            pl, pb, pr, pt = stack.tiles[k - 1].bounds
+            assert pl <= left and right <= pr and pb <= bottom and top <= pt
+
+
+def test_a_coarse_pixel_equals_the_co_located_fine_pixel(stack):
+    for k in range(1, len(stack.tiles)):
+        col, row, size, _ = stack.windows[k]
+        coarse = stack.tiles[k - 1].heights[row:row + size, col:col + size]
+        assert np.array_equal(coarse, stack.tiles[k].heights[::2, ::2])
+        # and they are the same places on the ground
+        assert stack.tiles[k].xy(0, 0) == stack.tiles[k - 1].xy(row, col)
+
+
+def test_known_base_heights_survive_where_no_crater_or_finer_layer_reaches(stack):
+    original = base()
+    assert stack.info["base_filled_pixels"] == 60
+    col, row, size, _ = stack.windows[1]
+    untouched = original.valid.copy()
+    untouched[row:row + size, col:col + size] = False
+    rows, cols = np.mgrid[0:original.shape[0], 0:original.shape[1]]
+    x, y = original.xy(rows, cols)
+    cat = stack.catalog
+    factor = CraterModel().footprint_factor
+    for cx, cy, d in zip(cat["x_m"][cat["layer"] == 0], cat["y_m"][cat["layer"] == 0],
+                         cat["diameter_m"][cat["layer"] == 0], strict=True):
+        untouched &= np.hypot(x - cx, y - cy) > d * factor + 1000.0
+    assert untouched.sum() > 100
+    assert np.array_equal(stack.tiles[0].heights[untouched], original.heights[untouched])
+
+
+def test_each_crater_sits_in_the_finest_layer_that_holds_it(stack):
+    cat = stack.catalog
+    assert len(cat["id"]) > 100
+    assert len(np.unique(cat["id"])) == len(cat["id"])
+    factor = CraterModel().footprint_factor
+    for x, y, d, k in zip(cat["x_m"], cat["y_m"], cat["diameter_m"], cat["layer"],
+                          strict=True):
+        tile = stack.tiles[k]
+        assert d >= MIN_CRATER_PIXELS * tile.resolution
+        assert stack.layer_of(x, y, d * factor) >= k
+        if k + 1 < len(stack.tiles):
+            finer = stack.tiles[k + 1]
+            fits = stack.layer_of(x, y, d * factor) > k
+            assert not (fits and d >= MIN_CRATER_PIXELS * finer.resolution)
+
+
+def test_write_read_roundtrip_and_manifest(stack, tmp_path):
+    out = write_stack(stack, tmp_path / "stack")
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert [entry["level"] for entry in manifest["layers"]] == list(range(6))
+    assert manifest["layers"][3]["parent"] == 2
+    assert manifest["layers"][0]["resolution"] == 1000.0
+    assert sum(manifest["crater_counts"]) == len(stack.catalog["id"])
+    again = read_stack(out)
+    for a, b in zip(again.tiles, stack.tiles, strict=True):
+        assert np.array_equal(a.heights, b.heights)
+        assert a.transform == b.transform
+    assert np.array_equal(again.catalog["layer"], stack.catalog["layer"])
+    with pytest.raises(InvalidParameterError, match="not empty"):
+        write_stack(stack, out)
+
+
+def test_same_seed_same_stack():
+    a = build_stack(base(), SITE, levels=2, layer_size=65, seed=3, population=POP)
+    b = build_stack(base(), SITE, levels=2, layer_size=65, seed=3, population=POP)
+    for ta, tb in zip(a.tiles, b.tiles, strict=True):
+        assert ta.heights.tobytes() == tb.heights.tobytes()
+
+
+def test_replace_crater_edits_in_place_and_layers_still_match(stack, tmp_path):
+    out = write_stack(stack, tmp_path / "stack")
+    x, y = stack.tiles[3].xy(40, 64)
+    diameter = 3000.0
+    before = read_stack(out)
+    done = replace_crater(out, float(x), float(y), diameter, age=0.0)
+    after = read_stack(out)
+    k = done["layer"]
+    reach = diameter * CraterModel().footprint_factor
+    assert k == before.layer_of(float(x), float(y), reach) == 3
+    assert done["changed_layers"] == [0, 1, 2, 3, 4, 5]  # coarser and overlapping finer
+    assert not np.array_equal(after.tiles[k].heights, before.tiles[k].heights)
+    for j in range(1, len(after.tiles)):
+        col, row, size, _ = after.windows[j]
+        assert np.array_equal(after.tiles[j - 1].heights[row:row + size, col:col + size],
+                              after.tiles[j].heights[::2, ::2])
+    # a sharp bowl at the site
+    r, c = after.tiles[k].rowcol(x, y)
+    assert after.tiles[k].heights[int(r), int(c)] < before.tiles[k].heights[int(r), int(c)] - 50
+    assert diameter in set(after.catalog["diameter_m"].tolist())
+    files = sorted(p.name for p in out.iterdir() if p.suffix == ".tif")
+    assert len(files) == 6, "old versions of edited layers are removed"
+
+
+def _edit(path, x, y):
+    replace_crater(path, x, y, 300.0)
+
+
+def test_two_edits_at_once_do_not_corrupt_the_stack(stack, tmp_path):
+    out = write_stack(stack, tmp_path / "stack")
+    x1, y1 = stack.tiles[4].xy(40, 40)
+    x2, y2 = stack.tiles[4].xy(90, 90)
+    ctx = multiprocessing.get_context("fork")
+    procs = [ctx.Process(target=_edit, args=(out, float(x), float(y)))
+             for x, y in ((x1, y1), (x2, y2))]
+    for p in procs:
+        p.start()
+    for p in procs:
+        p.join(120)
+        assert p.exitcode == 0
+    final = read_stack(out)
+    assert len(final.info["edits"]) == 2
+    for j in range(1, len(final.tiles)):
+        col, row, size, _ = final.windows[j]
+        assert np.array_equal(final.tiles[j - 1].heights[row:row + size, col:col + size],
+                              final.tiles[j].heights[::2, ::2])
+
+
+def test_corrupt_manifest_is_a_clear_error(stack, tmp_path):
+    out = write_stack(stack, tmp_path / "stack")
+    (out / "manifest.json").write_text("{ not json")
+    with pytest.raises(InvalidDEMError, match="corrupt"):
+        read_stack(out)
+    with pytest.raises(InvalidDEMError, match="corrupt"):
+        replace_crater(out, SITE[0], SITE[1], 100.0)
+
+
+def test_bad_requests():
+    with pytest.raises(InvalidParameterError, match="outside the DEM"):
+        build_stack(base(), (-5.0, 3.0), levels=2, layer_size=65)
+    with pytest.raises(InvalidParameterError, match="odd"):
+        build_stack(base(), SITE, levels=2, layer_size=64)
+
+
+def test_more_levels_than_memory_allows_is_refused(monkeypatch):
+    monkeypatch.setenv("CRATERSCAPE_MEMORY_LIMIT", "50M")
+    with pytest.raises(MemoryRequestError, match="needs about"):
+        build_stack(base(), SITE, levels=12, layer_size=2049)
+    assert os.environ["CRATERSCAPE_MEMORY_LIMIT"] == "50M"
