@@ -1,328 +1,50 @@
-"""Benchmarks for craterscape's synthetic cratered terrain: one JSON document on stdout.
+"""Run every benchmark (``benchmarks/bench_*.py``) and print one JSON document.
 
-The project's target (its issue): 100,000 craters (D 4-500 m, k = -2) on a 4097^2 tile at
-1 m in <= 20 s wall and <= 3 GiB peak memory on 2 cores, well under 100 microseconds per
-crater (a Blender-based peer reports about 220).
-
-Every configuration runs in its own child process (this script re-invoked with ``--child``),
-so that the peak resident set size (``ru_maxrss``) of each is isolated. A child first does a
-small warm-up call with both crater models (numba compiles, or loads its on-disk cache), then
-repeats the timed call and reports median, min and max wall time. Each benchmark compares
-against a baseline measured in the same run:
-
-* ``tile``: the RMD base alone (baseline) vs base + craters with the default model
-  (roughness overlay and irregular rims on) and with ``CraterModel().smooth()``; the crater
-  cost is the difference of the medians, divided by the number of craters touching the tile.
-* ``window``: a window of the same cratered tile vs the full tile (the default-model
-  configuration above); the child also checks that the window equals the same pixels of a
-  full tile it computes once, bitwise.
+``make bench`` runs this. Each benchmark script prints its own JSON (speed and memory
+against a baseline measured in the same run, with pass/fail flags against its issue's
+targets); this driver collects them under their names.
 
 Usage::
 
-    .venv/bin/python benchmarks/run.py            # full benchmark (a few minutes)
-    .venv/bin/python benchmarks/run.py --quick    # 1025^2 tile, ~6,000 craters (seconds)
-
-Progress goes to stderr; the exit status is 0 when every child ran (targets missed or not).
+    .venv/bin/python benchmarks/run.py [--quick] [--only NAME ...]
 """
 
 from __future__ import annotations
 
 import argparse
-import datetime as _dt
 import json
-import os
-import platform
-import resource
-import statistics
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-
-#: Peer figure (Blender-based pipeline) in microseconds per crater.
-PEER_US_PER_CRATER = 220.0
-#: Targets from the issue, for the full-size configuration.
-TARGET_WALL_S = 20.0
-TARGET_PEAK_BYTES = 3 * 1024**3
-TARGET_US_PER_CRATER = 100.0
-
-#: Fixed terrain parameters of every configuration.
-RESOLUTION = 1.0
-FRACTAL_DIMENSION = 2.2
-RELIEF = 60.0
-SEED = 2014
-DMIN, DMAX, SFD_EXPONENT, MAX_AGE = 4.0, 500.0, -2.0, 3.5
+HERE = Path(__file__).resolve().parent
 
 
-def log(message: str) -> None:
-    """Progress line on stderr."""
-    print(f"[bench {time.strftime('%H:%M:%S')}] {message}", file=sys.stderr, flush=True)
-
-
-def _peak_rss_bytes() -> int:
-    """Peak resident set size of this process so far (``ru_maxrss`` is KiB on Linux)."""
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return int(peak) if sys.platform == "darwin" else int(peak) * 1024
-
-
-def _summary(times: list[float]) -> dict:
-    return dict(median_s=statistics.median(times), min_s=min(times), max_s=max(times),
-                runs_s=times)
-
-
-# ----------------------------------------------------------------------------------------
-# child side
-
-
-def _population(density: float):
-    from terrain.population import Population
-
-    return Population(dmin=DMIN, dmax=DMAX, density=density, sfd_exponent=SFD_EXPONENT,
-                      max_age=MAX_AGE)
-
-
-def _model(name: str | None):
-    from terrain.cratering import CraterModel
-
-    if name is None:
-        return None
-    return CraterModel() if name == "default" else CraterModel().smooth()
-
-
-def _warm_up() -> float:
-    """Compile (or load from numba's cache) every kernel: a 65^2 tile, both models."""
-    from terrain.synthetic import synthesize_tile
-
-    t0 = time.perf_counter()
-    pop = _population(20000.0)  # a few dozen craters on 64 m x 64 m
-    for name in ("default", "smooth"):
-        synthesize_tile(65, resolution=RESOLUTION, fractal_dimension=FRACTAL_DIMENSION,
-                        relief=RELIEF, seed=1, craters=pop, model=_model(name))
-    synthesize_tile(65, resolution=RESOLUTION, fractal_dimension=FRACTAL_DIMENSION,
-                    relief=RELIEF, seed=1)
-    return time.perf_counter() - t0
-
-
-def _synth(spec: dict, window=None):
-    from terrain.synthetic import synthesize_tile
-
-    craters = _population(spec["density"]) if spec["model"] is not None else None
-    return synthesize_tile(spec["size"], resolution=RESOLUTION,
-                           fractal_dimension=FRACTAL_DIMENSION, relief=RELIEF, seed=SEED,
-                           craters=craters, model=_model(spec["model"]), window=window)
-
-
-def child_tile(spec: dict) -> dict:
-    """Time ``spec["repeat"]`` calls of one tile configuration; peak RSS around them."""
-    warmup_s = _warm_up()
-    rss_after_warmup = _peak_rss_bytes()
-    times, n_craters, checksum = [], None, None
-    for i in range(spec["repeat"]):
-        t0 = time.perf_counter()
-        result = _synth(spec)
-        times.append(time.perf_counter() - t0)
-        n_craters = len(result.catalog["id"])
-        checksum = float(result.tile.heights.astype("float64").sum())
-        del result  # so that the next call's peak does not include this result
-        log(f"  {spec['name']} run {i + 1}/{spec['repeat']}: {times[-1]:.3f} s")
-    peak = _peak_rss_bytes()
-    return dict(warmup_s=warmup_s, wall=_summary(times), n_craters=n_craters,
-                peak_rss_bytes=peak, peak_rss_after_warmup_bytes=rss_after_warmup,
-                peak_rss_increment_bytes=peak - rss_after_warmup, height_sum=checksum)
-
-
-def child_window(spec: dict) -> dict:
-    """Time a window of the cratered tile; check it against one full tile, bitwise."""
-    import numpy as np
-
-    from terrain.tile import Window
-
-    warmup_s = _warm_up()
-    col, row, width, height = spec["window"]
-    window = Window(col, row, width, height)
-    times, n_craters = [], None
-    for i in range(spec["repeat"]):
-        t0 = time.perf_counter()
-        result = _synth(spec, window=window)
-        times.append(time.perf_counter() - t0)
-        n_craters = len(result.catalog["id"])
-        part = result.tile.heights
-        del result
-        log(f"  window run {i + 1}/{spec['repeat']}: {times[-1]:.3f} s")
-    peak_window = _peak_rss_bytes()
-    t0 = time.perf_counter()
-    full = _synth(spec)
-    full_s = time.perf_counter() - t0
-    log(f"  full tile for the exactness check: {full_s:.3f} s")
-    rows, cols = window.slices
-    same = bool(np.array_equal(part, full.tile.heights[rows, cols]))
-    return dict(warmup_s=warmup_s, wall=_summary(times), n_craters=n_craters,
-                peak_rss_window_bytes=peak_window, full_tile_single_s=full_s,
-                bitwise_equal_to_full_tile=same)
-
-
-# ----------------------------------------------------------------------------------------
-# parent side
-
-
-def run_child(spec: dict, timeout: float) -> dict:
-    """Run one configuration in a fresh interpreter and return its JSON result."""
-    log(f"{spec['name']}: starting child ({spec['repeat']} runs)")
-    t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--child",
-                           json.dumps(spec)], stdout=subprocess.PIPE, stderr=None, text=True,
-                          timeout=timeout, cwd=ROOT, check=False)
-    if proc.returncode != 0:
-        raise RuntimeError(f"child {spec['name']} failed with exit status {proc.returncode}")
-    out = json.loads(proc.stdout)
-    log(f"{spec['name']}: done in {time.perf_counter() - t0:.1f} s "
-        f"(median {out['wall']['median_s']:.3f} s)")
-    return out
-
-
-def machine_facts() -> dict:
-    import numba
-    import numpy
-
-    try:
-        affinity = len(os.sched_getaffinity(0))
-    except AttributeError:
-        affinity = None
-    facts = dict(python=platform.python_version(), implementation=platform.python_implementation(),
-                 numpy=numpy.__version__, numba=numba.__version__, cpu_count=os.cpu_count(),
-                 cpu_affinity=affinity, numba_num_threads=numba.config.NUMBA_NUM_THREADS,
-                 platform=platform.platform(), machine=platform.machine(),
-                 processor=platform.processor() or None,
-                 timestamp=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"))
-    try:
-        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
-                              text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
-                               cwd=ROOT, capture_output=True, text=True, check=True).stdout
-        facts["git"] = dict(commit=head, dirty=bool(dirty.strip()))
-    except (OSError, subprocess.CalledProcessError):
-        facts["git"] = None
-    return facts
-
-
-def _mib(n: int) -> float:
-    return round(n / 1024**2, 1)
-
-
-def benchmark(quick: bool, repeat: int, timeout: float) -> dict:
-    """Run every child and derive the comparisons."""
-    size = 1025 if quick else 4097
-    target_craters = 6000 if quick else 100000
-    side_km = size * RESOLUTION / 1000.0
-    density = target_craters / side_km**2
-    win = 128 if quick else 512
-    corner = (size - win) // 2
-    common = dict(size=size, density=density, repeat=repeat)
-    expected = _population(density).expected_count(side_km**2)
-
-    base = run_child(dict(common, name="base_rmd", kind="tile", model=None), timeout)
-    default = run_child(dict(common, name="craters_default", kind="tile", model="default"),
-                        timeout)
-    smooth = run_child(dict(common, name="craters_smooth", kind="tile", model="smooth"), timeout)
-    window = run_child(dict(common, name="window", kind="window", model="default",
-                            window=[corner, corner, win, win]), timeout)
-
-    base_med = base["wall"]["median_s"]
-
-    def crater_cost(cfg: dict) -> dict:
-        cost = cfg["wall"]["median_s"] - base_med
-        us = cost / cfg["n_craters"] * 1e6 if cfg["n_craters"] else None
-        return dict(crater_time_s=cost, us_per_crater=us,
-                    vs_peer_220us=us / PEER_US_PER_CRATER if us is not None else None,
-                    speedup_vs_peer=PEER_US_PER_CRATER / us if us else None)
-
-    cost_default, cost_smooth = crater_cost(default), crater_cost(smooth)
-    full_med = default["wall"]["median_s"]
-
-    def flag(ok: bool) -> bool | None:
-        return None if quick else bool(ok)
-
-    peak = max(default["peak_rss_bytes"], smooth["peak_rss_bytes"])
-    targets = dict(
-        applies=not quick,
-        wall_s_max=TARGET_WALL_S, peak_bytes_max=TARGET_PEAK_BYTES,
-        us_per_crater_max=TARGET_US_PER_CRATER,
-        wall_default_ok=flag(full_med <= TARGET_WALL_S),
-        peak_memory_ok=flag(peak <= TARGET_PEAK_BYTES),
-        us_per_crater_default_ok=flag(cost_default["us_per_crater"] < TARGET_US_PER_CRATER),
-        us_per_crater_smooth_ok=flag(cost_smooth["us_per_crater"] < TARGET_US_PER_CRATER),
-    )
-    targets["all_ok"] = (None if quick else all(
-        targets[k] for k in ("wall_default_ok", "peak_memory_ok", "us_per_crater_default_ok")))
-
-    configs = dict(base_rmd=base, craters_default=default, craters_smooth=smooth)
-    for cfg in configs.values():
-        cfg["peak_rss_mib"] = _mib(cfg["peak_rss_bytes"])
-        cfg["peak_rss_after_warmup_mib"] = _mib(cfg["peak_rss_after_warmup_bytes"])
-        cfg["peak_rss_increment_mib"] = _mib(cfg["peak_rss_increment_bytes"])
-    window["peak_rss_window_mib"] = _mib(window["peak_rss_window_bytes"])
-
-    return dict(
-        benchmark="craterscape synthetic cratered tile",
-        mode="quick" if quick else "full",
-        machine=machine_facts(),
-        parameters=dict(size=size, resolution_m=RESOLUTION, area_km2=side_km**2,
-                        fractal_dimension=FRACTAL_DIMENSION, relief_m=RELIEF, seed=SEED,
-                        dmin_m=DMIN, dmax_m=DMAX, sfd_exponent=SFD_EXPONENT, max_age_gyr=MAX_AGE,
-                        density_per_km2=density, expected_craters_on_tile=expected,
-                        repeat=repeat, timer="time.perf_counter",
-                        memory="ru_maxrss of a child process per configuration"),
-        tile=dict(
-            configs=configs,
-            crater_cost=dict(default=cost_default, smooth=cost_smooth),
-            roughness_overhead=(default["wall"]["median_s"] / smooth["wall"]["median_s"]
-                                if smooth["wall"]["median_s"] else None),
-            peer_us_per_crater=PEER_US_PER_CRATER,
-            targets=targets,
-        ),
-        window=dict(window=dict(col=corner, row=corner, width=win, height=win),
-                    model="default", result=window,
-                    full_tile_median_s=full_med,
-                    ratio_window_to_full=window["wall"]["median_s"] / full_med,
-                    pixel_fraction=win * win / size**2),
-    )
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
-    parser.add_argument("--quick", action="store_true",
-                        help="1025^2 tile and ~6,000 craters (smoke test, seconds)")
-    parser.add_argument("--repeat", type=int, default=3,
-                        help="timed calls per configuration (default 3)")
-    parser.add_argument("--timeout", type=float, default=900.0,
-                        help="seconds allowed per child process (default 900)")
-    parser.add_argument("--child", metavar="SPEC", help=argparse.SUPPRESS)
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="smoke-test sizes")
+    parser.add_argument("--only", nargs="*", default=None,
+                        help="benchmark names to run (e.g. craters enhance asteroid)")
     args = parser.parse_args(argv)
-
-    if args.child:
-        spec = json.loads(args.child)
-        runner = child_window if spec["kind"] == "window" else child_tile
-        json.dump(runner(spec), sys.stdout)
-        sys.stdout.write("\n")
-        return 0
-
-    if args.repeat < 1:
-        parser.error("--repeat must be >= 1")
+    scripts = sorted(HERE.glob("bench_*.py"))
+    results, status = {}, 0
     t0 = time.perf_counter()
-    try:
-        doc = benchmark(args.quick, args.repeat, args.timeout)
-    except (RuntimeError, subprocess.TimeoutExpired, json.JSONDecodeError) as exc:
-        log(f"benchmark failed: {exc}")
-        json.dump(dict(error=str(exc), machine=machine_facts()), sys.stdout, indent=2)
-        sys.stdout.write("\n")
-        return 1
-    doc["total_benchmark_s"] = time.perf_counter() - t0
-    log(f"all done in {doc['total_benchmark_s']:.1f} s")
-    json.dump(doc, sys.stdout, indent=2)
-    sys.stdout.write("\n")
-    return 0
+    for script in scripts:
+        name = script.stem.removeprefix("bench_")
+        if args.only and name not in args.only:
+            continue
+        print(f"[bench] {name} ...", file=sys.stderr, flush=True)
+        proc = subprocess.run([sys.executable, str(script)] + (["--quick"] if args.quick else []),
+                              stdout=subprocess.PIPE, text=True, check=False)
+        try:
+            results[name] = json.loads(proc.stdout)
+        except json.JSONDecodeError:
+            results[name] = {"error": f"no JSON (exit status {proc.returncode})"}
+        if proc.returncode != 0:
+            status = 1
+    print(json.dumps(dict(benchmarks=results, total_s=time.perf_counter() - t0), indent=2))
+    return status
 
 
 if __name__ == "__main__":

@@ -1,0 +1,224 @@
+"""Benchmarks for DEM enhancement: one JSON document on stdout, progress on stderr.
+
+Targets (the DEM-enhancement issue), each against a baseline measured in the same run:
+
+* ``expand``: one 2x fractal expansion of a 4097^2 DEM (roughness measured from it, local
+  roughness map on) in <= 3 s and <= 2 GiB; baseline: copying the 8193^2 float32 result
+  into freshly allocated memory.
+* ``enhance``: the 11-level enhancement of a 1025^2 base at 1 km down to about 0.5 m with
+  1025^2 layers and a lunar crater population, written to disk, in <= 60 s; baseline: the
+  same stack with no craters.
+* ``fill``: filling 1 million unknown pixels (one disc on a 2049^2 DEM); baseline: GDAL's
+  inverse-distance ``fillnodata`` (rasterio) on the same gap.
+
+Each configuration runs in its own child process (this script with ``--child``), so its peak
+resident set size is its own; children warm numba up first and report that separately.
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_enhance.py          # full (a few minutes)
+    .venv/bin/python benchmarks/bench_enhance.py --quick  # small sizes, seconds
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+SEED = 2014
+GiB = 1024**3
+
+
+def log(message: str) -> None:
+    print(f"[bench-enhance {time.strftime('%H:%M:%S')}] {message}", file=sys.stderr, flush=True)
+
+
+def peak_rss() -> int:
+    return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
+
+
+def summary(times):
+    return dict(median_s=statistics.median(times), min_s=min(times), max_s=max(times),
+                runs_s=times)
+
+
+# ------------------------------------------------------------------------------ children
+
+
+def warm_up() -> float:
+    import numpy as np
+
+    from terrain.expand import expand
+    from terrain.gapfill import fill_gaps
+    from terrain.layers import build_stack
+    from terrain.population import Population
+    from terrain.synthetic import synthesize_tile
+
+    t0 = time.perf_counter()
+    tile = synthesize_tile(33, resolution=100.0, relief=50.0, seed=1).tile
+    expand(tile, 1, seed=1)
+    h = tile.heights.copy()
+    h[10:15, 10:15] = np.nan
+    fill_gaps(tile.replace(heights=h), seed=1)
+    build_stack(tile, (1600.0, 1600.0), levels=2, layer_size=17, seed=1,
+                population=Population(dmin=1.0, dmax=500.0, density=1e5))
+    return time.perf_counter() - t0
+
+
+def child_expand(spec):
+    import numpy as np
+
+    from terrain.expand import expand
+    from terrain.rmd import synthesize
+    from terrain.tile import DEMTile
+
+    warm = warm_up()
+    size = spec["size"]
+    tile = DEMTile.from_array(synthesize(size, relief=200.0, seed=SEED), resolution=2.0)
+    rss0 = peak_rss()
+    times, copies = [], []
+    for i in range(spec["repeat"]):
+        t0 = time.perf_counter()
+        out = expand(tile, 1, seed=SEED)
+        times.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        copy = np.empty_like(out.heights)
+        copy[...] = out.heights
+        copies.append(time.perf_counter() - t0)
+        shape = out.shape
+        del out, copy
+        log(f"  expand {size}^2 run {i + 1}: {times[-1]:.3f} s (copy {copies[-1]:.3f} s)")
+    return dict(warmup_s=warm, input=[size, size], output=list(shape), wall=summary(times),
+                copy_output=summary(copies),
+                ratio_to_copy=statistics.median(times) / statistics.median(copies),
+                peak_rss_bytes=peak_rss(), peak_rss_before_bytes=rss0)
+
+
+def child_enhance(spec):
+    from terrain.layers import build_stack, write_stack
+    from terrain.population import Population
+    from terrain.synthetic import synthesize_tile
+
+    warm = warm_up()
+    base = synthesize_tile(spec["base"], resolution=1000.0, relief=3000.0, seed=SEED).tile
+    site = (spec["base"] * 500.0, spec["base"] * 500.0)
+    # about lunar equilibrium: N(>= 1 m) ~ 1e5 per km^2, k = -2
+    pop = Population(dmin=1.0, dmax=20000.0, density=1e5, max_age=3.5) if spec["craters"] \
+        else None
+    rss0 = peak_rss()
+    builds, totals = [], []
+    for i in range(spec["repeat"]):
+        with tempfile.TemporaryDirectory() as tmp:
+            t0 = time.perf_counter()
+            stack = build_stack(base, site, levels=spec["levels"], layer_size=spec["layer"],
+                                seed=SEED, population=pop)
+            builds.append(time.perf_counter() - t0)
+            write_stack(stack, Path(tmp) / "stack")
+            totals.append(time.perf_counter() - t0)
+        n = len(stack.catalog["id"])
+        finest = stack.tiles[-1].resolution
+        del stack
+        log(f"  enhance run {i + 1}: build {builds[-1]:.2f} s, with writing {totals[-1]:.2f} s, "
+            f"{n} craters")
+    return dict(warmup_s=warm, base=spec["base"], levels=spec["levels"],
+                layer_size=spec["layer"], finest_resolution_m=finest, n_craters=n,
+                build=summary(builds), build_and_write=summary(totals),
+                peak_rss_bytes=peak_rss(), peak_rss_before_bytes=rss0)
+
+
+def child_fill(spec):
+    import numpy as np
+    from rasterio.fill import fillnodata
+
+    from terrain.gapfill import fill_gaps
+    from terrain.synthetic import synthesize_tile
+
+    warm = warm_up()
+    size = spec["size"]
+    tile = synthesize_tile(size, resolution=1.0, relief=40.0, seed=SEED).tile
+    rr, cc = np.mgrid[0:size, 0:size]
+    radius = (spec["pixels"] / np.pi) ** 0.5
+    hole = (rr - size // 2) ** 2 + (cc - size // 2) ** 2 <= radius**2
+    h = tile.heights.copy()
+    h[hole] = np.nan
+    cut = tile.replace(heights=h)
+    rss0 = peak_rss()
+    ours, gdal = [], []
+    for i in range(spec["repeat"]):
+        t0 = time.perf_counter()
+        result = fill_gaps(cut, seed=SEED)
+        ours.append(time.perf_counter() - t0)
+        assert np.array_equal(result.tile.heights[~hole], tile.heights[~hole])
+        del result
+        t0 = time.perf_counter()
+        fillnodata(h.copy(), mask=(~hole).astype("uint8"), max_search_distance=2 * radius + 10)
+        gdal.append(time.perf_counter() - t0)
+        log(f"  fill run {i + 1}: ours {ours[-1]:.2f} s, GDAL IDW {gdal[-1]:.2f} s")
+    return dict(warmup_s=warm, unknown_pixels=int(hole.sum()), dem=[size, size],
+                wall=summary(ours), gdal_fillnodata=summary(gdal),
+                ratio_to_gdal=statistics.median(ours) / statistics.median(gdal),
+                peak_rss_bytes=peak_rss(), peak_rss_before_bytes=rss0)
+
+
+CHILDREN = {"expand": child_expand, "enhance": child_enhance, "fill": child_fill}
+
+
+# ------------------------------------------------------------------------------ parent
+
+
+def run_child(spec, timeout=900):
+    log(f"{spec['kind']}: starting")
+    proc = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--child",
+                           json.dumps(spec)], stdout=subprocess.PIPE, text=True, cwd=ROOT,
+                          timeout=timeout, check=False)
+    if proc.returncode != 0:
+        return {"error": f"child exited with status {proc.returncode}"}
+    return json.loads(proc.stdout)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="small sizes (smoke test)")
+    parser.add_argument("--repeat", type=int, default=3, help="timed runs per configuration")
+    parser.add_argument("--child", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.child:
+        spec = json.loads(args.child)
+        print(json.dumps(CHILDREN[spec["kind"]](spec)))
+        return 0
+    q = args.quick
+    specs = {
+        "expand": dict(kind="expand", size=1025 if q else 4097, repeat=args.repeat),
+        "enhance": dict(kind="enhance", base=257 if q else 1025, levels=4 if q else 11,
+                        layer=257 if q else 1025, craters=True, repeat=1 if q else 2),
+        "enhance_no_craters": dict(kind="enhance", base=257 if q else 1025,
+                                   levels=4 if q else 11, layer=257 if q else 1025,
+                                   craters=False, repeat=1 if q else 2),
+        "fill": dict(kind="fill", size=513 if q else 2049, pixels=50_000 if q else 1_000_000,
+                     repeat=args.repeat),
+    }
+    t0 = time.perf_counter()
+    results = {name: run_child(spec) for name, spec in specs.items()}
+    targets = None
+    if not q and all("error" not in r for r in results.values()):
+        targets = dict(
+            expand_wall_ok=results["expand"]["wall"]["median_s"] <= 3.0,
+            expand_memory_ok=results["expand"]["peak_rss_bytes"] <= 2 * GiB,
+            enhance_wall_ok=results["enhance"]["build_and_write"]["median_s"] <= 60.0,
+            fill_well_under_10s=results["fill"]["wall"]["median_s"] <= 5.0,
+        )
+    print(json.dumps(dict(benchmark="enhance", quick=q, results=results, targets=targets,
+                          total_s=time.perf_counter() - t0), indent=2))
+    return 0 if all("error" not in r for r in results.values()) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
