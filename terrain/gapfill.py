@@ -9,11 +9,12 @@ average of the nearest neighboring pixels in all eight directions plus a random 
 scaled by the roughness parameter and the DEM horizontal resolution. The weighting is the
 inverse of the pixel distance to the known value pixel."
 
-The paper re-sorts the whole list after every pixel; we keep a priority queue keyed by
-(8 - known neighbours, pixel index) with lazy updates, so each fill costs O(log n) plus the
-eight ray walks, which stop at the first known (or already filled) pixel and after
-:data:`MAX_RAY` pixels. Ties go to the lower pixel index, so the order, like every Gaussian
-(keyed by ``(seed, "fill", 0, column, row)``), depends on nothing but the input.
+The paper re-sorts the whole list after every pixel; we keep eight first-in-first-out
+buckets, one per count of known neighbours, with lazy updates, so each fill costs O(1) plus
+the eight ray walks, which stop at the first known (or already filled) pixel and after
+:data:`MAX_RAY` pixels. The order (most known neighbours first; within a count, first queued
+first) and every Gaussian (keyed by ``(seed, "fill", 0, column, row)``) depend on nothing but
+the input.
 
 The roughness R (the Gaussian is ``R * resolution`` metres) is estimated per gap by default,
 from the variability of the Horn slopes of the known pixels within :data:`RING` pixels of the
@@ -34,7 +35,6 @@ which exist to do so and say what they changed.
 
 from __future__ import annotations
 
-import heapq
 import json
 import logging
 import math
@@ -98,10 +98,13 @@ def _idw(z, known, i, j, max_ray):
         dj = _DIRS[d, 1]
         step = _SQRT2 if di != 0 and dj != 0 else 1.0
         for k in range(1, max_ray + 1):
-            a = _reflect(i + k * di, ny)
-            b = _reflect(j + k * dj, nx)
-            if a == i and b == j:
-                break  # reflected back onto the pixel itself
+            a = i + k * di
+            b = j + k * dj
+            if a < 0 or a >= ny or b < 0 or b >= nx:
+                a = _reflect(a, ny)
+                b = _reflect(b, nx)
+                if a == i and b == j:
+                    break  # reflected back onto the pixel itself
             if known[a, b]:
                 w = 1.0 / (k * step)
                 total += w * z[a, b]
@@ -139,31 +142,40 @@ def _count_known(known, i, j):
 def _fill(z, known, fillable, sigma, key, max_ray):
     """Fill every fillable pixel reachable from a known one; returns the number filled.
 
-    ``sigma`` is the per-pixel Gaussian scale (m). Queue keys are
-    (8 - known neighbours) * 2^40 + pixel index: most known neighbours first, ties by index.
-    Unknown pixels that are not fillable are never filled; rays pass through them.
+    ``sigma`` is the per-pixel Gaussian scale (m). The queue is eight FIFO buckets, one per
+    count of known neighbours (1..8), always served from the fullest count: O(1) per push and
+    pop. A pixel whose count rises is pushed again into the higher bucket and its old entry
+    is skipped when it comes up (lazy deletion). Unknown pixels that are not fillable are
+    never filled; rays pass through them.
     """
     ny, nx = z.shape
-    shift = np.int64(1) << np.int64(40)
-    count = np.zeros((ny, nx), dtype=np.int64)
-    heap = List()
-    heap.append(np.int64(0))
-    heap.pop()
+    count = np.zeros((ny, nx), dtype=np.int8)
+    buckets = List()
+    for _ in range(9):
+        lst = List()
+        lst.append(np.int64(0))
+        lst.pop()
+        buckets.append(lst)
+    heads = np.zeros(9, dtype=np.int64)
     for i in range(ny):
         for j in range(nx):
             if fillable[i, j] and not known[i, j]:
                 n = _count_known(known, i, j)
                 count[i, j] = n
                 if n > 0:
-                    heapq.heappush(heap, np.int64(8 - n) * shift + i * nx + j)
+                    buckets[n].append(np.int64(i * nx + j))
     filled = 0
-    while len(heap) > 0:
-        item = heapq.heappop(heap)
-        idx = item % shift
-        n = 8 - item // shift
+    top = 8
+    while True:
+        while top > 0 and heads[top] >= len(buckets[top]):
+            top -= 1
+        if top == 0:
+            break
+        idx = buckets[top][heads[top]]
+        heads[top] += 1
         i = idx // nx
         j = idx % nx
-        if known[i, j] or count[i, j] != n:
+        if known[i, j] or count[i, j] != top:
             continue  # already filled, or a stale entry superseded by a newer count
         value = _idw(z, known, i, j, max_ray)
         z[i, j] = value + sigma[i, j] * normal_at(key, j, i)
@@ -174,7 +186,9 @@ def _fill(z, known, fillable, sigma, key, max_ray):
             b = j + _DIRS[d, 1]
             if 0 <= a < ny and 0 <= b < nx and fillable[a, b] and not known[a, b]:
                 count[a, b] += 1
-                heapq.heappush(heap, np.int64(8 - count[a, b]) * shift + a * nx + b)
+                buckets[count[a, b]].append(np.int64(a * nx + b))
+                if count[a, b] > top:
+                    top = count[a, b]
     return filled
 
 
