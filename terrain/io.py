@@ -32,8 +32,8 @@ from terrain import memory
 from terrain.errors import InvalidDEMError, MissingInputError, OutputPathError
 from terrain.tile import DEMTile
 
-__all__ = ["atomic_path", "check_output_path", "lonlat_to_xy", "read_dem", "write_dem",
-           "write_png"]
+__all__ = ["atomic_path", "check_output_path", "lonlat_to_xy", "read_dem", "read_float_tiff",
+           "write_dem", "write_float_tiff", "write_png"]
 
 log = logging.getLogger(__name__)
 
@@ -250,3 +250,42 @@ def lonlat_to_xy(crs_wkt: str | None, lon: float, lat: float) -> tuple[float, fl
         raise InvalidParameterError(f"longitude/latitude {lon}, {lat} has no position in the "
                                     "DEM's projection")
     return float(xs[0]), float(ys[0])
+
+
+def write_float_tiff(array: np.ndarray, path, *, tags: dict | None = None, inputs=()) -> Path:
+    """Write a (h, w) or (h, w, bands) float32 image as a compressed TIFF, atomically.
+
+    Not georeferenced (sensor images: range, normals); NaN marks invalid pixels and is the
+    nodata value. Bands keep their order (band 1 = channel 0).
+    """
+    a = np.asarray(array, dtype=np.float32)
+    if a.ndim == 2:
+        a = a[:, :, None]
+    if a.ndim != 3:
+        raise ValueError(f"image must be (h, w) or (h, w, bands); got {a.shape}")
+    h, w, bands = a.shape
+    profile = dict(driver="GTiff", dtype="float32", count=bands, width=w, height=h,
+                   nodata=float("nan"), compress="deflate", predictor=3, tiled=True,
+                   blockxsize=256, blockysize=256)
+    with atomic_path(path, inputs) as tmp, warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        with rasterio.open(tmp, "w", **profile) as dst:
+            dst.write(np.moveaxis(a, 2, 0))
+            if tags:
+                dst.update_tags(**{k: str(v) for k, v in tags.items()})
+    return Path(path)
+
+
+def read_float_tiff(path) -> np.ndarray:
+    """Read a float TIFF written by :func:`write_float_tiff`: (h, w) or (h, w, bands)."""
+    path = Path(path)
+    if not path.exists():
+        raise MissingInputError(f"image '{path}' does not exist")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(path) as src:
+                a = src.read()
+    except (RasterioIOError, RasterioError) as exc:
+        raise InvalidDEMError(f"cannot read image '{path}': {_first_line(exc)}") from exc
+    return a[0] if a.shape[0] == 1 else np.moveaxis(a, 0, 2)

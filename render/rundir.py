@@ -1,0 +1,179 @@
+"""The run directory: rendered frames, range and normal images, and per-frame ground truth.
+
+Layout (``craterscape render sequence`` writes it; :mod:`evaluation` reads it)::
+
+    RUN_DIR/
+      manifest.json         run-level facts: format, scene, frame count, resolution, seed
+      scenario.toml         a copy of the scenario that produced the run
+      truth.json            one entry per frame (below), rewritten atomically after each frame
+      frames/frame_NNNNNN.png     camera image, 8- or 16-bit grey, linear in radiance
+      range/range_NNNNNN.tif      LIDAR range (float32 metres along the ray; NaN = no return)
+      normals/normals_NNNNNN.tif  surface normals (3 bands, float32, world frame; NaN = none)
+
+A truth entry::
+
+    {"index": 0, "time": 0.0,
+     "image": "frames/frame_000000.png", "range": "range/range_000000.tif",
+     "normals": "normals/normals_000000.tif",
+     "camera": {"position": [x, y, z], "attitude": [w, x, y, z]},
+     "intrinsics": {"width": .., "height": .., "fx": .., "fy": .., "cx": .., "cy": ..},
+     "sun": {"direction": [x, y, z]},            # unit vector towards the sun, world frame
+     "body_rotation": [w, x, y, z],              # R_WB; identity for terrain scenes
+     "drawn": {...}}                             # layers / patches / boulders drawn
+
+Frames and conventions are those of :mod:`render.camera`. Every file is written atomically,
+so an interrupted run leaves complete frames and a truth file that lists exactly them.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from render.camera import Intrinsics, Pose
+from terrain.errors import InvalidParameterError, MissingInputError
+from terrain.io import atomic_path, read_float_tiff, write_float_tiff, write_png
+
+__all__ = ["FORMAT", "FrameTruth", "RunReader", "RunWriter"]
+
+FORMAT = "craterscape-render-run"
+
+
+@dataclass(frozen=True)
+class FrameTruth:
+    """Ground truth of one frame (see the module docstring)."""
+
+    index: int
+    time: float
+    pose: Pose
+    intrinsics: Intrinsics
+    sun: tuple
+    body_rotation: tuple = (1.0, 0.0, 0.0, 0.0)
+    drawn: dict = field(default_factory=dict)
+    image: str | None = None
+    range: str | None = None
+    normals: str | None = None
+
+    def as_dict(self) -> dict:
+        return dict(index=self.index, time=self.time, image=self.image, range=self.range,
+                    normals=self.normals, camera=self.pose.as_dict(),
+                    intrinsics=self.intrinsics.as_dict(), sun={"direction": list(self.sun)},
+                    body_rotation=list(self.body_rotation), drawn=self.drawn)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> FrameTruth:
+        return cls(int(d["index"]), float(d.get("time", 0.0)),
+                   Pose(tuple(d["camera"]["position"]), tuple(d["camera"]["attitude"])),
+                   Intrinsics(**d["intrinsics"]), tuple(d["sun"]["direction"]),
+                   tuple(d.get("body_rotation", (1.0, 0.0, 0.0, 0.0))), d.get("drawn", {}),
+                   d.get("image"), d.get("range"), d.get("normals"))
+
+
+class RunWriter:
+    """Writes a run directory frame by frame."""
+
+    def __init__(self, run_dir, manifest: dict, scenario_file=None, *, resume: bool = False):
+        self.dir = Path(run_dir)
+        if self.dir.exists() and not self.dir.is_dir():
+            raise InvalidParameterError(f"run directory '{self.dir}' exists and is a file")
+        existing = self.dir / "truth.json"
+        self.frames: list[dict] = []
+        if self.dir.exists() and any(self.dir.iterdir()):
+            if not resume:
+                raise InvalidParameterError(
+                    f"run directory '{self.dir}' is not empty; choose a new one (or resume)")
+            if existing.exists():
+                self.frames = json.loads(existing.read_text(encoding="utf-8"))
+        for sub in ("frames", "range", "normals"):
+            (self.dir / sub).mkdir(parents=True, exist_ok=True)
+        self.manifest = dict(manifest, format=FORMAT, version=1)
+        if scenario_file is not None and not (self.dir / "scenario.toml").exists():
+            with atomic_path(self.dir / "scenario.toml") as tmp:
+                shutil.copyfile(scenario_file, tmp)
+        self._write_manifest()
+
+    def done(self) -> set[int]:
+        """Indices of frames already written (for resuming)."""
+        return {int(f["index"]) for f in self.frames}
+
+    def write_frame(self, truth: FrameTruth, image: np.ndarray, range_m: np.ndarray | None,
+                    normals: np.ndarray | None) -> None:
+        i = truth.index
+        names = dict(image=f"frames/frame_{i:06d}.png")
+        write_png(image, self.dir / names["image"])
+        if range_m is not None:
+            names["range"] = f"range/range_{i:06d}.tif"
+            write_float_tiff(range_m, self.dir / names["range"], tags={"UNITS": "metre"})
+        if normals is not None:
+            names["normals"] = f"normals/normals_{i:06d}.tif"
+            write_float_tiff(normals, self.dir / names["normals"],
+                             tags={"FRAME": "world", "BANDS": "nx,ny,nz"})
+        entry = FrameTruth(truth.index, truth.time, truth.pose, truth.intrinsics, truth.sun,
+                           truth.body_rotation, truth.drawn, names["image"],
+                           names.get("range"), names.get("normals")).as_dict()
+        self.frames = [f for f in self.frames if int(f["index"]) != i] + [entry]
+        self.frames.sort(key=lambda f: int(f["index"]))
+        with atomic_path(self.dir / "truth.json") as tmp:
+            tmp.write_text(json.dumps(self.frames, indent=1), encoding="utf-8")
+
+    def finish(self, **facts) -> None:
+        self.manifest.update(facts, frames_written=len(self.frames))
+        self._write_manifest()
+
+    def _write_manifest(self):
+        with atomic_path(self.dir / "manifest.json") as tmp:
+            tmp.write_text(json.dumps(self.manifest, indent=2, sort_keys=True), encoding="utf-8")
+
+
+class RunReader:
+    """Reads a run directory; frames without truth are allowed (``truth`` is then empty)."""
+
+    def __init__(self, run_dir):
+        self.dir = Path(run_dir)
+        if not self.dir.is_dir():
+            raise MissingInputError(f"run directory '{self.dir}' does not exist")
+        mpath = self.dir / "manifest.json"
+        self.manifest = json.loads(mpath.read_text(encoding="utf-8")) if mpath.exists() else {}
+        tpath = self.dir / "truth.json"
+        self.truth: list[FrameTruth] = []
+        if tpath.exists():
+            try:
+                self.truth = [FrameTruth.from_dict(d)
+                              for d in json.loads(tpath.read_text(encoding="utf-8"))]
+            except (ValueError, KeyError, TypeError) as exc:
+                raise InvalidParameterError(f"truth file '{tpath}' is corrupt: {exc}") from None
+        if self.truth:
+            self.images = [self.dir / t.image for t in self.truth]
+        else:
+            self.images = sorted((self.dir / "frames").glob("frame_*.png"))
+        if not self.images:
+            raise MissingInputError(f"run directory '{self.dir}' holds no frames")
+
+    @property
+    def has_truth(self) -> bool:
+        return bool(self.truth)
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+    def image(self, k: int) -> np.ndarray:
+        import cv2
+
+        img = cv2.imread(str(self.images[k]), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise MissingInputError(f"cannot read frame '{self.images[k]}'")
+        return img
+
+    def range(self, k: int) -> np.ndarray | None:
+        if not self.truth or not self.truth[k].range:
+            return None
+        return read_float_tiff(self.dir / self.truth[k].range)
+
+    def normals(self, k: int) -> np.ndarray | None:
+        if not self.truth or not self.truth[k].normals:
+            return None
+        return read_float_tiff(self.dir / self.truth[k].normals)
