@@ -1,0 +1,107 @@
+"""The ``craterscape render`` commands: a sequence into a run directory, or one frame."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import click
+
+from terrain.errors import InvalidParameterError
+
+__all__ = ["render"]
+
+
+class _Resolution(click.ParamType):
+    name = "WxH"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, tuple):
+            return value
+        try:
+            w, h = (int(v) for v in str(value).lower().split("x"))
+            if w < 1 or h < 1:
+                raise ValueError
+            return w, h
+        except ValueError:
+            self.fail(f"expected WIDTHxHEIGHT such as 1024x1024; got {value!r}", param, ctx)
+
+
+RESOLUTION = _Resolution()
+
+
+@click.group()
+def render():
+    """Camera images, LIDAR range and ground truth along trajectories."""
+
+
+@render.command()
+@click.argument("scenario_file", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Run directory (new or empty; with --resume, an interrupted run).")
+@click.option("--frames", type=click.IntRange(1, 100000), default=None,
+              help="Override the scenario's frame count.")
+@click.option("--resolution", type=RESOLUTION, default=None,
+              help="Override the image size (field of view kept).")
+@click.option("--resume", is_flag=True, help="Continue an interrupted run in the same folder.")
+def sequence(scenario_file, output, frames, resolution, resume):
+    """Render every frame of a scenario: frames/, range/, normals/, truth.json, manifest."""
+    from render.scenario import load_scenario
+    from render.sequence import run_sequence
+
+    scenario = load_scenario(scenario_file).with_overrides(frames, resolution)
+    bar = None
+    if sys.stderr.isatty():
+        from tqdm import tqdm
+
+        bar = tqdm(total=int(scenario.trajectory["frames"]), desc="render", unit="frame")
+
+    def progress(done, total, fps):
+        if bar is not None:
+            bar.n = done
+            bar.set_postfix(fps=f"{fps:.2f}")
+            bar.refresh()
+
+    try:
+        manifest = run_sequence(scenario, output, resume=resume, progress=progress)
+    finally:
+        if bar is not None:
+            bar.close()
+    click.echo(f"wrote {manifest['frames_written']} frames to {output} "
+               f"({manifest['render_seconds']:.1f} s)", err=True)
+
+
+@render.command()
+@click.argument("scenario_file", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="Image file (PNG); range, normals and truth go beside it.")
+@click.option("--index", type=int, default=None, help="Trajectory frame to render (default 0).")
+@click.option("--resolution", type=RESOLUTION, default=None, help="Override the image size.")
+def frame(scenario_file, output, index, resolution):
+    """Render one view of a scenario: OUT.png, OUT_range.tif, OUT_normals.tif, OUT_truth.json."""
+    from render.renderer import Renderer
+    from render.scenario import load_scenario
+    from render.sequence import load_scene, render_sample
+    from terrain.io import atomic_path, check_output_path, write_float_tiff, write_png
+
+    check_output_path(output, [scenario_file])
+    if output.suffix.lower() != ".png":
+        raise InvalidParameterError(f"frame output must be a .png file; got '{output}'")
+    scenario = load_scenario(scenario_file).with_overrides(None, resolution)
+    scene = load_scene(scenario)
+    samples = scenario.samples(scene)
+    index = 0 if index is None else index
+    if not 0 <= index < len(samples):
+        raise InvalidParameterError(f"--index must lie in [0, {len(samples) - 1}]; got {index}")
+    image, fr, truth = render_sample(Renderer(), scene, scenario, samples[index], index)
+    stem = output.with_suffix("")
+    write_png(image, output, inputs=[scenario_file])
+    if scenario.outputs["range"]:
+        write_float_tiff(fr.range, f"{stem}_range.tif", tags={"UNITS": "metre"})
+    if scenario.outputs["normals"]:
+        write_float_tiff(fr.normals, f"{stem}_normals.tif", tags={"FRAME": "world"})
+    with atomic_path(f"{stem}_truth.json") as tmp:
+        tmp.write_text(json.dumps(truth.as_dict(), indent=2), encoding="utf-8")
+    click.echo(f"wrote {output} (frame {index}, {fr.drawn.get('triangles', 0)} triangles)",
+               err=True)

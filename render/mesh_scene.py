@@ -1,0 +1,213 @@
+"""Any closed triangle mesh as a scene: shape models, asteroid bodies, boulders.
+
+The mesh lives in its body-fixed frame (metres, origin at the body's centre); the world frame
+is inertial, and the body's rotation quaternion R_WB (set per frame, e.g. from a spin) maps
+body to world: ``p_W = R_WB p_B + centre``. Faces are sorted along a Morton curve of their
+centroids and cut into chunks of :data:`CHUNK` triangles, each with a bounding sphere, so a
+frame draws only the chunks inside the view frustum.
+
+Levels of detail: a scene may hold several meshes of the same body at decreasing resolution
+(:meth:`MeshScene.add_lod`), each with its typical edge length; a frame draws the coarsest one
+whose edges stay below ``RenderOptions.lod_pixels`` on screen at the body's nearest point.
+
+Shadows: one orthographic map fitted to the body's bounding sphere, re-rendered every frame
+(the body turns under the sun).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from render.camera import quat_to_matrix
+from render.scene import DrawBatch, FrameState, ShadowMap, ortho_light
+from terrain.errors import InvalidParameterError
+
+__all__ = ["CHUNK", "MeshScene", "vertex_normals"]
+
+#: Triangles per culling chunk.
+CHUNK = 4096
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted vertex normals (n, 3) float64 of a triangle mesh."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    n = np.zeros_like(v)
+    for k in range(3):
+        np.add.at(n, f[:, k], fn)
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    norm[norm == 0] = 1.0
+    return n / norm
+
+
+def _morton_order(points: np.ndarray) -> np.ndarray:
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    q = ((points - lo) / np.maximum(hi - lo, 1e-12) * 1023).astype(np.int64)
+    code = np.zeros(len(points), dtype=np.int64)
+    for bit in range(10):
+        for axis in range(3):
+            code |= ((q[:, axis] >> bit) & 1) << (3 * bit + axis)
+    return np.argsort(code, kind="stable")
+
+
+@dataclass(eq=False)
+class _Lod:
+    vbo: object
+    ibo: object
+    centres: np.ndarray   # (chunks, 3) body frame
+    radii: np.ndarray     # (chunks,)
+    firsts: np.ndarray
+    counts: np.ndarray
+    edge: float           # typical edge length (m)
+    triangles: int
+    vaos: dict
+
+
+class MeshScene:
+    """A triangle mesh (body frame, metres) ready to render (see the module docstring).
+
+    Parameters
+    ----------
+    vertices : (n, 3) float, metres, body frame
+    faces : (m, 3) int, outward-wound (counter-clockwise seen from outside)
+    centre : (3,) world position of the body's origin (default: the world origin)
+    """
+
+    kind = "mesh"
+
+    def __init__(self, vertices, faces, *, centre=(0.0, 0.0, 0.0)):
+        self.origin = np.asarray(centre, dtype=np.float64).reshape(3)
+        self.rotation = np.eye(3)
+        self._meshes = []
+        self._gpu: dict = {}
+        self._shadow = None
+        self.add_lod(vertices, faces)
+
+    def add_lod(self, vertices, faces) -> None:
+        """Add a (coarser) level of detail of the same body."""
+        v = np.asarray(vertices, dtype=np.float64)
+        f = np.asarray(faces, dtype=np.int64)
+        if v.ndim != 2 or v.shape[1] != 3 or not np.all(np.isfinite(v)):
+            raise InvalidParameterError(f"mesh vertices must be (n, 3) finite; got {v.shape}")
+        if f.ndim != 2 or f.shape[1] != 3 or f.min() < 0 or f.max() >= len(v):
+            raise InvalidParameterError(
+                f"mesh faces must be (m, 3) indices into the vertices; got {f.shape}")
+        self._meshes.append((v, f))
+        self._meshes.sort(key=lambda vf: len(vf[1]), reverse=True)
+        self._gpu.clear()
+
+    @property
+    def radius(self) -> float:
+        return float(np.linalg.norm(self._meshes[0][0], axis=1).max())
+
+    def set_body_rotation(self, quaternion) -> None:
+        """Rotation R_WB of the body for the next frame."""
+        self.rotation = quat_to_matrix(quaternion)
+
+    def to_world(self, points) -> np.ndarray:
+        """Body-frame points (n, 3) to the world frame with the current rotation."""
+        return np.atleast_2d(points) @ self.rotation.T + self.origin
+
+    def bounds(self):
+        r = self.radius
+        return self.origin - r, self.origin + r
+
+    # ------------------------------------------------------------------ GPU
+    def _upload(self, ctx):
+        if ctx in self._gpu:
+            return self._gpu[ctx]
+        lods = []
+        for v, f in self._meshes:
+            n = vertex_normals(v, f)
+            order = _morton_order(v[f].mean(axis=1))
+            f = f[order]
+            chunks = max(1, math.ceil(len(f) / CHUNK))
+            centres = np.empty((chunks, 3))
+            radii = np.empty(chunks)
+            for c in range(chunks):
+                pts = v[np.unique(f[c * CHUNK:(c + 1) * CHUNK])]
+                centres[c] = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+                radii[c] = np.linalg.norm(pts - centres[c], axis=1).max()
+            firsts = np.arange(chunks) * CHUNK * 3
+            counts = np.minimum(CHUNK, len(f) - np.arange(chunks) * CHUNK) * 3
+            edge = float(np.median(np.linalg.norm(v[f[:, 0]] - v[f[:, 1]], axis=1)))
+            vbo = ctx.buffer(np.hstack([v, n]).astype(np.float32).tobytes())
+            ibo = ctx.buffer(f.astype(np.uint32).tobytes())
+            lods.append(_Lod(vbo, ibo, centres, radii, firsts, counts, edge, len(f), {}))
+        self._gpu[ctx] = lods
+        return lods
+
+    def _vaos(self, renderer, lod: _Lod):
+        key = id(renderer)
+        if key not in lod.vaos:
+            ctx = renderer.ctx
+            vao = ctx.vertex_array(renderer.scene_program,
+                                   [(lod.vbo, "3f 3f", "in_position", "in_normal")], lod.ibo)
+            dvao = ctx.vertex_array(renderer.depth_program,
+                                    [(lod.vbo, "3f 12x", "in_position")], lod.ibo)
+            lod.vaos[key] = (vao, dvao)
+        return lod.vaos[key]
+
+    # ------------------------------------------------------------------ per frame
+    def frame_state(self, view, lighting, options, renderer) -> FrameState:
+        lods = self._upload(renderer.ctx)
+        k = view.intrinsics
+        cam = np.asarray(view.pose.position) - self.origin      # world, relative to centre
+        dist = max(np.linalg.norm(cam) - self.radius, 1e-3)
+        focal = max(k.fx, k.fy)
+        chosen = lods[0]
+        for lod in lods:  # finest first: take the coarsest that is still fine enough
+            if lod.edge * focal / dist <= options.lod_pixels:
+                chosen = lod
+        centres_w = chosen.centres @ self.rotation.T
+        rot = view.pose.rotation
+        c = (centres_w - cam) @ rot
+        r = chosen.radii
+        vis = c[:, 2] > -r
+        planes = np.array([[k.fx, 0.0, k.cx + 0.5], [-k.fx, 0.0, k.width - 0.5 - k.cx],
+                           [0.0, k.fy, k.cy + 0.5], [0.0, -k.fy, k.height - 0.5 - k.cy]])
+        planes /= np.linalg.norm(planes, axis=1, keepdims=True)
+        for plane in planes:  # a chunk is culled when its sphere is wholly outside a plane
+            vis &= c @ plane > -r
+        # back-facing chunks cannot be culled safely on a non-convex body: keep them
+        chunks = np.flatnonzero(vis)
+        vao, dvao = self._vaos(renderer, chosen)
+        ranges = [(int(chosen.firsts[i]), int(chosen.counts[i])) for i in chunks]
+        tris = int(chosen.counts[chunks].sum()) // 3
+        shadow = self._shadow_map(renderer, lighting, options, chosen) \
+            if options.shadows and lighting is not None else None
+        batch = DrawBatch(vao, dvao, ranges, world_from_model=self.rotation,
+                          model_offset=np.zeros(3), shadow=shadow, triangles=tris)
+        far = float(np.linalg.norm(cam) + self.radius) * 1.01 + 1.0
+        drawn = {"triangles": tris, "chunks": int(chunks.size), "lod_edge_m": chosen.edge,
+                 "lod_triangles": chosen.triangles}
+        return FrameState([batch], far, drawn)
+
+    def _shadow_map(self, renderer, lighting, options, lod) -> ShadowMap:
+        size = options.shadow_size
+        if self._shadow is None or self._shadow.size != size:
+            if self._shadow is not None:
+                self._shadow.release()
+            tex, fbo = renderer.shadow_target(size)
+            self._shadow = ShadowMap(tex, size, np.eye(4), 0.0, 0.0, 0.0, framebuffer=fbo)
+        r = self.radius
+        pts = np.array([[sx * r, sy * r, sz * r] for sx in (-1, 1) for sy in (-1, 1)
+                        for sz in (-1, 1)])
+        clip, light, extent, depth = ortho_light(lighting.sun, pts, pts, margin=0.01 * r)
+        _, dvao = self._vaos(renderer, lod)
+        batch = DrawBatch(None, dvao, [(0, lod.triangles * 3)], world_from_model=self.rotation,
+                          model_offset=np.zeros(3))
+        renderer.render_depth(self._shadow.framebuffer, size, clip, [batch])
+        texel = extent / size
+        m = self._shadow
+        m.light_from_world = light
+        m.normal_offset = 1.0 * texel
+        m.bias = 1.5 * texel / depth
+        m.slope_bias = 1.0 * texel / depth
+        m.texel_m = texel
+        m.depth_range_m = depth
+        return m

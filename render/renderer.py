@@ -1,0 +1,292 @@
+"""The renderer: camera images, exact LIDAR range and normals in one pass, with shadows.
+
+One draw of the scene fills three float32 colour attachments: radiance (reflectance factor
+I/F under a unit sun, see :mod:`render.reflectance`), range (the Euclidean distance from the
+camera centre, computed per fragment from camera-relative float32 positions: not recovered from
+the 24-bit depth buffer) and the world-frame surface normal. Depth testing uses a logarithmic
+depth written per fragment (``log(z / near) / log(far / near)``), which keeps 1e-6 relative
+depth resolution from centimetres to a thousand kilometres, so descents from orbit to touchdown
+need no depth partitioning.
+
+The projection follows :mod:`render.camera` exactly: pixel (u, v) is centred where the
+OpenCV pinhole model puts it, so a world point's rendered pixel and its projection with the
+frame's truth agree (tests check this to a fraction of a pixel).
+
+Shadows are shadow maps: orthographic depth maps from the sun, looked up with a normal offset,
+a constant plus slope-scaled bias (the sun is often only a few degrees high, so the slope term
+matters at the terminator) and 3x3 percentage-closer filtering. Scenes decide which maps to
+use: a terrain layer stack fits one map to every layer (computed once per sun direction, so
+long descents stay sharp from 10 km to the ground), an asteroid fits one to the body every
+frame.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from importlib import resources
+
+import numpy as np
+
+from render.camera import Intrinsics, Pose
+from render.context import create_context
+from render.reflectance import BRDF_CODES, MCEWEN_MOON, check_brdf
+from terrain.errors import InvalidParameterError
+
+__all__ = ["Frame", "Lighting", "RenderOptions", "Renderer", "View", "clip_from_camera"]
+
+log = logging.getLogger(__name__)
+
+#: Nearest depth the logarithmic depth buffer resolves (m).
+LOG_NEAR = 0.01
+
+
+@dataclass(frozen=True)
+class Lighting:
+    """Sun direction (unit vector towards the sun, world frame), albedo and reflectance."""
+
+    sun: tuple
+    albedo: float = 0.12
+    brdf: str = "lunar-lambert"
+    mcewen: tuple = MCEWEN_MOON
+
+    def __post_init__(self):
+        s = np.asarray(self.sun, dtype=np.float64).reshape(-1)
+        if s.shape != (3,) or not np.all(np.isfinite(s)) or np.linalg.norm(s) == 0:
+            raise InvalidParameterError(f"sun direction must be a non-zero 3-vector; got {s}")
+        object.__setattr__(self, "sun", tuple((s / np.linalg.norm(s)).tolist()))
+        if not (0.0 <= float(self.albedo) <= 1.0):
+            raise InvalidParameterError(f"albedo must lie in [0, 1]; got {self.albedo}")
+        object.__setattr__(self, "albedo", float(self.albedo))
+        object.__setattr__(self, "brdf", check_brdf(self.brdf))
+
+    @classmethod
+    def from_angles(cls, azimuth_deg: float, elevation_deg: float, **kwargs) -> Lighting:
+        """Sun at an azimuth (degrees clockwise from north, +y) and elevation above the x-y
+        plane."""
+        az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
+        return cls((math.sin(az) * math.cos(el), math.cos(az) * math.cos(el), math.sin(el)),
+                   **kwargs)
+
+
+@dataclass(frozen=True)
+class View:
+    """Where the camera is and what it is: pose, intrinsics and time (s)."""
+
+    pose: Pose
+    intrinsics: Intrinsics
+    time: float = 0.0
+
+
+@dataclass(frozen=True)
+class RenderOptions:
+    """Quality and cost settings of a frame.
+
+    ``lod_pixels``: target on-screen size (pixels) of a terrain cell; terrain blocks are drawn
+    at the coarsest level of detail that keeps cells below it. ``triangle_budget``: the most
+    triangles a frame may draw; the target is relaxed until the frame fits.
+    """
+
+    shadows: bool = True
+    shadow_size: int = 2048
+    lod_pixels: float = 1.5
+    triangle_budget: int = 3_000_000
+
+    def __post_init__(self):
+        if not 64 <= int(self.shadow_size) <= 8192:
+            raise InvalidParameterError(
+                f"shadow map size must lie in [64, 8192]; got {self.shadow_size}")
+        if not self.lod_pixels > 0:
+            raise InvalidParameterError(f"lod_pixels must be positive; got {self.lod_pixels}")
+        if int(self.triangle_budget) < 1000:
+            raise InvalidParameterError(
+                f"triangle budget must be at least 1000; got {self.triangle_budget}")
+
+
+@dataclass(eq=False)
+class Frame:
+    """What one frame produced (all (height, width), top row first)."""
+
+    radiance: np.ndarray     # float32, reflectance factor I/F under a unit sun
+    range: np.ndarray        # float32 metres along the ray; NaN where nothing was hit
+    normals: np.ndarray      # (h, w, 3) float32 world frame; NaN where nothing was hit
+    drawn: dict = field(default_factory=dict)
+
+
+def clip_from_camera(intrinsics: Intrinsics, near: float, far: float) -> np.ndarray:
+    """(4, 4) clip-space matrix acting on OpenCV camera coordinates (X, Y, Z, 1).
+
+    Pixel (u, v) with v counted from the top maps to the centre of framebuffer texel
+    (u, h - 1 - v): ``x_ndc = (2u + 1) / w - 1``, ``y_ndc = 1 - (2v + 1) / h``; clip z only
+    bounds [near, far] (depth itself is written logarithmically by the fragment shader).
+    """
+    k = intrinsics
+    w, h = k.width, k.height
+    m = np.zeros((4, 4))
+    m[0, 0] = 2.0 * k.fx / w
+    m[0, 2] = (2.0 * k.cx + 1.0) / w - 1.0
+    m[1, 1] = -2.0 * k.fy / h
+    m[1, 2] = 1.0 - (2.0 * k.cy + 1.0) / h
+    m[2, 2] = (far + near) / (far - near)
+    m[2, 3] = -2.0 * far * near / (far - near)
+    m[3, 2] = 1.0
+    return m
+
+
+def _shader(name: str) -> str:
+    return resources.files("render").joinpath(f"shaders/{name}").read_text(encoding="utf-8")
+
+
+class Renderer:
+    """Holds the GL programs and offscreen framebuffers; renders scenes frame by frame."""
+
+    def __init__(self, ctx=None):
+        self.ctx = ctx or create_context()
+        self.scene_program = self.ctx.program(vertex_shader=_shader("scene.vert"),
+                                              fragment_shader=_shader("scene.frag"))
+        self.depth_program = self.ctx.program(vertex_shader=_shader("depth.vert"),
+                                              fragment_shader=_shader("depth.frag"))
+        self._fbo = None
+        self._fbo_size = None
+        self._dummy_shadow = self.ctx.depth_texture((1, 1))
+        self._dummy_shadow.compare_func = "<="
+
+    # ------------------------------------------------------------------ framebuffers
+    def _target(self, size):
+        if self._fbo_size != size:
+            if self._fbo is not None:
+                for tex in self._fbo.color_attachments:
+                    tex.release()
+                self._fbo.depth_attachment.release()
+                self._fbo.release()
+            color = [self.ctx.texture(size, 1, dtype="f4"), self.ctx.texture(size, 1, dtype="f4"),
+                     self.ctx.texture(size, 4, dtype="f4")]
+            self._fbo = self.ctx.framebuffer(color_attachments=color,
+                                             depth_attachment=self.ctx.depth_renderbuffer(size))
+            self._fbo_size = size
+        return self._fbo
+
+    def shadow_target(self, size: int):
+        """A depth texture and framebuffer for one shadow map (caller owns them)."""
+        import moderngl
+
+        tex = self.ctx.depth_texture((size, size))
+        tex.compare_func = "<="
+        tex.filter = (moderngl.LINEAR, moderngl.LINEAR)  # 2x2 percentage-closer filtering
+        tex.repeat_x = False
+        tex.repeat_y = False
+        fbo = self.ctx.framebuffer(depth_attachment=tex)
+        return tex, fbo
+
+    # ------------------------------------------------------------------ passes
+    def render(self, scene, view: View, lighting: Lighting,
+               options: RenderOptions | None = None) -> Frame:
+        """Render one frame of ``scene`` (see :mod:`render.scene`).
+
+        The pose is in the world frame; the scene's ``origin`` (world) is subtracted in float64
+        before anything reaches the GPU.
+        """
+        import moderngl
+
+        options = options or RenderOptions()
+        k = view.intrinsics
+        ctx = self.ctx
+        state = scene.frame_state(view, lighting, options, self)
+        far = max(state.far, 1.0)
+        origin = np.asarray(getattr(scene, "origin", np.zeros(3)), dtype=np.float64)
+        cam = np.asarray(view.pose.position, dtype=np.float64) - origin  # scene-local
+        r_cw = view.pose.rotation.T
+        cam_rel = np.eye(4)
+        cam_rel[:3, :3] = r_cw
+        clip = clip_from_camera(k, LOG_NEAR, far) @ cam_rel
+        prog = self.scene_program
+        prog["u_clip_from_camera_rel"].write(clip.T.astype("f4").tobytes())
+        prog["u_camera"].value = tuple(cam.tolist())
+        prog["u_axis"].value = tuple(view.pose.rotation[:, 2].tolist())
+        prog["u_sun"].value = tuple(lighting.sun)
+        prog["u_albedo"].value = lighting.albedo
+        prog["u_brdf"].value = BRDF_CODES[lighting.brdf]
+        prog["u_mcewen"].value = tuple(lighting.mcewen)
+        prog["u_log_near"].value = math.log(LOG_NEAR)
+        prog["u_log_scale"].value = 1.0 / math.log(far / LOG_NEAR)
+        prog["u_shadow_map"].value = 0
+
+        fbo = self._target((k.width, k.height))
+        fbo.use()
+        ctx.viewport = (0, 0, k.width, k.height)
+        ctx.enable(moderngl.DEPTH_TEST)
+        ctx.disable(moderngl.CULL_FACE)
+        ctx.depth_func = "<"
+        fbo.clear(color=(0.0, 0.0, 0.0, 0.0), depth=1.0)
+        for batch in state.batches:
+            self._set_batch(prog, batch, cam, options.shadows and lighting is not None)
+            for first, count in batch.ranges:
+                batch.vao.render(moderngl.TRIANGLES, vertices=count, first=first)
+        err = ctx.error
+        if err != "GL_NO_ERROR":
+            raise RuntimeError(f"OpenGL error while rendering: {err}")
+        w, h = k.width, k.height
+        rad = np.frombuffer(fbo.read(attachment=0, components=1, dtype="f4"),
+                            dtype=np.float32).reshape(h, w)[::-1]
+        rng = np.frombuffer(fbo.read(attachment=1, components=1, dtype="f4"),
+                            dtype=np.float32).reshape(h, w)[::-1].copy()
+        nrm = np.frombuffer(fbo.read(attachment=2, components=4, dtype="f4"),
+                            dtype=np.float32).reshape(h, w, 4)[::-1]
+        hit = nrm[:, :, 3] > 0.5
+        rng[~hit] = np.nan
+        normals = np.where(hit[:, :, None], nrm[:, :, :3], np.nan).astype(np.float32)
+        return Frame(np.ascontiguousarray(rad), rng, normals, dict(state.drawn))
+
+    def _set_batch(self, prog, batch, cam, shadows):
+        prog["u_world_from_model"].write(
+            np.asarray(batch.world_from_model, dtype="f4").T.tobytes())
+        prog["u_model_offset"].value = tuple((np.asarray(batch.model_offset) - cam).tolist())
+        if batch.discard is not None:
+            prog["u_use_discard"].value = 1
+            prog["u_discard"].value = tuple(batch.discard)
+        else:
+            prog["u_use_discard"].value = 0
+        shadow = batch.shadow if shadows else None
+        if shadow is not None:
+            prog["u_shadows"].value = 1
+            shadow.texture.use(location=0)
+            light = shadow.light_from_world @ _translation(cam)
+            prog["u_light_from_world"].write(light.T.astype("f4").tobytes())
+            prog["u_normal_offset"].value = shadow.normal_offset
+            prog["u_bias"].value = shadow.bias
+            prog["u_slope_bias"].value = shadow.slope_bias
+        else:
+            prog["u_shadows"].value = 0
+            self._dummy_shadow.use(location=0)
+
+    def render_depth(self, fbo, size: int, light_clip: np.ndarray, batches) -> None:
+        """Render ``batches`` into a shadow map with the orthographic ``light_clip``."""
+        import moderngl
+
+        ctx = self.ctx
+        fbo.use()
+        ctx.viewport = (0, 0, size, size)
+        ctx.enable(moderngl.DEPTH_TEST)
+        ctx.disable(moderngl.CULL_FACE)
+        ctx.depth_func = "<"
+        fbo.clear(depth=1.0)
+        prog = self.depth_program
+        prog["u_clip_from_world"].write(light_clip.T.astype("f4").tobytes())
+        for batch in batches:
+            prog["u_world_from_model"].write(
+                np.asarray(batch.world_from_model, dtype="f4").T.tobytes())
+            prog["u_model_offset"].value = tuple(np.asarray(batch.model_offset).tolist())
+            if batch.discard is not None:
+                prog["u_use_discard"].value = 1
+                prog["u_discard"].value = tuple(batch.discard)
+            else:
+                prog["u_use_discard"].value = 0
+            for first, count in batch.ranges:
+                batch.depth_vao.render(moderngl.TRIANGLES, vertices=count, first=first)
+
+
+def _translation(t) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, 3] = t
+    return m

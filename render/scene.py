@@ -1,0 +1,146 @@
+"""What a scene hands the renderer: draw batches, shadow maps and per-frame facts.
+
+A scene (:class:`render.terrain_scene.TerrainScene`, :class:`render.asteroid_scene.AsteroidScene`)
+owns its GPU buffers and, for every frame, decides what to draw (culling, level of detail,
+imposters) and which shadow map each part uses; the renderer only runs the passes. Positions
+on the GPU are relative to the scene's ``origin`` (float64, world frame), so float32 keeps
+millimetres across hundreds of kilometres.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["DrawBatch", "FrameState", "ShadowMap", "frustum_visible", "light_basis",
+           "ortho_light"]
+
+
+@dataclass(eq=False)
+class ShadowMap:
+    """An orthographic depth map from the sun and how to look it up.
+
+    ``light_from_world`` maps scene-local coordinates (world minus the scene origin) to
+    texture coordinates and depth in [0, 1]. Biases are in depth units.
+    """
+
+    texture: object
+    size: int
+    light_from_world: np.ndarray
+    normal_offset: float
+    bias: float
+    slope_bias: float
+    texel_m: float = 0.0
+    depth_range_m: float = 1.0
+    framebuffer: object = None
+
+    def release(self):
+        if self.framebuffer is not None:
+            self.framebuffer.release()
+        self.texture.release()
+
+
+@dataclass(eq=False)
+class DrawBatch:
+    """Index ranges of one vertex array to draw with one set of uniforms."""
+
+    vao: object
+    depth_vao: object
+    ranges: list
+    world_from_model: np.ndarray = field(default_factory=lambda: np.eye(3))
+    model_offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    discard: tuple | None = None
+    shadow: ShadowMap | None = None
+    triangles: int = 0
+
+
+@dataclass(eq=False)
+class FrameState:
+    """A scene's plan for one frame: batches in draw order, the far distance, what is drawn."""
+
+    batches: list
+    far: float
+    drawn: dict = field(default_factory=dict)
+
+
+def light_basis(sun) -> np.ndarray:
+    """(3, 3) rows: light-space x, y axes and the direction light travels (-sun)."""
+    s = np.asarray(sun, dtype=np.float64)
+    s = s / np.linalg.norm(s)
+    d = -s
+    helper = np.array([0.0, 0.0, 1.0]) if abs(d[2]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(helper, d)
+    x /= np.linalg.norm(x)
+    y = np.cross(d, x)
+    return np.stack([x, y, d])
+
+
+def ortho_light(sun, receivers: np.ndarray, casters: np.ndarray, margin: float = 0.0):
+    """Orthographic light matrix fitted to ``receivers`` (points), deep enough for ``casters``.
+
+    Returns ``(clip_from_world, light_from_world, texel extent (m), depth range (m))``, in
+    scene-local coordinates. The map's footprint covers the receivers; its depth range runs
+    from the caster nearest the sun to the receiver farthest from it, so every occluder that
+    can shade a receiver is inside.
+    """
+    basis = light_basis(sun)
+    r = np.atleast_2d(receivers) @ basis.T
+    c = np.atleast_2d(casters) @ basis.T
+    x0, y0 = r[:, 0].min() - margin, r[:, 1].min() - margin
+    x1, y1 = r[:, 0].max() + margin, r[:, 1].max() + margin
+    near = min(c[:, 2].min(), r[:, 2].min()) - margin - 1.0
+    far = r[:, 2].max() + margin + 1.0
+    sx, sy = max(x1 - x0, 1e-6), max(y1 - y0, 1e-6)
+    view = np.eye(4)
+    view[:3, :3] = basis
+    ortho = np.eye(4)
+    ortho[0, 0] = 2.0 / sx
+    ortho[0, 3] = -(x0 + x1) / sx
+    ortho[1, 1] = 2.0 / sy
+    ortho[1, 3] = -(y0 + y1) / sy
+    ortho[2, 2] = 2.0 / (far - near)
+    ortho[2, 3] = -(far + near) / (far - near)
+    clip = ortho @ view
+    to_tex = np.array([[0.5, 0, 0, 0.5], [0, 0.5, 0, 0.5], [0, 0, 0.5, 0.5], [0, 0, 0, 1.0]])
+    return clip, to_tex @ clip, max(sx, sy), far - near
+
+
+def frustum_visible(corners: np.ndarray, view_rotation: np.ndarray, camera: np.ndarray,
+                    intrinsics, far: float = math.inf) -> np.ndarray:
+    """Which boxes (n, 8, 3 corners, scene-local) may intersect the view frustum.
+
+    Conservative plane tests in OpenCV camera coordinates: a box is culled only when all its
+    corners lie outside one plane (behind the camera, beyond an image edge, or beyond far).
+    """
+    c = (corners - camera) @ view_rotation  # (n, 8, 3) camera coordinates
+    x, y, z = c[..., 0], c[..., 1], c[..., 2]
+    k = intrinsics
+    outside = [
+        np.all(z <= 0.0, axis=1),
+        np.all(k.fx * x + (k.cx + 0.5) * z < 0.0, axis=1),
+        np.all(k.fx * x + (k.cx - k.width + 0.5) * z > 0.0, axis=1),
+        np.all(k.fy * y + (k.cy + 0.5) * z < 0.0, axis=1),
+        np.all(k.fy * y + (k.cy - k.height + 0.5) * z > 0.0, axis=1),
+        np.all(z > far, axis=1),
+    ]
+    return ~np.any(outside, axis=0)
+
+
+def box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(n, 8, 3) corners of axis-aligned boxes given (n, 3) minima and maxima."""
+    lo = np.atleast_2d(lo)
+    hi = np.atleast_2d(hi)
+    out = np.empty((lo.shape[0], 8, 3))
+    for i in range(8):
+        out[:, i, 0] = hi[:, 0] if i & 1 else lo[:, 0]
+        out[:, i, 1] = hi[:, 1] if i & 2 else lo[:, 1]
+        out[:, i, 2] = hi[:, 2] if i & 4 else lo[:, 2]
+    return out
+
+
+def box_distance(lo: np.ndarray, hi: np.ndarray, point: np.ndarray) -> np.ndarray:
+    """Distance from a point to each axis-aligned box (0 inside)."""
+    d = np.maximum(np.maximum(lo - point, 0.0), point - hi)
+    return np.sqrt((d * d).sum(axis=1))

@@ -1,0 +1,440 @@
+"""A DEM layer stack as one multi-resolution terrain mesh.
+
+Every layer of a stack (:mod:`terrain.layers`) becomes a grid mesh with a vertex at every pixel
+centre, cut into blocks of :data:`BLOCK` x :data:`BLOCK` cells. Per frame, each block is culled
+against the view frustum, dropped if a finer layer covers it completely, and otherwise drawn
+at the coarsest level of detail (every s-th vertex, s = 1, 2, 4, ... BLOCK) whose cells stay
+below ``RenderOptions.lod_pixels`` on screen at the block's nearest distance; the target is
+relaxed until the frame fits ``RenderOptions.triangle_budget``. A layer is drawn only where
+no finer layer covers it (its fragments inside the finer layer's extent are discarded, which is
+exact because the finer layer's mesh spans exactly that rectangle of pixel centres).
+
+Crack-free seams: every block edge, including a layer's outer edge, carries a *skirt*, a
+vertical strip hanging :data:`SKIRT_PIXELS` pixels below the edge. Where neighbouring blocks
+(or a layer and its parent) are drawn at different levels of detail, the skirts fill the gaps
+their edges leave; seen from above, no background shows through.
+
+World frame: the stack's map coordinates (x east, y north, metres) and heights; positions on
+the GPU are relative to the landing site. With ``curvature`` on, heights drop by
+``d^2 / (2 R)`` with d the horizontal distance from the site and R the body's radius (the
+parabolic approximation of the sphere; within 10 % of R of the site it is exact to 0.5 % of the
+drop). :meth:`TerrainScene.to_world` applies the same mapping to any point, e.g. a crater
+centre from the catalogue, so truth and images agree.
+
+Shadows: one map per layer, fitted to the layer's extent and deep enough for every caster up
+sun, computed once per sun direction and reused by every frame (the terrain does not move).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from render.scene import (
+    DrawBatch,
+    FrameState,
+    ShadowMap,
+    box_corners,
+    box_distance,
+    frustum_visible,
+    ortho_light,
+)
+from terrain.errors import InvalidParameterError
+
+__all__ = ["BLOCK", "MOON_RADIUS", "SKIRT_PIXELS", "TerrainScene"]
+
+log = logging.getLogger(__name__)
+
+#: Cells per block side (a power of two).
+BLOCK = 64
+#: Skirt depth in pixels of the layer.
+SKIRT_PIXELS = 8.0
+#: Mean lunar radius (m), the default body radius for curvature (IAU/LOLA reference sphere).
+MOON_RADIUS = 1_737_400.0
+
+
+@dataclass(eq=False)
+class _Layer:
+    level: int
+    resolution: float
+    shape: tuple
+    vao: object
+    depth_vao: object
+    ibos: dict            # lod -> buffer
+    vaos: dict            # lod -> (vao, depth_vao)
+    offsets: dict         # lod -> (n_blocks,) first index
+    counts: dict          # lod -> (n_blocks,) index count
+    lo: np.ndarray        # (n_blocks, 3) block AABB minima (scene-local)
+    hi: np.ndarray
+    discard: tuple | None  # finer layer's extent (scene-local), or None
+    covered: np.ndarray   # (n_blocks,) bool: entirely inside the finer layer
+    extent: tuple         # (xmin, ymin, xmax, ymax) scene-local, pixel centres
+
+
+def _lods() -> list[int]:
+    out, s = [], 1
+    while s <= BLOCK:
+        out.append(s)
+        s *= 2
+    return out
+
+
+def _samples(start: int, stop: int, step: int) -> np.ndarray:
+    """start, start + step, ..., always ending exactly at stop."""
+    s = np.arange(start, stop, step)
+    return np.append(s, stop)
+
+
+class TerrainScene:
+    """A layer stack ready to render (see the module docstring).
+
+    Parameters
+    ----------
+    stack : terrain.layers.LayerStack or path of a stack folder
+    curvature : bool
+        Drop heights by d^2 / (2 R) away from the site.
+    radius : float, optional
+        Body radius R (m); default: the stack's datum radius if recorded, else the Moon's.
+    """
+
+    kind = "terrain"
+
+    def __init__(self, stack, *, curvature: bool = True, radius: float | None = None):
+        from terrain.layers import LayerStack, read_stack
+
+        if not isinstance(stack, LayerStack):
+            stack = read_stack(Path(stack))
+        self.stack = stack
+        site = stack.info.get("site")
+        if site is None:
+            left, bottom, right, top = stack.tiles[-1].bounds
+            site = [(left + right) / 2, (bottom + top) / 2]
+        self.site = (float(site[0]), float(site[1]))
+        self.origin = np.array([self.site[0], self.site[1], 0.0])
+        self.curvature = bool(curvature)
+        if radius is None:
+            meta = stack.tiles[0].metadata
+            radius = float(meta.get("CRATERSCAPE_DATUM_RADIUS", MOON_RADIUS))
+        if not radius > 0:
+            raise InvalidParameterError(f"body radius must be positive; got {radius}")
+        self.radius = float(radius)
+        self._layers: list[_Layer] = []
+        self._ctx = None
+        self._shadow_cache: dict = {}
+        self.triangles_full = 0
+
+    # ------------------------------------------------------------------ geometry
+    def to_world(self, points) -> np.ndarray:
+        """Map points (n, 3: x, y, height) to the rendered world frame (curvature applied)."""
+        p = np.array(points, dtype=np.float64, ndmin=2)
+        if self.curvature:
+            d2 = (p[:, 0] - self.site[0]) ** 2 + (p[:, 1] - self.site[1]) ** 2
+            p[:, 2] = p[:, 2] - d2 / (2.0 * self.radius)
+        return p
+
+    def height_at(self, x: float, y: float) -> float:
+        """Terrain height (world frame) under map point (x, y), from the finest layer there."""
+        for tile in reversed(self.stack.tiles):
+            left, bottom, right, top = tile.bounds
+            if left <= x <= right and bottom <= y <= top:
+                r, c = tile.rowcol(x, y)
+                r = min(max(float(r), 0.0), tile.shape[0] - 1.0)
+                c = min(max(float(c), 0.0), tile.shape[1] - 1.0)
+                i0, j0 = int(r), int(c)
+                i1, j1 = min(i0 + 1, tile.shape[0] - 1), min(j0 + 1, tile.shape[1] - 1)
+                h = tile.heights
+                ti, tj = r - i0, c - j0
+                z = ((h[i0, j0] * (1 - tj) + h[i0, j1] * tj) * (1 - ti)
+                     + (h[i1, j0] * (1 - tj) + h[i1, j1] * tj) * ti)
+                return float(self.to_world([[x, y, z]])[0, 2])
+        raise InvalidParameterError(f"point {x:.6g},{y:.6g} lies outside the terrain")
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """World-frame bounding box of the whole scene."""
+        lo = np.array([math.inf] * 3)
+        hi = -lo
+        for tile in self.stack.tiles:
+            left, bottom, right, top = tile.bounds
+            z = tile.heights[tile.valid]
+            zmin, zmax = float(z.min()), float(z.max())
+            corners = self.to_world([[left, bottom, zmin], [right, top, zmax],
+                                     [left, top, zmin], [right, bottom, zmin]])
+            drop = corners[:, 2].min() - zmin
+            lo = np.minimum(lo, [left, bottom, zmin + min(drop, 0.0)])
+            hi = np.maximum(hi, [right, top, zmax])
+        return lo, hi
+
+    # ------------------------------------------------------------------ GPU
+    def upload(self, ctx) -> None:
+        """Build every layer's vertex and index buffers (once per context)."""
+        if self._ctx is ctx and self._layers:
+            return
+        self._ctx = ctx
+        self._layers = []
+        tiles = self.stack.tiles
+        total = 0
+        for k, tile in enumerate(tiles):
+            finer = tiles[k + 1] if k + 1 < len(tiles) else None
+            layer = self._build_layer(ctx, k, tile, finer)
+            self._layers.append(layer)
+            total += int(layer.counts[1].sum()) // 3
+        self.triangles_full = total
+        log.info("terrain scene: %d layers, %d triangles at full resolution", len(tiles), total)
+
+    def _local_extent(self, tile):
+        left, bottom, right, top = tile.bounds
+        r = tile.resolution
+        return (left + r / 2 - self.site[0], bottom + r / 2 - self.site[1],
+                right - r / 2 - self.site[0], top - r / 2 - self.site[1])
+
+    def _build_layer(self, ctx, k, tile, finer) -> _Layer:
+        h, w = tile.shape
+        res = tile.resolution
+        x0, y0, x1, y1 = self._local_extent(tile)
+        xs = x0 + np.arange(w) * res
+        ys = y1 - np.arange(h) * res
+        z = tile.heights.astype(np.float64)
+        if not tile.valid.all():
+            from scipy import ndimage
+
+            idx = ndimage.distance_transform_edt(~tile.valid, return_distances=False,
+                                                 return_indices=True)
+            z = z[tuple(idx)]
+        if self.curvature:
+            z = z - (xs[None, :] ** 2 + ys[:, None] ** 2) / (2.0 * self.radius)
+        # normals from central differences of the (curved) heights
+        dzdx = np.gradient(z, res, axis=1)
+        dzdy = -np.gradient(z, res, axis=0)  # rows run south
+        n = np.stack([-dzdx, -dzdy, np.ones_like(z)], axis=-1)
+        n /= np.linalg.norm(n, axis=-1, keepdims=True)
+        xx = np.broadcast_to(xs[None, :], (h, w))
+        yy = np.broadcast_to(ys[:, None], (h, w))
+        main = np.stack([xx, yy, z], axis=-1).reshape(-1, 3)
+        normals = n.reshape(-1, 3)
+        # skirt vertices: lowered copies of every block-boundary row and column
+        brows = _samples(0, h - 1, BLOCK)
+        bcols = _samples(0, w - 1, BLOCK)
+        depth = SKIRT_PIXELS * res
+        sk_rows = main.reshape(h, w, 3)[brows].reshape(-1, 3).copy()
+        sk_rows[:, 2] -= depth
+        sk_cols = main.reshape(h, w, 3)[:, bcols].transpose(1, 0, 2).reshape(-1, 3).copy()
+        sk_cols[:, 2] -= depth
+        n_main = h * w
+        row_base = n_main
+        col_base = n_main + len(brows) * w
+        pos = np.concatenate([main, sk_rows, sk_cols]).astype(np.float32)
+        nor = np.concatenate([normals, normals.reshape(h, w, 3)[brows].reshape(-1, 3),
+                              normals.reshape(h, w, 3)[:, bcols].transpose(1, 0, 2)
+                              .reshape(-1, 3)]).astype(np.float32)
+        vbo = ctx.buffer(np.hstack([pos, nor]).tobytes())
+        row_index = {int(r): i for i, r in enumerate(brows)}
+        col_index = {int(c): i for i, c in enumerate(bcols)}
+
+        nby, nbx = len(brows) - 1, len(bcols) - 1
+        lo = np.empty((nby * nbx, 3))
+        hi = np.empty((nby * nbx, 3))
+        offsets, counts, ibos, vaos = {}, {}, {}, {}
+        for s in _lods():
+            chunks = []
+            off = np.zeros(nby * nbx, dtype=np.int64)
+            cnt = np.zeros(nby * nbx, dtype=np.int64)
+            pos_in = 0
+            for bi in range(nby):
+                for bj in range(nbx):
+                    b = bi * nbx + bj
+                    r0, r1 = int(brows[bi]), int(brows[bi + 1])
+                    c0, c1 = int(bcols[bj]), int(bcols[bj + 1])
+                    if s == 1:
+                        block = z[r0:r1 + 1, c0:c1 + 1]
+                        lo[b] = (xs[c0], ys[r1], block.min() - depth)
+                        hi[b] = (xs[c1], ys[r0], block.max())
+                    rs = _samples(r0, r1, s)
+                    cs = _samples(c0, c1, s)
+                    grid = rs[:, None] * w + cs[None, :]
+                    a = grid[:-1, :-1].ravel()
+                    bb = grid[:-1, 1:].ravel()
+                    c = grid[1:, :-1].ravel()
+                    d = grid[1:, 1:].ravel()
+                    tri = [np.stack([a, c, bb, bb, c, d], axis=1).ravel()]
+                    # skirts on the four edges
+                    top = grid[0]
+                    bottom = grid[-1]
+                    left = grid[:, 0]
+                    right = grid[:, -1]
+                    top_l = row_base + row_index[r0] * w + cs
+                    bot_l = row_base + row_index[r1] * w + cs
+                    left_l = col_base + col_index[c0] * h + rs
+                    right_l = col_base + col_index[c1] * h + rs
+                    for edge, low in ((top, top_l), (bottom, bot_l), (left, left_l),
+                                      (right, right_l)):
+                        e0, e1, l0, l1 = edge[:-1], edge[1:], low[:-1], low[1:]
+                        tri.append(np.stack([e0, e1, l1, e0, l1, l0], axis=1).ravel())
+                    idx = np.concatenate(tri)
+                    chunks.append(idx)
+                    off[b] = pos_in
+                    cnt[b] = idx.size
+                    pos_in += idx.size
+            ibo = ctx.buffer(np.concatenate(chunks).astype(np.uint32).tobytes())
+            ibos[s] = ibo
+            offsets[s] = off
+            counts[s] = cnt
+        discard = None
+        if finer is not None:
+            # The finer layer covers exactly this rectangle of its pixel centres; this layer
+            # keeps a one-pixel band of overlap inside it, so that no float rounding and no
+            # step between the layers' surfaces at the seam can open a gap.
+            fx0, fy0, fx1, fy1 = self._local_extent(finer)
+            discard = (fx0 + res, fy0 + res, fx1 - res, fy1 - res)
+        if discard is not None:
+            covered = ((lo[:, 0] >= discard[0]) & (hi[:, 0] <= discard[2])
+                       & (lo[:, 1] >= discard[1]) & (hi[:, 1] <= discard[3]))
+        else:
+            covered = np.zeros(nby * nbx, dtype=bool)
+        layer = _Layer(k, res, (h, w), None, None, ibos, vaos, offsets, counts, lo, hi,
+                       discard, covered, (x0, y0, x1, y1))
+        layer.vbo = vbo
+        return layer
+
+    def _vaos(self, renderer, layer: _Layer, s: int):
+        key = (id(renderer), s)
+        if key not in layer.vaos:
+            ctx = renderer.ctx
+            vao = ctx.vertex_array(renderer.scene_program,
+                                   [(layer.vbo, "3f 3f", "in_position", "in_normal")],
+                                   layer.ibos[s])
+            dvao = ctx.vertex_array(renderer.depth_program,
+                                    [(layer.vbo, "3f 12x", "in_position")], layer.ibos[s])
+            layer.vaos[key] = (vao, dvao)
+        return layer.vaos[key]
+
+    # ------------------------------------------------------------------ per frame
+    def frame_state(self, view, lighting, options, renderer) -> FrameState:
+        self.upload(renderer.ctx)
+        k = view.intrinsics
+        cam = np.asarray(view.pose.position) - self.origin
+        rot = view.pose.rotation
+        focal = max(k.fx, k.fy)
+        target = options.lod_pixels
+        visible, dist = [], []
+        for layer in self._layers:
+            corners = box_corners(layer.lo, layer.hi)
+            vis = frustum_visible(corners, rot, cam, k) & ~layer.covered
+            visible.append(vis)
+            dist.append(np.maximum(box_distance(layer.lo, layer.hi, cam), 1e-3))
+        for _ in range(40):
+            plan, total = self._plan(visible, dist, focal, target)
+            if total <= options.triangle_budget:
+                break
+            target *= 1.25
+        shadows = None
+        if options.shadows and lighting is not None:
+            shadows = self._shadow_maps(renderer, lighting, options)
+        batches, drawn_layers = [], []
+        for layer, (lods, blocks) in zip(self._layers, plan, strict=True):
+            if not blocks.size:
+                continue
+            tris = 0
+            by_lod: dict = {}
+            for b, s in zip(blocks, lods, strict=True):
+                by_lod.setdefault(int(s), []).append(int(b))
+            for s, bl in sorted(by_lod.items()):
+                vao, dvao = self._vaos(renderer, layer, s)
+                ranges = _merge_ranges(layer.offsets[s][bl], layer.counts[s][bl])
+                n = int(layer.counts[s][bl].sum()) // 3
+                tris += n
+                shadow = shadows[layer.level] if shadows else None
+                batch = DrawBatch(vao, dvao, ranges, discard=layer.discard, shadow=shadow,
+                                  triangles=n)
+                if shadow is not None and s > 1:
+                    # coarser visible geometry than the shadow map saw: widen the bias
+                    batch.shadow = _with_extra_bias(shadow, 0.25 * s * layer.resolution)
+                batches.append(batch)
+            drawn_layers.append({"level": layer.level, "resolution": layer.resolution,
+                                 "blocks": int(blocks.size), "triangles": tris,
+                                 "lod": sorted({int(s) for s in lods})})
+        lo, hi = self.bounds()
+        far = float(np.max(np.linalg.norm(box_corners(lo - self.origin, hi - self.origin)[0]
+                                          - cam, axis=1))) * 1.01 + 1.0
+        drawn = {"layers": drawn_layers, "triangles": sum(d["triangles"] for d in drawn_layers),
+                 "lod_pixels": target}
+        return FrameState(batches, far, drawn)
+
+    def _plan(self, visible, dist, focal, target):
+        plan, total = [], 0
+        lods = np.array(_lods())
+        for layer, vis, d in zip(self._layers, visible, dist, strict=True):
+            blocks = np.flatnonzero(vis)
+            if not blocks.size:
+                plan.append((np.zeros(0, int), blocks))
+                continue
+            # largest s with s * res * focal / d <= target
+            ratio = target * d[blocks] / (layer.resolution * focal)
+            s = np.clip(2 ** np.floor(np.log2(np.maximum(ratio, 1.0))), 1, BLOCK).astype(int)
+            plan.append((s, blocks))
+            for lod in lods:
+                sel = blocks[s == lod]
+                total += int(layer.counts[int(lod)][sel].sum()) // 3
+        return plan, total
+
+    def _shadow_maps(self, renderer, lighting, options):
+        key = (id(renderer), tuple(np.round(lighting.sun, 12)), options.shadow_size)
+        if key in self._shadow_cache:
+            return self._shadow_cache[key]
+        for maps in self._shadow_cache.values():
+            for m in maps:
+                m.release()
+        self._shadow_cache.clear()
+        size = options.shadow_size
+        lo, hi = self.bounds()
+        casters = box_corners(lo - self.origin, hi - self.origin)[0]
+        maps = []
+        for layer in self._layers:
+            receivers = box_corners(layer.lo.min(axis=0), layer.hi.max(axis=0))[0]
+            clip, light, extent, depth = ortho_light(lighting.sun, receivers, casters,
+                                                     margin=2 * layer.resolution)
+            texel = extent / size
+            tex, fbo = renderer.shadow_target(size)
+            batches = self._depth_batches(renderer, texel)
+            renderer.render_depth(fbo, size, clip, batches)
+            maps.append(ShadowMap(tex, size, light, normal_offset=1.0 * texel,
+                                  bias=2.0 * texel / depth, slope_bias=1.5 * texel / depth,
+                                  texel_m=texel, depth_range_m=depth, framebuffer=fbo))
+        self._shadow_cache[key] = maps
+        return maps
+
+    def _depth_batches(self, renderer, texel):
+        """Every layer at the level of detail a shadow map with this texel (m) resolves."""
+        batches = []
+        for layer in self._layers:
+            s = int(min(BLOCK, 2 ** max(0, math.floor(math.log2(max(texel / layer.resolution,
+                                                                    1.0))))))
+            blocks = np.flatnonzero(~layer.covered)
+            if not blocks.size:
+                continue
+            vao, dvao = self._vaos(renderer, layer, s)
+            ranges = _merge_ranges(layer.offsets[s][blocks], layer.counts[s][blocks])
+            batches.append(DrawBatch(vao, dvao, ranges, discard=layer.discard))
+        return batches
+
+
+def _merge_ranges(offsets, counts) -> list[tuple[int, int]]:
+    """Contiguous (first, count) index ranges, adjacent blocks merged into one draw."""
+    order = np.argsort(offsets)
+    out: list[list[int]] = []
+    for o, c in zip(offsets[order], counts[order], strict=True):
+        o, c = int(o), int(c)
+        if out and out[-1][0] + out[-1][1] == o:
+            out[-1][1] += c
+        else:
+            out.append([o, c])
+    return [(a, b) for a, b in out]
+
+
+def _with_extra_bias(shadow: ShadowMap, metres: float) -> ShadowMap:
+    return ShadowMap(shadow.texture, shadow.size, shadow.light_from_world,
+                     shadow.normal_offset, shadow.bias + metres / shadow.depth_range_m,
+                     shadow.slope_bias, shadow.texel_m, shadow.depth_range_m, None)

@@ -1,0 +1,147 @@
+"""`craterscape render` as a user runs it: sequences, single frames, resumption, errors."""
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from terrain.cli import main
+
+
+def run(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def stack_dir(tmp_path_factory, gl):
+    from terrain.layers import build_stack, write_stack
+    from terrain.population import Population
+    from terrain.synthetic import synthesize_tile
+
+    base = synthesize_tile(65, resolution=100.0, relief=500.0, seed=3).tile
+    stack = build_stack(base, (3250.0, 3250.0), levels=2, layer_size=33, seed=4,
+                        population=Population(dmin=1.0, dmax=3000.0, density=5e4))
+    return write_stack(stack, tmp_path_factory.mktemp("stack") / "stack")
+
+
+def scenario(tmp_path, stack_dir, **extra):
+    text = f"""
+name = "cli-test"
+seed = 5
+[scene]
+type = "terrain"
+stack = "{stack_dir}"
+[sun]
+azimuth = 100.0
+elevation = 15.0
+[camera]
+width = 64
+height = 48
+fov = 50.0
+[sensor]
+bits = 16
+exposure = 4.0
+gain = 10.0
+read_noise = 2.0
+[render]
+shadow_size = 512
+[trajectory]
+type = "descent"
+frames = {extra.get("frames", 3)}
+duration = 4.0
+start_altitude = 1500.0
+end_altitude = 100.0
+ground_track = [300.0, 100.0]
+"""
+    path = tmp_path / "s.toml"
+    path.write_text(text)
+    return path
+
+
+def test_sequence_writes_frames_range_normals_truth_and_manifest(tmp_path, stack_dir):
+    sc = scenario(tmp_path, stack_dir)
+    r = run("render", "sequence", sc, "-o", tmp_path / "run")
+    assert r.exit_code == 0, r.output
+    run_dir = tmp_path / "run"
+    truth = json.loads((run_dir / "truth.json").read_text())
+    assert [t["index"] for t in truth] == [0, 1, 2]
+    assert (run_dir / "scenario.toml").read_text() == sc.read_text()
+    manifest = json.loads((run_dir / "manifest.json").read_text())
+    assert manifest["frames_written"] == 3 and manifest["resolution"] == [64, 48]
+    from render.rundir import RunReader
+
+    reader = RunReader(run_dir)
+    assert reader.image(2).dtype == np.uint16 and reader.image(2).shape == (48, 64)
+    rng = reader.range(1)
+    assert rng.dtype == np.float32 and np.nanmin(rng) > 0
+    assert reader.normals(0).shape == (48, 64, 3)
+    assert truth[0]["drawn"]["triangles"] > 0
+    # the same scenario and seed give the same bytes
+    r = run("render", "sequence", sc, "-o", tmp_path / "again")
+    for sub in ("frames/frame_000002.png", "range/range_000001.tif", "truth.json"):
+        assert (run_dir / sub).read_bytes() == (tmp_path / "again" / sub).read_bytes()
+
+
+def test_resume_renders_only_what_is_missing(tmp_path, stack_dir):
+    sc = scenario(tmp_path, stack_dir, frames=3)
+    assert run("render", "sequence", sc, "-o", tmp_path / "r", "--frames", 2).exit_code == 0
+    first = (tmp_path / "r" / "frames" / "frame_000001.png").stat().st_mtime_ns
+    r = run("render", "sequence", sc, "-o", tmp_path / "r", "--resume")
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "r" / "frames" / "frame_000002.png").exists()
+    assert (tmp_path / "r" / "frames" / "frame_000001.png").stat().st_mtime_ns == first
+    r = run("render", "sequence", sc, "-o", tmp_path / "r")
+    assert r.exit_code == 2 and "not empty" in r.output
+
+
+def test_single_frame_and_resolution_override(tmp_path, stack_dir):
+    sc = scenario(tmp_path, stack_dir)
+    out = tmp_path / "one.png"
+    r = run("render", "frame", sc, "-o", out, "--index", 1, "--resolution", "32x24")
+    assert r.exit_code == 0, r.output
+    truth = json.loads((tmp_path / "one_truth.json").read_text())
+    assert truth["intrinsics"]["width"] == 32 and truth["index"] == 1
+    assert (tmp_path / "one_range.tif").exists()
+
+
+@pytest.mark.parametrize("change, message", [
+    ('type = "descent"', "frames"),
+    ('type = "terrain"', "'terrain' or 'asteroid'"),
+    ("[sun]", "unknown keys"),
+])
+def test_bad_scenarios_are_one_line_errors(tmp_path, stack_dir, change, message):
+    sc = scenario(tmp_path, stack_dir)
+    text = sc.read_text()
+    if change == 'type = "descent"':
+        text = text.replace("frames = 3", "frames = 0")
+    elif change == 'type = "terrain"':
+        text = text.replace('type = "terrain"', 'type = "planet"')
+    else:
+        text = text.replace("[sun]", "[sun]\nbrightness = 3")
+    sc.write_text(text)
+    r = run("render", "sequence", sc, "-o", tmp_path / "x")
+    assert r.exit_code == 2, r.output
+    assert message in r.output and len(r.output.strip().splitlines()) == 1
+    r = run("render", "sequence", tmp_path / "missing.toml", "-o", tmp_path / "y")
+    assert r.exit_code == 2 and "does not exist" in r.output
+
+
+def test_missing_egl_names_the_packages(monkeypatch):
+    import moderngl
+
+    from render import context
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("libEGL.so.1: cannot open shared object file")
+
+    monkeypatch.setattr(moderngl, "create_context", broken)
+    context.create_context.cache_clear()
+    try:
+        with pytest.raises(context.RenderUnavailableError) as err:
+            context.create_context()
+        msg = str(err.value)
+        assert "libegl1" in msg and "libgl1-mesa-dri" in msg and "\n" not in msg
+    finally:
+        monkeypatch.undo()
+        context.create_context.cache_clear()
