@@ -197,7 +197,7 @@ class MeshScene:
         r = self.radius
         pts = np.array([[sx * r, sy * r, sz * r] for sx in (-1, 1) for sy in (-1, 1)
                         for sz in (-1, 1)])
-        clip, light, extent, depth = ortho_light(lighting.sun, pts, pts, margin=0.01 * r)
+        clip, light, extent, depth, _ = ortho_light(lighting.sun, pts, pts, margin=0.01 * r)
         _, dvao = self._vaos(renderer, lod)
         batch = DrawBatch(None, dvao, [(0, lod.triangles * 3)], world_from_model=self.rotation,
                           model_offset=np.zeros(3))

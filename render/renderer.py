@@ -90,8 +90,8 @@ class RenderOptions:
 
     shadows: bool = True
     shadow_size: int = 2048
-    lod_pixels: float = 1.5
-    triangle_budget: int = 3_000_000
+    lod_pixels: float = 3.0
+    triangle_budget: int = 1_000_000
 
     def __post_init__(self):
         if not 64 <= int(self.shadow_size) <= 8192:

@@ -80,10 +80,11 @@ def light_basis(sun) -> np.ndarray:
 def ortho_light(sun, receivers: np.ndarray, casters: np.ndarray, margin: float = 0.0):
     """Orthographic light matrix fitted to ``receivers`` (points), deep enough for ``casters``.
 
-    Returns ``(clip_from_world, light_from_world, texel extent (m), depth range (m))``, in
-    scene-local coordinates. The map's footprint covers the receivers; its depth range runs
-    from the caster nearest the sun to the receiver farthest from it, so every occluder that
-    can shade a receiver is inside.
+    Returns ``(clip_from_world, light_from_world, extent (m), depth range (m), window)``, in
+    scene-local coordinates; ``window`` is the map's (x0, y0, x1, y1) in light-space
+    coordinates (``points @ light_basis(sun).T``), for culling casters. The map's footprint
+    covers the receivers; its depth range runs from the caster nearest the sun to the receiver
+    farthest from it, so every occluder that can shade a receiver is inside.
     """
     basis = light_basis(sun)
     r = np.atleast_2d(receivers) @ basis.T
@@ -104,7 +105,7 @@ def ortho_light(sun, receivers: np.ndarray, casters: np.ndarray, margin: float =
     ortho[2, 3] = -(far + near) / (far - near)
     clip = ortho @ view
     to_tex = np.array([[0.5, 0, 0, 0.5], [0, 0.5, 0, 0.5], [0, 0, 0.5, 0.5], [0, 0, 0, 1.0]])
-    return clip, to_tex @ clip, max(sx, sy), far - near
+    return clip, to_tex @ clip, max(sx, sy), far - near, (x0, y0, x1, y1)
 
 
 def frustum_visible(corners: np.ndarray, view_rotation: np.ndarray, camera: np.ndarray,

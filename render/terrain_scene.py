@@ -41,6 +41,7 @@ from render.scene import (
     box_corners,
     box_distance,
     frustum_visible,
+    light_basis,
     ortho_light,
 )
 from terrain.errors import InvalidParameterError
@@ -53,6 +54,8 @@ log = logging.getLogger(__name__)
 BLOCK = 64
 #: Skirt depth in pixels of the layer.
 SKIRT_PIXELS = 8.0
+#: Caster cells in a shadow map may be this many texels wide.
+SHADOW_CELL_TEXELS = 2.0
 #: Mean lunar radius (m), the default body radius for curvature (IAU/LOLA reference sphere).
 MOON_RADIUS = 1_737_400.0
 
@@ -391,14 +394,15 @@ class TerrainScene:
         size = options.shadow_size
         lo, hi = self.bounds()
         casters = box_corners(lo - self.origin, hi - self.origin)[0]
+        basis = light_basis(lighting.sun)
         maps = []
         for layer in self._layers:
             receivers = box_corners(layer.lo.min(axis=0), layer.hi.max(axis=0))[0]
-            clip, light, extent, depth = ortho_light(lighting.sun, receivers, casters,
-                                                     margin=2 * layer.resolution)
+            clip, light, extent, depth, window = ortho_light(lighting.sun, receivers, casters,
+                                                             margin=2 * layer.resolution)
             texel = extent / size
             tex, fbo = renderer.shadow_target(size)
-            batches = self._depth_batches(renderer, texel)
+            batches = self._depth_batches(renderer, texel, basis, window)
             renderer.render_depth(fbo, size, clip, batches)
             maps.append(ShadowMap(tex, size, light, normal_offset=1.0 * texel,
                                   bias=2.0 * texel / depth, slope_bias=1.5 * texel / depth,
@@ -406,13 +410,24 @@ class TerrainScene:
         self._shadow_cache[key] = maps
         return maps
 
-    def _depth_batches(self, renderer, texel):
-        """Every layer at the level of detail a shadow map with this texel (m) resolves."""
+    def _depth_batches(self, renderer, texel, basis, window):
+        """The blocks that can cast into a shadow map, at the detail its texel (m) resolves.
+
+        An orthographic map sees a caster only where the caster's light-space x-y overlaps
+        the map's window, so every other block is culled exactly.
+        """
         batches = []
+        x0, y0, x1, y1 = window
         for layer in self._layers:
-            s = int(min(BLOCK, 2 ** max(0, math.floor(math.log2(max(texel / layer.resolution,
-                                                                    1.0))))))
-            blocks = np.flatnonzero(~layer.covered)
+            # cells up to two texels: finer caster detail than the map resolves is wasted
+            s = int(min(BLOCK, 2 ** max(0, math.floor(math.log2(
+                max(SHADOW_CELL_TEXELS * texel / layer.resolution, 1.0))))))
+            light_xy = box_corners(layer.lo, layer.hi) @ basis[:2].T  # (n, 8, 2)
+            overlap = ((light_xy[..., 0].max(axis=1) >= x0)
+                       & (light_xy[..., 0].min(axis=1) <= x1)
+                       & (light_xy[..., 1].max(axis=1) >= y0)
+                       & (light_xy[..., 1].min(axis=1) <= y1))
+            blocks = np.flatnonzero(~layer.covered & overlap)
             if not blocks.size:
                 continue
             vao, dvao = self._vaos(renderer, layer, s)

@@ -92,7 +92,7 @@ def test_golden_images_are_bit_exact(renderer, crater_scene, name):
     k = Intrinsics.from_fov(32, 32, 60.0)
     pose = look_at((5.0, 2.0, 45.0), (32.5, 32.5, -5.0))
     frame = renderer.render(crater_scene, View(pose, k), light,
-                            RenderOptions(shadows=shadows, shadow_size=256))
+                            RenderOptions(shadows=shadows, shadow_size=256, lod_pixels=1.0))
     path = GOLDEN / f"{name}.npy"
     if UPDATE or not path.exists():
         if not UPDATE:

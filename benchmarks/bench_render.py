@@ -1,0 +1,174 @@
+"""Rendering benchmark: frame time of the default lunar descent scene at 1024 x 1024.
+
+Builds the descent scene the demo uses (a 1025^2 base at 1 km, 11 nested 1025^2 layers down
+to about 0.5 m, a lunar crater population), renders frames along a 10 km -> 20 m descent with
+and without shadows, and reports median frame time and triangles per frame. Baseline in the
+same run: a plain single-mesh moderngl render (one vertex array, one draw call, the same
+fragment shader, no culling, no level of detail, no shadows) of a grid with the same triangle
+count as the median frame. Targets (the rendering issue): ratio <= 1.5; <= 0.5 s per frame with
+shadows on this CPU.
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_render.py [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import resource
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+SEED = 2014
+
+
+def log(message: str) -> None:
+    print(f"[bench-render {time.strftime('%H:%M:%S')}] {message}", file=sys.stderr, flush=True)
+
+
+def build_scene(tmp: Path, quick: bool):
+    from terrain.layers import build_stack, write_stack
+    from terrain.population import Population
+    from terrain.synthetic import synthesize_tile
+
+    size, levels = (257, 6) if quick else (1025, 11)
+    base = synthesize_tile(size, resolution=1000.0, relief=2500.0, seed=SEED).tile
+    site = (size * 500.0, size * 500.0)
+    t0 = time.perf_counter()
+    stack = build_stack(base, site, levels=levels, layer_size=size, seed=SEED,
+                        population=Population(dmin=1.0, dmax=20000.0, density=1e5))
+    build_s = time.perf_counter() - t0
+    write_stack(stack, tmp / "stack")
+    return tmp / "stack", build_s
+
+
+def plain_render_time(ctx, renderer, triangles: int, size: int, repeat: int) -> float:
+    """One grid mesh with ``triangles`` triangles, one draw call, the scene shader."""
+    import moderngl
+    import numpy as np
+
+    from render.camera import Intrinsics, look_at
+    from render.renderer import LOG_NEAR, clip_from_camera
+
+    n = int(math.sqrt(triangles / 2)) + 1
+    yy, xx = np.mgrid[0:n, 0:n].astype(np.float64)
+    z = 20.0 * np.sin(xx / 17.0) * np.cos(yy / 23.0)
+    pos = np.stack([xx - n / 2, yy - n / 2, z], -1).reshape(-1, 3)
+    nor = np.zeros_like(pos)
+    nor[:, 2] = 1.0
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), \
+        idx[1:, 1:].ravel()
+    faces = np.stack([a, c, b, b, c, d], 1).astype(np.uint32).ravel()
+    prog = renderer.scene_program
+    vbo = ctx.buffer(np.hstack([pos, nor]).astype("f4").tobytes())
+    ibo = ctx.buffer(faces.tobytes())
+    vao = ctx.vertex_array(prog, [(vbo, "3f 3f", "in_position", "in_normal")], ibo)
+    k = Intrinsics.from_fov(size, size, 60.0)
+    pose = look_at((0.0, -0.6 * n, 0.5 * n), (0.0, 0.0, 0.0))
+    far = 3.0 * n
+    clip = clip_from_camera(k, LOG_NEAR, far)
+    rot = np.eye(4)
+    rot[:3, :3] = pose.rotation.T
+    prog["u_clip_from_camera_rel"].write((clip @ rot).T.astype("f4").tobytes())
+    prog["u_world_from_model"].write(np.eye(3, dtype="f4").tobytes())
+    prog["u_model_offset"].value = tuple((-np.asarray(pose.position)).tolist())
+    prog["u_camera"].value = tuple(pose.position)
+    prog["u_axis"].value = tuple(pose.rotation[:, 2].tolist())
+    prog["u_sun"].value = (0.5, 0.5, 0.7071)
+    prog["u_log_near"].value = math.log(LOG_NEAR)
+    prog["u_log_scale"].value = 1.0 / math.log(far / LOG_NEAR)
+    prog["u_use_discard"].value = 0
+    prog["u_shadows"].value = 0
+    fbo = renderer._target((size, size))
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fbo.use()
+        ctx.enable(moderngl.DEPTH_TEST)
+        fbo.clear(depth=1.0)
+        vao.render(moderngl.TRIANGLES)
+        for i, comps in ((0, 1), (1, 1), (2, 4)):
+            fbo.read(attachment=i, components=comps, dtype="f4")
+        times.append(time.perf_counter() - t0)
+    vao.release()
+    vbo.release()
+    ibo.release()
+    return statistics.median(times)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="small scene and image")
+    parser.add_argument("--frames", type=int, default=None, help="frames along the descent")
+    args = parser.parse_args(argv)
+    from render.camera import Intrinsics
+    from render.context import create_context, describe
+    from render.renderer import Lighting, Renderer, RenderOptions, View
+    from render.terrain_scene import TerrainScene
+    from render.trajectory import descent
+
+    quick = args.quick
+    size = 256 if quick else 1024
+    frames = args.frames or (4 if quick else 12)
+    with tempfile.TemporaryDirectory() as tmp:
+        log("building the descent scene")
+        stack_dir, build_s = build_scene(Path(tmp), quick)
+        ctx = create_context()
+        renderer = Renderer(ctx)
+        t0 = time.perf_counter()
+        scene = TerrainScene(stack_dir)
+        scene.upload(ctx)
+        upload_s = time.perf_counter() - t0
+        k = Intrinsics.from_fov(size, size, 60.0)
+        site = scene.site
+        ground = scene.height_at(*site)
+        samples = descent(frames, (site[0], site[1], ground), start_altitude=10000.0,
+                          end_altitude=20.0, duration=100.0, ground_track=(4000.0, -3000.0),
+                          height_at=scene.height_at)
+        light = Lighting.from_angles(60.0, 6.0)
+        t0 = time.perf_counter()
+        renderer.render(scene, View(samples[0].pose, k), light, RenderOptions(shadows=True))
+        first_shadow_s = time.perf_counter() - t0
+        result = {}
+        for shadows in (False, True):
+            times, tris = [], []
+            for s in samples:
+                t0 = time.perf_counter()
+                frame = renderer.render(scene, View(s.pose, k), light,
+                                        RenderOptions(shadows=shadows))
+                times.append(time.perf_counter() - t0)
+                tris.append(frame.drawn["triangles"])
+            key = "shadows" if shadows else "no_shadows"
+            result[key] = dict(median_s=statistics.median(times), min_s=min(times),
+                               max_s=max(times), frames_s=times, triangles=tris,
+                               median_triangles=int(statistics.median(tris)))
+            log(f"{key}: median {result[key]['median_s']:.3f} s, "
+                f"{result[key]['median_triangles']} triangles")
+        median_tris = result["no_shadows"]["median_triangles"]
+        plain = plain_render_time(ctx, renderer, median_tris, size, 5)
+        ratio = result["no_shadows"]["median_s"] / plain
+        out = dict(
+            benchmark="render", quick=quick, image=[size, size], frames=frames,
+            scene=dict(layers=len(scene.stack.tiles), full_triangles=scene.triangles_full,
+                       stack_build_s=build_s, load_and_upload_s=upload_s),
+            first_frame_with_shadow_maps_s=first_shadow_s, **result,
+            plain_single_mesh=dict(triangles=median_tris, median_s=plain),
+            ratio_to_plain=ratio, renderer=describe(),
+            peak_rss_bytes=int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024,
+            targets=None if quick else dict(
+                ratio_ok=ratio <= 1.5, shadows_frame_ok=result["shadows"]["median_s"] <= 0.5),
+        )
+    print(json.dumps(out, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
