@@ -17,11 +17,14 @@ do:
    terrain ``T`` as it stood after all larger classes.
 2. Within a class, craters are composed per pixel in age order, oldest first (ties broken by
    the crater's id). Ejecta adds its change on top of what is there. A bowl replaces what is
-   under it: inside the rim the height becomes the crater's ``P + h_in``, plus the part of the
-   class's earlier changes ``eps = z - T`` that survives an obliteration weight which is 1 on
-   the inner wall and floor (x <= -:data:`OBLITERATION_BLEND`) and falls smoothly (smoothstep)
-   to 0 at the rim. So a younger crater erases older same-class craters inside it, and its rim
-   still rides, continuously, on any older ejecta it lands on.
+   under it: inside the rim the height becomes the crater's ``P + h_in``, plus a residual
+   that survives only near the rim: the class's earlier changes ``z - T`` and the terrain's
+   deviation from the smoothed rim level the interior profile was built on
+   (``T - P - (Tr - Pr)``, see :func:`rim_terrain`), weighted by one minus the obliteration
+   factor, which is 1 on the floor and lower wall (x <= -:data:`OBLITERATION_BLEND`) and falls
+   smoothly (smoothstep) to 0 at the rim. So a younger crater erases older same-class craters
+   inside it, and its rim meets the exterior, which rides the real terrain and any older
+   ejecta, without a step.
 
 A pixel therefore depends only on the craters whose footprints cover it and on ``T`` within
 their footprints: a halo of about 1.5 footprint radii per class (a few Dmax in all) makes any
@@ -72,7 +75,8 @@ from terrain.rng import check_seed
 from terrain.tile import DEMTile, Window
 
 __all__ = ["OBLITERATION_BLEND", "CraterModel", "CraterResult", "add_craters",
-           "crater_heights", "describe_craters", "empty_catalog"]
+           "crater_heights", "describe_craters", "empty_catalog", "fit_plane", "obliteration",
+           "rim_terrain"]
 
 log = logging.getLogger(__name__)
 
@@ -161,7 +165,7 @@ def _laplacian(T, tr0, tc0, nrows, ncols, x0, y0, res, x, y):
 
 
 @numba.njit(cache=True)
-def _fit_plane(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, radius):
+def fit_plane(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, radius):
     """Least-squares plane z = p0 + px dx + py dy over a symmetric polar pattern in the bowl.
 
     Returns (p0, px, py, valid samples, RMS residual, pixel roughness). The pattern (centre
@@ -221,7 +225,7 @@ def _fit_plane(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, radius):
 
 
 @numba.njit(cache=True)
-def _rim_terrain(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, radius, d, p0, px, py,
+def rim_terrain(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, radius, d, p0, px, py,
                  irregular, rim, out):
     """Fill ``out`` with Tr - Pr, the terrain's height above the plane at the rim, per azimuth.
 
@@ -256,7 +260,7 @@ def _rim_terrain(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, radius, d, p0, 
 
 
 @numba.njit(cache=True)
-def _obliteration(x):
+def obliteration(x):
     """1 on the floor and inner wall, smoothstep down to 0 at the rim (x = 0)."""
     if x <= -OBLITERATION_BLEND:
         return 1.0
@@ -284,7 +288,7 @@ def _apply_class(T, tr0, tc0, out, or0, oc0, nrows, ncols, x0, y0, res,
         radius = 0.5 * d
         xc = cx[n]
         yc = cy[n]
-        p0, px, py, nvalid, rms, pix = _fit_plane(T, tr0, tc0, nrows, ncols, x0, y0, res,
+        p0, px, py, nvalid, rms, pix = fit_plane(T, tr0, tc0, nrows, ncols, x0, y0, res,
                                                   xc, yc, radius)
         planes[n, 0] = p0
         planes[n, 1] = px
@@ -297,9 +301,9 @@ def _apply_class(T, tr0, tc0, out, or0, oc0, nrows, ncols, x0, y0, res,
         n_az = RIM_TERRAIN_MIN
         while n_az < RIM_TERRAIN_SAMPLES and n_az * 2.0 * res < math.pi * d:
             n_az *= 2
-        rim_terrain = rim_terrain_buffer[:n_az]
-        _rim_terrain(T, tr0, tc0, nrows, ncols, x0, y0, res, xc, yc, radius, d, p0, px, py,
-                     irregular, table, rim_terrain)
+        rim_terrain_table = rim_terrain_buffer[:n_az]
+        rim_terrain(T, tr0, tc0, nrows, ncols, x0, y0, res, xc, yc, radius, d, p0, px, py,
+                    irregular, table, rim_terrain_table)
         reach = d * footprint_factor
         if rough:
             level = int(round(math.log2(max(2.0, 2.0 * (reach + res) / res))))
@@ -347,10 +351,15 @@ def _apply_class(T, tr0, tc0, out, or0, oc0, nrows, ncols, x0, y0, res,
                 if x <= 0.0:
                     if not irregular:
                         theta = math.atan2(dy, dx)
-                    h = interior_height(x, curvature, floor,
-                                        hr + periodic_sample(rim_terrain, theta))
-                    z_in = p0 + px * dx + py * dy + h + ov
-                    out[i - or0, j - oc0] = z_in + (cur - t) * (1.0 - _obliteration(x))
+                    offset = periodic_sample(rim_terrain_table, theta)
+                    h = interior_height(x, curvature, floor, hr + offset)
+                    plane = p0 + px * dx + py * dy
+                    # What the smoothed rim terrain and the plane leave out, here: the class's
+                    # older changes (cur - t) and the terrain's own deviation from the smoothed
+                    # rim level (t - plane - offset). It fades out down the upper inner wall, so
+                    # the bowl meets the exterior (cur + Hr at the rim) without a step.
+                    residual = cur - plane - offset
+                    out[i - or0, j - oc0] = plane + h + ov + residual * (1.0 - obliteration(x))
                 else:
                     out[i - or0, j - oc0] = cur + exterior_height(
                         x, hr, ejecta[n], beta[n], ca[n], cb[n], c2[n], c3[n]) + ov * (1.0 - x)

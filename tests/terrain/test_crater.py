@@ -244,3 +244,27 @@ def test_craters_sit_on_other_craters():
     rows, cols = np.mgrid[0:n, 0:n]
     far = np.hypot(cols + 0.5 - 300.5, (n - rows - 0.5) - 200.5) > 20.0 + 1.0
     assert np.array_equal(heights[far], big_only[far])
+
+
+def test_no_step_at_the_rim_on_rough_ground():
+    """The bowl (built on the smoothed rim level) meets the ejecta (on the real terrain)."""
+    from terrain.synthetic import synthesize_tile
+
+    base = synthesize_tile(129, resolution=1.0, relief=40.0, seed=6).tile
+    crater = Crater(64.5, 64.5, 70.0, 0.3, 4)
+    out = add_craters(base, CraterTable.from_craters([crater]), seed=1,
+                      model=CraterModel().smooth()).tile
+    rows, cols = np.mgrid[0:129, 0:129]
+    x, y = base.xy(rows, cols)
+    xn = 2 * np.hypot(x - 64.5, y - 64.5) / 70.0 - 1
+    band = np.abs(xn) < 0.06
+    z = out.heights.astype(np.float64)
+    b = base.heights.astype(np.float64)
+
+    def max_step(h):
+        dx = np.abs(np.diff(h, axis=1))[band[:, 1:] & band[:, :-1]]
+        dy = np.abs(np.diff(h, axis=0))[band[1:, :] & band[:-1, :]]
+        return max(dx.max(), dy.max())
+
+    # the degraded rim has zero slope at its crest: across it, steps are the terrain's own
+    assert max_step(z) < 1.3 * max_step(b) + 0.05

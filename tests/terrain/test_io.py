@@ -126,6 +126,18 @@ def test_writes_are_atomic(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.tif"]
 
 
+def test_written_files_get_normal_permissions(tmp_path):
+    import os
+    import stat
+
+    old = os.umask(0o022)
+    try:
+        path = io.write_dem(DEMTile.from_array(np.ones((4, 4))), tmp_path / "p.tif")
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o644
+
+
 def test_png_writer(tmp_path):
     import cv2
 

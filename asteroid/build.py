@@ -1,0 +1,259 @@
+"""Building an asteroid from a recipe, and writing what a user gets.
+
+``build`` runs the stages in the paper's order: the base (Perlin noise, two-phase faulting
+or a shape model; section IV), the stretch, the craters in age order (section V.A-B), then
+the boulders on the finished surface (section V.C). Every stage is keyed by the recipe's
+seed, so the same recipe gives the same bytes.
+
+Outputs of ``craterscape asteroid build -o BODY.EXT`` (:func:`output_paths`):
+
+``BODY.EXT``
+    The mesh (``.ply``, ``.obj``, ``.stl`` or ``.glb``): the body, then the boulders at their
+    finest level of detail. With ``-o BODY.npz`` only the native model is written.
+``BODY.npz``
+    The native model (:func:`asteroid.body.save_native`): radii, mesh parameters,
+    provenance, and both catalogues.
+``BODY_craters.csv``, ``BODY_boulders.csv``
+    The ground-truth catalogues (:mod:`asteroid.catalog`), when craters or boulders were
+    asked for.
+
+Example
+-------
+>>> from asteroid.recipe import Recipe
+>>> result = build(Recipe(magnitude=8, radius=500.0, seed=1, base="perlin"))
+>>> result.body.mesh.n_vertices, result.craters is None
+(386, True)
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+
+from asteroid.body import Body, load_native, save_native
+from asteroid.boulders import BOULDER_COLUMNS, Boulders, BoulderSettings, place_boulders
+from asteroid.catalog import save_table
+from asteroid.craters import CRATER_COLUMNS, add_craters, sample_craters
+from asteroid.meshio.export import mesh_format, write_mesh
+from asteroid.recipe import Recipe
+from asteroid.shape import ShapeModel
+from asteroid.sphere import SphereMesh
+from terrain import memory
+from terrain.errors import InvalidParameterError
+from terrain.io import check_output_path
+
+__all__ = ["BuildResult", "OutputPaths", "build", "export_model", "output_paths",
+           "write_outputs"]
+
+log = logging.getLogger(__name__)
+
+#: Peak bytes per mesh vertex of a build and its export (directions, radii and working
+#: copies, the face array, the exporter's copies).
+BUILD_BYTES_PER_VERTEX = 260
+
+
+def _version() -> str:
+    try:
+        return version("craterscape")
+    except PackageNotFoundError:  # pragma: no cover - running from a bare checkout
+        return "unknown"
+
+
+@dataclass(frozen=True, eq=False)
+class BuildResult:
+    """A built asteroid.
+
+    Parameters
+    ----------
+    body : Body
+    craters : dict of column arrays, or None
+        The crater catalogue (:data:`asteroid.craters.CRATER_COLUMNS`).
+    boulders : Boulders, or None
+    report : dict
+        Figures for the user (counts, timings, the shape's non-star-shaped fraction).
+    """
+
+    body: Body
+    craters: dict | None = None
+    boulders: Boulders | None = None
+    report: dict = field(default_factory=dict)
+
+    def tables(self) -> dict:
+        """Catalogues for the native file."""
+        out = {}
+        if self.craters is not None:
+            out["craters"] = self.craters
+        if self.boulders is not None:
+            out["boulders"] = self.boulders.catalog
+        return out
+
+
+def build(recipe: Recipe, *, progress=None) -> BuildResult:
+    """Build the asteroid a recipe describes.
+
+    Parameters
+    ----------
+    recipe : Recipe
+    progress : callable, optional
+        ``progress(stage, done, total)`` with stage "base", "craters" or "boulders".
+    """
+    mesh = SphereMesh(recipe.magnitude)
+    memory.require(mesh.n_vertices * float(BUILD_BYTES_PER_VERTEX),
+                   f"building a magnitude {recipe.magnitude} asteroid "
+                   f"({mesh.n_vertices:,} vertices)")
+    report: dict = dict(vertices=mesh.n_vertices, triangles=mesh.n_faces)
+    t0 = time.perf_counter()
+
+    def stage_progress(stage):
+        if progress is None:
+            return None
+        return lambda done, total: progress(stage, done, total)
+
+    meta = dict(craterscape_version=_version(), seed=recipe.seed, recipe=recipe.as_dict())
+    if recipe.base == "perlin":
+        radius = recipe.radius
+        radii = recipe.perlin.radii(mesh, radius, seed=recipe.seed, stretch=recipe.stretch)
+    elif recipe.base == "faulting":
+        radius = recipe.radius
+        radii = recipe.faulting.radii(mesh, radius, seed=recipe.seed, stretch=recipe.stretch,
+                                      progress=stage_progress("base"))
+    else:
+        shape = ShapeModel.read(recipe.shape_file, units=recipe.shape_units,
+                                centre=recipe.shape_centre)
+        report["shape_volume_m3"] = shape.volume
+        if recipe.radius is not None:
+            shape = shape.scaled(recipe.radius / shape.equivalent_radius)
+        if not recipe.stretch.is_identity:
+            shape = shape.stretched(recipe.stretch)
+        radius = shape.equivalent_radius
+        projection = shape.project(mesh)
+        radii = projection.radii
+        report["non_star_fraction"] = projection.non_star_fraction
+        meta["shape"] = dict(source=shape.source, centre_m=shape.centre.tolist(),
+                             volume_m3=shape.volume,
+                             non_star_fraction=projection.non_star_fraction)
+    body = Body(mesh, radius, radii, meta)
+    report["base_s"] = time.perf_counter() - t0
+    craters = None
+    if recipe.craters is not None:
+        t1 = time.perf_counter()
+        spacing = mesh.mean_spacing * body.radius
+        population = recipe.craters.population(body.radius, spacing)
+        if population.dmax < 2.0 * population.dmin:
+            log.warning("the crater range %.4g..%.4g m is narrow at magnitude %d (dmin defaults "
+                        "to 4 vertex spacings); raise the magnitude or set dmin",
+                        population.dmin, population.dmax, recipe.magnitude)
+        settings = recipe.craters.settings()
+        placement = sample_craters(population, body, seed=recipe.seed, settings=settings)
+        result = add_craters(body, placement, seed=recipe.seed, settings=settings,
+                             progress=stage_progress("craters"))
+        body = result.body.replace(crater_population=population.as_dict())
+        craters = result.catalog
+        report["craters"] = len(placement)
+        report["craters_applied"] = int(craters["applied"].sum())
+        report["craters_s"] = time.perf_counter() - t1
+    boulders = None
+    if recipe.boulders is not None:
+        t2 = time.perf_counter()
+        population = recipe.boulders.population(mesh.mean_spacing * body.radius)
+        boulders = place_boulders(body, population, seed=recipe.seed,
+                                  settings=recipe.boulders.settings)
+        body = body.replace(boulders=dict(population=population.as_dict(), seed=recipe.seed,
+                                          settings=recipe.boulders.settings.as_dict(),
+                                          count=len(boulders)))
+        report["boulders"] = len(boulders)
+        report["boulders_s"] = time.perf_counter() - t2
+    report["total_s"] = time.perf_counter() - t0
+    return BuildResult(body, craters, boulders, report)
+
+
+@dataclass(frozen=True)
+class OutputPaths:
+    """Where a build writes: the mesh (None for native only), the native model, catalogues."""
+
+    mesh: Path | None
+    native: Path
+    craters: Path | None
+    boulders: Path | None
+
+    def all(self) -> list[Path]:
+        return [p for p in (self.mesh, self.native, self.craters, self.boulders)
+                if p is not None]
+
+
+def output_paths(output, *, craters: bool, boulders: bool, inputs=()) -> OutputPaths:
+    """The files ``-o output`` names, checked before any work (folder exists, no input)."""
+    output = Path(output)
+    if output.suffix.lower() == ".npz":
+        mesh = None
+    else:
+        mesh_format(output)
+        mesh = output
+    stem = output.with_suffix("")
+    paths = OutputPaths(mesh, output.with_suffix(".npz"),
+                        stem.with_name(stem.name + "_craters.csv") if craters else None,
+                        stem.with_name(stem.name + "_boulders.csv") if boulders else None)
+    for p in paths.all():
+        check_output_path(p, inputs)
+    return paths
+
+
+def _parts(body: Body, boulders: Boulders | None, level=None):
+    parts = [("body", body.vertices(), body.mesh.faces())]
+    if boulders is not None and len(boulders):
+        v, f = boulders.mesh(level)
+        parts.append(("boulders", v, f))
+    return parts
+
+
+def write_outputs(result: BuildResult, paths: OutputPaths, *, inputs=()) -> list[Path]:
+    """Write a build's files atomically; returns the paths written."""
+    written = []
+    inputs = list(inputs)
+    meta = dict(seed=result.body.metadata.get("seed"),
+                recipe=result.body.metadata.get("recipe"),
+                craterscape_version=result.body.metadata.get("craterscape_version"))
+    if paths.mesh is not None:
+        write_mesh(paths.mesh, _parts(result.body, result.boulders), metadata=meta,
+                   inputs=inputs)
+        written.append(paths.mesh)
+    save_native(paths.native, result.body, result.tables(), inputs=inputs)
+    written.append(paths.native)
+    if paths.craters is not None and result.craters is not None:
+        save_table(paths.craters, result.craters, CRATER_COLUMNS, inputs=inputs)
+        written.append(paths.craters)
+    if paths.boulders is not None and result.boulders is not None:
+        save_table(paths.boulders, result.boulders.catalog, BOULDER_COLUMNS, inputs=inputs)
+        written.append(paths.boulders)
+    return written
+
+
+def boulders_of(native) -> Boulders | None:
+    """The boulders stored in a native model (regenerated from catalogue and settings)."""
+    table = native.tables.get("boulders")
+    info = native.body.metadata.get("boulders")
+    if table is None or info is None:
+        return None
+    settings = info["settings"]
+    settings = BoulderSettings(**{**settings, "flattening": tuple(settings["flattening"]),
+                                  "elongation": tuple(settings["elongation"])})
+    return Boulders({k: table[k] for k in BOULDER_COLUMNS}, settings, int(info["seed"]))
+
+
+def export_model(native_path, output, *, boulders: bool = True, level: int | None = None) \
+        -> Path:
+    """Write a native model as a mesh file (body, and boulders at ``level`` of detail)."""
+    native_path = Path(native_path)
+    mesh_format(output)
+    check_output_path(output, [native_path])
+    native = load_native(native_path)
+    b = boulders_of(native) if boulders else None
+    if level is not None and b is None:
+        raise InvalidParameterError(f"'{native_path}' has no boulders to export at a level")
+    meta = dict(seed=native.body.metadata.get("seed"), recipe=native.body.metadata.get("recipe"),
+                source=str(native_path))
+    return write_mesh(output, _parts(native.body, b, level), metadata=meta,
+                      inputs=[native_path])

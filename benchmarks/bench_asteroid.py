@@ -1,0 +1,290 @@
+"""Benchmarks for craterscape's asteroid models: one JSON document on stdout.
+
+Targets (the asteroid issue), each also <= 6 GB peak memory:
+
+* M = 1000 (6,000,002 vertices) with a 10-octave Perlin base: <= 30 s;
+* the two-phase faulting preset (fig9-faulting: 1000 faults up to 5 m, three 20 m smoothing
+  passes, 20,000 faults up to 0.03 m, stretch 2 in x) at M = 400: <= 20 s;
+* 10,000 craters at M = 1000: <= 120 s.
+
+Every configuration runs in its own child process (this script re-invoked with ``--child``),
+so that the peak resident set size (``ru_maxrss``) of each is isolated. A child first warms
+up at a tiny magnitude (numba compiles, or loads its on-disk cache), then times the call
+``--repeat`` times and reports median, min and max wall time. The baseline, measured in the
+same run, is building the M = 1000 mesh itself (unit directions and the face array): what any
+job at that size pays before its own work.
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_asteroid.py            # full (a few minutes)
+    .venv/bin/python benchmarks/bench_asteroid.py --quick    # small magnitudes (seconds)
+
+Progress goes to stderr; the exit status is 0 when every child ran (targets met or not).
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+import os
+import platform
+import resource
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+#: Targets from the issue.
+TARGET_PERLIN_S = 30.0
+TARGET_FAULTING_S = 20.0
+TARGET_CRATERS_S = 120.0
+TARGET_PEAK_BYTES = 6 * 1000**3
+#: Fixed parameters.
+SEED = 2014
+PERLIN_RADIUS = 1000.0
+CRATER_RADIUS = 1000.0
+CRATER_COUNT = 10_000
+CRATER_DMAX = 250.0
+
+
+def log(message: str) -> None:
+    """Progress line on stderr."""
+    print(f"[bench-asteroid {time.strftime('%H:%M:%S')}] {message}", file=sys.stderr, flush=True)
+
+
+def _peak_rss_bytes() -> int:
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return int(peak) if sys.platform == "darwin" else int(peak) * 1024
+
+
+def _summary(times: list[float]) -> dict:
+    return dict(median_s=statistics.median(times), min_s=min(times), max_s=max(times),
+                runs_s=times)
+
+
+# ----------------------------------------------------------------------------------------
+# child side
+
+
+def _perlin():
+    from asteroid.noise import PerlinNoise
+
+    return PerlinNoise(octaves=10, frequency=1.2, persistence=0.5, lacunarity=2.1,
+                       amplitude=0.25)
+
+
+def _job(spec: dict):
+    """(callable, description) of one configuration's timed call."""
+    from asteroid.body import Body, Stretch
+    from asteroid.craters import add_craters, sample_craters
+    from asteroid.faulting import FIG8_FAULTING
+    from asteroid.sphere import SphereMesh
+    from terrain.population import Population
+
+    m = spec["magnitude"]
+    kind = spec["kind"]
+    if kind == "mesh":
+        def call():
+            mesh = SphereMesh(m)
+            d = mesh.directions()
+            f = mesh.faces()
+            return dict(vertices=len(d), faces=len(f))
+        return call
+    if kind == "perlin":
+        def call():
+            mesh = SphereMesh(m)
+            r = _perlin().radii(mesh, PERLIN_RADIUS, seed=SEED)
+            return dict(vertices=len(r), radius_min_m=float(r.min()),
+                        radius_max_m=float(r.max()))
+        return call
+    if kind == "faulting":
+        def call():
+            mesh = SphereMesh(m)
+            r = FIG8_FAULTING.radii(mesh, 100.0, seed=SEED, stretch=Stretch(2.0, 1.0, 1.0))
+            return dict(vertices=len(r), radius_min_m=float(r.min()),
+                        radius_max_m=float(r.max()))
+        return call
+    if kind == "craters":
+        mesh = SphereMesh(m)
+        base = Body(mesh, CRATER_RADIUS, _perlin().radii(mesh, CRATER_RADIUS, seed=SEED))
+        area = base.area()
+        dmin = 4.0 * mesh.mean_spacing * CRATER_RADIUS
+        count = spec["craters"]
+        k = -2.0
+        # density (per km^2, D >= dmin) giving `count` craters in [dmin, dmax) on this area
+        density = count / (area / 1e6) / (1.0 - (CRATER_DMAX / dmin) ** k)
+        population = Population(dmin=dmin, dmax=CRATER_DMAX, density=density, sfd_exponent=k)
+        craters = sample_craters(population, base, seed=SEED)
+
+        def call():
+            result = add_craters(base, craters, seed=SEED)
+            return dict(vertices=mesh.n_vertices, craters=len(craters),
+                        applied=int(result.catalog["applied"].sum()), dmin_m=dmin,
+                        dmax_m=CRATER_DMAX)
+        return call
+    raise ValueError(f"unknown benchmark kind {kind!r}")
+
+
+def _warm_up() -> float:
+    """Compile (or load from numba's cache) every kernel the benchmarks use, at small M."""
+    t0 = time.perf_counter()
+    for kind in ("mesh", "perlin", "faulting"):
+        _job(dict(kind=kind, magnitude=6))()
+    _job(dict(kind="craters", magnitude=64, craters=20))()
+    return time.perf_counter() - t0
+
+
+def child(spec: dict) -> dict:
+    warmup_s = _warm_up()
+    rss_after_warmup = _peak_rss_bytes()
+    t0 = time.perf_counter()
+    call = _job(spec)
+    setup_s = time.perf_counter() - t0
+    times, info = [], None
+    for i in range(spec["repeat"]):
+        t0 = time.perf_counter()
+        info = call()
+        times.append(time.perf_counter() - t0)
+        log(f"  {spec['name']} run {i + 1}/{spec['repeat']}: {times[-1]:.3f} s")
+    peak = _peak_rss_bytes()
+    return dict(warmup_s=warmup_s, setup_s=setup_s, wall=_summary(times), result=info,
+                peak_rss_bytes=peak, peak_rss_after_warmup_bytes=rss_after_warmup,
+                peak_rss_mib=round(peak / 1024**2, 1))
+
+
+# ----------------------------------------------------------------------------------------
+# parent side
+
+
+def run_child(spec: dict, timeout: float) -> dict:
+    log(f"{spec['name']}: starting child ({spec['repeat']} runs)")
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--child",
+                           json.dumps(spec)], stdout=subprocess.PIPE, stderr=None, text=True,
+                          timeout=timeout, cwd=ROOT, check=False)
+    if proc.returncode != 0:
+        raise RuntimeError(f"child {spec['name']} failed with exit status {proc.returncode}")
+    out = json.loads(proc.stdout)
+    log(f"{spec['name']}: done in {time.perf_counter() - t0:.1f} s "
+        f"(median {out['wall']['median_s']:.3f} s, peak {out['peak_rss_mib']} MiB)")
+    return out
+
+
+def machine_facts() -> dict:
+    import numba
+    import numpy
+
+    try:
+        affinity = len(os.sched_getaffinity(0))
+    except AttributeError:
+        affinity = None
+    facts = dict(python=platform.python_version(), numpy=numpy.__version__,
+                 numba=numba.__version__, cpu_count=os.cpu_count(), cpu_affinity=affinity,
+                 numba_num_threads=numba.config.NUMBA_NUM_THREADS,
+                 platform=platform.platform(), machine=platform.machine(),
+                 timestamp=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"))
+    try:
+        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
+                              text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+                               cwd=ROOT, capture_output=True, text=True, check=True).stdout
+        facts["git"] = dict(commit=head, dirty=bool(dirty.strip()))
+    except (OSError, subprocess.CalledProcessError):
+        facts["git"] = None
+    return facts
+
+
+def benchmark(quick: bool, repeat: int, timeout: float) -> dict:
+    big = 200 if quick else 1000
+    faulting_m = 100 if quick else 400
+    n_craters = 1000 if quick else CRATER_COUNT
+    common = dict(repeat=repeat)
+    configs = {
+        "mesh_baseline": run_child(dict(common, name="mesh_baseline", kind="mesh",
+                                        magnitude=big), timeout),
+        "perlin": run_child(dict(common, name="perlin", kind="perlin", magnitude=big), timeout),
+        "faulting": run_child(dict(common, name="faulting", kind="faulting",
+                                   magnitude=faulting_m), timeout),
+        "craters": run_child(dict(common, name="craters", kind="craters", magnitude=big,
+                                  craters=n_craters), timeout),
+    }
+
+    def flag(ok: bool) -> bool | None:
+        return None if quick else bool(ok)
+
+    med = {k: v["wall"]["median_s"] for k, v in configs.items()}
+    peak = {k: v["peak_rss_bytes"] for k, v in configs.items()}
+    craters = configs["craters"]["result"]
+    targets = dict(
+        applies=not quick,
+        perlin_s_max=TARGET_PERLIN_S, faulting_s_max=TARGET_FAULTING_S,
+        craters_s_max=TARGET_CRATERS_S, peak_bytes_max=TARGET_PEAK_BYTES,
+        perlin_ok=flag(med["perlin"] <= TARGET_PERLIN_S),
+        faulting_ok=flag(med["faulting"] <= TARGET_FAULTING_S),
+        craters_ok=flag(med["craters"] <= TARGET_CRATERS_S),
+        peak_memory_ok=flag(max(peak.values()) <= TARGET_PEAK_BYTES),
+    )
+    targets["all_ok"] = None if quick else all(
+        targets[k] for k in ("perlin_ok", "faulting_ok", "craters_ok", "peak_memory_ok"))
+    return dict(
+        benchmark="craterscape asteroid models",
+        mode="quick" if quick else "full",
+        machine=machine_facts(),
+        parameters=dict(magnitude=big, vertices=6 * big * big + 2, faulting_magnitude=faulting_m,
+                        perlin="10 octaves, frequency 1.2, persistence 0.5, lacunarity 2.1, "
+                               "amplitude 0.25 R", perlin_radius_m=PERLIN_RADIUS,
+                        faulting="fig9-faulting preset, R = 100 m, stretch 2,1,1",
+                        craters=n_craters, crater_radius_m=CRATER_RADIUS,
+                        crater_dmax_m=CRATER_DMAX, crater_model="CraterModel() (roughness on)",
+                        crater_base="the Perlin base above", seed=SEED, repeat=repeat,
+                        timer="time.perf_counter",
+                        memory="ru_maxrss of a child process per configuration"),
+        configs=configs,
+        derived=dict(
+            perlin_over_mesh_baseline=med["perlin"] / med["mesh_baseline"],
+            perlin_ns_per_vertex_octave=med["perlin"] / (6 * big * big + 2) / 10 * 1e9,
+            faulting_ns_per_vertex_fault=med["faulting"] / (6 * faulting_m**2 + 2) / 21000 * 1e9,
+            craters_ms_per_crater=med["craters"] / max(1, craters["craters"]) * 1e3,
+            peak_rss_mib={k: round(v / 1024**2, 1) for k, v in peak.items()},
+        ),
+        targets=targets,
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
+    parser.add_argument("--quick", action="store_true",
+                        help="M = 200 / 100 and 1,000 craters (smoke test, seconds)")
+    parser.add_argument("--repeat", type=int, default=3,
+                        help="timed calls per configuration (default 3)")
+    parser.add_argument("--timeout", type=float, default=1800.0,
+                        help="seconds allowed per child process (default 1800)")
+    parser.add_argument("--child", metavar="SPEC", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.child:
+        json.dump(child(json.loads(args.child)), sys.stdout)
+        sys.stdout.write("\n")
+        return 0
+    if args.repeat < 1:
+        parser.error("--repeat must be >= 1")
+    t0 = time.perf_counter()
+    try:
+        doc = benchmark(args.quick, args.repeat, args.timeout)
+    except (RuntimeError, subprocess.TimeoutExpired, json.JSONDecodeError) as exc:
+        log(f"benchmark failed: {exc}")
+        json.dump(dict(error=str(exc), machine=machine_facts()), sys.stdout, indent=2)
+        sys.stdout.write("\n")
+        return 1
+    doc["total_benchmark_s"] = time.perf_counter() - t0
+    log(f"all done in {doc['total_benchmark_s']:.1f} s")
+    json.dump(doc, sys.stdout, indent=2)
+    sys.stdout.write("\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,146 @@
+"""The `craterscape asteroid` commands, as a user runs them (click's CliRunner)."""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+import trimesh
+from click.testing import CliRunner
+
+from asteroid.body import load_native
+from asteroid.meshio import write_mesh
+from asteroid.sphere import SphereMesh
+from terrain.cli import main
+
+
+def run(*args, env=None):
+    return CliRunner().invoke(main, [str(a) for a in args], env=env)
+
+
+def one_line_error(result, *fragments):
+    assert result.exit_code == 2, result.output
+    lines = [ln for ln in result.output.splitlines() if ln.strip()]
+    assert len(lines) == 1, result.output
+    assert lines[0].startswith("craterscape: error:") or lines[0].startswith("Error:")
+    for fragment in fragments:
+        assert fragment in lines[0], lines[0]
+    assert "Traceback" not in result.output
+
+
+@pytest.fixture
+def ball(tmp_path):
+    mesh = SphereMesh(10)
+    path = tmp_path / "ball.obj"
+    write_mesh(path, [("body", mesh.directions() * np.array([1.2, 1.0, 0.8]), mesh.faces())])
+    return path
+
+
+def test_root_command_lists_the_asteroid_group():
+    r = run("--help")
+    assert r.exit_code == 0 and "asteroid" in r.output
+    r = run("asteroid", "--help")
+    assert r.exit_code == 0 and "build" in r.output and "export" in r.output
+
+
+def test_build_perlin_with_craters_and_boulders_is_reproducible(tmp_path):
+    args = ["asteroid", "build", "--magnitude", 16, "--radius", 1000, "--base", "perlin",
+            "--seed", 5, "--craters", "c=0.5,dmin=150", "--boulders", "c=0.02,dmin=40,dmax=120"]
+    r = run(*args, "-o", tmp_path / "a.ply")
+    assert r.exit_code == 0, r.output
+    names = ["a.ply", "a.npz", "a_craters.csv", "a_boulders.csv"]
+    assert all((tmp_path / n).exists() for n in names)
+    assert "craters applied" in r.output and "boulders" in r.output
+    r = run(*args, "-o", tmp_path / "b.ply")
+    assert r.exit_code == 0, r.output
+    for n in names:
+        assert (tmp_path / n).read_bytes() == (tmp_path / n.replace("a", "b", 1)).read_bytes(), n
+    native = load_native(tmp_path / "a.npz")
+    assert native.body.magnitude == 16 and native.body.metadata["seed"] == 5
+    rows = list(csv.DictReader((tmp_path / "a_craters.csv").open()))
+    assert len(rows) == len(native.tables["craters"]["id"]) > 0
+    assert {"lat_deg", "lon_deg", "diameter_m", "age_gyr", "depth_m", "rim_height_m",
+            "slope_deg", "applied"} <= set(rows[0])
+    loaded = trimesh.load(tmp_path / "a.ply", process=False)
+    n_boulders = len(native.tables["boulders"]["id"])
+    assert len(loaded.faces) == 12 * 16**2 + n_boulders * 1280
+
+
+def test_build_faulting_preset_and_native_only(tmp_path):
+    r = run("asteroid", "build", "-o", tmp_path / "f.npz", "--preset", "fig9-faulting",
+            "--magnitude", 10, "--craters", "none", "--seed", 2)
+    assert r.exit_code == 0, r.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f.npz"]
+    body = load_native(tmp_path / "f.npz").body
+    assert body.metadata["recipe"]["faulting"]["fine_faults"] == 20000
+    assert body.metadata["recipe"]["stretch"] == [2.0, 1.0, 1.0]
+
+
+def test_build_from_a_shape_model_and_export(tmp_path, ball):
+    r = run("asteroid", "build", "-o", tmp_path / "s.glb", "--magnitude", 12, "--base",
+            f"shape:{ball}", "--shape-units", "m", "--seed", 1)
+    assert r.exit_code == 0, r.output
+    assert "not star-shaped" in r.output
+    body = load_native(tmp_path / "s.npz").body
+    assert body.radius == pytest.approx((1.2 * 1.0 * 0.8) ** (1 / 3), rel=0.02)
+    assert body.metadata["shape"]["non_star_fraction"] == 0.0
+    r = run("asteroid", "export", tmp_path / "s.npz", "-o", tmp_path / "s.obj")
+    assert r.exit_code == 0, r.output
+    assert trimesh.load(tmp_path / "s.obj", process=False).is_watertight
+    r = run("asteroid", "info", tmp_path / "s.npz")
+    assert r.exit_code == 0, r.output
+    report = json.loads(r.output)
+    assert report["vertices"] == 6 * 144 + 2 and report["metadata"]["seed"] == 1
+    r = run("asteroid", "presets")
+    assert r.exit_code == 0 and "fig9-faulting" in json.loads(r.output)
+
+
+def test_scaled_shape_with_config(tmp_path, ball):
+    config = tmp_path / "r.toml"
+    config.write_text(f'magnitude = 8\nbase = "shape:{ball.name}"\nradius = 500.0\n'
+                      '[shape]\nunits = "m"\ncentre = "origin"\n')
+    r = run("asteroid", "build", "-o", tmp_path / "s.stl", "--config", config)
+    assert r.exit_code == 0, r.output
+    assert load_native(tmp_path / "s.npz").body.radius == pytest.approx(500.0)
+
+
+def test_bad_input_gives_one_line_errors(tmp_path, ball):
+    out = ["-o", tmp_path / "x.ply"]
+    perlin = ["--radius", 1000, "--base", "perlin"]
+    one_line_error(run("asteroid", "build", *out, "--magnitude", 0, *perlin),
+                   "magnitude M must be an integer >= 1")
+    one_line_error(run("asteroid", "build", *out, "--magnitude", 8, *perlin, "--craters",
+                       "c=0.5,dmax=2000"), "maximum extent")
+    one_line_error(run("asteroid", "build", *out, "--magnitude", 300_000, *perlin),
+                   "needs about", "of memory")
+    one_line_error(run("asteroid", "build", *out, "--magnitude", 64, *perlin,
+                       env={"CRATERSCAPE_MEMORY_LIMIT": "1M"}), "of memory")
+    open_mesh = tmp_path / "open.obj"
+    mesh = SphereMesh(4)
+    write_mesh(open_mesh, [("body", mesh.directions(), mesh.faces()[2:])])
+    one_line_error(run("asteroid", "build", *out, "--magnitude", 8, "--base",
+                       f"shape:{open_mesh}"), "not a closed surface")
+    one_line_error(run("asteroid", "build", *out, "--magnitude", 8, "--base", f"shape:{ball}",
+                       "--shape-units", "m", "--shape-centre", "5,0,0"),
+                   "lies outside its surface")
+    one_line_error(run("asteroid", "build", *out, "--magnitude", 8, "--base",
+                       f"shape:{tmp_path / 'none.obj'}"), "does not exist")
+    one_line_error(run("asteroid", "build", "-o", ball, "--magnitude", 8, "--base",
+                       f"shape:{ball}"), "same file as input")
+    one_line_error(run("asteroid", "build", "-o", tmp_path / "x.vtk", "--magnitude", 8,
+                       *perlin), "must end in one of")
+    one_line_error(run("asteroid", "build", *out, "--magnitude", 8, *perlin, "--stretch", "2,1"),
+                   "three numbers")
+    one_line_error(run("asteroid", "build", *out, "--magnitude", 8, "--base", "perlin"),
+                   "needs --radius")
+    one_line_error(run("asteroid", "build", *out, "--preset", "fig42"), "unknown preset")
+    one_line_error(run("asteroid", "build", *out, "--magnitude", 8, *perlin, "--craters",
+                       "density=3,c=1"), "exactly one of c")
+    one_line_error(run("asteroid", "info", tmp_path / "none.npz"), "does not exist")
+    assert not (tmp_path / "x.ply").exists()
+
+
+def test_traceback_only_with_verbose(tmp_path):
+    r = run("-v", "asteroid", "build", "-o", tmp_path / "x.ply", "--magnitude", 0, "--radius",
+            1, "--base", "perlin")
+    assert r.exit_code == 2 and "Traceback" in r.output
