@@ -118,8 +118,11 @@ def clip_from_camera(intrinsics: Intrinsics, near: float, far: float) -> np.ndar
     """(4, 4) clip-space matrix acting on OpenCV camera coordinates (X, Y, Z, 1).
 
     Pixel (u, v) with v counted from the top maps to the centre of framebuffer texel
-    (u, h - 1 - v): ``x_ndc = (2u + 1) / w - 1``, ``y_ndc = 1 - (2v + 1) / h``; clip z only
-    bounds [near, far] (depth itself is written logarithmically by the fragment shader).
+    (u, h - 1 - v): ``x_ndc = (2u + 1) / w - 1``, ``y_ndc = 1 - (2v + 1) / h``. Clip z only
+    clips at the near plane: ``z_ndc = 1 - 2 near / Z`` is an infinite-far projection, so no
+    far plane can cut distant geometry through float32 rounding (a finite far plane with a
+    near plane of 1 cm loses whole bodies at 100 km that way); depth itself is written
+    logarithmically by the fragment shader. ``far`` is accepted for symmetry and unused.
     """
     k = intrinsics
     w, h = k.width, k.height
@@ -128,8 +131,8 @@ def clip_from_camera(intrinsics: Intrinsics, near: float, far: float) -> np.ndar
     m[0, 2] = (2.0 * k.cx + 1.0) / w - 1.0
     m[1, 1] = -2.0 * k.fy / h
     m[1, 2] = 1.0 - (2.0 * k.cy + 1.0) / h
-    m[2, 2] = (far + near) / (far - near)
-    m[2, 3] = -2.0 * far * near / (far - near)
+    m[2, 2] = 1.0
+    m[2, 3] = -2.0 * near
     m[3, 2] = 1.0
     return m
 
@@ -147,25 +150,28 @@ class Renderer:
                                               fragment_shader=_shader("scene.frag"))
         self.depth_program = self.ctx.program(vertex_shader=_shader("depth.vert"),
                                               fragment_shader=_shader("depth.frag"))
-        self._fbo = None
-        self._fbo_size = None
+        self._fbos: dict = {}
         self._dummy_shadow = self.ctx.depth_texture((1, 1))
         self._dummy_shadow.compare_func = "<="
 
     # ------------------------------------------------------------------ framebuffers
     def _target(self, size):
-        if self._fbo_size != size:
-            if self._fbo is not None:
-                for tex in self._fbo.color_attachments:
+        """The offscreen framebuffer for an image size (kept per size: an imposter renders a
+        small image while a full-size frame is being planned)."""
+        size = tuple(size)
+        if size not in self._fbos:
+            if len(self._fbos) >= 4:  # drop the oldest size
+                old = next(iter(self._fbos))
+                fbo = self._fbos.pop(old)
+                for tex in fbo.color_attachments:
                     tex.release()
-                self._fbo.depth_attachment.release()
-                self._fbo.release()
+                fbo.depth_attachment.release()
+                fbo.release()
             color = [self.ctx.texture(size, 1, dtype="f4"), self.ctx.texture(size, 1, dtype="f4"),
                      self.ctx.texture(size, 4, dtype="f4")]
-            self._fbo = self.ctx.framebuffer(color_attachments=color,
-                                             depth_attachment=self.ctx.depth_renderbuffer(size))
-            self._fbo_size = size
-        return self._fbo
+            self._fbos[size] = self.ctx.framebuffer(
+                color_attachments=color, depth_attachment=self.ctx.depth_renderbuffer(size))
+        return self._fbos[size]
 
     def shadow_target(self, size: int):
         """A depth texture and framebuffer for one shadow map (caller owns them)."""
@@ -228,7 +234,7 @@ class Renderer:
             raise RuntimeError(f"OpenGL error while rendering: {err}")
         w, h = k.width, k.height
         rad = np.frombuffer(fbo.read(attachment=0, components=1, dtype="f4"),
-                            dtype=np.float32).reshape(h, w)[::-1]
+                            dtype=np.float32).reshape(h, w)[::-1].copy()
         rng = np.frombuffer(fbo.read(attachment=1, components=1, dtype="f4"),
                             dtype=np.float32).reshape(h, w)[::-1].copy()
         nrm = np.frombuffer(fbo.read(attachment=2, components=4, dtype="f4"),
@@ -236,6 +242,8 @@ class Renderer:
         hit = nrm[:, :, 3] > 0.5
         rng[~hit] = np.nan
         normals = np.where(hit[:, :, None], nrm[:, :, :3], np.nan).astype(np.float32)
+        if state.post is not None:
+            state.post(view, rad, rng, normals)
         return Frame(np.ascontiguousarray(rad), rng, normals, dict(state.drawn))
 
     def _set_batch(self, prog, batch, cam, shadows):

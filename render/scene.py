@@ -58,11 +58,16 @@ class DrawBatch:
 
 @dataclass(eq=False)
 class FrameState:
-    """A scene's plan for one frame: batches in draw order, the far distance, what is drawn."""
+    """A scene's plan for one frame: batches in draw order, the far distance, what is drawn.
+
+    ``post``, if given, is called as ``post(view, radiance, range, normals)`` on the read-back
+    images (top row first) and may change them in place (imposters composite this way).
+    """
 
     batches: list
     far: float
     drawn: dict = field(default_factory=dict)
+    post: object = None
 
 
 def light_basis(sun) -> np.ndarray:

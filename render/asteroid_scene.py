@@ -1,0 +1,384 @@
+"""An asteroid body (native ``.npz``) with its boulders as a scene.
+
+Body: the 6M^2+2 mesh of :mod:`asteroid.sphere`, its triangles ordered by the paper's patches
+(:class:`asteroid.patches.PatchTree`, at most K strips of at most K triangles, each with a
+bounding sphere), so a frame draws only the patches inside the view frustum. Coarser levels of
+detail (magnitude M/2, M/4, ... down to :data:`MIN_MAGNITUDE`) resample the body's surface; a
+frame uses the coarsest whose vertex spacing stays below ``RenderOptions.lod_pixels`` on
+screen.
+
+Boulders: every boulder exists at each refinement level of its icosahedron
+(:mod:`asteroid.boulders`); a frame draws each boulder at the coarsest level whose edges stay
+below ``lod_pixels`` at its distance, skips boulders smaller than :data:`MIN_BOULDER_PIXELS`
+and culls the rest against the frustum.
+
+Imposter: when the body spans fewer than ``imposter_pixels`` pixels, it is rendered once per
+frame into a small texture by a camera at the same position looking at its centre, and that
+texture is drawn on a camera-facing quad through the body's centre (the asteroid paper's
+imposter). Because both cameras share their centre, the quad's image is the imposter image
+mapped by a homography, which is how it is composited here; range and normals come from the
+imposter's nearest texel (range is measured from the same centre, so it stays the true
+range), radiance is interpolated.
+
+The world frame is inertial with the body's centre at the origin; the body turns by the
+rotation set with :meth:`AsteroidScene.set_body_rotation`, R_WB, as the trajectory's spin
+says.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from render.camera import Intrinsics, look_at, quat_to_matrix
+from render.scene import DrawBatch, FrameState, ShadowMap, ortho_light
+from terrain.errors import InvalidParameterError
+
+__all__ = ["MIN_BOULDER_PIXELS", "MIN_MAGNITUDE", "AsteroidScene"]
+
+log = logging.getLogger(__name__)
+
+#: Coarsest body level of detail.
+MIN_MAGNITUDE = 8
+#: Boulders smaller than this on screen (pixels) are not drawn.
+MIN_BOULDER_PIXELS = 0.5
+#: Patch size K of the culling patches.
+PATCH_K = 64
+#: The imposter texture has this many texels per pixel the body spans.
+IMPOSTER_OVERSAMPLING = 3
+
+
+@dataclass(eq=False)
+class _BodyLod:
+    magnitude: int
+    spacing: float
+    triangles: int
+    vbo: object
+    ibo: object
+    centres: np.ndarray   # (patches, 3) body frame
+    radii: np.ndarray
+    firsts: np.ndarray
+    counts: np.ndarray
+    vaos: dict
+
+
+@dataclass(eq=False)
+class _BoulderLevel:
+    level: int
+    vbo: object
+    ibo: object
+    faces_per: int
+    vaos: dict
+
+
+class AsteroidScene:
+    """An asteroid ready to render (see the module docstring).
+
+    Parameters
+    ----------
+    body : path of a native ``.npz``, an :class:`asteroid.body.NativeModel` or a Body
+    boulders : bool
+        Draw the boulders stored with the body.
+    imposter_pixels : float
+        Below this on-screen diameter the body is drawn as an imposter.
+    """
+
+    kind = "asteroid"
+
+    def __init__(self, body, *, boulders: bool = True, imposter_pixels: float = 24.0):
+        from asteroid.body import Body, NativeModel, load_native
+        from asteroid.build import boulders_of
+
+        native = None
+        if isinstance(body, (str, Path)):
+            native = load_native(Path(body))
+            body = native.body
+        elif isinstance(body, NativeModel):
+            native = body
+            body = native.body
+        if not isinstance(body, Body):
+            raise InvalidParameterError(
+                f"an asteroid scene needs a native .npz, a NativeModel or a Body; got "
+                f"{type(body).__name__}")
+        if not imposter_pixels >= 0:
+            raise InvalidParameterError(f"imposter_pixels must be >= 0; got {imposter_pixels}")
+        self.body = body
+        self.boulders = boulders_of(native) if (boulders and native is not None) else None
+        self.imposter_pixels = float(imposter_pixels)
+        self.origin = np.zeros(3)
+        self.rotation = np.eye(3)
+        self.radius = float(body.radii.max())
+        if self.boulders is not None and len(self.boulders):
+            c = self.boulders.catalog
+            centres = np.column_stack([c["x_m"], c["y_m"], c["z_m"]])
+            self.radius = max(self.radius, float(np.linalg.norm(centres, axis=1).max()
+                                                 + c["diameter_m"].max()))
+        self._gpu: dict = {}
+        self._shadow: ShadowMap | None = None
+
+    # ------------------------------------------------------------------ geometry
+    def set_body_rotation(self, quaternion) -> None:
+        """Rotation R_WB (quaternion [w, x, y, z]) for the next frame."""
+        self.rotation = quat_to_matrix(quaternion)
+
+    def to_world(self, points) -> np.ndarray:
+        """Body-frame points (n, 3) to the world frame with the current rotation."""
+        return np.atleast_2d(points) @ self.rotation.T
+
+    def bounds(self):
+        return -np.full(3, self.radius), np.full(3, self.radius)
+
+    # ------------------------------------------------------------------ GPU
+    def _upload(self, ctx):
+        if id(ctx) in self._gpu:
+            return self._gpu[id(ctx)]
+        from asteroid.patches import PatchTree
+        from asteroid.sphere import SphereMesh
+        from render.mesh_scene import vertex_normals
+
+        lods = []
+        m = self.body.magnitude
+        magnitudes = [m]
+        while magnitudes[-1] // 2 >= MIN_MAGNITUDE:
+            magnitudes.append(magnitudes[-1] // 2)
+        for mag in magnitudes:
+            mesh = SphereMesh(mag)
+            if mag == m:
+                radii = np.asarray(self.body.radii, dtype=np.float64)
+            else:
+                radii = self.body.surface_radius(mesh.directions())
+            verts = mesh.directions() * radii[:, None]
+            faces = mesh.faces()
+            tree = PatchTree.build(mesh, radii, k=PATCH_K)
+            leaves = tree.leaves()
+            order, firsts, counts = [], [], []
+            pos = 0
+            for leaf in leaves:
+                tri = tree.triangles(int(leaf))
+                order.append(tri)
+                firsts.append(pos * 3)
+                counts.append(tri.size * 3)
+                pos += tri.size
+            faces = faces[np.concatenate(order)]
+            normals = vertex_normals(verts, faces)
+            spacing = float(np.median(np.linalg.norm(verts[faces[:, 0]] - verts[faces[:, 1]],
+                                                     axis=1)))
+            vbo = ctx.buffer(np.hstack([verts, normals]).astype(np.float32).tobytes())
+            ibo = ctx.buffer(faces.astype(np.uint32).tobytes())
+            lods.append(_BodyLod(mag, spacing, len(faces), vbo, ibo,
+                                 tree.spheres[leaves, :3].copy(), tree.spheres[leaves, 3].copy(),
+                                 np.array(firsts), np.array(counts), {}))
+        levels = []
+        if self.boulders is not None and len(self.boulders):
+            for level in range(self.boulders.settings.levels):
+                verts, faces = self.boulders.mesh(level)
+                normals = vertex_normals(verts, faces)
+                vbo = ctx.buffer(np.hstack([verts, normals]).astype(np.float32).tobytes())
+                ibo = ctx.buffer(faces.astype(np.uint32).tobytes())
+                levels.append(_BoulderLevel(level, vbo, ibo, len(faces) // len(self.boulders),
+                                            {}))
+        self._gpu[id(ctx)] = (lods, levels)
+        log.info("asteroid scene: body LODs %s, %d boulders", magnitudes,
+                 0 if self.boulders is None else len(self.boulders))
+        return lods, levels
+
+    @staticmethod
+    def _vaos(renderer, item):
+        key = id(renderer)
+        if key not in item.vaos:
+            ctx = renderer.ctx
+            vao = ctx.vertex_array(renderer.scene_program,
+                                   [(item.vbo, "3f 3f", "in_position", "in_normal")], item.ibo)
+            dvao = ctx.vertex_array(renderer.depth_program,
+                                    [(item.vbo, "3f 12x", "in_position")], item.ibo)
+            item.vaos[key] = (vao, dvao)
+        return item.vaos[key]
+
+    # ------------------------------------------------------------------ per frame
+    def frame_state(self, view, lighting, options, renderer) -> FrameState:
+        lods, levels = self._upload(renderer.ctx)
+        k = view.intrinsics
+        cam = np.asarray(view.pose.position, dtype=np.float64)
+        dist = float(np.linalg.norm(cam))
+        focal = max(k.fx, k.fy)
+        far = (dist + self.radius) * 1.01 + 1.0
+        span = 2.0 * focal * math.tan(math.asin(min(self.radius / max(dist, 1e-9), 1.0)))
+        if dist > self.radius * 1.01 and span < self.imposter_pixels:
+            return self._imposter_state(view, lighting, options, renderer, far, span)
+        near = max(dist - self.radius, 1e-3)
+        body = lods[0]
+        for lod in lods:
+            if lod.spacing * focal / near <= options.lod_pixels:
+                body = lod
+        rot = view.pose.rotation
+        c = (body.centres @ self.rotation.T - cam) @ rot
+        vis = _sphere_visible(c, body.radii, k)
+        patches = np.flatnonzero(vis)
+        vao, dvao = self._vaos(renderer, body)
+        ranges = _merge(body.firsts[patches], body.counts[patches])
+        shadow = None
+        if options.shadows and lighting is not None:
+            shadow = self._shadow_map(renderer, lighting, options, lods[-1] if len(lods) > 1
+                                      and lods[-1].spacing < 0.02 * self.radius else body,
+                                      levels)
+        tris = int(body.counts[patches].sum()) // 3
+        batches = [DrawBatch(vao, dvao, ranges, world_from_model=self.rotation, shadow=shadow,
+                             triangles=tris)]
+        drawn = {"body_magnitude": body.magnitude, "patches": int(patches.size),
+                 "patches_total": int(len(body.radii)), "triangles": tris, "imposter": False}
+        b_tris, counts = self._boulder_batches(batches, levels, view, options, renderer,
+                                               shadow)
+        drawn["boulders"] = counts
+        drawn["triangles"] += b_tris
+        return FrameState(batches, far, drawn)
+
+    def _boulder_batches(self, batches, levels, view, options, renderer, shadow):
+        if not levels:
+            return 0, {}
+        k = view.intrinsics
+        focal = max(k.fx, k.fy)
+        c = self.boulders.catalog
+        centres = np.column_stack([c["x_m"], c["y_m"], c["z_m"]]) @ self.rotation.T
+        radius = 0.5 * c["diameter_m"] * np.sqrt(np.maximum(c["elongation"], 1.0))
+        cam = np.asarray(view.pose.position)
+        rel = (centres - cam) @ view.pose.rotation
+        dist = np.maximum(np.linalg.norm(centres - cam, axis=1) - radius, 1e-3)
+        px = 2 * radius * focal / dist
+        vis = _sphere_visible(rel, radius, k) & (px >= MIN_BOULDER_PIXELS)
+        n_levels = len(levels)
+        # an icosahedron refined l times has edges of about 1.05 r / 2^l
+        wanted = np.ceil(np.log2(np.maximum(1.05 * radius * focal / dist
+                                            / options.lod_pixels, 1.0)))
+        level = np.clip(wanted, 0, n_levels - 1).astype(int)
+        counts, tris = {}, 0
+        for lv in levels:
+            sel = np.flatnonzero(vis & (level == lv.level))
+            if not sel.size:
+                continue
+            vao, dvao = self._vaos(renderer, lv)
+            per = lv.faces_per * 3
+            ranges = _merge(sel * per, np.full(sel.size, per))
+            n = sel.size * lv.faces_per
+            tris += n
+            counts[str(lv.level)] = int(sel.size)
+            batches.append(DrawBatch(vao, dvao, ranges, world_from_model=self.rotation,
+                                     shadow=shadow, triangles=n))
+        return tris, counts
+
+    def _shadow_map(self, renderer, lighting, options, body_lod, levels) -> ShadowMap:
+        size = options.shadow_size
+        if self._shadow is None or self._shadow.size != size:
+            if self._shadow is not None:
+                self._shadow.release()
+            tex, fbo = renderer.shadow_target(size)
+            self._shadow = ShadowMap(tex, size, np.eye(4), 0.0, 0.0, 0.0, framebuffer=fbo)
+        r = self.radius
+        pts = np.array([[sx * r, sy * r, sz * r] for sx in (-1, 1) for sy in (-1, 1)
+                        for sz in (-1, 1)])
+        clip, light, extent, depth, _ = ortho_light(lighting.sun, pts, pts, margin=0.01 * r)
+        _, dvao = self._vaos(renderer, body_lod)
+        casters = [DrawBatch(None, dvao, [(0, body_lod.triangles * 3)],
+                             world_from_model=self.rotation)]
+        if levels:
+            lv = levels[min(1, len(levels) - 1)]
+            _, bdvao = self._vaos(renderer, lv)
+            casters.append(DrawBatch(None, bdvao, [(0, lv.faces_per * 3 * len(self.boulders))],
+                                     world_from_model=self.rotation))
+        renderer.render_depth(self._shadow.framebuffer, size, clip, casters)
+        texel = extent / size
+        m = self._shadow
+        m.light_from_world = light
+        m.normal_offset = 1.0 * texel
+        m.bias = 1.5 * texel / depth
+        m.slope_bias = 1.0 * texel / depth
+        m.texel_m = texel
+        m.depth_range_m = depth
+        return m
+
+    # ------------------------------------------------------------------ imposter
+    def _imposter_state(self, view, lighting, options, renderer, far, span) -> FrameState:
+        from render.renderer import View
+
+        size = int(max(8, math.ceil(span) * IMPOSTER_OVERSAMPLING))
+        cam = np.asarray(view.pose.position, dtype=np.float64)
+        half = math.asin(min(self.radius / np.linalg.norm(cam), 1.0)) * 1.02
+        f = 0.5 * size / math.tan(half)
+        k_imp = Intrinsics(size, size, f, f, (size - 1) / 2, (size - 1) / 2)
+        pose_imp = look_at(cam, (0.0, 0.0, 0.0))
+        saved = self.imposter_pixels
+        self.imposter_pixels = 0.0  # render the imposter itself as geometry
+        try:
+            sub = renderer.render(self, View(pose_imp, k_imp, view.time), lighting, options)
+        finally:
+            self.imposter_pixels = saved
+        post = _ImposterComposite(sub, pose_imp, k_imp)
+        drawn = dict(sub.drawn, imposter=True, imposter_size=size)
+        return FrameState([], far, drawn, post=post)
+
+
+class _ImposterComposite:
+    """Draws an imposter image on a camera-facing quad, as a homography of the image plane."""
+
+    def __init__(self, frame, pose, intrinsics):
+        self.frame = frame
+        self.pose = pose
+        self.k = intrinsics
+
+    def __call__(self, view, radiance, rng, normals):
+        k = view.intrinsics
+        v, u = np.mgrid[0:k.height, 0:k.width].astype(np.float64)
+        rays = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u)], -1)
+        world = rays @ view.pose.rotation.T          # same centre: only directions matter
+        c = world @ self.pose.rotation                # into the imposter camera
+        ok = c[..., 2] > 0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            iu = self.k.fx * c[..., 0] / c[..., 2] + self.k.cx
+            iv = self.k.fy * c[..., 1] / c[..., 2] + self.k.cy
+        n = self.k.width
+        ok &= (iu > -0.5) & (iu < n - 0.5) & (iv > -0.5) & (iv < n - 0.5)
+        ju = np.clip(np.rint(iu[ok]).astype(int), 0, n - 1)
+        jv = np.clip(np.rint(iv[ok]).astype(int), 0, n - 1)
+        hit = np.isfinite(self.frame.range[jv, ju])
+        rows, cols = np.nonzero(ok)
+        rows, cols, ju, jv = rows[hit], cols[hit], ju[hit], jv[hit]
+        import cv2
+
+        # bilinear over the body's own texels only (weights renormalised), so the limb does
+        # not blend with the black sky of the imposter
+        mask = np.isfinite(self.frame.range).astype(np.float32)
+        mu, mv = iu.astype(np.float32), iv.astype(np.float32)
+        num = cv2.remap(np.nan_to_num(self.frame.radiance) * mask, mu, mv, cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        den = cv2.remap(mask, mu, mv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                        borderValue=0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rad = np.where(den > 0, num / np.maximum(den, 1e-12), 0.0)
+        radiance[rows, cols] = rad[rows, cols]
+        rng[rows, cols] = self.frame.range[jv, ju]
+        normals[rows, cols] = self.frame.normals[jv, ju]
+
+
+def _sphere_visible(c: np.ndarray, radii: np.ndarray, k) -> np.ndarray:
+    """Spheres (camera-frame centres) not wholly outside the view frustum."""
+    vis = c[:, 2] > -radii
+    planes = np.array([[k.fx, 0.0, k.cx + 0.5], [-k.fx, 0.0, k.width - 0.5 - k.cx],
+                       [0.0, k.fy, k.cy + 0.5], [0.0, -k.fy, k.height - 0.5 - k.cy]])
+    planes /= np.linalg.norm(planes, axis=1, keepdims=True)
+    for plane in planes:
+        vis &= c @ plane > -radii
+    return vis
+
+
+def _merge(firsts, counts) -> list[tuple[int, int]]:
+    out: list[list[int]] = []
+    for o, n in zip(np.asarray(firsts), np.asarray(counts), strict=True):
+        o, n = int(o), int(n)
+        if out and out[-1][0] + out[-1][1] == o:
+            out[-1][1] += n
+        else:
+            out.append([o, n])
+    return [(a, b) for a, b in out]
