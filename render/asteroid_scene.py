@@ -50,6 +50,9 @@ MIN_BOULDER_PIXELS = 0.5
 PATCH_K = 64
 #: The imposter texture has this many texels per pixel the body spans.
 IMPOSTER_OVERSAMPLING = 3
+#: Boulder levels of detail kept on the GPU for every boulder; finer levels are built for the
+#: boulders that need them, frame by frame.
+COARSE_BOULDER_LEVELS = 2
 
 
 @dataclass(eq=False)
@@ -119,6 +122,7 @@ class AsteroidScene:
                                                  + c["diameter_m"].max()))
         self._gpu: dict = {}
         self._shadow: ShadowMap | None = None
+        self._fine: list = []
 
     # ------------------------------------------------------------------ geometry
     def set_body_rotation(self, quaternion) -> None:
@@ -174,7 +178,9 @@ class AsteroidScene:
                                  np.array(firsts), np.array(counts), {}))
         levels = []
         if self.boulders is not None and len(self.boulders):
-            for level in range(self.boulders.settings.levels):
+            # coarse levels for every boulder up front; finer ones only for the boulders a
+            # frame brings close (see _fine_batch)
+            for level in range(min(COARSE_BOULDER_LEVELS, self.boulders.settings.levels)):
                 verts, faces = self.boulders.mesh(level)
                 normals = vertex_normals(verts, faces)
                 vbo = ctx.buffer(np.hstack([verts, normals]).astype(np.float32).tobytes())
@@ -201,6 +207,9 @@ class AsteroidScene:
     # ------------------------------------------------------------------ per frame
     def frame_state(self, view, lighting, options, renderer) -> FrameState:
         lods, levels = self._upload(renderer.ctx)
+        for old in self._fine:  # the previous frame's fine boulders
+            old.release()
+        self._fine = []
         k = view.intrinsics
         cam = np.asarray(view.pose.position, dtype=np.float64)
         dist = float(np.linalg.norm(cam))
@@ -249,7 +258,7 @@ class AsteroidScene:
         dist = np.maximum(np.linalg.norm(centres - cam, axis=1) - radius, 1e-3)
         px = 2 * radius * focal / dist
         vis = _sphere_visible(rel, radius, k) & (px >= MIN_BOULDER_PIXELS)
-        n_levels = len(levels)
+        n_levels = self.boulders.settings.levels
         # an icosahedron refined l times has edges of about 1.05 r / 2^l
         wanted = np.ceil(np.log2(np.maximum(1.05 * radius * focal / dist
                                             / options.lod_pixels, 1.0)))
@@ -267,7 +276,41 @@ class AsteroidScene:
             counts[str(lv.level)] = int(sel.size)
             batches.append(DrawBatch(vao, dvao, ranges, world_from_model=self.rotation,
                                      shadow=shadow, triangles=n))
+        for lv in range(len(levels), n_levels):
+            sel = np.flatnonzero(vis & (level == lv))
+            if not sel.size:
+                continue
+            batch = self._fine_batch(renderer, lv, sel, shadow)
+            tris += batch.triangles
+            counts[str(lv)] = int(sel.size)
+            batches.append(batch)
         return tris, counts
+
+    def _fine_batch(self, renderer, level: int, indices: np.ndarray, shadow) -> DrawBatch:
+        """A throw-away vertex array of the given boulders at a fine level of detail."""
+        from asteroid.boulders import subdivision
+        from render.mesh_scene import vertex_normals
+
+        faces_all, _ = subdivision(self.boulders.settings.levels)
+        f = faces_all[level]
+        nv = 10 * 4**level + 2
+        c = self.boulders.catalog
+        rot = self.boulders.rotations()[indices]
+        centres = np.column_stack([c["x_m"], c["y_m"], c["z_m"]])[indices]
+        local = np.stack([self.boulders.local_shapes(slice(int(i), int(i) + 1))[0, :nv]
+                          for i in indices])
+        verts = (np.einsum("nij,nvj->nvi", rot, local) + centres[:, None, :]).reshape(-1, 3)
+        faces = (f[None, :, :] + (np.arange(len(indices)) * nv)[:, None, None]).reshape(-1, 3)
+        normals = vertex_normals(verts, faces)
+        ctx = renderer.ctx
+        vbo = ctx.buffer(np.hstack([verts, normals]).astype(np.float32).tobytes())
+        ibo = ctx.buffer(faces.astype(np.uint32).tobytes())
+        vao = ctx.vertex_array(renderer.scene_program,
+                               [(vbo, "3f 3f", "in_position", "in_normal")], ibo)
+        dvao = ctx.vertex_array(renderer.depth_program, [(vbo, "3f 12x", "in_position")], ibo)
+        self._fine.extend([vao, dvao, vbo, ibo])
+        return DrawBatch(vao, dvao, [(0, faces.size)], world_from_model=self.rotation,
+                         shadow=shadow, triangles=len(faces))
 
     def _shadow_map(self, renderer, lighting, options, body_lod, levels) -> ShadowMap:
         size = options.shadow_size
