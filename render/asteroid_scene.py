@@ -138,8 +138,9 @@ class AsteroidScene:
 
     # ------------------------------------------------------------------ GPU
     def _upload(self, ctx):
-        if id(ctx) in self._gpu:
-            return self._gpu[id(ctx)]
+        cached = self._gpu.get(id(ctx))
+        if cached is not None and cached[0] is ctx:
+            return cached[1], cached[2]
         from asteroid.patches import PatchTree
         from asteroid.sphere import SphereMesh
         from render.mesh_scene import vertex_normals
@@ -187,14 +188,14 @@ class AsteroidScene:
                 ibo = ctx.buffer(faces.astype(np.uint32).tobytes())
                 levels.append(_BoulderLevel(level, vbo, ibo, len(faces) // len(self.boulders),
                                             {}))
-        self._gpu[id(ctx)] = (lods, levels)
+        self._gpu[id(ctx)] = (ctx, lods, levels)
         log.info("asteroid scene: body LODs %s, %d boulders", magnitudes,
                  0 if self.boulders is None else len(self.boulders))
         return lods, levels
 
     @staticmethod
     def _vaos(renderer, item):
-        key = id(renderer)
+        key = renderer.token
         if key not in item.vaos:
             ctx = renderer.ctx
             vao = ctx.vertex_array(renderer.scene_program,

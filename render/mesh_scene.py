@@ -142,7 +142,7 @@ class MeshScene:
         return lods
 
     def _vaos(self, renderer, lod: _Lod):
-        key = id(renderer)
+        key = renderer.token
         if key not in lod.vaos:
             ctx = renderer.ctx
             vao = ctx.vertex_array(renderer.scene_program,

@@ -22,6 +22,7 @@ frame.
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 from dataclasses import dataclass, field
@@ -40,6 +41,8 @@ log = logging.getLogger(__name__)
 
 #: Nearest depth the logarithmic depth buffer resolves (m).
 LOG_NEAR = 0.01
+
+_TOKENS = itertools.count(1)
 
 
 @dataclass(frozen=True)
@@ -146,6 +149,9 @@ class Renderer:
 
     def __init__(self, ctx=None):
         self.ctx = ctx or create_context()
+        # Scenes cache vertex arrays per renderer (they bind this renderer's programs). A
+        # never-reused token, not id(self): a new renderer can get a dead one's id.
+        self.token = next(_TOKENS)
         self.scene_program = self.ctx.program(vertex_shader=_shader("scene.vert"),
                                               fragment_shader=_shader("scene.frag"))
         self.depth_program = self.ctx.program(vertex_shader=_shader("depth.vert"),

@@ -303,7 +303,7 @@ class TerrainScene:
         return layer
 
     def _vaos(self, renderer, layer: _Layer, s: int):
-        key = (id(renderer), s)
+        key = (renderer.token, s)
         if key not in layer.vaos:
             ctx = renderer.ctx
             vao = ctx.vertex_array(renderer.scene_program,
@@ -384,7 +384,7 @@ class TerrainScene:
         return plan, total
 
     def _shadow_maps(self, renderer, lighting, options):
-        key = (id(renderer), tuple(np.round(lighting.sun, 12)), options.shadow_size)
+        key = (renderer.token, tuple(np.round(lighting.sun, 12)), options.shadow_size)
         if key in self._shadow_cache:
             return self._shadow_cache[key]
         for maps in self._shadow_cache.values():

@@ -33,7 +33,7 @@ from terrain.errors import InvalidDEMError, MissingInputError, OutputPathError
 from terrain.tile import DEMTile
 
 __all__ = ["atomic_path", "check_output_path", "lonlat_to_xy", "read_dem", "read_float_tiff",
-           "write_dem", "write_float_tiff", "write_png"]
+           "same_crs", "write_dem", "write_float_tiff", "write_png"]
 
 log = logging.getLogger(__name__)
 
@@ -192,12 +192,24 @@ def _umask() -> int:
     return mask
 
 
-def write_dem(tile: DEMTile, path, *, inputs: Iterable = ()) -> Path:
+def same_crs(a: str | None, b: str | None) -> bool:
+    """Whether two CRS definitions (WKT) describe the same CRS (GDAL's own equality, so
+    equivalent CRSs written differently compare equal); None equals only None."""
+    if a is None or b is None:
+        return a is None and b is None
+    try:
+        return CRS.from_wkt(a) == CRS.from_wkt(b)
+    except Exception:  # unparsable WKT: fall back to the text
+        return " ".join(a.split()) == " ".join(b.split())
+
+
+def write_dem(tile: DEMTile, path, *, inputs: Iterable = (),
+              description: str = "height (m)") -> Path:
     """Write a tile as a tiled, DEFLATE-compressed float32 GeoTIFF, atomically.
 
     The tile's CRS, transform and nodata value are preserved; its metadata (seed,
     parameters, provenance) goes into the GeoTIFF's GDAL metadata tags. ``inputs`` lists
-    files the output must not replace.
+    files the output must not replace; ``description`` labels the band (e.g. "slope (deg)").
     """
     nrows, ncols = tile.shape
     nodata = tile.nodata
@@ -215,7 +227,7 @@ def write_dem(tile: DEMTile, path, *, inputs: Iterable = ()) -> Path:
             with rasterio.open(tmp, "w", **profile) as dst:
                 dst.write(data, 1)
                 dst.update_tags(**dict(tile.metadata))
-                dst.set_band_description(1, "height (m)")
+                dst.set_band_description(1, description)
         except (RasterioIOError, RasterioError) as exc:
             raise OutputPathError(f"cannot write '{path}': {_first_line(exc)}") from exc
     log.info("wrote %s (%d x %d)", path, ncols, nrows)

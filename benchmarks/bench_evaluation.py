@@ -1,0 +1,381 @@
+"""Benchmarks for craterscape's evaluation stage: one JSON document on stdout.
+
+Every configuration runs in its own child process (this script re-invoked with ``--child``),
+so that the peak resident set size (``ru_maxrss``) of each is isolated; a child warms up first
+(numba compiles its kernels, or loads them from its on-disk cache), then repeats the timed
+call and reports median, min and max wall time. Each compares against a baseline measured in
+the same run:
+
+* ``slope``: Horn slope of an N x N float32 DEM (RMD terrain), ours (compute only, and read +
+  compute + write a GeoTIFF) against the ``gdaldem slope -alg Horn`` binary on the same file
+  (process start, read, compute, write), both writing what ``write_dem`` writes (tiled,
+  DEFLATE) and gdaldem's plain default; the child also checks the two agree (max difference).
+* ``spectrum``: radially averaged power spectrum and Hurst fit of an RMD tile (F = 2.3, so
+  H = 0.7) against a bare ``rfft2`` of the same array (the floor any FFT-based spectrum pays).
+* ``gravity``: Werner-Scheeres polyhedron attraction at N points of a body of F triangles
+  against a point mass at the same points (the naive model), with the angle between the two
+  fields on the surface (why the polyhedron is worth its cost).
+* ``mesh_slopes``: per-vertex radial and gravitational slopes of a whole synthetic body
+  (asteroid build: coarsening, gravity at every vertex, 3 degree cap averages); the baseline
+  is the radial-only run (no gravity).
+* ``tracking``: Harris + pyramidal LK with forward-backward checks and replenishment, then
+  scoring against truth, through a rendered planar descent (the test suite's analytic
+  renderer), against bare OpenCV (detect once, forward LK only, no scoring).
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_evaluation.py            # full sizes (a few minutes)
+    .venv/bin/python benchmarks/bench_evaluation.py --quick    # small sizes (seconds)
+
+Progress goes to stderr; the exit status is 0 when every child ran.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import importlib.util
+import json
+import os
+import platform
+import resource
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def log(message: str) -> None:
+    """Progress line on stderr."""
+    print(f"[bench {time.strftime('%H:%M:%S')}] {message}", file=sys.stderr, flush=True)
+
+
+def _peak_rss_bytes() -> int:
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return int(peak) if sys.platform == "darwin" else int(peak) * 1024
+
+
+def _timed(fn, repeat: int) -> tuple[dict, object]:
+    times, out = [], None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return dict(median_s=statistics.median(times), min_s=min(times), max_s=max(times),
+                runs_s=times), out
+
+
+# ----------------------------------------------------------------------------------------
+# children
+
+
+def child_slope(spec: dict) -> dict:
+    import numpy as np
+
+    from evaluation.slope import horn, slope_tile
+    from terrain.io import read_dem, write_dem
+    from terrain.synthetic import synthesize_tile
+
+    n = spec["size"]
+    tmp = Path(tempfile.mkdtemp(prefix="bench-eval-"))
+    try:
+        dem = synthesize_tile(n, resolution=1.0, fractal_dimension=2.2, relief=60.0,
+                              seed=1).tile
+        path = tmp / "dem.tif"
+        write_dem(dem, path)
+        horn(dem)  # warm-up
+        rss0 = _peak_rss_bytes()
+        compute, (slope, _) = _timed(lambda: horn(dem), spec["repeat"])
+        peak = _peak_rss_bytes()
+
+        def end_to_end():
+            write_dem(slope_tile(read_dem(path)), tmp / "ours.tif")
+
+        ours_e2e, _ = _timed(end_to_end, spec["repeat"])
+        result = dict(pixels=n * n, ours_compute=compute, ours_read_compute_write=ours_e2e,
+                      peak_rss_bytes=peak, peak_rss_increment_bytes=peak - rss0)
+        exe = shutil.which("gdaldem")
+        if exe:
+            def gdal(*options):
+                def call():
+                    subprocess.run([exe, "slope", "-alg", "Horn", "-q", *options, str(path),
+                                    str(tmp / "gdal.tif")], check=True)
+                return call
+
+            # as write_dem writes (tiled, DEFLATE, floating-point predictor), and gdaldem's
+            # default (plain, uncompressed GeoTIFF)
+            gdal_t, _ = _timed(gdal("-co", "TILED=YES", "-co", "COMPRESS=DEFLATE", "-co",
+                                    "PREDICTOR=3"), spec["repeat"])
+            gdal_plain, _ = _timed(gdal(), spec["repeat"])
+            import rasterio
+
+            with rasterio.open(tmp / "gdal.tif") as src:
+                g = src.read(1)
+                g[g == src.nodata] = np.nan
+            result.update(gdaldem=gdal_t, gdaldem_uncompressed=gdal_plain,
+                          max_abs_difference_deg=float(np.nanmax(np.abs(g - slope))),
+                          same_nodata_pixels=bool(np.array_equal(np.isnan(g),
+                                                                 np.isnan(slope))))
+        else:
+            result["gdaldem"] = None
+        return result
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def child_spectrum(spec: dict) -> dict:
+    import numpy as np
+
+    from evaluation.spectrum import fit_hurst, radial_spectrum
+    from terrain.synthetic import synthesize_tile
+
+    n = spec["size"]
+    # RMD with fractal dimension 2.3: Hurst exponent 0.7 (F = 3 - H)
+    dem = synthesize_tile(n, resolution=2.0, fractal_dimension=2.3, relief=50.0,
+                          seed=2).tile
+    fit_hurst(radial_spectrum(dem))  # warm-up
+    z = dem.heights.astype(np.float64)
+    rss0 = _peak_rss_bytes()
+    ours, fit = _timed(lambda: fit_hurst(radial_spectrum(dem)), spec["repeat"])
+    peak = _peak_rss_bytes()
+    bare, _ = _timed(lambda: np.fft.rfft2(z), spec["repeat"])
+    return dict(pixels=n * n, ours=ours, bare_rfft2=bare, hurst_nominal_rmd=0.7,
+                hurst_estimated=fit.hurst,
+                peak_rss_bytes=peak, peak_rss_increment_bytes=peak - rss0)
+
+
+def _ellipsoid(subdivisions: int):
+    import numpy as np
+    import trimesh
+
+    s = trimesh.creation.icosphere(subdivisions=subdivisions, radius=1.0)
+    return np.asarray(s.vertices) * [17000.0, 6000.0, 5500.0], np.asarray(s.faces)
+
+
+def child_gravity(spec: dict) -> dict:
+    import numba
+    import numpy as np
+
+    from evaluation.gravity import GRAVITATIONAL_CONSTANT, Polyhedron, coarsen
+
+    v, f = _ellipsoid(7)
+    cv, cf = coarsen(v, f, spec["faces"])
+    body = Polyhedron.build(cv, cf, 2670.0)
+    pts = v[np.linspace(0, len(v) - 1, spec["points"]).astype(np.int64)] * 1.0005
+    body.field(pts[:8])  # warm-up (compile or load the cache)
+    rss0 = _peak_rss_bytes()
+    ours, (_, g) = _timed(lambda: body.field(pts), spec["repeat"])
+    peak = _peak_rss_bytes()
+    gm = GRAVITATIONAL_CONSTANT * body.mass
+
+    def point_mass():
+        r = np.linalg.norm(pts, axis=1)
+        return -gm * pts / r[:, None] ** 3
+
+    base, gp = _timed(point_mass, spec["repeat"])
+    cosang = np.einsum("ij,ij->i", g, gp) / (np.linalg.norm(g, axis=1)
+                                             * np.linalg.norm(gp, axis=1))
+    angle = np.degrees(np.arccos(np.clip(cosang, -1, 1)))
+    ns = ours["median_s"] / (len(pts) * len(body.faces)) * 1e9
+    return dict(points=len(pts), faces=int(len(body.faces)), ours=ours, point_mass=base,
+                ns_per_point_face=ns, numba_threads=numba.get_num_threads(),
+                point_mass_direction_error_deg=dict(median=float(np.median(angle)),
+                                                    max=float(angle.max())),
+                peak_rss_bytes=peak, peak_rss_increment_bytes=peak - rss0)
+
+
+def child_mesh_slopes(spec: dict) -> dict:
+    from asteroid.build import build
+    from asteroid.recipe import Recipe
+    from evaluation.meshslope import Spin, mesh_slopes
+
+    recipe = Recipe.from_dict(dict(magnitude=spec["magnitude"], radius=6000.0, seed=3,
+                                   base="perlin", stretch=[2.6, 1.0, 0.95],
+                                   perlin=dict(amplitude=0.12), craters=dict(c=0.5, k=-2.0)))
+    body = build(recipe).body
+    v, f = body.vertices(), body.mesh.faces()
+    small = build(Recipe(magnitude=8, radius=500.0, seed=1, base="perlin")).body
+    mesh_slopes(small.vertices(), small.mesh.faces(), coarse_faces=200)  # warm-up
+    rss0 = _peak_rss_bytes()
+    ours, r = _timed(lambda: mesh_slopes(v, f, spin=Spin(5.27),
+                                         coarse_faces=spec["coarse_faces"]), spec["repeat"])
+    peak = _peak_rss_bytes()
+    radial, _ = _timed(lambda: mesh_slopes(v, f, gravity=False), spec["repeat"])
+    return dict(vertices=len(v), faces=len(f), coarse_faces=r.info["coarse_faces"],
+                ours=ours, radial_only=radial, gravity_s=r.info["gravity_s"],
+                radial_median_deg=r.summary("radial")["p50"],
+                gravitational_median_deg=r.summary("gravitational")["p50"],
+                peak_rss_bytes=peak, peak_rss_increment_bytes=peak - rss0)
+
+
+def _planar_module():
+    spec = importlib.util.spec_from_file_location(
+        "evaluation_test_fixtures", ROOT / "tests" / "evaluation" / "conftest.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def child_tracking(spec: dict) -> dict:
+    import cv2
+    import numpy as np
+
+    from evaluation.tracking import score, track
+    from render.rundir import RunReader
+
+    planar = _planar_module()
+    tmp = Path(tempfile.mkdtemp(prefix="bench-eval-"))
+    try:
+        t0 = time.perf_counter()
+        run = planar.write_planar_run(tmp / "run", n_frames=spec["frames"],
+                                      width=spec["width"], height=spec["height"])
+        render_s = time.perf_counter() - t0
+        reader = RunReader(run)
+        frames = [reader.image(k) for k in range(len(reader))]
+        rss0 = _peak_rss_bytes()
+
+        def ours():
+            return score(track(reader), reader)
+
+        ours_t, scored = _timed(ours, spec["repeat"])
+        peak = _peak_rss_bytes()
+
+        def bare():
+            p = cv2.goodFeaturesToTrack(frames[0], 300, 0.01, 8, useHarrisDetector=True)
+            for a, b in zip(frames[:-1], frames[1:], strict=True):
+                p, st, _ = cv2.calcOpticalFlowPyrLK(a, b, p, None, winSize=(21, 21),
+                                                    maxLevel=3)
+                p = p[st.reshape(-1) == 1].reshape(-1, 1, 2)
+            return p
+
+        bare_t, _ = _timed(bare, spec["repeat"])
+        e = scored.error_summary()
+        return dict(frames=len(frames), width=spec["width"], height=spec["height"],
+                    render_s=render_s, ours=ours_t, bare_opencv=bare_t,
+                    ours_frames_per_s=len(frames) / ours_t["median_s"],
+                    tracks=scored.tracks.n_tracks, median_error_px=e["median_px"],
+                    outlier_fraction=e["outlier_fraction"],
+                    peak_rss_bytes=peak, peak_rss_increment_bytes=peak - rss0,
+                    frame_bytes=int(np.asarray(frames[0]).nbytes))
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+CHILDREN = dict(slope=child_slope, spectrum=child_spectrum, gravity=child_gravity,
+                mesh_slopes=child_mesh_slopes, tracking=child_tracking)
+
+
+# ----------------------------------------------------------------------------------------
+# parent
+
+
+def run_child(spec: dict, timeout: float) -> dict:
+    log(f"{spec['name']}: starting child ({spec['repeat']} runs)")
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--child",
+                           json.dumps(spec)], stdout=subprocess.PIPE, stderr=None, text=True,
+                          timeout=timeout, cwd=ROOT, check=False)
+    if proc.returncode != 0:
+        raise RuntimeError(f"child {spec['name']} failed with exit status {proc.returncode}")
+    out = json.loads(proc.stdout)
+    out["peak_rss_mib"] = round(out["peak_rss_bytes"] / 1024**2, 1)
+    log(f"{spec['name']}: done in {time.perf_counter() - t0:.1f} s")
+    return out
+
+
+def machine_facts() -> dict:
+    import numba
+    import numpy
+
+    try:
+        affinity = len(os.sched_getaffinity(0))
+    except AttributeError:
+        affinity = None
+    facts = dict(python=platform.python_version(), numpy=numpy.__version__,
+                 numba=numba.__version__, cpu_count=os.cpu_count(), cpu_affinity=affinity,
+                 numba_num_threads=numba.config.NUMBA_NUM_THREADS,
+                 platform=platform.platform(), machine=platform.machine(),
+                 load_average=list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
+                 gdaldem=shutil.which("gdaldem"),
+                 timestamp=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"))
+    try:
+        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
+                              text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+                               cwd=ROOT, capture_output=True, text=True, check=True).stdout
+        facts["git"] = dict(commit=head, dirty=bool(dirty.strip()))
+    except (OSError, subprocess.CalledProcessError):
+        facts["git"] = None
+    return facts
+
+
+def benchmark(quick: bool, repeat: int, timeout: float) -> dict:
+    sizes = dict(
+        slope=dict(size=1025 if quick else 4097),
+        spectrum=dict(size=1025 if quick else 4097),
+        gravity=dict(points=5000 if quick else 50000, faces=2000 if quick else 4000),
+        mesh_slopes=dict(magnitude=40 if quick else 160, coarse_faces=2000 if quick else 4000),
+        tracking=dict(frames=12 if quick else 40, width=320 if quick else 640,
+                      height=240 if quick else 480),
+    )
+    results = {}
+    for name, spec in sizes.items():
+        results[name] = run_child(dict(spec, name=name, repeat=repeat), timeout)
+    s = results["slope"]
+    if s.get("gdaldem"):
+        s["speedup_vs_gdaldem_end_to_end"] = (s["gdaldem"]["median_s"]
+                                              / s["ours_read_compute_write"]["median_s"])
+    g = results["gravity"]
+    g["cost_vs_point_mass"] = g["ours"]["median_s"] / max(g["point_mass"]["median_s"], 1e-12)
+    sp = results["spectrum"]
+    sp["overhead_vs_bare_fft"] = sp["ours"]["median_s"] / max(sp["bare_rfft2"]["median_s"],
+                                                             1e-12)
+    t = results["tracking"]
+    t["overhead_vs_bare_opencv"] = t["ours"]["median_s"] / max(t["bare_opencv"]["median_s"],
+                                                              1e-12)
+    m = results["mesh_slopes"]
+    m["gravity_share"] = m["gravity_s"] / m["ours"]["median_s"]
+    return dict(benchmark="craterscape evaluation", mode="quick" if quick else "full",
+                machine=machine_facts(), parameters=dict(sizes=sizes, repeat=repeat,
+                                                         timer="time.perf_counter",
+                                                         memory="ru_maxrss per child"),
+                results=results)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
+    parser.add_argument("--quick", action="store_true", help="small sizes (seconds)")
+    parser.add_argument("--repeat", type=int, default=3, help="timed calls per configuration")
+    parser.add_argument("--timeout", type=float, default=900.0,
+                        help="seconds allowed per child process (default 900)")
+    parser.add_argument("--child", metavar="SPEC", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.child:
+        spec = json.loads(args.child)
+        json.dump(CHILDREN[spec["name"]](spec), sys.stdout)
+        sys.stdout.write("\n")
+        return 0
+    if args.repeat < 1:
+        parser.error("--repeat must be >= 1")
+    t0 = time.perf_counter()
+    try:
+        doc = benchmark(args.quick, args.repeat, args.timeout)
+    except (RuntimeError, subprocess.TimeoutExpired, json.JSONDecodeError) as exc:
+        log(f"benchmark failed: {exc}")
+        json.dump(dict(error=str(exc), machine=machine_facts()), sys.stdout, indent=2)
+        sys.stdout.write("\n")
+        return 1
+    doc["total_benchmark_s"] = time.perf_counter() - t0
+    log(f"all done in {doc['total_benchmark_s']:.1f} s")
+    json.dump(doc, sys.stdout, indent=2)
+    sys.stdout.write("\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

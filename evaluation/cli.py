@@ -1,0 +1,603 @@
+"""The ``craterscape evaluation`` commands (registered through the ``craterscape.groups`` entry
+point, so the root command in :mod:`terrain.cli` never imports this package).
+
+::
+
+    craterscape evaluation slopes DEM_OR_STACK... -o OUTDIR [--band N] [--reference REF.tif]
+        [--reference-band N] [--slope-band N] [--baseline M] [--compute-edges]
+    craterscape evaluation asteroid-slopes MESH... -o OUTDIR [--units km] [--density D | --mass M]
+        [--period-hours H] [--spin-axis X,Y,Z] [--reference MESH] [--no-gravity]
+    craterscape evaluation track RUN_DIR -o OUTDIR [--max-corners N] [--fb-threshold PX]
+    craterscape evaluation report [RUN_DIR] -o REPORT.html [--thresholds T.toml]
+        [--dem DEM ...] [--reference REF.tif] [--mesh MESH ...] [--reference-mesh MESH]
+    craterscape evaluation thresholds          # print the default thresholds (TOML)
+
+Every file is written atomically and never over an input; errors craterscape raises on
+purpose become one line on stderr and exit code 2 (the root group does this; ``-v`` shows the
+traceback).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import logging
+import math
+import sys
+from pathlib import Path
+
+import click
+
+from terrain.errors import InvalidParameterError, MissingInputError
+
+__all__ = ["evaluation"]
+
+log = logging.getLogger(__name__)
+
+
+def _progress(label: str):
+    """(callback, close): a tqdm bar on a terminal, nothing in pipes and tests."""
+    if not sys.stderr.isatty():
+        return None, lambda: None
+    from tqdm import tqdm
+
+    bar = tqdm(total=None, desc=label, leave=False)
+
+    def update(done, total):
+        bar.total = total
+        bar.n = done
+        bar.refresh()
+
+    return update, bar.close
+
+
+class _TripleType(click.ParamType):
+    name = "X,Y,Z"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, tuple):
+            return value
+        parts = str(value).split(",")
+        try:
+            if len(parts) != 3:
+                raise ValueError
+            return tuple(float(p) for p in parts)
+        except ValueError:
+            self.fail(f"expected three numbers X,Y,Z; got {value!r}", param, ctx)
+
+
+TRIPLE = _TripleType()
+
+
+def _outdir(path: Path) -> Path:
+    if path.exists() and not path.is_dir():
+        raise InvalidParameterError(f"output '{path}' exists and is not a folder")
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def _write_text(path: Path, text: str, inputs=()) -> None:
+    from terrain.io import atomic_path
+
+    with atomic_path(path, inputs) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+
+
+def _write_csv(path: Path, header, rows, inputs=()) -> None:
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(header)
+    writer.writerows(rows)
+    _write_text(path, buf.getvalue(), inputs)
+
+
+def _unique(names):
+    seen: dict = {}
+    out = []
+    for name in names:
+        k = seen.get(name, 0)
+        seen[name] = k + 1
+        out.append(name if k == 0 else f"{name}_{k + 1}")
+    return out
+
+
+def _num(v):
+    return "" if v is None else f"{v:.6g}"
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("craterscape")
+    except PackageNotFoundError:  # pragma: no cover - running from a bare checkout
+        return "unknown"
+
+
+# ------------------------------------------------------------------------------ inputs
+
+
+def _dem_inputs(paths, band: int) -> list:
+    """(label, tile) for every DEM, expanding layer stacks (a folder or its manifest.json)."""
+    from terrain.io import read_dem
+    from terrain.layers import read_stack
+
+    items = []
+    for path in paths:
+        path = Path(path)
+        if path.is_dir() or path.name == "manifest.json":
+            folder = path if path.is_dir() else path.parent
+            if not (folder / "manifest.json").exists():
+                raise MissingInputError(f"'{folder}' is a folder without manifest.json; give "
+                                        "DEM files or layer-stack folders")
+            stack = read_stack(folder)
+            items += [(f"{folder.name}_layer_{k:02d}", t) for k, t in enumerate(stack.tiles)]
+        else:
+            items.append((path.stem, read_dem(path, band=band)))
+    labels = _unique([label for label, _ in items])
+    return [(label, tile) for label, (_, tile) in zip(labels, items, strict=True)]
+
+
+def _baseline(tile, baseline, label):
+    from evaluation.slope import resample
+
+    if baseline is None or baseline <= tile.resolution * (1 + 1e-9):
+        if baseline is not None and baseline < tile.resolution * (1 - 1e-9):
+            log.warning("%s is coarser (%.6g m) than --baseline %.6g m; kept at its own "
+                        "resolution", label, tile.resolution, baseline)
+        return tile
+    return resample(tile, baseline)
+
+
+def _reference(dems, reference, reference_band):
+    """The reference DEM, after checking every input shares its CRS (before any work)."""
+    from evaluation.compare import check_same_crs
+    from terrain.io import read_dem
+
+    if reference is None:
+        return None
+    ref_tile = read_dem(reference, band=reference_band)
+    for label, tile in dems:
+        check_same_crs(tile, ref_tile, names=(label, Path(reference).stem))
+    return ref_tile
+
+
+def _dem_evidence(dems, *, reference, ref_tile, slope_band, baseline, edges):
+    """Distributions, spectra, fits, comparisons and slope-map checks of DEM inputs."""
+    from evaluation.compare import compare_dems, compare_slope_maps
+    from evaluation.slope import horn_slope, slope_distribution
+    from evaluation.spectrum import fit_hurst, radial_spectrum
+    from terrain.errors import InvalidDEMError
+    from terrain.io import read_dem
+
+    distributions, spectra, fits, comparisons, agreements = [], [], [], [], []
+    for label, tile in dems:
+        measured = _baseline(tile, baseline, label)
+        distributions.append(slope_distribution(measured, label=label, edges=edges))
+        try:
+            spec = radial_spectrum(measured, label=label)
+            spectra.append(spec)
+            try:
+                fits.append(fit_hurst(spec))
+            except InvalidDEMError as exc:
+                log.warning("%s: no Hurst exponent (%s)", label, exc)
+                fits.append(None)
+        except InvalidDEMError as exc:
+            log.warning("%s: no power spectrum (%s)", label, exc)
+        if ref_tile is not None:
+            comparisons.append(compare_dems(tile, ref_tile, label=label,
+                                            reference_label=Path(reference).stem, edges=edges))
+        if slope_band is not None:
+            source = tile.metadata.get("CRATERSCAPE_SOURCE")
+            if not source:
+                raise InvalidParameterError(f"--slope-band needs a DEM file; {label} is a "
+                                            "layer of a stack")
+            theirs = read_dem(source, band=slope_band)
+            if theirs.shape != tile.shape:
+                raise InvalidDEMError(f"band {slope_band} of '{source}' is not on the height "
+                                      "band's grid")
+            agreements.append((f"{label} band {slope_band}",
+                               compare_slope_maps(horn_slope(tile, edges=edges),
+                                                  theirs.heights)))
+    if ref_tile is not None:
+        ref_label = f"reference {Path(reference).stem}"
+        distributions.append(slope_distribution(ref_tile, label=ref_label, edges=edges))
+    return distributions, spectra, fits, comparisons, agreements
+
+
+# ------------------------------------------------------------------------------ group
+
+
+@click.group()
+def evaluation():
+    """Evidence that a model is fit for testing a lander: slopes, spectra, tracking."""
+
+
+_edges_option = click.option(
+    "--compute-edges", is_flag=True,
+    help="Extrapolate slopes at the DEM's edges and across gaps like gdaldem "
+         "-compute_edges (default: edge pixels and gap neighbours are left out).")
+
+
+@evaluation.command()
+@click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("-o", "--output", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Output folder (created if missing).")
+@click.option("--band", type=int, default=1, show_default=True, help="Height band of the DEMs.")
+@click.option("--reference", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Reference DEM to compare every input with (matched baseline).")
+@click.option("--reference-band", type=int, default=1, show_default=True,
+              help="Height band of the reference.")
+@click.option("--slope-band", type=int, default=None,
+              help="Band of each input holding an independent slope map (degrees) to check "
+                   "the Horn slope against, pixel by pixel.")
+@click.option("--baseline", type=float, default=None,
+              help="Measure the distributions at this pixel spacing (m): finer DEMs are "
+                   "averaged onto it.")
+@_edges_option
+def slopes(inputs, output, band, reference, reference_band, slope_band, baseline,
+           compute_edges):
+    """Slope maps, slope distributions and power spectra of DEMs or layer stacks."""
+    from evaluation.figures import save_png, slope_distribution_figure, spectrum_figure
+    from evaluation.slope import slope_tile
+    from terrain.io import write_dem
+
+    if baseline is not None and not baseline > 0:
+        raise InvalidParameterError(f"--baseline must be positive metres; got {baseline}")
+    edges = "gdal" if compute_edges else "mask"
+    dems = _dem_inputs(inputs, band)
+    ref_tile = _reference(dems, reference, reference_band)
+    outdir = _outdir(output)
+    srcs = [*inputs] + ([reference] if reference else [])
+    for label, tile in dems:
+        out = slope_tile(tile, edges=edges).with_metadata(
+            CRATERSCAPE_COMMAND="evaluation slopes", CRATERSCAPE_VERSION=_version())
+        write_dem(out, outdir / f"{label}_slope.tif", inputs=srcs, description="slope (deg)")
+    distributions, spectra, fits, comparisons, agreements = _dem_evidence(
+        dems, reference=reference, ref_tile=ref_tile, slope_band=slope_band,
+        baseline=baseline, edges=edges)
+    angles = distributions[0].angles_deg
+    _write_csv(outdir / "slope_distributions.csv",
+               ["angle_deg"] + [d.label for d in distributions],
+               [[f"{a:g}"] + [f"{d.percent_steeper[i]:.6g}" for d in distributions]
+                for i, a in enumerate(angles)], srcs)
+    fit_of = {s.label: f for s, f in zip(spectra, fits, strict=True)}
+    ks_of = {c.label: c.ks_distance for c in comparisons}
+    keys = ["p10", "p25", "p50", "p75", "p90", "p95", "p99", "mean", "max"]
+    _write_csv(outdir / "slope_summary.csv",
+               ["label", "resolution_m", "slopes"] + [f"{k}_deg" for k in keys]
+               + ["hurst", "ks_vs_reference"],
+               [[d.label, f"{d.resolution_m:.6g}", d.pixels]
+                + [f"{d.quantiles[k]:.6g}" for k in keys]
+                + [_num(fit_of[d.label].hurst) if fit_of.get(d.label) else "",
+                   _num(ks_of.get(d.label))] for d in distributions], srcs)
+    _write_csv(outdir / "spectra.csv",
+               ["label", "frequency_per_m", "wavelength_m", "power_m4", "samples"],
+               [[s.label, f"{f:.6g}", f"{1 / f:.6g}", f"{p:.6g}", int(c)]
+                for s in spectra for f, p, c in zip(s.frequency, s.power, s.counts,
+                                                    strict=True)], srcs)
+    save_png(slope_distribution_figure(distributions), outdir / "slope_distributions.png",
+             inputs=srcs)
+    if spectra:
+        save_png(spectrum_figure(spectra, fits), outdir / "spectra.png", inputs=srcs)
+    if comparisons or agreements:
+        doc = dict(comparisons=[c.as_dict() for c in comparisons],
+                   slope_map_agreement=[dict(label=label, **a.as_dict())
+                                        for label, a in agreements])
+        _write_text(outdir / "comparison.json", json.dumps(doc, indent=1), srcs)
+    message = f"wrote slopes of {len(dems)} DEM(s) to {output}"
+    for c in comparisons:
+        message += (f"; {c.label} vs {c.reference_label}: KS {c.ks_distance:.3f} at "
+                    f"{c.resolution_m:.4g} m")
+    for label, a in agreements:
+        message += f"; {label}: median |diff| {a.median_abs_deg:.3g} deg"
+    click.echo(message, err=True)
+
+
+def _gravity_options(func):
+    options = [
+        click.option("--units", type=click.Choice(["m", "km"]), default="m", show_default=True,
+                     help="Units of mesh files (PDS shape models are in km; .npz is metres)."),
+        click.option("--density", type=float, default=None,
+                     help="Bulk density, kg/m^3 (default 2670, Eros)."),
+        click.option("--mass", type=float, default=None,
+                     help="Mass in kg, instead of the density."),
+        click.option("--period-hours", type=float, default=None,
+                     help="Spin period in hours (default: no spin; Eros: 5.27)."),
+        click.option("--spin-axis", type=TRIPLE, default="0,0,1", show_default=True,
+                     help="Spin axis in the body frame."),
+        click.option("--radius-deg", type=float, default=3.0, show_default=True,
+                     help="Cap radius of the per-vertex slope average (degrees)."),
+        click.option("--coarse-faces", type=int, default=None,
+                     help="Triangles of the coarsened body the gravity is computed from "
+                          "(default 4000)."),
+        click.option("--no-gravity", is_flag=True,
+                     help="Radial slopes only (no gravitational slopes)."),
+    ]
+    for option in reversed(options):
+        func = option(func)
+    return func
+
+
+def _body_slopes(path, *, units, density, mass, period_hours, spin_axis, radius_deg,
+                 coarse_faces, no_gravity):
+    from evaluation.meshslope import DEFAULT_COARSE_FACES, Spin, load_body, mesh_slopes
+
+    shape = load_body(path, units=units)
+    update, close = _progress(f"gravity {Path(path).name}")
+    try:
+        return mesh_slopes(shape.vertices, shape.faces, label=Path(path).stem,
+                           radius_deg=radius_deg, gravity=not no_gravity, density=density,
+                           mass=mass, spin=Spin(period_hours, spin_axis),
+                           coarse_faces=coarse_faces or DEFAULT_COARSE_FACES,
+                           progress=update)
+    finally:
+        close()
+
+
+@evaluation.command("asteroid-slopes")
+@click.argument("meshes", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("-o", "--output", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Output folder (created if missing).")
+@click.option("--reference", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="A real body (mesh) to compare every mesh with.")
+@click.option("--reference-units", type=click.Choice(["m", "km"]), default=None,
+              help="Units of the reference mesh (default: --units).")
+@click.option("--bin-deg", type=float, default=3.0, show_default=True,
+              help="Histogram bin width (degrees).")
+@_gravity_options
+def asteroid_slopes(meshes, output, reference, reference_units, bin_deg, units, density, mass,
+                    period_hours, spin_axis, radius_deg, coarse_faces, no_gravity):
+    """Radial and gravitational slopes of closed meshes, as slope-area histograms."""
+    from evaluation.compare import ks_distance
+    from evaluation.figures import save_png, slope_area_figure
+
+    common = dict(density=density, mass=mass, period_hours=period_hours, spin_axis=spin_axis,
+                  radius_deg=radius_deg, coarse_faces=coarse_faces, no_gravity=no_gravity)
+    srcs = [*meshes] + ([reference] if reference else [])
+    bodies = [_body_slopes(m, units=units, **common) for m in meshes]
+    ref = None
+    if reference is not None:
+        ref = _body_slopes(reference, units=reference_units or units, **common)
+    outdir = _outdir(output)
+    everyone = bodies + ([ref] if ref is not None else [])
+    labels = _unique([b.label for b in everyone])
+    kinds = ["radial"] if no_gravity else ["gravitational", "radial"]
+    rows = []
+    summary = dict(bodies=[], reference=None)
+    for label, b in zip(labels, everyone, strict=True):
+        vrows = []
+        grav = b.gravitational_deg
+        for i in range(b.vertex_area.size):
+            row = [i, f"{b.vertex_area[i]:.6g}", f"{b.radial_deg[i]:.4f}"]
+            if grav is not None:
+                row += [f"{grav[i]:.4f}"] + [f"{x:.6g}" for x in b.gravity[i]]
+            vrows.append(row)
+        header = ["vertex", "area_m2", "radial_slope_deg"]
+        if grav is not None:
+            header += ["gravitational_slope_deg", "g_x_m_s2", "g_y_m_s2", "g_z_m_s2"]
+        _write_csv(outdir / f"{label}_vertex_slopes.csv", header, vrows, srcs)
+        for kind in kinds:
+            h = b.histogram(kind, bin_deg=bin_deg)
+            rows += [[label, kind, f"{h.edges_deg[i]:g}", f"{h.edges_deg[i + 1]:g}",
+                      f"{h.area_percent[i]:.6g}", f"{h.percent_steeper[i]:.6g}"]
+                     for i in range(h.area_percent.size)]
+        entry = b.as_dict()
+        entry["label"] = label
+        if ref is not None and b is not ref:
+            entry["ks_vs_reference"] = {
+                k: ks_distance(b.slopes(k), ref.slopes(k), weights_a=b.vertex_area,
+                               weights_b=ref.vertex_area) for k in kinds}
+        if b is ref:
+            summary["reference"] = entry
+        else:
+            summary["bodies"].append(entry)
+    _write_csv(outdir / "slope_area_histograms.csv",
+               ["label", "kind", "bin_low_deg", "bin_high_deg", "area_percent",
+                "percent_steeper_than_bin_low"], rows, srcs)
+    _write_text(outdir / "asteroid_slopes.json", json.dumps(summary, indent=1), srcs)
+    for kind in kinds:
+        save_png(slope_area_figure([b.histogram(kind, bin_deg=bin_deg) for b in everyone]),
+                 outdir / f"slope_area_{kind}.png", inputs=srcs)
+    parts = []
+    for label, b in zip(labels, everyone, strict=True):
+        text = f"{label}: radial median {b.summary('radial')['p50']:.1f} deg"
+        if b.gravitational_deg is not None:
+            g = b.summary("gravitational")
+            text += (f", gravitational median {g['p50']:.1f} deg "
+                     f"({100 * g['area_fraction_below_35deg']:.1f} % of the area below 35)")
+        parts.append(text)
+    click.echo(f"wrote slopes of {len(everyone)} bodies to {output}; " + "; ".join(parts),
+               err=True)
+
+
+def _tracker_options(func):
+    options = [
+        click.option("--max-corners", type=int, default=300, show_default=True,
+                     help="Live tracks kept (replenished every frame)."),
+        click.option("--quality", type=float, default=0.01, show_default=True,
+                     help="Harris quality level (fraction of the strongest corner)."),
+        click.option("--min-distance", type=float, default=8.0, show_default=True,
+                     help="Least distance between features (px)."),
+        click.option("--win-size", type=int, default=21, show_default=True,
+                     help="Lucas-Kanade window (px)."),
+        click.option("--levels", type=int, default=3, show_default=True,
+                     help="Pyramid levels."),
+        click.option("--fb-threshold", type=float, default=0.5, show_default=True,
+                     help="Largest forward-backward error of a kept point (px)."),
+        click.option("--outlier-px", type=float, default=None,
+                     help="Errors above this are outliers (px; default 2, or the thresholds "
+                          "file's tracking.outlier_px)."),
+    ]
+    for option in reversed(options):
+        func = option(func)
+    return func
+
+
+def _run_tracking(run_dir, max_corners, quality, min_distance, win_size, levels, fb_threshold,
+                  outlier_px):
+    from evaluation.tracking import TrackerSettings, load_run, score, track
+
+    settings = TrackerSettings(max_corners=max_corners, quality=quality,
+                               min_distance=min_distance, win_size=win_size, levels=levels,
+                               fb_threshold=fb_threshold)
+    run = load_run(run_dir)
+    update, close = _progress("tracking")
+    try:
+        tracks = track(run, settings, progress=update)
+    finally:
+        close()
+    return run, score(tracks, run, outlier_px=outlier_px)
+
+
+@evaluation.command("track")
+@click.argument("run_dir", type=click.Path(file_okay=False, path_type=Path))
+@click.option("-o", "--output", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Output folder (created if missing).")
+@_tracker_options
+def track_cmd(run_dir, output, max_corners, quality, min_distance, win_size, levels,
+              fb_threshold, outlier_px):
+    """Track Harris corners through a rendered run and score them against its truth."""
+    from evaluation.figures import error_figure, save_png, tracks_figure
+
+    if output.resolve() == run_dir.resolve():
+        raise InvalidParameterError("the output folder must differ from the run directory")
+    run, scored = _run_tracking(run_dir, max_corners, quality, min_distance, win_size, levels,
+                                fb_threshold, 2.0 if outlier_px is None else outlier_px)
+    outdir = _outdir(output)
+    tracks = scored.tracks
+    rows = []
+    for i in range(tracks.n_tracks):
+        for k in range(tracks.start[i], tracks.stop[i] + 1):
+            u, v = tracks.positions[i, k]
+            row = [i, k, f"{u:.3f}", f"{v:.3f}"]
+            if scored.predicted is not None:
+                tu, tv = scored.predicted[i, k]
+                e = scored.errors[i, k]
+                row += [f"{tu:.3f}" if math.isfinite(tu) else "",
+                        f"{tv:.3f}" if math.isfinite(tv) else "",
+                        f"{e:.4f}" if math.isfinite(e) else ""]
+            rows.append(row)
+    header = ["track", "frame", "u_px", "v_px"]
+    if scored.predicted is not None:
+        header += ["true_u_px", "true_v_px", "error_px"]
+    _write_csv(outdir / "tracks.csv", header, rows)
+    _write_text(outdir / "tracking.json", json.dumps(scored.summary(), indent=1))
+    save_png(tracks_figure(run.image(len(run) - 1), scored), outdir / "tracks.png")
+    if scored.has_errors and scored.error_values().size:
+        save_png(error_figure(scored), outdir / "tracking_error.png")
+    s = scored.summary()
+    msg = (f"wrote {s['tracking']['tracks']} tracks over {s['tracking']['frames']} frames to "
+           f"{output}")
+    if s["errors"] is not None and s["errors"]["median_px"] is not None:
+        msg += (f"; median error {s['errors']['median_px']:.3f} px, outliers "
+                f"{100 * s['errors']['outlier_fraction']:.2f} %")
+    else:
+        msg += "; no truth, so no tracking errors"
+    click.echo(msg, err=True)
+
+
+@evaluation.command()
+@click.argument("run_dir", required=False, type=click.Path(file_okay=False, path_type=Path))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="Report HTML file; its JSON twin is written beside it (.json).")
+@click.option("--thresholds", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="TOML file of pass/fail thresholds (see `craterscape evaluation "
+                   "thresholds`).")
+@click.option("--title", type=str, default="craterscape validation report",
+              show_default=True, help="Report title.")
+@click.option("--dem", "dems", multiple=True, type=click.Path(path_type=Path),
+              help="DEM or layer stack to include (repeatable).")
+@click.option("--band", type=int, default=1, show_default=True, help="Height band of --dem.")
+@click.option("--reference", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Reference DEM the --dem inputs are compared with.")
+@click.option("--reference-band", type=int, default=1, show_default=True,
+              help="Height band of the reference.")
+@click.option("--slope-band", type=int, default=None,
+              help="Band of each --dem holding an independent slope map to check against.")
+@click.option("--mesh", "meshes", multiple=True, type=click.Path(dir_okay=False,
+                                                                 path_type=Path),
+              help="Asteroid model (mesh or native .npz) to include (repeatable).")
+@click.option("--reference-mesh", type=click.Path(dir_okay=False, path_type=Path),
+              default=None, help="Real body the --mesh inputs are compared with.")
+@click.option("--reference-units", type=click.Choice(["m", "km"]), default=None,
+              help="Units of the reference mesh (default: --units).")
+@_gravity_options
+@_tracker_options
+@_edges_option
+def report(run_dir, output, thresholds, title, dems, band, reference, reference_band,
+           slope_band, meshes, reference_mesh, reference_units, units, density, mass,
+           period_hours, spin_axis, radius_deg, coarse_faces, no_gravity, max_corners,
+           quality, min_distance, win_size, levels, fb_threshold, outlier_px, compute_edges):
+    """One self-contained HTML validation report (and its JSON) with pass/fail checks."""
+    from evaluation.report import (
+        Report,
+        asteroid_section,
+        dem_section,
+        load_thresholds,
+        tracking_section,
+        write_report,
+    )
+    from terrain.io import check_output_path
+
+    if run_dir is None and not dems and not meshes and reference_mesh is None:
+        raise InvalidParameterError("nothing to report: give a RUN_DIR, --dem or --mesh")
+    if reference is not None and not dems:
+        raise InvalidParameterError("--reference compares --dem inputs; give at least one --dem")
+    srcs = [p for p in [run_dir, *dems, reference, *meshes, reference_mesh, thresholds] if p]
+    if run_dir is not None:  # the report's JSON twin must never replace the run's own files
+        srcs += [run_dir / "truth.json", run_dir / "manifest.json"]
+    check_output_path(output, srcs)
+    check_output_path(output.with_suffix(".json"), srcs)
+    limits = load_thresholds(thresholds)
+    sections = []
+    inputs: dict = {}
+    if run_dir is not None:
+        opx = limits["tracking"]["outlier_px"] if outlier_px is None else outlier_px
+        run, scored = _run_tracking(run_dir, max_corners, quality, min_distance, win_size,
+                                    levels, fb_threshold, opx)
+        inputs["run_dir"] = str(run_dir)
+        sections.append(tracking_section(scored, run.image(len(run) - 1), limits,
+                                         run_label=str(run_dir)))
+    if dems:
+        edges = "gdal" if compute_edges else "mask"
+        dem_tiles = _dem_inputs(dems, band)
+        evidence = _dem_evidence(dem_tiles, reference=reference,
+                                 ref_tile=_reference(dem_tiles, reference, reference_band),
+                                 slope_band=slope_band, baseline=None, edges=edges)
+        distributions, spectra, fits, comparisons, agreements = evidence
+        inputs["dems"] = [str(p) for p in dems]
+        if reference is not None:
+            inputs["reference_dem"] = str(reference)
+        sections.append(dem_section(distributions, spectra, fits, comparisons, limits,
+                                    slope_agreements=agreements))
+    if meshes or reference_mesh is not None:
+        common = dict(density=density, mass=mass, period_hours=period_hours,
+                      spin_axis=spin_axis, radius_deg=radius_deg, coarse_faces=coarse_faces,
+                      no_gravity=no_gravity)
+        bodies = [_body_slopes(m, units=units, **common) for m in meshes]
+        ref = None
+        if reference_mesh is not None:
+            ref = _body_slopes(reference_mesh, units=reference_units or units, **common)
+            inputs["reference_mesh"] = str(reference_mesh)
+        inputs["meshes"] = [str(m) for m in meshes]
+        if no_gravity and limits["asteroid"]["slope_kind"] == "gravitational":
+            limits["asteroid"]["slope_kind"] = "radial"
+            log.warning("--no-gravity: the asteroid checks compare radial slopes")
+        sections.append(asteroid_section(bodies, ref, limits))
+    if thresholds is not None:
+        inputs["thresholds"] = str(thresholds)
+    rep = Report(title, sections, limits, inputs)
+    html_path, json_path = write_report(rep, output, inputs=srcs)
+    failed = [c.name for c in rep.checks if c.passed is False]
+    click.echo(f"wrote {html_path} and {json_path}: verdict {rep.verdict}"
+               + (f" (failed: {', '.join(failed)})" if failed else ""), err=True)
+
+
+@evaluation.command("thresholds")
+def thresholds_cmd():
+    """Print the default pass/fail thresholds as a TOML file to edit."""
+    from evaluation.report import thresholds_toml
+
+    click.echo(thresholds_toml(), nl=False)

@@ -1,0 +1,216 @@
+"""The evaluation figures, drawn with matplotlib's Agg backend (no display needed).
+
+One function per figure of the papers: cumulative slope-frequency distributions (Martin et
+al. 2014, Fig. 11-13), radially averaged power spectra (Fig. 14), feature tracks over the
+last frame (Fig. 15), slope-area histograms of asteroids (the asteroid paper's Fig. 9), and
+the tracking-error distribution that the papers could not draw. Each returns a
+``matplotlib.figure.Figure``; :func:`png_bytes` renders one to PNG, and :func:`save_png`
+writes it atomically.
+
+Figures are built with ``matplotlib.figure.Figure`` directly (not ``pyplot``), so nothing
+touches global plotting state and no GUI backend is ever loaded.
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Sequence
+
+import numpy as np
+
+from terrain.io import atomic_path
+
+__all__ = ["error_figure", "png_bytes", "save_png", "slope_area_figure",
+           "slope_distribution_figure", "spectrum_figure", "tracks_figure"]
+
+#: Figure size (inches) and resolution (dots per inch) of every figure.
+FIGSIZE = (7.0, 4.5)
+DPI = 110
+#: Lowest percentage drawn on logarithmic "percent steeper" axes.
+PERCENT_FLOOR = 1e-3
+
+
+def _figure(figsize=FIGSIZE):
+    from matplotlib.figure import Figure
+
+    return Figure(figsize=figsize, dpi=DPI, layout="constrained")
+
+
+def png_bytes(fig) -> bytes:
+    """The figure as PNG bytes (Agg renderer)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    FigureCanvasAgg(fig)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI)
+    return buf.getvalue()
+
+
+def save_png(fig, path, *, inputs=()) -> None:
+    """Write the figure as a PNG, atomically."""
+    data = png_bytes(fig)
+    with atomic_path(path, inputs) as tmp:
+        tmp.write_bytes(data)
+
+
+def slope_distribution_figure(distributions: Sequence, *, title: str = "") -> object:
+    """Percentage of terrain steeper than each angle, one line per DEM or layer (Fig. 11).
+
+    Parameters
+    ----------
+    distributions : sequence of evaluation.slope.SlopeDistribution
+    """
+    fig = _figure()
+    ax = fig.add_subplot()
+    top = 10.0
+    for d in distributions:
+        pct = np.maximum(d.percent_steeper, PERCENT_FLOOR)
+        ax.plot(d.angles_deg, pct, label=f"{d.label} ({d.resolution_m:.3g} m)")
+        reach = d.angles_deg[d.percent_steeper > 0.01]
+        top = max(top, float(reach.max()) + 2.0 if reach.size else top)
+    ax.set_yscale("log")
+    ax.set_ylim(PERCENT_FLOOR * 10, 100.0)
+    ax.set_xlim(0.0, min(90.0, top))
+    ax.set_xlabel("slope (degrees)")
+    ax.set_ylabel("terrain steeper than slope (%)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize="small")
+    ax.set_title(title or "Cumulative slope-frequency distributions")
+    return fig
+
+
+def spectrum_figure(spectra: Sequence, fits: Sequence | None = None, *,
+                    title: str = "") -> object:
+    """Radially averaged power spectra on log-log axes, with fitted power laws (Fig. 14).
+
+    Parameters
+    ----------
+    spectra : sequence of evaluation.spectrum.RadialSpectrum
+    fits : sequence of evaluation.spectrum.HurstFit or None, optional
+        One per spectrum; drawn as dashed lines over their fitted band.
+    """
+    fig = _figure()
+    ax = fig.add_subplot()
+    fits = list(fits) if fits is not None else [None] * len(spectra)
+    for s, fit in zip(spectra, fits, strict=True):
+        (line,) = ax.loglog(s.frequency, s.power,
+                            label=f"{s.label} ({s.resolution_m:.3g} m)" if s.label else None)
+        if fit is not None:
+            f = np.geomspace(fit.f_low, fit.f_high, 20)
+            ax.loglog(f, 10 ** fit.intercept * f ** -fit.beta, "--", color=line.get_color(),
+                      label=f"H = {fit.hurst:.2f}")
+    ax.set_xlabel("radial frequency (cycles per metre)")
+    ax.set_ylabel("power spectral density (m$^4$)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize="small")
+    secax = ax.secondary_xaxis("top", functions=(lambda f: 1.0 / np.maximum(f, 1e-300),
+                                                 lambda w: 1.0 / np.maximum(w, 1e-300)))
+    secax.set_xlabel("wavelength (m)")
+    ax.set_title(title or "Radially averaged power spectra")
+    return fig
+
+
+def slope_area_figure(histograms: Sequence, *, title: str = "") -> object:
+    """Percentage of surface area per slope bin, one line per body (asteroid paper, Fig. 9).
+
+    Parameters
+    ----------
+    histograms : sequence of evaluation.meshslope.SlopeAreaHistogram
+    """
+    fig = _figure()
+    ax = fig.add_subplot()
+    top = 30.0
+    for h in histograms:
+        ax.stairs(h.area_percent, h.edges_deg, label=f"{h.label} ({h.kind})")
+        nz = h.edges_deg[1:][h.area_percent > 0.05]
+        top = max(top, float(nz.max()) + 3.0 if nz.size else top)
+    ax.set_xlim(0.0, min(180.0, top))
+    ax.set_xlabel("slope (degrees)")
+    ax.set_ylabel("surface area per bin (%)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize="small")
+    ax.set_title(title or "Slope-area histograms")
+    return fig
+
+
+def tracks_figure(image: np.ndarray, scored, *, title: str = "") -> object:
+    """Feature tracks drawn over the last frame (Fig. 15), coloured by error when known.
+
+    Parameters
+    ----------
+    image : (h, w) or (h, w, 3) array
+        The last frame.
+    scored : evaluation.tracking.ScoredTracks
+    """
+    from matplotlib import colormaps
+    from matplotlib.collections import LineCollection
+    from matplotlib.colors import Normalize
+
+    tracks = scored.tracks
+    h, w = tracks.shape
+    fig = _figure(figsize=(7.0, 7.0 * h / w + 0.6))
+    ax = fig.add_subplot()
+    img = np.asarray(image)
+    if img.ndim == 3:
+        img = img[:, :, ::-1]  # BGR (OpenCV) to RGB
+    ax.imshow(img, cmap="gray", interpolation="nearest")
+    last = tracks.n_frames - 1
+    alive = tracks.alive()
+    lines, colours = [], []
+    final_error = None
+    if scored.errors is not None:
+        final_error = scored.errors[:, last]
+    for i in range(tracks.n_tracks):
+        if tracks.lengths[i] < 2:
+            continue
+        pts = tracks.positions[i][alive[i]]
+        lines.append(pts)
+        if final_error is not None:
+            colours.append(final_error[i] if tracks.stop[i] == last else np.nan)
+    if lines:
+        if final_error is not None:
+            cmap = colormaps["viridis"]
+            norm = Normalize(0.0, max(2.0 * scored.outlier_px, 1e-6))
+            c = [cmap(norm(e)) if np.isfinite(e) else (1.0, 0.4, 0.0, 0.35) for e in colours]
+            ax.add_collection(LineCollection(lines, colors=c, linewidths=1.0))
+            from matplotlib.cm import ScalarMappable
+
+            fig.colorbar(ScalarMappable(norm, cmap), ax=ax, shrink=0.7,
+                         label="error at the last frame (px); orange: ended earlier")
+        else:
+            ax.add_collection(LineCollection(lines, colors="lime", linewidths=1.0))
+    ends = tracks.positions[tracks.stop == last, last]
+    if ends.size:
+        ax.plot(ends[:, 0], ends[:, 1], ".", color="red", markersize=2.0)
+    ax.set_xlim(-0.5, w - 0.5)
+    ax.set_ylim(h - 0.5, -0.5)
+    ax.set_axis_off()
+    ax.set_title(title or f"{tracks.n_tracks} tracks over the last of {tracks.n_frames} frames")
+    return fig
+
+
+def error_figure(scored, *, title: str = "") -> object:
+    """Tracking-error distribution and its growth with track age (needs truth)."""
+    fig = _figure(figsize=(9.0, 4.0))
+    ax1, ax2 = fig.subplots(1, 2)
+    e = scored.error_values()
+    if e.size:
+        top = max(float(np.quantile(e, 0.995)), 2.0 * scored.outlier_px)
+        ax1.hist(np.minimum(e, top), bins=60, range=(0.0, top), color="tab:blue")
+        ax1.axvline(float(np.median(e)), color="k", linestyle="--",
+                    label=f"median {np.median(e):.3f} px")
+        ax1.axvline(scored.outlier_px, color="tab:red", linestyle=":",
+                    label=f"outlier > {scored.outlier_px:g} px")
+        ax1.legend(fontsize="small")
+        summary = scored.error_summary() or {}
+        by_age = np.array(summary.get("median_px_by_track_age") or [], dtype=np.float64)
+        if by_age.size:
+            ax2.plot(by_age[:, 0], by_age[:, 1], "o-")
+    ax1.set_xlabel("tracking error (px)")
+    ax1.set_ylabel("observations")
+    ax2.set_xlabel("frames since the feature was found")
+    ax2.set_ylabel("median error (px)")
+    ax1.grid(True, alpha=0.3)
+    ax2.grid(True, alpha=0.3)
+    fig.suptitle(title or "Tracking error against the renderer's truth")
+    return fig

@@ -1,0 +1,505 @@
+r"""Slopes of asteroid models: per-vertex slopes within a 3 degree cap, slope-area histograms.
+
+Martin et al. (2014, section VI.B) compare their synthetic asteroids with a "3 degree
+resolution slope area histogram of Asteroid Eros": "Slope values were calculated for all
+vertex points using a weighted slope average of all vertices within a 3 degree radius and
+were collated into cumulative slope frequency values from which the slope area histogram was
+calculated" (Fig. 9). :func:`mesh_slopes` does this for any closed triangle mesh, so real
+shape models and synthetic bodies are measured the same way:
+
+1. the slope of each vertex is the angle between its surface normal (the area-weighted
+   mean of its triangles' normals) and the local *up* direction;
+2. its reported slope is the mean of the slopes of all vertices whose direction from the
+   body's centre lies within ``radius_deg`` (3 degrees) of its own, weighted by vertex area
+   (a third of the area of each triangle the vertex belongs to), the paper's "weighted slope
+   average of all vertices within a 3 degree radius";
+3. the histogram gives the percentage of the surface *area* in each ``bin_deg`` (3 degree)
+   bin, and its cumulative form the percentage of the area steeper than each bin edge.
+
+Up: radial or gravitational
+---------------------------
+The paper's up is the radial direction from the centre. On an elongated body that misleads:
+the ends of Eros face along its long axis while gravity there pulls along it too, so the
+radial slope of the Gaskell Eros model has an area median near 44 degrees, while published
+Eros slopes, measured relative to gravity, are nearly all below 35 degrees (Thomas et al.
+2002, Icarus 155, 18; Zuber et al. 2000, Science 289, 2097). The *gravitational slope* takes
+up as the direction opposite the local effective gravity: the attraction of the body as a
+homogeneous polyhedron (:mod:`evaluation.gravity`, Werner and Scheeres 1997), evaluated from
+a coarsened copy of the body (the field is smooth; :data:`DEFAULT_COARSE_FACES` triangles),
+plus the centrifugal acceleration of the body's spin (Li et al. 2022, Fig. 17). Both are
+reported; histograms compare gravitational slopes by default.
+
+The density matters only through the ratio of centrifugal to gravitational acceleration:
+without spin, the gravitational slope does not depend on it at all. With spin, give the
+density (or the mass) and the spin period; a mesh in kilometres must be read with
+``units="km"``, since the centrifugal term scales with the body's size in metres.
+
+Which vertices share a cap: directions from the centre (the volume centroid), as on the
+paper's radius-per-direction bodies. On a body that is not star-shaped (a bilobed neck, an
+overhang) a cap can mix vertices of surfaces facing different ways; the slopes are still
+each vertex's own, only their averaging neighbourhood is then loose.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numba
+import numpy as np
+
+from evaluation.gravity import (
+    EROS_DENSITY,
+    GRAVITATIONAL_CONSTANT,
+    Polyhedron,
+    centrifugal,
+    coarsen,
+    signed_volume,
+)
+from evaluation.slope import cumulative_distribution, weighted_quantiles
+from terrain import memory
+from terrain.errors import InvalidParameterError
+
+__all__ = ["DEFAULT_BIN_DEG", "DEFAULT_COARSE_FACES", "DEFAULT_DENSITY", "DEFAULT_RADIUS_DEG",
+           "MESH_SUFFIXES", "MeshSlopes", "SlopeAreaHistogram", "Spin", "cap_average",
+           "load_body", "mesh_slopes", "vertex_normals_and_areas"]
+
+log = logging.getLogger(__name__)
+
+#: Cap radius of the slope average, degrees (Martin et al. 2014, section VI.B).
+DEFAULT_RADIUS_DEG = 3.0
+#: Histogram bin width, degrees (the paper's "3 degree resolution slope area histogram").
+DEFAULT_BIN_DEG = 3.0
+#: Triangles of the coarsened body the gravity is evaluated from. Measured on the Gaskell
+#: Eros model (49,152 triangles, spin 5.27 h) against gravity from the full model: 4,000
+#: triangles change the per-vertex gravitational slopes by 0.32 degrees median (p99 0.99,
+#: max 1.6), 2,000 by 0.54 (p99 1.5), 8,000 by 0.18 (p99 0.54); the area median moves from
+#: 11.00 (full) to 11.35 degrees. 4,000 costs 5 s on Eros on 2 cores (the full model 73 s).
+DEFAULT_COARSE_FACES = 4000
+#: Density used when neither density nor mass is given, kg m^-3 (433 Eros, the paper's body).
+DEFAULT_DENSITY = EROS_DENSITY
+#: Mesh files :func:`load_body` reads (the native asteroid model and what trimesh reads).
+MESH_SUFFIXES = (".npz", ".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
+#: Slopes reported for the histogram and its cumulative form.
+SLOPE_KINDS = ("gravitational", "radial")
+
+
+@dataclass(frozen=True)
+class Spin:
+    """A body's rotation: ``period_h`` hours (None: not spinning) about ``axis``.
+
+    >>> round(Spin(5.27).rate, 8)
+    0.00033118
+    """
+
+    period_h: float | None = None
+    axis: tuple = (0.0, 0.0, 1.0)
+
+    def __post_init__(self):
+        if self.period_h is not None:
+            p = float(self.period_h)
+            if not (p > 0 and math.isfinite(p)):
+                raise InvalidParameterError(f"spin period must be positive hours; got {p}")
+            object.__setattr__(self, "period_h", p)
+        a = np.asarray(self.axis, dtype=np.float64).reshape(-1)
+        if a.shape != (3,) or not np.all(np.isfinite(a)) or not np.linalg.norm(a) > 0:
+            raise InvalidParameterError(f"spin axis must be three numbers, not all zero; got "
+                                        f"{self.axis!r}")
+        object.__setattr__(self, "axis", tuple((a / np.linalg.norm(a)).tolist()))
+
+    @property
+    def rate(self) -> float:
+        """Angular rate, rad/s (0 without spin)."""
+        return 0.0 if self.period_h is None else 2.0 * math.pi / (self.period_h * 3600.0)
+
+
+# ------------------------------------------------------------------------------- input
+
+
+def load_body(path, *, units: str = "m"):
+    """A closed body from a mesh file or a native asteroid model, centred on its centroid.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.obj``, ``.ply``, ``.stl``, ``.off``, ``.glb``/``.gltf`` (through trimesh), or the
+        native ``.npz`` of ``craterscape asteroid build`` (always metres).
+    units : {"m", "km"}
+        Units of a mesh file's coordinates (PDS shape models are in km).
+
+    Returns
+    -------
+    asteroid.shape.ShapeModel
+        Vertices in metres about the centroid, outward-wound faces; not closed, not
+        consistently wound or enclosing no volume raises
+        :class:`asteroid.errors.InvalidShapeError`.
+    """
+    from asteroid.shape import UNITS, ShapeModel
+
+    path = Path(path)
+    if units not in UNITS:
+        raise InvalidParameterError(f"units must be one of {sorted(UNITS)}; got {units!r}")
+    if path.suffix.lower() == ".npz":
+        from asteroid.body import load_native
+
+        body = load_native(path).body
+        return ShapeModel.from_arrays(body.vertices(), body.mesh.faces(), source=f"'{path}'")
+    if path.suffix.lower() not in MESH_SUFFIXES:
+        raise InvalidParameterError(
+            f"'{path}' has suffix '{path.suffix}'; expected one of {', '.join(MESH_SUFFIXES)}")
+    return ShapeModel.read(path, units=units)
+
+
+# --------------------------------------------------------------------------- geometry
+
+
+def vertex_normals_and_areas(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
+    """Area-weighted unit vertex normals and vertex areas.
+
+    Returns
+    -------
+    normals : (n, 3) float64
+        Unit vectors (the sum of the adjacent triangles' area vectors, normalised).
+    areas : (n,) float64, square metres
+        A third of the area of every triangle the vertex belongs to.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # 2 * area * normal
+    tri_area = 0.5 * np.linalg.norm(cross, axis=1)
+    normals = np.zeros_like(v)
+    areas = np.zeros(len(v))
+    for k in range(3):
+        for d in range(3):
+            normals[:, d] += np.bincount(f[:, k], weights=cross[:, d], minlength=len(v))
+        areas += np.bincount(f[:, k], weights=tri_area, minlength=len(v)) / 3.0
+    norm = np.linalg.norm(normals, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        normals = normals / norm[:, None]
+    return normals, areas
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angles between rows of a and b (any lengths), degrees; atan2 form, exact near 0."""
+    cross = np.linalg.norm(np.cross(a, b), axis=1)
+    dot = np.einsum("ij,ij->i", a, b)
+    return np.degrees(np.arctan2(cross, dot))
+
+
+@numba.njit(cache=True)
+def _cell_keys(cells, n_side):  # pragma: no cover - compiled
+    return (cells[:, 0] * n_side + cells[:, 1]) * n_side + cells[:, 2]
+
+
+@numba.njit(cache=True, parallel=True)
+def _cap_sums(units, weights, values, order, keys_sorted, starts, ends, cells, n_side,
+              chord2, out_values, out_weights):  # pragma: no cover - compiled
+    n, k = values.shape
+    for i in numba.prange(n):
+        cx, cy, cz = cells[i, 0], cells[i, 1], cells[i, 2]
+        ux, uy, uz = units[i, 0], units[i, 1], units[i, 2]
+        wsum = 0.0
+        acc = np.zeros(k)
+        for dx in range(-1, 2):
+            for dy in range(-1, 2):
+                for dz in range(-1, 2):
+                    x, y, z = cx + dx, cy + dy, cz + dz
+                    if x < 0 or y < 0 or z < 0 or x >= n_side or y >= n_side or z >= n_side:
+                        continue
+                    key = (x * n_side + y) * n_side + z
+                    c = np.searchsorted(keys_sorted, key)
+                    if c >= keys_sorted.size or keys_sorted[c] != key:
+                        continue
+                    for s in range(starts[c], ends[c]):
+                        j = order[s]
+                        ddx = units[j, 0] - ux
+                        ddy = units[j, 1] - uy
+                        ddz = units[j, 2] - uz
+                        if ddx * ddx + ddy * ddy + ddz * ddz <= chord2:
+                            w = weights[j]
+                            wsum += w
+                            for q in range(k):
+                                acc[q] += w * values[j, q]
+        out_weights[i] = wsum
+        for q in range(k):
+            out_values[i, q] = acc[q] / wsum if wsum > 0 else np.nan
+
+
+def cap_average(directions, values, weights, radius_deg: float) -> np.ndarray:
+    """Weighted mean of per-vertex values over every vertex's cap of ``radius_deg`` degrees.
+
+    Parameters
+    ----------
+    directions : (n, 3) float64
+        Vertex directions from the centre (any length, not zero).
+    values : (n,) or (n, k) float64
+    weights : (n,) float64
+        Non-negative (vertex areas).
+    radius_deg : float
+        Angular radius of the cap; 0 returns the values unchanged.
+
+    Returns
+    -------
+    (n,) or (n, k) float64
+
+    Examples
+    --------
+    >>> d = np.array([[1.0, 0, 0], [1.0, 0.01, 0], [0, 0, 1.0]])
+    >>> cap_average(d, np.array([1.0, 3.0, 5.0]), np.ones(3), 3.0).tolist()
+    [2.0, 2.0, 5.0]
+    """
+    d = np.asarray(directions, dtype=np.float64)
+    vals = np.asarray(values, dtype=np.float64)
+    one = vals.ndim == 1
+    vals2 = vals[:, None] if one else vals
+    w = np.asarray(weights, dtype=np.float64)
+    n = len(d)
+    if d.shape != (n, 3) or vals2.shape[0] != n or w.shape != (n,):
+        raise InvalidParameterError(
+            f"directions (n, 3), values (n[, k]) and weights (n,) must agree; got {d.shape}, "
+            f"{vals.shape}, {w.shape}")
+    radius_deg = float(radius_deg)
+    if not 0.0 <= radius_deg < 90.0:
+        raise InvalidParameterError(f"cap radius must lie in [0, 90) degrees; got "
+                                    f"{radius_deg}")
+    if radius_deg == 0.0:
+        return vals.copy()
+    norm = np.linalg.norm(d, axis=1)
+    if not np.all(norm > 0):
+        raise InvalidParameterError("a vertex sits at the centre; it has no direction")
+    units = d / norm[:, None]
+    chord = 2.0 * math.sin(math.radians(radius_deg) / 2.0)
+    n_side = max(1, int(math.ceil(2.0 / chord)) + 1)
+    cells = np.minimum(np.floor((units + 1.0) / chord).astype(np.int64), n_side - 1)
+    keys = _cell_keys(cells, n_side)
+    order = np.argsort(keys, kind="stable")
+    keys_sorted, starts = np.unique(keys[order], return_index=True)
+    ends = np.append(starts[1:], n)
+    expected = n * (1.0 - math.cos(math.radians(radius_deg))) / 2.0
+    log.debug("cap average: %d vertices, about %.0f per %.3g degree cap", n, expected,
+              radius_deg)
+    out = np.empty_like(vals2)
+    out_w = np.empty(n)
+    _cap_sums(units, w, np.ascontiguousarray(vals2), order, keys_sorted, starts, ends, cells,
+              n_side, chord * chord, out, out_w)
+    return out[:, 0] if one else out
+
+
+# ------------------------------------------------------------------------------ result
+
+
+@dataclass(frozen=True, eq=False)
+class SlopeAreaHistogram:
+    """Percentage of a body's surface area per slope bin (the paper's Fig. 9).
+
+    Parameters
+    ----------
+    label : str
+    kind : {"gravitational", "radial"}
+    edges_deg : (k + 1,) float64
+    area_percent : (k,) float64
+        Percent of the area with slopes in ``[edges[i], edges[i + 1])``.
+    percent_steeper : (k + 1,) float64
+        Percent of the area steeper than each edge.
+    """
+
+    label: str
+    kind: str
+    edges_deg: np.ndarray
+    area_percent: np.ndarray
+    percent_steeper: np.ndarray
+
+    @property
+    def centres_deg(self) -> np.ndarray:
+        return 0.5 * (self.edges_deg[1:] + self.edges_deg[:-1])
+
+    def as_dict(self) -> dict:
+        return dict(label=self.label, kind=self.kind, edges_deg=self.edges_deg.tolist(),
+                    area_percent=self.area_percent.tolist(),
+                    percent_steeper=self.percent_steeper.tolist())
+
+
+@dataclass(frozen=True, eq=False)
+class MeshSlopes:
+    """Per-vertex slopes of a body, both relative to the radial direction and to gravity.
+
+    Parameters
+    ----------
+    label : str
+    vertex_area : (n,) float64, m^2
+    radial_deg : (n,) float64
+        Cap-averaged slope relative to the radial direction.
+    gravitational_deg : (n,) float64 or None
+        Cap-averaged slope relative to the local effective gravity.
+    gravity : (n, 3) float64, m s^-2, or None
+        Effective gravity (attraction plus centrifugal) at each vertex.
+    radius_deg : float
+        Cap radius of the averaging.
+    info : dict
+        Density, mass, spin, volume, coarse-body size, timings.
+    """
+
+    label: str
+    vertex_area: np.ndarray
+    radial_deg: np.ndarray
+    gravitational_deg: np.ndarray | None
+    gravity: np.ndarray | None
+    radius_deg: float
+    info: dict = field(default_factory=dict)
+
+    def slopes(self, kind: str = "gravitational") -> np.ndarray:
+        """(n,) float64 degrees of the given kind."""
+        if kind not in SLOPE_KINDS:
+            raise InvalidParameterError(f"slope kind must be one of {SLOPE_KINDS}; got "
+                                        f"{kind!r}")
+        if kind == "gravitational":
+            if self.gravitational_deg is None:
+                raise InvalidParameterError(
+                    f"{self.label}: gravitational slopes were not computed")
+            return self.gravitational_deg
+        return self.radial_deg
+
+    def histogram(self, kind: str = "gravitational", *,
+                  bin_deg: float = DEFAULT_BIN_DEG) -> SlopeAreaHistogram:
+        """Slope-area histogram in ``bin_deg`` bins from 0 to 180 degrees.
+
+        Slopes above 90 degrees are overhangs (the surface faces down).
+        """
+        bin_deg = float(bin_deg)
+        if not 0.0 < bin_deg <= 90.0:
+            raise InvalidParameterError(f"bin width must lie in (0, 90] degrees; got "
+                                        f"{bin_deg}")
+        values = self.slopes(kind)
+        edges = np.arange(0.0, 180.0 + 0.5 * bin_deg, bin_deg)
+        edges[-1] = max(edges[-1], 180.0)
+        ok = np.isfinite(values)
+        hist, _ = np.histogram(values[ok], bins=edges, weights=self.vertex_area[ok])
+        total = float(self.vertex_area[ok].sum())
+        return SlopeAreaHistogram(self.label, kind, edges, 100.0 * hist / total,
+                                  cumulative_distribution(values, edges, self.vertex_area))
+
+    def summary(self, kind: str) -> dict:
+        """Area-weighted quantiles and the area fractions below 35 degrees."""
+        values = self.slopes(kind)
+        q = weighted_quantiles(values, weights=self.vertex_area)
+        ok = np.isfinite(values)
+        area = self.vertex_area[ok]
+        q["area_fraction_below_35deg"] = float(area[values[ok] < 35.0].sum() / area.sum())
+        return q
+
+    def as_dict(self) -> dict:
+        out = dict(label=self.label, vertices=int(self.vertex_area.size),
+                   radius_deg=self.radius_deg, info=self.info,
+                   radial=self.summary("radial"))
+        if self.gravitational_deg is not None:
+            out["gravitational"] = self.summary("gravitational")
+            g = np.linalg.norm(self.gravity, axis=1)
+            out["effective_gravity_m_s2"] = dict(min=float(g.min()), max=float(g.max()),
+                                                 mean=float(g.mean()))
+        return out
+
+
+def _density(volume: float, density, mass) -> tuple[float, str]:
+    if density is not None and mass is not None:
+        raise InvalidParameterError("give the density or the mass, not both")
+    if mass is not None:
+        mass = float(mass)
+        if not (mass > 0 and math.isfinite(mass)):
+            raise InvalidParameterError(f"mass must be positive kg; got {mass}")
+        return mass / volume, "mass"
+    if density is not None:
+        density = float(density)
+        if not (density > 0 and math.isfinite(density)):
+            raise InvalidParameterError(f"density must be positive kg/m^3; got {density}")
+        return density, "density"
+    return DEFAULT_DENSITY, "default (433 Eros)"
+
+
+def mesh_slopes(vertices, faces, *, label: str = "", radius_deg: float = DEFAULT_RADIUS_DEG,
+                gravity: bool = True, density: float | None = None, mass: float | None = None,
+                spin: Spin | None = None, coarse_faces: int = DEFAULT_COARSE_FACES,
+                progress=None) -> MeshSlopes:
+    """Radial and gravitational slopes of a closed body (see the module docstring).
+
+    Parameters
+    ----------
+    vertices : (n, 3) float64, metres
+        About the body's centre of mass (:func:`load_body` centres on the centroid).
+    faces : (m, 3) int64
+        Closed, outward wound.
+    label : str
+    radius_deg : float
+        Cap radius of the slope average (0: each vertex's own slope).
+    gravity : bool
+        Compute gravitational slopes too.
+    density : float, kg m^-3, optional
+    mass : float, kg, optional
+        Instead of the density (then density = mass / volume). Default: 2670 kg m^-3.
+    spin : Spin, optional
+        Rotation (default: none; then the density does not matter).
+    coarse_faces : int
+        Triangles of the coarsened copy the gravity is computed from.
+    progress : callable, optional
+        ``progress(done, total)`` over the gravity evaluation.
+
+    Returns
+    -------
+    MeshSlopes
+
+    Examples
+    --------
+    On a sphere every slope is zero, radially and gravitationally (up to the facets of a
+    642-vertex icosphere and of its 400-triangle coarse copy):
+
+    >>> import trimesh
+    >>> s = trimesh.creation.icosphere(subdivisions=3, radius=500.0)
+    >>> r = mesh_slopes(s.vertices, s.faces, coarse_faces=400)
+    >>> float(r.radial_deg.max()) < 1.0, float(r.gravitational_deg.max()) < 1.5
+    (True, True)
+    """
+    import time
+
+    v = np.ascontiguousarray(vertices, dtype=np.float64)
+    f = np.ascontiguousarray(faces, dtype=np.int64)
+    if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
+        raise InvalidParameterError(
+            f"vertices must be (n, 3) and faces (m, 3); got {v.shape} and {f.shape}")
+    spin = spin or Spin()
+    memory.require(len(v) * 200.0 + len(f) * 60.0,
+                   f"slopes of a {len(v):,}-vertex body")
+    t0 = time.perf_counter()
+    normals, areas = vertex_normals_and_areas(v, f)
+    volume = signed_volume(v, f)
+    radial = _angle_deg(normals, v)
+    info: dict = dict(vertices=len(v), faces=len(f), volume_m3=volume,
+                      equivalent_radius_m=(3.0 * volume / (4.0 * math.pi)) ** (1.0 / 3.0),
+                      area_m2=float(areas.sum()), radius_deg=radius_deg)
+    grav = g_eff = None
+    if gravity:
+        rho, rho_from = _density(volume, density, mass)
+        cv, cf = coarsen(v, f, int(coarse_faces))
+        coarse_volume = signed_volume(cv, cf)
+        # keep the fine body's mass on the coarse one
+        body = Polyhedron.build(cv, cf, rho * volume / coarse_volume)
+        t1 = time.perf_counter()
+        _, attraction = body.field(v, progress=progress)
+        g_eff = attraction + centrifugal(v, rate=spin.rate, axis=spin.axis)
+        grav = _angle_deg(normals, -g_eff)
+        info.update(density_kg_m3=rho, density_from=rho_from, mass_kg=rho * volume,
+                    coarse_faces=int(len(cf)), coarse_vertices=int(len(cv)),
+                    coarse_volume_ratio=coarse_volume / volume,
+                    spin_period_h=spin.period_h, spin_axis=list(spin.axis),
+                    spin_rate_rad_s=spin.rate, gravity_s=time.perf_counter() - t1,
+                    gravitational_constant=GRAVITATIONAL_CONSTANT)
+        if spin.rate > 0 and info["equivalent_radius_m"] < 50.0:
+            log.warning("%s is only %.3g m across in the units given; its spin barely "
+                        "matters at that size: is the mesh in km (units='km')?",
+                        label or "the body", 2 * info["equivalent_radius_m"])
+    stacked = radial[:, None] if grav is None else np.column_stack([radial, grav])
+    averaged = cap_average(v, stacked, areas, radius_deg)
+    info["seconds"] = time.perf_counter() - t0
+    return MeshSlopes(label, areas, averaged[:, 0],
+                      None if grav is None else averaged[:, 1], g_eff, float(radius_deg),
+                      info)

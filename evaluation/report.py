@@ -1,0 +1,656 @@
+r"""Validation reports a GNC team can file: one self-contained HTML page and a JSON twin.
+
+A report gathers the evidence of :mod:`evaluation` into sections (feature tracking against
+truth, DEM slopes and spectra, asteroid slopes), draws every figure (:mod:`evaluation.figures`)
+and embeds it as a base64 PNG data URI, so the HTML file needs nothing else: no scripts, no
+style sheets, no fonts or images from anywhere. Beside it, ``REPORT.json`` holds every figure's
+data (the numbers plotted), every metric and every check, for machines and for archiving.
+
+Checks and thresholds
+---------------------
+Each check compares one measured value with a threshold; the verdict is ``"fail"`` when any
+check fails, ``"incomplete"`` when none fails but some could not be measured (a run without
+truth, a DEM without a reference), and ``"pass"`` otherwise. Thresholds come from a TOML file
+(``--thresholds``); every key is optional and the defaults are (``craterscape evaluation
+thresholds`` prints them)::
+
+    [tracking]
+    max_median_error_px = 0.5          # median tracking error against truth (px)
+    outlier_px = 2.0                   # an observation further than this is an outlier (px)
+    max_outlier_fraction = 0.05        # of scored observations
+    min_tracks_per_frame = 50.0        # mean live tracks per frame
+    min_survival = 0.8                 # mean fraction of tracks kept from one frame to the next
+    min_survival_at_layer_change = 0.8 # the same, across frames where the drawn layers change
+
+    [dem]
+    max_ks_distance = 0.15             # slope distributions vs the reference (matched baseline)
+    max_spectrum_log10_ratio = 0.5     # median |log10(P / P_ref)| over the common band
+    max_hurst_difference = 0.15        # |H - H_ref|
+
+    [asteroid]
+    slope_kind = "gravitational"       # or "radial": which slopes the checks compare
+    max_ks_distance = 0.2              # area-weighted slopes of each body vs the reference body
+    steep_slope_deg = 35.0             # about the angle of repose of loose regolith
+    max_area_fraction_steep = 0.05     # surface area steeper than steep_slope_deg
+
+The tracking defaults are the issue's acceptance figure (median <= 0.5 px) and common
+practice for KLT front ends; 35 degrees is where lunar slope-frequency distributions roll
+over (Kreslavsky and Head 2016) and below which nearly all Eros slopes lie (Thomas et al.
+2002); the KS and spectrum limits are starting points to tune per mission.
+"""
+
+from __future__ import annotations
+
+import base64
+import copy
+import datetime as _dt
+import html
+import json
+import logging
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from terrain.errors import InvalidParameterError, MissingInputError
+from terrain.io import atomic_path
+
+__all__ = ["DEFAULT_THRESHOLDS", "REPORT_FORMAT", "Check", "Figure", "Report", "Section",
+           "asteroid_section", "dem_section", "load_thresholds", "render_html",
+           "thresholds_toml", "tracking_section", "write_report"]
+
+log = logging.getLogger(__name__)
+
+#: Identifier of the JSON report format.
+REPORT_FORMAT = "craterscape-evaluation-report"
+#: Thresholds used where the TOML file is silent (see the module docstring).
+DEFAULT_THRESHOLDS = {
+    "tracking": {
+        "max_median_error_px": 0.5,
+        "outlier_px": 2.0,
+        "max_outlier_fraction": 0.05,
+        "min_tracks_per_frame": 50.0,
+        "min_survival": 0.8,
+        "min_survival_at_layer_change": 0.8,
+    },
+    "dem": {
+        "max_ks_distance": 0.15,
+        "max_spectrum_log10_ratio": 0.5,
+        "max_hurst_difference": 0.15,
+    },
+    "asteroid": {
+        "slope_kind": "gravitational",
+        "max_ks_distance": 0.2,
+        "steep_slope_deg": 35.0,
+        "max_area_fraction_steep": 0.05,
+    },
+}
+
+_COMMENTS = {
+    "max_median_error_px": "median tracking error against truth (px)",
+    "outlier_px": "an observation further than this from truth is an outlier (px)",
+    "max_outlier_fraction": "of scored observations",
+    "min_tracks_per_frame": "mean live tracks per frame",
+    "min_survival": "mean fraction of tracks kept from one frame to the next",
+    "min_survival_at_layer_change": "the same, across frames where the drawn layers change",
+    "max_ks_distance": "Kolmogorov-Smirnov distance of slope distributions vs the reference",
+    "max_spectrum_log10_ratio": "median |log10(P / P_ref)| over the common band",
+    "max_hurst_difference": "|H - H_ref|",
+    "slope_kind": "'gravitational' or 'radial': the slopes the asteroid checks compare",
+    "steep_slope_deg": "about the angle of repose of loose regolith (degrees)",
+    "max_area_fraction_steep": "surface area steeper than steep_slope_deg",
+}
+
+
+def thresholds_toml(thresholds: dict | None = None) -> str:
+    """The thresholds as a commented TOML document (defaults when none given).
+
+    >>> text = thresholds_toml()
+    >>> tomllib.loads(text) == DEFAULT_THRESHOLDS
+    True
+    """
+    t = DEFAULT_THRESHOLDS if thresholds is None else thresholds
+    lines = ["# craterscape evaluation thresholds (every key optional; these are the defaults)"]
+    for section, values in t.items():
+        lines.append("")
+        lines.append(f"[{section}]")
+        for key, value in values.items():
+            text = json.dumps(value) if isinstance(value, str) else repr(float(value))
+            lines.append(f"{key} = {text}  # {_COMMENTS.get(key, '')}".rstrip(" #"))
+    return "\n".join(lines) + "\n"
+
+
+def load_thresholds(path=None) -> dict:
+    """Thresholds from a TOML file merged over :data:`DEFAULT_THRESHOLDS`.
+
+    Unknown tables or keys, and values of the wrong type, are refused with the name of the
+    offending key (a misspelt threshold must not silently fall back to its default).
+    """
+    out = copy.deepcopy(DEFAULT_THRESHOLDS)
+    if path is None:
+        return out
+    path = Path(path)
+    if not path.exists():
+        raise MissingInputError(f"thresholds file '{path}' does not exist")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise InvalidParameterError(f"thresholds file '{path}' is not valid TOML: {exc}") \
+            from None
+    for section, values in data.items():
+        if section not in out or not isinstance(values, dict):
+            raise InvalidParameterError(
+                f"thresholds file '{path}': unknown table [{section}]; expected one of "
+                f"{', '.join(sorted(out))}")
+        for key, value in values.items():
+            if key not in out[section]:
+                raise InvalidParameterError(
+                    f"thresholds file '{path}': unknown key {section}.{key}; expected one of "
+                    f"{', '.join(sorted(out[section]))}")
+            default = out[section][key]
+            if isinstance(default, str):
+                if key == "slope_kind" and value not in ("gravitational", "radial"):
+                    raise InvalidParameterError(
+                        f"thresholds file '{path}': {section}.{key} must be 'gravitational' "
+                        f"or 'radial'; got {value!r}")
+                out[section][key] = value
+            else:
+                if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                        or not math.isfinite(value) or value < 0:
+                    raise InvalidParameterError(
+                        f"thresholds file '{path}': {section}.{key} must be a non-negative "
+                        f"number; got {value!r}")
+                out[section][key] = float(value)
+    return out
+
+
+# ------------------------------------------------------------------------------ values
+
+
+@dataclass(frozen=True)
+class Check:
+    """One measured value against one threshold.
+
+    ``passed`` is None when the value could not be measured (``note`` says why).
+    """
+
+    section: str
+    name: str
+    value: float | None
+    limit: float
+    relation: str  # "<=" or ">="
+    unit: str = ""
+    note: str = ""
+
+    @property
+    def passed(self) -> bool | None:
+        if self.value is None or not math.isfinite(self.value):
+            return None
+        return self.value <= self.limit if self.relation == "<=" else self.value >= self.limit
+
+    def as_dict(self) -> dict:
+        return dict(section=self.section, name=self.name, value=self.value, limit=self.limit,
+                    relation=self.relation, unit=self.unit, passed=self.passed,
+                    note=self.note)
+
+
+@dataclass(frozen=True, eq=False)
+class Figure:
+    """A drawn figure: PNG bytes for the HTML, the plotted numbers for the JSON."""
+
+    id: str
+    title: str
+    png: bytes
+    data: dict
+    caption: str = ""
+
+
+@dataclass(eq=False)
+class Section:
+    """A part of the report: text, key figures (tables), figures and checks."""
+
+    id: str
+    title: str
+    paragraphs: list = field(default_factory=list)
+    tables: list = field(default_factory=list)  # (caption, header, rows)
+    figures: list = field(default_factory=list)
+    checks: list = field(default_factory=list)
+    data: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
+
+
+@dataclass(eq=False)
+class Report:
+    """The whole report."""
+
+    title: str
+    sections: list
+    thresholds: dict
+    inputs: dict = field(default_factory=dict)
+    created: str = ""
+
+    @property
+    def checks(self) -> list:
+        return [c for s in self.sections for c in s.checks]
+
+    @property
+    def verdict(self) -> str:
+        results = [c.passed for c in self.checks]
+        if any(r is False for r in results):
+            return "fail"
+        if not results or any(r is None for r in results):
+            return "incomplete"
+        return "pass"
+
+    def as_dict(self) -> dict:
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            ver = version("craterscape")
+        except PackageNotFoundError:  # pragma: no cover - running from a bare checkout
+            ver = "unknown"
+        return dict(
+            format=REPORT_FORMAT, version=1, title=self.title, created=self.created,
+            craterscape_version=ver, verdict=self.verdict, inputs=self.inputs,
+            thresholds=self.thresholds, checks=[c.as_dict() for c in self.checks],
+            sections=[dict(id=s.id, title=s.title, data=s.data, notes=s.notes,
+                           tables=[dict(caption=c, header=h, rows=r) for c, h, r in s.tables])
+                      for s in self.sections],
+            figures=[dict(id=f.id, section=s.id, title=f.title, caption=f.caption,
+                          data=f.data) for s in self.sections for f in s.figures])
+
+
+def _figure(fig_id, title, fig, data, caption="") -> Figure:
+    from evaluation.figures import png_bytes
+
+    return Figure(fig_id, title, png_bytes(fig), _jsonable(data), caption)
+
+
+def _jsonable(obj):
+    """Plain JSON types (NaN and infinities become null)."""
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, (np.floating, float)):
+        v = float(obj)
+        return v if math.isfinite(v) else None
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (np.bool_,)):
+        return bool(obj)
+    return obj
+
+
+def _fmt(value, digits=4) -> str:
+    if value is None:
+        return "n/a"
+    if isinstance(value, (bool, np.bool_)):
+        return str(bool(value))
+    if isinstance(value, (int, np.integer)):
+        return f"{int(value):,}"
+    v = float(value)
+    if not math.isfinite(v):
+        return "n/a"
+    return f"{v:.{digits}g}"
+
+
+# ---------------------------------------------------------------------------- sections
+
+
+def tracking_section(scored, last_image, thresholds: dict | None = None, *,
+                     run_label: str = "") -> Section:
+    """Feature tracking against truth: tracks over the last frame, errors, survival.
+
+    Parameters
+    ----------
+    scored : evaluation.tracking.ScoredTracks
+    last_image : array
+        The sequence's last frame (for the Fig. 15 overlay).
+    thresholds : dict, optional
+        :func:`load_thresholds` output.
+    """
+    from evaluation.figures import error_figure, tracks_figure
+
+    t = (thresholds or DEFAULT_THRESHOLDS)["tracking"]
+    summary = scored.summary()
+    tr = summary["tracking"]
+    err = summary["errors"]
+    sec = Section("tracking", "Feature tracking against truth")
+    sec.paragraphs.append(
+        f"Harris corners tracked with pyramidal Lucas-Kanade, forward-backward checked and "
+        f"replenished, through {tr['frames']} frames of {run_label or 'the run'}. Each "
+        "feature is lifted to 3-D with the range image and pose of its first frame and "
+        "projected into every later frame with that frame's truth; the error is the distance "
+        "between the tracked and the true position.")
+    sec.notes.extend(summary["notes"])
+    rows = [["tracks", _fmt(tr["tracks"])],
+            ["live tracks per frame (mean / min)",
+             f"{_fmt(tr['tracks_per_frame_mean'])} / {_fmt(tr['tracks_per_frame_min'])}"],
+            ["track length, frames (mean / median / max)",
+             f"{_fmt(tr['track_length_mean'])} / {_fmt(tr['track_length_median'])} / "
+             f"{_fmt(tr['track_length_max'])}"],
+            ["tracks spanning the whole sequence", _fmt(tr["tracks_spanning_sequence"])],
+            ["survival per step (ordinary)", _fmt(tr["survival_mean"])],
+            [f"survival across layer changes ({tr['layer_changes']})",
+             _fmt(tr["survival_at_layer_change"])]]
+    if err is not None:
+        rows += [["scored observations", _fmt(err["observations"])],
+                 ["error median / mean / p95 / max (px)",
+                  f"{_fmt(err['median_px'])} / {_fmt(err['mean_px'])} / "
+                  f"{_fmt(err.get('p95_px'))} / {_fmt(err['max_px'])}"],
+                 [f"outlier fraction (> {err['outlier_px']:g} px)",
+                  _fmt(err["outlier_fraction"])],
+                 ["not scored: hidden / outside / unliftable tracks",
+                  f"{err['hidden']} / {err['outside']} / {err['unlifted_tracks']}"]]
+        surface = err.get("surface_tracks")
+        if surface is not None:
+            rows += [[f"tracks starting on a silhouette (of {tr['tracks']})",
+                      _fmt(err["silhouette_tracks"])],
+                     ["without them: error median (px) / outlier fraction",
+                      f"{_fmt(surface['median_px'])} / {_fmt(surface['outlier_fraction'])}"]]
+    sec.tables.append(("Tracking", ["measure", "value"], rows))
+    sec.data = _jsonable(summary)
+    tracks = scored.tracks
+    sec.figures.append(_figure(
+        "tracks", "Tracks over the last frame", tracks_figure(last_image, scored),
+        dict(positions=tracks.positions, start=tracks.start, stop=tracks.stop,
+             final_error_px=(scored.errors[:, -1] if scored.errors is not None else None)),
+        "Each line is one feature's track; the paper's Fig. 15."))
+    no_truth = "no truth: tracking errors not measured"
+    median = err["median_px"] if err else None
+    outliers = err["outlier_fraction"] if err else None
+    sec.checks += [
+        Check("tracking", "median tracking error", median, t["max_median_error_px"], "<=",
+              "px", "" if err else no_truth),
+        Check("tracking", f"outlier fraction (> {t['outlier_px']:g} px)", outliers,
+              t["max_outlier_fraction"], "<=", "", "" if err else no_truth),
+        Check("tracking", "mean live tracks per frame", tr["tracks_per_frame_mean"],
+              t["min_tracks_per_frame"], ">="),
+        Check("tracking", "survival per step", tr["survival_mean"], t["min_survival"], ">=",
+              "", "" if tr["survival_mean"] is not None else "fewer than two frames"),
+    ]
+    if tr["layer_changes"]:
+        sec.checks.append(Check("tracking", "survival across layer changes",
+                                tr["survival_at_layer_change"],
+                                t["min_survival_at_layer_change"], ">="))
+    if err is not None and err["observations"]:
+        sec.figures.append(_figure(
+            "tracking_error", "Tracking error", error_figure(scored),
+            dict(errors_px=scored.error_values(),
+                 median_px_by_track_age=err["median_px_by_track_age"]),
+            "Left: every scored observation; right: median error against track age."))
+    return sec
+
+
+def dem_section(distributions, spectra=(), fits=(), comparisons=(), thresholds=None, *,
+                slope_agreements=()) -> Section:
+    """DEM slopes (Fig. 11-13), power spectra (Fig. 14) and comparisons with a reference.
+
+    Parameters
+    ----------
+    distributions : sequence of SlopeDistribution
+    spectra : sequence of RadialSpectrum
+    fits : sequence of HurstFit or None (one per spectrum)
+    comparisons : sequence of Comparison
+    slope_agreements : sequence of (label, SlopeMapAgreement)
+        Pixel-by-pixel checks against independent slope maps.
+    """
+    from evaluation.figures import slope_distribution_figure, spectrum_figure
+
+    t = (thresholds or DEFAULT_THRESHOLDS)["dem"]
+    sec = Section("dem", "DEM slopes and power spectra")
+    sec.paragraphs.append(
+        "Horn slopes computed as gdaldem computes them; distributions give the percentage of "
+        "terrain steeper than each angle (Martin et al. 2014, Fig. 11). DEMs of different "
+        "resolution are compared at the coarser one's pixel spacing.")
+    rows = [[d.label, _fmt(d.resolution_m), _fmt(d.pixels)]
+            + [_fmt(d.quantiles[k]) for k in ("p50", "p90", "p99", "mean", "max")]
+            for d in distributions]
+    sec.tables.append(("Slope quantiles (degrees)",
+                       ["DEM", "pixel (m)", "slopes", "median", "p90", "p99", "mean", "max"],
+                       rows))
+    if distributions:
+        sec.figures.append(_figure(
+            "slope_distributions", "Cumulative slope-frequency distributions",
+            slope_distribution_figure(distributions),
+            dict(distributions=[d.as_dict() for d in distributions])))
+    if spectra:
+        fits = list(fits) if fits else [None] * len(spectra)
+        sec.figures.append(_figure(
+            "spectra", "Radially averaged power spectra", spectrum_figure(spectra, fits),
+            dict(spectra=[s.as_dict() for s in spectra],
+                 fits=[f.as_dict() if f else None for f in fits])))
+        sec.tables.append(("Hurst exponents", ["DEM", "H", "beta", "band (cycles/m)", "R^2"],
+                           [[s.label, _fmt(f.hurst, 3), _fmt(f.beta, 3),
+                             f"{f.f_low:.3g} - {f.f_high:.3g}", _fmt(f.r_squared, 3)]
+                            if f else [s.label, "n/a", "n/a", "n/a", "n/a"]
+                            for s, f in zip(spectra, fits, strict=True)]))
+    for c in comparisons:
+        sec.tables.append((
+            f"{c.label} against {c.reference_label} at {c.resolution_m:.4g} m",
+            ["measure", c.label, c.reference_label],
+            [["median slope (deg)", _fmt(c.distribution.quantiles["p50"]),
+              _fmt(c.reference_distribution.quantiles["p50"])],
+             ["p90 slope (deg)", _fmt(c.distribution.quantiles["p90"]),
+              _fmt(c.reference_distribution.quantiles["p90"])],
+             ["Hurst exponent", _fmt(c.hurst, 3), _fmt(c.reference_hurst, 3)],
+             ["KS distance", _fmt(c.ks_distance), ""],
+             ["spectrum median |log10 ratio|", _fmt(c.log10_ratio_median), ""]]))
+        sec.checks.append(Check("dem", f"KS distance {c.label} vs {c.reference_label}",
+                                c.ks_distance, t["max_ks_distance"], "<="))
+        sec.checks.append(Check(
+            "dem", f"spectrum median |log10 ratio| {c.label} vs {c.reference_label}",
+            c.log10_ratio_median, t["max_spectrum_log10_ratio"], "<=", "",
+            "" if c.log10_ratio_median is not None else "no common spectral band"))
+        dh = (abs(c.hurst - c.reference_hurst)
+              if c.hurst is not None and c.reference_hurst is not None else None)
+        sec.checks.append(Check("dem", f"Hurst difference {c.label} vs {c.reference_label}",
+                                dh, t["max_hurst_difference"], "<=", "",
+                                "" if dh is not None else "DEM too small for a Hurst fit"))
+    if comparisons:
+        sec.figures.append(_figure(
+            "comparison_distributions", "Slope distributions at matched baselines",
+            slope_distribution_figure([d for c in comparisons
+                                       for d in (c.distribution, c.reference_distribution)]),
+            dict(comparisons=[c.as_dict() for c in comparisons])))
+    if slope_agreements:
+        sec.tables.append((
+            "Agreement with independent slope maps (degrees)",
+            ["map", "pixels", "bias", "median |diff|", "p99 |diff|", "max |diff|",
+             "correlation"],
+            [[label, _fmt(a.pixels), _fmt(a.bias_deg), _fmt(a.median_abs_deg),
+              _fmt(a.p99_abs_deg), _fmt(a.max_abs_deg), _fmt(a.correlation, 6)]
+             for label, a in slope_agreements]))
+    if not comparisons and distributions:
+        sec.notes.append("no reference DEM given: the DEM checks were not run")
+        sec.checks.append(Check("dem", "slope distributions vs a reference", None,
+                                t["max_ks_distance"], "<=", "", "no reference DEM given"))
+    sec.data = _jsonable(dict(
+        distributions=[d.as_dict() for d in distributions],
+        comparisons=[c.as_dict() for c in comparisons],
+        slope_agreements=[dict(label=label, **a.as_dict()) for label, a in slope_agreements]))
+    return sec
+
+
+def asteroid_section(bodies, reference=None, thresholds=None) -> Section:
+    """Slope-area histograms of asteroid models (the asteroid paper's Fig. 9).
+
+    Parameters
+    ----------
+    bodies : sequence of MeshSlopes
+        Synthetic (or any) bodies.
+    reference : MeshSlopes, optional
+        The real body the others are compared with (for example Gaskell's Eros).
+    """
+    from evaluation.compare import ks_distance
+    from evaluation.figures import slope_area_figure
+
+    t = (thresholds or DEFAULT_THRESHOLDS)["asteroid"]
+    kind = t["slope_kind"]
+    everyone = ([reference] if reference is not None else []) + list(bodies)
+    sec = Section("asteroid", "Asteroid slopes")
+    sec.paragraphs.append(
+        "Per-vertex slopes averaged over every vertex's 3 degree cap, collated by area into 3 "
+        "degree bins (Martin et al., asteroid paper, Fig. 9). Radial slopes take the direction "
+        "from the centre as up; gravitational slopes take the local effective gravity "
+        "(constant-density polyhedron gravity, Werner and Scheeres 1997, plus the spin's "
+        f"centrifugal term). Checks compare {kind} slopes.")
+    rows = []
+    for b in everyone:
+        rad = b.summary("radial")
+        grav = b.summary("gravitational") if b.gravitational_deg is not None else None
+        rows.append([b.label + (" (reference)" if b is reference else ""),
+                     _fmt(b.info.get("vertices")), _fmt(rad["p50"]),
+                     _fmt(grav["p50"]) if grav else "n/a",
+                     _fmt(grav["area_fraction_below_35deg"]) if grav else "n/a",
+                     _fmt(b.info.get("density_kg_m3")), _fmt(b.info.get("spin_period_h"))])
+    sec.tables.append(("Slope medians (area-weighted, degrees)",
+                       ["body", "vertices", "radial median", "gravitational median",
+                        "area below 35 deg (grav.)", "density (kg/m^3)", "spin period (h)"],
+                       rows))
+    histograms = []
+    for b in everyone:
+        for k in ("radial", "gravitational"):
+            if k == "gravitational" and b.gravitational_deg is None:
+                continue
+            histograms.append(b.histogram(k))
+    chosen = [h for h in histograms if h.kind == kind] or histograms
+    sec.figures.append(_figure(
+        "slope_area", f"Slope-area histograms ({kind} slopes)", slope_area_figure(chosen),
+        dict(histograms=[h.as_dict() for h in chosen])))
+    other = [h for h in histograms if h not in chosen]
+    if other:
+        sec.figures.append(_figure(
+            "slope_area_other", f"Slope-area histograms ({other[0].kind} slopes)",
+            slope_area_figure(other), dict(histograms=[h.as_dict() for h in other])))
+    for b in everyone:
+        try:
+            values = b.slopes(kind)
+        except InvalidParameterError:
+            sec.checks.append(Check("asteroid", f"{b.label}: area steeper than "
+                                    f"{t['steep_slope_deg']:g} deg", None,
+                                    t["max_area_fraction_steep"], "<=", "",
+                                    f"{kind} slopes not computed"))
+            continue
+        ok = np.isfinite(values)
+        steep = float(b.vertex_area[ok][values[ok] > t["steep_slope_deg"]].sum()
+                      / b.vertex_area[ok].sum())
+        sec.checks.append(Check("asteroid", f"{b.label}: area steeper than "
+                                f"{t['steep_slope_deg']:g} deg ({kind})", steep,
+                                t["max_area_fraction_steep"], "<="))
+    if reference is not None:
+        for b in bodies:
+            try:
+                d = ks_distance(b.slopes(kind), reference.slopes(kind),
+                                weights_a=b.vertex_area, weights_b=reference.vertex_area)
+                note = ""
+            except InvalidParameterError as exc:
+                d, note = None, str(exc)
+            sec.checks.append(Check("asteroid", f"KS distance {b.label} vs {reference.label} "
+                                    f"({kind})", d, t["max_ks_distance"], "<=", "", note))
+    sec.data = _jsonable(dict(bodies=[b.as_dict() for b in everyone],
+                              reference=reference.label if reference is not None else None))
+    return sec
+
+
+# ------------------------------------------------------------------------------ output
+
+
+_CSS = """
+body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;margin:2em auto;
+max-width:60em;color:#222;line-height:1.45;padding:0 1em}
+h1{font-size:1.6em;margin-bottom:.2em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;
+margin-top:2em}table{border-collapse:collapse;margin:1em 0;font-size:.92em}
+td,th{border:1px solid #ccc;padding:.25em .6em;text-align:left}th{background:#f3f3f3}
+caption{text-align:left;font-weight:600;padding:.3em 0}
+.pass{color:#fff;background:#2e7d32}.fail{color:#fff;background:#c62828}
+.incomplete,.na{color:#222;background:#ffe082}.verdict{display:inline-block;padding:.2em .8em;
+border-radius:.3em;font-weight:700;text-transform:uppercase}
+figure{margin:1em 0}figure img{max-width:100%;border:1px solid #ddd}
+figcaption{font-size:.9em;color:#555}.note{background:#fff8e1;border-left:4px solid #ffb300;
+padding:.4em .8em;margin:.5em 0}.meta{color:#555;font-size:.9em}pre{background:#f6f6f6;
+padding:.6em;overflow-x:auto;font-size:.85em}
+"""
+
+
+def _table(caption, header, rows) -> str:
+    e = html.escape
+    head = "".join(f"<th>{e(str(h))}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{e(str(c))}</td>" for c in row) + "</tr>"
+                   for row in rows)
+    return f"<table><caption>{e(caption)}</caption><tr>{head}</tr>{body}</table>"
+
+
+def render_html(report: Report) -> str:
+    """The report as one self-contained HTML document (figures as data URIs)."""
+    e = html.escape
+    verdict = report.verdict
+    parts = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
+             '<meta name="viewport" content="width=device-width, initial-scale=1">',
+             f"<title>{e(report.title)}</title><style>{_CSS}</style></head><body>",
+             f"<h1>{e(report.title)}</h1>",
+             f'<p class="meta">Created {e(report.created)} by craterscape. Verdict: '
+             f'<span class="verdict {verdict}">{verdict}</span></p>']
+    if report.inputs:
+        parts.append(_table("Inputs", ["input", "value"],
+                            [[k, json.dumps(v) if not isinstance(v, str) else v]
+                             for k, v in report.inputs.items()]))
+    rows = []
+    for c in report.checks:
+        state = {True: "pass", False: "fail", None: "not measured"}[c.passed]
+        rows.append((c, state))
+    if rows:
+        head = "".join(f"<th>{h}</th>" for h in ("section", "check", "value", "threshold",
+                                                  "result", "note"))
+        body = []
+        for c, state in rows:
+            cls = {"pass": "pass", "fail": "fail"}.get(state, "na")
+            body.append(
+                f"<tr><td>{e(c.section)}</td><td>{e(c.name)}</td><td>{e(_fmt(c.value))}"
+                f"{(' ' + e(c.unit)) if c.unit else ''}</td><td>{e(c.relation)} "
+                f"{e(_fmt(c.limit))}</td><td class=\"{cls}\">{e(state)}</td>"
+                f"<td>{e(c.note)}</td></tr>")
+        parts.append(f"<table><caption>Checks</caption><tr>{head}</tr>{''.join(body)}"
+                     "</table>")
+    for s in report.sections:
+        parts.append(f'<h2 id="{e(s.id)}">{e(s.title)}</h2>')
+        parts += [f"<p>{e(p)}</p>" for p in s.paragraphs]
+        parts += [f'<p class="note">{e(n)}</p>' for n in s.notes]
+        parts += [_table(*t) for t in s.tables]
+        for f in s.figures:
+            uri = "data:image/png;base64," + base64.b64encode(f.png).decode("ascii")
+            cap = e(f.title + (": " + f.caption if f.caption else ""))
+            parts.append(f'<figure id="fig-{e(f.id)}"><img alt="{e(f.title)}" src="{uri}">'
+                         f"<figcaption>{cap}</figcaption></figure>")
+    parts.append("<h2>Thresholds</h2><pre>" + e(thresholds_toml(report.thresholds))
+                 + "</pre>")
+    parts.append("</body></html>")
+    return "\n".join(parts)
+
+
+def write_report(report: Report, path, *, inputs=()) -> tuple[Path, Path]:
+    """Write ``path`` (HTML) and the JSON twin beside it (same name, ``.json``), atomically.
+
+    Returns
+    -------
+    (html_path, json_path)
+    """
+    path = Path(path)
+    json_path = path.with_suffix(".json")
+    if json_path == path:
+        raise InvalidParameterError(f"report '{path}' must not end in .json; name it .html")
+    if not report.created:
+        report.created = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
+    text = render_html(report)
+    doc = json.dumps(_jsonable(report.as_dict()), indent=1, allow_nan=False)
+    with atomic_path(json_path, inputs) as tmp:
+        tmp.write_text(doc, encoding="utf-8")
+    with atomic_path(path, inputs) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    log.info("wrote %s and %s (verdict %s)", path, json_path, report.verdict)
+    return path, json_path

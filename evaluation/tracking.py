@@ -1,0 +1,601 @@
+r"""Harris feature tracking through a rendered sequence, scored against the renderer's truth.
+
+The papers hand rendered descents to a Harris-corner tracker and show the tracks (Martin et
+al. 2014, section V.F, Fig. 15; the asteroid paper, section VI.C): features should be found,
+followed "across resolution jumps", and not cluster on artefacts. That shows the tracker
+*works*; it cannot show it tracks the *right* point. A run directory
+(:mod:`render.rundir`) carries the exact pose, intrinsics and range of every frame, so here
+every feature is also scored against where it truly is.
+
+Tracking (:func:`track`)
+------------------------
+* Corners: Harris response (``cv2.goodFeaturesToTrack(..., useHarrisDetector=True)``; Harris
+  and Stephens 1988), at most ``max_corners``, at least ``min_distance`` pixels apart.
+* Motion: pyramidal Lucas-Kanade (``cv2.calcOpticalFlowPyrLK``; Bouguet 2001) from each frame
+  to the next.
+* Forward-backward check (Kalal, Mikolajczyk and Matas 2010): each point is tracked back to
+  the previous frame; a track ends when the round trip misses its start by more than
+  ``fb_threshold`` pixels, when either pass fails, or when it leaves the image (less
+  ``border`` pixels).
+* Replenishment: after every step new corners are detected away from the live tracks
+  (``min_distance``) until ``max_corners`` are live again.
+
+Images go to 8 bits for OpenCV with one scale for the whole sequence (16-bit frames are
+divided by their first frame's 99.9th percentile over 255), so a brightness change between
+frames stays a brightness change.
+
+Against truth (:func:`score`)
+-----------------------------
+Each track is lifted to 3-D at its first frame: the range image there is sampled at the
+feature (bilinearly when the four surrounding returns agree within
+``occlusion_tolerance``, else the nearest return) and the pixel is unprojected with that
+frame's pose (:meth:`render.camera.Pose.unproject`). Asteroid scenes rotate: the point is
+carried into the body frame with the frame's ``body_rotation`` (R_WB) and back into the
+world with each later frame's. Projecting it with the later frames' pose and intrinsics
+gives where the feature truly is; the tracking error is the pixel distance from the tracked
+position. Observations whose true point is hidden (the range image at its projection is
+shorter than its distance by more than ``occlusion_tolerance`` of it) or out of the image
+are not scored, and are counted. An observation further than ``outlier_px`` from the truth
+is an outlier.
+
+Silhouettes: a corner where the surface meets the sky, or where a nearer surface occludes a
+farther one, is a strong Harris feature that is not fixed to the surface: as the view
+changes it slides along the outline. A track whose first position lies within
+:data:`SILHOUETTE_PX` pixels of a pixel without return or of a range jump of more than
+:data:`SILHOUETTE_JUMP` is a *silhouette track*; the errors are reported for all tracks
+(what the tracker delivers) and for the others alone (how well surface points are tracked).
+On a small asteroid seen whole, most corners are silhouette corners and carry most of the
+error; on terrain filling the frame there are none.
+
+Without truth (no ``truth.json``) or without range images the tracks are still measured;
+the error metrics are omitted, with a warning.
+
+Resolution changes: a frame whose truth's ``drawn`` record shows a different resolution from
+the previous frame's starts a *layer change*: for terrain scenes the set of drawn layer
+levels, for asteroid scenes the body's level of detail (and imposter state), for mesh scenes
+the mesh's level of detail, otherwise the whole record. The survival of tracks across those
+steps is reported beside the survival across ordinary steps (the paper's "feature tracking
+continuing successfully across resolution jumps"). Triangle counts and per-block levels of
+detail, which change almost every frame, do not count.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from render.camera import quat_to_matrix
+from render.rundir import RunReader
+from terrain import memory
+from terrain.errors import InvalidParameterError
+
+__all__ = ["ScoredTracks", "TrackerSettings", "Tracks", "load_run", "score", "track"]
+
+log = logging.getLogger(__name__)
+
+#: Quantiles of the error distribution reported.
+ERROR_QUANTILES = (0.5, 0.9, 0.95, 0.99)
+#: A feature closer than this (pixels) to a silhouette at its first frame is a silhouette
+#: feature: about a third of the default Lucas-Kanade window.
+SILHOUETTE_PX = 6
+#: Relative range jump between neighbouring pixels that marks an occluding contour.
+SILHOUETTE_JUMP = 0.05
+#: Bytes per (track, frame) cell of the dense track arrays (positions float32 x 2; scoring
+#: adds errors float64 and true positions float64 x 2, and temporaries).
+TRACK_BYTES_PER_OBSERVATION = 48
+
+
+@dataclass(frozen=True)
+class TrackerSettings:
+    """Parameters of :func:`track` (defaults suit 256-1024 pixel frames).
+
+    Parameters
+    ----------
+    max_corners : int
+        Live tracks kept (replenished to this number every frame).
+    quality : float
+        Harris quality level relative to the frame's strongest corner.
+    min_distance : float, pixels
+        Least distance between corners (and between a new corner and a live track).
+    block_size : int, pixels
+        Harris window.
+    harris_k : float
+        Harris detector free parameter.
+    win_size : int, pixels
+        Lucas-Kanade window side.
+    levels : int
+        Pyramid levels above the full image.
+    fb_threshold : float, pixels
+        Largest forward-backward round-trip error of a kept point.
+    border : int, pixels
+        Points closer than this to the image edge are dropped.
+    """
+
+    max_corners: int = 300
+    quality: float = 0.01
+    min_distance: float = 8.0
+    block_size: int = 7
+    harris_k: float = 0.04
+    win_size: int = 21
+    levels: int = 3
+    fb_threshold: float = 0.5
+    border: int = 4
+
+    def __post_init__(self):
+        for name in ("max_corners", "block_size", "win_size", "levels", "border"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+                raise InvalidParameterError(f"tracker {name} must be an integer; got {value!r}")
+        if self.max_corners < 1 or self.block_size < 3 or self.win_size < 5 or self.levels < 0 \
+                or self.border < 0:
+            raise InvalidParameterError(
+                "tracker needs max_corners >= 1, block_size >= 3, win_size >= 5, levels >= 0 "
+                f"and border >= 0; got {self}")
+        if not 0.0 < self.quality < 1.0:
+            raise InvalidParameterError(f"tracker quality must lie in (0, 1); got "
+                                        f"{self.quality}")
+        if not (self.min_distance >= 0 and self.fb_threshold > 0 and self.harris_k > 0):
+            raise InvalidParameterError(
+                "tracker min_distance must be >= 0, fb_threshold and harris_k > 0; got "
+                f"{self.min_distance}, {self.fb_threshold}, {self.harris_k}")
+
+    def as_dict(self) -> dict:
+        return dict(max_corners=self.max_corners, quality=self.quality,
+                    min_distance=self.min_distance, block_size=self.block_size,
+                    harris_k=self.harris_k, win_size=self.win_size, levels=self.levels,
+                    fb_threshold=self.fb_threshold, border=self.border)
+
+
+@dataclass(frozen=True, eq=False)
+class Tracks:
+    """Feature tracks through a sequence.
+
+    Parameters
+    ----------
+    positions : (n_tracks, n_frames, 2) float32, pixels (u = column, v = row)
+        NaN outside each track's life; a track lives in consecutive frames only. Dense, so
+        scoring holds about :data:`TRACK_BYTES_PER_OBSERVATION` bytes per track and frame
+        (a 60-frame descent with 3,000 tracks: 9 MB; a 1,000-frame run with 50,000 tracks
+        would need 2.4 GB and is refused up front where that is not available).
+    start, stop : (n_tracks,) int64
+        First and last frame (inclusive) of each track.
+    layer_change : (n_frames,) bool
+        True where a frame's drawn layers differ from the previous frame's.
+    shape : (int, int)
+        Image (height, width).
+    settings : TrackerSettings
+    """
+
+    positions: np.ndarray
+    start: np.ndarray
+    stop: np.ndarray
+    layer_change: np.ndarray
+    shape: tuple
+    settings: TrackerSettings
+
+    @property
+    def n_frames(self) -> int:
+        return self.positions.shape[1]
+
+    @property
+    def n_tracks(self) -> int:
+        return self.positions.shape[0]
+
+    @property
+    def lengths(self) -> np.ndarray:
+        """(n_tracks,) int64: frames each track lives in."""
+        return self.stop - self.start + 1
+
+    def alive(self) -> np.ndarray:
+        """(n_tracks, n_frames) bool."""
+        return np.isfinite(self.positions[:, :, 0])
+
+    def survival(self) -> np.ndarray:
+        """(n_frames,) float64: fraction of frame k-1's tracks still alive at k (NaN at 0)."""
+        alive = self.alive()
+        out = np.full(self.n_frames, np.nan)
+        for k in range(1, self.n_frames):
+            before = alive[:, k - 1]
+            if before.any():
+                out[k] = float((alive[:, k] & before).sum() / before.sum())
+        return out
+
+    def summary(self) -> dict:
+        alive = self.alive()
+        per_frame = alive.sum(axis=0)
+        surv = self.survival()
+        ordinary = surv[1:][~self.layer_change[1:]]
+        at_change = surv[1:][self.layer_change[1:]]
+        lengths = self.lengths
+        return dict(
+            frames=self.n_frames, tracks=self.n_tracks,
+            tracks_per_frame_mean=float(per_frame.mean()),
+            tracks_per_frame_min=int(per_frame.min()),
+            track_length_mean=float(lengths.mean()) if lengths.size else 0.0,
+            track_length_median=float(np.median(lengths)) if lengths.size else 0.0,
+            track_length_max=int(lengths.max()) if lengths.size else 0,
+            tracks_spanning_sequence=int(((self.start == 0)
+                                          & (self.stop == self.n_frames - 1)).sum()),
+            survival_mean=_nanmean(ordinary),
+            layer_changes=int(self.layer_change.sum()),
+            survival_at_layer_change=_nanmean(at_change),
+            settings=self.settings.as_dict())
+
+
+def _nanmean(a) -> float | None:
+    a = np.asarray(a, dtype=np.float64)
+    a = a[np.isfinite(a)]
+    return float(a.mean()) if a.size else None
+
+
+# ------------------------------------------------------------------------------ frames
+
+
+class _Grey:
+    """Frames as 8-bit grey images with one sequence-wide scale (module docstring)."""
+
+    def __init__(self):
+        self.scale = None
+
+    def __call__(self, image: np.ndarray) -> np.ndarray:
+        import cv2
+
+        img = np.asarray(image)
+        if img.ndim == 3:
+            code = cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY
+            img = cv2.cvtColor(img, code)
+        if img.ndim != 2:
+            raise InvalidParameterError(f"frames must be grey or colour images; got shape "
+                                        f"{img.shape}")
+        if img.dtype == np.uint8:
+            return img
+        if self.scale is None:
+            top = float(np.percentile(img, 99.9))
+            self.scale = 255.0 / top if top > 0 else 1.0
+        return np.clip(img.astype(np.float32) * self.scale, 0, 255).astype(np.uint8)
+
+
+def _resolution_key(drawn) -> str:
+    """What decides a frame's resolution in its truth's ``drawn`` record (module docstring)."""
+    import json
+
+    if not isinstance(drawn, dict):
+        return json.dumps(drawn, sort_keys=True, default=str)
+    layers = drawn.get("layers")
+    if isinstance(layers, list) and all(isinstance(x, dict) and "level" in x for x in layers):
+        key: object = ["layers", sorted(x["level"] for x in layers)]  # terrain scenes
+    elif "body_magnitude" in drawn:  # asteroid scenes: the body's level of detail
+        key = ["body", drawn["body_magnitude"], bool(drawn.get("imposter", False))]
+    elif "lod_edge_m" in drawn:  # mesh scenes
+        key = ["mesh", drawn["lod_edge_m"]]
+    else:
+        key = drawn
+    return json.dumps(key, sort_keys=True, default=str)
+
+
+def load_run(run_dir) -> RunReader:
+    """Open a run directory (:class:`render.rundir.RunReader`)."""
+    return RunReader(run_dir)
+
+
+def track(run, settings: TrackerSettings | None = None, *, progress=None) -> Tracks:
+    """Track Harris corners through every frame of a run (see the module docstring).
+
+    Parameters
+    ----------
+    run : RunReader or path
+    settings : TrackerSettings, optional
+    progress : callable, optional
+        ``progress(done, total)`` after each frame.
+
+    Returns
+    -------
+    Tracks
+    """
+    import cv2
+
+    if not isinstance(run, RunReader):
+        run = RunReader(run)
+    s = settings or TrackerSettings()
+    n = len(run)
+    grey = _Grey()
+    prev = grey(run.image(0))
+    h, w = prev.shape
+    if n > 1 and (h < 2 * s.border + 8 or w < 2 * s.border + 8):
+        raise InvalidParameterError(f"frames of {w}x{h} pixels are too small to track in")
+    layer_change = np.zeros(n, dtype=bool)
+    if run.has_truth:
+        keys = [_resolution_key(t.drawn) for t in run.truth]
+        layer_change[1:] = [keys[k] != keys[k - 1] for k in range(1, n)]
+    lk = dict(winSize=(s.win_size, s.win_size), maxLevel=s.levels,
+              criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
+    tracks: list[list] = []  # per track: [start, [positions...]]
+    live: list[int] = []  # indices into tracks
+
+    def replenish(image, k):
+        need = s.max_corners - len(live)
+        if need <= 0:
+            return
+        mask = np.full(image.shape, 255, dtype=np.uint8)
+        if s.border:
+            mask[:s.border] = 0
+            mask[-s.border:] = 0
+            mask[:, :s.border] = 0
+            mask[:, -s.border:] = 0
+        radius = max(1, int(math.ceil(s.min_distance)))
+        for t in live:
+            u, v = tracks[t][1][-1]
+            cv2.circle(mask, (int(round(u)), int(round(v))), radius, 0, -1)
+        corners = cv2.goodFeaturesToTrack(image, maxCorners=need, qualityLevel=s.quality,
+                                          minDistance=s.min_distance, mask=mask,
+                                          blockSize=s.block_size, useHarrisDetector=True,
+                                          k=s.harris_k)
+        if corners is None:
+            return
+        for u, v in corners.reshape(-1, 2):
+            live.append(len(tracks))
+            tracks.append([k, [(float(u), float(v))]])
+
+    replenish(prev, 0)
+    if progress is not None:
+        progress(1, n)
+    for k in range(1, n):
+        image = grey(run.image(k))
+        if image.shape != prev.shape:
+            raise InvalidParameterError(
+                f"frame {k} is {image.shape[1]}x{image.shape[0]}; frame 0 is {w}x{h}")
+        if live:
+            p0 = np.array([tracks[t][1][-1] for t in live], dtype=np.float32).reshape(-1, 1, 2)
+            p1, st1, _ = cv2.calcOpticalFlowPyrLK(prev, image, p0, None, **lk)
+            p0b, st2, _ = cv2.calcOpticalFlowPyrLK(image, prev, p1, None, **lk)
+            fb = np.linalg.norm((p0b - p0).reshape(-1, 2), axis=1)
+            q = p1.reshape(-1, 2)
+            inside = ((q[:, 0] >= s.border) & (q[:, 0] <= w - 1 - s.border)
+                      & (q[:, 1] >= s.border) & (q[:, 1] <= h - 1 - s.border))
+            ok = (st1.reshape(-1) == 1) & (st2.reshape(-1) == 1) & (fb <= s.fb_threshold) \
+                & inside & np.isfinite(q).all(axis=1)
+            kept = []
+            for t, good, (u, v) in zip(live, ok, q, strict=True):
+                if good:
+                    tracks[t][1].append((float(u), float(v)))
+                    kept.append(t)
+            live[:] = kept
+        replenish(image, k)
+        prev = image
+        if progress is not None:
+            progress(k + 1, n)
+    memory.require(len(tracks) * n * float(TRACK_BYTES_PER_OBSERVATION),
+                   f"{len(tracks):,} tracks over {n} frames")
+    positions = np.full((len(tracks), n, 2), np.nan, dtype=np.float32)
+    start = np.zeros(len(tracks), dtype=np.int64)
+    stop = np.zeros(len(tracks), dtype=np.int64)
+    for i, (k0, pts) in enumerate(tracks):
+        positions[i, k0:k0 + len(pts)] = pts
+        start[i] = k0
+        stop[i] = k0 + len(pts) - 1
+    log.info("tracked %d features through %d frames", len(tracks), n)
+    return Tracks(positions, start, stop, layer_change, (h, w), s)
+
+
+# ------------------------------------------------------------------------------ truth
+
+
+def _sample_range(rng: np.ndarray, uv: np.ndarray, tolerance: float) -> np.ndarray:
+    """Range at fractional pixels: bilinear where the 4 returns agree, else nearest; NaN."""
+    h, w = rng.shape
+    u, v = uv[:, 0], uv[:, 1]
+    out = np.full(len(uv), np.nan)
+    inside = (u >= -0.5) & (u <= w - 0.5) & (v >= -0.5) & (v <= h - 0.5) & np.isfinite(u) \
+        & np.isfinite(v)
+    if not inside.any():
+        return out
+    ui, vi = u[inside], v[inside]
+    u0 = np.clip(np.floor(ui).astype(np.int64), 0, w - 2) if w > 1 else np.zeros(ui.size, int)
+    v0 = np.clip(np.floor(vi).astype(np.int64), 0, h - 2) if h > 1 else np.zeros(vi.size, int)
+    u1, v1 = np.minimum(u0 + 1, w - 1), np.minimum(v0 + 1, h - 1)
+    fu, fv = np.clip(ui - u0, 0, 1), np.clip(vi - v0, 0, 1)
+    c = np.stack([rng[v0, u0], rng[v0, u1], rng[v1, u0], rng[v1, u1]], axis=1)
+    bil = (c[:, 0] * (1 - fu) * (1 - fv) + c[:, 1] * fu * (1 - fv) + c[:, 2] * (1 - fu) * fv
+           + c[:, 3] * fu * fv)
+    with np.errstate(invalid="ignore"):
+        spread = c.max(axis=1) - c.min(axis=1)  # NaN when a return is missing
+        agree = np.isfinite(spread) & (spread <= tolerance * c.min(axis=1))
+    nearest = rng[np.clip(np.rint(vi).astype(np.int64), 0, h - 1),
+                  np.clip(np.rint(ui).astype(np.int64), 0, w - 1)]
+    out[inside] = np.where(agree, bil, nearest)
+    return out
+
+
+def _near_silhouette(rng: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """(n,) bool: pixels within SILHOUETTE_PX of no return or of an occluding contour."""
+    import cv2
+
+    h, w = rng.shape
+    edge = ~np.isfinite(rng)
+    with np.errstate(invalid="ignore"):
+        for axis in (0, 1):
+            a = rng[:-1] if axis == 0 else rng[:, :-1]
+            b = rng[1:] if axis == 0 else rng[:, 1:]
+            jump = np.abs(a - b) > SILHOUETTE_JUMP * np.minimum(a, b)
+            if axis == 0:
+                edge[:-1] |= jump
+                edge[1:] |= jump
+            else:
+                edge[:, :-1] |= jump
+                edge[:, 1:] |= jump
+    size = 2 * SILHOUETTE_PX + 1
+    near = cv2.dilate(edge.astype(np.uint8), np.ones((size, size), np.uint8)) > 0
+    cols = np.clip(np.rint(uv[:, 0]).astype(np.int64), 0, w - 1)
+    rows = np.clip(np.rint(uv[:, 1]).astype(np.int64), 0, h - 1)
+    return near[rows, cols]
+
+
+@dataclass(frozen=True, eq=False)
+class ScoredTracks:
+    """Tracks with their error against the truth (see :func:`score`).
+
+    Parameters
+    ----------
+    tracks : Tracks
+    errors : (n_tracks, n_frames) float64, pixels, or None
+        Distance of the tracked position from the true one; NaN where not scored (the first
+        frame, not tracked, hidden, outside, or unliftable). None without truth.
+    predicted : (n_tracks, n_frames, 2) float64, pixels, or None
+        True positions.
+    counts : dict
+        ``scored``, ``hidden``, ``outside``, ``unlifted_tracks``, ``silhouette_tracks``.
+    outlier_px : float
+    notes : list of str
+        Why metrics are missing, if they are.
+    silhouette : (n_tracks,) bool or None
+        Tracks that start on a silhouette (module docstring).
+    """
+
+    tracks: Tracks
+    errors: np.ndarray | None
+    predicted: np.ndarray | None
+    counts: dict = field(default_factory=dict)
+    outlier_px: float = 2.0
+    notes: list = field(default_factory=list)
+    silhouette: np.ndarray | None = None
+
+    @property
+    def has_errors(self) -> bool:
+        return self.errors is not None
+
+    def error_values(self) -> np.ndarray:
+        """(k,) float64: every scored observation's error, pixels."""
+        if self.errors is None:
+            return np.zeros(0)
+        return self.errors[np.isfinite(self.errors)]
+
+    def error_summary(self) -> dict | None:
+        """Median, mean, quantiles, max and outlier fraction of the errors (None: no truth)."""
+        if self.errors is None:
+            return None
+        e = self.error_values()
+        out = dict(observations=int(e.size), outlier_px=self.outlier_px, **self.counts)
+        if e.size == 0:
+            out.update(median_px=None, mean_px=None, max_px=None, outlier_fraction=None)
+            return out
+        out.update(median_px=float(np.median(e)), mean_px=float(e.mean()),
+                   max_px=float(e.max()), outlier_fraction=float((e > self.outlier_px).mean()))
+        for q in ERROR_QUANTILES[1:]:
+            out[f"p{round(q * 100):d}_px"] = float(np.quantile(e, q))
+        by_age = []
+        age = np.arange(self.tracks.n_frames)[None, :] - self.tracks.start[:, None]
+        for a in range(1, int(age.max()) + 1 if age.size else 1):
+            sel = np.isfinite(self.errors) & (age == a)
+            if sel.any():
+                by_age.append([a, float(np.median(self.errors[sel])), int(sel.sum())])
+        out["median_px_by_track_age"] = by_age
+        if self.silhouette is not None:
+            surface = self.errors[~self.silhouette]
+            surface = surface[np.isfinite(surface)]
+            out["surface_tracks"] = dict(
+                observations=int(surface.size),
+                median_px=float(np.median(surface)) if surface.size else None,
+                outlier_fraction=(float((surface > self.outlier_px).mean())
+                                  if surface.size else None))
+        return out
+
+    def summary(self) -> dict:
+        return dict(tracking=self.tracks.summary(), errors=self.error_summary(),
+                    notes=list(self.notes))
+
+
+def score(tracks: Tracks, run, *, outlier_px: float = 2.0,
+          occlusion_tolerance: float = 0.02) -> ScoredTracks:
+    """Score tracks against the run's truth (see the module docstring).
+
+    Parameters
+    ----------
+    tracks : Tracks
+    run : RunReader or path
+    outlier_px : float, pixels
+        Errors above this are outliers.
+    occlusion_tolerance : float
+        Fraction of the range by which a point may lie behind the rendered surface and still
+        count as visible (also the agreement needed to interpolate range bilinearly).
+
+    Returns
+    -------
+    ScoredTracks
+        ``errors`` is None (with a note and a warning) when the run has no truth or no range
+        images.
+    """
+    if not isinstance(run, RunReader):
+        run = RunReader(run)
+    if not (outlier_px > 0 and occlusion_tolerance > 0):
+        raise InvalidParameterError(
+            f"outlier_px and occlusion_tolerance must be positive; got {outlier_px}, "
+            f"{occlusion_tolerance}")
+    if len(run) != tracks.n_frames:
+        raise InvalidParameterError(
+            f"the tracks cover {tracks.n_frames} frames; the run has {len(run)}")
+    if not run.has_truth:
+        note = (f"run directory '{run.dir}' has no truth.json: tracks are measured, but "
+                "tracking errors against truth are omitted")
+        log.warning(note)
+        return ScoredTracks(tracks, None, None, {}, float(outlier_px), [note])
+    if any(t.range is None for t in run.truth):
+        note = (f"run directory '{run.dir}' has frames without range images: features cannot "
+                "be lifted to 3-D, so tracking errors against truth are omitted")
+        log.warning(note)
+        return ScoredTracks(tracks, None, None, {}, float(outlier_px), [note])
+    n = tracks.n_frames
+    truth = run.truth
+    h, w = tracks.shape
+    memory.require(tracks.n_tracks * n * float(TRACK_BYTES_PER_OBSERVATION),
+                   f"scoring {tracks.n_tracks:,} tracks over {n} frames")
+    for k, t in enumerate(truth):
+        if (t.intrinsics.height, t.intrinsics.width) != (h, w):
+            raise InvalidParameterError(
+                f"frame {k}'s truth says {t.intrinsics.width}x{t.intrinsics.height} pixels; "
+                f"its image is {w}x{h}")
+    # lift every track at its first frame, into the body frame
+    body = np.full((tracks.n_tracks, 3), np.nan)
+    silhouette = np.zeros(tracks.n_tracks, dtype=bool)
+    for k in np.unique(tracks.start):
+        sel = np.flatnonzero(tracks.start == k)
+        uv = tracks.positions[sel, k].astype(np.float64)
+        rng = run.range(int(k))
+        silhouette[sel] = _near_silhouette(rng, uv)
+        r = _sample_range(rng, uv, occlusion_tolerance)
+        ok = np.isfinite(r)
+        if ok.any():
+            t = truth[int(k)]
+            world = t.pose.unproject(uv[ok], r[ok], t.intrinsics)
+            body[sel[ok]] = world @ quat_to_matrix(t.body_rotation)  # R_WB^T p_W
+    lifted = np.isfinite(body).all(axis=1)
+    errors = np.full((tracks.n_tracks, n), np.nan)
+    predicted = np.full((tracks.n_tracks, n, 2), np.nan)
+    hidden = outside = 0
+    alive = tracks.alive()
+    for k in range(n):
+        t = truth[k]
+        sel = np.flatnonzero(lifted & alive[:, k] & (tracks.start < k))
+        if sel.size == 0:
+            continue
+        world = body[sel] @ quat_to_matrix(t.body_rotation).T
+        uv = t.pose.project(world, t.intrinsics)
+        predicted[sel, k] = uv
+        within = (np.isfinite(uv).all(axis=1) & (uv[:, 0] >= -0.5) & (uv[:, 0] <= w - 0.5)
+                  & (uv[:, 1] >= -0.5) & (uv[:, 1] <= h - 0.5))
+        outside += int((~within).sum())
+        dist = np.linalg.norm(world - np.asarray(t.pose.position), axis=1)
+        seen = _sample_range(run.range(k), uv, occlusion_tolerance)
+        with np.errstate(invalid="ignore"):
+            blocked = within & (~np.isfinite(seen)
+                                | (seen < dist * (1.0 - occlusion_tolerance)))
+        hidden += int(blocked.sum())
+        good = within & ~blocked
+        err = np.linalg.norm(tracks.positions[sel, k].astype(np.float64) - uv, axis=1)
+        errors[sel[good], k] = err[good]
+    counts = dict(scored=int(np.isfinite(errors).sum()), hidden=hidden, outside=outside,
+                  unlifted_tracks=int((~lifted).sum()),
+                  silhouette_tracks=int(silhouette.sum()))
+    return ScoredTracks(tracks, errors, predicted, counts, float(outlier_px), [], silhouette)

@@ -1,0 +1,87 @@
+"""Comparing DEMs with a reference: KS distance, quantiles, spectrum ratio, CRS checks."""
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from scipy import stats
+
+from evaluation.compare import (
+    check_same_crs,
+    compare_dems,
+    compare_slope_maps,
+    ks_distance,
+)
+from evaluation.spectrum import fractional_brownian_surface
+from terrain.errors import InvalidDEMError, InvalidParameterError
+from terrain.io import read_dem
+
+WKT_A = ('PROJCRS["moon stereographic",BASEGEOGCRS["Moon",DATUM["Moon",ELLIPSOID["Moon",'
+         '1737400,0]]],CONVERSION["ps",METHOD["Polar Stereographic (variant B)"]]]')
+WKT_B = ('PROJCRS["moon orthographic",BASEGEOGCRS["Moon",DATUM["Moon",ELLIPSOID["Moon",'
+         '1737400,0]]],CONVERSION["o",METHOD["Orthographic"]]]')
+
+
+def test_same_process_compares_close_and_a_rougher_one_does_not():
+    a = fractional_brownian_surface(256, 0.8, resolution=2.0, rms=5.0, seed=1)
+    b = fractional_brownian_surface(256, 0.8, resolution=2.0, rms=5.0, seed=2)
+    rough = fractional_brownian_surface(256, 0.4, resolution=2.0, rms=5.0, seed=3)
+    same = compare_dems(a, b, label="a", reference_label="b")
+    other = compare_dems(rough, b, label="rough", reference_label="b")
+    assert same.resampled == "none" and same.resolution_m == 2.0
+    # two realisations differ (their rms is set over all scales); a rougher process far more
+    assert same.ks_distance < 0.2 and other.ks_distance > 0.5
+    assert same.log10_ratio_median < 0.3 and other.log10_ratio_median > 0.5
+    assert abs(same.hurst - same.reference_hurst) < 0.1
+    assert other.hurst < 0.6
+    doc = other.as_dict()
+    assert doc["quantiles"]["p50"] > doc["reference_quantiles"]["p50"]
+
+
+def test_different_resolutions_are_compared_at_the_coarser_baseline():
+    fine = fractional_brownian_surface(256, 0.8, resolution=1.0, rms=5.0, seed=4)
+    coarse = fractional_brownian_surface(64, 0.8, resolution=4.0, rms=5.0, seed=5)
+    c = compare_dems(fine, coarse)
+    assert c.resampled == "DEM" and c.resolution_m == 4.0
+    assert c.distribution.resolution_m == 4.0
+    c2 = compare_dems(coarse, fine)
+    assert c2.resampled == "reference"
+
+
+def test_different_crs_are_refused_and_local_frames_allowed(caplog):
+    t = fractional_brownian_surface(16, 0.8, seed=1)
+    with pytest.raises(InvalidDEMError, match="different coordinate reference systems.*"
+                                              "Polar Stereographic.*Orthographic"):
+        compare_dems(t.replace(crs=WKT_A), t.replace(crs=WKT_B))
+    check_same_crs(t.replace(crs=WKT_A), t.replace(crs=WKT_A))
+    check_same_crs(t.replace(crs=WKT_A), t)
+    assert "has no CRS" in caplog.text
+
+
+def test_real_dems_in_different_crs_are_refused(shared_file):
+    a = read_dem(shared_file("lunar", "southpole_85S_nac_asp_stereo_dem_1p08m.tif"))
+    b = read_dem(shared_file("lunar", "aristarchus_CP_quickmap_hsr_26p5m.tif"))
+    with pytest.raises(InvalidDEMError, match="reproject"):
+        compare_dems(a, b)
+
+
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")  # scipy's p-value for tiny samples
+@given(st.lists(st.floats(-50, 50), min_size=1, max_size=40),
+       st.lists(st.floats(-50, 50), min_size=1, max_size=40))
+def test_ks_distance_equals_scipys_statistic(a, b):
+    assert ks_distance(a, b) == pytest.approx(
+        stats.ks_2samp(a, b, method="asymp").statistic, abs=1e-12)
+
+
+def test_weighted_ks_counts_weights_like_repetitions():
+    a, wa = np.array([1.0, 2.0, 5.0]), np.array([2.0, 1.0, 3.0])
+    b = np.array([1.5, 4.0])
+    assert ks_distance(a, b, weights_a=wa) == pytest.approx(
+        ks_distance(np.repeat(a, wa.astype(int)), b))
+
+
+def test_slope_map_agreement_needs_a_shared_grid():
+    with pytest.raises(InvalidParameterError, match="share a grid"):
+        compare_slope_maps(np.zeros((3, 3)), np.zeros((3, 4)))
+    a = compare_slope_maps(np.arange(9.0).reshape(3, 3), np.arange(9.0).reshape(3, 3) + 1)
+    assert a.bias_deg == -1.0 and a.max_abs_deg == 1.0 and a.correlation == pytest.approx(1.0)

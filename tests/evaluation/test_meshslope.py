@@ -1,0 +1,152 @@
+"""Per-vertex slopes of closed meshes: analytic bodies, the cap average, real Eros."""
+
+import math
+
+import numpy as np
+import pytest
+import trimesh
+
+from asteroid.errors import InvalidShapeError
+from evaluation.gravity import GRAVITATIONAL_CONSTANT
+from evaluation.meshslope import (
+    Spin,
+    cap_average,
+    load_body,
+    mesh_slopes,
+    vertex_normals_and_areas,
+)
+from terrain.errors import InvalidParameterError
+
+
+def test_spinning_sphere_has_the_analytic_gravitational_slope():
+    """Uniform sphere spinning about z: tan(slope) = w^2 R sin(l) cos(l) / (g0 - w^2 R cos^2 l)."""
+    radius, rho = 1000.0, 2000.0
+    g0 = GRAVITATIONAL_CONSTANT * rho * 4.0 / 3.0 * math.pi * radius
+    rate = math.sqrt(0.3 * g0 / radius)  # centrifugal 30 % of gravity at the equator
+    period_h = 2 * math.pi / rate / 3600.0
+    s = trimesh.creation.icosphere(subdivisions=4, radius=radius)
+    r = mesh_slopes(s.vertices, s.faces, radius_deg=0.0, density=rho, spin=Spin(period_h),
+                    coarse_faces=4000)
+    lat = np.arcsin(np.clip(s.vertices[:, 2] / radius, -1, 1))
+    q = rate**2 * radius
+    expected = np.degrees(np.arctan2(q * np.abs(np.sin(lat)) * np.cos(lat),
+                                     g0 - q * np.cos(lat) ** 2))
+    assert expected.max() > 9.0  # about 10 degrees at 45 degrees latitude
+    assert np.max(np.abs(r.gravitational_deg - expected)) < 0.6
+    assert np.max(r.radial_deg) < 1.0  # the facets of a 2,562-vertex sphere
+    # no spin: nothing but facets, whatever the density
+    still = mesh_slopes(s.vertices, s.faces, radius_deg=0.0, density=10.0, coarse_faces=4000)
+    assert np.max(still.gravitational_deg) < 0.6
+
+
+def test_radial_slope_of_an_ellipsoid_is_the_angle_between_normal_and_position():
+    a, b, c = 2000.0, 1000.0, 800.0
+    s = trimesh.creation.icosphere(subdivisions=4, radius=1.0)
+    v = np.asarray(s.vertices) * [a, b, c]
+    r = mesh_slopes(v, s.faces, radius_deg=0.0, gravity=False)
+    n = v / np.array([a, b, c]) ** 2
+    cosang = np.einsum("ij,ij->i", n, v) / (np.linalg.norm(n, axis=1)
+                                            * np.linalg.norm(v, axis=1))
+    expected = np.degrees(np.arccos(np.clip(cosang, -1, 1)))
+    assert np.max(np.abs(r.radial_deg - expected)) < 1.0
+    assert r.gravitational_deg is None
+    with pytest.raises(InvalidParameterError, match="not computed"):
+        r.histogram("gravitational")
+
+
+def test_cap_average_matches_a_brute_force_sum():
+    rng = np.random.default_rng(3)
+    d = rng.normal(size=(600, 3))
+    values = rng.uniform(0, 40, 600)
+    w = rng.uniform(0.5, 2.0, 600)
+    got = cap_average(d, values, w, 9.0)
+    u = d / np.linalg.norm(d, axis=1)[:, None]
+    cosr = math.cos(math.radians(9.0))
+    inside = (u @ u.T) >= cosr - 1e-12
+    expected = (inside * w) @ values / (inside @ w)
+    assert np.allclose(got, expected)
+    assert np.array_equal(cap_average(d, values, w, 0.0), values)
+    assert np.allclose(cap_average(d, np.full(600, 7.0), w, 20.0), 7.0)
+
+
+def test_histogram_is_area_weighted_in_3_degree_bins():
+    s = trimesh.creation.icosphere(subdivisions=3, radius=10.0)
+    v = np.asarray(s.vertices) * [3.0, 1.0, 1.0]
+    r = mesh_slopes(v, s.faces, gravity=False)
+    h = r.histogram("radial")
+    assert np.allclose(np.diff(h.edges_deg), 3.0) and h.edges_deg[-1] == 180.0
+    assert h.area_percent.sum() == pytest.approx(100.0)
+    assert h.percent_steeper[0] > 99.0 and np.all(np.diff(h.percent_steeper) <= 1e-9)
+    _, areas = vertex_normals_and_areas(v, s.faces)
+    assert r.vertex_area.sum() == pytest.approx(areas.sum())
+    # the average of an elongated body's radial slopes is far from zero
+    assert r.summary("radial")["p50"] > 20.0
+
+
+def _eros_path():
+    from pathlib import Path
+
+    import tests.conftest as root  # the repository's shared-data location
+
+    path = Path(root.SHARED_DATA) / "asteroids" / "eros_gaskell_q64.obj"
+    if not path.exists():
+        pytest.skip(f"real data {path} is absent (../shared/data is not part of the repository)")
+    return path
+
+
+@pytest.fixture(scope="module")
+def eros_slopes():
+    shape = load_body(_eros_path(), units="km")
+    return mesh_slopes(shape.vertices, shape.faces, label="eros", spin=Spin(5.27),
+                       coarse_faces=2000)
+
+
+def test_eros_radial_slopes_mislead_and_gravitational_ones_do_not(eros_slopes):
+    """The issue's figures: radial median ~44 deg; published Eros slopes nearly all < 35."""
+    radial = eros_slopes.summary("radial")
+    grav = eros_slopes.summary("gravitational")
+    print(f"Eros: radial median {radial['p50']:.2f} deg "
+          f"({100 * radial['area_fraction_below_35deg']:.1f} % below 35); gravitational "
+          f"median {grav['p50']:.2f} deg ({100 * grav['area_fraction_below_35deg']:.2f} % "
+          "below 35)")
+    assert 42.0 < radial["p50"] < 46.0
+    assert radial["area_fraction_below_35deg"] < 0.4
+    assert 9.0 < grav["p50"] < 13.5
+    assert grav["area_fraction_below_35deg"] > 0.99
+    info = eros_slopes.info
+    assert info["volume_m3"] == pytest.approx(2.506e12, rel=0.01)  # 2506 km^3
+    assert 0.0021 < np.linalg.norm(eros_slopes.gravity, axis=1).min()
+    assert np.linalg.norm(eros_slopes.gravity, axis=1).max() < 0.0065  # m/s^2, published range
+
+
+def test_open_meshes_are_refused(tmp_path):
+    s = trimesh.creation.icosphere(subdivisions=2, radius=5.0)
+    holed = trimesh.Trimesh(s.vertices, s.faces[:-3], process=False)
+    path = tmp_path / "holed.obj"
+    holed.export(path)
+    with pytest.raises(InvalidShapeError, match="not a closed surface"):
+        load_body(path)
+    with pytest.raises(InvalidParameterError, match="suffix"):
+        load_body(tmp_path / "body.xyz")
+
+
+def test_native_asteroid_models_are_read(tmp_path):
+    from asteroid.body import save_native
+    from asteroid.build import build
+    from asteroid.recipe import Recipe
+
+    result = build(Recipe(magnitude=6, radius=300.0, seed=1, base="perlin"))
+    save_native(tmp_path / "b.npz", result.body)
+    shape = load_body(tmp_path / "b.npz", units="km")  # native models are metres regardless
+    assert shape.volume == pytest.approx(result.body.volume(), rel=1e-9)
+    assert 250.0 < shape.equivalent_radius < 350.0
+
+
+def test_spin_and_density_are_validated():
+    with pytest.raises(InvalidParameterError, match="period"):
+        Spin(-1.0)
+    with pytest.raises(InvalidParameterError, match="axis"):
+        Spin(5.0, (0.0, 0.0, 0.0))
+    s = trimesh.creation.icosphere(subdivisions=1, radius=5.0)
+    with pytest.raises(InvalidParameterError, match="density or the mass"):
+        mesh_slopes(s.vertices, s.faces, density=1.0, mass=1.0)
