@@ -23,7 +23,6 @@ import csv
 import io
 import json
 import logging
-import math
 import sys
 from pathlib import Path
 
@@ -459,35 +458,14 @@ def _run_tracking(run_dir, max_corners, quality, min_distance, win_size, levels,
 def track_cmd(run_dir, output, max_corners, quality, min_distance, win_size, levels,
               fb_threshold, outlier_px):
     """Track Harris corners through a rendered run and score them against its truth."""
-    from evaluation.figures import error_figure, save_png, tracks_figure
+    from evaluation.tracking import save_tracks
 
     if output.resolve() == run_dir.resolve():
         raise InvalidParameterError("the output folder must differ from the run directory")
     run, scored = _run_tracking(run_dir, max_corners, quality, min_distance, win_size, levels,
                                 fb_threshold, 2.0 if outlier_px is None else outlier_px)
-    outdir = _outdir(output)
-    tracks = scored.tracks
-    rows = []
-    for i in range(tracks.n_tracks):
-        for k in range(tracks.start[i], tracks.stop[i] + 1):
-            u, v = tracks.positions[i, k]
-            row = [i, k, f"{u:.3f}", f"{v:.3f}"]
-            if scored.predicted is not None:
-                tu, tv = scored.predicted[i, k]
-                e = scored.errors[i, k]
-                row += [f"{tu:.3f}" if math.isfinite(tu) else "",
-                        f"{tv:.3f}" if math.isfinite(tv) else "",
-                        f"{e:.4f}" if math.isfinite(e) else ""]
-            rows.append(row)
-    header = ["track", "frame", "u_px", "v_px"]
-    if scored.predicted is not None:
-        header += ["true_u_px", "true_v_px", "error_px"]
-    _write_csv(outdir / "tracks.csv", header, rows)
-    _write_text(outdir / "tracking.json", json.dumps(scored.summary(), indent=1))
-    save_png(tracks_figure(run.image(len(run) - 1), scored), outdir / "tracks.png")
-    if scored.has_errors and scored.error_values().size:
-        save_png(error_figure(scored), outdir / "tracking_error.png")
-    s = scored.summary()
+    s = save_tracks(scored, run, _outdir(output),
+                    inputs=[run_dir / "truth.json", run_dir / "manifest.json"])
     msg = (f"wrote {s['tracking']['tracks']} tracks over {s['tracking']['frames']} frames to "
            f"{output}")
     if s["errors"] is not None and s["errors"]["median_px"] is not None:
@@ -499,7 +477,7 @@ def track_cmd(run_dir, output, max_corners, quality, min_distance, win_size, lev
 
 
 @evaluation.command()
-@click.argument("run_dir", required=False, type=click.Path(file_okay=False, path_type=Path))
+@click.argument("run_dirs", nargs=-1, type=click.Path(file_okay=False, path_type=Path))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help="Report HTML file; its JSON twin is written beside it (.json).")
 @click.option("--thresholds", type=click.Path(dir_okay=False, path_type=Path), default=None,
@@ -526,11 +504,15 @@ def track_cmd(run_dir, output, max_corners, quality, min_distance, win_size, lev
 @_gravity_options
 @_tracker_options
 @_edges_option
-def report(run_dir, output, thresholds, title, dems, band, reference, reference_band,
+def report(run_dirs, output, thresholds, title, dems, band, reference, reference_band,
            slope_band, meshes, reference_mesh, reference_units, units, density, mass,
            period_hours, spin_axis, radius_deg, coarse_faces, no_gravity, max_corners,
            quality, min_distance, win_size, levels, fb_threshold, outlier_px, compute_edges):
-    """One self-contained HTML validation report (and its JSON) with pass/fail checks."""
+    """One self-contained HTML validation report (and its JSON) with pass/fail checks.
+
+    Every RUN_DIR (rendered sequences, any number) gets a feature-tracking section; --dem and
+    --mesh add DEM and asteroid sections.
+    """
     from evaluation.report import (
         Report,
         asteroid_section,
@@ -541,25 +523,34 @@ def report(run_dir, output, thresholds, title, dems, band, reference, reference_
     )
     from terrain.io import check_output_path
 
-    if run_dir is None and not dems and not meshes and reference_mesh is None:
+    if not run_dirs and not dems and not meshes and reference_mesh is None:
         raise InvalidParameterError("nothing to report: give a RUN_DIR, --dem or --mesh")
     if reference is not None and not dems:
         raise InvalidParameterError("--reference compares --dem inputs; give at least one --dem")
-    srcs = [p for p in [run_dir, *dems, reference, *meshes, reference_mesh, thresholds] if p]
-    if run_dir is not None:  # the report's JSON twin must never replace the run's own files
+    srcs = [p for p in [*run_dirs, *dems, reference, *meshes, reference_mesh, thresholds] if p]
+    for run_dir in run_dirs:  # the report's JSON twin must never replace a run's own files
         srcs += [run_dir / "truth.json", run_dir / "manifest.json"]
     check_output_path(output, srcs)
     check_output_path(output.with_suffix(".json"), srcs)
     limits = load_thresholds(thresholds)
     sections = []
     inputs: dict = {}
-    if run_dir is not None:
+    keys = [Path(r).resolve().name or "run" for r in run_dirs]
+    if len(set(keys)) < len(keys):  # lunar/run and asteroid/run: name them by their parents
+        keys = [f"{Path(r).resolve().parent.name}/{k}" for r, k in zip(run_dirs, keys,
+                                                                        strict=True)]
+    keys = _unique(keys)
+    for run_dir, key in zip(run_dirs, keys, strict=True):
         opx = limits["tracking"]["outlier_px"] if outlier_px is None else outlier_px
         run, scored = _run_tracking(run_dir, max_corners, quality, min_distance, win_size,
                                     levels, fb_threshold, opx)
-        inputs["run_dir"] = str(run_dir)
         sections.append(tracking_section(scored, run.image(len(run) - 1), limits,
-                                         run_label=str(run_dir)))
+                                         run_label=str(run_dir),
+                                         key=key if len(run_dirs) > 1 else ""))
+    if len(run_dirs) == 1:
+        inputs["run_dir"] = str(run_dirs[0])
+    elif run_dirs:
+        inputs["run_dirs"] = [str(r) for r in run_dirs]
     if dems:
         edges = "gdal" if compute_edges else "mask"
         dem_tiles = _dem_inputs(dems, band)

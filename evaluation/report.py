@@ -58,7 +58,7 @@ from terrain.errors import InvalidParameterError, MissingInputError
 from terrain.io import atomic_path
 
 __all__ = ["DEFAULT_THRESHOLDS", "REPORT_FORMAT", "Check", "Figure", "Report", "Section",
-           "asteroid_section", "dem_section", "load_thresholds", "render_html",
+           "asteroid_section", "dem_section", "image_figure", "load_thresholds", "render_html",
            "thresholds_toml", "tracking_section", "write_report"]
 
 log = logging.getLogger(__name__)
@@ -219,6 +219,7 @@ class Section:
     checks: list = field(default_factory=list)
     data: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
+    links: list = field(default_factory=list)  # (label, href): files beside the report
 
 
 @dataclass(eq=False)
@@ -256,10 +257,31 @@ class Report:
             craterscape_version=ver, verdict=self.verdict, inputs=self.inputs,
             thresholds=self.thresholds, checks=[c.as_dict() for c in self.checks],
             sections=[dict(id=s.id, title=s.title, data=s.data, notes=s.notes,
+                           links=[dict(label=lb, href=h) for lb, h in s.links],
                            tables=[dict(caption=c, header=h, rows=r) for c, h, r in s.tables])
                       for s in self.sections],
             figures=[dict(id=f.id, section=s.id, title=f.title, caption=f.caption,
                           data=f.data) for s in self.sections for f in s.figures])
+
+
+def _keyed(sec: Section, key: str) -> Section:
+    """``sec`` with its figure ids and its checks' section names made unique by ``key``."""
+    if not key:
+        return sec
+    sec.figures = [Figure(f"{key}-{f.id}", f.title, f.png, f.data, f.caption)
+                   for f in sec.figures]
+    sec.checks = [Check(f"{c.section} {key}", c.name, c.value, c.limit, c.relation, c.unit,
+                        c.note) for c in sec.checks]
+    return sec
+
+
+def image_figure(fig_id, title, path, caption="") -> Figure:
+    """A figure made of an existing PNG file (a rendered frame, a hillshade), embedded as is.
+
+    Its JSON data names the file it came from.
+    """
+    path = Path(path)
+    return Figure(fig_id, title, path.read_bytes(), dict(file=str(path)), caption)
 
 
 def _figure(fig_id, title, fig, data, caption="") -> Figure:
@@ -303,7 +325,7 @@ def _fmt(value, digits=4) -> str:
 
 
 def tracking_section(scored, last_image, thresholds: dict | None = None, *,
-                     run_label: str = "") -> Section:
+                     run_label: str = "", key: str = "") -> Section:
     """Feature tracking against truth: tracks over the last frame, errors, survival.
 
     Parameters
@@ -313,6 +335,11 @@ def tracking_section(scored, last_image, thresholds: dict | None = None, *,
         The sequence's last frame (for the Fig. 15 overlay).
     thresholds : dict, optional
         :func:`load_thresholds` output.
+    run_label : str
+        How the text names the run.
+    key : str
+        Distinguishes this section from other tracking sections of the same report (its id,
+        figure ids and the section named by its checks); empty for a report of one run.
     """
     from evaluation.figures import error_figure, tracks_figure
 
@@ -321,6 +348,8 @@ def tracking_section(scored, last_image, thresholds: dict | None = None, *,
     tr = summary["tracking"]
     err = summary["errors"]
     sec = Section("tracking", "Feature tracking against truth")
+    if key:
+        sec.id, sec.title = f"tracking-{key}", f"Feature tracking against truth: {key}"
     sec.paragraphs.append(
         f"Harris corners tracked with pyramidal Lucas-Kanade, forward-backward checked and "
         f"replenished, through {tr['frames']} frames of {run_label or 'the run'}. Each "
@@ -384,11 +413,11 @@ def tracking_section(scored, last_image, thresholds: dict | None = None, *,
             dict(errors_px=scored.error_values(),
                  median_px_by_track_age=err["median_px_by_track_age"]),
             "Left: every scored observation; right: median error against track age."))
-    return sec
+    return _keyed(sec, key)
 
 
 def dem_section(distributions, spectra=(), fits=(), comparisons=(), thresholds=None, *,
-                slope_agreements=()) -> Section:
+                slope_agreements=(), key: str = "") -> Section:
     """DEM slopes (Fig. 11-13), power spectra (Fig. 14) and comparisons with a reference.
 
     Parameters
@@ -399,11 +428,15 @@ def dem_section(distributions, spectra=(), fits=(), comparisons=(), thresholds=N
     comparisons : sequence of Comparison
     slope_agreements : sequence of (label, SlopeMapAgreement)
         Pixel-by-pixel checks against independent slope maps.
+    key : str
+        Distinguishes this section from other DEM sections of the same report.
     """
     from evaluation.figures import slope_distribution_figure, spectrum_figure
 
     t = (thresholds or DEFAULT_THRESHOLDS)["dem"]
     sec = Section("dem", "DEM slopes and power spectra")
+    if key:
+        sec.id, sec.title = f"dem-{key}", f"DEM slopes and power spectra: {key}"
     sec.paragraphs.append(
         "Horn slopes computed as gdaldem computes them; distributions give the percentage of "
         "terrain steeper than each angle (Martin et al. 2014, Fig. 11). DEMs of different "
@@ -474,7 +507,7 @@ def dem_section(distributions, spectra=(), fits=(), comparisons=(), thresholds=N
         distributions=[d.as_dict() for d in distributions],
         comparisons=[c.as_dict() for c in comparisons],
         slope_agreements=[dict(label=label, **a.as_dict()) for label, a in slope_agreements]))
-    return sec
+    return _keyed(sec, key)
 
 
 def asteroid_section(bodies, reference=None, thresholds=None) -> Section:
@@ -572,6 +605,7 @@ caption{text-align:left;font-weight:600;padding:.3em 0}
 .incomplete,.na{color:#222;background:#ffe082}.verdict{display:inline-block;padding:.2em .8em;
 border-radius:.3em;font-weight:700;text-transform:uppercase}
 figure{margin:1em 0}figure img{max-width:100%;border:1px solid #ddd}
+figure.thumb{display:inline-block;width:31%;margin:.4em .6em .4em 0;vertical-align:top}
 figcaption{font-size:.9em;color:#555}.note{background:#fff8e1;border-left:4px solid #ffb300;
 padding:.4em .8em;margin:.5em 0}.meta{color:#555;font-size:.9em}pre{background:#f6f6f6;
 padding:.6em;overflow-x:auto;font-size:.85em}
@@ -622,10 +656,15 @@ def render_html(report: Report) -> str:
         parts += [f"<p>{e(p)}</p>" for p in s.paragraphs]
         parts += [f'<p class="note">{e(n)}</p>' for n in s.notes]
         parts += [_table(*t) for t in s.tables]
+        if s.links:
+            parts.append("<ul>" + "".join(f'<li><a href="{e(href)}">{e(label)}</a></li>'
+                                          for label, href in s.links) + "</ul>")
         for f in s.figures:
             uri = "data:image/png;base64," + base64.b64encode(f.png).decode("ascii")
             cap = e(f.title + (": " + f.caption if f.caption else ""))
-            parts.append(f'<figure id="fig-{e(f.id)}"><img alt="{e(f.title)}" src="{uri}">'
+            thumb = ' class="thumb"' if "file" in f.data else ""  # pictures, not plots
+            parts.append(f'<figure id="fig-{e(f.id)}"{thumb}><img alt="{e(f.title)}" '
+                         f'src="{uri}">'
                          f"<figcaption>{cap}</figcaption></figure>")
     parts.append("<h2>Thresholds</h2><pre>" + e(thresholds_toml(report.thresholds))
                  + "</pre>")

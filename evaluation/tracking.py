@@ -72,7 +72,8 @@ from render.rundir import RunReader
 from terrain import memory
 from terrain.errors import InvalidParameterError
 
-__all__ = ["ScoredTracks", "TrackerSettings", "Tracks", "load_run", "score", "track"]
+__all__ = ["ScoredTracks", "TrackerSettings", "Tracks", "load_run", "save_tracks", "score",
+           "track"]
 
 log = logging.getLogger(__name__)
 
@@ -599,3 +600,51 @@ def score(tracks: Tracks, run, *, outlier_px: float = 2.0,
                   unlifted_tracks=int((~lifted).sum()),
                   silhouette_tracks=int(silhouette.sum()))
     return ScoredTracks(tracks, errors, predicted, counts, float(outlier_px), [], silhouette)
+
+
+def save_tracks(scored: ScoredTracks, run, folder, *, inputs=()) -> dict:
+    """Write a scored run's tracks where a user looks for them, each file atomically.
+
+    ``tracks.csv`` (one row per observation: track, frame, tracked u/v and, with truth, the
+    true u/v and the error, all in pixels), ``tracking.json`` (:meth:`ScoredTracks.summary`),
+    ``tracks.png`` (the tracks over the last frame) and, with errors, ``tracking_error.png``.
+    ``inputs`` are files none of these may replace. Returns the summary.
+    """
+    import csv
+    import io
+    import json
+    from pathlib import Path
+
+    from evaluation.figures import error_figure, save_png, tracks_figure
+    from terrain.io import atomic_path
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    tracks = scored.tracks
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    header = ["track", "frame", "u_px", "v_px"]
+    if scored.predicted is not None:
+        header += ["true_u_px", "true_v_px", "error_px"]
+    writer.writerow(header)
+    for i in range(tracks.n_tracks):
+        for k in range(tracks.start[i], tracks.stop[i] + 1):
+            u, v = tracks.positions[i, k]
+            row = [i, k, f"{u:.3f}", f"{v:.3f}"]
+            if scored.predicted is not None:
+                tu, tv = scored.predicted[i, k]
+                e = scored.errors[i, k]
+                row += [f"{tu:.3f}" if math.isfinite(tu) else "",
+                        f"{tv:.3f}" if math.isfinite(tv) else "",
+                        f"{e:.4f}" if math.isfinite(e) else ""]
+            writer.writerow(row)
+    summary = scored.summary()
+    for name, text in (("tracks.csv", buf.getvalue()),
+                       ("tracking.json", json.dumps(summary, indent=1))):
+        with atomic_path(folder / name, inputs) as tmp:
+            tmp.write_text(text, encoding="utf-8")
+    save_png(tracks_figure(run.image(len(run) - 1), scored), folder / "tracks.png",
+             inputs=inputs)
+    if scored.has_errors and scored.error_values().size:
+        save_png(error_figure(scored), folder / "tracking_error.png", inputs=inputs)
+    return summary

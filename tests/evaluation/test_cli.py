@@ -193,6 +193,18 @@ def test_report_command_and_thresholds(planar_run, dems, tmp_path):
     text = out.read_text()
     assert "data:image/png;base64," in text and "<script" not in text
 
+    # several runs in one report: one tracking section each, told apart by name
+    r = run("evaluation", "report", planar_run, planar_run, "-o", tmp_path / "two.html")
+    assert r.exit_code == 0, r.output
+    doc = json.loads((tmp_path / "two.json").read_text())
+    name = f"{planar_run.resolve().parent.name}/{planar_run.resolve().name}"  # names clash
+    assert [s["id"] for s in doc["sections"]] == [f"tracking-{name}", f"tracking-{name}_2"]
+    assert {c["section"] for c in doc["checks"]} == {f"tracking {name}",
+                                                     f"tracking {name}_2"}
+    figure_ids = [f["id"] for f in doc["figures"]]
+    assert len(figure_ids) == len(set(figure_ids)) == 4
+    assert doc["inputs"]["run_dirs"] == [str(planar_run)] * 2
+
     one_line_error(run("evaluation", "report", "-o", tmp_path / "r.html"), "nothing to report")
     bad = tmp_path / "bad.toml"
     bad.write_text("[tracking]\nmedian = 1\n")

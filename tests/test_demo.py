@@ -1,0 +1,108 @@
+"""`make demo`'s campaign (examples/demo.py), run in its reduced --quick form.
+
+What a new user would check: one command writes everything under one folder, the report
+opens with every figure in it and links that lead to real files, nothing is left
+half-written, and a second run reuses what is finished.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+from urllib.parse import unquote
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+DEMO = REPO / "examples" / "demo.py"
+
+
+def run_demo(out: Path, env=None) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(DEMO), "--quick", "--out", str(out)],
+                          cwd=REPO, env={**os.environ, **(env or {})}, capture_output=True,
+                          text=True, timeout=900)
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    root = tmp_path_factory.mktemp("demo")
+    out = root / "out"
+    first = run_demo(out)
+    assert first.returncode == 0, first.stdout + first.stderr
+    return root, out, first
+
+
+def test_demo_writes_one_folder_and_a_report_with_every_figure(demo):
+    root, out, first = demo
+    assert [p.name for p in root.iterdir()] == ["out"]  # nothing beside the output folder
+    report = out / "evaluation" / "report.html"
+    assert f"open {report}" in first.stdout  # it says where the report is
+    text = report.read_text(encoding="utf-8")
+    doc = json.loads(report.with_suffix(".json").read_text(encoding="utf-8"))
+    ids = [s["id"] for s in doc["sections"]]
+    assert ids == ["campaign", "tracking-lunar descent", "tracking-asteroid approach",
+                   "dem-lunar layers", "asteroid"]
+    # every figure is embedded, and none is empty
+    images = re.findall(r'<img alt="[^"]*" src="data:image/png;base64,([A-Za-z0-9+/=]+)"', text)
+    assert len(images) == len(doc["figures"]) >= 15
+    assert all(len(b) > 1000 for b in images)
+    for needed in ("tracks", "tracking_error", "slope_distributions", "spectra", "slope_area"):
+        assert any(f["id"].endswith(needed) for f in doc["figures"]), needed
+    # the report links every product, and every link leads somewhere
+    hrefs = re.findall(r'<a href="([^"]+)"', text)
+    assert len(hrefs) >= 12
+    for href in hrefs:
+        assert (report.parent / unquote(href)).exists(), href
+    # tracking was scored against truth for both runs; the truth itself closes exactly
+    for name in ("lunar", "asteroid"):
+        summary = json.loads((out / "evaluation" / f"{name}_tracks" / "tracking.json")
+                             .read_text())
+        assert summary["errors"]["median_px"] is not None
+    facts = json.loads((out / ".evaluation.done.json").read_text())
+    assert facts["tracking_lunar"]["truth_round_trip_px"] < 0.01
+    assert facts["tracking_asteroid"]["truth_round_trip_px"] < 0.01
+    assert doc["verdict"] in ("pass", "fail", "incomplete")
+
+
+def test_demo_leaves_no_partial_files_and_times_every_stage(demo):
+    _, out, _ = demo
+    leftovers = [p for p in out.rglob("*") if p.name.endswith(".partial")]
+    assert leftovers == []
+    timings = json.loads((out / "demo.json").read_text())["stages"]
+    assert set(timings) == {"lunar_base", "lunar_stack", "lunar_run", "asteroid_body",
+                            "asteroid_run", "evaluation"}
+    assert all(t["seconds"] > 0 for t in timings.values())
+    assert timings["lunar_run"]["frames"] == 8 and timings["asteroid_run"]["frames"] == 6
+
+
+def test_real_data_comparisons_are_in_the_report_where_the_data_is(demo, shared_file):
+    shared_file("lunar", "southpole_85S_nac_asp_sfs_dem_1p08m.tif")
+    shared_file("asteroids", "eros_gaskell_q64.obj")
+    _, out, _ = demo
+    doc = json.loads((out / "evaluation" / "report.json").read_text())
+    names = [c["name"] for c in doc["checks"]]
+    assert any("LROC NAC SFS" in n and n.startswith("KS distance") for n in names)
+    assert any("LOLA LDEM_4" in n for n in names)
+    assert any("433 Eros" in n and n.startswith("KS distance") for n in names)
+
+
+def test_a_second_run_reuses_finished_stages_and_absent_data_is_said(demo, tmp_path):
+    _, out, _ = demo
+    report = out / "evaluation" / "report.html"
+    before = report.stat().st_mtime_ns
+    again = run_demo(out)
+    assert again.returncode == 0, again.stderr
+    assert "lunar 1/3" not in again.stdout and "evaluation:" not in again.stdout
+    assert report.stat().st_mtime_ns == before
+    # without the real data only the evaluation is redone, and the report says what is missing
+    missing = run_demo(out, env={"CRATERSCAPE_SHARED_DATA": str(tmp_path / "nowhere")})
+    assert missing.returncode == 0, missing.stderr
+    assert "lunar 1/3" not in missing.stdout and "evaluation:" in missing.stdout
+    doc = json.loads(report.with_suffix(".json").read_text())
+    notes = [n for s in doc["sections"] for n in s["notes"]]
+    assert any("not compared with LOLA" in n for n in notes)
+    assert any("not compared with real Eros" in n for n in notes)
