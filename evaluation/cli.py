@@ -34,6 +34,9 @@ __all__ = ["evaluation"]
 
 log = logging.getLogger(__name__)
 
+#: Metadata key marking a tile as layer k of a layer stack (see _dem_inputs).
+STACK_LAYER = "CRATERSCAPE_STACK_LAYER"
+
 
 def _progress(label: str):
     """(callback, close): a tqdm bar on a terminal, nothing in pipes and tests."""
@@ -131,7 +134,9 @@ def _dem_inputs(paths, band: int) -> list:
                 raise MissingInputError(f"'{folder}' is a folder without manifest.json; give "
                                         "DEM files or layer-stack folders")
             stack = read_stack(folder)
-            items += [(f"{folder.name}_layer_{k:02d}", t) for k, t in enumerate(stack.tiles)]
+            items += [(f"{folder.name}_layer_{k:02d}",
+                       t.replace(metadata={**t.metadata, STACK_LAYER: str(k)}))
+                      for k, t in enumerate(stack.tiles)]
         else:
             items.append((path.stem, read_dem(path, band=band)))
     labels = _unique([label for label, _ in items])
@@ -185,8 +190,16 @@ def _dem_evidence(dems, *, reference, ref_tile, slope_band, baseline, edges):
         except InvalidDEMError as exc:
             log.warning("%s: no power spectrum (%s)", label, exc)
         if ref_tile is not None:
-            comparisons.append(compare_dems(tile, ref_tile, label=label,
-                                            reference_label=Path(reference).stem, edges=edges))
+            try:
+                comparisons.append(compare_dems(tile, ref_tile, label=label,
+                                                reference_label=Path(reference).stem,
+                                                edges=edges))
+            except (InvalidDEMError, InvalidParameterError) as exc:
+                if STACK_LAYER not in tile.metadata:
+                    raise
+                # a stack spans scales from kilometres to centimetres: its layers far coarser
+                # than the reference (or far finer and smaller) cannot be compared with it
+                log.warning("%s not compared with the reference: %s", label, exc)
         if slope_band is not None:
             source = tile.metadata.get("CRATERSCAPE_SOURCE")
             if not source:

@@ -81,6 +81,27 @@ def test_slopes_of_a_layer_stack_one_distribution_per_layer(tmp_path):
     assert (tmp_path / "out" / "stack_layer_02_slope.tif").exists()
 
 
+def test_a_stack_is_compared_with_a_reference_only_where_its_layers_can_be(tmp_path):
+    """Layers span kilometres to metres: those too coarse for a small reference are skipped
+    with a warning (a DEM given alone is refused instead, with one line)."""
+    from terrain.layers import build_stack, write_stack
+    from terrain.synthetic import synthesize_tile
+
+    base = synthesize_tile(129, resolution=8.0, relief=30.0, seed=3).tile
+    folder = write_stack(build_stack(base, (512.0, 512.0), levels=2, layer_size=129, seed=4),
+                         tmp_path / "stack")
+    ref = tmp_path / "ref.tif"  # 64 x 64 at 2 m: 128 m across, like the finest layer
+    write_dem(fractional_brownian_surface(64, 0.8, resolution=2.0, rms=2.0, seed=5), ref)
+    r = run("evaluation", "slopes", folder, "--reference", ref, "-o", tmp_path / "out")
+    assert r.exit_code == 0, r.output
+    doc = json.loads((tmp_path / "out" / "comparison.json").read_text())
+    assert [c["label"] for c in doc["comparisons"]] == ["stack_layer_02"]
+    assert "stack_layer_00 not compared with the reference" in r.output
+    assert "a comparison needs at least 1000" in r.output
+    one_line_error(run("evaluation", "slopes", folder / "layer_00.tif", "--reference", ref,
+                       "-o", tmp_path / "out2"), "a comparison needs at least 1000")
+
+
 def test_slopes_checks_an_independent_slope_band(tmp_path, shared_file):
     path = shared_file("lunar", "aristarchus_IMP_quickmap_hsr_4p76m.tif")
     r = run("evaluation", "slopes", path, "--slope-band", 2, "-o", tmp_path / "out")
