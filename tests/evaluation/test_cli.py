@@ -7,30 +7,15 @@ import numpy as np
 import pytest
 import rasterio
 import trimesh
-from click.testing import CliRunner
 
 from evaluation.spectrum import fractional_brownian_surface
-from terrain.cli import main
 from terrain.io import read_dem, write_dem
+from tests.cli_helpers import one_line_error, run
 
 WKT_ORTHO = ('PROJCS["moon orthographic",GEOGCS["Moon",DATUM["Moon",SPHEROID["Moon",1737400,0]],'
              'PRIMEM["Greenwich",0],UNIT["degree",0.0174532925199433]],'
              'PROJECTION["Orthographic"],PARAMETER["latitude_of_origin",0],'
              'PARAMETER["central_meridian",0],UNIT["metre",1]]')
-
-
-def run(*args, env=None):
-    return CliRunner().invoke(main, [str(a) for a in args], env=env)
-
-
-def one_line_error(result, *fragments):
-    assert result.exit_code == 2, result.output
-    lines = [ln for ln in result.output.splitlines() if ln.strip()]
-    assert len(lines) == 1, result.output
-    assert lines[0].startswith("craterscape: error:") or lines[0].startswith("Error:")
-    for fragment in fragments:
-        assert fragment in lines[0], lines[0]
-    assert "Traceback" not in result.output
 
 
 @pytest.fixture

@@ -6,25 +6,10 @@ import json
 import numpy as np
 import pytest
 import rasterio
-from click.testing import CliRunner
 
-from terrain.cli import main
 from terrain.io import read_dem, write_dem
 from terrain.tile import DEMTile
-
-
-def run(*args, env=None):
-    return CliRunner().invoke(main, [str(a) for a in args], env=env)
-
-
-def one_line_error(result, *fragments):
-    assert result.exit_code == 2, result.output
-    lines = [ln for ln in result.output.splitlines() if ln.strip()]
-    assert len(lines) == 1, result.output
-    assert lines[0].startswith("craterscape: error:") or lines[0].startswith("Error:")
-    for fragment in fragments:
-        assert fragment in lines[0], lines[0]
-    assert "Traceback" not in result.output
+from tests.cli_helpers import one_line_error, run
 
 
 @pytest.fixture
