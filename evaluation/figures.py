@@ -53,6 +53,18 @@ def save_png(fig, path, *, inputs=()) -> None:
         tmp.write_bytes(data)
 
 
+def _legend(fig, ax) -> None:
+    """A legend inside the axes, or beside them (a wider figure) when it has many entries."""
+    n = len(ax.get_legend_handles_labels()[0])
+    if n <= 6:
+        ax.legend(fontsize="small")
+        return
+    w, h = fig.get_size_inches()
+    fig.set_size_inches(w * 1.35, h)
+    ax.legend(fontsize="x-small", loc="upper left", bbox_to_anchor=(1.02, 1.0),
+              ncols=2 if n > 14 else 1)
+
+
 def slope_distribution_figure(distributions: Sequence, *, title: str = "") -> object:
     """Percentage of terrain steeper than each angle, one line per DEM or layer (Fig. 11).
 
@@ -74,7 +86,7 @@ def slope_distribution_figure(distributions: Sequence, *, title: str = "") -> ob
     ax.set_xlabel("slope (degrees)")
     ax.set_ylabel("terrain steeper than slope (%)")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize="small")
+    _legend(fig, ax)
     ax.set_title(title or "Cumulative slope-frequency distributions")
     return fig
 
@@ -102,7 +114,7 @@ def spectrum_figure(spectra: Sequence, fits: Sequence | None = None, *,
     ax.set_xlabel("radial frequency (cycles per metre)")
     ax.set_ylabel("power spectral density (m$^4$)")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize="small")
+    _legend(fig, ax)
     secax = ax.secondary_xaxis("top", functions=(lambda f: 1.0 / np.maximum(f, 1e-300),
                                                  lambda w: 1.0 / np.maximum(w, 1e-300)))
     secax.set_xlabel("wavelength (m)")

@@ -498,7 +498,7 @@ def evaluate(out: Path, lunar_facts: dict, asteroid_facts: dict, quick: bool) ->
     stack = read_stack(Path(lunar_facts["stack"]))
     distributions, spectra, fits = [], [], []
     for k, tile in enumerate(stack.tiles):
-        label = f"layer {k} ({tile.resolution:.3g} m)"
+        label = f"layer {k}"  # the figures add the pixel size
         distributions.append(slope_distribution(tile, label=label))
         try:
             spec = radial_spectrum(tile, label=label)
