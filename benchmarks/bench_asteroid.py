@@ -25,18 +25,17 @@ Progress goes to stderr; the exit status is 0 when every child ran (targets met 
 from __future__ import annotations
 
 import argparse
-import datetime as _dt
 import json
-import os
-import platform
-import resource
-import statistics
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+from _common import logger, machine_facts, peak_rss_bytes, summary
+from _common import run_child as _run_child
+
 ROOT = Path(__file__).resolve().parent.parent
+log = logger("bench-asteroid")
 
 #: Targets from the issue.
 TARGET_PERLIN_S = 30.0
@@ -49,21 +48,6 @@ PERLIN_RADIUS = 1000.0
 CRATER_RADIUS = 1000.0
 CRATER_COUNT = 10_000
 CRATER_DMAX = 250.0
-
-
-def log(message: str) -> None:
-    """Progress line on stderr."""
-    print(f"[bench-asteroid {time.strftime('%H:%M:%S')}] {message}", file=sys.stderr, flush=True)
-
-
-def _peak_rss_bytes() -> int:
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return int(peak) if sys.platform == "darwin" else int(peak) * 1024
-
-
-def _summary(times: list[float]) -> dict:
-    return dict(median_s=statistics.median(times), min_s=min(times), max_s=max(times),
-                runs_s=times)
 
 
 # ----------------------------------------------------------------------------------------
@@ -140,7 +124,7 @@ def _warm_up() -> float:
 
 def child(spec: dict) -> dict:
     warmup_s = _warm_up()
-    rss_after_warmup = _peak_rss_bytes()
+    rss_after_warmup = peak_rss_bytes()
     t0 = time.perf_counter()
     call = _job(spec)
     setup_s = time.perf_counter() - t0
@@ -150,8 +134,8 @@ def child(spec: dict) -> dict:
         info = call()
         times.append(time.perf_counter() - t0)
         log(f"  {spec['name']} run {i + 1}/{spec['repeat']}: {times[-1]:.3f} s")
-    peak = _peak_rss_bytes()
-    return dict(warmup_s=warmup_s, setup_s=setup_s, wall=_summary(times), result=info,
+    peak = peak_rss_bytes()
+    return dict(warmup_s=warmup_s, setup_s=setup_s, wall=summary(times), result=info,
                 peak_rss_bytes=peak, peak_rss_after_warmup_bytes=rss_after_warmup,
                 peak_rss_mib=round(peak / 1024**2, 1))
 
@@ -161,41 +145,10 @@ def child(spec: dict) -> dict:
 
 
 def run_child(spec: dict, timeout: float) -> dict:
-    log(f"{spec['name']}: starting child ({spec['repeat']} runs)")
-    t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--child",
-                           json.dumps(spec)], stdout=subprocess.PIPE, stderr=None, text=True,
-                          timeout=timeout, cwd=ROOT, check=False)
-    if proc.returncode != 0:
-        raise RuntimeError(f"child {spec['name']} failed with exit status {proc.returncode}")
-    out = json.loads(proc.stdout)
-    log(f"{spec['name']}: done in {time.perf_counter() - t0:.1f} s "
+    out = _run_child(__file__, spec, timeout, log)
+    log(f"{spec['name']}: done in {out.pop('_child_s'):.1f} s "
         f"(median {out['wall']['median_s']:.3f} s, peak {out['peak_rss_mib']} MiB)")
     return out
-
-
-def machine_facts() -> dict:
-    import numba
-    import numpy
-
-    try:
-        affinity = len(os.sched_getaffinity(0))
-    except AttributeError:
-        affinity = None
-    facts = dict(python=platform.python_version(), numpy=numpy.__version__,
-                 numba=numba.__version__, cpu_count=os.cpu_count(), cpu_affinity=affinity,
-                 numba_num_threads=numba.config.NUMBA_NUM_THREADS,
-                 platform=platform.platform(), machine=platform.machine(),
-                 timestamp=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"))
-    try:
-        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
-                              text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
-                               cwd=ROOT, capture_output=True, text=True, check=True).stdout
-        facts["git"] = dict(commit=head, dirty=bool(dirty.strip()))
-    except (OSError, subprocess.CalledProcessError):
-        facts["git"] = None
-    return facts
 
 
 def benchmark(quick: bool, repeat: int, timeout: float) -> dict:

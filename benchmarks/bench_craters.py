@@ -28,18 +28,17 @@ Progress goes to stderr; the exit status is 0 when every child ran (targets miss
 from __future__ import annotations
 
 import argparse
-import datetime as _dt
 import json
-import os
-import platform
-import resource
-import statistics
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+from _common import logger, machine_facts, peak_rss_bytes, summary
+from _common import run_child as _run_child
+
 ROOT = Path(__file__).resolve().parent.parent
+log = logger("bench-craters")
 
 #: Peer figure (Blender-based pipeline) in microseconds per crater.
 PEER_US_PER_CRATER = 220.0
@@ -54,22 +53,6 @@ FRACTAL_DIMENSION = 2.2
 RELIEF = 60.0
 SEED = 2014
 DMIN, DMAX, SFD_EXPONENT, MAX_AGE = 4.0, 500.0, -2.0, 3.5
-
-
-def log(message: str) -> None:
-    """Progress line on stderr."""
-    print(f"[bench {time.strftime('%H:%M:%S')}] {message}", file=sys.stderr, flush=True)
-
-
-def _peak_rss_bytes() -> int:
-    """Peak resident set size of this process so far (``ru_maxrss`` is KiB on Linux)."""
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return int(peak) if sys.platform == "darwin" else int(peak) * 1024
-
-
-def _summary(times: list[float]) -> dict:
-    return dict(median_s=statistics.median(times), min_s=min(times), max_s=max(times),
-                runs_s=times)
 
 
 # ----------------------------------------------------------------------------------------
@@ -117,7 +100,7 @@ def _synth(spec: dict, window=None):
 def child_tile(spec: dict) -> dict:
     """Time ``spec["repeat"]`` calls of one tile configuration; peak RSS around them."""
     warmup_s = _warm_up()
-    rss_after_warmup = _peak_rss_bytes()
+    rss_after_warmup = peak_rss_bytes()
     times, n_craters, checksum = [], None, None
     for i in range(spec["repeat"]):
         t0 = time.perf_counter()
@@ -127,8 +110,8 @@ def child_tile(spec: dict) -> dict:
         checksum = float(result.tile.heights.astype("float64").sum())
         del result  # so that the next call's peak does not include this result
         log(f"  {spec['name']} run {i + 1}/{spec['repeat']}: {times[-1]:.3f} s")
-    peak = _peak_rss_bytes()
-    return dict(warmup_s=warmup_s, wall=_summary(times), n_craters=n_craters,
+    peak = peak_rss_bytes()
+    return dict(warmup_s=warmup_s, wall=summary(times), n_craters=n_craters,
                 peak_rss_bytes=peak, peak_rss_after_warmup_bytes=rss_after_warmup,
                 peak_rss_increment_bytes=peak - rss_after_warmup, height_sum=checksum)
 
@@ -151,14 +134,14 @@ def child_window(spec: dict) -> dict:
         part = result.tile.heights
         del result
         log(f"  window run {i + 1}/{spec['repeat']}: {times[-1]:.3f} s")
-    peak_window = _peak_rss_bytes()
+    peak_window = peak_rss_bytes()
     t0 = time.perf_counter()
     full = _synth(spec)
     full_s = time.perf_counter() - t0
     log(f"  full tile for the exactness check: {full_s:.3f} s")
     rows, cols = window.slices
     same = bool(np.array_equal(part, full.tile.heights[rows, cols]))
-    return dict(warmup_s=warmup_s, wall=_summary(times), n_craters=n_craters,
+    return dict(warmup_s=warmup_s, wall=summary(times), n_craters=n_craters,
                 peak_rss_window_bytes=peak_window, full_tile_single_s=full_s,
                 bitwise_equal_to_full_tile=same)
 
@@ -168,43 +151,10 @@ def child_window(spec: dict) -> dict:
 
 
 def run_child(spec: dict, timeout: float) -> dict:
-    """Run one configuration in a fresh interpreter and return its JSON result."""
-    log(f"{spec['name']}: starting child ({spec['repeat']} runs)")
-    t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--child",
-                           json.dumps(spec)], stdout=subprocess.PIPE, stderr=None, text=True,
-                          timeout=timeout, cwd=ROOT, check=False)
-    if proc.returncode != 0:
-        raise RuntimeError(f"child {spec['name']} failed with exit status {proc.returncode}")
-    out = json.loads(proc.stdout)
-    log(f"{spec['name']}: done in {time.perf_counter() - t0:.1f} s "
+    out = _run_child(__file__, spec, timeout, log)
+    log(f"{spec['name']}: done in {out.pop('_child_s'):.1f} s "
         f"(median {out['wall']['median_s']:.3f} s)")
     return out
-
-
-def machine_facts() -> dict:
-    import numba
-    import numpy
-
-    try:
-        affinity = len(os.sched_getaffinity(0))
-    except AttributeError:
-        affinity = None
-    facts = dict(python=platform.python_version(), implementation=platform.python_implementation(),
-                 numpy=numpy.__version__, numba=numba.__version__, cpu_count=os.cpu_count(),
-                 cpu_affinity=affinity, numba_num_threads=numba.config.NUMBA_NUM_THREADS,
-                 platform=platform.platform(), machine=platform.machine(),
-                 processor=platform.processor() or None,
-                 timestamp=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"))
-    try:
-        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
-                              text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
-                               cwd=ROOT, capture_output=True, text=True, check=True).stdout
-        facts["git"] = dict(commit=head, dirty=bool(dirty.strip()))
-    except (OSError, subprocess.CalledProcessError):
-        facts["git"] = None
-    return facts
 
 
 def _mib(n: int) -> float:

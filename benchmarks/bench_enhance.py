@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
 import statistics
 import subprocess
 import sys
@@ -32,22 +31,13 @@ import tempfile
 import time
 from pathlib import Path
 
+from _common import logger, summary
+from _common import peak_rss_bytes as peak_rss
+
 ROOT = Path(__file__).resolve().parent.parent
+log = logger("bench-enhance")
 SEED = 2014
 GiB = 1024**3
-
-
-def log(message: str) -> None:
-    print(f"[bench-enhance {time.strftime('%H:%M:%S')}] {message}", file=sys.stderr, flush=True)
-
-
-def peak_rss() -> int:
-    return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
-
-
-def summary(times):
-    return dict(median_s=statistics.median(times), min_s=min(times), max_s=max(times),
-                runs_s=times)
 
 
 # ------------------------------------------------------------------------------ children

@@ -33,12 +33,9 @@ Progress goes to stderr; the exit status is 0 when every child ran.
 from __future__ import annotations
 
 import argparse
-import datetime as _dt
 import importlib.util
 import json
 import os
-import platform
-import resource
 import shutil
 import statistics
 import subprocess
@@ -47,17 +44,25 @@ import tempfile
 import time
 from pathlib import Path
 
+from _common import logger, peak_rss_bytes
+from _common import machine_facts as _machine_facts
+from _common import run_child as _run_child
+
 ROOT = Path(__file__).resolve().parent.parent
+log = logger("bench")
 
 
-def log(message: str) -> None:
-    """Progress line on stderr."""
-    print(f"[bench {time.strftime('%H:%M:%S')}] {message}", file=sys.stderr, flush=True)
+def run_child(spec: dict, timeout: float) -> dict:
+    out = _run_child(__file__, spec, timeout, log)
+    out["peak_rss_mib"] = round(out["peak_rss_bytes"] / 1024**2, 1)
+    log(f"{spec['name']}: done in {out.pop('_child_s'):.1f} s")
+    return out
 
 
-def _peak_rss_bytes() -> int:
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return int(peak) if sys.platform == "darwin" else int(peak) * 1024
+def machine_facts() -> dict:
+    return _machine_facts(
+        load_average=list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
+        gdaldem=shutil.which("gdaldem"))
 
 
 def _timed(fn, repeat: int) -> tuple[dict, object]:
@@ -89,9 +94,9 @@ def child_slope(spec: dict) -> dict:
         path = tmp / "dem.tif"
         write_dem(dem, path)
         horn(dem)  # warm-up
-        rss0 = _peak_rss_bytes()
+        rss0 = peak_rss_bytes()
         compute, (slope, _) = _timed(lambda: horn(dem), spec["repeat"])
-        peak = _peak_rss_bytes()
+        peak = peak_rss_bytes()
 
         def end_to_end():
             write_dem(slope_tile(read_dem(path)), tmp / "ours.tif")
@@ -140,9 +145,9 @@ def child_spectrum(spec: dict) -> dict:
                           seed=2).tile
     fit_hurst(radial_spectrum(dem))  # warm-up
     z = dem.heights.astype(np.float64)
-    rss0 = _peak_rss_bytes()
+    rss0 = peak_rss_bytes()
     ours, fit = _timed(lambda: fit_hurst(radial_spectrum(dem)), spec["repeat"])
-    peak = _peak_rss_bytes()
+    peak = peak_rss_bytes()
     bare, _ = _timed(lambda: np.fft.rfft2(z), spec["repeat"])
     return dict(pixels=n * n, ours=ours, bare_rfft2=bare, hurst_nominal_rmd=0.7,
                 hurst_estimated=fit.hurst,
@@ -168,9 +173,9 @@ def child_gravity(spec: dict) -> dict:
     body = Polyhedron.build(cv, cf, 2670.0)
     pts = v[np.linspace(0, len(v) - 1, spec["points"]).astype(np.int64)] * 1.0005
     body.field(pts[:8])  # warm-up (compile or load the cache)
-    rss0 = _peak_rss_bytes()
+    rss0 = peak_rss_bytes()
     ours, (_, g) = _timed(lambda: body.field(pts), spec["repeat"])
-    peak = _peak_rss_bytes()
+    peak = peak_rss_bytes()
     gm = GRAVITATIONAL_CONSTANT * body.mass
 
     def point_mass():
@@ -201,10 +206,10 @@ def child_mesh_slopes(spec: dict) -> dict:
     v, f = body.vertices(), body.mesh.faces()
     small = build(Recipe(magnitude=8, radius=500.0, seed=1, base="perlin")).body
     mesh_slopes(small.vertices(), small.mesh.faces(), coarse_faces=200)  # warm-up
-    rss0 = _peak_rss_bytes()
+    rss0 = peak_rss_bytes()
     ours, r = _timed(lambda: mesh_slopes(v, f, spin=Spin(5.27),
                                          coarse_faces=spec["coarse_faces"]), spec["repeat"])
-    peak = _peak_rss_bytes()
+    peak = peak_rss_bytes()
     radial, _ = _timed(lambda: mesh_slopes(v, f, gravity=False), spec["repeat"])
     return dict(vertices=len(v), faces=len(f), coarse_faces=r.info["coarse_faces"],
                 ours=ours, radial_only=radial, gravity_s=r.info["gravity_s"],
@@ -237,13 +242,13 @@ def child_tracking(spec: dict) -> dict:
         render_s = time.perf_counter() - t0
         reader = RunReader(run)
         frames = [reader.image(k) for k in range(len(reader))]
-        rss0 = _peak_rss_bytes()
+        rss0 = peak_rss_bytes()
 
         def ours():
             return score(track(reader), reader)
 
         ours_t, scored = _timed(ours, spec["repeat"])
-        peak = _peak_rss_bytes()
+        peak = peak_rss_bytes()
 
         def bare():
             p = cv2.goodFeaturesToTrack(frames[0], 300, 0.01, 8, useHarrisDetector=True)
@@ -272,46 +277,6 @@ CHILDREN = dict(slope=child_slope, spectrum=child_spectrum, gravity=child_gravit
 
 # ----------------------------------------------------------------------------------------
 # parent
-
-
-def run_child(spec: dict, timeout: float) -> dict:
-    log(f"{spec['name']}: starting child ({spec['repeat']} runs)")
-    t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--child",
-                           json.dumps(spec)], stdout=subprocess.PIPE, stderr=None, text=True,
-                          timeout=timeout, cwd=ROOT, check=False)
-    if proc.returncode != 0:
-        raise RuntimeError(f"child {spec['name']} failed with exit status {proc.returncode}")
-    out = json.loads(proc.stdout)
-    out["peak_rss_mib"] = round(out["peak_rss_bytes"] / 1024**2, 1)
-    log(f"{spec['name']}: done in {time.perf_counter() - t0:.1f} s")
-    return out
-
-
-def machine_facts() -> dict:
-    import numba
-    import numpy
-
-    try:
-        affinity = len(os.sched_getaffinity(0))
-    except AttributeError:
-        affinity = None
-    facts = dict(python=platform.python_version(), numpy=numpy.__version__,
-                 numba=numba.__version__, cpu_count=os.cpu_count(), cpu_affinity=affinity,
-                 numba_num_threads=numba.config.NUMBA_NUM_THREADS,
-                 platform=platform.platform(), machine=platform.machine(),
-                 load_average=list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
-                 gdaldem=shutil.which("gdaldem"),
-                 timestamp=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"))
-    try:
-        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
-                              text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
-                               cwd=ROOT, capture_output=True, text=True, check=True).stdout
-        facts["git"] = dict(commit=head, dirty=bool(dirty.strip()))
-    except (OSError, subprocess.CalledProcessError):
-        facts["git"] = None
-    return facts
 
 
 def benchmark(quick: bool, repeat: int, timeout: float) -> dict:
