@@ -197,12 +197,7 @@ class AsteroidScene:
     def _vaos(renderer, item):
         key = renderer.token
         if key not in item.vaos:
-            ctx = renderer.ctx
-            vao = ctx.vertex_array(renderer.scene_program,
-                                   [(item.vbo, "3f 3f", "in_position", "in_normal")], item.ibo)
-            dvao = ctx.vertex_array(renderer.depth_program,
-                                    [(item.vbo, "3f 12x", "in_position")], item.ibo)
-            item.vaos[key] = (vao, dvao)
+            item.vaos[key] = renderer.vertex_arrays(item.vbo, item.ibo)
         return item.vaos[key]
 
     # ------------------------------------------------------------------ per frame
@@ -306,9 +301,7 @@ class AsteroidScene:
         ctx = renderer.ctx
         vbo = ctx.buffer(np.hstack([verts, normals]).astype(np.float32).tobytes())
         ibo = ctx.buffer(faces.astype(np.uint32).tobytes())
-        vao = ctx.vertex_array(renderer.scene_program,
-                               [(vbo, "3f 3f", "in_position", "in_normal")], ibo)
-        dvao = ctx.vertex_array(renderer.depth_program, [(vbo, "3f 12x", "in_position")], ibo)
+        vao, dvao = renderer.vertex_arrays(vbo, ibo)
         self._fine.extend([vao, dvao, vbo, ibo])
         return DrawBatch(vao, dvao, [(0, faces.size)], world_from_model=self.rotation,
                          shadow=shadow, triangles=len(faces))

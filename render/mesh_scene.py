@@ -144,12 +144,7 @@ class MeshScene:
     def _vaos(self, renderer, lod: _Lod):
         key = renderer.token
         if key not in lod.vaos:
-            ctx = renderer.ctx
-            vao = ctx.vertex_array(renderer.scene_program,
-                                   [(lod.vbo, "3f 3f", "in_position", "in_normal")], lod.ibo)
-            dvao = ctx.vertex_array(renderer.depth_program,
-                                    [(lod.vbo, "3f 12x", "in_position")], lod.ibo)
-            lod.vaos[key] = (vao, dvao)
+            lod.vaos[key] = renderer.vertex_arrays(lod.vbo, lod.ibo)
         return lod.vaos[key]
 
     # ------------------------------------------------------------------ per frame

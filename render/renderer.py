@@ -191,6 +191,17 @@ class Renderer:
         fbo = self.ctx.framebuffer(depth_attachment=tex)
         return tex, fbo
 
+    def vertex_arrays(self, vbo, ibo):
+        """(scene, depth) vertex arrays binding this renderer's programs to a mesh.
+
+        ``vbo`` interleaves position and normal (3f 3f); the depth pass reads positions only.
+        Scenes cache the pair under :attr:`token`.
+        """
+        vao = self.ctx.vertex_array(self.scene_program,
+                                    [(vbo, "3f 3f", "in_position", "in_normal")], ibo)
+        dvao = self.ctx.vertex_array(self.depth_program, [(vbo, "3f 12x", "in_position")], ibo)
+        return vao, dvao
+
     # ------------------------------------------------------------------ passes
     def render(self, scene, view: View, lighting: Lighting,
                options: RenderOptions | None = None) -> Frame:

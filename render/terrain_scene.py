@@ -305,13 +305,7 @@ class TerrainScene:
     def _vaos(self, renderer, layer: _Layer, s: int):
         key = (renderer.token, s)
         if key not in layer.vaos:
-            ctx = renderer.ctx
-            vao = ctx.vertex_array(renderer.scene_program,
-                                   [(layer.vbo, "3f 3f", "in_position", "in_normal")],
-                                   layer.ibos[s])
-            dvao = ctx.vertex_array(renderer.depth_program,
-                                    [(layer.vbo, "3f 12x", "in_position")], layer.ibos[s])
-            layer.vaos[key] = (vao, dvao)
+            layer.vaos[key] = renderer.vertex_arrays(layer.vbo, layer.ibos[s])
         return layer.vaos[key]
 
     # ------------------------------------------------------------------ per frame
