@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from terrain.catalog import csv_sink
 from terrain.errors import InvalidParameterError
 from terrain.io import atomic_path
 
@@ -44,13 +45,7 @@ def write_table(path_or_file, columns: Mapping, order: Sequence[str]) -> None:
         if len(columns[name]) != n:
             raise InvalidParameterError(
                 f"catalogue column {name} has {len(columns[name])} rows; expected {n}")
-    close = False
-    if hasattr(path_or_file, "write"):
-        f = path_or_file
-    else:
-        f = open(path_or_file, "w", newline="", encoding="utf-8")  # noqa: SIM115
-        close = True
-    try:
+    with csv_sink(path_or_file) as f:
         writer = csv.writer(f, lineterminator="\n")
         writer.writerow(order)
         cols = [np.asarray(columns[name]) for name in order]
@@ -66,9 +61,6 @@ def write_table(path_or_file, columns: Mapping, order: Sequence[str]) -> None:
                     x = float(v)
                     row.append(repr(x) if math.isfinite(x) else "")
             writer.writerow(row)
-    finally:
-        if close:
-            f.close()
 
 
 def save_table(path, columns: Mapping, order: Sequence[str], *,

@@ -9,6 +9,7 @@ for crater-detection navigation.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import math
 from dataclasses import dataclass, field
@@ -17,7 +18,7 @@ import numpy as np
 
 from terrain.errors import InvalidParameterError
 
-__all__ = ["CATALOG_COLUMNS", "Crater", "CraterTable", "write_catalog"]
+__all__ = ["CATALOG_COLUMNS", "Crater", "CraterTable", "csv_sink", "write_catalog"]
 
 
 @dataclass(frozen=True)
@@ -152,16 +153,21 @@ CATALOG_COLUMNS = (
 )
 
 
+@contextlib.contextmanager
+def csv_sink(path_or_file):
+    """Yield a text file for a CSV writer: ``path_or_file`` itself if it has ``write``, else
+    that path opened for writing (and closed afterwards)."""
+    if hasattr(path_or_file, "write"):
+        yield path_or_file
+        return
+    with open(path_or_file, "w", newline="", encoding="utf-8") as f:
+        yield f
+
+
 def write_catalog(path_or_file, rows: dict, columns=CATALOG_COLUMNS) -> None:
     """Write catalogue columns (dict of equal-length arrays keyed by ``columns``)."""
     n = len(rows["id"]) if rows else 0
-    close = False
-    if hasattr(path_or_file, "write"):
-        f = path_or_file
-    else:
-        f = open(path_or_file, "w", newline="", encoding="utf-8")  # noqa: SIM115
-        close = True
-    try:
+    with csv_sink(path_or_file) as f:
         writer = csv.writer(f)
         writer.writerow(columns)
         for i in range(n):
@@ -177,9 +183,6 @@ def write_catalog(path_or_file, rows: dict, columns=CATALOG_COLUMNS) -> None:
                 else:
                     out.append(repr(float(v)) if math.isfinite(float(v)) else "")
             writer.writerow(out)
-    finally:
-        if close:
-            f.close()
 
 
 def read_catalog(path) -> dict:
