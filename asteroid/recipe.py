@@ -87,7 +87,6 @@ from __future__ import annotations
 
 import copy
 import math
-import tomllib
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
@@ -100,9 +99,10 @@ from asteroid.shape import UNITS
 from asteroid.sphere import check_magnitude
 from terrain.cratering import CraterModel
 from terrain.erosion import ErosionModel
-from terrain.errors import InvalidParameterError, MissingInputError
+from terrain.errors import InvalidParameterError
 from terrain.population import Population
 from terrain.rng import check_seed
+from terrain.tomlfile import read_toml
 
 __all__ = ["PRESETS", "BoulderSpec", "CraterSpec", "Recipe", "parse_spec"]
 
@@ -403,13 +403,7 @@ class Recipe:
         data: dict = {}
         if config is not None:
             path = Path(config)
-            if not path.exists():
-                raise MissingInputError(f"config file '{path}' does not exist")
-            try:
-                data = tomllib.loads(path.read_text(encoding="utf-8"))
-            except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-                raise InvalidParameterError(f"config file '{path}' is not valid TOML: {exc}") \
-                    from exc
+            data = read_toml(path, "config file")
             _resolve_shape_file(data, path.parent)
         if preset is not None:
             data["preset"] = preset

@@ -48,14 +48,14 @@ import html
 import json
 import logging
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from terrain.errors import InvalidParameterError, MissingInputError
+from terrain.errors import InvalidParameterError
 from terrain.io import atomic_path
+from terrain.tomlfile import read_toml
 
 __all__ = ["DEFAULT_THRESHOLDS", "REPORT_FORMAT", "Check", "Figure", "Report", "Section",
            "asteroid_section", "dem_section", "image_figure", "load_thresholds", "render_html",
@@ -107,6 +107,7 @@ _COMMENTS = {
 def thresholds_toml(thresholds: dict | None = None) -> str:
     """The thresholds as a commented TOML document (defaults when none given).
 
+    >>> import tomllib
     >>> text = thresholds_toml()
     >>> tomllib.loads(text) == DEFAULT_THRESHOLDS
     True
@@ -131,14 +132,7 @@ def load_thresholds(path=None) -> dict:
     out = copy.deepcopy(DEFAULT_THRESHOLDS)
     if path is None:
         return out
-    path = Path(path)
-    if not path.exists():
-        raise MissingInputError(f"thresholds file '{path}' does not exist")
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise InvalidParameterError(f"thresholds file '{path}' is not valid TOML: {exc}") \
-            from None
+    data = read_toml(path, "thresholds file")
     for section, values in data.items():
         if section not in out or not isinstance(values, dict):
             raise InvalidParameterError(

@@ -60,7 +60,6 @@ Keyframes: ``[[trajectory.keyframe]]`` tables with ``time``, ``position`` and ``
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -71,8 +70,9 @@ from render.reflectance import check_brdf
 from render.renderer import Lighting, RenderOptions
 from render.sensor import Sensor
 from render.trajectory import Sample, approach, descent, keyframes
-from terrain.errors import InvalidParameterError, MissingInputError
+from terrain.errors import InvalidParameterError
 from terrain.rng import check_seed
+from terrain.tomlfile import read_toml
 
 __all__ = ["Scenario", "load_scenario"]
 
@@ -174,13 +174,7 @@ class Scenario:
 def load_scenario(path) -> Scenario:
     """Parse and validate a scenario file."""
     path = Path(path)
-    if not path.exists():
-        raise MissingInputError(f"scenario '{path}' does not exist")
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise InvalidParameterError(f"scenario '{path}' is not valid TOML: {exc}") from None
-    return parse_scenario(data, path)
+    return parse_scenario(read_toml(path, "scenario"), path)
 
 
 def parse_scenario(data: dict, path: Path | None = None) -> Scenario:

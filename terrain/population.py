@@ -29,17 +29,16 @@ same map area enumerates exactly the same craters.
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import asdict, dataclass, fields
-from pathlib import Path
 
 import numba
 import numpy as np
 
 from terrain import memory
 from terrain.catalog import CraterTable
-from terrain.errors import InvalidParameterError, MissingInputError
+from terrain.errors import InvalidParameterError
 from terrain.rng import check_seed, hash64, stream_id, uniform_scalar
+from terrain.tomlfile import read_toml
 
 __all__ = ["CELL_EXPECTATION", "Population"]
 
@@ -112,14 +111,7 @@ class Population:
         Precedence: non-None ``overrides`` (command-line flags), then the file, then
         ``defaults``.
         """
-        path = Path(path)
-        if not path.exists():
-            raise MissingInputError(f"population file '{path}' does not exist")
-        try:
-            data = tomllib.loads(path.read_text(encoding="utf-8"))
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-            raise InvalidParameterError(f"population file '{path}' is not valid TOML: {exc}") \
-                from exc
+        data = read_toml(path, "population file")
         table = data.get("population", data)
         known = {f.name for f in fields(cls)}
         unknown = set(table) - known - {"erosion", "roughness", "rim"}
