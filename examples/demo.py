@@ -444,10 +444,8 @@ def evaluate(out: Path, lunar_facts: dict, asteroid_facts: dict, quick: bool) ->
     from evaluation.report import (
         DEFAULT_THRESHOLDS,
         Report,
-        Section,
         asteroid_section,
         dem_section,
-        image_figure,
         tracking_section,
         write_report,
     )
@@ -564,8 +562,7 @@ def evaluate(out: Path, lunar_facts: dict, asteroid_facts: dict, quick: bool) ->
     facts["asteroid_ks"] = ks[0].value if ks else None
 
     # -- campaign overview: timings, gallery, links
-    overview = campaign_section(out, stage.dir, lunar_facts, asteroid_facts, tracked,
-                                Section, image_figure)
+    overview = campaign_section(out, stage.dir, lunar_facts, asteroid_facts, tracked)
     rep = Report("craterscape demo: lunar descent and asteroid approach",
                  [overview] + sections, limits,
                  dict(output=str(out), seed=SEED, quick=quick,
@@ -577,8 +574,10 @@ def evaluate(out: Path, lunar_facts: dict, asteroid_facts: dict, quick: bool) ->
     return report_path
 
 
-def campaign_section(out, folder, lunar_facts, asteroid_facts, tracked, Section, image_figure):
+def campaign_section(out, folder, lunar_facts, asteroid_facts, tracked):
     """The report's first section: what was made, how long it took, pictures, links."""
+    from evaluation.report import Section, image_figure
+
     sec = Section("campaign", "The campaign")
     sec.paragraphs.append(
         "Everything below was produced by `make demo` (examples/demo.py) from built-in "
@@ -616,7 +615,7 @@ def campaign_section(out, folder, lunar_facts, asteroid_facts, tracked, Section,
     sec.figures += [image_figure(fid, title, path) for fid, title, path in figures]
 
     def rel(path: Path) -> str:
-        return Path(os_relpath(path, folder)).as_posix()
+        return Path(os.path.relpath(path, folder)).as_posix()
 
     lunar_run, asteroid_run = Path(lunar_facts["run"]), Path(asteroid_facts["run"])
     body = Path(asteroid_facts["body"])
@@ -652,10 +651,6 @@ def read_png(path: Path) -> np.ndarray:
     if img is None:
         raise RuntimeError(f"cannot read {path}")
     return img if img.ndim == 2 else img[..., ::-1]
-
-
-def os_relpath(path: Path, start: Path) -> str:
-    return os.path.relpath(path, start)
 
 
 # ------------------------------------------------------------------------------ main
