@@ -32,7 +32,7 @@ import numpy as np
 
 from render.camera import Intrinsics, Pose
 from render.context import create_context
-from render.reflectance import BRDF_CODES, MCEWEN_MOON, check_brdf
+from render.reflectance import BRDF_CODES, MCEWEN_MOON, SATO_643NM, Hapke, check_brdf
 from terrain.errors import InvalidParameterError
 
 __all__ = ["Frame", "Lighting", "RenderOptions", "Renderer", "View", "clip_from_camera"]
@@ -41,18 +41,30 @@ log = logging.getLogger(__name__)
 
 #: Nearest depth the logarithmic depth buffer resolves (m).
 LOG_NEAR = 0.01
+#: Solar spectral irradiance at 1 au near 643 nm (W m^-2 nm^-1), the LROC WAC red band of
+#: :data:`render.reflectance.SATO_643NM`; from the ASTM E-490 AM0 spectrum (about 1.58 there).
+SOLAR_643NM = 1.58
 
 _TOKENS = itertools.count(1)
 
 
 @dataclass(frozen=True)
 class Lighting:
-    """Sun direction (unit vector towards the sun, world frame), albedo and reflectance."""
+    """Sun direction (unit vector towards the sun, world frame), albedo and reflectance.
+
+    ``hapke``: the Hapke parameters where ``brdf`` is "hapke". ``irradiance``: the solar
+    spectral irradiance at 1 au (W m^-2 nm^-1) in the camera's band and ``distance`` the body's
+    distance from the Sun (au); :attr:`spectral_irradiance` is their ratio to ``distance^2``,
+    what turns I/F into radiance (:meth:`radiance`).
+    """
 
     sun: tuple
     albedo: float = 0.12
     brdf: str = "lunar-lambert"
     mcewen: tuple = MCEWEN_MOON
+    hapke: Hapke = SATO_643NM
+    irradiance: float = SOLAR_643NM
+    distance: float = 1.0
 
     def __post_init__(self):
         s = np.asarray(self.sun, dtype=np.float64).reshape(-1)
@@ -63,6 +75,25 @@ class Lighting:
             raise InvalidParameterError(f"albedo must lie in [0, 1]; got {self.albedo}")
         object.__setattr__(self, "albedo", float(self.albedo))
         object.__setattr__(self, "brdf", check_brdf(self.brdf))
+        if not isinstance(self.hapke, Hapke):
+            raise InvalidParameterError(f"hapke must be a Hapke record; got {self.hapke!r}")
+        for name in ("irradiance", "distance"):
+            v = float(getattr(self, name))
+            if not (v > 0 and math.isfinite(v)):
+                raise InvalidParameterError(f"sun {name} must be positive; got {v}")
+            object.__setattr__(self, name, v)
+
+    @property
+    def spectral_irradiance(self) -> float:
+        """Solar spectral irradiance at the body (W m^-2 nm^-1): irradiance / distance^2."""
+        return self.irradiance / self.distance**2
+
+    def radiance(self, i_over_f: np.ndarray) -> np.ndarray:
+        """Spectral radiance (W m^-2 sr^-1 nm^-1) of an I/F image: ``I/F F / pi``, where F is
+        the solar spectral irradiance at the body (I/F is radiance over that of a perfect
+        diffuser lit at normal incidence, F / pi)."""
+        return np.asarray(i_over_f, dtype=np.float32) * np.float32(
+            self.spectral_irradiance / math.pi)
 
     @classmethod
     def from_angles(cls, azimuth_deg: float, elevation_deg: float, **kwargs) -> Lighting:
@@ -159,6 +190,7 @@ class Renderer:
         self._fbos: dict = {}
         self._dummy_shadow = self.ctx.depth_texture((1, 1))
         self._dummy_shadow.compare_func = "<="
+        self._dummy_albedo = self.ctx.texture((1, 1), 1, np.ones(1, "f4").tobytes(), dtype="f4")
 
     # ------------------------------------------------------------------ framebuffers
     def _target(self, size):
@@ -191,14 +223,17 @@ class Renderer:
         fbo = self.ctx.framebuffer(depth_attachment=tex)
         return tex, fbo
 
-    def vertex_arrays(self, vbo, ibo):
+    def vertex_arrays(self, vbo, ibo, albedo=None):
         """(scene, depth) vertex arrays binding this renderer's programs to a mesh.
 
         ``vbo`` interleaves position and normal (3f 3f); the depth pass reads positions only.
-        Scenes cache the pair under :attr:`token`.
+        ``albedo``, if given, is a buffer of one float32 albedo factor per vertex (draw such a
+        mesh with ``DrawBatch.vertex_albedo`` set). Scenes cache the pair under :attr:`token`.
         """
-        vao = self.ctx.vertex_array(self.scene_program,
-                                    [(vbo, "3f 3f", "in_position", "in_normal")], ibo)
+        content = [(vbo, "3f 3f", "in_position", "in_normal")]
+        if albedo is not None:
+            content.append((albedo, "1f", "in_albedo"))
+        vao = self.ctx.vertex_array(self.scene_program, content, ibo)
         dvao = self.ctx.vertex_array(self.depth_program, [(vbo, "3f 12x", "in_position")], ibo)
         return vao, dvao
 
@@ -231,6 +266,11 @@ class Renderer:
         prog["u_albedo"].value = lighting.albedo
         prog["u_brdf"].value = BRDF_CODES[lighting.brdf]
         prog["u_mcewen"].value = tuple(lighting.mcewen)
+        hp = lighting.hapke
+        prog["u_hapke_a"].value = (hp.w, hp.b, hp.c, hp.bs0)
+        prog["u_hapke_b"].value = (hp.hs, hp.bc0, hp.hc, math.radians(hp.theta_bar))
+        prog["u_hapke_k"].value = hp.porosity_k
+        self._set_albedo_map(prog, getattr(state, "albedo", None))
         prog["u_log_near"].value = math.log(LOG_NEAR)
         prog["u_log_scale"].value = 1.0 / math.log(far / LOG_NEAR)
         prog["u_shadow_map"].value = 0
@@ -263,7 +303,20 @@ class Renderer:
             state.post(view, rad, rng, normals)
         return Frame(np.ascontiguousarray(rad), rng, normals, dict(state.drawn))
 
+    def _set_albedo_map(self, prog, albedo):
+        """Bind a scene's albedo map ((texture, (xmin, ymin, xmax, ymax) scene-local)) or none."""
+        if albedo is None:
+            prog["u_use_albedo_map"].value = 0
+            self._dummy_albedo.use(location=1)
+        else:
+            texture, window = albedo
+            prog["u_use_albedo_map"].value = 1
+            prog["u_albedo_window"].value = tuple(float(v) for v in window)
+            texture.use(location=1)
+        prog["u_albedo_map"].value = 1
+
     def _set_batch(self, prog, batch, cam, shadows):
+        prog["u_vertex_albedo"].value = 1 if getattr(batch, "vertex_albedo", False) else 0
         prog["u_world_from_model"].write(
             np.asarray(batch.world_from_model, dtype="f4").T.tobytes())
         prog["u_model_offset"].value = tuple((np.asarray(batch.model_offset) - cam).tolist())

@@ -54,6 +54,7 @@ class DrawBatch:
     discard: tuple | None = None
     shadow: ShadowMap | None = None
     triangles: int = 0
+    vertex_albedo: bool = False   # the vertex array binds a per-vertex albedo factor
 
 
 @dataclass(eq=False)
@@ -62,12 +63,16 @@ class FrameState:
 
     ``post``, if given, is called as ``post(view, radiance, range, normals)`` on the read-back
     images (top row first) and may change them in place (imposters composite this way).
+    ``albedo``, if given, is ``(texture, (xmin, ymin, xmax, ymax))``: a float texture whose
+    value at scene-local (x, y) multiplies the albedo (or Hapke's w), the window spanning the
+    texture's outer edges.
     """
 
     batches: list
     far: float
     drawn: dict = field(default_factory=dict)
     post: object = None
+    albedo: tuple | None = None
 
 
 def light_basis(sun) -> np.ndarray:

@@ -2,13 +2,21 @@
 // Shading, LIDAR range and normals in one pass (three float colour attachments).
 in vec3 v_rel;
 in vec3 v_normal;
+in float v_albedo;              // per-vertex albedo factor, used where u_vertex_albedo is 1
+uniform int u_vertex_albedo;
 
 uniform vec3 u_camera;          // camera position in world (m), for world-frame tests
 uniform vec3 u_axis;            // optical axis (unit, world)
 uniform vec3 u_sun;             // unit vector towards the sun (world)
 uniform float u_albedo;
-uniform int u_brdf;             // 0 Lambert, 1 Lommel-Seeliger, 2 lunar-Lambert (McEwen)
+uniform int u_brdf;             // 0 Lambert, 1 Lommel-Seeliger, 2 lunar-Lambert (McEwen), 3 Hapke
 uniform vec3 u_mcewen;          // lunar-Lambert L(g) = 1 + a g + b g^2 + c g^3, g in degrees
+uniform vec4 u_hapke_a;         // Hapke: w, b, c, Bs0
+uniform vec4 u_hapke_b;         // Hapke: hs, Bc0, hc, theta-bar (radians)
+uniform float u_hapke_k;        // Hapke porosity factor K (1: none)
+uniform int u_use_albedo_map;   // 1: u_albedo_map scales the albedo (or w) by its value
+uniform sampler2D u_albedo_map;
+uniform vec4 u_albedo_window;   // xmin, ymin, xmax, ymax (scene-local) the map's texels span
 uniform float u_log_near;       // log depth: (log(z) - u_log_near) * u_log_scale
 uniform float u_log_scale;
 uniform int u_use_discard;      // terrain layers: draw only outside the finer layer
@@ -25,14 +33,98 @@ layout(location = 0) out float out_radiance;
 layout(location = 1) out float out_range;
 layout(location = 2) out vec4 out_normal;
 
-float reflectance(float mu0, float mu, float g_deg) {
+float reflectance(float mu0, float mu, float g_deg, float scale) {
     if (mu0 <= 0.0) return 0.0;
     mu = max(mu, 1e-4);
-    if (u_brdf == 0) return u_albedo * mu0;                           // Lambert: A mu0
+    float albedo = u_albedo * scale;
+    if (u_brdf == 0) return albedo * mu0;                              // Lambert: A mu0
     float ls = 2.0 * mu0 / (mu0 + mu);                                 // 1 at mu0 = mu = 1
-    if (u_brdf == 1) return u_albedo * ls;                             // Lommel-Seeliger
+    if (u_brdf == 1) return albedo * ls;                               // Lommel-Seeliger
     float L = 1.0 + g_deg * (u_mcewen.x + g_deg * (u_mcewen.y + g_deg * u_mcewen.z));
-    return u_albedo * (L * ls + (1.0 - L) * mu0);                      // McEwen (1991)
+    return albedo * (L * ls + (1.0 - L) * mu0);                        // McEwen (1991)
+}
+
+// ---- Hapke (2012, Theory of Reflectance and Emittance Spectroscopy, 2nd ed.), the form Sato et
+// al. (2014, JGR Planets 119, 1775) fit to LROC WAC: I/F = K w/4 mu0e/(mu0e + mue)
+// [p(g)(1 + Bs0 Bs(g)) + M(mu0e/K, mue/K)] [1 + Bc0 Bc(g)] S(i, e, psi). Angles come from
+// vectors (tan(g/2) and psi by atan/cross products), which keeps float32 accurate near g = 0.
+float hapke_h(float x, float w) {                  // Hapke (2002) eq. 13
+    float gam = sqrt(1.0 - w);
+    float r0 = (1.0 - gam) / (1.0 + gam);
+    x = max(x, 1e-6);
+    return 1.0 / (1.0 - w * x * (r0 + 0.5 * (1.0 - 2.0 * r0 * x) * log((1.0 + x) / x)));
+}
+
+float hapke_e1(float cot_t, float cot_x) { return exp(-0.63661977 * cot_t * cot_x); }
+float hapke_e2(float cot_t, float cot_x) { return exp(-0.31830989 * cot_t * cot_t * cot_x * cot_x); }
+
+float hapke(vec3 n, vec3 s, vec3 v, float scale) {
+    float mu0 = dot(n, s);
+    if (mu0 <= 0.0) return 0.0;
+    float mu = max(dot(n, v), 1e-4);
+    float w = min(u_hapke_a.x * scale, 0.999999);
+    float b = u_hapke_a.y;
+    float c = u_hapke_a.z;
+    float cg = dot(s, v);
+    float tg2 = length(cross(s, v)) / max(1.0 + cg, 1e-12);             // tan(g/2)
+    float b2 = b * b;
+    float p = 0.5 * (1.0 + c) * (1.0 - b2) / pow(1.0 - 2.0 * b * cg + b2, 1.5)
+            + 0.5 * (1.0 - c) * (1.0 - b2) / pow(1.0 + 2.0 * b * cg + b2, 1.5);
+    float bs = u_hapke_b.x > 0.0 ? 1.0 / (1.0 + tg2 / u_hapke_b.x) : 0.0;
+    float bc = 0.0;
+    if (u_hapke_b.y > 0.0 && u_hapke_b.z > 0.0) {                     // Hapke (2002) eq. 31
+        float x = tg2 / u_hapke_b.z;
+        bc = x < 1e-4 ? 1.0 - 1.5 * x : (1.0 + (1.0 - exp(-x)) / x) / (2.0 * (1.0 + x) * (1.0 + x));
+    }
+    float mu0e = mu0;
+    float mue = mu;
+    float sh = 1.0;
+    float theta = u_hapke_b.w;
+    if (theta > 0.0) {                                                 // Hapke (1984), 2012 ch. 12
+        float tt = tan(theta);
+        float cot_t = 1.0 / tt;
+        float chi = inversesqrt(1.0 + 3.14159265 * tt * tt);
+        vec3 st = s - mu0 * n;
+        vec3 vt = v - dot(n, v) * n;
+        float si = length(st);
+        float se = length(vt);
+        float psi = (si * se > 1e-7) ? atan(length(cross(st, vt)), dot(st, vt)) : 0.0;
+        float f = psi < 3.1415 ? exp(-2.0 * tan(0.5 * psi)) : 0.0;
+        float s2 = sin(0.5 * psi);
+        s2 *= s2;
+        float cot_i = min(mu0 / max(si, 1e-10), 1e6);
+        float cot_e = min(mu / max(se, 1e-10), 1e6);
+        float e1i = hapke_e1(cot_t, cot_i), e2i = hapke_e2(cot_t, cot_i);
+        float e1e = hapke_e1(cot_t, cot_e), e2e = hapke_e2(cot_t, cot_e);
+        float eta_i = chi * (mu0 + si * tt * e2i / (2.0 - e1i));
+        float eta_e = chi * (mu + se * tt * e2e / (2.0 - e1e));
+        float q;
+        if (mu0 >= mu) {                                               // i <= e
+            float d = 2.0 - e1e - psi / 3.14159265 * e1i;
+            mu0e = chi * (mu0 + si * tt * (cos(psi) * e2e + s2 * e2i) / d);
+            mue = chi * (mu + se * tt * (e2e - s2 * e2i) / d);
+            q = mu0 / eta_i;
+        } else {
+            float d = 2.0 - e1i - psi / 3.14159265 * e1e;
+            mu0e = chi * (mu0 + si * tt * (e2i - s2 * e2e) / d);
+            mue = chi * (mu + se * tt * (cos(psi) * e2i + s2 * e2e) / d);
+            q = mu / eta_e;
+        }
+        sh = mue / eta_e * mu0 / eta_i * chi / (1.0 - f + f * chi * q);
+    }
+    float k = u_hapke_k;
+    float m = hapke_h(mu0e / k, w) * hapke_h(mue / k, w) - 1.0;
+    return k * 0.25 * w * mu0e / (mu0e + mue) * (p * (1.0 + u_hapke_a.w * bs) + m)
+           * (1.0 + u_hapke_b.y * bc) * sh;
+}
+
+float albedo_scale(vec3 world) {
+    float a = u_vertex_albedo == 1 ? v_albedo : 1.0;     // exactly 1 otherwise
+    if (u_use_albedo_map == 1) {
+        vec2 uv = (world.xy - u_albedo_window.xy) / (u_albedo_window.zw - u_albedo_window.xy);
+        a *= texture(u_albedo_map, uv).r;
+    }
+    return a;
 }
 
 float visibility(vec3 n, float mu0) {
@@ -57,7 +149,9 @@ void main() {
     float mu0 = dot(n, u_sun);
     float mu = dot(n, e);
     float g = degrees(acos(clamp(dot(u_sun, e), -1.0, 1.0)));
-    out_radiance = reflectance(mu0, mu, g) * visibility(n, mu0);
+    float scale = albedo_scale(world);
+    float refl = u_brdf == 3 ? hapke(n, u_sun, e, scale) : reflectance(mu0, mu, g, scale);
+    out_radiance = refl * visibility(n, mu0);
     out_range = r;
     out_normal = vec4(n, 1.0);
     float z = max(dot(v_rel, u_axis), 1e-6);
