@@ -65,6 +65,7 @@ class _Lod:
     edge: float           # typical edge length (m)
     triangles: int
     vaos: dict
+    abo: object = None    # per-vertex albedo factors (float32), or None
 
 
 class MeshScene:
@@ -75,20 +76,24 @@ class MeshScene:
     vertices : (n, 3) float, metres, body frame
     faces : (m, 3) int, outward-wound (counter-clockwise seen from outside)
     centre : (3,) world position of the body's origin (default: the world origin)
+    albedo : (n,) float, optional
+        Albedo factor per vertex (multiplies the albedo, or Hapke's w; interpolated across
+        faces).
     """
 
     kind = "mesh"
 
-    def __init__(self, vertices, faces, *, centre=(0.0, 0.0, 0.0)):
+    def __init__(self, vertices, faces, *, centre=(0.0, 0.0, 0.0), albedo=None):
         self.origin = np.asarray(centre, dtype=np.float64).reshape(3)
         self.rotation = np.eye(3)
         self._meshes = []
         self._gpu: dict = {}
         self._shadow = None
-        self.add_lod(vertices, faces)
+        self.add_lod(vertices, faces, albedo=albedo)
 
-    def add_lod(self, vertices, faces) -> None:
-        """Add a (coarser) level of detail of the same body."""
+    def add_lod(self, vertices, faces, *, albedo=None) -> None:
+        """Add a (coarser) level of detail of the same body (``albedo``: one factor per
+        vertex, or None)."""
         v = np.asarray(vertices, dtype=np.float64)
         f = np.asarray(faces, dtype=np.int64)
         if v.ndim != 2 or v.shape[1] != 3 or not np.all(np.isfinite(v)):
@@ -96,7 +101,13 @@ class MeshScene:
         if f.ndim != 2 or f.shape[1] != 3 or f.min() < 0 or f.max() >= len(v):
             raise InvalidParameterError(
                 f"mesh faces must be (m, 3) indices into the vertices; got {f.shape}")
-        self._meshes.append((v, f))
+        if albedo is not None:
+            albedo = np.asarray(albedo, dtype=np.float32).reshape(-1)
+            if albedo.shape != (len(v),) or not np.all(np.isfinite(albedo)) or albedo.min() < 0:
+                raise InvalidParameterError(
+                    f"mesh albedo must be one finite value >= 0 per vertex ({len(v)}); got "
+                    f"{albedo.shape}")
+        self._meshes.append((v, f, albedo))
         self._meshes.sort(key=lambda vf: len(vf[1]), reverse=True)
         self._gpu.clear()
 
@@ -121,7 +132,7 @@ class MeshScene:
         if ctx in self._gpu:
             return self._gpu[ctx]
         lods = []
-        for v, f in self._meshes:
+        for v, f, albedo in self._meshes:
             n = vertex_normals(v, f)
             order = _morton_order(v[f].mean(axis=1))
             f = f[order]
@@ -137,14 +148,15 @@ class MeshScene:
             edge = float(np.median(np.linalg.norm(v[f[:, 0]] - v[f[:, 1]], axis=1)))
             vbo = ctx.buffer(np.hstack([v, n]).astype(np.float32).tobytes())
             ibo = ctx.buffer(f.astype(np.uint32).tobytes())
-            lods.append(_Lod(vbo, ibo, centres, radii, firsts, counts, edge, len(f), {}))
+            abo = None if albedo is None else ctx.buffer(albedo.tobytes())
+            lods.append(_Lod(vbo, ibo, centres, radii, firsts, counts, edge, len(f), {}, abo))
         self._gpu[ctx] = lods
         return lods
 
     def _vaos(self, renderer, lod: _Lod):
         key = renderer.token
         if key not in lod.vaos:
-            lod.vaos[key] = renderer.vertex_arrays(lod.vbo, lod.ibo)
+            lod.vaos[key] = renderer.vertex_arrays(lod.vbo, lod.ibo, lod.abo)
         return lod.vaos[key]
 
     # ------------------------------------------------------------------ per frame
@@ -176,7 +188,8 @@ class MeshScene:
         shadow = self._shadow_map(renderer, lighting, options, chosen) \
             if options.shadows and lighting is not None else None
         batch = DrawBatch(vao, dvao, ranges, world_from_model=self.rotation,
-                          model_offset=np.zeros(3), shadow=shadow, triangles=tris)
+                          model_offset=np.zeros(3), shadow=shadow, triangles=tris,
+                          vertex_albedo=chosen.abo is not None)
         far = float(np.linalg.norm(cam) + self.radius) * 1.01 + 1.0
         drawn = {"triangles": tris, "chunks": int(chunks.size), "lod_edge_m": chosen.edge,
                  "lod_triangles": chosen.triangles}

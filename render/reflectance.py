@@ -84,11 +84,11 @@ class Hapke:
                       phi=(0.0, 0.75))
         for name, (lo, hi) in limits.items():
             object.__setattr__(self, name, number(getattr(self, name), name, low=lo, high=hi,
-                                                  where="[surface.hapke]"))
+                                                  where="Hapke"))
         if self.bs0 > 0 and self.hs <= 0:
-            raise InvalidParameterError("[surface.hapke] hs must be > 0 where bs0 > 0")
+            raise InvalidParameterError("Hapke hs must be > 0 where bs0 > 0")
         if self.bc0 > 0 and self.hc <= 0:
-            raise InvalidParameterError("[surface.hapke] hc must be > 0 where bc0 > 0")
+            raise InvalidParameterError("Hapke hc must be > 0 where bc0 > 0")
 
     @classmethod
     def from_mapping(cls, mapping) -> Hapke:
@@ -97,7 +97,7 @@ class Hapke:
         >>> Hapke.from_mapping({"w": 0.3}).w
         0.3
         """
-        return cls(**check_keys(mapping, set(cls.__dataclass_fields__), "[surface.hapke]"))
+        return cls(**check_keys(mapping, set(cls.__dataclass_fields__), "Hapke parameters"))
 
     @property
     def porosity_k(self) -> float:

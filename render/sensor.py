@@ -1,40 +1,79 @@
-"""The camera sensor: exposure, point-spread function, shot and read noise, quantisation.
+"""The camera sensor: optics, a detector chain with data-sheet units, quantisation.
 
-Rendering produces the reflectance factor I/F per pixel under a unit sun. The sensor turns it
-into digital numbers:
+Rendering produces the reflectance factor I/F per pixel. The sensor turns it into digital
+numbers the way a camera does, each step a ``[sensor]`` key with the unit of a data sheet:
 
-1. Optical blur: a Gaussian point-spread function of ``psf_sigma`` pixels (0: none).
-2. Exposure: ``DN = I/F * exposure * (2^bits - 1)``; an I/F of ``1 / exposure`` saturates.
-3. Shot noise: with ``gain`` electrons per DN, a pixel collecting ``e = DN * gain`` electrons
-   gets Gaussian noise of ``sqrt(e)`` electrons (the Poisson limit; exact to < 1 % above 25
-   electrons). 0 switches it off.
-4. Read noise: Gaussian, ``read_noise`` DN rms.
-5. Rounding and clipping to ``bits`` (8 or 16).
+1. Point-spread function on the optical image: a sum of Gaussians ``psf = [[weight, sigma
+   (pixels)], ...]`` (weights normalised to 1) or a kernel file ``psf_kernel`` (.npy or text,
+   normalised to 1); ``psf_sigma`` is the one-Gaussian shorthand.
+2. Photons to electrons: the in-band radiance ``L = I/F F / pi`` (F: the solar spectral
+   irradiance at the body, W m^-2 nm^-1, from the scenario's ``[sun]``) over ``bandwidth``
+   (nm) enters an aperture of diameter ``aperture`` (m) from a pixel's solid angle
+   ``1 / (fx fy)`` sr (intrinsics in pixels), or equivalently ``pi p^2 / (4 N^2)`` m^2 sr from
+   ``f_number`` N and ``pixel_pitch`` p (um); ``transmission`` of the optics, quantum
+   efficiency ``qe`` at ``wavelength`` (nm; photon energy h c / lambda) and ``exposure_time``
+   (s) give the mean signal in electrons.
+3. Photo-response non-uniformity: the signal times ``1 + prnu z`` with z a fixed standard
+   normal per pixel, keyed by the sensor seed only (the same pattern in every frame).
+4. Dark current ``dark_current`` (e-/s) times the exposure time joins the signal.
+5. Shot noise (``shot_noise``, on by default): Poisson in electrons (exact below 30 e-,
+   Gaussian sqrt(n) above it, where the two agree to better than 1 % in every moment).
+6. Full well ``full_well`` (e-): a pixel holds at most this many electrons (0: whatever
+   reaches the top DN).
+7. Read noise ``read_noise`` (e- rms, Gaussian).
+8. Gain and offset: ``DN = electrons / gain + bias`` (``gain`` e-/DN, ``bias`` DN), rounded
+   and clipped to ``bits`` (1-16; 8-bit images are uint8, deeper ones uint16).
 
-Noise is keyed by ``(seed, "sensor-shot"/"sensor-read", frame index, column, row)``, so a
-frame's noise does not depend on which other frames were rendered, and the same scenario and
-seed give the same bytes.
+Today's simple sensors keep working: a sensor with ``exposure`` (DN full scale per unit
+I/F, the I/F-calibrated mode of craterscape <= 0.1) maps I/F straight to electrons as
+``I/F exposure (2^bits - 1) gain`` with ``gain`` in e-/DN switching shot noise on (0: off,
+counted as 1 e-/DN) and ``read_noise`` in DN, so every old scenario renders as before, bias
+0 and full well at the top DN. Giving ``exposure_time`` (and optics) instead selects the
+physical chain; the two cannot be mixed.
+
+Rolling shutter: ``line_time`` (s) delays each row's exposure by that much after the row above
+(0: a global shutter); :mod:`render.motion` renders what moves during the exposures.
+
+Every noise draw is keyed by ``(seed, stream, frame index, column, row)``, so a frame's noise
+does not depend on which other frames were rendered, and the same scenario and seed give the
+same bytes.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from pathlib import Path
 
 import numpy as np
 
-from terrain.errors import InvalidParameterError
-from terrain.rng import check_seed, normal, stream_id
+from render.records import check_keys, number
+from terrain.errors import InvalidParameterError, MissingInputError
+from terrain.rng import check_seed, normal, stream_id, uniform
 
-__all__ = ["Sensor"]
+__all__ = ["PLANCK", "SPEED_OF_LIGHT", "Sensor"]
 
 STREAM_SHOT = stream_id("sensor-shot")
 STREAM_READ = stream_id("sensor-read")
+STREAM_PRNU = stream_id("sensor-prnu")
+
+#: Planck constant (J s) and speed of light (m/s), exact SI values (2019 redefinition).
+PLANCK = 6.62607015e-34
+SPEED_OF_LIGHT = 299_792_458.0
+#: Below this many electrons shot noise is drawn from the exact Poisson distribution.
+POISSON_EXACT_BELOW = 30.0
+
+_PHYSICAL = ("exposure_time", "aperture", "f_number", "pixel_pitch", "transmission", "qe",
+             "wavelength", "bandwidth", "dark_current", "prnu", "full_well", "bias")
 
 
 @dataclass(frozen=True)
 class Sensor:
-    """Sensor parameters (see the module docstring)."""
+    """Sensor parameters (see the module docstring for every field and its unit).
+
+    Built directly or by :meth:`from_mapping` (a scenario's ``[sensor]`` table or a server
+    request), which rejects unknown keys by name.
+    """
 
     bits: int = 8
     exposure: float = 5.0
@@ -42,47 +81,234 @@ class Sensor:
     gain: float = 0.0
     read_noise: float = 0.0
     seed: int = 0
+    exposure_time: float = 0.0
+    aperture: float = 0.0
+    f_number: float = 0.0
+    pixel_pitch: float = 0.0
+    transmission: float = 1.0
+    qe: float = 1.0
+    wavelength: float = 643.0
+    bandwidth: float = 1.0
+    dark_current: float = 0.0
+    prnu: float = 0.0
+    shot_noise: bool = True
+    full_well: float = 0.0
+    bias: float = 0.0
+    psf: tuple = ()
+    psf_kernel: str | None = None
+    line_time: float = 0.0
 
     def __post_init__(self):
-        if self.bits not in (8, 16):
-            raise InvalidParameterError(f"sensor bits must be 8 or 16; got {self.bits}")
-        for name in ("exposure", "psf_sigma", "gain", "read_noise"):
-            v = float(getattr(self, name))
-            if not (v >= 0 and math.isfinite(v)):
-                raise InvalidParameterError(f"sensor {name} must be >= 0; got {v}")
-            object.__setattr__(self, name, v)
-        if self.exposure == 0:
-            raise InvalidParameterError("sensor exposure must be positive")
+        if isinstance(self.bits, bool) or not isinstance(self.bits, (int, np.integer)) \
+                or not 1 <= int(self.bits) <= 16:
+            raise InvalidParameterError(f"sensor bits must be an integer in [1, 16]; got "
+                                        f"{self.bits!r}")
+        object.__setattr__(self, "bits", int(self.bits))
+        for name in ("exposure", "psf_sigma", "gain", "read_noise", "exposure_time", "aperture",
+                     "f_number", "pixel_pitch", "dark_current", "prnu", "full_well", "bias",
+                     "line_time"):
+            object.__setattr__(self, name, number(getattr(self, name), name, low=0.0,
+                                                  where="sensor"))
+        for name in ("transmission", "qe"):
+            object.__setattr__(self, name, number(getattr(self, name), name, low=0.0,
+                                                  high=1.0, low_open=True, where="sensor"))
+        for name in ("wavelength", "bandwidth"):
+            object.__setattr__(self, name, number(getattr(self, name), name, low=0.0,
+                                                  low_open=True, where="sensor"))
+        object.__setattr__(self, "shot_noise", bool(self.shot_noise))
         object.__setattr__(self, "seed", check_seed(self.seed))
+        if self.exposure == 0 and self.exposure_time == 0:
+            raise InvalidParameterError(
+                "sensor needs an exposure: exposure_time (s) for the physical chain, or "
+                "exposure (DN full scale per unit I/F)")
+        if self.exposure > 0 and self.exposure_time > 0:
+            raise InvalidParameterError(
+                "sensor takes exposure (I/F-calibrated) or exposure_time (physical), not both")
+        if self.physical:
+            if self.aperture == 0 and not (self.f_number > 0 and self.pixel_pitch > 0):
+                raise InvalidParameterError(
+                    "a physical sensor needs aperture (m) or f_number and pixel_pitch (um)")
+            if self.gain == 0:
+                raise InvalidParameterError("a physical sensor needs gain (e-/DN) > 0")
+        psf = []
+        for term in self.psf:
+            if np.shape(term) != (2,):
+                raise InvalidParameterError(
+                    f"sensor psf must be a list of [weight, sigma_pixels] pairs; got {term!r}")
+            w = number(term[0], "psf weight", low=0.0, low_open=True, where="sensor")
+            s = number(term[1], "psf sigma", low=0.0, where="sensor")
+            psf.append((w, s))
+        if self.psf_sigma > 0 and psf:
+            raise InvalidParameterError("sensor takes psf_sigma or psf, not both")
+        object.__setattr__(self, "psf", tuple(psf))
+        if self.psf_kernel is not None:
+            if psf or self.psf_sigma > 0:
+                raise InvalidParameterError("sensor takes psf_kernel or a Gaussian psf, not both")
+            object.__setattr__(self, "psf_kernel", str(self.psf_kernel))
+
+    # ------------------------------------------------------------------ records
+    @classmethod
+    def from_mapping(cls, mapping, *, seed: int = 0, base: Path | None = None) -> Sensor:
+        """A sensor from a ``[sensor]`` table; unknown keys are errors naming the nearest key.
+
+        ``base``: folder that a relative ``psf_kernel`` path is relative to.
+
+        >>> Sensor.from_mapping({"exposure_time": 0.01, "aperture": 0.02, "gain": 4.0}).physical
+        True
+        """
+        allowed = set(cls.__dataclass_fields__) - {"seed"}
+        m = check_keys(mapping, allowed, "scenario [sensor]")
+        if "psf" in m:
+            m["psf"] = tuple(tuple(t) if isinstance(t, (list, tuple)) else t for t in m["psf"])
+        if any(k in m for k in ("exposure_time", *_PHYSICAL)) and "exposure" not in m:
+            m["exposure"] = 0.0
+        if m.get("psf_kernel") is not None and base is not None:
+            p = Path(m["psf_kernel"])
+            m["psf_kernel"] = str(p if p.is_absolute() else base / p)
+        return cls(seed=seed, **m)
+
+    def as_dict(self) -> dict:
+        d = asdict(self)
+        d["psf"] = [list(t) for t in self.psf]
+        return d
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def physical(self) -> bool:
+        """True for the data-sheet chain (``exposure_time``), False for I/F-calibrated."""
+        return self.exposure == 0
 
     @property
     def full_scale(self) -> int:
         return 2**self.bits - 1
 
-    def expose(self, radiance: np.ndarray, frame: int = 0) -> np.ndarray:
-        """Digital image (uint8 or uint16) of an I/F image (NaN counts as black).
+    @property
+    def rolling(self) -> bool:
+        return self.line_time > 0
+
+    @property
+    def integration_time(self) -> float:
+        """Seconds each row integrates (the legacy mode has none: 0)."""
+        return self.exposure_time if self.physical else 0.0
+
+    def _gain(self) -> float:
+        return self.gain if self.gain > 0 else 1.0
+
+    def electrons_per_unit_if(self, intrinsics=None, spectral_irradiance: float = 1.58) -> float:
+        """Mean signal electrons per unit I/F in one pixel (before PRNU, dark and noise).
+
+        ``spectral_irradiance``: solar spectral irradiance at the body (W m^-2 nm^-1).
+        Physical mode: ``F / pi * bandwidth * A Omega * transmission * qe * t / (h c /
+        lambda)``; I/F-calibrated mode: ``exposure (2^bits - 1) gain``.
+        """
+        if not self.physical:
+            return self.exposure * self.full_scale * self._gain()
+        if self.aperture > 0:
+            if intrinsics is None:
+                raise InvalidParameterError(
+                    "a sensor given by its aperture needs the camera intrinsics (fx, fy)")
+            etendue = math.pi * self.aperture**2 / 4.0 / (intrinsics.fx * intrinsics.fy)
+        else:
+            etendue = math.pi * (self.pixel_pitch * 1e-6) ** 2 / (4.0 * self.f_number**2)
+        photon = PLANCK * SPEED_OF_LIGHT / (self.wavelength * 1e-9)
+        power = spectral_irradiance / math.pi * self.bandwidth * etendue * self.transmission
+        return power / photon * self.qe * self.exposure_time
+
+    def prnu_map(self, shape) -> np.ndarray:
+        """(h, w) float64 gain factors ``1 + prnu z``, the same for every frame (seed only)."""
+        h, w = shape
+        if self.prnu == 0:
+            return np.ones((h, w))
+        z = normal(self.seed, STREAM_PRNU, 0, np.arange(w)[None, :], np.arange(h)[:, None])
+        return np.maximum(1.0 + self.prnu * z, 0.0)
+
+    # ------------------------------------------------------------------ the chain
+    def blur(self, image: np.ndarray) -> np.ndarray:
+        """The optical image through the point-spread function (float64)."""
+        import cv2
+
+        x = np.asarray(image, dtype=np.float64)
+        if self.psf_sigma > 0:
+            return cv2.GaussianBlur(x, (0, 0), self.psf_sigma, borderType=cv2.BORDER_REFLECT)
+        if self.psf:
+            total = sum(w for w, _ in self.psf)
+            out = np.zeros_like(x)
+            for w, s in self.psf:
+                part = x if s == 0 else cv2.GaussianBlur(x, (0, 0), s,
+                                                         borderType=cv2.BORDER_REFLECT)
+                out += (w / total) * part
+            return out
+        if self.psf_kernel is not None:
+            k = _load_kernel(self.psf_kernel)
+            # filter2D correlates; flipping the kernel makes it a convolution
+            return cv2.filter2D(x, -1, k[::-1, ::-1].copy(), borderType=cv2.BORDER_REFLECT)
+        return x
+
+    def expose(self, radiance: np.ndarray, frame: int = 0, *, intrinsics=None,
+               spectral_irradiance: float = 1.58) -> np.ndarray:
+        """Digital image (uint8 for bits <= 8, else uint16) of an I/F image (NaN is black).
+
+        ``intrinsics`` and ``spectral_irradiance`` (W m^-2 nm^-1 at the body) set the photon
+        flux of a physical sensor; the I/F-calibrated mode ignores them.
 
         >>> Sensor(exposure=2.0).expose(np.array([[0.25, 0.5, 1.0]])).tolist()
         [[128, 255, 255]]
         """
-        import cv2
-
         x = np.nan_to_num(np.asarray(radiance, dtype=np.float64), nan=0.0)
-        if self.psf_sigma > 0:
-            x = cv2.GaussianBlur(x, (0, 0), self.psf_sigma, borderType=cv2.BORDER_REFLECT)
-        dn = x * self.exposure * self.full_scale
-        h, w = dn.shape
-        if self.gain > 0 or self.read_noise > 0:
-            cols = np.arange(w)[None, :]
-            rows = np.arange(h)[:, None]
-            if self.gain > 0:
-                electrons = np.maximum(dn, 0.0) * self.gain
-                dn = dn + np.sqrt(electrons) / self.gain * normal(
-                    self.seed, STREAM_SHOT, frame, cols, rows)
-            if self.read_noise > 0:
-                dn = dn + self.read_noise * normal(self.seed, STREAM_READ, frame, cols, rows)
-        out = np.clip(np.rint(dn), 0, self.full_scale)
-        return out.astype(np.uint8 if self.bits == 8 else np.uint16)
+        x = self.blur(x)
+        e = np.maximum(x, 0.0) * self.electrons_per_unit_if(intrinsics, spectral_irradiance)
+        return self.digitise(e, frame)
 
-    def as_dict(self) -> dict:
-        return asdict(self)
+    def digitise(self, electrons: np.ndarray, frame: int = 0) -> np.ndarray:
+        """Steps 3-8 of the chain on a mean-signal image in electrons."""
+        e = np.asarray(electrons, dtype=np.float64)
+        h, w = e.shape
+        cols = np.arange(w)[None, :]
+        rows = np.arange(h)[:, None]
+        if self.prnu > 0:
+            e = e * self.prnu_map((h, w))
+        if self.physical:
+            e = e + self.dark_current * self.exposure_time
+        shot = self.shot_noise and (self.physical or self.gain > 0)
+        if shot:
+            e = self._shot(e, frame, cols, rows)
+        gain = self._gain()
+        well = self.full_well if self.full_well > 0 else None
+        if well is not None:
+            e = np.minimum(e, well)
+        read_e = self.read_noise * (gain if not self.physical else 1.0)
+        if read_e > 0:
+            e = e + read_e * normal(self.seed, STREAM_READ, frame, cols, rows)
+        dn = e / gain + (self.bias if self.physical else 0.0)
+        out = np.clip(np.rint(dn), 0, self.full_scale)
+        return out.astype(np.uint8 if self.bits <= 8 else np.uint16)
+
+    def _shot(self, e, frame, cols, rows):
+        """Poisson electrons of mean ``e``: exact below :data:`POISSON_EXACT_BELOW`, else
+        Gaussian; one keyed uniform per pixel either way."""
+        from scipy.special import ndtri
+
+        u = uniform(self.seed, STREAM_SHOT, frame, cols, rows)
+        out = e + np.sqrt(e) * ndtri(u)
+        low = e < POISSON_EXACT_BELOW
+        if np.any(low):
+            from scipy.stats import poisson
+
+            out[low] = poisson.ppf(u[low], e[low])
+        return np.maximum(out, 0.0)
+
+
+def _load_kernel(path: str) -> np.ndarray:
+    p = Path(path)
+    if not p.exists():
+        raise MissingInputError(f"PSF kernel file '{p}' does not exist")
+    try:
+        k = np.load(p) if p.suffix == ".npy" else np.loadtxt(p, delimiter=None)
+    except ValueError as exc:
+        raise InvalidParameterError(f"PSF kernel file '{p}' is not a numeric table: {exc}") \
+            from None
+    k = np.atleast_2d(np.asarray(k, dtype=np.float64))
+    if k.ndim != 2 or not np.all(np.isfinite(k)) or k.sum() <= 0 or k.min() < 0:
+        raise InvalidParameterError(
+            f"PSF kernel '{p}' must be a 2-D table of finite values >= 0 with a positive sum")
+    return k / k.sum()

@@ -106,7 +106,8 @@ class TerrainScene:
 
     kind = "terrain"
 
-    def __init__(self, stack, *, curvature: bool = True, radius: float | None = None):
+    def __init__(self, stack, *, curvature: bool = True, radius: float | None = None,
+                 albedo_map=None):
         from terrain.layers import LayerStack, read_stack
 
         if not isinstance(stack, LayerStack):
@@ -129,6 +130,27 @@ class TerrainScene:
         self._ctx = None
         self._shadow_cache: dict = {}
         self.triangles_full = 0
+        self.albedo_map = None
+        self._albedo_gpu = None
+        if albedo_map is not None:
+            self.set_albedo_map(albedo_map)
+
+    def set_albedo_map(self, tile) -> None:
+        """Albedo factors over the terrain: a :class:`terrain.tile.DEMTile` (or a path any GDAL
+        raster reader opens) in the stack's map frame, whose values multiply the albedo (or
+        Hapke's w) of the surface beneath, bilinearly interpolated between pixel centres;
+        invalid pixels and ground outside the map keep a factor of 1 (edge values repeat)."""
+        from terrain.tile import DEMTile
+
+        if not isinstance(tile, DEMTile):
+            from terrain.io import read_dem
+
+            tile = read_dem(Path(tile))
+        a = np.where(tile.valid, tile.heights, 1.0).astype(np.float32)
+        if not np.all(np.isfinite(a)) or a.min() < 0:
+            raise InvalidParameterError("albedo map values must be finite and >= 0")
+        self.albedo_map = tile
+        self._albedo_gpu = None
 
     # ------------------------------------------------------------------ geometry
     def to_world(self, points) -> np.ndarray:
@@ -358,7 +380,26 @@ class TerrainScene:
                                           - cam, axis=1))) * 1.01 + 1.0
         drawn = {"layers": drawn_layers, "triangles": sum(d["triangles"] for d in drawn_layers),
                  "lod_pixels": target}
-        return FrameState(batches, far, drawn)
+        return FrameState(batches, far, drawn, albedo=self._albedo(renderer.ctx))
+
+    def _albedo(self, ctx):
+        """(texture, scene-local window) of the albedo map, uploaded once per context."""
+        if self.albedo_map is None:
+            return None
+        if self._albedo_gpu is None or self._albedo_gpu[0] is not ctx:
+            import moderngl
+
+            t = self.albedo_map
+            a = np.where(t.valid, t.heights, 1.0).astype(np.float32)[::-1]  # south row first
+            tex = ctx.texture((a.shape[1], a.shape[0]), 1, np.ascontiguousarray(a).tobytes(),
+                              dtype="f4")
+            tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            tex.repeat_x = tex.repeat_y = False
+            left, bottom, right, top = t.bounds
+            window = (left - self.origin[0], bottom - self.origin[1],
+                      right - self.origin[0], top - self.origin[1])
+            self._albedo_gpu = (ctx, tex, window)
+        return self._albedo_gpu[1], self._albedo_gpu[2]
 
     def _plan(self, visible, dist, focal, target):
         plan, total = [], 0

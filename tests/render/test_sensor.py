@@ -36,6 +36,6 @@ def test_psf_blurs_a_point():
 
 def test_bad_sensors():
     with pytest.raises(InvalidParameterError):
-        Sensor(bits=12)
+        Sensor(bits=17)
     with pytest.raises(InvalidParameterError):
         Sensor(exposure=0.0)
