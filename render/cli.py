@@ -79,7 +79,8 @@ def sequence(scenario_file, output, frames, resolution, resume):
 @click.option("--index", type=int, default=None, help="Trajectory frame to render (default 0).")
 @click.option("--resolution", type=RESOLUTION, default=None, help="Override the image size.")
 def frame(scenario_file, output, index, resolution):
-    """Render one view of a scenario: OUT.png, OUT_range.tif, OUT_normals.tif, OUT_truth.json."""
+    """Render one view of a scenario: OUT.png, OUT_range.tif, OUT_normals.tif, OUT_truth.json
+    (and OUT_radiance.tif where [output] radiance is on)."""
     from render.renderer import Renderer
     from render.scenario import load_scenario
     from render.sequence import load_scene, render_sample
@@ -94,13 +95,17 @@ def frame(scenario_file, output, index, resolution):
     index = 0 if index is None else index
     if not 0 <= index < len(samples):
         raise InvalidParameterError(f"--index must lie in [0, {len(samples) - 1}]; got {index}")
-    image, fr, truth = render_sample(Renderer(), scene, scenario, samples[index], index)
+    image, fr, truth = render_sample(Renderer(), scene, scenario, samples[index], index,
+                                     samples)
     stem = output.with_suffix("")
     write_png(image, output, inputs=[scenario_file])
     if scenario.outputs["range"]:
         write_float_tiff(fr.range, f"{stem}_range.tif", tags={"UNITS": "metre"})
     if scenario.outputs["normals"]:
         write_float_tiff(fr.normals, f"{stem}_normals.tif", tags={"FRAME": "world"})
+    if scenario.outputs.get("radiance"):
+        write_float_tiff(scenario.lighting.radiance(fr.radiance), f"{stem}_radiance.tif",
+                         tags={"UNITS": "W m-2 sr-1 nm-1"})
     with atomic_path(f"{stem}_truth.json") as tmp:
         tmp.write_text(json.dumps(truth.as_dict(), indent=2), encoding="utf-8")
     click.echo(f"wrote {output} (frame {index}, {fr.drawn.get('triangles', 0)} triangles)",

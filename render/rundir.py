@@ -9,6 +9,7 @@ Layout (``craterscape render sequence`` writes it; :mod:`evaluation` reads it)::
       frames/frame_NNNNNN.png     camera image, 8- or 16-bit grey, linear in radiance
       range/range_NNNNNN.tif      LIDAR range (float32 metres along the ray; NaN = no return)
       normals/normals_NNNNNN.tif  surface normals (3 bands, float32, world frame; NaN = none)
+      radiance/radiance_NNNNNN.tif  spectral radiance (float32, W m^-2 sr^-1 nm^-1), on request
 
 A truth entry::
 
@@ -19,7 +20,14 @@ A truth entry::
      "intrinsics": {"width": .., "height": .., "fx": .., "fy": .., "cx": .., "cy": ..},
      "sun": {"direction": [x, y, z]},            # unit vector towards the sun, world frame
      "body_rotation": [w, x, y, z],              # R_WB; identity for terrain scenes
-     "drawn": {...}}                             # layers / patches / boulders drawn
+     "drawn": {...},                             # layers / patches / boulders drawn
+     "motion": {"velocity": [..], "angular_velocity": [..], "body_angular_velocity": [..],
+                "exposure_time": .., "line_time": .., "samples": ..}}   # blurred frames only
+
+``time`` is when the exposure of the first row starts and ``camera`` the pose then. With
+motion, :meth:`FrameTruth.pose_at` gives the pose at any time and :meth:`FrameTruth.row_pose`
+the pose at a row's mid-exposure time (``time + row line_time + exposure_time / 2``), where a
+rolling-shutter row images the scene (see :mod:`render.motion`).
 
 Frames and conventions are those of :mod:`render.camera`. Every file is written atomically,
 so an interrupted run leaves complete frames and a truth file that lists exactly them.
@@ -57,12 +65,38 @@ class FrameTruth:
     image: str | None = None
     range: str | None = None
     normals: str | None = None
+    motion: dict | None = None
+    radiance: str | None = None
 
     def as_dict(self) -> dict:
-        return dict(index=self.index, time=self.time, image=self.image, range=self.range,
-                    normals=self.normals, camera=self.pose.as_dict(),
-                    intrinsics=self.intrinsics.as_dict(), sun={"direction": list(self.sun)},
-                    body_rotation=list(self.body_rotation), drawn=self.drawn)
+        d = dict(index=self.index, time=self.time, image=self.image, range=self.range,
+                 normals=self.normals, camera=self.pose.as_dict(),
+                 intrinsics=self.intrinsics.as_dict(), sun={"direction": list(self.sun)},
+                 body_rotation=list(self.body_rotation), drawn=self.drawn)
+        if self.motion is not None:
+            d["motion"] = self.motion
+        if self.radiance is not None:
+            d["radiance"] = self.radiance
+        return d
+
+    def pose_at(self, t: float) -> Pose:
+        """Camera pose at time ``t`` (s, same clock as :attr:`time`)."""
+        if not self.motion:
+            return self.pose
+        from render.motion import Motion
+
+        m = Motion(self.motion["velocity"], self.motion["angular_velocity"])
+        return m.pose_at(self.pose, t - self.time)
+
+    def row_time(self, row) -> float:
+        """Mid-exposure time of image row ``row`` (0 at the top)."""
+        m = self.motion or {}
+        return self.time + float(row) * m.get("line_time", 0.0) \
+            + 0.5 * m.get("exposure_time", 0.0)
+
+    def row_pose(self, row) -> Pose:
+        """Camera pose at row ``row``'s mid-exposure time (rolling-shutter truth per row)."""
+        return self.pose_at(self.row_time(row))
 
     @classmethod
     def from_dict(cls, d: dict) -> FrameTruth:
@@ -70,7 +104,8 @@ class FrameTruth:
                    Pose(tuple(d["camera"]["position"]), tuple(d["camera"]["attitude"])),
                    Intrinsics(**d["intrinsics"]), tuple(d["sun"]["direction"]),
                    tuple(d.get("body_rotation", (1.0, 0.0, 0.0, 0.0))), d.get("drawn", {}),
-                   d.get("image"), d.get("range"), d.get("normals"))
+                   d.get("image"), d.get("range"), d.get("normals"), d.get("motion"),
+                   d.get("radiance"))
 
 
 class RunWriter:
@@ -101,7 +136,7 @@ class RunWriter:
         return {int(f["index"]) for f in self.frames}
 
     def write_frame(self, truth: FrameTruth, image: np.ndarray, range_m: np.ndarray | None,
-                    normals: np.ndarray | None) -> None:
+                    normals: np.ndarray | None, radiance: np.ndarray | None = None) -> None:
         i = truth.index
         names = dict(image=f"frames/frame_{i:06d}.png")
         write_png(image, self.dir / names["image"])
@@ -112,9 +147,15 @@ class RunWriter:
             names["normals"] = f"normals/normals_{i:06d}.tif"
             write_float_tiff(normals, self.dir / names["normals"],
                              tags={"FRAME": "world", "BANDS": "nx,ny,nz"})
+        if radiance is not None:
+            names["radiance"] = f"radiance/radiance_{i:06d}.tif"
+            (self.dir / "radiance").mkdir(exist_ok=True)
+            write_float_tiff(radiance, self.dir / names["radiance"],
+                             tags={"UNITS": "W m-2 sr-1 nm-1"})
         entry = FrameTruth(truth.index, truth.time, truth.pose, truth.intrinsics, truth.sun,
                            truth.body_rotation, truth.drawn, names["image"],
-                           names.get("range"), names.get("normals")).as_dict()
+                           names.get("range"), names.get("normals"), truth.motion,
+                           names.get("radiance")).as_dict()
         self.frames = [f for f in self.frames if int(f["index"]) != i] + [entry]
         self.frames.sort(key=lambda f: int(f["index"]))
         with atomic_path(self.dir / "truth.json") as tmp:

@@ -15,22 +15,37 @@ trajectory. Paths are relative to the scenario file. Example (``examples/lunar_d
     [sun]
     azimuth = 90.0                   # degrees clockwise from north (terrain) ...
     elevation = 5.0                  # ... above the horizon; or direction = [x, y, z]
+    distance = 1.0                   # the body's distance from the Sun (au)
+    irradiance = 1.58                # solar spectral irradiance at 1 au (W m^-2 nm^-1)
 
     [surface]
     albedo = 0.12
-    reflectance = "lunar-lambert"    # "lambert", "lommel-seeliger", "lunar-lambert"
+    reflectance = "lunar-lambert"    # "lambert", "lommel-seeliger", "lunar-lambert", "hapke"
+    # albedo_map = "albedo.tif"      # terrain: a raster of albedo factors in the map frame
+    # Hapke (reflectance = "hapke"): w, b, c, bs0, hs, bc0, hc, theta_bar (deg), phi;
+    # defaults: Sato et al. 2014, LROC WAC 643 nm (render.reflectance.SATO_643NM)
 
     [camera]
     width = 1024
     height = 1024
     fov = 60.0                       # horizontal, degrees; or fx, fy, cx, cy
 
-    [sensor]
+    [sensor]                         # I/F-calibrated (see render.sensor) ...
     bits = 8
     exposure = 5.0                   # DN full scale per unit I/F
     psf_sigma = 0.5                  # pixels
     gain = 20.0                      # electrons per DN (shot noise; 0 off)
     read_noise = 1.0                 # DN rms
+    # ... or from a data sheet: exposure_time (s), aperture (m) or f_number and
+    # pixel_pitch (um), transmission, qe, wavelength and bandwidth (nm), dark_current (e-/s),
+    # prnu, shot_noise, read_noise (e-), full_well (e-), gain (e-/DN), bias (DN), bits,
+    # psf = [[weight, sigma_px], ...] or psf_kernel = "file.npy", line_time (s, rolling)
+
+    [motion]                         # optional: blur from motion during the exposure
+    blur = true
+    # velocity = [vx, vy, vz]        # m/s, world; default: from the trajectory
+    # angular_velocity = [wx, wy, wz]  # rad/s, world; default: from the trajectory
+    # samples = 0                    # sub-frames per exposure (0: automatic)
 
     [render]
     shadows = true
@@ -41,6 +56,7 @@ trajectory. Paths are relative to the scenario file. Example (``examples/lunar_d
     [output]
     range = true
     normals = true
+    radiance = false                 # also radiance/radiance_NNNNNN.tif, W m^-2 sr^-1 nm^-1
 
     [trajectory]
     type = "descent"                 # "descent", "keyframes" or "approach"
@@ -60,13 +76,14 @@ Keyframes: ``[[trajectory.keyframe]]`` tables with ``time``, ``position`` and ``
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from render.camera import Intrinsics
-from render.reflectance import check_brdf
+from render.motion import Motion
+from render.reflectance import Hapke, check_brdf
 from render.renderer import Lighting, RenderOptions
 from render.sensor import Sensor
 from render.trajectory import Sample, approach, descent, keyframes
@@ -77,7 +94,8 @@ from terrain.tomlfile import read_toml
 __all__ = ["Scenario", "load_scenario"]
 
 _SECTIONS = {"name", "seed", "scene", "sun", "surface", "camera", "sensor", "render", "output",
-             "trajectory", "description"}
+             "trajectory", "description", "motion"}
+_HAPKE_KEYS = set(Hapke.__dataclass_fields__)
 
 
 def _section(data: dict, name: str, allowed: set[str]) -> dict:
@@ -118,6 +136,7 @@ class Scenario:
     outputs: dict
     trajectory: dict
     raw: dict = field(default_factory=dict)
+    motion: dict = field(default_factory=dict)   # {"blur": bool, "motion": Motion | None}
 
     def resolve(self, value) -> Path:
         """A path from the scenario, relative to the scenario file."""
@@ -139,8 +158,7 @@ class Scenario:
             sx, sy = w / k.width, h / k.height
             k = Intrinsics(w, h, k.fx * sx, k.fy * sy, (k.cx + 0.5) * sx - 0.5,
                            (k.cy + 0.5) * sy - 0.5)
-        return Scenario(self.name, self.path, self.seed, self.scene, self.lighting, k,
-                        self.sensor, self.options, self.outputs, traj, self.raw)
+        return replace(self, intrinsics=k, trajectory=traj)
 
     def samples(self, scene) -> list[Sample]:
         """The trajectory's frames for a loaded scene."""
@@ -194,11 +212,18 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
     if scene["type"] == "asteroid" and "body" not in scene:
         raise InvalidParameterError("scenario [scene] needs 'body' (an asteroid .npz)")
 
-    sun = _section(data, "sun", {"azimuth", "elevation", "direction"})
-    surface = _section(data, "surface", {"albedo", "reflectance", "mcewen"})
+    sun = _section(data, "sun", {"azimuth", "elevation", "direction", "distance", "irradiance"})
+    surface = _section(data, "surface", {"albedo", "reflectance", "mcewen", "albedo_map"}
+                       | _HAPKE_KEYS)
     brdf = check_brdf(surface.get("reflectance", "lunar-lambert"))
     albedo = _number(surface, "albedo", 0.12, "surface")
     extra = {"mcewen": tuple(surface["mcewen"])} if "mcewen" in surface else {}
+    extra["hapke"] = Hapke.from_mapping({k: v for k, v in surface.items() if k in _HAPKE_KEYS})
+    for key in ("distance", "irradiance"):
+        if key in sun:
+            extra[key] = _number(sun, key, None, "sun", positive=True)
+    if "albedo_map" in surface:
+        scene = dict(scene, albedo_map=str(surface["albedo_map"]))
     if "direction" in sun:
         lighting = Lighting(tuple(sun["direction"]), albedo, brdf, **extra)
     else:
@@ -216,17 +241,24 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
     else:
         intrinsics = Intrinsics.from_fov(w, h, _number(cam, "fov", 60.0, "camera", True))
 
-    sen = _section(data, "sensor", {"bits", "exposure", "psf_sigma", "gain", "read_noise"})
-    sensor = Sensor(bits=int(sen.get("bits", 8)), exposure=float(sen.get("exposure", 5.0)),
-                    psf_sigma=float(sen.get("psf_sigma", 0.0)), gain=float(sen.get("gain", 0.0)),
-                    read_noise=float(sen.get("read_noise", 0.0)), seed=seed)
+    sen = data.get("sensor", {})
+    sensor = Sensor.from_mapping(sen, seed=seed, base=path.parent if path else None)
+    mot = dict(_section(data, "motion", {"blur", *Motion.__dataclass_fields__}))
+    blur = mot.pop("blur", bool(mot))
+    if not isinstance(blur, bool):
+        raise InvalidParameterError(f"scenario [motion] blur must be true or false; got {blur!r}")
+    motion = {"blur": blur or sensor.rolling,
+              "given": sorted(k for k in mot if k in ("velocity", "angular_velocity",
+                                                      "body_angular_velocity")),
+              "motion": Motion.from_mapping(mot)}
     ren = _section(data, "render", {"shadows", "shadow_size", "lod_pixels", "triangle_budget"})
     options = RenderOptions(shadows=bool(ren.get("shadows", True)),
                             shadow_size=int(ren.get("shadow_size", 2048)),
                             lod_pixels=float(ren.get("lod_pixels", 1.5)),
                             triangle_budget=int(ren.get("triangle_budget", 3_000_000)))
-    out = _section(data, "output", {"range", "normals"})
-    outputs = {"range": bool(out.get("range", True)), "normals": bool(out.get("normals", True))}
+    out = _section(data, "output", {"range", "normals", "radiance"})
+    outputs = {"range": bool(out.get("range", True)), "normals": bool(out.get("normals", True)),
+               "radiance": bool(out.get("radiance", False))}
 
     traj = _section(data, "trajectory", {"type", "frames", "duration", "start_altitude",
                                          "end_altitude", "ground_track", "look", "site",
@@ -252,4 +284,4 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
     if "ground_track" in traj and np.asarray(traj["ground_track"]).shape != (2,):
         raise InvalidParameterError("scenario trajectory.ground_track must be [dx, dy]")
     return Scenario(name, path, seed, scene, lighting, intrinsics, sensor, options, outputs,
-                    dict(traj), data)
+                    dict(traj), data, motion)

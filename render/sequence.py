@@ -10,15 +10,17 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from render.context import describe
+from render.motion import Motion, render_exposure, trajectory_velocities
 from render.renderer import Renderer, View
 from render.rundir import FrameTruth, RunWriter
 from render.scenario import Scenario
 from terrain.errors import InvalidParameterError
 
-__all__ = ["load_scene", "render_sample", "run_sequence"]
+__all__ = ["frame_motion", "load_scene", "render_sample", "run_sequence"]
 
 log = logging.getLogger(__name__)
 
@@ -30,23 +32,59 @@ def load_scene(scenario: Scenario):
         from render.terrain_scene import TerrainScene
 
         stack = scenario.resolve(spec["stack"])
+        albedo = spec.get("albedo_map")
         return TerrainScene(stack, curvature=bool(spec.get("curvature", True)),
-                            radius=spec.get("radius"))
+                            radius=spec.get("radius"),
+                            albedo_map=None if albedo is None else scenario.resolve(albedo))
     from render.asteroid_scene import AsteroidScene
 
     return AsteroidScene(scenario.resolve(spec["body"]), boulders=bool(spec.get("boulders", True)),
                          imposter_pixels=float(spec.get("imposter_pixels", 24.0)))
 
 
-def render_sample(renderer: Renderer, scene, scenario: Scenario, sample, index: int):
-    """Render one trajectory sample: (digital image, Frame, FrameTruth)."""
+def frame_motion(scenario: Scenario, samples, index: int):
+    """The :class:`render.motion.Motion` of frame ``index``: the scenario's ``[motion]``
+    velocities where given, the trajectory's (central differences) otherwise; None when the
+    scenario asks for no motion blur and has no rolling shutter."""
+    spec = scenario.motion or {}
+    if not spec.get("blur"):
+        return None
+    given = spec["motion"]
+    from_traj = trajectory_velocities(samples, index) if samples else Motion()
+    fields = {k: getattr(given if k in spec.get("given", ()) else from_traj, k)
+              for k in ("velocity", "angular_velocity", "body_angular_velocity")}
+    return replace(given, **fields)
+
+
+def render_sample(renderer: Renderer, scene, scenario: Scenario, sample, index: int,
+                  samples=None, *, motion=None):
+    """Render one trajectory sample: (digital image, Frame, FrameTruth).
+
+    ``samples`` (the whole trajectory) supplies the velocities of motion blur (see
+    :func:`frame_motion`); ``motion`` (a :class:`render.motion.Motion`) overrides them for
+    this frame. The frame's radiance is the I/F the sensor integrated; range and normals
+    are those at the frame time.
+    """
     view = View(sample.pose, scenario.intrinsics, sample.time)
-    if hasattr(scene, "set_body_rotation"):
-        scene.set_body_rotation(sample.body_rotation)
-    frame = renderer.render(scene, view, scenario.lighting, scenario.options)
-    image = scenario.sensor.expose(frame.radiance, frame=index)
+    if motion is None:
+        motion = frame_motion(scenario, samples, index)
+    sensor, lighting = scenario.sensor, scenario.lighting
+    moving = None
+    if motion is None and not sensor.rolling:
+        if hasattr(scene, "set_body_rotation"):
+            scene.set_body_rotation(sample.body_rotation)
+        frame = renderer.render(scene, view, lighting, scenario.options)
+    else:
+        motion = motion or Motion()
+        rad, frame, info = render_exposure(renderer, scene, view, lighting, scenario.options,
+                                           sensor, motion, sample.body_rotation)
+        frame.radiance = rad
+        moving = dict(motion.as_dict(), exposure_time=sensor.integration_time,
+                      line_time=sensor.line_time, samples=info["samples"])
+    image = sensor.expose(frame.radiance, frame=index, intrinsics=scenario.intrinsics,
+                          spectral_irradiance=lighting.spectral_irradiance)
     truth = FrameTruth(index, sample.time, sample.pose, scenario.intrinsics,
-                       scenario.lighting.sun, tuple(sample.body_rotation), frame.drawn)
+                       lighting.sun, tuple(sample.body_rotation), frame.drawn, motion=moving)
     return image, frame, truth
 
 
@@ -63,7 +101,11 @@ def run_sequence(scenario: Scenario, run_dir, *, resume: bool = False, progress=
                     seed=scenario.seed, sensor=scenario.sensor.as_dict(),
                     lighting=dict(sun=list(scenario.lighting.sun),
                                   albedo=scenario.lighting.albedo,
-                                  reflectance=scenario.lighting.brdf),
+                                  reflectance=scenario.lighting.brdf,
+                                  **({"hapke": scenario.lighting.hapke.as_dict()}
+                                     if scenario.lighting.brdf == "hapke" else {}),
+                                  distance_au=scenario.lighting.distance,
+                                  spectral_irradiance=scenario.lighting.spectral_irradiance),
                     renderer=describe())
     writer = RunWriter(run_dir, manifest, scenario.path, resume=resume)
     done = writer.done()
@@ -72,10 +114,12 @@ def run_sequence(scenario: Scenario, run_dir, *, resume: bool = False, progress=
     for i, sample in enumerate(samples):
         if i in done:
             continue
-        image, frame, truth = render_sample(renderer, scene, scenario, sample, i)
+        image, frame, truth = render_sample(renderer, scene, scenario, sample, i, samples)
         writer.write_frame(truth, image,
                            frame.range if scenario.outputs["range"] else None,
-                           frame.normals if scenario.outputs["normals"] else None)
+                           frame.normals if scenario.outputs["normals"] else None,
+                           scenario.lighting.radiance(frame.radiance)
+                           if scenario.outputs.get("radiance") else None)
         rendered += 1
         if progress is not None:
             progress(i + 1, len(samples), rendered / max(time.perf_counter() - t0, 1e-9))
