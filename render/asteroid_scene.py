@@ -67,6 +67,7 @@ class _BodyLod:
     firsts: np.ndarray
     counts: np.ndarray
     vaos: dict
+    abo: object = None    # per-vertex albedo factors (float32) or None
 
 
 @dataclass(eq=False)
@@ -92,7 +93,8 @@ class AsteroidScene:
 
     kind = "asteroid"
 
-    def __init__(self, body, *, boulders: bool = True, imposter_pixels: float = 24.0):
+    def __init__(self, body, *, boulders: bool = True, imposter_pixels: float = 24.0,
+                 albedo=None):
         from asteroid.body import Body, NativeModel, load_native
         from asteroid.build import boulders_of
 
@@ -123,6 +125,26 @@ class AsteroidScene:
         self._gpu: dict = {}
         self._shadow: ShadowMap | None = None
         self._fine: list = []
+        self.albedo = None
+        if albedo is not None:
+            if isinstance(albedo, (str, Path)):
+                albedo = np.load(Path(albedo))
+            a = np.asarray(albedo, dtype=np.float64).reshape(-1)
+            if a.shape != (body.mesh.n_vertices,) or not np.all(np.isfinite(a)) or a.min() < 0:
+                raise InvalidParameterError(
+                    f"an asteroid albedo map needs one finite value >= 0 per body vertex "
+                    f"({body.mesh.n_vertices}); got {a.shape}")
+            self.albedo = a
+
+    def _albedo_on(self, mesh):
+        """The body's per-vertex albedo factors carried to another level's vertices
+        (interpolated inside the fine triangle holding each direction), or None."""
+        if self.albedo is None:
+            return None
+        if mesh.magnitude == self.body.magnitude:
+            return self.albedo.astype(np.float32)
+        _, idx, w = self.body.mesh.locate(mesh.directions())
+        return ((self.albedo[idx] * w).sum(axis=1) / w.sum(axis=1)).astype(np.float32)
 
     # ------------------------------------------------------------------ geometry
     def set_body_rotation(self, quaternion) -> None:
@@ -174,9 +196,11 @@ class AsteroidScene:
                                                      axis=1)))
             vbo = ctx.buffer(np.hstack([verts, normals]).astype(np.float32).tobytes())
             ibo = ctx.buffer(faces.astype(np.uint32).tobytes())
+            albedo = self._albedo_on(mesh)
+            abo = None if albedo is None else ctx.buffer(albedo.tobytes())
             lods.append(_BodyLod(mag, spacing, len(faces), vbo, ibo,
                                  tree.spheres[leaves, :3].copy(), tree.spheres[leaves, 3].copy(),
-                                 np.array(firsts), np.array(counts), {}))
+                                 np.array(firsts), np.array(counts), {}, abo))
         levels = []
         if self.boulders is not None and len(self.boulders):
             # coarse levels for every boulder up front; finer ones only for the boulders a
@@ -197,7 +221,8 @@ class AsteroidScene:
     def _vaos(renderer, item):
         key = renderer.token
         if key not in item.vaos:
-            item.vaos[key] = renderer.vertex_arrays(item.vbo, item.ibo)
+            item.vaos[key] = renderer.vertex_arrays(item.vbo, item.ibo,
+                                                    getattr(item, "abo", None))
         return item.vaos[key]
 
     # ------------------------------------------------------------------ per frame
@@ -232,7 +257,7 @@ class AsteroidScene:
                                       levels)
         tris = int(body.counts[patches].sum()) // 3
         batches = [DrawBatch(vao, dvao, ranges, world_from_model=self.rotation, shadow=shadow,
-                             triangles=tris)]
+                             triangles=tris, vertex_albedo=body.abo is not None)]
         drawn = {"body_magnitude": body.magnitude, "patches": int(patches.size),
                  "patches_total": int(len(body.radii)), "triangles": tris, "imposter": False}
         b_tris, counts = self._boulder_batches(batches, levels, view, options, renderer,

@@ -38,8 +38,10 @@ def load_scene(scenario: Scenario):
                             albedo_map=None if albedo is None else scenario.resolve(albedo))
     from render.asteroid_scene import AsteroidScene
 
+    albedo = spec.get("albedo_map")
     return AsteroidScene(scenario.resolve(spec["body"]), boulders=bool(spec.get("boulders", True)),
-                         imposter_pixels=float(spec.get("imposter_pixels", 24.0)))
+                         imposter_pixels=float(spec.get("imposter_pixels", 24.0)),
+                         albedo=None if albedo is None else scenario.resolve(albedo))
 
 
 def frame_motion(scenario: Scenario, samples, index: int):
