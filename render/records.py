@@ -10,6 +10,8 @@ from __future__ import annotations
 import difflib
 import math
 
+import numpy as np
+
 from terrain.errors import InvalidParameterError
 
 __all__ = ["check_keys", "number"]
@@ -22,11 +24,13 @@ def check_keys(mapping, allowed, where: str) -> dict:
     {'gain': 2.0}
     """
     if not isinstance(mapping, dict):
-        raise InvalidParameterError(f"{where} must be a table of keys; got {type(mapping).__name__}")
+        raise InvalidParameterError(
+            f"{where} must be a table of keys; got {type(mapping).__name__}")
     for key in mapping:
         if key not in allowed:
             near = difflib.get_close_matches(str(key), sorted(allowed), n=1)
-            hint = f"; did you mean {near[0]!r}?" if near else f"; expected one of {sorted(allowed)}"
+            hint = (f"; did you mean {near[0]!r}?" if near
+                    else f"; expected one of {sorted(allowed)}")
             raise InvalidParameterError(f"{where} has an unknown key {key!r}{hint}")
     return dict(mapping)
 
@@ -34,16 +38,9 @@ def check_keys(mapping, allowed, where: str) -> dict:
 def number(value, name: str, *, low=None, high=None, low_open=False, where: str = "") -> float:
     """``value`` as a finite float in [low, high] (``low_open``: strictly above low)."""
     label = f"{where} {name}".strip()
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        try:
-            import numpy as np
-
-            if isinstance(value, np.generic) and np.isreal(value):
-                value = float(value)
-            else:
-                raise TypeError
-        except TypeError:
-            raise InvalidParameterError(f"{label} must be a number; got {value!r}") from None
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer,
+                                                                      np.floating)):
+        raise InvalidParameterError(f"{label} must be a number; got {value!r}")
     v = float(value)
     if not math.isfinite(v):
         raise InvalidParameterError(f"{label} must be finite; got {v}")

@@ -40,10 +40,10 @@ implementation written from the papers).
 
 from __future__ import annotations
 
-import numpy as np
-
 import math
 from dataclasses import asdict, dataclass
+
+import numpy as np
 
 from render.records import check_keys, number
 from terrain.errors import InvalidParameterError

@@ -10,9 +10,9 @@ from render.camera import Intrinsics, look_at
 from render.reflectance import MCEWEN_MOON, SATO_643NM, Hapke, hapke
 from render.renderer import Lighting, RenderOptions, View
 from render.terrain_scene import TerrainScene
+from terrain.errors import InvalidParameterError
 from terrain.layers import LayerStack
 from terrain.tile import DEMTile
-from terrain.errors import InvalidParameterError
 
 
 def hapke_from_the_papers(i, e, g, w, b, c, bs0, hs, bc0, hc, theta_deg, phi):
@@ -122,7 +122,7 @@ def test_rendered_hapke_matches_the_formula_over_a_grid_of_angles(renderer, flat
                 want = np.array([hapke_from_the_papers(i, ee, gg, params.w, params.b, params.c,
                                                        params.bs0, params.hs, params.bc0,
                                                        params.hc, params.theta_bar, params.phi)
-                                 for ee, gg in zip(e, g)])
+                                 for ee, gg in zip(e, g, strict=True)])
                 got = fr.radiance[ok].astype(np.float64)
                 worst = max(worst, float(np.max(np.abs(got - want) / want)))
                 seen.append((math.degrees(i), np.degrees(e).mean(), np.degrees(g).mean()))
