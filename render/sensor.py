@@ -13,6 +13,11 @@ numbers the way a camera does, each step a ``[sensor]`` key with the unit of a d
    ``f_number`` N and ``pixel_pitch`` p (um); ``transmission`` of the optics, quantum
    efficiency ``qe`` at ``wavelength`` (nm; photon energy h c / lambda) and ``exposure_time``
    (s) give the mean signal in electrons.
+   ``natural_vignetting`` (off by default) scales pixels off the axis by cos^4 of their field
+   angle (the projected aperture and pixel solid angle of an ideal thin lens).
+   ``transfer_time`` (s, 0: none) adds frame-transfer smear: while a frame-transfer CCD shifts
+   its image to the store, every pixel spends ``transfer_time / rows`` under each row of its
+   column, collecting ``transfer_time / (rows exposure_time)`` of the column's summed signal.
 3. Photo-response non-uniformity: the signal times ``1 + prnu z`` with z a fixed standard
    normal per pixel, keyed by the sensor seed only (the same pattern in every frame).
 4. Dark current ``dark_current`` (e-/s) times the exposure time joins the signal.
@@ -64,7 +69,8 @@ SPEED_OF_LIGHT = 299_792_458.0
 POISSON_EXACT_BELOW = 30.0
 
 _PHYSICAL = ("exposure_time", "aperture", "f_number", "pixel_pitch", "transmission", "qe",
-             "wavelength", "bandwidth", "dark_current", "prnu", "full_well", "bias")
+             "wavelength", "bandwidth", "dark_current", "prnu", "full_well", "bias",
+             "natural_vignetting", "transfer_time")
 
 
 @dataclass(frozen=True)
@@ -97,6 +103,8 @@ class Sensor:
     psf: tuple = ()
     psf_kernel: str | None = None
     line_time: float = 0.0
+    natural_vignetting: bool = False
+    transfer_time: float = 0.0
 
     def __post_init__(self):
         if isinstance(self.bits, bool) or not isinstance(self.bits, (int, np.integer)) \
@@ -106,7 +114,7 @@ class Sensor:
         object.__setattr__(self, "bits", int(self.bits))
         for name in ("exposure", "psf_sigma", "gain", "read_noise", "exposure_time", "aperture",
                      "f_number", "pixel_pitch", "dark_current", "prnu", "full_well", "bias",
-                     "line_time"):
+                     "line_time", "transfer_time"):
             object.__setattr__(self, name, number(getattr(self, name), name, low=0.0,
                                                   where="sensor"))
         for name in ("transmission", "qe"):
@@ -115,7 +123,11 @@ class Sensor:
         for name in ("wavelength", "bandwidth"):
             object.__setattr__(self, name, number(getattr(self, name), name, low=0.0,
                                                   low_open=True, where="sensor"))
-        object.__setattr__(self, "shot_noise", bool(self.shot_noise))
+        for name in ("shot_noise", "natural_vignetting"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise InvalidParameterError(
+                    f"sensor {name} must be true or false; got {getattr(self, name)!r}")
+            object.__setattr__(self, name, bool(getattr(self, name)))
         object.__setattr__(self, "seed", check_seed(self.seed))
         if self.exposure == 0 and self.exposure_time == 0:
             raise InvalidParameterError(
@@ -257,7 +269,22 @@ class Sensor:
         x = np.nan_to_num(np.asarray(radiance, dtype=np.float64), nan=0.0)
         x = self.blur(x)
         e = np.maximum(x, 0.0) * self.electrons_per_unit_if(intrinsics, spectral_irradiance)
+        if self.physical and self.natural_vignetting:
+            e = e * self.vignetting(e.shape, intrinsics)
+        if self.physical and self.transfer_time > 0:
+            e = e + self.transfer_time / (e.shape[0] * self.exposure_time) * e.sum(
+                axis=0, keepdims=True)
         return self.digitise(e, frame)
+
+    def vignetting(self, shape, intrinsics=None) -> np.ndarray:
+        """(h, w) cos^4 of each pixel's field angle (needs the intrinsics)."""
+        if intrinsics is None:
+            raise InvalidParameterError("natural vignetting needs the camera intrinsics")
+        h, w = shape
+        k = intrinsics
+        x = (np.arange(w)[None, :] - k.cx) / k.fx
+        y = (np.arange(h)[:, None] - k.cy) / k.fy
+        return 1.0 / (1.0 + x * x + y * y) ** 2
 
     def digitise(self, electrons: np.ndarray, frame: int = 0) -> np.ndarray:
         """Steps 3-8 of the chain on a mean-signal image in electrons."""

@@ -169,3 +169,26 @@ def test_bad_sensor_tables_name_the_key():
         Sensor.from_mapping({"exposure_time": 0.01, "gain": 1.0})
     with pytest.raises(InvalidParameterError, match="qe"):
         Sensor.from_mapping({"exposure_time": 0.01, "aperture": 0.01, "gain": 1.0, "qe": 1.5})
+
+
+def test_frame_transfer_smear_and_natural_vignetting():
+    k = Intrinsics.from_fov(64, 48, 50.0)
+    s = Sensor.from_mapping(dict(exposure_time=0.01, aperture=0.002, gain=1.0, bits=16,
+                                 shot_noise=False, transfer_time=0.0048))
+    spot = 20000.0  # electrons
+    img = np.zeros((48, 64))
+    img[10, 20] = spot / s.electrons_per_unit_if(k)
+    dn = s.expose(img, 0, intrinsics=k).astype(float)
+    streak = 0.0048 / (48 * 0.01) * spot  # 1/100 of the spot's charge in every row of its column
+    assert np.allclose(np.delete(dn[:, 20], 10), streak, atol=0.5)
+    assert dn[10, 20] == pytest.approx(spot + streak, abs=0.5)
+    assert np.all(np.delete(dn, 20, axis=1) == 0)
+    v = Sensor.from_mapping(dict(exposure_time=0.01, aperture=0.002, gain=1.0, bits=16,
+                                 shot_noise=False, natural_vignetting=True))
+    level = 30000.0
+    out = v.expose(np.full((48, 64), level / v.electrons_per_unit_if(k)), 0,
+                   intrinsics=k).astype(float)
+    corner = math.atan(math.hypot(k.cx / k.fx, k.cy / k.fy))  # field angle of pixel (0, 0)
+    assert out[0, 0] / level == pytest.approx(math.cos(corner) ** 4, abs=1e-4)
+    centre = math.atan(math.hypot((32 - k.cx) / k.fx, (24 - k.cy) / k.fy))
+    assert out[24, 32] / level == pytest.approx(math.cos(centre) ** 4, abs=1e-4)
