@@ -14,7 +14,8 @@ sub-frame times spread evenly over the whole span (mid-points of N equal interva
 row averages the sub-frames weighted by how much of their interval falls inside its own window.
 N is chosen so that no image point moves more than :data:`MAX_STEP_PIXELS` between sub-frames
 (estimated from the velocities, the nearest range and the focal length), capped by
-``max_samples``; a still camera with a global shutter needs one.
+``max_samples``; a still camera with a global shutter, or one whose image moves less than that
+during the exposure, takes the frame time's render alone.
 
 Truth: :meth:`Motion.pose_at` gives the pose at any time, and :func:`row_time` the mid-exposure
 time of a row, where the row's image is centred; the run directory stores the motion with each
@@ -198,6 +199,8 @@ def render_exposure(renderer, scene, view, lighting, options, sensor, motion: Mo
         n = int(min(max(math.ceil(moved / MAX_STEP_PIXELS), 1), motion.max_samples))
         if line > 0:
             n = max(n, 2)
+    if n == 1 and line == 0:  # the image moves < MAX_STEP_PIXELS: the frame time's render
+        return first.radiance, first, {"samples": 1, "times": [0.0]}
     step = span / n
     times = (np.arange(n) + 0.5) * step
     weights = _row_weights(k.height, times, step, t_exp, line)

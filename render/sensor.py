@@ -319,10 +319,25 @@ class Sensor:
         out = e + np.sqrt(e) * ndtri(u)
         low = e < POISSON_EXACT_BELOW
         if np.any(low):
-            from scipy.stats import poisson
-
-            out[low] = poisson.ppf(u[low], e[low])
+            out[low] = _poisson_inverse(u[low], e[low])
         return np.maximum(out, 0.0)
+
+
+def _poisson_inverse(u: np.ndarray, lam: np.ndarray) -> np.ndarray:
+    """Smallest k with P(K <= k) >= u for Poisson means ``lam`` < 30 (inverse transform,
+    summing the probability mass term by term; exact up to float64 rounding)."""
+    p = np.exp(-lam)
+    cdf = p.copy()
+    k = np.zeros_like(lam)
+    todo = u > cdf
+    n = 0
+    while np.any(todo) and n < 200:
+        n += 1
+        p = p * lam / n
+        cdf = cdf + p
+        k[todo] = n
+        todo &= u > cdf
+    return k
 
 
 def _load_kernel(path: str) -> np.ndarray:

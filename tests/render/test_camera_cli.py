@@ -88,3 +88,13 @@ def test_bad_hapke_key_is_a_one_line_error(tmp_path, stack_dir):  # noqa: F811
     text = sc.read_text()
     sc.write_text(text.replace('reflectance = "hapke"', 'reflectance = "hapke"\nw0 = 0.3'))
     one_line_error(run("render", "frame", sc, "-o", tmp_path / "x.png"), "w0")
+
+
+def test_the_camera_example_parses():
+    from pathlib import Path
+
+    from render.scenario import load_scenario
+
+    s = load_scenario(Path(__file__).parents[2] / "examples" / "lunar_descent_camera.toml")
+    assert s.sensor.physical and s.lighting.brdf == "hapke" and s.motion["blur"]
+    assert s.outputs["radiance"] and s.sensor.psf == ((0.85, 0.6), (0.15, 2.5))
