@@ -27,8 +27,9 @@ H-function, the porosity factor K (1 unless a filling factor ``phi`` is given, H
 the macroscopic-roughness correction of Hapke (1984, Icarus 59, 41) that turns mu0, mu into the
 effective mu0e, mue and multiplies by the shadowing function S. :data:`SATO_643NM` holds the
 lunar defaults (Sato et al. 2014, WAC 643 nm band: w 0.222, b 0.254, c 0.160, Bs0 1.993,
-hs 0.0597, theta-bar 23.657 degrees; they fitted no coherent backscatter, so Bc0 = 0, and
-K = 1).
+hs 0.0597, theta-bar 23.657 degrees). Sato et al. held the coherent-backscatter and porosity
+terms at constant values; the defaults leave them out (Bc0 = 0, K = 1): set ``bc0``, ``hc``
+and ``phi`` to include them.
 
 A per-pixel albedo map (a raster on a terrain, a value per vertex on a body) multiplies the
 albedo A of the first three models and Hapke's w (capped below 1).
@@ -111,7 +112,7 @@ class Hapke:
         return asdict(self)
 
 
-#: The lunar Hapke parameters of Sato et al. (2014), LROC WAC 643 nm band (global solution).
+#: The lunar Hapke parameters of Sato et al. (2014), LROC WAC 643 nm band (no CBOE, K = 1).
 SATO_643NM = Hapke()
 
 

@@ -42,7 +42,7 @@ log = logging.getLogger(__name__)
 #: Nearest depth the logarithmic depth buffer resolves (m).
 LOG_NEAR = 0.01
 #: Solar spectral irradiance at 1 au near 643 nm (W m^-2 nm^-1), the LROC WAC red band of
-#: :data:`render.reflectance.SATO_643NM`; from the ASTM E-490 AM0 spectrum (about 1.58 there).
+#: :data:`render.reflectance.SATO_643NM`: approximately the ASTM E-490 AM0 spectrum there.
 SOLAR_643NM = 1.58
 
 _TOKENS = itertools.count(1)
@@ -270,7 +270,7 @@ class Renderer:
         prog["u_hapke_a"].value = (hp.w, hp.b, hp.c, hp.bs0)
         prog["u_hapke_b"].value = (hp.hs, hp.bc0, hp.hc, math.radians(hp.theta_bar))
         prog["u_hapke_k"].value = hp.porosity_k
-        self._set_albedo_map(prog, getattr(state, "albedo", None))
+        self._set_albedo_map(prog, state.albedo)
         prog["u_log_near"].value = math.log(LOG_NEAR)
         prog["u_log_scale"].value = 1.0 / math.log(far / LOG_NEAR)
         prog["u_shadow_map"].value = 0

@@ -27,7 +27,8 @@ A truth entry::
 ``time`` is when the exposure of the first row starts and ``camera`` the pose then. With
 motion, :meth:`FrameTruth.pose_at` gives the pose at any time and :meth:`FrameTruth.row_pose`
 the pose at a row's mid-exposure time (``time + row line_time + exposure_time / 2``), where a
-rolling-shutter row images the scene (see :mod:`render.motion`).
+rolling-shutter row images the scene (see :mod:`render.motion`). Range and normals of a blurred
+frame are those at the frame time.
 
 Frames and conventions are those of :mod:`render.camera`. Every file is written atomically,
 so an interrupted run leaves complete frames and a truth file that lists exactly them.

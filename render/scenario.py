@@ -19,9 +19,10 @@ trajectory. Paths are relative to the scenario file. Example (``examples/lunar_d
     irradiance = 1.58                # solar spectral irradiance at 1 au (W m^-2 nm^-1)
 
     [surface]
-    albedo = 0.12
+    albedo = 0.12                    # Lambert, Lommel-Seeliger, lunar-Lambert (Hapke: w)
     reflectance = "lunar-lambert"    # "lambert", "lommel-seeliger", "lunar-lambert", "hapke"
-    # albedo_map = "albedo.tif"      # terrain: a raster of albedo factors in the map frame
+    # albedo_map = "albedo.tif"      # terrain: a raster of albedo factors in the map frame;
+                                     # asteroid: a .npy with one factor per body vertex
     # Hapke (reflectance = "hapke"): w, b, c, bs0, hs, bc0, hc, theta_bar (deg), phi;
     # defaults: Sato et al. 2014, LROC WAC 643 nm (render.reflectance.SATO_643NM)
 

@@ -146,9 +146,9 @@ def test_lunar_defaults_reproduce_mcewens_lunar_limb_darkening_curve():
     lunar-Lambert mix L(g) of Lommel-Seeliger and Lambert to the Moon's disk-resolved
     photometry: L(g) = 1 - 0.019 g + 2.42e-4 g^2 - 1.46e-6 g^3. Across the photometric equator
     at each phase the Sato et al. (2014) Hapke Moon must show the same limb darkening: the
-    L(g) that best describes it lies within 0.1 of McEwen's up to g = 60 degrees (its stated
-    range of best fit; Hapke's roughness darkens the limb further at larger phase), and at
-    full Moon there is no limb darkening (L = 1, the classic observation)."""
+    L(g) that best describes it lies within 0.1 of McEwen's up to g = 60 degrees (beyond,
+    the roughness term darkens the limb faster than the polynomial), and at full Moon there
+    is no limb darkening (L = 1, the classic observation of a uniformly bright full Moon)."""
     a1, a2, a3 = MCEWEN_MOON
     for gd in (0.0, 10.0, 20.0, 30.0, 45.0, 60.0):
         g = math.radians(gd)
