@@ -11,7 +11,8 @@ spins with ``body_omega``::
 Row r of a sensor with line time ``line_time`` (s, 0: global shutter) integrates over
 ``[t0 + r line_time, t0 + r line_time + exposure_time]``. The renderer draws the scene at N
 sub-frame times spread evenly over the whole span (mid-points of N equal intervals) and each
-row averages the sub-frames weighted by how much of their interval falls inside its own window.
+row averages the sub-frames weighted by how much of their interval falls inside its own window
+(with a rolling shutter each sub-frame shades only the rows that use it).
 N is chosen so that no image point moves more than :data:`MAX_STEP_PIXELS` between sub-frames
 (estimated from the velocities, the nearest range and the focal length), capped by
 ``max_samples``; a still camera with a global shutter, or one whose image moves less than that
@@ -210,9 +211,15 @@ def render_exposure(renderer, scene, view, lighting, options, sensor, motion: Mo
             continue
         if hasattr(scene, "set_body_rotation"):
             scene.set_body_rotation(motion.body_rotation_at(body_rotation, float(t)))
+        used = np.flatnonzero(weights[:, j])
+        rows = (int(used[0]), int(used[-1]) + 1) if line > 0 else None
         sub = renderer.render(scene, View(motion.pose_at(view.pose, float(t)), k,
-                                          view.time + float(t)), lighting, options)
-        out += weights[:, j:j + 1] * sub.radiance
+                                          view.time + float(t)), lighting, options, rows=rows)
+        if rows is None:
+            out += weights[:, j:j + 1] * sub.radiance
+        else:
+            out[rows[0]:rows[1]] += weights[rows[0]:rows[1], j:j + 1] \
+                * sub.radiance[rows[0]:rows[1]]
     if hasattr(scene, "set_body_rotation"):
         scene.set_body_rotation(body_rotation)
     return out.astype(np.float32), first, {"samples": n, "times": times.tolist()}

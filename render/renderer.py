@@ -239,11 +239,13 @@ class Renderer:
 
     # ------------------------------------------------------------------ passes
     def render(self, scene, view: View, lighting: Lighting,
-               options: RenderOptions | None = None) -> Frame:
+               options: RenderOptions | None = None, *, rows=None) -> Frame:
         """Render one frame of ``scene`` (see :mod:`render.scene`).
 
         The pose is in the world frame; the scene's ``origin`` (world) is subtracted in float64
-        before anything reaches the GPU.
+        before anything reaches the GPU. ``rows=(top, bottom)`` shades only image rows
+        ``top <= row < bottom`` (a scissor; a rolling shutter's sub-frames need no more):
+        the rest of the images is left undefined.
         """
         import moderngl
 
@@ -281,11 +283,17 @@ class Renderer:
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE)
         ctx.depth_func = "<"
-        fbo.clear(color=(0.0, 0.0, 0.0, 0.0), depth=1.0)
-        for batch in state.batches:
-            self._set_batch(prog, batch, cam, options.shadows and lighting is not None)
-            for first, count in batch.ranges:
-                batch.vao.render(moderngl.TRIANGLES, vertices=count, first=first)
+        if rows is not None:
+            top, bottom = (int(r) for r in rows)
+            ctx.scissor = (0, k.height - bottom, k.width, bottom - top)
+        try:
+            fbo.clear(color=(0.0, 0.0, 0.0, 0.0), depth=1.0)
+            for batch in state.batches:
+                self._set_batch(prog, batch, cam, options.shadows and lighting is not None)
+                for first, count in batch.ranges:
+                    batch.vao.render(moderngl.TRIANGLES, vertices=count, first=first)
+        finally:
+            ctx.scissor = None
         err = ctx.error
         if err != "GL_NO_ERROR":
             raise RuntimeError(f"OpenGL error while rendering: {err}")

@@ -132,3 +132,14 @@ def test_bad_motion_tables():
         Motion.from_mapping({"velocty": [1, 0, 0]})
     with pytest.raises(InvalidParameterError, match="velocity"):
         Motion(velocity=(1.0, 2.0))
+
+
+def test_a_band_of_rows_is_the_same_band_of_a_full_render(renderer, spotted):
+    scene, _ = spotted
+    view = View(look_at((60.0, 50.0, 80.0), (80.5, 80.5, 0.0)), K)
+    full = renderer.render(scene, view, LIGHT, OPTIONS)
+    band = renderer.render(scene, view, LIGHT, OPTIONS, rows=(37, 90))
+    assert band.radiance[37:90].tobytes() == full.radiance[37:90].tobytes()
+    assert band.range[37:90].tobytes() == full.range[37:90].tobytes()
+    again = renderer.render(scene, view, LIGHT, OPTIONS)  # the scissor is gone
+    assert again.radiance.tobytes() == full.radiance.tobytes()
