@@ -27,6 +27,7 @@ per request (``[motion]`` velocity and angular_velocity).
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
@@ -38,6 +39,8 @@ from terrain.errors import InvalidParameterError
 
 __all__ = ["MAX_STEP_PIXELS", "Motion", "render_exposure", "rotation_vector_matrix",
            "row_time", "trajectory_velocities"]
+
+log = logging.getLogger(__name__)
 
 #: Largest image motion (pixels) between two sub-frames of a blurred exposure.
 MAX_STEP_PIXELS = 0.5
@@ -198,6 +201,10 @@ def render_exposure(renderer, scene, view, lighting, options, sensor, motion: Mo
         radius = float(getattr(scene, "radius", 0.0)) if scene.kind != "terrain" else 0.0
         moved = motion.image_speed(k, nearest, radius) * span
         n = int(min(max(math.ceil(moved / MAX_STEP_PIXELS), 1), motion.max_samples))
+        if moved / n > MAX_STEP_PIXELS:
+            log.warning("motion blur: the image moves about %.1f px in the exposure; %d "
+                        "sub-frames (max_samples) leave %.2f px between them", moved, n,
+                        moved / n)
         if line > 0:
             n = max(n, 2)
     if n == 1 and line == 0:  # the image moves < MAX_STEP_PIXELS: the frame time's render

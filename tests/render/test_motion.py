@@ -143,3 +143,27 @@ def test_a_band_of_rows_is_the_same_band_of_a_full_render(renderer, spotted):
     assert band.range[37:90].tobytes() == full.range[37:90].tobytes()
     again = renderer.render(scene, view, LIGHT, OPTIONS)  # the scissor is gone
     assert again.radiance.tobytes() == full.radiance.tobytes()
+
+
+def test_a_spinning_body_smears_a_spot_over_the_arc_it_turns(renderer):
+    from asteroid.body import Body
+    from asteroid.sphere import SphereMesh
+    from render.asteroid_scene import AsteroidScene
+
+    body = Body.sphere(SphereMesh(64), 1000.0)
+    d = body.mesh.directions()
+    spot = np.where(d[:, 0] > math.cos(math.radians(1.5)), 1.0, 0.0)  # a spot facing +x
+    scene = AsteroidScene(body, boulders=False, albedo=spot)
+    k = Intrinsics.from_fov(128, 128, 20.0)
+    pose = look_at((5000.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    light = Lighting((1.0, 0.0, 0.0), albedo=1.0, brdf="lambert")
+    still = renderer.render(scene, View(pose, k), light, OPTIONS).radiance
+    omega, t_exp = 0.02, 3.0  # the spot travels 60 m on the surface during the exposure
+    sensor = Sensor.from_mapping(dict(exposure_time=t_exp, aperture=0.01, gain=1.0))
+    rad, _, info = render_exposure(renderer, scene, View(pose, k), light, OPTIONS, sensor,
+                                   Motion(body_angular_velocity=(0.0, 0.0, omega)))
+    _, _, var0 = centroid(still, (63.5, 63.5), half=20)
+    cu, cv, var = centroid(rad, (63.5, 63.5), half=20)
+    length = 2 * 1000.0 * math.sin(omega * t_exp / 2) * k.fx / 4000.0  # chord, in pixels
+    assert math.sqrt(12 * (var - var0)) == pytest.approx(length, abs=0.5), info
+    assert info["samples"] >= 2 * length
