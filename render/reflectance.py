@@ -112,6 +112,10 @@ class Hapke:
         return asdict(self)
 
 
+#: Mean slope (radians) below which a surface counts as smooth (S = 1; the roughness
+#: formulas divide by tan(theta-bar)^2, which underflows for smaller angles).
+ROUGH_MIN = 1e-6
+
 #: The lunar Hapke parameters of Sato et al. (2014), LROC WAC 643 nm band (no CBOE, K = 1).
 SATO_643NM = Hapke()
 
@@ -150,7 +154,7 @@ def hapke(mu0, mu, phase_deg, params: Hapke = SATO_643NM, scale=1.0) -> np.ndarr
         x = np.maximum(tg2 / params.hc, 1e-12)
         bc = (1 + (1 - np.exp(-x)) / x) / (2 * (1 + x) ** 2)
     mu0e, mue, shadow = mu0, mu, 1.0
-    if params.theta_bar > 0:
+    if math.radians(params.theta_bar) > ROUGH_MIN:
         mu0e, mue, shadow = _roughness(mu0, mu, cg, math.radians(params.theta_bar))
     k = params.porosity_k
     m = _h_function(mu0e / k, w) * _h_function(mue / k, w) - 1.0

@@ -80,7 +80,7 @@ float hapke(vec3 n, vec3 s, vec3 v, float scale) {
     float mue = mu;
     float sh = 1.0;
     float theta = u_hapke_b.w;
-    if (theta > 0.0) {                                                 // Hapke (1984), 2012 ch. 12
+    if (theta > 1e-6) {                     // Hapke (1984), 2012 ch. 12; ROUGH_MIN in Python
         float tt = tan(theta);
         float cot_t = 1.0 / tt;
         float chi = inversesqrt(1.0 + 3.14159265 * tt * tt);

@@ -5,6 +5,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from render.camera import Intrinsics, look_at
 from render.reflectance import MCEWEN_MOON, SATO_643NM, Hapke, hapke
@@ -171,3 +173,18 @@ def test_hapke_records_reject_bad_values_and_unknown_keys():
         Hapke(w=1.2)
     with pytest.raises(InvalidParameterError, match="hc"):
         Hapke(bc0=0.5, hc=0.0)
+
+
+@given(w=st.floats(0.0, 0.99), b=st.floats(0.0, 0.9), c=st.floats(-1.0, 1.0),
+       bs0=st.floats(0.0, 3.0), hs=st.floats(0.01, 0.3), theta=st.floats(0.0, 45.0),
+       i=st.floats(0.0, 88.0), e=st.floats(0.5, 88.0), t=st.floats(0.0, 1.0))
+def test_hapke_is_finite_non_negative_and_continuous_where_its_branches_meet(
+        w, b, c, bs0, hs, theta, i, e, t):
+    params = Hapke(w=w, b=b, c=c, bs0=bs0, hs=hs, theta_bar=theta)
+    g = abs(i - e) + t * (i + e - abs(i - e))  # any phase the two angles allow
+    r = float(hapke(math.cos(math.radians(i)), math.cos(math.radians(e)), g, params))
+    assert math.isfinite(r) and r >= 0.0
+    # the roughness formulas switch between i <= e and i > e: no step where they meet
+    a = float(hapke(math.cos(math.radians(i)), math.cos(math.radians(i) + 1e-7), 30.0, params))
+    z = float(hapke(math.cos(math.radians(i)), math.cos(math.radians(i) - 1e-7), 30.0, params))
+    assert a == pytest.approx(z, rel=1e-5, abs=1e-12)
