@@ -38,7 +38,8 @@ trajectory. Paths are relative to the scenario file. Example (``examples/lunar_d
     gain = 20.0                      # electrons per DN (shot noise; 0 off)
     read_noise = 1.0                 # DN rms
     # ... or from a data sheet: exposure_time (s), aperture (m) or f_number and
-    # pixel_pitch (um), transmission, qe, wavelength and bandwidth (nm), dark_current (e-/s),
+    # pixel_pitch (um), transmission, qe, wavelength and bandwidth (nm), dark_current (e-/s;
+    # temperature, dark_temperature, dark_doubling in C), natural_vignetting, transfer_time (s),
     # prnu, shot_noise, read_noise (e-), full_well (e-), gain (e-/DN), bias (DN), bits,
     # psf = [[weight, sigma_px], ...] or psf_kernel = "file.npy", line_time (s, rolling)
 

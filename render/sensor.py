@@ -20,7 +20,9 @@ numbers the way a camera does, each step a ``[sensor]`` key with the unit of a d
    column, collecting ``transfer_time / (rows exposure_time)`` of the column's summed signal.
 3. Photo-response non-uniformity: the signal times ``1 + prnu z`` with z a fixed standard
    normal per pixel, keyed by the sensor seed only (the same pattern in every frame).
-4. Dark current ``dark_current`` (e-/s) times the exposure time joins the signal.
+4. Dark current ``dark_current`` (e-/s, as the data sheet gives it at ``dark_temperature``,
+   default 20 C) times the exposure time joins the signal; at a detector ``temperature`` (C)
+   it doubles every ``dark_doubling`` degrees (default 6.3 C, typical of silicon).
 5. Shot noise (``shot_noise``, on by default): Poisson in electrons (exact below 30 e-,
    Gaussian sqrt(n) above it, where the two agree to better than 1 % in every moment).
 6. Full well ``full_well`` (e-): a pixel holds at most this many electrons (0: whatever
@@ -70,7 +72,8 @@ POISSON_EXACT_BELOW = 30.0
 
 _PHYSICAL = ("exposure_time", "aperture", "f_number", "pixel_pitch", "transmission", "qe",
              "wavelength", "bandwidth", "dark_current", "prnu", "full_well", "bias",
-             "natural_vignetting", "transfer_time")
+             "natural_vignetting", "transfer_time", "temperature", "dark_temperature",
+             "dark_doubling")
 
 
 @dataclass(frozen=True)
@@ -105,6 +108,9 @@ class Sensor:
     line_time: float = 0.0
     natural_vignetting: bool = False
     transfer_time: float = 0.0
+    temperature: float | None = None
+    dark_temperature: float = 20.0
+    dark_doubling: float = 6.3
 
     def __post_init__(self):
         if isinstance(self.bits, bool) or not isinstance(self.bits, (int, np.integer)) \
@@ -123,6 +129,13 @@ class Sensor:
         for name in ("wavelength", "bandwidth"):
             object.__setattr__(self, name, number(getattr(self, name), name, low=0.0,
                                                   low_open=True, where="sensor"))
+        if self.temperature is not None:
+            object.__setattr__(self, "temperature", number(self.temperature, "temperature",
+                                                           low=-273.15, where="sensor"))
+        object.__setattr__(self, "dark_temperature", number(
+            self.dark_temperature, "dark_temperature", low=-273.15, where="sensor"))
+        object.__setattr__(self, "dark_doubling", number(
+            self.dark_doubling, "dark_doubling", low=0.0, low_open=True, where="sensor"))
         for name in ("shot_noise", "natural_vignetting"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise InvalidParameterError(
@@ -202,6 +215,14 @@ class Sensor:
     def integration_time(self) -> float:
         """Seconds each row integrates (the legacy mode has none: 0)."""
         return self.exposure_time if self.physical else 0.0
+
+    @property
+    def dark_rate(self) -> float:
+        """Dark current (e-/s) at the detector's temperature."""
+        if self.temperature is None:
+            return self.dark_current
+        return self.dark_current * 2.0 ** ((self.temperature - self.dark_temperature)
+                                           / self.dark_doubling)
 
     def _gain(self) -> float:
         return self.gain if self.gain > 0 else 1.0
@@ -295,7 +316,7 @@ class Sensor:
         if self.prnu > 0:
             e = e * self.prnu_map((h, w))
         if self.physical:
-            e = e + self.dark_current * self.exposure_time
+            e = e + self.dark_rate * self.exposure_time
         shot = self.shot_noise and (self.physical or self.gain > 0)
         if shot:
             e = self._shot(e, frame, cols, rows)

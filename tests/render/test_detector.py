@@ -192,3 +192,13 @@ def test_frame_transfer_smear_and_natural_vignetting():
     assert out[0, 0] / level == pytest.approx(math.cos(corner) ** 4, abs=1e-4)
     centre = math.atan(math.hypot((32 - k.cx) / k.fx, (24 - k.cy) / k.fy))
     assert out[24, 32] / level == pytest.approx(math.cos(centre) ** 4, abs=1e-4)
+
+
+def test_dark_current_doubles_with_temperature():
+    base = dict(exposure_time=2.0, f_number=2.0, pixel_pitch=5.0, gain=1.0, bits=16,
+                shot_noise=False, dark_current=100.0, dark_temperature=20.0, dark_doubling=6.0)
+    black = np.zeros((8, 8))
+    for temperature, want in ((20.0, 200.0), (32.0, 800.0), (8.0, 50.0)):
+        s = Sensor.from_mapping(dict(base, temperature=temperature))
+        assert np.all(s.expose(black, 0) == want)
+    assert np.all(Sensor.from_mapping(base).expose(black, 0) == 200)  # no temperature: as given

@@ -143,6 +143,17 @@ def test_numpy_reference_matches_the_formula():
             assert got == pytest.approx(want, rel=1e-10)
 
 
+def test_h_function_against_chandrasekhars_table():
+    """Hapke's (2002) H-function approximation is within 1 % of Chandrasekhar's (1960,
+    Radiative Transfer, his tabulated H) exact H for conservative isotropic scattering: H(0) = 1,
+    H(1) = 2.9078; it is exact for w = 0."""
+    from render.reflectance import _h_function
+
+    assert float(_h_function(np.array(1e-9), 1.0)) == pytest.approx(1.0, abs=1e-4)
+    assert float(_h_function(np.array(1.0), 1.0)) == pytest.approx(2.9078, rel=0.01)
+    assert float(_h_function(np.array(0.6), 0.0)) == 1.0
+
+
 def test_lunar_defaults_reproduce_mcewens_lunar_limb_darkening_curve():
     """McEwen (1991, Icarus 92, 298; polynomial of McEwen 1996, LPSC XXVII 841) fitted the
     lunar-Lambert mix L(g) of Lommel-Seeliger and Lambert to the Moon's disk-resolved
