@@ -34,9 +34,10 @@ numbers the way a camera does, each step a ``[sensor]`` key with the unit of a d
 Today's simple sensors keep working: a sensor with ``exposure`` (DN full scale per unit
 I/F, the I/F-calibrated mode of craterscape <= 0.1) maps I/F straight to electrons as
 ``I/F exposure (2^bits - 1) gain`` with ``gain`` in e-/DN switching shot noise on (0: off,
-counted as 1 e-/DN) and ``read_noise`` in DN, so every old scenario renders as before, bias
-0 and full well at the top DN. Giving ``exposure_time`` (and optics) instead selects the
-physical chain; the two cannot be mixed.
+counted as 1 e-/DN) and ``read_noise`` in DN, so every old scenario renders as before (bias
+0, full well at the top DN; ``prnu``, ``full_well`` and ``bias`` may be added, while the optics
+and dark-current keys need the physical chain). Giving ``exposure_time`` (and optics)
+instead selects the physical chain; the two cannot be mixed.
 
 Rolling shutter: ``line_time`` (s) delays each row's exposure by that much after the row above
 (0: a global shutter); :mod:`render.motion` renders what moves during the exposures.
@@ -49,7 +50,7 @@ same bytes.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -74,6 +75,10 @@ _PHYSICAL = ("exposure_time", "aperture", "f_number", "pixel_pitch", "transmissi
              "wavelength", "bandwidth", "dark_current", "prnu", "full_well", "bias",
              "natural_vignetting", "transfer_time", "temperature", "dark_temperature",
              "dark_doubling")
+#: Keys that only the physical chain uses (an I/F-calibrated sensor refuses them).
+_PHYSICAL_ONLY = ("aperture", "f_number", "pixel_pitch", "transmission", "qe", "wavelength",
+                  "bandwidth", "dark_current", "natural_vignetting", "transfer_time",
+                  "temperature")
 
 
 @dataclass(frozen=True)
@@ -155,6 +160,16 @@ class Sensor:
                     "a physical sensor needs aperture (m) or f_number and pixel_pitch (um)")
             if self.gain == 0:
                 raise InvalidParameterError("a physical sensor needs gain (e-/DN) > 0")
+        if not self.physical:
+            defaults = {f.name: f.default for f in fields(self)}
+            stray = [k for k in _PHYSICAL_ONLY if getattr(self, k) != defaults[k]]
+            if stray:
+                raise InvalidParameterError(
+                    f"sensor {', '.join(stray)} belong to the physical chain: give exposure_time "
+                    f"(s) instead of exposure")
+        if not isinstance(self.psf, (list, tuple)):
+            raise InvalidParameterError(
+                f"sensor psf must be a list of [weight, sigma_pixels] pairs; got {self.psf!r}")
         psf = []
         for term in self.psf:
             if np.shape(term) != (2,):
@@ -170,6 +185,7 @@ class Sensor:
             if psf or self.psf_sigma > 0:
                 raise InvalidParameterError("sensor takes psf_kernel or a Gaussian psf, not both")
             object.__setattr__(self, "psf_kernel", str(self.psf_kernel))
+            object.__setattr__(self, "_kernel", _load_kernel(self.psf_kernel))
 
     # ------------------------------------------------------------------ records
     @classmethod
@@ -183,7 +199,7 @@ class Sensor:
         """
         allowed = set(cls.__dataclass_fields__) - {"seed"}
         m = check_keys(mapping, allowed, "scenario [sensor]")
-        if "psf" in m:
+        if isinstance(m.get("psf"), (list, tuple)):
             m["psf"] = tuple(tuple(t) if isinstance(t, (list, tuple)) else t for t in m["psf"])
         if any(k in m for k in ("exposure_time", *_PHYSICAL)) and "exposure" not in m:
             m["exposure"] = 0.0
@@ -272,7 +288,7 @@ class Sensor:
                 out += (w / total) * part
             return out
         if self.psf_kernel is not None:
-            k = _load_kernel(self.psf_kernel)
+            k = self._kernel
             # filter2D correlates; flipping the kernel makes it a convolution
             return cv2.filter2D(x, -1, k[::-1, ::-1].copy(), borderType=cv2.BORDER_REFLECT)
         return x
@@ -327,7 +343,7 @@ class Sensor:
         read_e = self.read_noise * (gain if not self.physical else 1.0)
         if read_e > 0:
             e = e + read_e * normal(self.seed, STREAM_READ, frame, cols, rows)
-        dn = e / gain + (self.bias if self.physical else 0.0)
+        dn = e / gain + self.bias
         out = np.clip(np.rint(dn), 0, self.full_scale)
         return out.astype(np.uint8 if self.bits <= 8 else np.uint16)
 

@@ -9,7 +9,7 @@ from render.camera import Intrinsics, look_at
 from render.renderer import Lighting, RenderOptions, View
 from render.sensor import PLANCK, SPEED_OF_LIGHT, Sensor
 from render.terrain_scene import TerrainScene
-from terrain.errors import InvalidParameterError
+from terrain.errors import InvalidParameterError, MissingInputError
 from terrain.layers import LayerStack
 from terrain.tile import DEMTile
 
@@ -202,3 +202,12 @@ def test_dark_current_doubles_with_temperature():
         s = Sensor.from_mapping(dict(base, temperature=temperature))
         assert np.all(s.expose(black, 0) == want)
     assert np.all(Sensor.from_mapping(base).expose(black, 0) == 200)  # no temperature: as given
+
+
+def test_physical_keys_on_an_if_calibrated_sensor_are_refused(tmp_path):
+    with pytest.raises(InvalidParameterError, match="transfer_time"):
+        Sensor.from_mapping({"exposure": 5.0, "transfer_time": 0.001})
+    with pytest.raises(InvalidParameterError, match="psf"):
+        Sensor.from_mapping({"exposure": 5.0, "psf": 3})
+    with pytest.raises(MissingInputError, match="does not exist"):
+        Sensor.from_mapping({"exposure": 5.0, "psf_kernel": "nope.npy"}, base=tmp_path)
