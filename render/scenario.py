@@ -138,7 +138,8 @@ class Scenario:
     outputs: dict
     trajectory: dict
     raw: dict = field(default_factory=dict)
-    motion: dict = field(default_factory=dict)   # {"blur": bool, "motion": Motion | None}
+    # {"blur": bool, "given": the velocity keys set in [motion], "motion": Motion}
+    motion: dict = field(default_factory=dict)
 
     def resolve(self, value) -> Path:
         """A path from the scenario, relative to the scenario file."""
@@ -220,7 +221,12 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
     brdf = check_brdf(surface.get("reflectance", "lunar-lambert"))
     albedo = _number(surface, "albedo", 0.12, "surface")
     extra = {"mcewen": tuple(surface["mcewen"])} if "mcewen" in surface else {}
-    extra["hapke"] = Hapke.from_mapping({k: v for k, v in surface.items() if k in _HAPKE_KEYS})
+    hapke_keys = sorted(k for k in surface if k in _HAPKE_KEYS)
+    if hapke_keys and brdf != "hapke":
+        raise InvalidParameterError(
+            f"scenario [surface] {', '.join(hapke_keys)} are Hapke parameters, but reflectance "
+            f"is {brdf!r}; set reflectance = \"hapke\" or remove them")
+    extra["hapke"] = Hapke.from_mapping({k: surface[k] for k in hapke_keys})
     for key in ("distance", "irradiance"):
         if key in sun:
             extra[key] = _number(sun, key, None, "sun", positive=True)

@@ -98,3 +98,10 @@ def test_the_camera_example_parses():
     s = load_scenario(Path(__file__).parents[2] / "examples" / "lunar_descent_camera.toml")
     assert s.sensor.physical and s.lighting.brdf == "hapke" and s.motion["blur"]
     assert s.outputs["radiance"] and s.sensor.psf == ((0.85, 0.6), (0.15, 2.5))
+
+
+def test_hapke_keys_without_hapke_are_a_one_line_error(tmp_path, stack_dir):  # noqa: F811
+    sc = datasheet_scenario(tmp_path, stack_dir)
+    sc.write_text(sc.read_text().replace('reflectance = "hapke"',
+                                         'reflectance = "lunar-lambert"\nw = 0.3'))
+    one_line_error(run("render", "frame", sc, "-o", tmp_path / "x.png"), "Hapke", "w")
