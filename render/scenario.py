@@ -40,7 +40,7 @@ trajectory. Paths are relative to the scenario file. Example (``examples/lunar_d
     # ... or from a data sheet: exposure_time (s), aperture (m) or f_number and
     # pixel_pitch (um), transmission, qe, wavelength and bandwidth (nm), dark_current (e-/s;
     # temperature, dark_temperature, dark_doubling in C), natural_vignetting, transfer_time (s),
-    # prnu, shot_noise, read_noise (e-), full_well (e-), gain (e-/DN), bias (DN), bits,
+    # prnu, prnu_seed, shot_noise, read_noise (e-), full_well (e-), gain (e-/DN), bias (DN), bits,
     # psf = [[weight, sigma_px], ...] or psf_kernel = "file.npy", line_time (s, rolling)
 
     [motion]                         # optional: blur from motion during the exposure

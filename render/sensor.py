@@ -19,7 +19,9 @@ numbers the way a camera does, each step a ``[sensor]`` key with the unit of a d
    its image to the store, every pixel spends ``transfer_time / rows`` under each row of its
    column, collecting ``transfer_time / (rows exposure_time)`` of the column's summed signal.
 3. Photo-response non-uniformity: the signal times ``1 + prnu z`` with z a fixed standard
-   normal per pixel, keyed by the sensor seed only (the same pattern in every frame).
+   normal per pixel, keyed by the sensor's ``prnu_seed`` only (default: the scenario's seed),
+   so the pattern is the same in every frame, and the same camera keeps its pattern across
+   scenarios when ``prnu_seed`` is given.
 4. Dark current ``dark_current`` (e-/s, as the data sheet gives it at ``dark_temperature``,
    default 20 C) times the exposure time joins the signal; at a detector ``temperature`` (C)
    it doubles every ``dark_doubling`` degrees (default 6.3 C, typical of silicon).
@@ -116,6 +118,7 @@ class Sensor:
     temperature: float | None = None
     dark_temperature: float = 20.0
     dark_doubling: float = 6.3
+    prnu_seed: int | None = None
 
     def __post_init__(self):
         if isinstance(self.bits, bool) or not isinstance(self.bits, (int, np.integer)) \
@@ -147,6 +150,8 @@ class Sensor:
                     f"sensor {name} must be true or false; got {getattr(self, name)!r}")
             object.__setattr__(self, name, bool(getattr(self, name)))
         object.__setattr__(self, "seed", check_seed(self.seed))
+        if self.prnu_seed is not None:
+            object.__setattr__(self, "prnu_seed", check_seed(self.prnu_seed))
         if self.exposure == 0 and self.exposure_time == 0:
             raise InvalidParameterError(
                 "sensor needs an exposure: exposure_time (s) for the physical chain, or "
@@ -268,7 +273,8 @@ class Sensor:
         h, w = shape
         if self.prnu == 0:
             return np.ones((h, w))
-        z = normal(self.seed, STREAM_PRNU, 0, np.arange(w)[None, :], np.arange(h)[:, None])
+        seed = self.seed if self.prnu_seed is None else self.prnu_seed
+        z = normal(seed, STREAM_PRNU, 0, np.arange(w)[None, :], np.arange(h)[:, None])
         return np.maximum(1.0 + self.prnu * z, 0.0)
 
     # ------------------------------------------------------------------ the chain

@@ -111,6 +111,10 @@ def test_prnu_has_its_spread_and_is_fixed_across_frames(flat_field):
     other = Sensor.from_mapping(dict(exposure_time=0.01, aperture=0.01, gain=2.5, prnu=0.015),
                                 seed=12)
     assert abs(np.corrcoef(pattern.ravel(), other.prnu_map(rad.shape).ravel())[0, 1]) < 0.05
+    # a camera's own pattern, whatever the scenario's seed
+    mine = dict(exposure_time=0.01, aperture=0.01, gain=2.5, prnu=0.015, prnu_seed=99)
+    assert np.array_equal(Sensor.from_mapping(mine, seed=1).prnu_map(rad.shape),
+                          Sensor.from_mapping(mine, seed=2).prnu_map(rad.shape))
 
 
 def test_same_seed_same_bytes_and_frames_differ(flat_field):
