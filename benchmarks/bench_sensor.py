@@ -5,7 +5,8 @@ Hapke photometry at 1024 x 1024 from 600 m up, looking 30 degrees off nadir. Eac
 median over repeated frames, against the baseline measured in the same run: the plain render
 (the draw and the read-back of the I/F, range and normal images), what every frame pays.
 
-* ``plain_render``: the baseline.
+* ``plain_render``: the baseline; ``plain_render_lunar_lambert``: the same frame with
+  lunar-Lambert instead of Hapke (what the Hapke shader costs).
 * ``simple_sensor``: today's I/F-calibrated sensor (exposure factor, Gaussian PSF, shot and
   read noise) on the rendered I/F, alone.
 * ``detector_chain``: the full data-sheet chain on the rendered I/F, alone: a two-Gaussian
@@ -86,6 +87,9 @@ def main(argv=None) -> int:
     log(f"plain render {size}^2")
     plain, frame = timed(lambda: renderer.render(scene, view, light, options), repeat)
     rad = frame.radiance
+    ll = Lighting.from_angles(120.0, 20.0, brdf="lunar-lambert")
+    renderer.render(scene, view, ll, options)
+    lunar_lambert, _ = timed(lambda: renderer.render(scene, view, ll, options), repeat)
     simple = Sensor(bits=8, exposure=5.0, psf_sigma=0.5, gain=20.0, read_noise=1.0, seed=SEED)
     simple_t, _ = timed(lambda: simple.expose(rad, 0), repeat)
     chain = Sensor.from_mapping(dict(
@@ -109,6 +113,8 @@ def main(argv=None) -> int:
     out = dict(
         benchmark="sensor", frame=[size, size], repeat=repeat,
         plain_render=plain,
+        plain_render_lunar_lambert=dict(lunar_lambert, ratio_to_plain_render=(
+            lunar_lambert["median_s"] / plain["median_s"])),
         simple_sensor=dict(simple_t, ratio_to_plain_render=simple_t["median_s"] / base_s),
         detector_chain=dict(chain_t, ratio_to_plain_render=chain_t["median_s"] / base_s,
                             saturated_fraction=float(np.mean(image >= 4095)),
