@@ -255,6 +255,10 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
     blur = mot.pop("blur", bool(mot))
     if not isinstance(blur, bool):
         raise InvalidParameterError(f"scenario [motion] blur must be true or false; got {blur!r}")
+    if blur and not sensor.physical and not sensor.rolling:
+        raise InvalidParameterError(
+            "scenario [motion] blur needs the sensor's exposure_time (s); an I/F-calibrated "
+            "sensor (exposure) has none")
     motion = {"blur": blur or sensor.rolling,
               "given": sorted(k for k in mot if k in ("velocity", "angular_velocity",
                                                       "body_angular_velocity")),

@@ -105,3 +105,9 @@ def test_hapke_keys_without_hapke_are_a_one_line_error(tmp_path, stack_dir):  # 
     sc.write_text(sc.read_text().replace('reflectance = "hapke"',
                                          'reflectance = "lunar-lambert"\nw = 0.3'))
     one_line_error(run("render", "frame", sc, "-o", tmp_path / "x.png"), "Hapke", "w")
+
+
+def test_blur_without_an_exposure_time_is_a_one_line_error(tmp_path, stack_dir):  # noqa: F811
+    sc = scenario(tmp_path, stack_dir)  # today's I/F-calibrated sensor
+    sc.write_text(sc.read_text() + "\n[motion]\nblur = true\n")
+    one_line_error(run("render", "frame", sc, "-o", tmp_path / "x.png"), "exposure_time")
