@@ -324,7 +324,7 @@ class Renderer:
         prog["u_albedo_map"].value = 1
 
     def _set_batch(self, prog, batch, cam, shadows):
-        prog["u_vertex_albedo"].value = 1 if getattr(batch, "vertex_albedo", False) else 0
+        prog["u_vertex_albedo"].value = 1 if batch.vertex_albedo else 0
         prog["u_world_from_model"].write(
             np.asarray(batch.world_from_model, dtype="f4").T.tobytes())
         prog["u_model_offset"].value = tuple((np.asarray(batch.model_offset) - cam).tolist())
