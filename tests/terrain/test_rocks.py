@@ -1,0 +1,175 @@
+"""Rock fields: statistics against the model drawn from, resting, seamless windows."""
+
+import math
+
+import numpy as np
+import pytest
+
+from terrain.catalog import CraterTable
+from terrain.errors import InvalidParameterError
+from terrain.rocks import RockModel, add_rocks, rock_heights
+from terrain.tile import DEMTile, Window
+
+
+def _area_fraction_ratio(model, rocks, area, factors):
+    out = []
+    for f in factors:
+        d = f * model.dmin
+        sel = rocks.diameter >= d
+        measured = float(np.sum(np.pi * rocks.diameter[sel] ** 2 / 4)) / area
+        # the model truncated at dmax (F_k(dmax) is 1e-6 k by default)
+        expected = float(model.fractional_area(d) - model.fractional_area(model.dmax))
+        out.append(measured / expected)
+    return np.array(out)
+
+
+@pytest.mark.parametrize("k", [0.02, 0.2])
+def test_golombek_cumulative_fractional_area_matches_model(k):
+    # F_k(D) = k exp(-q D), q = 1.79 + 0.152 / k, for D in 2..10 dmin on a large flat area
+    model = RockModel.from_mapping({"model": "golombek", "k": k, "dmin": 0.03 if k < 0.1
+                                    else 0.1})
+    side = 300.0 if k < 0.1 else 150.0  # about 1000 rocks >= 10 dmin
+    rocks = model.generate(5, (0.0, 0.0, side, side), margin=False)
+    ratios = _area_fraction_ratio(model, rocks, side * side, np.linspace(2, 10, 9))
+    assert np.all(np.abs(ratios - 1) < 0.15), ratios
+    assert model.q == pytest.approx(1.79 + 0.152 / k)
+
+
+def test_power_law_cumulative_number_matches_model():
+    model = RockModel.from_spec("power:a=3e-4,b=-2.482,dmin=0.01")
+    side = 60.0
+    rocks = model.generate(11, (0.0, 0.0, side, side), margin=False)
+    for f in np.linspace(2, 10, 9):
+        d = f * model.dmin
+        measured = np.count_nonzero(rocks.diameter >= d) / side**2
+        expected = 3e-4 * d**-2.482 - 3e-4 * model.dmax**-2.482
+        assert abs(measured / expected - 1) < 0.15, (d, measured, expected)
+
+
+def test_shapes_follow_fragment_axis_ratios_and_are_partly_buried():
+    model = RockModel.from_spec("golombek:k=0.1,dmin=0.1")
+    rocks = model.generate(3, (0.0, 0.0, 40.0, 40.0))
+    a, b, c = rocks.axes.T
+    assert np.all((a >= b) & (b >= c) & (c > 0))
+    # equal-area diameter: pi a b / 4 = pi D^2 / 4
+    np.testing.assert_allclose(np.sqrt(a * b), rocks.diameter, rtol=1e-12)
+    assert np.median(b / a) == pytest.approx(0.71, abs=0.03)   # Fujiwara et al. 1978
+    assert np.median(c / a) == pytest.approx(0.5, abs=0.03)
+    assert 0 <= rocks.burial_fraction.min() and rocks.burial_fraction.max() <= 0.5
+    # yaw uniform on [0, pi): a random orientation
+    assert abs(np.mean(rocks.yaw) - math.pi / 2) < 0.05
+
+
+def _tilted(n=257, res=0.05, slope_deg=10.0):
+    y, x = np.mgrid[0:n, 0:n] * res
+    return DEMTile.from_array((x * math.tan(math.radians(slope_deg)) + 0.01 * y)
+                              .astype(np.float32), resolution=res)
+
+
+def test_every_rock_rests_on_the_terrain_and_only_rocks_change_heights():
+    tile = _tilted()
+    model = RockModel.from_spec("golombek:k=0.1,dmin=0.1")
+    rocky, cat = add_rocks(tile, model, seed=4)
+    assert len(cat["id"]) > 50
+    z = rocky.heights.astype(np.float64)
+    ground = tile.heights.astype(np.float64)
+    assert np.all(z >= ground)                      # rocks add, never dig
+    r, c = tile.rowcol(cat["x_m"], cat["y_m"])
+    i, j = np.rint(r).astype(int), np.rint(c).astype(int)
+    n = tile.shape[0] - 1
+    ok = (r >= 0) & (r <= n) & (c >= 0) & (c <= n)  # centre between pixel centres
+    # rocks alone: no other rock's outline reaches their centre
+    from scipy.spatial import cKDTree
+
+    every = model.generate(4, tile.bounds, min_diameter=2 * tile.resolution)
+    dist, idx = cKDTree(np.column_stack([every.x, every.y])).query(
+        np.column_stack([cat["x_m"], cat["y_m"]]), k=2)
+    ok &= dist[:, 1] > 0.75 * every.axes[idx[:, 1], 0] + 2 * tile.resolution
+    i, j = i[ok], j[ok]
+    # the base level is the terrain under the centre: no gap below, none sunk out of sight
+    terrain_at_centre = (cat["x_m"][ok] - 0.5 * tile.resolution) * math.tan(
+        math.radians(10)) + 0.01 * (
+        (tile.bounds[3] - cat["y_m"][ok]) - 0.5 * tile.resolution)
+    assert np.allclose(cat["z_base_m"][ok], terrain_at_centre, atol=1e-4)
+    above = z[i, j] - ground[i, j]
+    assert np.all(above > 0)
+    # the rock's top near its centre is its exposed height above the base level
+    assert np.all(above <= cat["height_m"][ok] * 1.25 + 0.02)
+    assert np.median(above / cat["height_m"][ok]) > 0.8
+    # away from every rock the terrain is untouched, bitwise
+    from scipy import ndimage
+
+    rocks = RockModel.from_spec("golombek:k=0.1,dmin=0.1").generate(4, tile.bounds)
+    near = np.zeros(tile.shape, bool)
+    rr, cc = tile.rowcol(rocks.x, rocks.y)
+    inside = (rr > -30) & (rr < tile.shape[0] + 30) & (cc > -30) & (cc < tile.shape[1] + 30)
+    for r0, c0, d in zip(rr[inside], cc[inside], rocks.diameter[inside], strict=True):
+        reach = int(d / tile.resolution) + 2
+        near[max(int(r0) - reach, 0):max(int(r0) + reach + 1, 0),
+             max(int(c0) - reach, 0):max(int(c0) + reach + 1, 0)] = True
+    far = ~ndimage.binary_dilation(near)
+    assert far.sum() > 1000
+    np.testing.assert_array_equal(rocky.heights[far], tile.heights[far])
+
+
+def test_window_equals_the_same_window_of_the_full_run_bitwise():
+    tile = _tilted(n=201)
+    model = RockModel.from_spec("golombek:k=0.15,dmin=0.1")
+    craters = CraterTable.from_craters([])
+    full, cat_full = add_rocks(tile, model, seed=9, craters=craters)
+    for win in (Window(37, 50, 61, 44), Window(0, 0, 13, 200), Window(150, 120, 51, 81)):
+        part, cat = add_rocks(tile, model, seed=9, craters=craters, window=win)
+        np.testing.assert_array_equal(part.heights, full.heights[win.slices])
+        # the window's catalogue is the full catalogue's rocks centred in the window
+        left, bottom, right, top = part.bounds
+        sel = ((cat_full["x_m"] >= left) & (cat_full["x_m"] < right)
+               & (cat_full["y_m"] > bottom) & (cat_full["y_m"] <= top))
+        assert sorted(cat["id"].tolist()) == sorted(cat_full["id"][sel].tolist())
+
+
+def test_rocks_gather_on_fresh_craters_and_fade_with_age():
+    model = RockModel.from_spec("golombek:k=0.01,dmin=0.2")
+    fresh = CraterTable.from_craters([])
+    from terrain.catalog import Crater
+
+    def density(age, on):
+        table = CraterTable.from_craters([Crater(50.0, 50.0, 40.0, age)])
+        m = model if on else RockModel.from_spec("golombek:k=0.01,dmin=0.2,craters=off")
+        rocks = m.generate(2, (0.0, 0.0, 100.0, 100.0), craters=table, margin=False)
+        near = np.hypot(rocks.x - 50, rocks.y - 50) <= 20
+        return near.sum() / (math.pi * 400), (~near).sum() / (1e4 - math.pi * 400)
+
+    bg = RockModel.from_spec("golombek:k=0.01,dmin=0.2").expected_count(1.0)
+    rim, outside = density(0.0, True)
+    assert rim / bg == pytest.approx(11.0, rel=0.15)   # 1 + A on and inside the rim
+    old, _ = density(1.0, True)                        # 2^-(1/0.06): no trace left
+    assert old / bg == pytest.approx(1.0, rel=0.15)
+    off, _ = density(0.0, False)
+    assert off / bg == pytest.approx(1.0, rel=0.15)
+    assert outside > bg                                 # ejecta beyond the rim
+    assert len(fresh) == 0
+
+
+@pytest.mark.parametrize("spec, fragment", [
+    ("golombek:k=1.5,dmin=0.1", "must lie in (0, 1)"),
+    ("golombek:k=0,dmin=0.1", "must lie in (0, 1)"),
+    ("power:a=3e-4,b=0.5,dmin=0.1", "b must be negative"),
+    ("power:a=-1,b=-2,dmin=0.1", "a must be positive"),
+    ("golomb:k=0.1,dmin=0.1", "did you mean 'golombek'"),
+    ("golombek:kk=0.1,dmin=0.1", "unknown rock key 'kk' (did you mean 'k'?)"),
+    ("golombek:k=0.1", "dmin"),
+    ("golombek:k=x,dmin=0.1", "k must be a number"),
+])
+def test_parameters_outside_their_domain_are_refused_by_name(spec, fragment):
+    with pytest.raises(InvalidParameterError) as info:
+        RockModel.from_spec(spec)
+    assert fragment in str(info.value)
+
+
+def test_heights_leave_out_rocks_the_tile_cannot_resolve():
+    tile = _tilted(n=65, res=0.2)
+    model = RockModel.from_spec("golombek:k=0.2,dmin=0.05")
+    rocks = model.generate(1, tile.bounds)
+    z, z0, drawn = rock_heights(tile, rocks)
+    assert np.all(rocks.diameter[drawn] >= 0.4) and np.all(np.isnan(z0[~drawn]))
+    assert drawn.sum() < len(rocks)
