@@ -520,10 +520,14 @@ def expand(input_dem, output, times, seed, fractal_dimension, height_scale, unif
 @click.option("--despike", type=float, default=None,
               help="Before filling, drop pixels this many robust sigmas from their median.")
 @click.option("--band", type=int, default=1, show_default=True, help="Band of the input.")
+@click.option("--rocks", "rocks_spec", default=None, metavar="MODEL:KEY=VALUE,...",
+              help="Rocks on every layer that resolves them, e.g. golombek:k=0.01 or "
+                   "power:a=3e-4,b=-2.482 (keys as `terrain rocks`; dmin defaults to two "
+                   "pixels of the finest layer).")
 @_crater_options
 def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, layer_size, seed,
             fractal_dimension, height_scale, uniform_roughness, min_crater_pixels, despike,
-            band, dmin, dmax, density, sfd_exponent, max_age, population, catalog,
+            band, rocks_spec, dmin, dmax, density, sfd_exponent, max_age, population, catalog,
             erosion_profile, erosion_exponent, no_roughness):
     """Build nested multi-resolution layers around a landing site."""
     import math
@@ -552,6 +556,11 @@ def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, lay
     if despike is not None:
         tile, _ = run_despike(tile, despike)
     finest = tile.resolution / 2**levels
+    rocks = None
+    if rocks_spec is not None:
+        from terrain.rocks import MIN_ROCK_PIXELS, RockModel
+
+        rocks = RockModel.from_spec(rocks_spec, defaults=dict(dmin=MIN_ROCK_PIXELS * finest))
     pop = _population(population, dmin=dmin, dmax=dmax, density=density,
                       sfd_exponent=sfd_exponent, max_age=max_age, resolution=finest,
                       extent=min(tile.shape) * tile.resolution, required=False,
@@ -570,15 +579,17 @@ def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, lay
         stack = build_stack(tile, site, levels=levels, layer_size=layer_size, seed=seed,
                             population=pop, model=model, params=params,
                             min_crater_pixels=min_crater_pixels,
-                            progress=(lambda s, n, label: bar(s, n)) if bar else None)
+                            progress=(lambda s, n, label: bar(s, n)) if bar else None,
+                            rocks=rocks)
     finally:
         close()
     stack.info.update(source=str(input_dem), command="terrain enhance",
                       craterscape_version=_version())
     write_stack(stack, output, inputs=[input_dem])
+    n_rocks = "" if stack.rocks is None else f", {len(stack.rocks['id'])} rocks"
     click.echo(f"wrote {len(stack.tiles)} layers to {output} (finest "
-               f"{stack.tiles[-1].resolution:.4g} m/pixel, {len(stack.catalog['id'])} craters)",
-               err=True)
+               f"{stack.tiles[-1].resolution:.4g} m/pixel, {len(stack.catalog['id'])} craters"
+               f"{n_rocks})", err=True)
 
 
 @terrain.command()
@@ -642,3 +653,88 @@ def replace_crater_cmd(stack_dir, at, diameter, age, seed):
     done = replace_crater(stack_dir, at[0], at[1], diameter, age=age, seed=seed)
     click.echo(f"replaced crater at {at[0]:.6g},{at[1]:.6g} (D {diameter:g} m) in layer "
                f"{done['layer']}; updated layers {done['changed_layers']}", err=True)
+
+
+@terrain.command()
+@click.argument("input_dem", type=click.Path(path_type=Path))
+@_output_option
+@click.option("--model", type=click.Choice(["golombek", "power"]), default="golombek",
+              show_default=True, help="Size-frequency model of the rocks.")
+@click.option("--k", "k", type=float, default=None,
+              help="golombek: fraction of the area covered by rocks, 0 < k < 1.")
+@click.option("--a", "a", type=float, default=None, help="power: a of N(>=D) = a D^b per m^2.")
+@click.option("--b", "b", type=float, default=None, help="power: b of N(>=D) = a D^b (< 0).")
+@click.option("--dmin", type=float, default=None,
+              help="Smallest rock diameter (m). Default: two pixels of the DEM.")
+@click.option("--dmax", type=float, default=None,
+              help="Largest rock diameter (m). Default: where the model has run out.")
+@click.option("--craters", "craters_csv", type=click.Path(dir_okay=False, path_type=Path),
+              default=None, help="Crater catalogue CSV (x_m/x, y_m/y, diameter, age): rocks "
+                                 "gather on the fresh ones.")
+@click.option("--no-crater-rocks", is_flag=True,
+              help="Do not raise the rock density on fresh craters.")
+@_seed_option
+@_window_option
+@click.option("--catalog", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Write the rock catalogue (CSV) here.")
+@click.option("--band", type=int, default=1, show_default=True, help="Band of the input.")
+def rocks(input_dem, output, model, k, a, b, dmin, dmax, craters_csv, no_crater_rocks, seed,
+          window, catalog, band):
+    """Stand a rock field (Golombek-Rapp or power law) on a DEM, keyed by position."""
+    from terrain.io import atomic_path, read_dem, write_dem
+    from terrain.rocks import MIN_ROCK_PIXELS, RockModel, add_rocks, write_rock_catalog
+
+    _check_outputs(output, catalog, [input_dem, craters_csv])
+    if craters_csv is not None and no_crater_rocks:
+        raise InvalidParameterError("--craters and --no-crater-rocks contradict each other")
+    values = dict(model=model, k=k, a=a, b=b, dmin=dmin, dmax=dmax)
+    values = {key: v for key, v in values.items() if v is not None}
+    if no_crater_rocks:
+        values["craters"] = False
+    tile = read_dem(input_dem, band=band)
+    if window is not None:
+        window.check_inside(*tile.shape)
+    rock_model = RockModel.from_mapping(values,
+                                        defaults=dict(dmin=MIN_ROCK_PIXELS * tile.resolution))
+    if rock_model.dmax <= MIN_ROCK_PIXELS * tile.resolution:
+        log.warning("no rock of this model (dmax %.3g m) is two pixels (%.3g m) wide: the "
+                    "heights will not change", rock_model.dmax, MIN_ROCK_PIXELS * tile.resolution)
+    craters = None if craters_csv is None else _read_crater_list(craters_csv)
+    out, cat = add_rocks(tile, rock_model, seed=seed, craters=craters, window=window)
+    params = dict(input=str(input_dem), band=band, seed=seed, rocks=rock_model.as_dict(),
+                  craters=str(craters_csv) if craters_csv else None,
+                  window=None if window is None else
+                  [window.col, window.row, window.width, window.height])
+    out = out.with_metadata(CRATERSCAPE_COMMAND="terrain rocks", CRATERSCAPE_PARAMETERS=params,
+                            CRATERSCAPE_VERSION=_version())
+    write_dem(out, output, inputs=[input_dem])
+    if catalog is not None:
+        with atomic_path(catalog, [input_dem, output]) as tmp:
+            write_rock_catalog(tmp, cat)
+    click.echo(f"wrote {output}" + (f" and {catalog}" if catalog else "")
+               + f" ({len(cat['id'])} rocks)", err=True)
+
+
+def _read_crater_list(path):
+    """Craters from a catalogue written by craterscape (x_m, y_m, diameter_m, age_gyr) or a
+    plain list (x, y, diameter[, age])."""
+    import csv
+
+    import numpy as np
+
+    from terrain.catalog import CraterTable, read_catalog, read_circles
+    from terrain.errors import MissingInputError
+
+    if not Path(path).exists():
+        raise MissingInputError(f"crater catalogue '{path}' does not exist")
+    with open(path, newline="", encoding="utf-8") as f:
+        header = next(csv.reader(f), [])
+    if not {"x_m", "y_m", "diameter_m", "age_gyr"} <= set(header):
+        return read_circles(path)
+    try:
+        cat = read_catalog(path)
+    except ValueError as exc:
+        raise InvalidParameterError(f"crater catalogue '{path}' is malformed: {exc}") from None
+    n = len(cat["x_m"])
+    return CraterTable(cat["x_m"], cat["y_m"], cat["diameter_m"], cat["age_gyr"],
+                       cat.get("id", np.zeros(n, np.uint64)), np.zeros(n, np.int64))

@@ -64,6 +64,8 @@ CATALOG = "craters.csv"
 #: Smallest crater a layer takes, in its pixels ("craters smaller than a few pixels ... are
 #: rejected").
 MIN_CRATER_PIXELS = 4.0
+#: Rock catalogue in a layer-stack folder (when the stack has rocks).
+ROCK_CATALOG = "rocks.csv"
 #: Lock file guarding edits of a layer-stack folder.
 LOCK = ".craterscape.lock"
 #: Seconds an edit waits for another edit of the same stack before giving up.
@@ -81,6 +83,7 @@ class LayerStack:
     origins: list  # global (row, col) of each layer's pixel (0, 0) at its level
     catalog: dict
     info: dict = field(default_factory=dict)
+    rocks: dict | None = None  # rock catalogue (terrain.rocks.ROCK_COLUMNS), if rocks were added
 
     @property
     def levels(self) -> int:
@@ -182,7 +185,8 @@ class _Shape:
 def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_size: int = 1025,
                 seed: int = 0, population: Population | None = None,
                 model: CraterModel | None = None, params: ExpansionParameters | None = None,
-                min_crater_pixels: float = MIN_CRATER_PIXELS, progress=None) -> LayerStack:
+                min_crater_pixels: float = MIN_CRATER_PIXELS, progress=None,
+                rocks=None) -> LayerStack:
     """Build a nested layer stack around ``site`` (map coordinates of ``base``).
 
     Parameters
@@ -206,6 +210,8 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
         Smallest crater a layer takes, in its pixels.
     progress : callable, optional
         ``progress(step, total, label)``.
+    rocks : terrain.rocks.RockModel, optional
+        Rocks on every layer that resolves them (:func:`_add_layer_rocks`).
 
     Returns
     -------
@@ -279,6 +285,13 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
             log.info("layer %d: %d craters", k, len(table))
         tick(f"craters {k}")
 
+    rock_catalog = None
+    if rocks is not None:
+        rock_catalog = _add_layer_rocks(tiles, rocks, seed, population)
+        info.update(rocks=rocks.as_dict(), rock_catalog=ROCK_CATALOG,
+                    rock_counts=np.bincount(rock_catalog["layer"],
+                                            minlength=len(tiles)).tolist())
+
     # Coarse pixels inside a finer layer take the co-located fine pixel, finest first.
     for k in range(levels, 0, -1):
         col, row, size, _ = windows[k]
@@ -291,7 +304,53 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
                 expansion=params.as_dict(), min_crater_pixels=min_crater_pixels,
                 population=population.as_dict() if population else None,
                 crater_model=model.as_dict())
-    return LayerStack(tiles, windows, origins, catalog, info)
+    return LayerStack(tiles, windows, origins, catalog, info, rock_catalog)
+
+
+def _add_layer_rocks(tiles: list, rocks, seed: int, population) -> dict:
+    """Stand the rocks each layer resolves on it (``tiles`` is changed in place).
+
+    Every layer gets the rocks of at least :data:`terrain.rocks.MIN_ROCK_PIXELS` of its
+    pixels touching it, drawn on its own rock-free terrain after all expansions (so no rock
+    is smeared into a finer layer by the expansion); the agreement step that follows copies
+    each finer layer's pixels into the coarser ones. Crater-raised densities use the stack's
+    crater population (fresh craters near the rock layers, keyed like the craters).
+    Returns the catalogue: one row per rock, ``layer`` the coarsest layer that holds its
+    centre and resolves it, ``z_base_m`` from the finest such layer.
+    """
+    from terrain.rocks import MIN_ROCK_PIXELS, RockTable, rock_catalog, rock_heights
+
+    levels = [k for k, t in enumerate(tiles) if MIN_ROCK_PIXELS * t.resolution < rocks.dmax]
+    craters = None
+    if levels and rocks.craters and population is not None:
+        dmin = max(5.0 * rocks.regolith_m, population.dmin)
+        if dmin < population.dmax:
+            craters = population.generate(seed, tiles[levels[0]].bounds,
+                                          margin=lambda d: rocks.reach * d / 2,
+                                          min_diameter=dmin)
+    rows: dict = {}
+    for k in levels:
+        tile = tiles[k]
+        table = rocks.generate(seed, tile.bounds, min_diameter=MIN_ROCK_PIXELS * tile.resolution,
+                               craters=craters)
+        heights, z0, drawn = rock_heights(tile, table)
+        tiles[k] = tile.replace(heights=heights, valid=tile.valid)
+        left, bottom, right, top = tile.bounds
+        inside = drawn & (table.x >= left) & (table.x <= right) & (table.y >= bottom) \
+            & (table.y <= top)
+        for i in np.flatnonzero(inside):
+            uid = int(table.uid[i])
+            first = rows[uid][2] if uid in rows else k
+            rows[uid] = (table.rows[i], z0[i], first)
+        log.info("layer %d: %d rocks", k, int(inside.sum()))
+    if not rows:
+        return rock_catalog(RockTable(np.empty((0, 15)), np.empty(0)), np.empty(0),
+                            np.empty(0, np.int64))
+    uids = sorted(rows)
+    table = RockTable(np.array([rows[u][0] for u in uids]), np.array(uids, dtype=np.uint64))
+    z0 = np.array([rows[int(u)][1] for u in table.uid])
+    first = np.array([rows[int(u)][2] for u in table.uid], dtype=np.int64)
+    return rock_catalog(table, z0, first)
 
 
 def _merge_catalogs(catalogs) -> dict:
@@ -352,6 +411,11 @@ def _write_files(stack: LayerStack, outdir: Path, files: list[str], only=None) -
         write_dem(tile.replace(metadata=meta), outdir / files[k])
     with atomic_path(outdir / CATALOG) as tmp:
         write_catalog(tmp, stack.catalog, CATALOG_LAYER_COLUMNS)
+    if stack.rocks is not None:
+        from terrain.rocks import write_rock_catalog
+
+        with atomic_path(outdir / ROCK_CATALOG) as tmp:
+            write_rock_catalog(tmp, stack.rocks)
     manifest = _manifest(stack, files)
     with atomic_path(outdir / MANIFEST) as tmp:
         tmp.write_text(json.dumps(manifest, indent=2, sort_keys=True), encoding="utf-8")
@@ -415,7 +479,9 @@ def read_stack(outdir) -> LayerStack:
     catalog = read_catalog(cat_path) if cat_path.exists() else _merge_catalogs([])
     info = {k: v for k, v in manifest.items()
             if k not in ("layers", "format", "version", "crs", "catalog", "crater_counts")}
-    stack = LayerStack(tiles, windows, origins, catalog, info)
+    rock_path = outdir / ROCK_CATALOG
+    rocks = read_catalog(rock_path) if "rock_catalog" in info and rock_path.exists() else None
+    stack = LayerStack(tiles, windows, origins, catalog, info, rocks)
     stack.info["_files"] = files
     return stack
 

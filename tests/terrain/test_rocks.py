@@ -1,5 +1,6 @@
 """Rock fields: statistics against the model drawn from, resting, seamless windows."""
 
+import json
 import math
 
 import numpy as np
@@ -173,3 +174,41 @@ def test_heights_leave_out_rocks_the_tile_cannot_resolve():
     z, z0, drawn = rock_heights(tile, rocks)
     assert np.all(rocks.diameter[drawn] >= 0.4) and np.all(np.isnan(z0[~drawn]))
     assert drawn.sum() < len(rocks)
+
+
+def test_layer_stack_puts_each_rock_in_every_layer_that_resolves_it(tmp_path):
+    from terrain.layers import build_stack, read_stack, write_stack
+    from terrain.synthetic import synthesize_tile
+
+    base = synthesize_tile(65, resolution=4.0, relief=3.0, seed=2).tile
+    site = (130.0, 130.0)
+    model = RockModel.from_spec("golombek:k=0.15,dmin=0.25")
+    plain = build_stack(base, site, levels=4, layer_size=65, seed=3)
+    rocky = build_stack(base, site, levels=4, layer_size=65, seed=3, rocks=model)
+    cat = rocky.rocks
+    assert len(cat["id"]) > 10 and len(set(cat["layer"].tolist())) >= 2
+    for k in range(1, len(rocky.tiles)):  # the layers still agree exactly
+        col, row, size, _ = rocky.windows[k]
+        assert np.array_equal(rocky.tiles[k - 1].heights[row:row + size, col:col + size],
+                              rocky.tiles[k].heights[::2, ::2])
+    checked = 0
+    for k, (t0, t1) in enumerate(zip(plain.tiles, rocky.tiles, strict=True)):
+        assert np.all(t1.heights >= t0.heights)  # rocks only add
+        res = t1.resolution
+        mine = (cat["layer"] <= k) & (cat["diameter_m"] >= 2 * res)
+        left, bottom, right, top = t1.bounds
+        mine &= (cat["x_m"] > left + res) & (cat["x_m"] < right - res) \
+            & (cat["y_m"] > bottom + res) & (cat["y_m"] < top - res)
+        r, c = t1.rowcol(cat["x_m"][mine], cat["y_m"][mine])
+        i, j = np.rint(r).astype(int), np.rint(c).astype(int)
+        raised = t1.heights[i, j] > t0.heights[i, j]
+        assert raised.all(), (k, raised.mean())   # the rock is in that layer
+        checked += raised.size
+    assert checked >= len(cat["id"])
+    # a rock appears first in the coarsest layer that resolves it
+    res = np.array([t.resolution for t in rocky.tiles])
+    assert np.all(cat["diameter_m"] >= 2 * res[cat["layer"]])
+    out = write_stack(rocky, tmp_path / "s")
+    again = read_stack(out)
+    assert again.rocks["id"].tolist() == cat["id"].tolist()
+    assert json.loads((out / "manifest.json").read_text())["rock_catalog"] == "rocks.csv"

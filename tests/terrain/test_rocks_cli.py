@@ -1,0 +1,81 @@
+"""`craterscape terrain rocks` and `terrain enhance --rocks`, as a user runs them."""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from terrain.io import read_dem
+from tests.cli_helpers import one_line_error, run
+
+
+@pytest.fixture
+def dem(tmp_path):
+    path = tmp_path / "in.tif"
+    r = run("terrain", "synth", "-o", path, "--size", 129, "--resolution", 0.05, "--relief",
+            0.3, "--seed", 1)
+    assert r.exit_code == 0, r.output
+    return path
+
+
+def test_rocks_writes_heights_and_catalogue_and_a_window_matches(dem, tmp_path):
+    out, cat = tmp_path / "r.tif", tmp_path / "rocks.csv"
+    r = run("terrain", "rocks", dem, "-o", out, "--model", "golombek", "--k", 0.1,
+            "--seed", 4, "--catalog", cat)
+    assert r.exit_code == 0, r.output
+    rows = list(csv.DictReader(cat.open()))
+    assert len(rows) > 20
+    assert set(rows[0]) == {"id", "x_m", "y_m", "z_base_m", "diameter_m", "height_m",
+                            "burial_m", "axis_a_m", "axis_b_m", "axis_c_m",
+                            "orientation_deg", "layer"}
+    assert min(float(row["diameter_m"]) for row in rows) >= 0.1  # two pixels by default
+    full, ground = read_dem(out), read_dem(dem)
+    assert np.all(full.heights >= ground.heights) and np.any(full.heights > ground.heights)
+    assert json.loads(full.metadata["CRATERSCAPE_PARAMETERS"])["rocks"]["k"] == 0.1
+    win = tmp_path / "w.tif"
+    r = run("terrain", "rocks", dem, "-o", win, "--k", 0.1, "--seed", 4, "--window",
+            "30,40,50,60")
+    assert r.exit_code == 0, r.output
+    np.testing.assert_array_equal(read_dem(win).heights, full.heights[40:100, 30:80])
+
+
+def test_power_law_rocks(dem, tmp_path):
+    out = tmp_path / "p.tif"
+    r = run("terrain", "rocks", dem, "-o", out, "--model", "power", "--a", 0.05, "--b",
+            -2.482, "--seed", 1)
+    assert r.exit_code == 0, r.output
+    assert "rocks)" in r.output
+
+
+@pytest.mark.parametrize("args, fragment", [
+    (["--k", 1.2], "must lie in (0, 1)"),
+    (["--model", "power", "--a", 3e-4, "--b", 0.1], "b must be negative"),
+    (["--model", "power", "--a", 3e-4], "needs a and b"),
+    (["--model", "power", "--a", 500, "--b", -2.482], "rock field of about"),
+])
+def test_bad_rock_parameters_are_one_line_errors_before_writing(dem, tmp_path, args, fragment):
+    out = tmp_path / "bad.tif"
+    r = run("terrain", "rocks", dem, "-o", out, *args,
+            env={"CRATERSCAPE_MEMORY_LIMIT": "200M"})
+    one_line_error(r, fragment)
+    assert not out.exists()
+
+
+def test_enhance_puts_rocks_into_the_stack(tmp_path):
+    base = tmp_path / "b.tif"
+    assert run("terrain", "synth", "-o", base, "--size", 65, "--resolution", 4.0, "--relief",
+               3, "--seed", 2).exit_code == 0
+    out = tmp_path / "stack"
+    r = run("terrain", "enhance", base, "-o", out, "--site", "130,130", "--levels", 4,
+            "--layer-size", 65, "--rocks", "golombek:k=0.15")
+    assert r.exit_code == 0, r.output
+    rows = list(csv.DictReader((out / "rocks.csv").open()))
+    assert len(rows) > 5 and "rocks" in r.output
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["rocks"]["k"] == 0.15 and manifest["rocks"]["dmin"] == pytest.approx(0.5)
+    bad = tmp_path / "bad"
+    one_line_error(run("terrain", "enhance", base, "-o", bad, "--site", "130,130", "--levels",
+                       4, "--layer-size", 65, "--rocks", "golombek:q=3"),
+                   "unknown rock key 'q'")
+    assert not bad.exists()
