@@ -738,3 +738,66 @@ def _read_crater_list(path):
     n = len(cat["x_m"])
     return CraterTable(cat["x_m"], cat["y_m"], cat["diameter_m"], cat["age_gyr"],
                        cat.get("id", np.zeros(n, np.uint64)), np.zeros(n, np.int64))
+
+
+@terrain.command()
+@click.argument("source", type=click.Path(path_type=Path))
+@_output_option
+@click.option("--lander-diameter", type=float, required=True,
+              help="Diameter of the lander's footprint (m).")
+@click.option("--max-slope", type=float, required=True,
+              help="Steepest safe plane under the footprint (degrees).")
+@click.option("--max-step", type=float, required=True,
+              help="Largest safe height above that plane inside the footprint (m).")
+@click.option("--layer", type=int, default=None,
+              help="Layer of a stack (default: the finest with at most 72 pixels across the "
+                   "footprint).")
+@click.option("--png", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Picture for people (default: the output with .png).")
+@click.option("--band", type=int, default=1, show_default=True, help="Band of a DEM input.")
+def hazards(source, output, lander_diameter, max_slope, max_step, layer, png, band):
+    """Hazard truth: slope of the plane under a lander, height above it, safe or not.
+
+    SOURCE is a DEM or a layer-stack folder. Writes a GeoTIFF with three bands (slope in
+    degrees, step in metres, safe 1 / unsafe 0; NaN where the footprint is not fully known),
+    the safe fraction in its tags, and a PNG.
+    """
+    from terrain.hazards import hazard_image, hazard_map, pick_layer
+    from terrain.hillshade import hillshade
+    from terrain.io import check_output_path, read_dem, write_bands, write_png
+
+    png = png or output.with_suffix(".png")
+    check_output_path(output, [source])
+    check_output_path(png, [source, output])
+    if png.resolve() == output.resolve():
+        raise InvalidParameterError("--png must differ from --output")
+    if source.is_dir():
+        from terrain.layers import read_stack
+
+        stack = read_stack(source)
+        resolutions = [t.resolution for t in stack.tiles]
+        if layer is None:
+            layer = pick_layer(resolutions, lander_diameter)
+        if not 0 <= layer < len(stack.tiles):
+            raise InvalidParameterError(
+                f"layer {layer} does not exist; the stack has layers 0..{len(stack.tiles) - 1}")
+        tile = stack.tiles[layer]
+    else:
+        if layer is not None:
+            raise InvalidParameterError("--layer applies to a layer-stack folder, not a DEM")
+        tile = read_dem(source, band=band)
+    result = hazard_map(tile, lander_diameter=lander_diameter, max_slope=max_slope,
+                        max_step=max_step)
+    params = dict(source=str(source), layer=layer, lander_diameter=lander_diameter,
+                  max_slope=max_slope, max_step=max_step)
+    tags = dict(result.tags(), CRATERSCAPE_COMMAND="terrain hazards",
+                CRATERSCAPE_PARAMETERS=json.dumps(params, sort_keys=True),
+                CRATERSCAPE_VERSION=_version())
+    write_bands([result.slope, result.step, result.safe], tile.replace(metadata={}), output,
+                descriptions=("slope (deg)", "step above plane (m)", "safe (1) / unsafe (0)"),
+                tags=tags, inputs=[source])
+    shade = hillshade(tile, azimuth=315.0, altitude=30.0)
+    write_png(hazard_image(result, shade), png, inputs=[source, output])
+    click.echo(f"wrote {output} and {png} ({100 * result.safe_fraction:.1f} % safe of the "
+               f"{100 * result.known_fraction:.1f} % known, {tile.resolution:.4g} m pixels)",
+               err=True)

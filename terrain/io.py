@@ -33,6 +33,7 @@ from terrain.errors import InvalidDEMError, MissingInputError, OutputPathError
 from terrain.tile import DEMTile
 
 __all__ = ["atomic_path", "check_output_path", "lonlat_to_xy", "read_dem", "read_float_tiff",
+           "write_bands",
            "same_crs", "write_dem", "write_float_tiff", "write_png"]
 
 log = logging.getLogger(__name__)
@@ -308,3 +309,32 @@ def read_float_tiff(path) -> np.ndarray:
     except (RasterioIOError, RasterioError) as exc:
         raise InvalidDEMError(f"cannot read image '{path}': {_first_line(exc)}") from exc
     return a[0] if a.shape[0] == 1 else np.moveaxis(a, 0, 2)
+
+
+def write_bands(bands, tile: DEMTile, path, *, descriptions=(), tags: dict | None = None,
+                inputs: Iterable = ()) -> Path:
+    """Write (h, w) float32 bands on ``tile``'s grid (CRS, transform) as one GeoTIFF, atomically.
+
+    NaN is the nodata value; ``descriptions`` label the bands, ``tags`` go into the GDAL
+    metadata beside the tile's own.
+    """
+    data = np.stack([np.asarray(b, dtype=np.float32) for b in bands])
+    if data.shape[1:] != tile.shape:
+        raise ValueError(f"bands must have the tile's shape {tile.shape}; got {data.shape[1:]}")
+    profile = dict(
+        driver="GTiff", dtype="float32", count=data.shape[0], width=tile.shape[1],
+        height=tile.shape[0], crs=CRS.from_wkt(tile.crs) if tile.crs else None,
+        transform=tile.transform, nodata=float("nan"), compress="deflate", predictor=3,
+        tiled=True, blockxsize=BLOCK_SIZE, blockysize=BLOCK_SIZE, BIGTIFF="IF_SAFER")
+    with atomic_path(path, inputs) as tmp, warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        try:
+            with rasterio.open(tmp, "w", **profile) as dst:
+                dst.write(data)
+                dst.update_tags(**dict(tile.metadata), **{k: str(v) for k, v in
+                                                          (tags or {}).items()})
+                for i, text in enumerate(descriptions, start=1):
+                    dst.set_band_description(i, text)
+        except (RasterioIOError, RasterioError) as exc:
+            raise OutputPathError(f"cannot write '{path}': {_first_line(exc)}") from exc
+    return Path(path)
