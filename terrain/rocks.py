@@ -73,7 +73,7 @@ and the heights are a pixel-wise maximum, independent of order.
 Examples
 --------
 >>> m = RockModel.from_spec("golombek:k=0.02,dmin=0.1")
->>> round(m.fractional_area(0.0), 6), round(m.q, 3)
+>>> round(float(m.fractional_area(0.0)), 6), round(m.q, 3)
 (0.02, 9.39)
 >>> RockModel.from_mapping({"model": "power", "a": 3e-4, "b": -2.482, "dmin": 0.5}).b
 -2.482
