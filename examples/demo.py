@@ -5,8 +5,9 @@ parameters; a stage interrupted part-way resumes where it can, or starts again):
 
 1. ``lunar/base/``: a synthetic polar-like base, 1025 x 1025 at 1 km per pixel (fractal
    relief and simple craters of 4 to 15 km), and its hillshade.
-2. ``lunar/stack/stack/``: the base enhanced in 11 nested 1025 x 1025 layers down to about
-   0.5 m at the flattest spot near its centre, craters at every scale
+2. ``lunar/stack/stack/``: the base enhanced in 15 nested 1025 x 1025 layers down to 3 cm
+   at the flattest spot near its centre, craters at every scale and a Golombek-Rapp rock
+   field in every layer that resolves its rocks
    (``craterscape terrain enhance``).
 3. ``lunar/run/run/``: a descent from 10 km to 20 m under a sun 7 degrees high, 120 frames
    at 1024 x 1024 with LIDAR range, normals and truth (``examples/lunar_descent.toml``).
@@ -53,6 +54,11 @@ ROOT = HERE.parent
 #: Real mission data (never copied into the project); CRATERSCAPE_SHARED_DATA overrides.
 SHARED = Path(os.environ.get("CRATERSCAPE_SHARED_DATA", ROOT.parent / "shared" / "data"))
 SEED = 2014
+#: Rocks at the landing site: Golombek-Rapp with 2 % of the ground covered (a moderately rocky
+#: site; Chang'E-4's is about 0.2 %), denser on fresh craters (terrain.rocks).
+ROCKS = "golombek:k=0.02"
+#: The lander of the hazard map: footprint diameter (m), steepest plane (deg), largest step (m).
+LANDER = (4.0, 12.0, 0.3)
 
 log = logging.getLogger("demo")
 
@@ -209,7 +215,9 @@ def lunar(out: Path, quick: bool) -> dict:
     Craters follow an equilibrium-like population, N(>=D) = 0.1 D^-2 per km^2 (D in km).
     """
     size = 257 if quick else 1025
-    levels = 10 if quick else 11
+    # down to 3 cm at the site (15 levels of 1 km / 2^k): on every frame of the descent to
+    # 20 m the finest layer under the image centre is no coarser than twice the frame's GSD
+    levels = 13 if quick else 15
     facts = {}
     synth_args = ["--size", size, "--resolution", 1000.0, "--fractal-dimension", 2.3,
                   "--relief", 20000.0 if not quick else 7000.0, "--seed", SEED,
@@ -230,8 +238,8 @@ def lunar(out: Path, quick: bool) -> dict:
     enhance_args = ["--site", f"{site[0]},{site[1]}", "--levels", levels, "--layer-size",
                     size, "--seed", SEED, "--fractal-dimension", 2.05, "--height-scale",
                     0.05, "--dmin", 1.0, "--dmax", 15000.0, "--density", 100000.0,
-                    "--sfd-exponent", -2.0, "--max-age", 3.5]
-    stack = Stage(out, "lunar/stack", dict(base=base.key, args=enhance_args, v=2))
+                    "--sfd-exponent", -2.0, "--max-age", 3.5, "--rocks", ROCKS]
+    stack = Stage(out, "lunar/stack", dict(base=base.key, args=enhance_args, v=3))
     stack_dir = stack.dir / "stack"
     if not stack.done():
         say(f"lunar 2/3: enhancing the base in {levels} nested layers around the site "
@@ -518,10 +526,12 @@ def evaluate(out: Path, lunar_facts: dict, asteroid_facts: dict, quick: bool) ->
     else:
         notes.append(f"{LDEM} not found: the base is not compared with LOLA")
     if real["sfs"]:
-        # the finest layer is the landing site: about as wide as the SFS DEM (0.5 km), and
+        # the layer of about 0.5 m is the landing site as wide as the SFS DEM (0.5 km), and
         # finer, so it is averaged onto the SFS DEM's 1.08 m pixels before the comparison
+        # (the centimetre layers below it are far narrower than one SFS pixel row is long)
         ref = read_dem(SFS)
-        k = len(stack.tiles) - 1
+        k = min(range(len(stack.tiles)),
+                key=lambda i: abs(math.log(stack.tiles[i].resolution / 0.5)))
         compare(stack.tiles[k], ref, f"layer {k} (site)", "LROC NAC SFS DEM (85 S)")
     else:
         notes.append(f"{SFS} not found: the finest layers are not compared with real data")
@@ -532,7 +542,7 @@ def evaluate(out: Path, lunar_facts: dict, asteroid_facts: dict, quick: bool) ->
         "whether the model's slopes are those of real polar terrain at the same scale, not "
         "whether it reproduces a site. LDEM_4 (reprojected, 7.58 km pixels) judges the base; "
         "the LROC NAC shape-from-shading DEM near Malapert (1.08 m, 0.5 km across) judges the "
-        "finest layer, the landing site, at its spacing. The crater model is a "
+        "0.5 m layer, the landing site, at its spacing. The crater model is a "
         "simple-crater model (Martin et al. 2014), so the base has craters up to 15 km only "
         "and lacks the steep walls of the large complex craters and basins a real polar "
         "region has: expect its slope distribution to miss LOLA's heaviest tail.")
@@ -542,6 +552,11 @@ def evaluate(out: Path, lunar_facts: dict, asteroid_facts: dict, quick: bool) ->
                                      median=c.distribution.quantiles["p50"],
                                      reference_median=c.reference_distribution.quantiles["p50"])
                                 for c in comparisons]
+
+    # -- the landing site at lander scale: hazards, rocks, the layers under the descent
+    say("evaluation: hazard map, rocks and the layers drawn under the descent")
+    sections.append(site(stage.dir, Path(lunar_facts["stack"]), stack, tracked["lunar"][0],
+                         facts))
 
     # -- the asteroid's slopes next to real Eros
     say("evaluation: asteroid slopes (polyhedron gravity and spin)")
@@ -574,6 +589,45 @@ def evaluate(out: Path, lunar_facts: dict, asteroid_facts: dict, quick: bool) ->
     return report_path
 
 
+def site(folder: Path, stack_dir: Path, stack, run, facts: dict):
+    """Hazard map of the site (``craterscape terrain hazards``), the rocks against their model
+    and the finest layer drawn under each descent frame's centre."""
+    from evaluation.hazards import descent_layers, site_section
+    from terrain.hazards import HazardMap, pick_layer
+    from terrain.io import read_dem
+    from terrain.rocks import MIN_ROCK_PIXELS, RockModel
+
+    diameter, max_slope, max_step = LANDER
+    tif = folder / "hazards.tif"
+    run_cli("terrain", "hazards", stack_dir, "-o", tif, "--lander-diameter", diameter,
+            "--max-slope", max_slope, "--max-step", max_step)
+    layer = pick_layer([t.resolution for t in stack.tiles], diameter)
+    slope, step, safe = (read_dem(tif, band=b).heights for b in (1, 2, 3))
+    hazards = HazardMap(slope, step, safe, diameter, max_slope, max_step)
+    tile = stack.tiles[layer]
+    rock_model = None
+    if stack.rocks is not None and stack.info.get("rocks"):
+        rock_model = RockModel.from_mapping(stack.info["rocks"])
+    descent = descent_layers(run, stack)
+    n = len(run)
+    frames = (60, 90, 110, 119) if n == 120 else sorted({n // 2, 3 * n // 4, n - 2, n - 1})
+    sec = site_section(hazards, tif.with_suffix(".png"), layer=layer,
+                       resolution=tile.resolution, rocks=stack.rocks, rock_model=rock_model,
+                       rock_extent=(tile.bounds, MIN_ROCK_PIXELS * tile.resolution),
+                       descent=descent, frames=frames)
+    sec.links = [("hazard bands: slope, step, safe (GeoTIFF)", "hazards.tif"),
+                 ("hazard map (PNG)", "hazards.png"),
+                 ("rock catalogue (CSV)", os.path.relpath(stack_dir / "rocks.csv", folder))]
+    facts["site"] = dict(safe_fraction=hazards.safe_fraction, layer=layer,
+                         rocks=None if stack.rocks is None else len(stack.rocks["id"]),
+                         descent=[r for r in descent if r["frame"] in frames])
+    for r in descent:
+        if r["frame"] in frames:
+            say(f"frame {r['frame']}: GSD {r['gsd_m']:.3g} m at the centre, finest layer drawn "
+                f"{r['layer']} ({r['layer_resolution_m']:.3g} m)")
+    return sec
+
+
 def campaign_section(out, folder, lunar_facts, asteroid_facts, tracked):
     """The report's first section: what was made, how long it took, pictures, links."""
     from evaluation.report import Section, image_figure
@@ -581,8 +635,8 @@ def campaign_section(out, folder, lunar_facts, asteroid_facts, tracked):
     sec = Section("campaign", "The campaign")
     sec.paragraphs.append(
         "Everything below was produced by `make demo` (examples/demo.py) from built-in "
-        "defaults: a synthetic polar-like lunar base enhanced in nested layers to about "
-        "0.5 m at a landing site, a descent onto it under a low sun, an Eros-like asteroid "
+        "defaults: a synthetic polar-like lunar base enhanced in nested layers to 3 cm "
+        "at a rocky landing site, a descent onto it under a low sun, an Eros-like asteroid "
         "approached while it spins, and the evidence that both are fit for testing a "
         "lander. Every file is under one folder; the links below are relative to this "
         "report.")

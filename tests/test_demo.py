@@ -45,7 +45,7 @@ def test_demo_writes_one_folder_and_a_report_with_every_figure(demo):
     doc = json.loads(report.with_suffix(".json").read_text(encoding="utf-8"))
     ids = [s["id"] for s in doc["sections"]]
     assert ids == ["campaign", "tracking-lunar descent", "tracking-asteroid approach",
-                   "dem-lunar layers", "asteroid"]
+                   "dem-lunar layers", "site", "asteroid"]
     # every figure is embedded, and none is empty
     images = re.findall(r'<img alt="[^"]*" src="data:image/png;base64,([A-Za-z0-9+/=]+)"', text)
     assert len(images) == len(doc["figures"]) >= 15

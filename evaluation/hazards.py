@@ -1,0 +1,187 @@
+"""The landing site at lander scale: hazard map, rock size-frequency against the model, and
+which layer a descent's frames were drawn from.
+
+:func:`rock_sfd` measures, from a rock catalogue, what the model promises: the cumulative
+fractional area F(>=D) (Golombek and Rapp 1997) and the cumulative number N(>=D) per m^2,
+over an area where every rock down to a diameter is resolved. :func:`descent_layers` finds,
+for every frame of a terrain run, the ground point under the image centre (from the LIDAR
+range of the centre pixel), its ground sample distance (range / focal length in pixels, the
+footprint of the pixel across the ray) and the finest layer drawn there (the finest layer
+whose extent, less the one-pixel overlap band the renderer keeps, holds the point).
+:func:`site_section` turns both and a :class:`terrain.hazards.HazardMap` into a report section.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from evaluation.report import Check, Section, _figure, _fmt, _jsonable, image_figure
+
+__all__ = ["descent_layers", "rock_sfd", "rock_sfd_figure", "site_section"]
+
+
+def rock_sfd(catalog: dict, extent, min_diameter: float, *, points: int = 24) -> dict:
+    """Cumulative fractional area and number of the rocks centred in ``extent``.
+
+    Parameters
+    ----------
+    catalog : dict
+        Rock catalogue columns (``x_m``, ``y_m``, ``diameter_m``).
+    extent : (xmin, ymin, xmax, ymax), map metres
+    min_diameter : float
+        Smallest diameter complete in the catalogue over the extent (metres).
+
+    Returns
+    -------
+    dict with ``diameter_m`` (points,), ``fractional_area`` (points,), ``number_per_m2``
+    (points,), ``rocks`` and ``area_m2``.
+    """
+    xmin, ymin, xmax, ymax = extent
+    d = np.asarray(catalog["diameter_m"], float)
+    x = np.asarray(catalog["x_m"], float)
+    y = np.asarray(catalog["y_m"], float)
+    sel = (x >= xmin) & (x <= xmax) & (y >= ymin) & (y <= ymax) & (d >= min_diameter)
+    d = np.sort(d[sel])[::-1]
+    area = (xmax - xmin) * (ymax - ymin)
+    top = d[0] if d.size else min_diameter * 2
+    grid = np.geomspace(min_diameter, max(top, min_diameter * 1.01), points)
+    cum_area = np.cumsum(np.pi * d**2 / 4)
+    idx = np.searchsorted(-d, -grid, side="right")  # rocks with diameter >= grid
+    frac = np.where(idx > 0, cum_area[np.maximum(idx - 1, 0)], 0.0) / area
+    return dict(diameter_m=grid, fractional_area=frac, number_per_m2=idx / area,
+                rocks=int(d.size), area_m2=float(area))
+
+
+def rock_sfd_figure(measured: dict, model):
+    """Measured F(>=D) and N(>=D) (points) against the model drawn from (lines)."""
+    from evaluation.figures import _figure as new_figure
+
+    fig = new_figure()
+    ax1, ax2 = fig.subplots(1, 2)
+    d = measured["diameter_m"]
+    dd = np.geomspace(d[0], d[-1], 200)
+    ax1.loglog(d, np.maximum(measured["fractional_area"], 1e-12), "o", ms=4,
+               label="measured (catalogue)")
+    ax1.loglog(dd, model.fractional_area(dd) - model.fractional_area(model.dmax), "-",
+               label=f"model ({model.model})")
+    ax1.set_xlabel("diameter D (m)")
+    ax1.set_ylabel("fractional area of rocks >= D")
+    ax2.loglog(d, np.maximum(measured["number_per_m2"], 1e-12), "o", ms=4, label="measured")
+    ax2.loglog(dd, model.cumulative(dd) - model.cumulative(model.dmax), "-", label="model")
+    ax2.set_xlabel("diameter D (m)")
+    ax2.set_ylabel("rocks >= D per m^2")
+    for ax in (ax1, ax2):
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
+    return fig
+
+
+def descent_layers(run, stack) -> list[dict]:
+    """Per frame: centre ground sample distance and the finest layer drawn under the centre.
+
+    Parameters
+    ----------
+    run : render.rundir.RunReader
+        A terrain run with LIDAR range images and truth.
+    stack : terrain.layers.LayerStack
+        The stack it was rendered from.
+
+    Returns
+    -------
+    list of dict: ``frame``, ``altitude_m`` (camera height above the centre point),
+    ``range_m``, ``gsd_m``, ``layer``, ``layer_resolution_m``, ``ratio`` (layer pixel / GSD).
+    """
+    rows = []
+    for k, truth in enumerate(run.truth):
+        rng = run.range(k)
+        if rng is None:
+            continue
+        intr = truth.intrinsics
+        i, j = int(round(intr.cy)), int(round(intr.cx))  # pixel centres at integers
+        r = float(rng[i, j])
+        if not (math.isfinite(r) and r > 0):
+            continue
+        point = truth.pose.unproject([[j, i]], [r], intr)[0]
+        drawn = {d["level"] for d in truth.drawn.get("layers", [])}
+        layer = -1
+        for level in range(len(stack.tiles) - 1, -1, -1):
+            left, bottom, right, top = stack.tiles[level].bounds
+            band = stack.tiles[level - 1].resolution if level else 0.0
+            if (left + band <= point[0] <= right - band and bottom + band <= point[1]
+                    <= top - band and (level in drawn or not drawn)):
+                layer = level
+                break
+        res = stack.tiles[layer].resolution if layer >= 0 else float("nan")
+        gsd = r / max(intr.fx, intr.fy)
+        rows.append(dict(frame=k, altitude_m=float(truth.pose.position[2] - point[2]),
+                         range_m=r, gsd_m=gsd, layer=layer, layer_resolution_m=res,
+                         ratio=res / gsd))
+    return rows
+
+
+def site_section(hazards, hazard_png, *, layer: int, resolution: float, rocks=None,
+                 rock_model=None, rock_extent=None, descent=None, frames=()) -> Section:
+    """The landing site at lander scale (hazard truth, rocks, descent layers).
+
+    Parameters
+    ----------
+    hazards : terrain.hazards.HazardMap
+    hazard_png : path of the hazard picture
+    layer, resolution : the layer the hazards were computed on and its pixel size (m)
+    rocks : dict, optional
+        The stack's rock catalogue; with ``rock_model`` and ``rock_extent`` (a layer's extent
+        and the smallest diameter complete there) its size-frequency is drawn against the model.
+    descent : list of dict, optional
+        :func:`descent_layers` rows; ``frames`` picks the ones tabulated.
+    """
+    sec = Section("site", "The landing site at lander scale")
+    sec.paragraphs.append(
+        f"Hazard truth for a lander {hazards.lander_diameter:g} m across: at every pixel of "
+        f"layer {layer} ({resolution:.3g} m pixels) a plane is fitted by least squares to the "
+        "heights under the footprint; the slope is its tilt and the step the largest height "
+        f"above it (rocks, crater rims). Safe: slope <= {hazards.max_slope:g} degrees and "
+        f"step <= {hazards.max_step:g} m. Green is safe, red unsafe, grey unknown (footprint "
+        "beyond the layer).")
+    sec.figures.append(image_figure("hazards", "Hazard map of the landing site", hazard_png))
+    known = np.isfinite(hazards.safe)
+    sec.tables.append(("Hazard truth", ["measure", "value"], [
+        ["safe fraction (of known pixels)", _fmt(hazards.safe_fraction)],
+        ["known fraction", _fmt(hazards.known_fraction)],
+        ["median slope (deg)", _fmt(float(np.nanmedian(hazards.slope)) if known.any()
+                                    else None)],
+        ["pixels unsafe by slope", _fmt(int(np.sum(hazards.slope[known]
+                                                   > hazards.max_slope)))],
+        ["pixels unsafe by step", _fmt(int(np.sum(hazards.step[known] > hazards.max_step)))],
+    ]))
+    data = dict(safe_fraction=hazards.safe_fraction, known_fraction=hazards.known_fraction,
+                layer=layer, resolution_m=resolution)
+    if rocks is not None and rock_model is not None and rock_extent is not None:
+        extent, dmin = rock_extent
+        measured = rock_sfd(rocks, extent, dmin)
+        sec.figures.append(_figure(
+            "rock_sfd", "Rock size-frequency: catalogue against the model",
+            rock_sfd_figure(measured, rock_model),
+            dict(measured=measured, model=rock_model.as_dict())))
+        sec.paragraphs.append(
+            f"Rocks: {rock_model.model} model {rock_model.as_dict()}; {measured['rocks']} "
+            f"rocks of D >= {dmin:.3g} m centred in {measured['area_m2']:.4g} m^2. Fresh "
+            "craters raise the density on their rims and ejecta above the background model, "
+            "so a site near one lies above the line.")
+        data["rocks"] = dict(total=len(rocks["id"]), measured=measured)
+    if descent:
+        picked = [r for r in descent if r["frame"] in set(frames)] or descent[-1:]
+        sec.tables.append((
+            "Descent: finest layer drawn under the image centre", [
+                "frame", "altitude (m)", "GSD at centre (m)", "layer", "layer pixel (m)",
+                "layer pixel / GSD"],
+            [[r["frame"], _fmt(r["altitude_m"]), _fmt(r["gsd_m"], 3), r["layer"],
+              _fmt(r["layer_resolution_m"], 3), _fmt(r["ratio"], 3)] for r in picked]))
+        coarse = sum(1 for r in descent if not r["ratio"] <= 2.0)
+        sec.checks.append(Check(
+            "site", "frames whose finest drawn layer is coarser than 2x their GSD", coarse,
+            0, "<=", "frames"))
+        data["descent"] = descent
+    sec.data = _jsonable(data)
+    return sec
