@@ -1,0 +1,50 @@
+"""The landing-site section: rock size-frequency measured from a catalogue, hazard summary."""
+
+import numpy as np
+import pytest
+
+from evaluation.hazards import rock_sfd, site_section
+from terrain.hazards import hazard_image, hazard_map
+from terrain.rocks import RockModel
+from terrain.tile import DEMTile
+
+
+def test_rock_sfd_counts_area_and_number_of_rocks_at_least_d():
+    cat = {"x_m": np.array([1.0, 2.0, 3.0, 50.0]), "y_m": np.array([1.0, 2.0, 3.0, 3.0]),
+           "diameter_m": np.array([0.2, 0.4, 0.8, 5.0])}
+    m = rock_sfd(cat, (0.0, 0.0, 10.0, 10.0), 0.2, points=3)  # the 5 m rock lies outside
+    np.testing.assert_allclose(m["diameter_m"], [0.2, 0.4, 0.8])
+    np.testing.assert_allclose(m["number_per_m2"], [3 / 100, 2 / 100, 1 / 100])
+    np.testing.assert_allclose(m["fractional_area"] * 100,
+                               np.pi / 4 * np.array([0.84, 0.8, 0.64]))
+
+
+def test_rock_sfd_of_a_generated_field_follows_its_model():
+    model = RockModel.from_spec("golombek:k=0.1,dmin=0.1")
+    rocks = model.generate(8, (0.0, 0.0, 100.0, 100.0), margin=False)
+    cat = {"x_m": rocks.x, "y_m": rocks.y, "diameter_m": rocks.diameter}
+    m = rock_sfd(cat, (0.0, 0.0, 100.0, 100.0), 0.1, points=5)
+    d = m["diameter_m"][:3]   # 0.1 .. 0.3 m, well sampled
+    expected = model.fractional_area(d) - model.fractional_area(model.dmax)
+    np.testing.assert_allclose(m["fractional_area"][:3], expected, rtol=0.15)
+
+
+def test_site_section_reports_the_hazard_map_and_the_rocks(tmp_path):
+    from terrain.io import write_png
+
+    y, x = np.mgrid[0:61, 0:61] * 0.1
+    tile = DEMTile.from_array(x * np.tan(np.radians(14.0)) * (x > 3), resolution=0.1)
+    h = hazard_map(tile, lander_diameter=1.0, max_slope=12.0, max_step=0.3)
+    png = write_png(hazard_image(h), tmp_path / "h.png")
+    model = RockModel.from_spec("power:a=0.01,b=-2.5,dmin=0.1")
+    rocks = model.generate(1, tile.bounds, margin=False)
+    cat = {"id": rocks.uid, "x_m": rocks.x, "y_m": rocks.y, "diameter_m": rocks.diameter}
+    sec = site_section(h, png, layer=0, resolution=0.1, rocks=cat, rock_model=model,
+                       rock_extent=(tile.bounds, 0.2),
+                       descent=[dict(frame=0, altitude_m=20.0, range_m=22.0, gsd_m=0.025,
+                                     layer=3, layer_resolution_m=0.03, ratio=1.2)],
+                       frames=(0,))
+    assert [f.id for f in sec.figures] == ["hazards", "rock_sfd"]
+    assert sec.data["safe_fraction"] == pytest.approx(h.safe_fraction)
+    assert 0.2 < h.safe_fraction < 0.8   # flat west, 14 degrees east
+    assert sec.checks[0].passed is True
