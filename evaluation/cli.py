@@ -514,11 +514,14 @@ def track_cmd(run_dir, output, max_corners, quality, min_distance, win_size, lev
               default=None, help="Real body the --mesh inputs are compared with.")
 @click.option("--reference-units", type=click.Choice(["m", "km"]), default=None,
               help="Units of the reference mesh (default: --units).")
+@click.option("--hazards", "hazards", type=click.Path(dir_okay=False, path_type=Path),
+              default=None, help="Hazard map from `craterscape terrain hazards` to include "
+                                 "(with its rocks against their model when made from a stack).")
 @_gravity_options
 @_tracker_options
 @_edges_option
 def report(run_dirs, output, thresholds, title, dems, band, reference, reference_band,
-           slope_band, meshes, reference_mesh, reference_units, units, density, mass,
+           slope_band, meshes, reference_mesh, reference_units, hazards, units, density, mass,
            period_hours, spin_axis, radius_deg, coarse_faces, no_gravity, max_corners,
            quality, min_distance, win_size, levels, fb_threshold, outlier_px, compute_edges):
     """One self-contained HTML validation report (and its JSON) with pass/fail checks.
@@ -536,11 +539,13 @@ def report(run_dirs, output, thresholds, title, dems, band, reference, reference
     )
     from terrain.io import check_output_path
 
-    if not run_dirs and not dems and not meshes and reference_mesh is None:
-        raise InvalidParameterError("nothing to report: give a RUN_DIR, --dem or --mesh")
+    if not run_dirs and not dems and not meshes and reference_mesh is None and hazards is None:
+        raise InvalidParameterError("nothing to report: give a RUN_DIR, --dem, --mesh or "
+                                    "--hazards")
     if reference is not None and not dems:
         raise InvalidParameterError("--reference compares --dem inputs; give at least one --dem")
-    srcs = [p for p in [*run_dirs, *dems, reference, *meshes, reference_mesh, thresholds] if p]
+    srcs = [p for p in [*run_dirs, *dems, reference, *meshes, reference_mesh, thresholds,
+                        hazards] if p]
     for run_dir in run_dirs:  # the report's JSON twin must never replace a run's own files
         srcs += [run_dir / "truth.json", run_dir / "manifest.json"]
     check_output_path(output, srcs)
@@ -590,6 +595,11 @@ def report(run_dirs, output, thresholds, title, dems, band, reference, reference
             limits["asteroid"]["slope_kind"] = "radial"
             log.warning("--no-gravity: the asteroid checks compare radial slopes")
         sections.append(asteroid_section(bodies, ref, limits))
+    if hazards is not None:
+        from evaluation.hazards import hazards_file_section
+
+        sections.append(hazards_file_section(hazards))
+        inputs["hazards"] = str(hazards)
     if thresholds is not None:
         inputs["thresholds"] = str(thresholds)
     rep = Report(title, sections, limits, inputs)

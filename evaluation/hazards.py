@@ -19,7 +19,8 @@ import numpy as np
 
 from evaluation.report import Check, Section, _figure, _fmt, _jsonable, image_figure
 
-__all__ = ["descent_layers", "rock_sfd", "rock_sfd_figure", "site_section"]
+__all__ = ["descent_layers", "hazards_file_section", "rock_sfd", "rock_sfd_figure",
+           "site_section"]
 
 
 def rock_sfd(catalog: dict, extent, min_diameter: float, *, points: int = 24) -> dict:
@@ -137,14 +138,17 @@ def site_section(hazards, hazard_png, *, layer: int, resolution: float, rocks=No
         :func:`descent_layers` rows; ``frames`` picks the ones tabulated.
     """
     sec = Section("site", "The landing site at lander scale")
+    where = "the DEM" if layer is None else f"layer {layer}"
     sec.paragraphs.append(
         f"Hazard truth for a lander {hazards.lander_diameter:g} m across: at every pixel of "
-        f"layer {layer} ({resolution:.3g} m pixels) a plane is fitted by least squares to the "
+        f"{where} ({resolution:.3g} m pixels) a plane is fitted by least squares to the "
         "heights under the footprint; the slope is its tilt and the step the largest height "
         f"above it (rocks, crater rims). Safe: slope <= {hazards.max_slope:g} degrees and "
         f"step <= {hazards.max_step:g} m. Green is safe, red unsafe, grey unknown (footprint "
         "beyond the layer).")
-    sec.figures.append(image_figure("hazards", "Hazard map of the landing site", hazard_png))
+    if hazard_png is not None:
+        sec.figures.append(image_figure("hazards", "Hazard map of the landing site",
+                                        hazard_png))
     known = np.isfinite(hazards.safe)
     sec.tables.append(("Hazard truth", ["measure", "value"], [
         ["safe fraction (of known pixels)", _fmt(hazards.safe_fraction)],
@@ -184,4 +188,51 @@ def site_section(hazards, hazard_png, *, layer: int, resolution: float, rocks=No
             0, "<=", "frames"))
         data["descent"] = descent
     sec.data = _jsonable(data)
+    return sec
+
+
+def hazards_file_section(path, *, run=None, frames=()) -> Section:
+    """:func:`site_section` of a GeoTIFF written by ``craterscape terrain hazards``.
+
+    Its tags name the lander and the source; where the source is a layer stack with rocks,
+    the rocks of the hazard layer are drawn against their model, and with ``run`` (a
+    :class:`render.rundir.RunReader` of a descent over that stack) the descent table is added.
+    """
+    import json
+    from pathlib import Path
+
+    from terrain.errors import InvalidDEMError
+    from terrain.hazards import HazardMap
+    from terrain.io import read_dem
+    from terrain.rocks import MIN_ROCK_PIXELS, RockModel
+
+    path = Path(path)
+    bands = [read_dem(path, band=b) for b in (1, 2, 3)]
+    meta = bands[0].metadata
+    try:
+        params = json.loads(meta["CRATERSCAPE_PARAMETERS"])
+        hazards = HazardMap(bands[0].heights, bands[1].heights, bands[2].heights,
+                            float(params["lander_diameter"]), float(params["max_slope"]),
+                            float(params["max_step"]))
+    except (KeyError, ValueError, TypeError) as exc:
+        raise InvalidDEMError(f"'{path}' is not a hazard map written by `craterscape terrain "
+                              f"hazards` (tags: {exc})") from None
+    tile = bands[0]
+    layer = params.get("layer")
+    kwargs: dict = {}
+    source = Path(params.get("source", ""))
+    if source.is_dir() and (source / "manifest.json").exists():
+        from terrain.layers import read_stack
+
+        stack = read_stack(source)
+        if stack.rocks is not None and stack.info.get("rocks"):
+            kwargs.update(rocks=stack.rocks, rock_model=RockModel.from_mapping(
+                stack.info["rocks"]), rock_extent=(tile.bounds,
+                                                   MIN_ROCK_PIXELS * tile.resolution))
+        if run is not None:
+            kwargs.update(descent=descent_layers(run, stack), frames=frames)
+    png = path.with_suffix(".png")
+    sec = site_section(hazards, png if png.exists() else None,
+                       layer=None if layer is None else int(layer), resolution=tile.resolution,
+                       **kwargs)
     return sec

@@ -555,8 +555,7 @@ def evaluate(out: Path, lunar_facts: dict, asteroid_facts: dict, quick: bool) ->
 
     # -- the landing site at lander scale: hazards, rocks, the layers under the descent
     say("evaluation: hazard map, rocks and the layers drawn under the descent")
-    sections.append(site(stage.dir, Path(lunar_facts["stack"]), stack, tracked["lunar"][0],
-                         facts))
+    sections.append(site(stage.dir, Path(lunar_facts["stack"]), tracked["lunar"][0], facts))
 
     # -- the asteroid's slopes next to real Eros
     say("evaluation: asteroid slopes (polyhedron gravity and spin)")
@@ -589,42 +588,28 @@ def evaluate(out: Path, lunar_facts: dict, asteroid_facts: dict, quick: bool) ->
     return report_path
 
 
-def site(folder: Path, stack_dir: Path, stack, run, facts: dict):
+def site(folder: Path, stack_dir: Path, run, facts: dict):
     """Hazard map of the site (``craterscape terrain hazards``), the rocks against their model
     and the finest layer drawn under each descent frame's centre."""
-    from evaluation.hazards import descent_layers, site_section
-    from terrain.hazards import HazardMap, pick_layer
-    from terrain.io import read_dem
-    from terrain.rocks import MIN_ROCK_PIXELS, RockModel
+    from evaluation.hazards import hazards_file_section
 
     diameter, max_slope, max_step = LANDER
     tif = folder / "hazards.tif"
     run_cli("terrain", "hazards", stack_dir, "-o", tif, "--lander-diameter", diameter,
             "--max-slope", max_slope, "--max-step", max_step)
-    layer = pick_layer([t.resolution for t in stack.tiles], diameter)
-    slope, step, safe = (read_dem(tif, band=b).heights for b in (1, 2, 3))
-    hazards = HazardMap(slope, step, safe, diameter, max_slope, max_step)
-    tile = stack.tiles[layer]
-    rock_model = None
-    if stack.rocks is not None and stack.info.get("rocks"):
-        rock_model = RockModel.from_mapping(stack.info["rocks"])
-    descent = descent_layers(run, stack)
     n = len(run)
     frames = (60, 90, 110, 119) if n == 120 else sorted({n // 2, 3 * n // 4, n - 2, n - 1})
-    sec = site_section(hazards, tif.with_suffix(".png"), layer=layer,
-                       resolution=tile.resolution, rocks=stack.rocks, rock_model=rock_model,
-                       rock_extent=(tile.bounds, MIN_ROCK_PIXELS * tile.resolution),
-                       descent=descent, frames=frames)
+    sec = hazards_file_section(tif, run=run, frames=frames)
     sec.links = [("hazard bands: slope, step, safe (GeoTIFF)", "hazards.tif"),
                  ("hazard map (PNG)", "hazards.png"),
                  ("rock catalogue (CSV)", os.path.relpath(stack_dir / "rocks.csv", folder))]
-    facts["site"] = dict(safe_fraction=hazards.safe_fraction, layer=layer,
-                         rocks=None if stack.rocks is None else len(stack.rocks["id"]),
+    descent = sec.data.get("descent", [])
+    facts["site"] = dict(safe_fraction=sec.data["safe_fraction"], layer=sec.data["layer"],
+                         rocks=sec.data.get("rocks", {}).get("total"),
                          descent=[r for r in descent if r["frame"] in frames])
-    for r in descent:
-        if r["frame"] in frames:
-            say(f"frame {r['frame']}: GSD {r['gsd_m']:.3g} m at the centre, finest layer drawn "
-                f"{r['layer']} ({r['layer_resolution_m']:.3g} m)")
+    for r in facts["site"]["descent"]:
+        say(f"frame {r['frame']}: GSD {r['gsd_m']:.3g} m at the centre, finest layer drawn "
+            f"{r['layer']} ({r['layer_resolution_m']:.3g} m)")
     return sec
 
 

@@ -48,3 +48,27 @@ def test_site_section_reports_the_hazard_map_and_the_rocks(tmp_path):
     assert sec.data["safe_fraction"] == pytest.approx(h.safe_fraction)
     assert 0.2 < h.safe_fraction < 0.8   # flat west, 14 degrees east
     assert sec.checks[0].passed is True
+
+
+def test_evaluation_report_takes_a_hazard_map_of_a_rocky_stack(tmp_path):
+    import json
+
+    from tests.cli_helpers import run
+
+    base = tmp_path / "b.tif"
+    assert run("terrain", "synth", "-o", base, "--size", 65, "--resolution", 4.0, "--relief",
+               3, "--seed", 2).exit_code == 0
+    stack = tmp_path / "stack"
+    assert run("terrain", "enhance", base, "-o", stack, "--site", "130,130", "--levels", 5,
+               "--layer-size", 65, "--rocks", "golombek:k=0.15").exit_code == 0
+    hz = tmp_path / "hazards.tif"
+    r = run("terrain", "hazards", stack, "-o", hz, "--lander-diameter", 1.5, "--max-slope",
+            12, "--max-step", 0.2)
+    assert r.exit_code == 0, r.output
+    out = tmp_path / "report.html"
+    r = run("evaluation", "report", "-o", out, "--hazards", hz)
+    assert r.exit_code == 0, r.output
+    doc = json.loads(out.with_suffix(".json").read_text())
+    assert [s["id"] for s in doc["sections"]] == ["site"]
+    assert {f["id"] for f in doc["figures"]} == {"hazards", "rock_sfd"}
+    assert 0 <= doc["sections"][0]["data"]["safe_fraction"] <= 1
