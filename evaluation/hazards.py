@@ -115,10 +115,17 @@ def descent_layers(run, stack) -> list[dict]:
                 layer = level
                 break
         res = stack.tiles[layer].resolution if layer >= 0 else float("nan")
-        gsd = r / max(intr.fx, intr.fy)
+        focal = max(intr.fx, intr.fy)
+        gsd = r / focal
+        # the level of detail there: the renderer's rule (render.terrain_scene) with the
+        # frame's target cell size on screen, at the range (its block is no further away,
+        # so this step is an upper bound)
+        target = float(truth.drawn.get("lod_pixels", 1.0))
+        step = int(min(64, 2 ** max(0, math.floor(math.log2(max(target * r / (res * focal),
+                                                                 1.0)))))) if layer >= 0 else 1
         rows.append(dict(frame=k, altitude_m=float(truth.pose.position[2] - point[2]),
                          range_m=r, gsd_m=gsd, layer=layer, layer_resolution_m=res,
-                         ratio=res / gsd))
+                         ratio=res / gsd, lod_step=step, cell_m=step * res))
     return rows
 
 
@@ -179,9 +186,10 @@ def site_section(hazards, hazard_png, *, layer: int, resolution: float, rocks=No
         sec.tables.append((
             "Descent: finest layer drawn under the image centre", [
                 "frame", "altitude (m)", "GSD at centre (m)", "layer", "layer pixel (m)",
-                "layer pixel / GSD"],
+                "layer pixel / GSD", "level-of-detail step", "drawn cell (m, at most)"],
             [[r["frame"], _fmt(r["altitude_m"]), _fmt(r["gsd_m"], 3), r["layer"],
-              _fmt(r["layer_resolution_m"], 3), _fmt(r["ratio"], 3)] for r in picked]))
+              _fmt(r["layer_resolution_m"], 3), _fmt(r["ratio"], 3), r["lod_step"],
+              _fmt(r["cell_m"], 3)] for r in picked]))
         coarse = sum(1 for r in descent if not r["ratio"] <= 2.0)
         sec.checks.append(Check(
             "site", "frames whose finest drawn layer is coarser than 2x their GSD", coarse,

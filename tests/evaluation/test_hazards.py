@@ -42,7 +42,8 @@ def test_site_section_reports_the_hazard_map_and_the_rocks(tmp_path):
     sec = site_section(h, png, layer=0, resolution=0.1, rocks=cat, rock_model=model,
                        rock_extent=(tile.bounds, 0.2),
                        descent=[dict(frame=0, altitude_m=20.0, range_m=22.0, gsd_m=0.025,
-                                     layer=3, layer_resolution_m=0.03, ratio=1.2)],
+                                     layer=3, layer_resolution_m=0.03, ratio=1.2,
+                                     lod_step=1, cell_m=0.03)],
                        frames=(0,))
     assert [f.id for f in sec.figures] == ["hazards", "rock_sfd"]
     assert sec.data["safe_fraction"] == pytest.approx(h.safe_fraction)
