@@ -616,7 +616,9 @@ def _rasterise(z, r0, c0, x0, y0, res, rows, z0):
         a2, b2, c = 0.5 * rows[i, _A], 0.5 * rows[i, _B], rows[i, _C]
         beta = rows[i, _BETA]
         cy_, sy_ = math.cos(rows[i, _YAW]), math.sin(rows[i, _YAW])
-        reach = a2 * (1.0 + 3.0 * SHAPE_PERTURBATION)
+        smax = 1.0 + abs(rows[i, 9]) + abs(rows[i, 11]) + abs(rows[i, 13])
+        smax2 = smax * smax
+        reach = a2 * smax
         col_lo = max(int(math.floor((cx - reach - x0) / res - 0.5)) - c0, 0)
         col_hi = min(int(math.ceil((cx + reach - x0) / res - 0.5)) - c0, nx - 1)
         row_lo = max(int(math.floor((y0 - cy - reach) / res - 0.5)) - r0, 0)
@@ -629,11 +631,14 @@ def _rasterise(z, r0, c0, x0, y0, res, rows, z0):
                 dx, dy = px - cx, py - cy
                 u = dx * cy_ + dy * sy_
                 v = -dx * sy_ + dy * cy_
+                e2 = (u / a2) ** 2 + (v / b2) ** 2
+                if e2 >= smax2:  # outside even the largest outline: skip the harmonics
+                    continue
                 phi = math.atan2(v * a2, u * b2)
                 s = 1.0
                 for h in range(3):
                     s += rows[i, 9 + 2 * h] * math.cos((h + 2) * phi + rows[i, 10 + 2 * h])
-                rho2 = ((u / a2) ** 2 + (v / b2) ** 2) / (s * s)
+                rho2 = e2 / (s * s)
                 if rho2 >= 1.0:
                     continue
                 top = base + 0.5 * c * s * math.sqrt(1.0 - rho2)
@@ -662,7 +667,7 @@ def rock_heights(tile, rocks: RockTable, *, window=None, min_pixels: float = MIN
     """
     res = tile.resolution
     t = tile.transform
-    base = np.where(tile.valid, tile.heights, np.nan).astype(np.float64)
+    base = tile.heights  # float32; the kernels compute in float64
     if not tile.valid.all():
         from scipy import ndimage
 
