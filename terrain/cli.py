@@ -8,8 +8,11 @@ become one line on stderr and exit code 2; ``-v`` shows the traceback.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
+import math
+import signal
 import sys
 import traceback
 from importlib.metadata import entry_points
@@ -18,6 +21,7 @@ from pathlib import Path
 import click
 
 from terrain.errors import CraterscapeError, InvalidParameterError
+from terrain.outputs import cannot_write, is_write_error, protect, protected
 
 __all__ = ["main", "terrain"]
 
@@ -25,6 +29,76 @@ log = logging.getLogger(__name__)
 
 ENTRY_POINT_GROUP = "craterscape.groups"
 EXIT_BAD_INPUT = 2
+#: Exit code after SIGTERM (128 + 15, as a shell reports it).
+EXIT_TERMINATED = 143
+#: Path parameters that name what a command writes; every other path parameter is an input
+#: that no output may replace or enter (:func:`terrain.outputs.protect`).
+OUTPUT_PARAMS = frozenset({"output", "catalog"})
+#: Path parameters a command edits in place (protected from nothing but themselves).
+IN_PLACE_PARAMS = frozenset({"stack_dir"})
+
+
+class Terminated(BaseException):
+    """SIGTERM arrived: unwind like Ctrl-C so partial files are removed."""
+
+
+def _on_sigterm(signum, frame):
+    raise Terminated()
+
+
+class _FiniteFloat(click.ParamType):
+    """A float that is a number: NaN and infinity are refused with the option's name."""
+
+    name = "float"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, float) and math.isfinite(value):
+            return value
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            self.fail(f"{value!r} is not a number", param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"must be a finite number; got {value!r}", param, ctx)
+        return number
+
+
+FINITE = _FiniteFloat()
+
+
+def _harden(command):
+    """Make every float option of a command (and its subcommands) refuse NaN and infinity,
+    and register its input paths with :func:`terrain.outputs.protect` when it runs. Applied
+    to every command the root loads, so new commands get it without doing anything."""
+    if getattr(command, "_craterscape_hardened", False):
+        return command
+    command._craterscape_hardened = True
+    for param in command.params:
+        if type(param.type) is click.types.FloatParamType:
+            param.type = FINITE
+    if isinstance(command, click.Group):
+        for sub in command.commands.values():
+            _harden(sub)
+        return command
+    callback = command.callback
+    if callback is None:  # pragma: no cover
+        return command
+    path_params = [p.name for p in command.params if isinstance(p.type, click.Path)
+                   and p.name not in OUTPUT_PARAMS and p.name not in IN_PLACE_PARAMS]
+
+    def guarded(*args, **kwargs):
+        inputs = []
+        for name in path_params:
+            value = kwargs.get(name)
+            if isinstance(value, (list, tuple)):
+                inputs += [v for v in value if v is not None]
+            elif value is not None:
+                inputs.append(value)
+        with protected(inputs):
+            return callback(*args, **kwargs)
+
+    command.callback = guarded
+    return command
 
 
 class _Root(click.Group):
@@ -36,18 +110,23 @@ class _Root(click.Group):
 
     def get_command(self, ctx, name):
         if name in self.commands:
-            return self.commands[name]
+            return _harden(self.commands[name])
         for ep in entry_points(group=ENTRY_POINT_GROUP):
             if ep.name == name:
                 try:
-                    return ep.load()
+                    return _harden(ep.load())
                 except Exception as exc:  # a broken stage must not take the others down
                     return _broken_group(name, exc)
         return None
 
     def invoke(self, ctx):
+        previous = None
+        with contextlib.suppress(ValueError):  # only the main thread may set handlers
+            previous = signal.signal(signal.SIGTERM, _on_sigterm)
         try:
             return super().invoke(ctx)
+        except click.UsageError as exc:  # bad options: the same one line as any bad input
+            _fail(ctx, click.ClickException(exc.format_message()), EXIT_BAD_INPUT)
         except (click.exceptions.Exit, click.exceptions.Abort, click.ClickException):
             raise
         except CraterscapeError as exc:
@@ -55,8 +134,19 @@ class _Root(click.Group):
         except KeyboardInterrupt:
             click.echo("craterscape: interrupted", err=True)
             ctx.exit(130)
-        except (MemoryError, OSError) as exc:
+        except Terminated:
+            click.echo("craterscape: terminated", err=True)
+            ctx.exit(EXIT_TERMINATED)
+        except OSError as exc:
+            if is_write_error(exc):  # one code and one message for "cannot write here"
+                _fail(ctx, cannot_write(exc.filename or "output", exc), EXIT_BAD_INPUT)
             _fail(ctx, exc, 1)
+        except MemoryError as exc:
+            _fail(ctx, exc, 1)
+        finally:
+            if previous is not None:
+                with contextlib.suppress(ValueError):
+                    signal.signal(signal.SIGTERM, previous)
 
 
 def _broken_group(name, exc):
@@ -75,7 +165,8 @@ def _fail(ctx, exc, code):
     verbose = (ctx.obj or {}).get("verbosity", 0) > 0
     if verbose:
         traceback.print_exception(exc, file=sys.stderr)
-    message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    text = exc.format_message() if isinstance(exc, click.ClickException) else str(exc)
+    message = text.strip().splitlines()[0] if text.strip() else type(exc).__name__
     click.echo(f"craterscape: error: {message}", err=True)
     ctx.exit(code)
 
@@ -223,17 +314,20 @@ def _progress(label):
 
 
 def _write_outputs(result, output, catalog, inputs, command, params):
+    """The DEM and its catalogue, committed together (:func:`terrain.outputs.transaction`)."""
     from terrain.catalog import write_catalog
-    from terrain.io import atomic_path, check_output_path, write_dem
+    from terrain.io import atomic_path, write_dem
+    from terrain.outputs import transaction
 
     tile = result.tile.with_metadata(CRATERSCAPE_COMMAND=command,
                                      CRATERSCAPE_PARAMETERS=params,
                                      CRATERSCAPE_VERSION=_version())
-    write_dem(tile, output, inputs=inputs)
+    with transaction(folders={Path(output).parent}):
+        write_dem(tile, output, inputs=inputs)
+        if catalog is not None:
+            with atomic_path(catalog, [*inputs, output]) as tmp:
+                write_catalog(tmp, result.catalog)
     if catalog is not None:
-        check_output_path(catalog, [*inputs, output])
-        with atomic_path(catalog, [*inputs, output]) as tmp:
-            write_catalog(tmp, result.catalog)
         click.echo(f"wrote {output} and {catalog} ({len(result.catalog['id'])} craters)",
                    err=True)
     else:
@@ -250,11 +344,11 @@ def _version() -> str:
 
 
 def _check_outputs(output, catalog, inputs):
-    from terrain.io import check_output_path
+    from terrain.io import DEM_SUFFIXES, check_output_path
 
-    check_output_path(output, inputs)
+    check_output_path(output, inputs, suffixes=DEM_SUFFIXES, what="GeoTIFF")
     if catalog is not None:
-        check_output_path(catalog, [*inputs, output])
+        check_output_path(catalog, [*inputs, output], suffixes=(".csv",), what="CSV")
         if Path(catalog).resolve() == Path(output).resolve():
             raise InvalidParameterError("--catalog must differ from --output")
 
@@ -330,7 +424,7 @@ def craters(input_dem, output, seed, window, band, dmin, dmax, density, sfd_expo
     from terrain.io import read_dem
 
     _check_outputs(output, catalog, [input_dem])
-    tile = read_dem(input_dem, band=band)
+    tile = read_dem(input_dem, band=band, exact=True)
     if window is not None:
         window.check_inside(*tile.shape)
     extent = min(tile.shape) * tile.resolution
@@ -376,7 +470,7 @@ def add_crater(input_dem, output, at, diameter, age, seed, band, catalog, erosio
     from terrain.rng import hash64, stream_id
 
     _check_outputs(output, catalog, [input_dem])
-    tile = read_dem(input_dem, band=band)
+    tile = read_dem(input_dem, band=band, exact=True)
     x, y = at
     left, bottom, right, top = tile.bounds
     reach = diameter
@@ -482,7 +576,7 @@ def expand(input_dem, output, times, seed, fractal_dimension, height_scale, unif
     from terrain.io import check_output_path, read_dem, write_dem
 
     check_output_path(output, [input_dem])
-    tile = read_dem(input_dem, band=band)
+    tile = read_dem(input_dem, band=band, exact=True)
     if window is not None:
         window.check_inside(*tile.shape)
     params = _expansion_params(tile, fractal_dimension, height_scale, uniform_roughness)
@@ -545,7 +639,7 @@ def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, lay
                                     "(craters.csv); drop --catalog")
     if output.exists() and (not output.is_dir() or any(output.iterdir())):
         raise InvalidParameterError(f"output folder '{output}' exists and is not empty")
-    tile = read_dem(input_dem, band=band)
+    tile = read_dem(input_dem, band=band, exact=True)
     if site_lonlat is not None:
         site = lonlat_to_xy(tile.crs, *site_lonlat)
     if finest_resolution is not None:
@@ -615,7 +709,7 @@ def fill(input_dem, output, roughness, craters_at, despike, denoise, seed, band)
     from terrain.io import check_output_path, read_dem, write_dem
 
     check_output_path(output, [input_dem, craters_at])
-    tile = read_dem(input_dem, band=band)
+    tile = read_dem(input_dem, band=band, exact=True)
     circles = read_circles(craters_at) if craters_at is not None else None
     removed = 0
     if despike is not None:

@@ -14,13 +14,10 @@ file, and an output path that names an input is refused before any work starts.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import logging
-import os
-import tempfile
 import warnings
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +27,7 @@ from rasterio.errors import NotGeoreferencedWarning, RasterioError, RasterioIOEr
 
 from terrain import memory
 from terrain.errors import InvalidDEMError, MissingInputError, OutputPathError
+from terrain.outputs import atomic_path, check_output_path
 from terrain.tile import DEMTile
 
 __all__ = ["atomic_path", "check_output_path", "lonlat_to_xy", "read_dem", "read_float_tiff",
@@ -47,7 +45,14 @@ def _first_line(exc: BaseException) -> str:
     return text[0] if text else type(exc).__name__
 
 
-def read_dem(path, *, band: int = 1) -> DEMTile:
+#: Output extensions of the writers (the format written must match the name).
+DEM_SUFFIXES = (".tif", ".tiff")
+PNG_SUFFIXES = (".png",)
+#: Stored types whose values float32 may not hold exactly.
+_WIDE_TYPES = ("float64", "int32", "uint32", "int64", "uint64")
+
+
+def read_dem(path, *, band: int = 1, exact: bool = False) -> DEMTile:
     """Read one band of any GDAL-readable DEM into a :class:`DEMTile`.
 
     Parameters
@@ -56,6 +61,10 @@ def read_dem(path, *, band: int = 1) -> DEMTile:
         File to read (GeoTIFF, PDS3 ``.LBL``, ...).
     band : int
         1-based band index.
+    exact : bool
+        For commands that write known heights back: refuse a DEM stored in a type wider than
+        float32 (float64, 32/64-bit integers) whose known heights float32 cannot hold exactly,
+        instead of rounding them (the tile works in float32).
 
     Returns
     -------
@@ -102,6 +111,19 @@ def read_dem(path, *, band: int = 1) -> DEMTile:
 
     data = np.ma.getdata(raw).astype(np.float64)
     valid = ~np.ma.getmaskarray(raw) & np.isfinite(data)
+    stored = str(np.ma.getdata(raw).dtype)
+    if stored in _WIDE_TYPES and valid.any():
+        known = data[valid] * (1.0 if scale is None else float(scale)) \
+            + (0.0 if offset is None else float(offset))
+        moved = float(np.max(np.abs(known.astype(np.float32).astype(np.float64) - known)))
+        if moved > 0 and exact:
+            raise InvalidDEMError(
+                f"DEM '{path}' stores {stored} heights that float32 cannot hold exactly (known "
+                f"heights would move by up to {moved:.3g} m); convert it first, e.g. "
+                "gdal_translate -ot Float32 IN OUT")
+        if moved > 0:
+            log.info("DEM '%s': %s heights rounded to float32 (up to %.3g m)", path, stored,
+                     moved)
     metadata = {k: v for k, v in tags.items() if k.startswith("CRATERSCAPE_")}
     metadata["CRATERSCAPE_SOURCE"] = str(path)
     scale = 1.0 if scale is None else float(scale)
@@ -143,54 +165,6 @@ def _find_numbers(obj, key):
     elif isinstance(obj, list):
         for item in obj:
             yield from _find_numbers(item, key)
-
-
-def check_output_path(path, inputs: Iterable = ()) -> Path:
-    """Validate an output path before any work: folder exists, not an input, not a folder."""
-    path = Path(path)
-    if path.is_dir():
-        raise OutputPathError(f"output '{path}' is a folder; give a file name")
-    parent = path.parent if str(path.parent) else Path(".")
-    if not parent.is_dir():
-        raise OutputPathError(f"output folder '{parent}' does not exist")
-    target = path.resolve()
-    for item in inputs:
-        if item is None:
-            continue
-        item = Path(item)
-        same = target == item.resolve()
-        if not same and path.exists() and item.exists():
-            with contextlib.suppress(OSError):
-                same = os.path.samefile(path, item)
-        if same:
-            raise OutputPathError(f"output '{path}' is the same file as input '{item}'; "
-                                  "choose another output name")
-    return path
-
-
-@contextlib.contextmanager
-def atomic_path(path, inputs: Iterable = ()) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; rename it onto ``path`` if the block succeeds."""
-    path = check_output_path(path, inputs)
-    parent = path.parent if str(path.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=parent)
-    os.close(fd)
-    tmp = Path(tmp)
-    try:
-        yield tmp
-        with open(tmp, "rb") as f:
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give what open() would
-        os.replace(tmp, path)
-    finally:
-        with contextlib.suppress(FileNotFoundError):
-            tmp.unlink()
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
 
 
 def same_crs(a: str | None, b: str | None) -> bool:
@@ -239,6 +213,7 @@ def write_png(image: np.ndarray, path, *, inputs: Iterable = ()) -> Path:
     """Write an 8- or 16-bit grey or BGR image as PNG, atomically."""
     import cv2  # local: OpenCV is heavy and only needed for images
 
+    check_output_path(path, inputs, suffixes=PNG_SUFFIXES, what="PNG")
     image = np.asarray(image)
     if image.dtype not in (np.uint8, np.uint16):
         raise ValueError(f"PNG images must be uint8 or uint16; got {image.dtype}")
@@ -278,6 +253,7 @@ def write_float_tiff(array: np.ndarray, path, *, tags: dict | None = None, input
     Not georeferenced (sensor images: range, normals); NaN marks invalid pixels and is the
     nodata value. Bands keep their order (band 1 = channel 0).
     """
+    check_output_path(path, inputs, suffixes=DEM_SUFFIXES, what="TIFF")
     a = np.asarray(array, dtype=np.float32)
     if a.ndim == 2:
         a = a[:, :, None]
@@ -289,10 +265,13 @@ def write_float_tiff(array: np.ndarray, path, *, tags: dict | None = None, input
                    blockxsize=256, blockysize=256)
     with atomic_path(path, inputs) as tmp, warnings.catch_warnings():
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        with rasterio.open(tmp, "w", **profile) as dst:
-            dst.write(np.moveaxis(a, 2, 0))
-            if tags:
-                dst.update_tags(**{k: str(v) for k, v in tags.items()})
+        try:
+            with rasterio.open(tmp, "w", **profile) as dst:
+                dst.write(np.moveaxis(a, 2, 0))
+                if tags:
+                    dst.update_tags(**{k: str(v) for k, v in tags.items()})
+        except (RasterioIOError, RasterioError) as exc:
+            raise OutputPathError(f"cannot write '{path}': {_first_line(exc)}") from exc
     return Path(path)
 
 
