@@ -306,7 +306,10 @@ def save_native(path, body: Body, tables: Mapping | None = None, *,
 
 def load_native(path) -> NativeModel:
     """Read a native ``.npz`` written by :func:`save_native`."""
+    from terrain.outputs import settle
+
     path = Path(path)
+    settle(path.parent if str(path.parent) else Path("."))  # finish an interrupted build
     if not path.exists():
         raise MissingInputError(f"native model '{path}' does not exist")
     try:

@@ -172,12 +172,17 @@ def build(recipe: Recipe, *, progress=None) -> BuildResult:
 
 @dataclass(frozen=True)
 class OutputPaths:
-    """Where a build writes: the mesh (None for native only), the native model, catalogues."""
+    """Where a build writes: the mesh (None for native only), the native model, catalogues.
+
+    ``stale`` lists the catalogues of an earlier build under the same name that this build
+    does not write (a rebuild with ``--craters none``): they are removed when it commits.
+    """
 
     mesh: Path | None
     native: Path
     craters: Path | None
     boulders: Path | None
+    stale: tuple = ()
 
     def all(self) -> list[Path]:
         return [p for p in (self.mesh, self.native, self.craters, self.boulders)
@@ -193,10 +198,13 @@ def output_paths(output, *, craters: bool, boulders: bool, inputs=()) -> OutputP
         mesh_format(output)
         mesh = output
     stem = output.with_suffix("")
-    paths = OutputPaths(mesh, output.with_suffix(".npz"),
-                        stem.with_name(stem.name + "_craters.csv") if craters else None,
-                        stem.with_name(stem.name + "_boulders.csv") if boulders else None)
-    for p in paths.all():
+    crater_csv = stem.with_name(stem.name + "_craters.csv")
+    boulder_csv = stem.with_name(stem.name + "_boulders.csv")
+    stale = tuple(p for p, wanted in ((crater_csv, craters), (boulder_csv, boulders))
+                  if not wanted)
+    paths = OutputPaths(mesh, output.with_suffix(".npz"), crater_csv if craters else None,
+                        boulder_csv if boulders else None, stale)
+    for p in (*paths.all(), *stale):
         check_output_path(p, inputs)
     return paths
 
@@ -210,7 +218,20 @@ def _parts(body: Body, boulders: Boulders | None, level=None):
 
 
 def write_outputs(result: BuildResult, paths: OutputPaths, *, inputs=()) -> list[Path]:
-    """Write a build's files atomically; returns the paths written."""
+    """Write a build's files as one set; returns the paths written.
+
+    The mesh, the native model and the catalogues appear together or not at all, and stale
+    catalogues of an earlier build are removed in the same commit
+    (:func:`terrain.outputs.transaction`); a killed build leaves the previous set.
+    """
+    from terrain.outputs import transaction
+
+    folder = paths.native.parent if str(paths.native.parent) else Path(".")
+    with transaction(stale=paths.stale, folders=[folder]):
+        return _write_all(result, paths, inputs)
+
+
+def _write_all(result: BuildResult, paths: OutputPaths, inputs) -> list[Path]:
     written = []
     inputs = list(inputs)
     meta = dict(seed=result.body.metadata.get("seed"),

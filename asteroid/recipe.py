@@ -115,6 +115,10 @@ BOULDER_RANGE = 20.0
 #: The paper's crater distribution, N_cum = 0.5 D^-2 (sections VI.A-B).
 PAPER_CRATERS = {"c": 0.5, "k": -2.0}
 
+#: Largest reference radius (m): beyond any asteroid or moon a lander would visit, and far
+#: inside float32 vertex coordinates.
+MAX_RADIUS = 1.0e7
+
 _TOP_KEYS = {"preset", "magnitude", "radius", "seed", "base", "stretch"}
 _TABLES = {"perlin", "faulting", "shape", "craters", "boulders"}
 
@@ -327,9 +331,16 @@ class Recipe:
             raise InvalidParameterError(
                 f"base must be perlin, faulting or shape:FILE; got {self.base!r}")
         if self.radius is not None:
+            if isinstance(self.radius, bool) or not isinstance(self.radius, (int, float)):
+                raise InvalidParameterError(f"radius must be a number (metres); got "
+                                            f"{self.radius!r}")
             r = float(self.radius)
             if not (r > 0 and math.isfinite(r)):
                 raise InvalidParameterError(f"radius must be positive metres; got {r}")
+            if r > MAX_RADIUS:
+                raise InvalidParameterError(
+                    f"radius {r:g} m is larger than any asteroid (at most {MAX_RADIUS:g} m; "
+                    "Ceres is 4.7e5 m)")
             object.__setattr__(self, "radius", r)
         elif self.base != "shape":
             raise InvalidParameterError(

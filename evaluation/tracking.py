@@ -90,6 +90,10 @@ TRACK_BYTES_PER_OBSERVATION = 48
 
 
 @dataclass(frozen=True)
+#: Most pyramid levels (a 2^16 reduction is far below any frame).
+MAX_PYRAMID_LEVELS = 16
+
+
 class TrackerSettings:
     """Parameters of :func:`track` (defaults suit 256-1024 pixel frames).
 
@@ -307,6 +311,18 @@ def track(run, settings: TrackerSettings | None = None, *, progress=None) -> Tra
     h, w = prev.shape
     if n > 1 and (h < 2 * s.border + 8 or w < 2 * s.border + 8):
         raise InvalidParameterError(f"frames of {w}x{h} pixels are too small to track in")
+    if s.win_size > min(h, w) or s.block_size > min(h, w):
+        raise InvalidParameterError(
+            f"tracker windows (win_size {s.win_size}, block_size {s.block_size} px) must fit "
+            f"in the {w}x{h} frames")
+    if s.levels > MAX_PYRAMID_LEVELS:
+        raise InvalidParameterError(f"tracker levels must be at most {MAX_PYRAMID_LEVELS}; got "
+                                    f"{s.levels}")
+    from terrain import memory
+
+    # two frames, their pyramids and derivative images, and per track its window patches
+    memory.require(h * w * 4 * 12 + s.max_corners * s.win_size ** 2 * 4 * 6,
+                   f"tracking {w}x{h} frames with {s.max_corners} corners")
     layer_change = np.zeros(n, dtype=bool)
     if run.has_truth:
         keys = [_resolution_key(t.drawn) for t in run.truth]

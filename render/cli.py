@@ -19,13 +19,18 @@ class _Resolution(click.ParamType):
     def convert(self, value, param, ctx):
         if isinstance(value, tuple):
             return value
+        from render.scenario import MAX_IMAGE_SIDE
+
         try:
             w, h = (int(v) for v in str(value).lower().split("x"))
             if w < 1 or h < 1:
                 raise ValueError
-            return w, h
         except ValueError:
             self.fail(f"expected WIDTHxHEIGHT such as 1024x1024; got {value!r}", param, ctx)
+        if max(w, h) > MAX_IMAGE_SIDE:
+            self.fail(f"{w}x{h} is larger than the largest image side, {MAX_IMAGE_SIDE} pixels",
+                      param, ctx)
+        return w, h
 
 
 RESOLUTION = _Resolution()
@@ -83,13 +88,19 @@ def frame(scenario_file, output, index, resolution):
     (and OUT_radiance.tif where [output] radiance is on)."""
     from render.renderer import Renderer
     from render.scenario import load_scenario
-    from render.sequence import load_scene, render_sample
+    from render.sequence import check_frame_memory, load_scene, render_sample
     from terrain.io import atomic_path, check_output_path, write_float_tiff, write_png
+    from terrain.outputs import transaction
 
-    check_output_path(output, [scenario_file])
     if output.suffix.lower() != ".png":
         raise InvalidParameterError(f"frame output must be a .png file; got '{output}'")
+    stem = output.with_suffix("")
+    companions = {"range": Path(f"{stem}_range.tif"), "normals": Path(f"{stem}_normals.tif"),
+                  "radiance": Path(f"{stem}_radiance.tif"), "truth": Path(f"{stem}_truth.json")}
+    for p in (output, *companions.values()):
+        check_output_path(p, [scenario_file])
     scenario = load_scenario(scenario_file).with_overrides(None, resolution)
+    check_frame_memory(scenario)
     scene = load_scene(scenario)
     samples = scenario.samples(scene)
     index = 0 if index is None else index
@@ -97,16 +108,18 @@ def frame(scenario_file, output, index, resolution):
         raise InvalidParameterError(f"--index must lie in [0, {len(samples) - 1}]; got {index}")
     image, fr, truth = render_sample(Renderer(), scene, scenario, samples[index], index,
                                      samples)
-    stem = output.with_suffix("")
-    write_png(image, output, inputs=[scenario_file])
-    if scenario.outputs["range"]:
-        write_float_tiff(fr.range, f"{stem}_range.tif", tags={"UNITS": "metre"})
-    if scenario.outputs["normals"]:
-        write_float_tiff(fr.normals, f"{stem}_normals.tif", tags={"FRAME": "world"})
-    if scenario.outputs.get("radiance"):
-        write_float_tiff(scenario.lighting.radiance(fr.radiance), f"{stem}_radiance.tif",
-                         tags={"UNITS": "W m-2 sr-1 nm-1"})
-    with atomic_path(f"{stem}_truth.json") as tmp:
-        tmp.write_text(json.dumps(truth.as_dict(), indent=2), encoding="utf-8")
+    stale = [companions[k] for k in ("range", "normals", "radiance")
+             if not scenario.outputs.get(k)]
+    with transaction(stale=stale, folders=[output.parent]):  # image and truth as one set
+        write_png(image, output, inputs=[scenario_file])
+        if scenario.outputs["range"]:
+            write_float_tiff(fr.range, companions["range"], tags={"UNITS": "metre"})
+        if scenario.outputs["normals"]:
+            write_float_tiff(fr.normals, companions["normals"], tags={"FRAME": "world"})
+        if scenario.outputs.get("radiance"):
+            write_float_tiff(scenario.lighting.radiance(fr.radiance), companions["radiance"],
+                             tags={"UNITS": "W m-2 sr-1 nm-1"})
+        with atomic_path(companions["truth"]) as tmp:
+            tmp.write_text(json.dumps(truth.as_dict(), indent=2), encoding="utf-8")
     click.echo(f"wrote {output} (frame {index}, {fr.drawn.get('triangles', 0)} triangles)",
                err=True)

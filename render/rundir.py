@@ -109,21 +109,68 @@ class FrameTruth:
                    d.get("radiance"))
 
 
+#: Manifest facts a resumed run must share with the interrupted one.
+RESUME_KEYS = ("scenario", "scene", "frames", "resolution", "seed")
+
+
 class RunWriter:
-    """Writes a run directory frame by frame."""
+    """Writes a run directory frame by frame.
+
+    ``resume`` continues an interrupted run: only a run directory (its manifest says so) of
+    the same scenario, frame count, resolution and seed is taken; temporaries the
+    interrupted run left are removed.
+    """
+
+    @staticmethod
+    def check(run_dir, *, resume: bool = False, manifest: dict | None = None) -> None:
+        """Refuse an unusable run directory before any work (see the class docstring)."""
+        from terrain.outputs import check_output_folder
+
+        run_dir = Path(run_dir)
+        if run_dir.exists() and not run_dir.is_dir():
+            raise InvalidParameterError(f"run directory '{run_dir}' exists and is a file")
+        check_output_folder(run_dir)
+        if not (run_dir.exists() and any(run_dir.iterdir())):
+            return
+        if not resume:
+            raise InvalidParameterError(
+                f"run directory '{run_dir}' is not empty; choose a new one (or resume)")
+        mpath = run_dir / "manifest.json"
+        try:
+            old = json.loads(mpath.read_text(encoding="utf-8"))
+            if not isinstance(old, dict) or old.get("format") != FORMAT:
+                raise ValueError
+        except (OSError, ValueError):
+            raise InvalidParameterError(
+                f"'{run_dir}' is not a craterscape run directory (no run manifest.json); "
+                "--resume continues an interrupted render only") from None
+        if manifest is not None:
+            for key in RESUME_KEYS:
+                if key in manifest and old.get(key) != json.loads(json.dumps(manifest[key])):
+                    raise InvalidParameterError(
+                        f"run directory '{run_dir}' was rendered with {key} "
+                        f"{old.get(key)!r}, not {manifest[key]!r}; resume with the same "
+                        "scenario or choose a new folder")
 
     def __init__(self, run_dir, manifest: dict, scenario_file=None, *, resume: bool = False):
+        from terrain.outputs import sweep_partials
+
         self.dir = Path(run_dir)
-        if self.dir.exists() and not self.dir.is_dir():
-            raise InvalidParameterError(f"run directory '{self.dir}' exists and is a file")
+        self.check(self.dir, resume=resume, manifest=manifest)
         existing = self.dir / "truth.json"
         self.frames: list[dict] = []
         if self.dir.exists() and any(self.dir.iterdir()):
-            if not resume:
-                raise InvalidParameterError(
-                    f"run directory '{self.dir}' is not empty; choose a new one (or resume)")
+            sweep_partials(self.dir, recursive=True)
             if existing.exists():
-                self.frames = json.loads(existing.read_text(encoding="utf-8"))
+                try:
+                    self.frames = json.loads(existing.read_text(encoding="utf-8"))
+                    frames_ok = isinstance(self.frames, list) and all(
+                        isinstance(f, dict) and "index" in f for f in self.frames)
+                except ValueError:
+                    frames_ok = False
+                if not frames_ok:
+                    raise InvalidParameterError(f"truth file '{existing}' is corrupt; cannot "
+                                                "resume this run")
         for sub in ("frames", "range", "normals"):
             (self.dir / sub).mkdir(parents=True, exist_ok=True)
         self.manifest = dict(manifest, format=FORMAT, version=1)

@@ -77,11 +77,10 @@ Keyframes: ``[[trajectory.keyframe]]`` tables with ``time``, ``position`` and ``
 
 from __future__ import annotations
 
+import difflib
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-
-import numpy as np
 
 from render.camera import Intrinsics
 from render.motion import Motion
@@ -106,10 +105,52 @@ def _section(data: dict, name: str, allowed: set[str]) -> dict:
         raise InvalidParameterError(f"scenario [{name}] must be a table")
     unknown = set(table) - allowed
     if unknown:
+        key = sorted(unknown)[0]
+        near = difflib.get_close_matches(key, sorted(allowed), n=1)
         raise InvalidParameterError(
-            f"scenario [{name}] has unknown keys {sorted(unknown)}; expected some of "
-            f"{sorted(allowed)}")
+            f"scenario [{name}] has unknown keys {sorted(unknown)}"
+            + (f" (did you mean {near[0]!r}?)" if near else "")
+            + f"; expected some of {sorted(allowed)}")
     return table
+
+
+def _bool(table, key, default, where):
+    v = table.get(key, default)
+    if not isinstance(v, bool):
+        raise InvalidParameterError(
+            f"scenario {where}.{key} must be true or false (unquoted); got {v!r}")
+    return v
+
+
+def _int(table, key, default, where, minimum=None, maximum=None):
+    v = table.get(key, default)
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise InvalidParameterError(f"scenario {where}.{key} must be an integer; got {v!r}")
+    if (minimum is not None and v < minimum) or (maximum is not None and v > maximum):
+        raise InvalidParameterError(
+            f"scenario {where}.{key} must lie in [{minimum}, {maximum}]; got {v}")
+    return v
+
+
+def _text(table, key, default, where):
+    v = table.get(key, default)
+    if not isinstance(v, str):
+        raise InvalidParameterError(f"scenario {where}.{key} must be a string; got {v!r}")
+    return v
+
+
+def _vector(table, key, n, where):
+    v = table.get(key)
+    if (not isinstance(v, list) or len(v) != n
+            or any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in v)
+            or not all(math.isfinite(x) for x in v)):
+        raise InvalidParameterError(
+            f"scenario {where}.{key} must be a list of {n} finite numbers; got {v!r}")
+    return tuple(float(x) for x in v)
+
+
+#: Largest image side a scenario may ask for (pixels).
+MAX_IMAGE_SIDE = 32768
 
 
 def _number(table, key, default, where, positive=False):
@@ -201,9 +242,21 @@ def load_scenario(path) -> Scenario:
 def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
     unknown = set(data) - _SECTIONS
     if unknown:
-        raise InvalidParameterError(f"scenario has unknown sections {sorted(unknown)}")
-    name = str(data.get("name", path.stem if path else "scenario"))
-    seed = check_seed(data.get("seed", 0))
+        key = sorted(unknown)[0]
+        near = difflib.get_close_matches(key, sorted(_SECTIONS), n=1)
+        raise InvalidParameterError(f"scenario has unknown section or key {key!r}"
+                                    + (f" (did you mean {near[0]!r}?)" if near else ""))
+    for section in _SECTIONS - {"name", "seed", "description"}:
+        if section in data and not isinstance(data[section], dict):
+            raise InvalidParameterError(f"scenario [{section}] must be a table; got "
+                                        f"{data[section]!r}")
+    name = _text(data, "name", path.stem if path else "scenario", "scenario")
+    if "description" in data:
+        _text(data, "description", "", "scenario")
+    try:
+        seed = check_seed(data.get("seed", 0))
+    except ValueError as exc:
+        raise InvalidParameterError(f"scenario seed: {exc}") from None
     scene = _section(data, "scene", {"type", "stack", "curvature", "radius", "body",
                                      "boulders", "spin_axis", "spin_period", "spin_phase",
                                      "imposter_pixels"})
@@ -214,13 +267,30 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
         raise InvalidParameterError("scenario [scene] needs 'stack' (a layer-stack folder)")
     if scene["type"] == "asteroid" and "body" not in scene:
         raise InvalidParameterError("scenario [scene] needs 'body' (an asteroid .npz)")
+    for key in ("stack", "body"):
+        if key in scene:
+            _text(scene, key, "", "scene")
+    for key in ("curvature", "boulders"):
+        if key in scene:
+            _bool(scene, key, True, "scene")
+    for key in ("spin_period", "spin_phase"):
+        if key in scene:
+            _number(scene, key, 0.0, "scene")
+    if "radius" in scene:
+        _number(scene, "radius", 1.0, "scene", positive=True)
+    if "imposter_pixels" in scene:
+        _number(scene, "imposter_pixels", 24.0, "scene", positive=True)
+    if "spin_axis" in scene:
+        _vector(scene, "spin_axis", 3, "scene")
 
     sun = _section(data, "sun", {"azimuth", "elevation", "direction", "distance", "irradiance"})
     surface = _section(data, "surface", {"albedo", "reflectance", "mcewen", "albedo_map"}
                        | _HAPKE_KEYS)
-    brdf = check_brdf(surface.get("reflectance", "lunar-lambert"))
+    brdf = check_brdf(_text(surface, "reflectance", "lunar-lambert", "surface"))
     albedo = _number(surface, "albedo", 0.12, "surface")
-    extra = {"mcewen": tuple(surface["mcewen"])} if "mcewen" in surface else {}
+    extra = {"mcewen": _vector(surface, "mcewen", len(surface["mcewen"])
+                               if isinstance(surface["mcewen"], list) else 0, "surface")} \
+        if "mcewen" in surface else {}
     hapke_keys = sorted(k for k in surface if k in _HAPKE_KEYS)
     if hapke_keys and brdf != "hapke":
         raise InvalidParameterError(
@@ -231,21 +301,22 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
         if key in sun:
             extra[key] = _number(sun, key, None, "sun", positive=True)
     if "albedo_map" in surface:
-        scene = dict(scene, albedo_map=str(surface["albedo_map"]))
+        scene = dict(scene, albedo_map=_text(surface, "albedo_map", "", "surface"))
     if "direction" in sun:
-        lighting = Lighting(tuple(sun["direction"]), albedo, brdf, **extra)
+        lighting = Lighting(_vector(sun, "direction", 3, "sun"), albedo, brdf, **extra)
     else:
         lighting = Lighting.from_angles(_number(sun, "azimuth", 90.0, "sun"),
                                         _number(sun, "elevation", 10.0, "sun"), albedo=albedo,
                                         brdf=brdf, **extra)
 
     cam = _section(data, "camera", {"width", "height", "fov", "fx", "fy", "cx", "cy"})
-    w = int(cam.get("width", 1024))
-    h = int(cam.get("height", 1024))
+    w = _int(cam, "width", 1024, "camera", 1, MAX_IMAGE_SIDE)
+    h = _int(cam, "height", 1024, "camera", 1, MAX_IMAGE_SIDE)
     if "fx" in cam:
-        intrinsics = Intrinsics(w, h, float(cam["fx"]), float(cam.get("fy", cam["fx"])),
-                                float(cam.get("cx", (w - 1) / 2)),
-                                float(cam.get("cy", (h - 1) / 2)))
+        fx = _number(cam, "fx", None, "camera", True)
+        intrinsics = Intrinsics(w, h, fx, _number(cam, "fy", fx, "camera", True),
+                                _number(cam, "cx", (w - 1) / 2, "camera"),
+                                _number(cam, "cy", (h - 1) / 2, "camera"))
     else:
         intrinsics = Intrinsics.from_fov(w, h, _number(cam, "fov", 60.0, "camera", True))
 
@@ -264,13 +335,16 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
                                                       "body_angular_velocity")),
               "motion": Motion.from_mapping(mot)}
     ren = _section(data, "render", {"shadows", "shadow_size", "lod_pixels", "triangle_budget"})
-    options = RenderOptions(shadows=bool(ren.get("shadows", True)),
-                            shadow_size=int(ren.get("shadow_size", 2048)),
-                            lod_pixels=float(ren.get("lod_pixels", 1.5)),
-                            triangle_budget=int(ren.get("triangle_budget", 3_000_000)))
+    options = RenderOptions(shadows=_bool(ren, "shadows", True, "render"),
+                            shadow_size=_int(ren, "shadow_size", 2048, "render", 1,
+                                             MAX_IMAGE_SIDE),
+                            lod_pixels=_number(ren, "lod_pixels", 1.5, "render", True),
+                            triangle_budget=_int(ren, "triangle_budget", 3_000_000, "render",
+                                                 1))
     out = _section(data, "output", {"range", "normals", "radiance"})
-    outputs = {"range": bool(out.get("range", True)), "normals": bool(out.get("normals", True)),
-               "radiance": bool(out.get("radiance", False))}
+    outputs = {"range": _bool(out, "range", True, "output"),
+               "normals": _bool(out, "normals", True, "output"),
+               "radiance": _bool(out, "radiance", False, "output")}
 
     traj = _section(data, "trajectory", {"type", "frames", "duration", "start_altitude",
                                          "end_altitude", "ground_track", "look", "site",
@@ -285,15 +359,28 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
     if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
         raise InvalidParameterError(
             f"scenario [trajectory] frames must be a positive integer; got {frames!r}")
+    if "duration" in traj:
+        _number(traj, "duration", 0.0, "trajectory")
+    if "look" in traj and _text(traj, "look", "site", "trajectory") not in ("site", "nadir"):
+        raise InvalidParameterError(
+            f"scenario trajectory.look must be 'site' or 'nadir'; got {traj['look']!r}")
+    if "site" in traj:
+        _vector(traj, "site", 2, "trajectory")
+    if "direction" in traj:
+        _vector(traj, "direction", 3, "trajectory")
     if kind == "descent":
         for key in ("start_altitude", "end_altitude"):
             _number(traj, key, None, "trajectory", positive=True)
     if kind == "approach":
         for key in ("start_distance", "end_distance"):
             _number(traj, key, None, "trajectory", positive=True)
+    if "keyframe" in traj and (not isinstance(traj["keyframe"], list) or not all(
+            isinstance(k, dict) for k in traj["keyframe"])):
+        raise InvalidParameterError("scenario trajectory.keyframe must be [[trajectory.keyframe]] "
+                                    "tables")
     if kind == "keyframes" and not traj.get("keyframe"):
         raise InvalidParameterError("scenario keyframe trajectory needs [[trajectory.keyframe]]")
-    if "ground_track" in traj and np.asarray(traj["ground_track"]).shape != (2,):
-        raise InvalidParameterError("scenario trajectory.ground_track must be [dx, dy]")
+    if "ground_track" in traj:
+        _vector(traj, "ground_track", 2, "trajectory")
     return Scenario(name, path, seed, scene, lighting, intrinsics, sensor, options, outputs,
                     dict(traj), data, motion)

@@ -20,9 +20,23 @@ from render.rundir import FrameTruth, RunWriter
 from render.scenario import Scenario
 from terrain.errors import InvalidParameterError
 
-__all__ = ["frame_motion", "load_scene", "render_sample", "run_sequence"]
+__all__ = ["check_frame_memory", "frame_motion", "load_scene", "render_sample", "run_sequence"]
 
 log = logging.getLogger(__name__)
+
+#: Peak bytes per image pixel of one frame: float colour, range and normal attachments and
+#: depth on the GPU side, their float32 read-backs, the sensor's working copies and the image.
+FRAME_BYTES_PER_PIXEL = 96
+
+
+def check_frame_memory(scenario: Scenario) -> None:
+    """Refuse a frame size whose buffers would not fit in memory, before any allocation."""
+    from terrain import memory
+
+    k = scenario.intrinsics
+    shadow = scenario.options.shadow_size if scenario.options.shadows else 0
+    memory.require(k.width * k.height * FRAME_BYTES_PER_PIXEL + shadow * shadow * 8,
+                   f"rendering {k.width}x{k.height} frames")
 
 
 def load_scene(scenario: Scenario):
@@ -93,6 +107,8 @@ def render_sample(renderer: Renderer, scene, scenario: Scenario, sample, index: 
 def run_sequence(scenario: Scenario, run_dir, *, resume: bool = False, progress=None) -> dict:
     """Render every frame of ``scenario`` into ``run_dir`` (see :mod:`render.rundir`)."""
     run_dir = Path(run_dir)
+    check_frame_memory(scenario)
+    RunWriter.check(run_dir, resume=resume)
     renderer = Renderer()
     scene = load_scene(scenario)
     samples = scenario.samples(scene)

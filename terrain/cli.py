@@ -31,6 +31,8 @@ ENTRY_POINT_GROUP = "craterscape.groups"
 EXIT_BAD_INPUT = 2
 #: Exit code after SIGTERM (128 + 15, as a shell reports it).
 EXIT_TERMINATED = 143
+#: Most 2x expansions of a layer stack (1 km to below a millimetre).
+MAX_LEVELS = 30
 #: Path parameters that name what a command writes; every other path parameter is an input
 #: that no output may replace or enter (:func:`terrain.outputs.protect`).
 OUTPUT_PARAMS = frozenset({"output", "catalog"})
@@ -601,7 +603,7 @@ def expand(input_dem, output, times, seed, fractal_dimension, height_scale, unif
 @click.option("--site", type=PAIR, default=None, help="Landing site X,Y in map coordinates.")
 @click.option("--site-lonlat", type=PAIR, default=None,
               help="Landing site as LON,LAT (degrees) on the DEM's body.")
-@click.option("--levels", type=click.IntRange(0, 30), default=None,
+@click.option("--levels", type=click.IntRange(0, MAX_LEVELS), default=None,
               help="Number of 2x expansions (layers = levels + 1).")
 @click.option("--finest-resolution", type=float, default=None,
               help="Expand until the finest layer is at most this many metres per pixel.")
@@ -637,8 +639,9 @@ def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, lay
     if catalog is not None:
         raise InvalidParameterError("enhance writes its catalogue into the output folder "
                                     "(craters.csv); drop --catalog")
-    if output.exists() and (not output.is_dir() or any(output.iterdir())):
-        raise InvalidParameterError(f"output folder '{output}' exists and is not empty")
+    from terrain.layers import prepare_folder
+
+    prepare_folder(output, inputs=[input_dem])
     tile = read_dem(input_dem, band=band, exact=True)
     if site_lonlat is not None:
         site = lonlat_to_xy(tile.crs, *site_lonlat)
@@ -647,6 +650,10 @@ def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, lay
             raise InvalidParameterError(
                 f"finest resolution must be positive; got {finest_resolution}")
         levels = max(0, math.ceil(math.log2(tile.resolution / finest_resolution) - 1e-9))
+        if levels > MAX_LEVELS:
+            raise InvalidParameterError(
+                f"--finest-resolution {finest_resolution:g} m needs {levels} expansions of the "
+                f"{tile.resolution:.4g} m base; at most {MAX_LEVELS} are possible")
     if despike is not None:
         tile, _ = run_despike(tile, despike)
     finest = tile.resolution / 2**levels

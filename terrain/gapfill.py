@@ -445,6 +445,12 @@ def denoise(tile: DEMTile, sigma: float) -> DEMTile:
     """
     if not (sigma > 0 and math.isfinite(sigma)):
         raise InvalidParameterError(f"denoise sigma must be positive; got {sigma}")
+    if sigma > max(tile.shape):
+        raise InvalidParameterError(
+            f"denoise sigma {sigma:g} px is wider than the {tile.shape[1]}x{tile.shape[0]} DEM; "
+            "give at most its larger side")
+    memory.require(tile.heights.size * 8 * 5 + (8 * sigma + 2) * 8,
+                   f"denoising a {tile.shape[1]}x{tile.shape[0]} DEM")
     m = tile.valid.astype(np.float64)
     z = np.where(tile.valid, tile.heights.astype(np.float64), 0.0)
     num = ndimage.gaussian_filter(z, sigma, mode="nearest")

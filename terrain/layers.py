@@ -20,10 +20,22 @@ a coarse pixel equals the co-located fine pixel, exactly.
 
 On disk: ``layer_NN.tif`` per layer (float32 GeoTIFF), ``manifest.json`` (each layer's file,
 level, resolution, extent, transform, parent and window in the parent; the site, seed and
-parameters) and ``craters.csv`` (the catalogue with a ``layer`` column). Edits
-(:func:`replace_crater`) hold a lock on the folder, write new versions of the files they
-change and then replace the manifest atomically, so a reader always sees a consistent stack
-and two edits never interleave.
+parameters) and ``craters.csv`` (the catalogue with a ``layer`` column).
+
+The manifest is the stack's one commit point: it names every layer file and the catalogue
+file, and nothing else in the folder counts.
+
+- A new stack is written with a marker ``.craterscape.incomplete`` first and the manifest
+  last; a build that fails removes what it wrote, and a rerun into a folder that a killed
+  build left (marker, no manifest) clears it and starts again (:func:`prepare_folder`).
+- Edits (:func:`replace_crater`) hold the edit lock ``.craterscape.lock``, write new
+  versions of the layers they change and of the catalogue under new names
+  (``layer_NN.STAMP.tif``, ``craters.STAMP.csv``), then replace the manifest atomically.
+  A crash before that leaves the old stack whole; after it, the new one.
+- Readers (:func:`read_stack`) hold a shared lock on ``.craterscape.readers`` while they
+  read; an edit deletes the files the old manifest named only once it holds that lock
+  exclusively, so a reader never loses a file half way. Files no manifest names (left by a
+  killed edit) are swept by the next edit.
 """
 
 from __future__ import annotations
@@ -52,8 +64,8 @@ from terrain.rng import check_seed
 from terrain.roughness import ExpansionParameters, local_amplitude
 from terrain.tile import DEMTile
 
-__all__ = ["MANIFEST", "MIN_CRATER_PIXELS", "LayerStack", "build_stack", "read_stack",
-           "replace_crater", "stack_lock", "write_stack"]
+__all__ = ["MANIFEST", "MIN_CRATER_PIXELS", "LayerStack", "build_stack", "prepare_folder",
+           "read_stack", "replace_crater", "stack_lock", "write_stack"]
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +80,15 @@ MIN_CRATER_PIXELS = 4.0
 ROCK_CATALOG = "rocks.csv"
 #: Lock file guarding edits of a layer-stack folder.
 LOCK = ".craterscape.lock"
+#: Lock file readers hold shared while they read; edits hold it exclusively to delete.
+READERS_LOCK = ".craterscape.readers"
+#: Marker of a stack being built (removed when its manifest is in place).
+INCOMPLETE = ".craterscape.incomplete"
+#: Seconds an edit waits for readers before leaving old files to the next edit's sweep.
+READERS_TIMEOUT = 30.0
+#: Names of files a stack's writers create (swept when no manifest names them).
+_STACK_FILE_PATTERNS = ("layer_*.tif", "craters*.csv")
+_LOCKS = (LOCK, READERS_LOCK, INCOMPLETE)
 #: Seconds an edit waits for another edit of the same stack before giving up.
 LOCK_TIMEOUT = 600.0
 FORMAT = "craterscape-layer-stack"
@@ -380,27 +401,93 @@ def _manifest(stack: LayerStack, files: list[str]) -> dict:
                 catalog=CATALOG, crater_counts=counts, **stack.info)
 
 
-def write_stack(stack: LayerStack, outdir, *, inputs=()) -> Path:
-    """Write a new layer stack into ``outdir`` (created; must be empty or absent)."""
+def prepare_folder(outdir, *, inputs=()) -> Path:
+    """Check that ``outdir`` can take a new stack, before any work.
+
+    A missing or empty folder is fine; so is a folder a killed build left (its
+    ``.craterscape.incomplete`` marker and no manifest), whose files are removed here.
+    Anything else is refused.
+    """
+    from terrain.outputs import check_output_folder
+
     outdir = Path(outdir)
     for item in inputs:
         if item is not None and Path(item).resolve().is_relative_to(outdir.resolve()):
             raise InvalidParameterError(
                 f"output folder '{outdir}' contains the input '{item}'; choose another folder")
-    if outdir.exists() and not outdir.is_dir():
-        raise InvalidParameterError(f"output '{outdir}' exists and is not a folder")
-    if outdir.exists() and any(p.name != LOCK for p in outdir.iterdir()):
+    check_output_folder(outdir, inputs)
+    if not outdir.exists():
+        return outdir
+    names = {p.name for p in outdir.iterdir()}
+    if INCOMPLETE in names and MANIFEST not in names:
+        ours = _stack_files(outdir)
+        strangers = names - {p.name for p in ours} - set(_LOCKS)
+        strangers = {n for n in strangers if not n.endswith(".partial")}
+        if strangers:
+            raise InvalidParameterError(
+                f"output folder '{outdir}' holds an interrupted stack build and other files "
+                f"({sorted(strangers)[0]}, ...); give a new folder")
+        log.warning("removing the interrupted stack build in %s", outdir)
+        for p in ours:
+            p.unlink()
+        from terrain.outputs import sweep_partials
+
+        sweep_partials(outdir)
+        names = {p.name for p in outdir.iterdir()}
+    if names - set(_LOCKS):
         raise InvalidParameterError(
             f"output folder '{outdir}' is not empty; give a new folder (layer stacks are "
             "edited with replace-crater, never overwritten)")
-    outdir.mkdir(parents=True, exist_ok=True)
-    with stack_lock(outdir):
-        files = [f"layer_{k:02d}.tif" for k in range(len(stack.tiles))]
-        _write_files(stack, outdir, files)
     return outdir
 
 
-def _write_files(stack: LayerStack, outdir: Path, files: list[str], only=None) -> None:
+def _stack_files(outdir: Path) -> list[Path]:
+    return sorted({p for pattern in _STACK_FILE_PATTERNS for p in outdir.glob(pattern)})
+
+
+def write_stack(stack: LayerStack, outdir, *, inputs=()) -> Path:
+    """Write a new layer stack into ``outdir`` (created; see :func:`prepare_folder`).
+
+    The manifest is written last; if writing fails (full disk, interrupt) the files already
+    written are removed again, and a killed build is cleared by the next one.
+    """
+    outdir = prepare_folder(outdir, inputs=inputs)
+    if outdir.exists() and not outdir.is_dir():
+        raise InvalidParameterError(f"output '{outdir}' exists and is not a folder")
+    created = not outdir.exists()
+    try:
+        outdir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        from terrain.outputs import cannot_write
+
+        raise cannot_write(outdir, exc) from exc
+    ok = False
+    try:
+        with stack_lock(outdir):
+            from terrain.outputs import atomic_path
+
+            with atomic_path(outdir / INCOMPLETE) as tmp:
+                tmp.write_text("a craterscape layer stack is being written here\n",
+                               encoding="utf-8")
+            files = [f"layer_{k:02d}.tif" for k in range(len(stack.tiles))]
+            _write_files(stack, outdir, files)
+            (outdir / INCOMPLETE).unlink()
+        ok = True
+    finally:
+        if not ok:
+            for p in [*_stack_files(outdir), outdir / INCOMPLETE, outdir / MANIFEST,
+                      outdir / LOCK, outdir / READERS_LOCK]:
+                with contextlib.suppress(OSError):
+                    p.unlink()
+            if created:
+                with contextlib.suppress(OSError):
+                    outdir.rmdir()
+    return outdir
+
+
+def _write_files(stack: LayerStack, outdir: Path, files: list[str], only=None,
+                 catalog: str = CATALOG) -> None:
+    """Write the layers (``only`` some), the catalogue, then the manifest: the commit point."""
     from terrain.io import atomic_path, write_dem
 
     for k, tile in enumerate(stack.tiles):
@@ -409,7 +496,7 @@ def _write_files(stack: LayerStack, outdir: Path, files: list[str], only=None) -
         meta = dict(tile.metadata)
         meta["CRATERSCAPE_LAYER"] = str(k)
         write_dem(tile.replace(metadata=meta), outdir / files[k])
-    with atomic_path(outdir / CATALOG) as tmp:
+    with atomic_path(outdir / catalog) as tmp:
         write_catalog(tmp, stack.catalog, CATALOG_LAYER_COLUMNS)
     if stack.rocks is not None:
         from terrain.rocks import write_rock_catalog
@@ -417,6 +504,7 @@ def _write_files(stack: LayerStack, outdir: Path, files: list[str], only=None) -
         with atomic_path(outdir / ROCK_CATALOG) as tmp:
             write_rock_catalog(tmp, stack.rocks)
     manifest = _manifest(stack, files)
+    manifest["catalog"] = catalog
     with atomic_path(outdir / MANIFEST) as tmp:
         tmp.write_text(json.dumps(manifest, indent=2, sort_keys=True), encoding="utf-8")
 
@@ -445,14 +533,62 @@ def stack_lock(outdir, timeout: float = LOCK_TIMEOUT):
         os.close(fd)
 
 
+@contextlib.contextmanager
+def _readers_lock(outdir: Path, *, exclusive: bool = False, timeout: float = READERS_TIMEOUT):
+    """Shared (readers) or exclusive (an edit deleting old files) lock; yields whether held.
+
+    A stack in a folder nobody may write (a read-only copy) cannot be edited either, so
+    readers there go without the lock.
+    """
+    path = outdir / READERS_LOCK
+    try:
+        fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o644)
+    except OSError:
+        try:
+            fd = os.open(path, os.O_RDONLY)
+        except OSError:
+            yield False
+            return
+    try:
+        mode = fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH
+        deadline = time.monotonic() + timeout
+        held = False
+        while True:
+            try:
+                fcntl.flock(fd, mode | fcntl.LOCK_NB)
+                held = True
+                break
+            except BlockingIOError:
+                if time.monotonic() > deadline:
+                    break
+                time.sleep(0.01)
+        yield held
+    finally:
+        with contextlib.suppress(OSError):
+            fcntl.flock(fd, fcntl.LOCK_UN)
+        os.close(fd)
+
+
 def read_stack(outdir) -> LayerStack:
-    """Read a layer stack written by :func:`write_stack`."""
+    """Read a layer stack written by :func:`write_stack`: the files its manifest names.
+
+    Holds the readers' lock while reading, so an edit running at the same time never
+    deletes a file this read still needs (see the module docstring).
+    """
+    outdir = Path(outdir)
+    if not (outdir / MANIFEST).exists():
+        if (outdir / INCOMPLETE).exists():
+            raise InvalidDEMError(f"'{outdir}' holds an interrupted stack build (no "
+                                  f"{MANIFEST}); build it again into the same folder")
+        raise MissingInputError(f"'{outdir}' is not a layer stack: {MANIFEST} is missing")
+    with _readers_lock(outdir):
+        return _read_stack(outdir)
+
+
+def _read_stack(outdir: Path) -> LayerStack:
     from terrain.io import read_dem
 
-    outdir = Path(outdir)
     mpath = outdir / MANIFEST
-    if not mpath.exists():
-        raise MissingInputError(f"'{outdir}' is not a layer stack: {MANIFEST} is missing")
     try:
         manifest = json.loads(mpath.read_text(encoding="utf-8"))
         if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
@@ -475,7 +611,11 @@ def read_stack(outdir) -> LayerStack:
                 f"layer file '{name}' is {tile.shape[1]}x{tile.shape[0]}; the manifest says "
                 f"{expected['width']}x{expected['height']}")
         tiles.append(tile)
-    cat_path = outdir / manifest.get("catalog", CATALOG)
+    cat_name = manifest.get("catalog", CATALOG)
+    if not isinstance(cat_name, str) or Path(cat_name).name != cat_name:
+        raise InvalidDEMError(f"manifest '{mpath}' names a catalogue outside the stack: "
+                              f"{cat_name!r}")
+    cat_path = outdir / cat_name
     catalog = read_catalog(cat_path) if cat_path.exists() else _merge_catalogs([])
     info = {k: v for k, v in manifest.items()
             if k not in ("layers", "format", "version", "crs", "catalog", "crater_counts")}
@@ -483,6 +623,7 @@ def read_stack(outdir) -> LayerStack:
     rocks = read_catalog(rock_path) if "rock_catalog" in info and rock_path.exists() else None
     stack = LayerStack(tiles, windows, origins, catalog, info, rocks)
     stack.info["_files"] = files
+    stack.info["_catalog"] = cat_name
     return stack
 
 
@@ -504,6 +645,7 @@ def replace_crater(outdir, x: float, y: float, diameter: float, *, age: float = 
         raise InvalidParameterError(f"crater diameter must be positive; got {diameter}")
     model = model or CraterModel()
     with stack_lock(outdir):
+        _sweep(outdir)
         stack = read_stack(outdir)
         seed = check_seed(stack.info.get("seed", 0) if seed is None else seed)
         reach = diameter * model.footprint_factor
@@ -578,18 +720,52 @@ def _propagate_down(stack: LayerStack, k: int, old_k: np.ndarray, changed: set) 
 
 
 def _commit(stack: LayerStack, outdir: Path, changed: set) -> None:
-    """Write new versions of the changed layers, then swap the manifest in, then clean up."""
+    """Write new versions of the changed layers and of the catalogue, swap the manifest in
+    (the commit point), then delete the old versions once no reader holds them."""
     files = list(stack.info.pop("_files"))
     old_files = list(files)
+    old_catalog = stack.info.pop("_catalog", CATALOG)
     stamp = f"{time.time_ns():x}"
     for k in changed:
         files[k] = f"layer_{k:02d}.{stamp}.tif"
-    _write_files(stack, outdir, files, only=changed)
-    for k in changed:
-        if old_files[k] != files[k]:
-            with contextlib.suppress(FileNotFoundError):
-                (outdir / old_files[k]).unlink()
+    catalog = f"craters.{stamp}.csv"
+    _write_files(stack, outdir, files, only=changed, catalog=catalog)
     stack.info["_files"] = files
+    stack.info["_catalog"] = catalog
+    old = [name for k, name in enumerate(old_files) if name != files[k]] + [old_catalog]
+    with _readers_lock(outdir, exclusive=True) as held:
+        if not held:
+            log.warning("readers still hold %s; its old files go at the next edit", outdir)
+            return
+        for name in old:
+            with contextlib.suppress(FileNotFoundError):
+                (outdir / name).unlink()
+
+
+def _sweep(outdir: Path) -> None:
+    """Remove files no manifest names (left by a killed edit) and dead temporaries.
+
+    Called with the edit lock held; waits for readers, who may still read older files.
+    """
+    from terrain.outputs import sweep_partials
+
+    sweep_partials(outdir)
+    mpath = outdir / MANIFEST
+    try:
+        manifest = json.loads(mpath.read_text(encoding="utf-8"))
+        named = {e["file"] for e in manifest["layers"]} | {manifest.get("catalog", CATALOG)}
+    except (OSError, ValueError, KeyError, TypeError):
+        return  # read_stack reports what is wrong
+    orphans = [p for p in _stack_files(outdir) if p.name not in named]
+    if not orphans:
+        return
+    with _readers_lock(outdir, exclusive=True) as held:
+        if not held:
+            return
+        for p in orphans:
+            with contextlib.suppress(FileNotFoundError):
+                p.unlink()
+    log.info("removed %d file(s) of an interrupted edit from %s", len(orphans), outdir)
 
 
 def stack_transform(entry: dict) -> Affine:

@@ -28,6 +28,7 @@ same map area enumerates exactly the same craters.
 
 from __future__ import annotations
 
+import difflib
 import math
 from dataclasses import asdict, dataclass, fields
 
@@ -112,13 +113,32 @@ class Population:
         ``defaults``.
         """
         data = read_toml(path, "population file")
-        table = data.get("population", data)
         known = {f.name for f in fields(cls)}
-        unknown = set(table) - known - {"erosion", "roughness", "rim"}
+        if "population" in data:
+            extra = sorted(set(data) - {"population"})
+            if extra:
+                raise InvalidParameterError(
+                    f"population file '{path}' has an unknown table or key {extra[0]!r}; "
+                    "it holds one [population] table")
+            table = data["population"]
+            if not isinstance(table, dict):
+                raise InvalidParameterError(
+                    f"population file '{path}': population must be a table")
+        else:
+            table = data
+        for key, value in table.items():
+            if isinstance(value, dict):
+                raise InvalidParameterError(
+                    f"population file '{path}' has an unknown table [population.{key}]; "
+                    f"[population] takes only {sorted(known)}")
+        unknown = set(table) - known
         if unknown:
+            key = sorted(unknown)[0]
+            near = difflib.get_close_matches(key, sorted(known), n=1)
             raise InvalidParameterError(
-                f"population file '{path}' has unknown keys {sorted(unknown)}; "
-                f"expected {sorted(known)}")
+                f"population file '{path}' has unknown keys {sorted(unknown)}"
+                + (f" (did you mean {near[0]!r}?)" if near else "")
+                + f"; expected {sorted(known)}")
         values = dict(defaults or {})
         values.update({k: v for k, v in table.items() if k in known})
         values.update({k: v for k, v in overrides.items() if v is not None})

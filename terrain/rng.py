@@ -67,11 +67,13 @@ def check_seed(seed) -> int:
     >>> check_seed(42)
     42
     """
+    from terrain.errors import InvalidParameterError
+
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
-        raise ValueError(f"seed must be an integer in [0, 2**63); got {seed!r}")
+        raise InvalidParameterError(f"seed must be an integer in [0, 2**63); got {seed!r}")
     seed = int(seed)
     if not 0 <= seed <= MAX_SEED:
-        raise ValueError(f"seed must be an integer in [0, 2**63); got {seed}")
+        raise InvalidParameterError(f"seed must be an integer in [0, 2**63); got {seed}")
     return seed
 
 

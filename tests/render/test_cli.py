@@ -80,8 +80,14 @@ def test_sequence_writes_frames_range_normals_truth_and_manifest(tmp_path, stack
 
 def test_resume_renders_only_what_is_missing(tmp_path, stack_dir):
     sc = scenario(tmp_path, stack_dir, frames=3)
-    assert run("render", "sequence", sc, "-o", tmp_path / "r", "--frames", 2).exit_code == 0
+    assert run("render", "sequence", sc, "-o", tmp_path / "r").exit_code == 0
+    # what an interrupted run leaves: the last frame missing from disk and from the truth
+    truth = json.loads((tmp_path / "r" / "truth.json").read_text())
+    (tmp_path / "r" / "truth.json").write_text(json.dumps(truth[:2]))
+    (tmp_path / "r" / "frames" / "frame_000002.png").unlink()
     first = (tmp_path / "r" / "frames" / "frame_000001.png").stat().st_mtime_ns
+    r = run("render", "sequence", sc, "-o", tmp_path / "r", "--frames", 2, "--resume")
+    assert r.exit_code == 2 and "frames 3, not 2" in r.output  # another trajectory: refused
     r = run("render", "sequence", sc, "-o", tmp_path / "r", "--resume")
     assert r.exit_code == 0, r.output
     assert (tmp_path / "r" / "frames" / "frame_000002.png").exists()
