@@ -23,6 +23,7 @@ import csv
 import io
 import json
 import logging
+import math
 import sys
 from pathlib import Path
 
@@ -64,17 +65,29 @@ class _TripleType(click.ParamType):
         try:
             if len(parts) != 3:
                 raise ValueError
-            return tuple(float(p) for p in parts)
+            triple = tuple(float(p) for p in parts)
+            if not all(math.isfinite(v) for v in triple):
+                raise ValueError
+            return triple
         except ValueError:
-            self.fail(f"expected three numbers X,Y,Z; got {value!r}", param, ctx)
+            self.fail(f"expected three finite numbers X,Y,Z; got {value!r}", param, ctx)
 
 
 TRIPLE = _TripleType()
 
 
-def _outdir(path: Path) -> Path:
-    if path.exists() and not path.is_dir():
-        raise InvalidParameterError(f"output '{path}' exists and is not a folder")
+def _outdir(path: Path, inputs=()) -> Path:
+    """The output folder, checked (never an input or inside one) and created.
+
+    Commands call it after their checks and computations, inside the transaction that
+    writes their files, so a command that fails leaves no folder and no file behind.
+    """
+    from terrain.outputs import _ACTIVE, check_output_folder
+
+    check_output_folder(path, inputs)
+    txn = _ACTIVE.get()
+    if txn is not None:
+        return txn.make_folder(path)
     path.mkdir(parents=True, exist_ok=True)
     return path
 
@@ -251,24 +264,44 @@ _edges_option = click.option(
 def slopes(inputs, output, band, reference, reference_band, slope_band, baseline,
            compute_edges):
     """Slope maps, slope distributions and power spectra of DEMs or layer stacks."""
-    from evaluation.figures import save_png, slope_distribution_figure, spectrum_figure
     from evaluation.slope import slope_tile
-    from terrain.io import write_dem
 
     if baseline is not None and not baseline > 0:
         raise InvalidParameterError(f"--baseline must be positive metres; got {baseline}")
+    from terrain.outputs import check_output_folder, transaction
+
     edges = "gdal" if compute_edges else "mask"
+    srcs = [*inputs] + ([reference] if reference else [])
+    check_output_folder(output, srcs)
     dems = _dem_inputs(inputs, band)
     ref_tile = _reference(dems, reference, reference_band)
-    outdir = _outdir(output)
-    srcs = [*inputs] + ([reference] if reference else [])
-    for label, tile in dems:
-        out = slope_tile(tile, edges=edges).with_metadata(
-            CRATERSCAPE_COMMAND="evaluation slopes", CRATERSCAPE_VERSION=_version())
-        write_dem(out, outdir / f"{label}_slope.tif", inputs=srcs, description="slope (deg)")
+    # everything is measured before anything is written
+    slope_maps = [(label, slope_tile(tile, edges=edges).with_metadata(
+        CRATERSCAPE_COMMAND="evaluation slopes", CRATERSCAPE_VERSION=_version()))
+        for label, tile in dems]
     distributions, spectra, fits, comparisons, agreements = _dem_evidence(
         dems, reference=reference, ref_tile=ref_tile, slope_band=slope_band,
         baseline=baseline, edges=edges)
+    with transaction():
+        _write_slopes(output, srcs, slope_maps, distributions, spectra, fits, comparisons,
+                      agreements)
+    message = f"wrote slopes of {len(dems)} DEM(s) to {output}"
+    for c in comparisons:
+        message += (f"; {c.label} vs {c.reference_label}: KS {c.ks_distance:.3f} at "
+                    f"{c.resolution_m:.4g} m")
+    for label, a in agreements:
+        message += f"; {label}: median |diff| {a.median_abs_deg:.3g} deg"
+    click.echo(message, err=True)
+
+
+def _write_slopes(output, srcs, slope_maps, distributions, spectra, fits, comparisons,
+                  agreements):
+    from evaluation.figures import save_png, slope_distribution_figure, spectrum_figure
+    from terrain.io import write_dem
+
+    outdir = _outdir(output, srcs)
+    for label, out in slope_maps:
+        write_dem(out, outdir / f"{label}_slope.tif", inputs=srcs, description="slope (deg)")
     angles = distributions[0].angles_deg
     _write_csv(outdir / "slope_distributions.csv",
                ["angle_deg"] + [d.label for d in distributions],
@@ -298,13 +331,6 @@ def slopes(inputs, output, band, reference, reference_band, slope_band, baseline
                    slope_map_agreement=[dict(label=label, **a.as_dict())
                                         for label, a in agreements])
         _write_text(outdir / "comparison.json", json.dumps(doc, indent=1), srcs)
-    message = f"wrote slopes of {len(dems)} DEM(s) to {output}"
-    for c in comparisons:
-        message += (f"; {c.label} vs {c.reference_label}: KS {c.ks_distance:.3f} at "
-                    f"{c.resolution_m:.4g} m")
-    for label, a in agreements:
-        message += f"; {label}: median |diff| {a.median_abs_deg:.3g} deg"
-    click.echo(message, err=True)
 
 
 def _gravity_options(func):
@@ -364,54 +390,57 @@ def asteroid_slopes(meshes, output, reference, reference_units, bin_deg, units, 
     """Radial and gravitational slopes of closed meshes, as slope-area histograms."""
     from evaluation.compare import ks_distance
     from evaluation.figures import save_png, slope_area_figure
+    from terrain.outputs import check_output_folder, transaction
 
     common = dict(density=density, mass=mass, period_hours=period_hours, spin_axis=spin_axis,
                   radius_deg=radius_deg, coarse_faces=coarse_faces, no_gravity=no_gravity)
     srcs = [*meshes] + ([reference] if reference else [])
+    check_output_folder(output, srcs)
     bodies = [_body_slopes(m, units=units, **common) for m in meshes]
     ref = None
     if reference is not None:
         ref = _body_slopes(reference, units=reference_units or units, **common)
-    outdir = _outdir(output)
-    everyone = bodies + ([ref] if ref is not None else [])
-    labels = _unique([b.label for b in everyone])
-    kinds = ["radial"] if no_gravity else ["gravitational", "radial"]
-    rows = []
-    summary = dict(bodies=[], reference=None)
-    for label, b in zip(labels, everyone, strict=True):
-        vrows = []
-        grav = b.gravitational_deg
-        for i in range(b.vertex_area.size):
-            row = [i, f"{b.vertex_area[i]:.6g}", f"{b.radial_deg[i]:.4f}"]
+    with transaction():  # every file or none
+        outdir = _outdir(output, srcs)
+        everyone = bodies + ([ref] if ref is not None else [])
+        labels = _unique([b.label for b in everyone])
+        kinds = ["radial"] if no_gravity else ["gravitational", "radial"]
+        rows = []
+        summary = dict(bodies=[], reference=None)
+        for label, b in zip(labels, everyone, strict=True):
+            vrows = []
+            grav = b.gravitational_deg
+            for i in range(b.vertex_area.size):
+                row = [i, f"{b.vertex_area[i]:.6g}", f"{b.radial_deg[i]:.4f}"]
+                if grav is not None:
+                    row += [f"{grav[i]:.4f}"] + [f"{x:.6g}" for x in b.gravity[i]]
+                vrows.append(row)
+            header = ["vertex", "area_m2", "radial_slope_deg"]
             if grav is not None:
-                row += [f"{grav[i]:.4f}"] + [f"{x:.6g}" for x in b.gravity[i]]
-            vrows.append(row)
-        header = ["vertex", "area_m2", "radial_slope_deg"]
-        if grav is not None:
-            header += ["gravitational_slope_deg", "g_x_m_s2", "g_y_m_s2", "g_z_m_s2"]
-        _write_csv(outdir / f"{label}_vertex_slopes.csv", header, vrows, srcs)
+                header += ["gravitational_slope_deg", "g_x_m_s2", "g_y_m_s2", "g_z_m_s2"]
+            _write_csv(outdir / f"{label}_vertex_slopes.csv", header, vrows, srcs)
+            for kind in kinds:
+                h = b.histogram(kind, bin_deg=bin_deg)
+                rows += [[label, kind, f"{h.edges_deg[i]:g}", f"{h.edges_deg[i + 1]:g}",
+                          f"{h.area_percent[i]:.6g}", f"{h.percent_steeper[i]:.6g}"]
+                         for i in range(h.area_percent.size)]
+            entry = b.as_dict()
+            entry["label"] = label
+            if ref is not None and b is not ref:
+                entry["ks_vs_reference"] = {
+                    k: ks_distance(b.slopes(k), ref.slopes(k), weights_a=b.vertex_area,
+                                   weights_b=ref.vertex_area) for k in kinds}
+            if b is ref:
+                summary["reference"] = entry
+            else:
+                summary["bodies"].append(entry)
+        _write_csv(outdir / "slope_area_histograms.csv",
+                   ["label", "kind", "bin_low_deg", "bin_high_deg", "area_percent",
+                    "percent_steeper_than_bin_low"], rows, srcs)
+        _write_text(outdir / "asteroid_slopes.json", json.dumps(summary, indent=1), srcs)
         for kind in kinds:
-            h = b.histogram(kind, bin_deg=bin_deg)
-            rows += [[label, kind, f"{h.edges_deg[i]:g}", f"{h.edges_deg[i + 1]:g}",
-                      f"{h.area_percent[i]:.6g}", f"{h.percent_steeper[i]:.6g}"]
-                     for i in range(h.area_percent.size)]
-        entry = b.as_dict()
-        entry["label"] = label
-        if ref is not None and b is not ref:
-            entry["ks_vs_reference"] = {
-                k: ks_distance(b.slopes(k), ref.slopes(k), weights_a=b.vertex_area,
-                               weights_b=ref.vertex_area) for k in kinds}
-        if b is ref:
-            summary["reference"] = entry
-        else:
-            summary["bodies"].append(entry)
-    _write_csv(outdir / "slope_area_histograms.csv",
-               ["label", "kind", "bin_low_deg", "bin_high_deg", "area_percent",
-                "percent_steeper_than_bin_low"], rows, srcs)
-    _write_text(outdir / "asteroid_slopes.json", json.dumps(summary, indent=1), srcs)
-    for kind in kinds:
-        save_png(slope_area_figure([b.histogram(kind, bin_deg=bin_deg) for b in everyone]),
-                 outdir / f"slope_area_{kind}.png", inputs=srcs)
+            save_png(slope_area_figure([b.histogram(kind, bin_deg=bin_deg) for b in everyone]),
+                     outdir / f"slope_area_{kind}.png", inputs=srcs)
     parts = []
     for label, b in zip(labels, everyone, strict=True):
         text = f"{label}: radial median {b.summary('radial')['p50']:.1f} deg"
@@ -472,13 +501,16 @@ def track_cmd(run_dir, output, max_corners, quality, min_distance, win_size, lev
               fb_threshold, outlier_px):
     """Track Harris corners through a rendered run and score them against its truth."""
     from evaluation.tracking import save_tracks
+    from terrain.outputs import check_output_folder, transaction
 
     if output.resolve() == run_dir.resolve():
         raise InvalidParameterError("the output folder must differ from the run directory")
+    check_output_folder(output, [run_dir])
     run, scored = _run_tracking(run_dir, max_corners, quality, min_distance, win_size, levels,
                                 fb_threshold, 2.0 if outlier_px is None else outlier_px)
-    s = save_tracks(scored, run, _outdir(output),
-                    inputs=[run_dir / "truth.json", run_dir / "manifest.json"])
+    with transaction():  # every file or none
+        s = save_tracks(scored, run, _outdir(output, [run_dir]),
+                        inputs=[run_dir / "truth.json", run_dir / "manifest.json"])
     msg = (f"wrote {s['tracking']['tracks']} tracks over {s['tracking']['frames']} frames to "
            f"{output}")
     if s["errors"] is not None and s["errors"]["median_px"] is not None:
@@ -548,7 +580,7 @@ def report(run_dirs, output, thresholds, title, dems, band, reference, reference
                         hazards] if p]
     for run_dir in run_dirs:  # the report's JSON twin must never replace a run's own files
         srcs += [run_dir / "truth.json", run_dir / "manifest.json"]
-    check_output_path(output, srcs)
+    check_output_path(output, srcs, suffixes=(".html", ".htm"), what="HTML")
     check_output_path(output.with_suffix(".json"), srcs)
     limits = load_thresholds(thresholds)
     sections = []
@@ -603,7 +635,10 @@ def report(run_dirs, output, thresholds, title, dems, band, reference, reference
     if thresholds is not None:
         inputs["thresholds"] = str(thresholds)
     rep = Report(title, sections, limits, inputs)
-    html_path, json_path = write_report(rep, output, inputs=srcs)
+    from terrain.outputs import transaction
+
+    with transaction():  # the HTML and its JSON twin as one set
+        html_path, json_path = write_report(rep, output, inputs=srcs)
     failed = [c.name for c in rep.checks if c.passed is False]
     click.echo(f"wrote {html_path} and {json_path}: verdict {rep.verdict}"
                + (f" (failed: {', '.join(failed)})" if failed else ""), err=True)

@@ -103,6 +103,13 @@ _COMMENTS = {
     "max_area_fraction_steep": "surface area steeper than steep_slope_deg",
 }
 
+#: Thresholds with a natural upper end: fractions and distances of distributions (1) and
+#: slope angles (90 degrees).
+_UPPER_BOUNDS = {
+    "max_outlier_fraction": 1.0, "min_survival": 1.0, "min_survival_at_layer_change": 1.0,
+    "max_ks_distance": 1.0, "max_area_fraction_steep": 1.0, "steep_slope_deg": 90.0,
+}
+
 
 def thresholds_toml(thresholds: dict | None = None) -> str:
     """The thresholds as a commented TOML document (defaults when none given).
@@ -156,6 +163,11 @@ def load_thresholds(path=None) -> dict:
                     raise InvalidParameterError(
                         f"thresholds file '{path}': {section}.{key} must be a non-negative "
                         f"number; got {value!r}")
+                upper = _UPPER_BOUNDS.get(key)
+                if upper is not None and value > upper:
+                    raise InvalidParameterError(
+                        f"thresholds file '{path}': {section}.{key} must be at most {upper:g} "
+                        f"({_COMMENTS.get(key, 'a fraction')}); got {value!r}")
                 out[section][key] = float(value)
     return out
 

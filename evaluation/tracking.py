@@ -89,11 +89,11 @@ SILHOUETTE_JUMP = 0.05
 TRACK_BYTES_PER_OBSERVATION = 48
 
 
-@dataclass(frozen=True)
 #: Most pyramid levels (a 2^16 reduction is far below any frame).
 MAX_PYRAMID_LEVELS = 16
 
 
+@dataclass(frozen=True)
 class TrackerSettings:
     """Parameters of :func:`track` (defaults suit 256-1024 pixel frames).
 

@@ -224,6 +224,12 @@ class Scenario:
                            look=t.get("look", "site"), height_at=scene.height_at)
         if kind == "approach":
             s = self.scene
+            reach = getattr(scene, "radius", None)
+            closest = min(float(t["start_distance"]), float(t["end_distance"]))
+            if reach is not None and closest <= reach:
+                raise InvalidParameterError(
+                    f"the approach comes to {closest:g} m from the body's centre, inside the "
+                    f"body (it reaches {reach:.6g} m); end the approach further out")
             return approach(frames, start_distance=float(t["start_distance"]),
                             end_distance=float(t["end_distance"]), duration=duration,
                             direction=t.get("direction", (1.0, 0.0, 0.0)),

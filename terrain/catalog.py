@@ -236,7 +236,11 @@ def read_circles(path) -> CraterTable:
             except (TypeError, ValueError):
                 raise InvalidParameterError(
                     f"crater list '{path}' line {n}: x, y, diameter must be numbers") from None
+            try:
+                crater = Crater(x, y, d, age)
+            except InvalidParameterError as exc:
+                raise InvalidParameterError(f"crater list '{path}' line {n}: {exc}") from None
             uid = int(hash64(0, stream_id("circle"), 0, int(round(x * 1000)),
                              int(round(y * 1000)), int(round(d * 1000))))
-            craters.append(Crater(x, y, d, age, uid))
+            craters.append(Crater(crater.x, crater.y, crater.diameter, crater.age, uid))
     return CraterTable.from_craters(craters)

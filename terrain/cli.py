@@ -21,7 +21,7 @@ from pathlib import Path
 import click
 
 from terrain.errors import CraterscapeError, InvalidParameterError
-from terrain.outputs import cannot_write, is_write_error, protect, protected
+from terrain.outputs import cannot_write, is_write_error, protected
 
 __all__ = ["main", "terrain"]
 
@@ -33,6 +33,10 @@ EXIT_BAD_INPUT = 2
 EXIT_TERMINATED = 143
 #: Most 2x expansions of a layer stack (1 km to below a millimetre).
 MAX_LEVELS = 30
+#: Largest tile relief (m): ten times Olympus Mons, far inside float32 heights.
+MAX_RELIEF = 2.0e5
+#: Largest hillshade vertical exaggeration.
+MAX_Z_FACTOR = 1.0e6
 #: Path parameters that name what a command writes; every other path parameter is an input
 #: that no output may replace or enter (:func:`terrain.outputs.protect`).
 OUTPUT_PARAMS = frozenset({"output", "catalog"})
@@ -215,9 +219,12 @@ class _PairType(click.ParamType):
         try:
             if len(parts) != 2:
                 raise ValueError
-            return float(parts[0]), float(parts[1])
+            pair = float(parts[0]), float(parts[1])
         except ValueError:
             self.fail(f"expected two numbers X,Y; got {value!r}", param, ctx)
+        if not all(math.isfinite(v) for v in pair):
+            self.fail(f"expected two finite numbers X,Y; got {value!r}", param, ctx)
+        return pair
 
 
 WINDOW = _WindowType()
@@ -389,6 +396,10 @@ def synth(output, size, resolution, fractal_dimension, relief, seed, window, dmi
     check_fractal_dimension(fractal_dimension)
     if not resolution > 0:
         raise InvalidParameterError(f"resolution must be positive; got {resolution}")
+    if not 0 <= relief <= MAX_RELIEF:
+        raise InvalidParameterError(
+            f"--relief must lie in [0, {MAX_RELIEF:g}] m (heights are float32 metres); got "
+            f"{relief:g}")
     if window is not None:
         window.check_inside(size, size)
     _check_outputs(output, catalog, [])
@@ -471,6 +482,10 @@ def add_crater(input_dem, output, at, diameter, age, seed, band, catalog, erosio
     from terrain.io import read_dem
     from terrain.rng import hash64, stream_id
 
+    if not diameter > 0:
+        raise InvalidParameterError(f"--diameter must be positive metres; got {diameter}")
+    if not age >= 0:
+        raise InvalidParameterError(f"--age must be >= 0 Gyr; got {age}")
     _check_outputs(output, catalog, [input_dem])
     tile = read_dem(input_dem, band=band, exact=True)
     x, y = at
@@ -504,11 +519,14 @@ def add_crater(input_dem, output, at, diameter, age, seed, band, catalog, erosio
 def hillshade_cmd(input_dem, output, azimuth, altitude, z_factor, band):
     """Write a shaded-relief PNG of a DEM."""
     from terrain.hillshade import hillshade
-    from terrain.io import check_output_path, read_dem, write_png
+    from terrain.io import PNG_SUFFIXES, check_output_path, read_dem, write_png
 
-    check_output_path(output, [input_dem])
+    check_output_path(output, [input_dem], suffixes=PNG_SUFFIXES, what="PNG")
     if not 0 < altitude <= 90:
         raise InvalidParameterError(f"altitude must lie in (0, 90] degrees; got {altitude}")
+    if not 0 < abs(z_factor) <= MAX_Z_FACTOR:
+        raise InvalidParameterError(
+            f"--z-factor must be non-zero and at most {MAX_Z_FACTOR:g} in size; got {z_factor}")
     tile = read_dem(input_dem, band=band)
     write_png(hillshade(tile, azimuth=azimuth, altitude=altitude, z_factor=z_factor), output,
               inputs=[input_dem])
