@@ -537,8 +537,11 @@ def stack_lock(outdir, timeout: float = LOCK_TIMEOUT):
 def _readers_lock(outdir: Path, *, exclusive: bool = False, timeout: float = READERS_TIMEOUT):
     """Shared (readers) or exclusive (an edit deleting old files) lock; yields whether held.
 
-    A stack in a folder nobody may write (a read-only copy) cannot be edited either, so
-    readers there go without the lock.
+    The folder itself is a turnstile: a reader passes it (a brief exclusive ``flock`` on the
+    folder) before taking its shared lock, and an edit holds it while it waits for the
+    readers already inside, so a stream of readers cannot starve an edit. A stack in a
+    folder nobody may write (a read-only copy) cannot be edited either, so readers there go
+    without the lock.
     """
     path = outdir / READERS_LOCK
     try:
@@ -550,23 +553,40 @@ def _readers_lock(outdir: Path, *, exclusive: bool = False, timeout: float = REA
             yield False
             return
     try:
-        mode = fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH
-        deadline = time.monotonic() + timeout
+        gate = os.open(outdir, os.O_RDONLY)
+    except OSError:
+        gate = None
+    try:
         held = False
-        while True:
-            try:
-                fcntl.flock(fd, mode | fcntl.LOCK_NB)
+        if gate is not None:
+            fcntl.flock(gate, fcntl.LOCK_EX)
+        try:
+            if exclusive:
+                deadline = time.monotonic() + timeout
+                while True:
+                    try:
+                        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                        held = True
+                        break
+                    except BlockingIOError:
+                        if time.monotonic() > deadline:
+                            break
+                        time.sleep(0.005)
+            else:
+                fcntl.flock(fd, fcntl.LOCK_SH)
                 held = True
-                break
-            except BlockingIOError:
-                if time.monotonic() > deadline:
-                    break
-                time.sleep(0.01)
+        finally:
+            if gate is not None and not exclusive:
+                fcntl.flock(gate, fcntl.LOCK_UN)
         yield held
     finally:
         with contextlib.suppress(OSError):
             fcntl.flock(fd, fcntl.LOCK_UN)
         os.close(fd)
+        if gate is not None:
+            with contextlib.suppress(OSError):
+                fcntl.flock(gate, fcntl.LOCK_UN)
+            os.close(gate)
 
 
 def read_stack(outdir) -> LayerStack:
