@@ -14,10 +14,11 @@ file, and an output path that names an input is refused before any work starts.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import warnings
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -167,6 +168,64 @@ def _find_numbers(obj, key):
             yield from _find_numbers(item, key)
 
 
+def _verify(tmp, expected: np.ndarray, path, messages: str = "") -> None:
+    """Read a just-written TIFF back and compare it with what was written.
+
+    GDAL reports some write failures (a full disk, a file-size limit) only as messages on
+    stderr and leaves a truncated file; reading back turns them into one "cannot write"
+    error, naming the first message, before the file is put in place.
+    """
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(tmp) as src:
+                back = src.read()
+        whole = back.shape == expected.shape and np.array_equal(back, expected, equal_nan=True)
+    except (RasterioIOError, RasterioError):
+        whole = False
+    if not whole:
+        first = messages.strip().splitlines()[0].strip() if messages.strip() else ""
+        reason = first.rstrip(".") if first else "the written file does not read back whole"
+        raise OutputPathError(f"cannot write '{path}': {reason}")
+
+
+@contextlib.contextmanager
+def _c_stderr() -> Iterator[list]:
+    """Capture what C libraries (GDAL, libtiff) print on file descriptor 2 meanwhile.
+
+    Yields a list that receives the text; the caller decides whether it is an error (then it
+    becomes the one-line reason) or is passed on to stderr unchanged.
+    """
+    import os
+    import sys
+    import tempfile
+
+    out: list = []
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError, AttributeError):  # no real stderr: nothing to capture
+        yield out
+        return
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield out
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            sink.seek(0)
+            out.append(sink.read().decode("utf-8", "replace"))
+
+
+def _replay(captured: list) -> None:
+    import sys
+
+    text = "".join(captured)
+    if text:
+        sys.stderr.write(text)
+
+
 def same_crs(a: str | None, b: str | None) -> bool:
     """Whether two CRS definitions (WKT) describe the same CRS (GDAL's own equality, so
     equivalent CRSs written differently compare equal); None equals only None."""
@@ -198,13 +257,16 @@ def write_dem(tile: DEMTile, path, *, inputs: Iterable = (),
         blockxsize=BLOCK_SIZE, blockysize=BLOCK_SIZE, BIGTIFF="IF_SAFER",
     )
     with atomic_path(path, inputs) as tmp:
-        try:
-            with rasterio.open(tmp, "w", **profile) as dst:
-                dst.write(data, 1)
-                dst.update_tags(**dict(tile.metadata))
-                dst.set_band_description(1, description)
-        except (RasterioIOError, RasterioError) as exc:
-            raise OutputPathError(f"cannot write '{path}': {_first_line(exc)}") from exc
+        with _c_stderr() as captured:
+            try:
+                with rasterio.open(tmp, "w", **profile) as dst:
+                    dst.write(data, 1)
+                    dst.update_tags(**dict(tile.metadata))
+                    dst.set_band_description(1, description)
+            except (RasterioIOError, RasterioError) as exc:
+                raise OutputPathError(f"cannot write '{path}': {_first_line(exc)}") from exc
+        _verify(tmp, data[None], path, "".join(captured))
+        _replay(captured)
     log.info("wrote %s (%d x %d)", path, ncols, nrows)
     return Path(path)
 
@@ -265,13 +327,16 @@ def write_float_tiff(array: np.ndarray, path, *, tags: dict | None = None, input
                    blockxsize=256, blockysize=256)
     with atomic_path(path, inputs) as tmp, warnings.catch_warnings():
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        try:
-            with rasterio.open(tmp, "w", **profile) as dst:
-                dst.write(np.moveaxis(a, 2, 0))
-                if tags:
-                    dst.update_tags(**{k: str(v) for k, v in tags.items()})
-        except (RasterioIOError, RasterioError) as exc:
-            raise OutputPathError(f"cannot write '{path}': {_first_line(exc)}") from exc
+        with _c_stderr() as captured:
+            try:
+                with rasterio.open(tmp, "w", **profile) as dst:
+                    dst.write(np.moveaxis(a, 2, 0))
+                    if tags:
+                        dst.update_tags(**{k: str(v) for k, v in tags.items()})
+            except (RasterioIOError, RasterioError) as exc:
+                raise OutputPathError(f"cannot write '{path}': {_first_line(exc)}") from exc
+        _verify(tmp, np.moveaxis(a, 2, 0), path, "".join(captured))
+        _replay(captured)
     return Path(path)
 
 

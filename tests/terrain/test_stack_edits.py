@@ -14,8 +14,15 @@ import time
 import numpy as np
 import pytest
 
-from terrain.layers import LOCK, MANIFEST, READERS_LOCK, build_stack, read_stack, \
-    replace_crater, write_stack
+from terrain.layers import (
+    LOCK,
+    MANIFEST,
+    READERS_LOCK,
+    build_stack,
+    read_stack,
+    replace_crater,
+    write_stack,
+)
 from terrain.population import Population
 from terrain.synthetic import synthesize_tile
 

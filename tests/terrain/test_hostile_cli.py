@@ -1,0 +1,297 @@
+"""Issue 17, terrain commands: bad input as a hostile user gives it. Each refusal is exit code
+2 with one line on stderr, leaves every input byte-identical and no output or partial file."""
+
+import os
+import signal
+import stat
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+import rasterio
+from affine import Affine
+
+from terrain.io import write_dem
+from terrain.layers import INCOMPLETE, MANIFEST
+from terrain.synthetic import synthesize_tile
+from tests.cli_helpers import file_size_limit, refused, run, snapshot, unwritable_folder
+
+
+@pytest.fixture
+def dem(tmp_path):
+    path = tmp_path / "dem.tif"
+    write_dem(synthesize_tile(65, resolution=2.0, relief=20.0, seed=1).tile, path)
+    return path
+
+
+@pytest.fixture
+def pop(tmp_path):
+    path = tmp_path / "pop.toml"
+    path.write_text("[population]\ndmin = 4.0\ndmax = 30.0\ndensity = 3000.0\n")
+    return path
+
+
+# -------------------------------------------------------------- 1. every input is protected
+
+
+def test_no_input_of_a_command_can_be_an_output(tmp_path, dem, pop):
+    profile = tmp_path / "profile.csv"
+    profile.write_text("baseline_age_gyr,depth_fraction,rim_fraction\n0,1,1\n3.5,0.5,0.4\n")
+    before = snapshot(dem, pop, profile)
+    cases = [
+        (["terrain", "craters", dem, "--population", pop, "-o", pop], "same file as input"),
+        (["terrain", "craters", dem, "--population", pop, "--erosion-profile", profile,
+          "-o", tmp_path / "o.tif", "--catalog", profile], "same file as input"),
+        (["terrain", "synth", "--size", 33, "--population", pop, "-o", tmp_path / "o.tif",
+          "--catalog", pop], "same file as input"),
+        (["terrain", "synth", "--size", 33, "--erosion-profile", profile, "--density", 10,
+          "-o", profile], "same file as input"),
+    ]
+    for args, fragment in cases:
+        refused(run(*args), before, tmp_path / "o.tif", fragments=[fragment], folder=tmp_path)
+
+
+# ------------------------------------------------------ 2. special files are written in place
+
+
+def test_devices_and_fifos_are_written_in_place_never_replaced(tmp_path, dem):
+    r = run("terrain", "hillshade", dem, "-o", os.devnull)
+    assert r.exit_code == 0, r.output
+    assert stat.S_ISCHR(os.stat(os.devnull).st_mode)
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    got = []
+    reader = threading.Thread(target=lambda: got.append(fifo.read_bytes()))
+    reader.start()
+    r = run("terrain", "hillshade", dem, "-o", fifo)
+    reader.join(timeout=30)
+    assert r.exit_code == 0, r.output
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode)
+    assert got and got[0].startswith(b"\x89PNG\r\n\x1a\n")
+
+
+# ------------------------------------------------------ 3. files that belong together
+
+
+def test_a_dem_never_appears_without_its_catalogue(tmp_path, dem, pop):
+    before = snapshot(dem, pop)
+    out = tmp_path / "out.tif"
+    bad = unwritable_folder(tmp_path) / "cat.csv"
+    r = run("terrain", "craters", dem, "--population", pop, "-o", out, "--catalog", bad)
+    refused(r, before, out, bad, fragments=["cannot write"], folder=tmp_path)
+    with file_size_limit(20_000):  # the DEM fits; the catalogue of 400 craters does not
+        r = run("terrain", "craters", dem, "--density", 2e5, "--dmin", 4, "--dmax", 8,
+                "-o", out, "--catalog", tmp_path / "cat.csv")
+    refused(r, before, out, tmp_path / "cat.csv", fragments=["cannot write"], folder=tmp_path)
+
+
+# ------------------------------------------------------ 5. interrupted stack builds
+
+
+def test_an_enhance_that_cannot_finish_leaves_nothing_and_a_killed_one_is_cleared(tmp_path,
+                                                                                   dem):
+    before = snapshot(dem)
+    out = tmp_path / "stack"
+    args = ["terrain", "enhance", dem, "-o", out, "--site", "64,64", "--levels", 1,
+            "--layer-size", 65]
+    with file_size_limit(12_000):  # the first layers fit, the finest does not
+        r = run(*args)
+    refused(r, before, out, fragments=["cannot write"], folder=tmp_path)
+    out.mkdir()  # what a killed build leaves: the marker, a layer, a temporary
+    (out / INCOMPLETE).write_text("")
+    (out / "layer_00.tif").write_bytes(b"half")
+    r = run(*args)
+    assert r.exit_code == 0, r.output
+    assert (out / MANIFEST).exists() and not (out / INCOMPLETE).exists()
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "notes.txt").write_text("mine")
+    mine = snapshot(tmp_path / "other")
+    refused(run(*args[:4], tmp_path / "other", *args[5:]), {**before, **mine},
+            fragments=["not empty"])
+
+
+# ------------------------------------------------------ 6. known heights kept bitwise
+
+
+def test_float64_heights_float32_cannot_hold_are_refused_not_rounded(tmp_path):
+    path = tmp_path / "f64.tif"
+    heights = 1737400.0 + np.arange(33 * 33, dtype=np.float64).reshape(33, 33) * 0.0123
+    with rasterio.open(path, "w", driver="GTiff", width=33, height=33, count=1,
+                       dtype="float64", transform=Affine(1, 0, 0, 0, -1, 33)) as dst:
+        dst.write(heights, 1)
+    before = snapshot(path)
+    out = tmp_path / "out.tif"
+    for args in (["fill", path], ["expand", path], ["craters", path, "--density", 10]):
+        refused(run("terrain", *args, "-o", out), before, out, fragments=["float64", "-ot"],
+                folder=tmp_path)
+    exact = tmp_path / "exact.tif"  # float64 values float32 holds exactly are fine
+    with rasterio.open(exact, "w", driver="GTiff", width=33, height=33, count=1,
+                       dtype="float64", transform=Affine(1, 0, 0, 0, -1, 33)) as dst:
+        dst.write(np.round(heights), 1)
+    assert run("terrain", "fill", exact, "-o", out).exit_code == 0
+    with rasterio.open(out) as src:
+        np.testing.assert_array_equal(src.read(1), np.round(heights))
+
+
+# ------------------------------------------------------ 7. typed population files
+
+
+@pytest.mark.parametrize("text, fragment", [
+    ("[population]\ndmin = 4.0\ndmax = 30.0\ndensity = 30.0\n[population.roughness]\n"
+     "amplitude = 2\n", "[population.roughness]"),
+    ("[population]\ndmin = 4.0\ndmax = 30.0\ndensity = 30.0\n[population.erosion]\n"
+     "bogus = 1\n", "[population.erosion]"),
+    ("[population]\ndmin = 4.0\ndmax = 30.0\ndensity = 30.0\n[craters]\nx = 1\n", "craters"),
+    ("[population]\ndmin = \"4\"\ndmax = 30.0\ndensity = 30.0\n", "must be a number"),
+    ("[population]\ndmin = 4.0\ndmax = 30.0\ndensty = 30.0\n", "did you mean 'density'"),
+])
+def test_population_files_are_typed_and_closed(tmp_path, dem, text, fragment):
+    pop = tmp_path / "bad.toml"
+    pop.write_text(text)
+    before = snapshot(dem, pop)
+    out = tmp_path / "out.tif"
+    refused(run("terrain", "craters", dem, "--population", pop, "-o", out), before, out,
+            fragments=[fragment], folder=tmp_path)
+
+
+# ------------------------------------------------------ 8. no tracebacks for odd numbers
+
+
+def test_nan_inf_and_absurd_numbers_are_one_line_errors(tmp_path, dem):
+    circles = tmp_path / "gaps.csv"
+    circles.write_text("x,y,diameter\n10,10,nan\n")
+    before = snapshot(dem, circles)
+    out = tmp_path / "out.tif"
+    cases = [
+        (["add-crater", dem, "--at", "20,20", "--diameter", "nan", "-o", out], "finite"),
+        (["add-crater", dem, "--at", "20,20", "--diameter", "inf", "-o", out], "finite"),
+        (["add-crater", dem, "--at", "nan,nan", "--diameter", 5, "-o", out], "finite"),
+        (["add-crater", dem, "--at", "20,20", "--diameter", -5, "-o", out], "positive"),
+        (["fill", dem, "--craters-at", circles, "-o", out], "line 2"),
+        (["enhance", dem, "-o", tmp_path / "s", "--site", "64,64",
+          "--finest-resolution", 1e-300], "at most 30"),
+        (["expand", dem, "--fractal-dimension", "nan", "-o", out], "finite"),
+    ]
+    for args, fragment in cases:
+        refused(run("terrain", *args), before, out, tmp_path / "s", fragments=[fragment],
+                folder=tmp_path)
+
+
+# ------------------------------------------------------ 9. memory refused before allocating
+
+
+def test_requests_larger_than_memory_are_refused_first(tmp_path, dem):
+    before = snapshot(dem)
+    out = tmp_path / "out.tif"
+    refused(run("terrain", "fill", dem, "--denoise", 1e9, "-o", out), before, out,
+            fragments=["denoise sigma"], folder=tmp_path)
+    refused(run("terrain", "fill", dem, "--denoise", 30, "-o", out,
+                env={"CRATERSCAPE_MEMORY_LIMIT": "1K"}), before, out,
+            fragments=["needs about"], folder=tmp_path)
+
+
+def test_memory_checks_respect_ulimit_v():
+    code = ("import resource; from terrain import memory; "
+            "resource.setrlimit(resource.RLIMIT_AS, (6 * 2**30, resource.RLIM_INFINITY)); "
+            "print(memory.available_bytes())")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert int(out.stdout) <= 6 * 2**30
+
+
+def test_memory_checks_respect_cgroup_limits(tmp_path):
+    from terrain.memory import _cgroup_headroom
+
+    v2 = tmp_path / "v2"
+    (v2 / "job").mkdir(parents=True)
+    (v2 / "job" / "memory.max").write_text(f"{4 * 2**30}\n")
+    (v2 / "job" / "memory.current").write_text(f"{2**30}\n")
+    (v2 / "memory.max").write_text("max\n")
+    cg = tmp_path / "cgroup2"
+    cg.write_text("0::/job\n")
+    assert _cgroup_headroom(v2, cg) == 3 * 2**30
+    v1 = tmp_path / "v1" / "memory" / "job"
+    v1.mkdir(parents=True)
+    (v1 / "memory.limit_in_bytes").write_text(f"{2 * 2**30}\n")
+    (v1 / "memory.usage_in_bytes").write_text(f"{2**29}\n")
+    cg1 = tmp_path / "cgroup1"
+    cg1.write_text("4:memory:/job\n1:cpu:/\n")
+    assert _cgroup_headroom(tmp_path / "v1", cg1) == 2 * 2**30 - 2**29
+    cg.write_text("0::/\n")
+    assert _cgroup_headroom(tmp_path / "nothing", cg) is None
+
+
+# ------------------------------------------------------ 10. nonsense is refused
+
+
+def test_nonsense_parameters_are_refused(tmp_path, dem):
+    before = snapshot(dem)
+    out = tmp_path / "out.tif"
+    png = tmp_path / "out.png"
+    cases = [
+        (["synth", "--size", 33, "--relief", 1e40, "-o", out], "--relief"),
+        (["hillshade", dem, "--azimuth", "nan", "-o", png], "finite"),
+        (["hillshade", dem, "--z-factor", 1e300, "-o", png], "--z-factor"),
+    ]
+    for args, fragment in cases:
+        refused(run("terrain", *args), before, out, png, fragments=[fragment], folder=tmp_path)
+
+
+# ------------------------------------------------------ 12. cannot write here
+
+
+def test_every_cannot_write_here_is_exit_2_with_one_message(tmp_path, dem):
+    before = snapshot(dem)
+    ro = unwritable_folder(tmp_path)
+    for args in (["synth", "--size", 33, "-o", ro / "x.tif"],
+                 ["hillshade", dem, "-o", ro / "x.png"],
+                 ["enhance", dem, "-o", ro / "stack", "--site", "64,64", "--levels", 1,
+                  "--layer-size", 33]):
+        refused(run("terrain", *args), before, fragments=["cannot write"], folder=tmp_path)
+    with file_size_limit(2_000):  # a full disk, for a GeoTIFF and for a PNG
+        for args in (["synth", "--size", 129, "-o", tmp_path / "x.tif"],
+                     ["hillshade", dem, "-o", tmp_path / "x.png"]):
+            refused(run("terrain", *args), before, tmp_path / "x.tif", tmp_path / "x.png",
+                    fragments=["cannot write", "File too large"], folder=tmp_path)
+
+
+# ------------------------------------------------------ 13. the format matches the name
+
+
+def test_output_format_matches_the_extension(tmp_path, dem):
+    before = snapshot(dem)
+    for args, fragment in ((["hillshade", dem, "-o", tmp_path / "x.tif"], ".png"),
+                           (["synth", "--size", 33, "-o", tmp_path / "x.png"], ".tif"),
+                           (["synth", "--size", 33, "--density", 10, "-o", tmp_path / "x.tif",
+                             "--catalog", tmp_path / "x.json"], ".csv")):
+        refused(run("terrain", *args), before, tmp_path / "x.tif", tmp_path / "x.png",
+                fragments=[fragment], folder=tmp_path)
+
+
+# ------------------------------------------------------ 14. SIGTERM cleans up like Ctrl-C
+
+
+def test_sigterm_during_expand_leaves_no_partial_file(tmp_path, dem):
+    big = tmp_path / "big.tif"
+    write_dem(synthesize_tile(513, resolution=2.0, relief=20.0, seed=1).tile, big)
+    before = snapshot(big)
+    out = tmp_path / "out.tif"
+    proc = subprocess.Popen([sys.executable, "-c", "from terrain.cli import main; main()",
+                             "terrain", "expand", str(big), "--times", "2", "-o", str(out)],
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        if any(p.name.endswith(".partial") for p in tmp_path.iterdir()):
+            break  # the output is being written: the worst moment
+        time.sleep(0.002)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode in (143, 0), err  # 0 only if it had just finished
+    assert not [p for p in tmp_path.iterdir() if p.name.endswith(".partial")]
+    assert snapshot(big) == before
+    if proc.returncode == 143:
+        assert not out.exists() and "Traceback" not in err and err.strip().endswith(
+            "terminated")
