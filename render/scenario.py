@@ -241,8 +241,14 @@ class Scenario:
 
 def load_scenario(path) -> Scenario:
     """Parse and validate a scenario file."""
+    from terrain.outputs import protect
+
     path = Path(path)
-    return parse_scenario(read_toml(path, "scenario"), path)
+    scenario = parse_scenario(read_toml(path, "scenario"), path)
+    for key in ("stack", "body"):  # what the scenario reads is an input of the command too
+        if key in scenario.scene:
+            protect(scenario.resolve(scenario.scene[key]))
+    return scenario
 
 
 def parse_scenario(data: dict, path: Path | None = None) -> Scenario:

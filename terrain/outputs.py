@@ -128,8 +128,9 @@ def _check_against_inputs(path: Path, inputs, what: str) -> None:
     target = _real(path)
     for item in _all_inputs(inputs):
         if _same(path, item):
-            raise OutputPathError(f"{what} '{path}' is the same file as input '{item}'; "
-                                  "choose another output name")
+            kind = "the input folder" if item.is_dir() else "the same file as input"
+            raise OutputPathError(f"{what} '{path}' is {kind} '{item}'; choose another "
+                                  "output name")
         if item.is_dir() and target.is_relative_to(_real(item)):
             raise OutputPathError(f"{what} '{path}' lies inside the input folder '{item}'; "
                                   "choose an output outside it")
