@@ -156,6 +156,14 @@ def _dem_inputs(paths, band: int) -> list:
     return [(label, tile) for label, (_, tile) in zip(labels, items, strict=True)]
 
 
+def _with_stack_folders(paths) -> list:
+    """The inputs, plus the folder of every layer stack named by its manifest.json: nothing
+    is ever written into an input stack."""
+    out = list(paths)
+    out += [Path(p).parent for p in paths if Path(p).name == "manifest.json"]
+    return out
+
+
 def _baseline(tile, baseline, label):
     from evaluation.slope import resample
 
@@ -271,7 +279,7 @@ def slopes(inputs, output, band, reference, reference_band, slope_band, baseline
     from terrain.outputs import check_output_folder, transaction
 
     edges = "gdal" if compute_edges else "mask"
-    srcs = [*inputs] + ([reference] if reference else [])
+    srcs = _with_stack_folders([*inputs] + ([reference] if reference else []))
     check_output_folder(output, srcs)
     dems = _dem_inputs(inputs, band)
     ref_tile = _reference(dems, reference, reference_band)
@@ -576,8 +584,9 @@ def report(run_dirs, output, thresholds, title, dems, band, reference, reference
                                     "--hazards")
     if reference is not None and not dems:
         raise InvalidParameterError("--reference compares --dem inputs; give at least one --dem")
-    srcs = [p for p in [*run_dirs, *dems, reference, *meshes, reference_mesh, thresholds,
-                        hazards] if p]
+    srcs = _with_stack_folders(
+        [p for p in [*run_dirs, *dems, reference, *meshes, reference_mesh, thresholds,
+                     hazards] if p])
     for run_dir in run_dirs:  # the report's JSON twin must never replace a run's own files
         srcs += [run_dir / "truth.json", run_dir / "manifest.json"]
     check_output_path(output, srcs, suffixes=(".html", ".htm"), what="HTML")

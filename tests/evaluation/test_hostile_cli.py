@@ -1,0 +1,81 @@
+"""Issue 17, evaluation commands: validate first, write after; never into an input; one
+exit code for "cannot write here". Refusals are exit code 2 with one line on stderr, every
+input byte-identical and no output left."""
+
+import pytest
+
+from evaluation.spectrum import fractional_brownian_surface
+from terrain.io import write_dem
+from terrain.tile import DEMTile
+from tests.cli_helpers import file_size_limit, refused, run, snapshot, unwritable_folder
+
+
+@pytest.fixture
+def dem(tmp_path):
+    path = tmp_path / "dem.tif"
+    write_dem(fractional_brownian_surface(64, 0.8, resolution=2.0, rms=4.0, seed=1), path)
+    return path
+
+
+@pytest.fixture
+def stack(tmp_path):
+    from terrain.layers import build_stack, write_stack
+    from terrain.synthetic import synthesize_tile
+
+    base = synthesize_tile(33, resolution=8.0, relief=30.0, seed=3).tile
+    return write_stack(build_stack(base, (128.0, 128.0), levels=1, layer_size=17, seed=4),
+                       tmp_path / "stack")
+
+
+def test_checks_fail_before_anything_is_written(tmp_path):
+    tiny = tmp_path / "tiny.tif"
+    write_dem(DEMTile.from_array([[1.0]], resolution=1.0), tiny)
+    before = snapshot(tiny)
+    out = tmp_path / "out"
+    r = run("evaluation", "slopes", tiny, "-o", out)
+    refused(r, before, out, folder=tmp_path)
+
+
+def test_nothing_is_written_into_an_input_stack(tmp_path, stack):
+    before = snapshot(stack)
+    for inp in (stack, stack / "manifest.json"):
+        for out in (stack, stack / "slopes"):
+            refused(run("evaluation", "slopes", inp, "-o", out), before,
+                    fragments=["input folder"], folder=tmp_path)
+    assert snapshot(stack) == before
+
+
+def test_tracking_requests_beyond_the_frames_are_refused(tmp_path, planar_run):
+    before = snapshot(planar_run)
+    out = tmp_path / "t"
+    refused(run("evaluation", "track", planar_run, "-o", out, "--win-size", 100000), before,
+            out, fragments=["must fit"], folder=tmp_path)
+    refused(run("evaluation", "track", planar_run, "-o", planar_run / "t"), before, out,
+            fragments=["input folder"], folder=tmp_path)
+
+
+@pytest.mark.parametrize("key, value", [
+    ("tracking", "max_outlier_fraction = 2.0"), ("tracking", "min_survival = 1.5"),
+    ("asteroid", "max_area_fraction_steep = 3"), ("asteroid", "steep_slope_deg = 120.0"),
+])
+def test_fraction_thresholds_above_one_are_refused(tmp_path, dem, key, value):
+    t = tmp_path / "t.toml"
+    t.write_text(f"[{key}]\n{value}\n")
+    before = snapshot(dem, t)
+    out = tmp_path / "r.html"
+    refused(run("evaluation", "report", "--dem", dem, "--thresholds", t, "-o", out), before,
+            out, tmp_path / "r.json", fragments=["at most"], folder=tmp_path)
+
+
+def test_cannot_write_here_is_exit_2(tmp_path, dem):
+    before = snapshot(dem)
+    ro = unwritable_folder(tmp_path)
+    refused(run("evaluation", "slopes", dem, "-o", ro / "out"), before,
+            fragments=["cannot write"])
+    refused(run("evaluation", "report", "--dem", dem, "-o", ro / "r.html"), before,
+            fragments=["cannot write"])
+    with file_size_limit(4_000):  # a full disk: the first files fit, the figures do not
+        r = run("evaluation", "slopes", dem, "-o", tmp_path / "out")
+    refused(r, before, tmp_path / "out", fragments=["cannot write"], folder=tmp_path)
+    refused(run("evaluation", "report", "--dem", dem, "-o", tmp_path / "r.txt"), before,
+            tmp_path / "r.txt", tmp_path / "r.json", fragments=[".html"], folder=tmp_path)
