@@ -21,7 +21,7 @@ from pathlib import Path
 import click
 
 from terrain.errors import CraterscapeError, InvalidParameterError
-from terrain.outputs import cannot_write, is_write_error, protected
+from terrain.outputs import cannot_write, is_write_error, protected, transaction
 
 __all__ = ["main", "terrain"]
 
@@ -326,7 +326,6 @@ def _write_outputs(result, output, catalog, inputs, command, params):
     """The DEM and its catalogue, committed together (:func:`terrain.outputs.transaction`)."""
     from terrain.catalog import write_catalog
     from terrain.io import atomic_path, write_dem
-    from terrain.outputs import transaction
 
     tile = result.tile.with_metadata(CRATERSCAPE_COMMAND=command,
                                      CRATERSCAPE_PARAMETERS=params,
@@ -528,8 +527,9 @@ def hillshade_cmd(input_dem, output, azimuth, altitude, z_factor, band):
         raise InvalidParameterError(
             f"--z-factor must be non-zero and at most {MAX_Z_FACTOR:g} in size; got {z_factor}")
     tile = read_dem(input_dem, band=band)
-    write_png(hillshade(tile, azimuth=azimuth, altitude=altitude, z_factor=z_factor), output,
-              inputs=[input_dem])
+    image = hillshade(tile, azimuth=azimuth, altitude=altitude, z_factor=z_factor)
+    with transaction():
+        write_png(image, output, inputs=[input_dem])
     click.echo(f"wrote {output}", err=True)
 
 
@@ -609,7 +609,8 @@ def expand(input_dem, output, times, seed, fractal_dimension, height_scale, unif
     out = out.with_metadata(CRATERSCAPE_COMMAND="terrain expand", CRATERSCAPE_VERSION=_version(),
                             CRATERSCAPE_PARAMETERS=dict(input=str(input_dem), times=times,
                                                         seed=seed, **params.as_dict()))
-    write_dem(out, output, inputs=[input_dem])
+    with transaction():
+        write_dem(out, output, inputs=[input_dem])
     click.echo(f"wrote {output} ({out.shape[1]}x{out.shape[0]} at {out.resolution:.6g} m; "
                f"F={params.fractal_dimension:.3f}, H={params.height_scale:.4g})", err=True)
 
@@ -751,7 +752,8 @@ def fill(input_dem, output, roughness, craters_at, despike, denoise, seed, band)
         CRATERSCAPE_PARAMETERS=dict(input=str(input_dem), roughness=roughness, seed=seed,
                                     despike=despike, denoise=denoise,
                                     craters_at=str(craters_at) if craters_at else None))
-    write_dem(out, output, inputs=[input_dem])
+    with transaction():
+        write_dem(out, output, inputs=[input_dem])
     click.echo(f"wrote {output} ({int(result.filled.sum())} pixels filled"
                + (f", {removed} spikes removed" if despike is not None else "") + ")", err=True)
 

@@ -217,6 +217,8 @@ def cannot_write(path, exc: BaseException) -> OutputPathError:
 
 def _temp_beside(path: Path) -> Path:
     parent = path.parent if str(path.parent) else Path(".")
+    if _is_special(path):  # bytes for a device or FIFO are copied in: stage them elsewhere
+        parent = Path(tempfile.gettempdir())
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}-",
                                    suffix=PARTIAL_SUFFIX, dir=parent)
@@ -427,6 +429,8 @@ class Transaction:
         return folder
 
     def _commit(self) -> None:
+        for folder in {f.parent for _, f in self.staged}:  # what killed writers left here
+            sweep_partials(folder if str(folder) else Path("."))
         finals = {f for _, f in self.staged}
         stale = [p for p in self.stale if p not in finals and (p.exists() or p.is_symlink())]
         if not self.staged and not stale:
