@@ -1,0 +1,135 @@
+"""Benchmarks for the safe-output machinery (issue 17): one JSON document on stdout.
+
+What safety costs, each against a baseline measured in the same run:
+
+* ``write_dem``: writing a 2049^2 DEM the way every command does (temporary file, read back
+  and compared, renamed into place) against rasterio writing the same GeoTIFF directly.
+  Target: at most 1.6x the direct write (the read-back is what turns a full disk into an
+  error instead of a truncated file).
+* ``transaction``: committing four files as one set (journal, renames) against writing the
+  same four files one by one with :func:`terrain.outputs.atomic_path`. Target: at most 1.5x
+  plus 20 ms.
+* ``read_stack``: reading a 3-layer stack under the readers' lock against reading the same
+  files without it. Target: at most 1.2x plus 5 ms.
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_outputs.py          # full (tens of seconds)
+    .venv/bin/python benchmarks/bench_outputs.py --quick  # small sizes, seconds
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from _common import logger, machine_facts, summary
+
+log = logger("bench-outputs")
+
+
+def _times(fn, repeat):
+    out = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        out.append(time.perf_counter() - t0)
+    return out
+
+
+def bench_write_dem(folder: Path, size: int, repeat: int) -> dict:
+    import numpy as np
+    import rasterio
+    from rasterio.crs import CRS
+
+    from terrain.io import BLOCK_SIZE, write_dem
+    from terrain.synthetic import synthesize_tile
+
+    tile = synthesize_tile(size, resolution=1.0, relief=30.0, seed=1).tile
+    profile = dict(driver="GTiff", dtype="float32", count=1, width=size, height=size,
+                   crs=CRS.from_wkt(tile.crs) if tile.crs else None, transform=tile.transform,
+                   nodata=tile.nodata, compress="deflate", predictor=3, zlevel=6, tiled=True,
+                   blockxsize=BLOCK_SIZE, blockysize=BLOCK_SIZE, BIGTIFF="IF_SAFER")
+
+    def direct():
+        with rasterio.open(folder / "direct.tif", "w", **profile) as dst:
+            dst.write(np.asarray(tile.heights), 1)
+
+    def safe():
+        write_dem(tile, folder / "safe.tif")
+
+    base = summary(_times(direct, repeat))
+    ours = summary(_times(safe, repeat))
+    ratio = ours["median_s"] / base["median_s"]
+    return dict(size=size, safe=ours, baseline_direct=base, ratio=ratio,
+                target_ratio=1.6, passed=ratio <= 1.6)
+
+
+def bench_transaction(folder: Path, nbytes: int, repeat: int) -> dict:
+    import os
+
+    from terrain.outputs import atomic_path, transaction
+
+    payload = os.urandom(nbytes)
+    names = ["a.ply", "a.npz", "a_craters.csv", "a_boulders.csv"]
+
+    def write_all():
+        for name in names:
+            with atomic_path(folder / name) as tmp:
+                tmp.write_bytes(payload)
+
+    def as_set():
+        with transaction(folders=[folder]):
+            write_all()
+
+    base = summary(_times(write_all, repeat))
+    ours = summary(_times(as_set, repeat))
+    limit = 1.5 * base["median_s"] + 0.020
+    return dict(bytes_per_file=nbytes, files=len(names), set=ours, baseline_one_by_one=base,
+                ratio=ours["median_s"] / base["median_s"], passed=ours["median_s"] <= limit)
+
+
+def bench_read_stack(folder: Path, base_size: int, repeat: int) -> dict:
+    from terrain.layers import _read_stack, build_stack, read_stack, write_stack
+    from terrain.synthetic import synthesize_tile
+
+    base = synthesize_tile(base_size, resolution=10.0, relief=50.0, seed=2).tile
+    centre = (base_size - 1) * 10.0 / 2
+    stack = write_stack(build_stack(base, (centre, centre), levels=2, layer_size=base_size,
+                                    seed=3), folder / "stack")
+    unlocked = summary(_times(lambda: _read_stack(stack), repeat))
+    locked = summary(_times(lambda: read_stack(stack), repeat))
+    limit = 1.2 * unlocked["median_s"] + 0.005
+    return dict(layer_size=base_size, locked=locked, baseline_unlocked=unlocked,
+                ratio=locked["median_s"] / unlocked["median_s"],
+                passed=locked["median_s"] <= limit)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="small sizes")
+    args = parser.parse_args(argv)
+    size, nbytes, layer, repeat = (257, 200_000, 129, 3) if args.quick \
+        else (2049, 20_000_000, 513, 7)
+    with tempfile.TemporaryDirectory(prefix="bench-outputs-") as tmp:
+        tmp = Path(tmp)
+        log(f"write_dem {size}^2")
+        write = bench_write_dem(tmp, size, repeat)
+        log(f"transaction of 4 x {nbytes} bytes")
+        txn = bench_transaction(tmp, nbytes, repeat)
+        log(f"read_stack of {layer}^2 layers")
+        read = bench_read_stack(tmp, layer, repeat)
+    doc = dict(benchmark="outputs", quick=args.quick, machine=machine_facts(),
+               results=dict(write_dem=write, transaction=txn, read_stack=read),
+               passed=all(r["passed"] for r in (write, txn, read)))
+    json.dump(doc, sys.stdout, indent=1)
+    print()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
