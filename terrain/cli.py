@@ -35,6 +35,8 @@ EXIT_TERMINATED = 143
 MAX_LEVELS = 30
 #: Largest tile relief (m): ten times Olympus Mons, far inside float32 heights.
 MAX_RELIEF = 2.0e5
+#: Largest crater add-crater takes, in DEM diagonals (its rim still reaches the DEM).
+MAX_CRATER_TO_DEM = 100.0
 #: Largest hillshade vertical exaggeration.
 MAX_Z_FACTOR = 1.0e6
 #: Path parameters that name what a command writes; every other path parameter is an input
@@ -147,6 +149,10 @@ class _Root(click.Group):
             if is_write_error(exc):  # one code and one message for "cannot write here"
                 _fail(ctx, cannot_write(exc.filename or "output", exc), EXIT_BAD_INPUT)
             _fail(ctx, exc, 1)
+        except ArithmeticError as exc:  # an unchecked number overflowed: still bad input
+            _fail(ctx, InvalidParameterError(
+                f"a number is out of range ({type(exc).__name__}: {exc}); check the values "
+                "given (-v shows where)"), EXIT_BAD_INPUT)
         except MemoryError as exc:
             _fail(ctx, exc, 1)
         finally:
@@ -489,6 +495,11 @@ def add_crater(input_dem, output, at, diameter, age, seed, band, catalog, erosio
     tile = read_dem(input_dem, band=band, exact=True)
     x, y = at
     left, bottom, right, top = tile.bounds
+    extent = math.hypot(right - left, top - bottom)
+    if diameter > MAX_CRATER_TO_DEM * extent:
+        raise InvalidParameterError(
+            f"--diameter {diameter:g} m is more than {MAX_CRATER_TO_DEM:g} times the DEM's "
+            f"extent ({extent:.6g} m)")
     reach = diameter
     if x + reach < left or x - reach > right or y + reach < bottom or y - reach > top:
         raise InvalidParameterError(

@@ -53,6 +53,10 @@ STREAM_CRATER = stream_id("crater")
 STREAM_UID = stream_id("crater-uid")
 
 
+#: Steepest size-frequency exponent accepted (observed lunar populations lie in -1.5..-4).
+MIN_SFD_EXPONENT = -10.0
+
+
 @dataclass(frozen=True)
 class Population:
     """A power-law crater population.
@@ -99,9 +103,10 @@ class Population:
                 f"dmin must be smaller than dmax; got dmin={self.dmin}, dmax={self.dmax}")
         if self.density < 0:
             raise InvalidParameterError(f"density must be >= 0 per km^2; got {self.density}")
-        if self.sfd_exponent >= 0:
+        if not MIN_SFD_EXPONENT <= self.sfd_exponent < 0:
             raise InvalidParameterError(
-                f"sfd exponent k must be negative (N_cum = c D^k); got {self.sfd_exponent}")
+                f"sfd exponent k must lie in [{MIN_SFD_EXPONENT:g}, 0) (N_cum = c D^k; -2 for "
+                f"highlands, -1.8 for mare); got {self.sfd_exponent}")
         if self.max_age < 0:
             raise InvalidParameterError(f"max_age must be >= 0 Gyr; got {self.max_age}")
 

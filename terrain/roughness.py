@@ -295,6 +295,12 @@ class ExpansionParameters:
         Given only F, H is still matched to the DEM's measured sigma(1); given only H, F is
         measured. ``local_box`` = 0 switches the local roughness map off.
         """
+        from terrain.rmd import check_fractal_dimension
+
+        if fractal_dimension is not None:
+            fractal_dimension = check_fractal_dimension(fractal_dimension)
+        if height_scale is not None and not (0 < height_scale < float("inf")):
+            raise InvalidParameterError(f"height scale H must be positive; got {height_scale}")
         size = max(2, max(tile.shape) - 1)
         if fractal_dimension is not None and height_scale is not None:
             sigma = 0.0
