@@ -105,8 +105,8 @@ class Population:
             raise InvalidParameterError(f"density must be >= 0 per km^2; got {self.density}")
         if not MIN_SFD_EXPONENT <= self.sfd_exponent < 0:
             raise InvalidParameterError(
-                f"sfd exponent k must lie in [{MIN_SFD_EXPONENT:g}, 0) (N_cum = c D^k; -2 for "
-                f"highlands, -1.8 for mare); got {self.sfd_exponent}")
+                f"sfd exponent k must be negative and at least {MIN_SFD_EXPONENT:g} "
+                f"(N_cum = c D^k; -2 for highlands, -1.8 for mare); got {self.sfd_exponent}")
         if self.max_age < 0:
             raise InvalidParameterError(f"max_age must be >= 0 Gyr; got {self.max_age}")
 

@@ -299,8 +299,9 @@ class ExpansionParameters:
 
         if fractal_dimension is not None:
             fractal_dimension = check_fractal_dimension(fractal_dimension)
-        if height_scale is not None and not (0 < height_scale < float("inf")):
-            raise InvalidParameterError(f"height scale H must be positive; got {height_scale}")
+        if height_scale is not None and not (0 <= height_scale < float("inf")):
+            raise InvalidParameterError(f"height scale H must be >= 0 and finite; got "
+                                        f"{height_scale}")
         size = max(2, max(tile.shape) - 1)
         if fractal_dimension is not None and height_scale is not None:
             sigma = 0.0
