@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import sys
 from pathlib import Path
 
@@ -105,6 +106,8 @@ def build(output, magnitude, radius, base, seed, stretch, craters, boulders, con
         else:
             try:
                 shape["centre"] = [float(v) for v in shape_centre.split(",")]
+                if len(shape["centre"]) != 3 or not all(map(math.isfinite, shape["centre"])):
+                    raise ValueError
             except ValueError:
                 raise InvalidParameterError(
                     f"--shape-centre must be centroid, origin or X,Y,Z; got {shape_centre!r}") \
