@@ -82,14 +82,9 @@ def _outdir(path: Path, inputs=()) -> Path:
     Commands call it after their checks and computations, inside the transaction that
     writes their files, so a command that fails leaves no folder and no file behind.
     """
-    from terrain.outputs import _ACTIVE, check_output_folder
+    from terrain.outputs import make_output_folder
 
-    check_output_folder(path, inputs)
-    txn = _ACTIVE.get()
-    if txn is not None:
-        return txn.make_folder(path)
-    path.mkdir(parents=True, exist_ok=True)
-    return path
+    return make_output_folder(path, inputs)
 
 
 def _write_text(path: Path, text: str, inputs=()) -> None:

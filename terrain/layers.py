@@ -469,6 +469,7 @@ def write_stack(stack: LayerStack, outdir, *, inputs=()) -> Path:
             with atomic_path(outdir / INCOMPLETE) as tmp:
                 tmp.write_text("a craterscape layer stack is being written here\n",
                                encoding="utf-8")
+            (outdir / READERS_LOCK).touch()  # so that readers never create a file here
             files = [f"layer_{k:02d}.tif" for k in range(len(stack.tiles))]
             _write_files(stack, outdir, files)
             (outdir / INCOMPLETE).unlink()

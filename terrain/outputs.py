@@ -59,8 +59,8 @@ from pathlib import Path
 from terrain.errors import OutputPathError
 
 __all__ = ["JOURNAL", "Transaction", "atomic_path", "cannot_write", "check_output_folder",
-           "check_output_path", "is_write_error", "protect", "protected", "settle",
-           "sweep_partials", "transaction"]
+           "check_output_path", "is_write_error", "make_output_folder", "protect", "protected",
+           "settle", "sweep_partials", "transaction"]
 
 log = logging.getLogger(__name__)
 
@@ -468,6 +468,20 @@ class Transaction:
         for folder in reversed(self.created):
             with contextlib.suppress(OSError):
                 folder.rmdir()
+
+
+def make_output_folder(folder, inputs: Iterable = ()) -> Path:
+    """Check (:func:`check_output_folder`) and create an output folder; inside a
+    :func:`transaction` a folder it creates is removed again if the transaction fails."""
+    folder = check_output_folder(folder, inputs)
+    txn = _ACTIVE.get()
+    if txn is not None:
+        return txn.make_folder(folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise cannot_write(folder, exc) from exc
+    return folder
 
 
 @contextlib.contextmanager
