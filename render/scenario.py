@@ -390,6 +390,15 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
             isinstance(k, dict) for k in traj["keyframe"])):
         raise InvalidParameterError("scenario trajectory.keyframe must be [[trajectory.keyframe]] "
                                     "tables")
+    for n, key in enumerate(traj.get("keyframe", []), start=1):
+        where = f"trajectory.keyframe #{n}"
+        _section({"keyframe": key}, "keyframe", {"time", "position", "attitude", "look_at"})
+        _number(key, "time", None, where)
+        _vector(key, "position", 3, where)
+        if "attitude" in key:
+            _vector(key, "attitude", 4, where)
+        if "look_at" in key:
+            _vector(key, "look_at", 3, where)
     if kind == "keyframes" and not traj.get("keyframe"):
         raise InvalidParameterError("scenario keyframe trajectory needs [[trajectory.keyframe]]")
     if "ground_track" in traj:

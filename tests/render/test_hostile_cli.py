@@ -39,6 +39,9 @@ def _edit(path, old, new):
     ("[sun]", "[sun]\nazimut = 3.0", "did you mean 'azimuth'"),
     ("[render]\n", "[render]\n[extra]\nx = 1\n", "'extra'"),
     ("ground_track = [300.0, 100.0]", 'ground_track = [300.0, "x"]', "ground_track"),
+    ("ground_track = [300.0, 100.0]", 'ground_track = [300.0, 100.0]\n'
+     '[[trajectory.keyframe]]\ntime = "abc"\nposition = [0.0, 0.0, 100.0]\n',
+     "keyframe #1.time must be a number"),
 ])
 def test_scenarios_are_typed_key_by_key(tmp_path, stack_dir, old, new, fragment):
     sc = _edit(scenario(tmp_path, stack_dir), old, new)
