@@ -102,7 +102,12 @@ def test_readers_never_fail_while_a_stack_is_edited(stack_folder):
     pid = _fork(lambda: [_edit(stack_folder, i) for i in range(1, 7)])
     reads = failures = 0
     errors = []
+    deadline = time.monotonic() + 300
     while True:
+        if time.monotonic() > deadline:  # never hang the suite on a stuck child
+            os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+            pytest.fail("the editing child did not finish in 300 s")
         try:
             stack = read_stack(stack_folder)
             assert len(stack.tiles) == 3
