@@ -327,13 +327,19 @@ def _write_slopes(output, srcs, slope_maps, distributions, spectra, fits, compar
                                                     strict=True)], srcs)
     save_png(slope_distribution_figure(distributions), outdir / "slope_distributions.png",
              inputs=srcs)
+    from terrain.outputs import discard
+
     if spectra:
         save_png(spectrum_figure(spectra, fits), outdir / "spectra.png", inputs=srcs)
+    else:  # an earlier run's figure would be stale beside these results
+        discard(outdir / "spectra.png")
     if comparisons or agreements:
         doc = dict(comparisons=[c.as_dict() for c in comparisons],
                    slope_map_agreement=[dict(label=label, **a.as_dict())
                                         for label, a in agreements])
         _write_text(outdir / "comparison.json", json.dumps(doc, indent=1), srcs)
+    else:
+        discard(outdir / "comparison.json")
 
 
 def _gravity_options(func):

@@ -59,7 +59,7 @@ from pathlib import Path
 from terrain.errors import OutputPathError
 
 __all__ = ["JOURNAL", "Transaction", "atomic_path", "cannot_write", "check_output_folder",
-           "check_output_path", "is_write_error", "make_output_folder", "protect", "protected",
+           "check_output_path", "discard", "is_write_error", "make_output_folder", "protect", "protected",
            "settle", "sweep_partials", "transaction"]
 
 log = logging.getLogger(__name__)
@@ -468,6 +468,13 @@ class Transaction:
         for folder in reversed(self.created):
             with contextlib.suppress(OSError):
                 folder.rmdir()
+
+
+def discard(*paths) -> None:
+    """Stale companions of the outputs being written: removed when the current
+    :func:`transaction` commits (at once outside one). Absent paths are ignored."""
+    with transaction(stale=paths):
+        pass
 
 
 def make_output_folder(folder, inputs: Iterable = ()) -> Path:

@@ -79,3 +79,14 @@ def test_cannot_write_here_is_exit_2(tmp_path, dem):
     refused(r, before, tmp_path / "out", fragments=["cannot write"], folder=tmp_path)
     refused(run("evaluation", "report", "--dem", dem, "-o", tmp_path / "r.txt"), before,
             tmp_path / "r.txt", tmp_path / "r.json", fragments=[".html"], folder=tmp_path)
+
+
+def test_a_rerun_into_the_same_folder_leaves_no_stale_comparison(tmp_path, dem):
+    ref = tmp_path / "ref.tif"
+    write_dem(fractional_brownian_surface(64, 0.8, resolution=2.0, rms=4.0, seed=9), ref)
+    out = tmp_path / "out"
+    assert run("evaluation", "slopes", dem, "--reference", ref, "-o", out).exit_code == 0
+    assert (out / "comparison.json").exists()
+    r = run("evaluation", "slopes", dem, "-o", out)
+    assert r.exit_code == 0, r.output
+    assert not (out / "comparison.json").exists()  # it compared with a reference no more
