@@ -59,8 +59,8 @@ from pathlib import Path
 from terrain.errors import OutputPathError
 
 __all__ = ["JOURNAL", "Transaction", "atomic_path", "cannot_write", "check_output_folder",
-           "check_output_path", "discard", "is_write_error", "make_output_folder", "protect", "protected",
-           "settle", "sweep_partials", "transaction"]
+           "check_output_path", "discard", "is_write_error", "make_output_folder", "protect",
+           "protected", "settle", "sweep_partials", "transaction"]
 
 log = logging.getLogger(__name__)
 
