@@ -1,0 +1,70 @@
+"""The output machinery every writer shares (terrain.outputs): guards, atomic files, sets."""
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from terrain.errors import OutputPathError
+from terrain.outputs import (
+    JOURNAL,
+    atomic_path,
+    check_output_path,
+    protected,
+    settle,
+    sweep_partials,
+    transaction,
+)
+
+
+def test_a_failed_set_leaves_nothing_and_keeps_the_previous_files(tmp_path):
+    (tmp_path / "a.txt").write_text("old a")
+    with pytest.raises(RuntimeError), transaction():
+        with atomic_path(tmp_path / "a.txt") as tmp:
+            tmp.write_text("new a")
+        with atomic_path(tmp_path / "b.txt") as tmp:
+            tmp.write_text("new b")
+        raise RuntimeError("the third file failed")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt"]
+    assert (tmp_path / "a.txt").read_text() == "old a"
+
+
+def test_a_commit_interrupted_after_its_journal_is_finished_by_the_next_reader(tmp_path):
+    (tmp_path / "a.txt").write_text("old a")
+    (tmp_path / "stale.csv").write_text("old")
+    (tmp_path / ".a.txt.1-x.partial").write_text("new a")  # staged, then the crash
+    (tmp_path / ".b.txt.1-y.partial").write_text("new b")
+    (tmp_path / JOURNAL).write_text(json.dumps(dict(
+        renames=[[".a.txt.1-x.partial", "a.txt"], [".b.txt.1-y.partial", "b.txt"]],
+        remove=["stale.csv"])))
+    assert settle(tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt", "b.txt"]
+    assert (tmp_path / "a.txt").read_text() == "new a"
+    assert not settle(tmp_path)
+
+
+def test_symlinks_are_written_through_and_inputs_behind_them_are_protected(tmp_path):
+    target = tmp_path / "real.txt"
+    target.write_text("old")
+    link = tmp_path / "link.txt"
+    link.symlink_to(target)
+    with atomic_path(link) as tmp:
+        tmp.write_text("new")
+    assert link.is_symlink() and target.read_text() == "new"
+    with pytest.raises(OutputPathError, match="same file as input"):
+        check_output_path(link, [target])
+    with protected([tmp_path]), pytest.raises(OutputPathError, match="inside the input"):
+        check_output_path(tmp_path / "x.txt")
+
+
+def test_only_temporaries_of_dead_processes_are_swept(tmp_path):
+    dead = int(subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                              capture_output=True, text=True, check=True).stdout)
+    gone = tmp_path / f".x.tif.{dead}-abc.partial"
+    alive = tmp_path / f".y.tif.{os.getpid()}-abc.partial"
+    gone.write_text("")
+    alive.write_text("")
+    assert sweep_partials(tmp_path) == [gone]
+    assert alive.exists()
