@@ -155,7 +155,8 @@ def check_output_path(path, inputs: Iterable = (), *, suffixes: Iterable[str] = 
     if path.is_dir():
         raise OutputPathError(f"output '{path}' is a folder; give a file name")
     parent = path.parent if str(path.parent) else Path(".")
-    _check_writable_folder(parent, "output", path)
+    if not _is_special(path):  # a device or FIFO is written in place, not beside
+        _check_writable_folder(parent, "output", path)
     with contextlib.suppress(OSError):
         mode = os.stat(path).st_mode
         if stat.S_ISBLK(mode) or stat.S_ISSOCK(mode):
