@@ -466,6 +466,11 @@ def write_stack(stack: LayerStack, outdir, *, inputs=()) -> Path:
         with stack_lock(outdir):
             from terrain.outputs import atomic_path
 
+            if (outdir / MANIFEST).exists():  # another build finished here meanwhile
+                ok = True  # it is that build's stack: leave it alone
+                raise InvalidParameterError(
+                    f"output folder '{outdir}' received a stack from another command "
+                    "meanwhile; give a new folder")
             with atomic_path(outdir / INCOMPLETE) as tmp:
                 tmp.write_text("a craterscape layer stack is being written here\n",
                                encoding="utf-8")
