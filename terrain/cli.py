@@ -21,7 +21,13 @@ from pathlib import Path
 import click
 
 from terrain.errors import CraterscapeError, InvalidParameterError
-from terrain.outputs import cannot_write, is_write_error, protected, transaction
+from terrain.outputs import (
+    cannot_write,
+    is_write_error,
+    protected,
+    remove_temporaries,
+    transaction,
+)
 
 __all__ = ["main", "terrain"]
 
@@ -140,9 +146,11 @@ class _Root(click.Group):
         except CraterscapeError as exc:
             _fail(ctx, exc, EXIT_BAD_INPUT)
         except KeyboardInterrupt:
+            remove_temporaries()
             click.echo("craterscape: interrupted", err=True)
             ctx.exit(130)
         except Terminated:
+            remove_temporaries()
             click.echo("craterscape: terminated", err=True)
             ctx.exit(EXIT_TERMINATED)
         except OSError as exc:

@@ -51,6 +51,7 @@ import logging
 import os
 import re
 import shutil
+import signal
 import stat
 import tempfile
 from collections.abc import Iterable, Iterator
@@ -60,7 +61,7 @@ from terrain.errors import OutputPathError
 
 __all__ = ["JOURNAL", "Transaction", "atomic_path", "cannot_write", "check_output_folder",
            "check_output_path", "discard", "is_write_error", "make_output_folder", "protect",
-           "protected", "settle", "sweep_partials", "transaction"]
+           "protected", "remove_temporaries", "settle", "sweep_partials", "transaction"]
 
 log = logging.getLogger(__name__)
 
@@ -216,17 +217,45 @@ def cannot_write(path, exc: BaseException) -> OutputPathError:
 # ------------------------------------------------------------------------------ writing
 
 
+#: Temporaries this process created and has neither put in place nor removed; an interrupt
+#: (Ctrl-C, SIGTERM) removes them all (:func:`remove_temporaries`), whatever line it hit.
+_LIVE: set = set()
+_INTERRUPTS = {signal.SIGINT, signal.SIGTERM}
+
+
 def _temp_beside(path: Path) -> Path:
     parent = path.parent if str(path.parent) else Path(".")
     if _is_special(path):  # bytes for a device or FIFO are copied in: stage them elsewhere
         parent = Path(tempfile.gettempdir())
+    # create and register with interrupts held back, so no temporary escapes the registry
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, _INTERRUPTS)
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}-",
-                                   suffix=PARTIAL_SUFFIX, dir=parent)
-    except OSError as exc:
-        raise cannot_write(path, exc) from exc
-    os.close(fd)
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}-",
+                                       suffix=PARTIAL_SUFFIX, dir=parent)
+        except OSError as exc:
+            raise cannot_write(path, exc) from exc
+        os.close(fd)
+        _LIVE.add(Path(tmp))
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
     return Path(tmp)
+
+
+def _forget(tmp: Path) -> None:
+    _LIVE.discard(tmp)
+
+
+def remove_temporaries() -> list[Path]:
+    """Remove every temporary this process still holds (the command line calls it when
+    interrupted; a temporary a committed set's journal names is never among them)."""
+    removed = []
+    for tmp in list(_LIVE):
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+            removed.append(tmp)
+        _LIVE.discard(tmp)
+    return removed
 
 
 def _target(path: Path) -> Path:
@@ -268,6 +297,7 @@ def _install(tmp: Path, final: Path) -> None:
         tmp.unlink()
     else:
         os.replace(tmp, final)
+    _forget(tmp)
 
 
 @contextlib.contextmanager
@@ -300,6 +330,7 @@ def atomic_path(path, inputs: Iterable = ()) -> Iterator[Path]:
         if not (done and active is not None):
             with contextlib.suppress(FileNotFoundError):
                 tmp.unlink()
+            _forget(tmp)
 
 
 def _pid_alive(pid: int) -> bool:
@@ -405,6 +436,7 @@ class Transaction:
         self.staged: list[tuple[Path, Path]] = []
         self.stale: list[Path] = [Path(p) for p in stale]
         self.created: list[Path] = []
+        self.committed: Path | None = None
 
     def _stage(self, tmp: Path, final: Path) -> None:
         self.staged = [(t, f) for t, f in self.staged if f != final]
@@ -452,10 +484,19 @@ class Transaction:
             try:
                 jtmp.write_text(json.dumps(doc), encoding="utf-8")
                 _fsync_file(jtmp)
-                os.replace(jtmp, folder / JOURNAL)  # the commit point
+                mask = signal.pthread_sigmask(signal.SIG_BLOCK, _INTERRUPTS)
+                try:
+                    os.replace(jtmp, folder / JOURNAL)  # the commit point
+                    _forget(jtmp)
+                    self.committed = folder  # from here on the set is finished, not undone
+                    for tmp, _ in self.staged:
+                        _forget(tmp)
+                finally:
+                    signal.pthread_sigmask(signal.SIG_SETMASK, mask)
             except OSError as exc:
                 with contextlib.suppress(FileNotFoundError):
                     jtmp.unlink()
+                _forget(jtmp)
                 raise cannot_write(folder / JOURNAL, exc) from exc
             _fsync_dir(folder)
             _apply(folder, doc)
@@ -463,9 +504,13 @@ class Transaction:
             _fsync_dir(folder)
 
     def _abort(self) -> None:
+        if self.committed is not None:  # interrupted after the commit point: finish it
+            settle(self.committed)
+            return
         for tmp, _ in self.staged:
             with contextlib.suppress(FileNotFoundError):
                 tmp.unlink()
+            _forget(tmp)
         for folder in reversed(self.created):
             with contextlib.suppress(OSError):
                 folder.rmdir()
