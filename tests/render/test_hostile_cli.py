@@ -13,6 +13,14 @@ from tests.cli_helpers import file_size_limit, refused, run, snapshot, unwritabl
 from tests.render.test_cli import scenario
 
 
+@pytest.fixture(autouse=True)
+def _session_context_current_again(gl):
+    """Every CLI render makes a context of its own current; moderngl does not switch back,
+    so the session's context is made current again for the GL tests that follow."""
+    yield
+    gl.__enter__()
+
+
 @pytest.fixture(scope="module")
 def stack_dir(tmp_path_factory, gl):
     from terrain.layers import build_stack, write_stack
