@@ -42,7 +42,7 @@ def _edit(path, old, new):
     ("[render]\n", '[render]\nshadows = "false"\n', "true or false"),
     ("[render]\n", '[output]\nrange = "no"\n[render]\n', "true or false"),
     ("width = 64", 'width = "abc"', "camera.width must be an integer"),
-    ("exposure = 4.0", 'exposure = "high"', "sensor.exposure must be a number"),
+    ("exposure = 4.0", 'exposure = "high"', "exposure must be a number"),
     ("seed = 5", "seed = -1", "seed"),
     ("[sun]", "[sun]\nazimut = 3.0", "did you mean 'azimuth'"),
     ("[render]\n", "[render]\n[extra]\nx = 1\n", "'extra'"),
