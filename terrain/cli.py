@@ -747,14 +747,16 @@ def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, lay
 @click.option("--band", type=int, default=1, show_default=True, help="Band of the input.")
 def fill(input_dem, output, roughness, craters_at, despike, denoise, seed, band):
     """Fill DEM gaps with fractal terrain (and craters), keeping every known height."""
+    import numpy as np
+
     from terrain.catalog import read_circles
     from terrain.gapfill import denoise as run_denoise
     from terrain.gapfill import despike as run_despike
     from terrain.gapfill import fill_crater_gaps, fill_gaps
-    from terrain.io import check_output_path, read_dem, write_dem
+    from terrain.io import check_output_path, read_dem_exact, write_dem
 
     check_output_path(output, [input_dem, craters_at])
-    tile = read_dem(input_dem, band=band, exact=True)
+    tile, exact = read_dem_exact(input_dem, band=band)
     circles = read_circles(craters_at) if craters_at is not None else None
     removed = 0
     if despike is not None:
@@ -762,6 +764,7 @@ def fill(input_dem, output, roughness, craters_at, despike, denoise, seed, band)
         removed = int(mask.sum())
     if denoise is not None:
         tile = run_denoise(tile, denoise)
+        exact = None  # smoothing changes the known heights on purpose
     if circles is not None:
         result = fill_crater_gaps(tile, circles, seed=seed, roughness=roughness)
     else:
@@ -771,8 +774,9 @@ def fill(input_dem, output, roughness, craters_at, despike, denoise, seed, band)
         CRATERSCAPE_PARAMETERS=dict(input=str(input_dem), roughness=roughness, seed=seed,
                                     despike=despike, denoise=denoise,
                                     craters_at=str(craters_at) if craters_at else None))
-    with transaction():
-        write_dem(out, output, inputs=[input_dem])
+    known = None if exact is None else np.where(result.filled, np.nan, exact)
+    with transaction():  # known heights a float32 tile rounds go back bitwise (float64 file)
+        write_dem(out, output, inputs=[input_dem], known=known)
     click.echo(f"wrote {output} ({int(result.filled.sum())} pixels filled"
                + (f", {removed} spikes removed" if despike is not None else "") + ")", err=True)
 

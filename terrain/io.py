@@ -31,9 +31,9 @@ from terrain.errors import InvalidDEMError, MissingInputError, OutputPathError
 from terrain.outputs import atomic_path, check_output_path
 from terrain.tile import DEMTile
 
-__all__ = ["atomic_path", "check_output_path", "lonlat_to_xy", "read_dem", "read_float_tiff",
-           "write_bands",
-           "same_crs", "write_dem", "write_float_tiff", "write_png"]
+__all__ = ["atomic_path", "check_output_path", "lonlat_to_xy", "read_dem", "read_dem_exact",
+           "read_float_tiff", "same_crs", "write_bands", "write_dem", "write_float_tiff",
+           "write_png"]
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +53,20 @@ PNG_SUFFIXES = (".png",)
 _WIDE_TYPES = ("float64", "int32", "uint32", "int64", "uint64")
 
 
+def read_dem_exact(path, *, band: int = 1) -> tuple[DEMTile, np.ndarray | None]:
+    """:func:`read_dem`, and the DEM's exact heights when float32 cannot hold them.
+
+    Returns
+    -------
+    tile : DEMTile
+    exact : (ny, nx) float64, metres, or None
+        The heights as stored (NaN where unknown), for a stored type wider than float32
+        (float64 or 32/64-bit integers) whose known heights float32 rounds; None otherwise.
+        Pass them to :func:`write_dem` as ``known`` to write those heights back bitwise.
+    """
+    return _read_dem(path, band, exact=True)
+
+
 def read_dem(path, *, band: int = 1, exact: bool = False) -> DEMTile:
     """Read one band of any GDAL-readable DEM into a :class:`DEMTile`.
 
@@ -63,15 +77,19 @@ def read_dem(path, *, band: int = 1, exact: bool = False) -> DEMTile:
     band : int
         1-based band index.
     exact : bool
-        For commands that write known heights back: refuse a DEM stored in a type wider than
-        float32 (float64, 32/64-bit integers) whose known heights float32 cannot hold exactly,
-        instead of rounding them (the tile works in float32).
+        For commands that write known heights back: say with a warning (not an info line)
+        that a DEM stored in a type wider than float32 has known heights float32 rounds
+        (:func:`read_dem_exact` keeps them).
 
     Returns
     -------
     DEMTile
         float32 heights in metres; nodata, NaN and masked pixels invalid.
     """
+    return _read_dem(path, band, exact)[0]
+
+
+def _read_dem(path, band: int, exact: bool) -> tuple[DEMTile, np.ndarray | None]:
     path = Path(path)
     if not path.exists():
         raise MissingInputError(f"input DEM '{path}' does not exist")
@@ -113,18 +131,6 @@ def read_dem(path, *, band: int = 1, exact: bool = False) -> DEMTile:
     data = np.ma.getdata(raw).astype(np.float64)
     valid = ~np.ma.getmaskarray(raw) & np.isfinite(data)
     stored = str(np.ma.getdata(raw).dtype)
-    if stored in _WIDE_TYPES and valid.any():
-        known = data[valid] * (1.0 if scale is None else float(scale)) \
-            + (0.0 if offset is None else float(offset))
-        moved = float(np.max(np.abs(known.astype(np.float32).astype(np.float64) - known)))
-        if moved > 0 and exact:
-            raise InvalidDEMError(
-                f"DEM '{path}' stores {stored} heights that float32 cannot hold exactly (known "
-                f"heights would move by up to {moved:.3g} m); convert it first, e.g. "
-                "gdal_translate -ot Float32 IN OUT")
-        if moved > 0:
-            log.info("DEM '%s': %s heights rounded to float32 (up to %.3g m)", path, stored,
-                     moved)
     metadata = {k: v for k, v in tags.items() if k.startswith("CRATERSCAPE_")}
     metadata["CRATERSCAPE_SOURCE"] = str(path)
     scale = 1.0 if scale is None else float(scale)
@@ -136,12 +142,24 @@ def read_dem(path, *, band: int = 1, exact: bool = False) -> DEMTile:
         data = data * scale + offset
     if not valid.any():
         raise InvalidDEMError(f"DEM '{path}' band {band} has no valid pixels (all nodata)")
+    exact_heights = None
+    if stored in _WIDE_TYPES:
+        known = data[valid]
+        moved = float(np.max(np.abs(known.astype(np.float32).astype(np.float64) - known)))
+        if moved > 0:
+            exact_heights = np.where(valid, data, np.nan)
+            metadata["CRATERSCAPE_SOURCE_DTYPE"] = stored
+            (log.warning if exact else log.info)(
+                "DEM '%s' stores %s heights; float32 moves them by up to %.3g m%s", path,
+                stored, moved, " (outputs that keep every known height are written in "
+                "float64)" if exact else "")
     # Keep the file's nodata value where it still means "unknown" in float32 metres.
     out_nodata = float("nan")
     if nodata is not None and np.isfinite(nodata) and scale == 1.0 and offset == 0.0:
         if np.isfinite(np.float32(nodata)):
             out_nodata = float(np.float32(nodata))
-    return DEMTile(data, valid, transform, crs.to_wkt() if crs else None, out_nodata, metadata)
+    return (DEMTile(data, valid, transform, crs.to_wkt() if crs else None, out_nodata, metadata),
+            exact_heights)
 
 
 def _is_reference_radius(crs: CRS, offset: float) -> bool:
@@ -238,20 +256,31 @@ def same_crs(a: str | None, b: str | None) -> bool:
 
 
 def write_dem(tile: DEMTile, path, *, inputs: Iterable = (),
-              description: str = "height (m)") -> Path:
+              description: str = "height (m)", known: np.ndarray | None = None) -> Path:
     """Write a tile as a tiled, DEFLATE-compressed float32 GeoTIFF, atomically.
 
     The tile's CRS, transform and nodata value are preserved; its metadata (seed,
     parameters, provenance) goes into the GeoTIFF's GDAL metadata tags. ``inputs`` lists
     files the output must not replace; ``description`` labels the band (e.g. "slope (deg)").
+    ``known`` ((ny, nx) float64 metres, NaN where unknown; from :func:`read_dem_exact`) puts
+    exact known heights back bitwise where the tile is valid: the file is then float64.
     """
+    check_output_path(path, inputs, suffixes=DEM_SUFFIXES, what="GeoTIFF")
     nrows, ncols = tile.shape
     nodata = tile.nodata
     data = tile.heights
+    dtype = "float32"
+    if known is not None:  # exact heights float32 cannot hold: write them back, in float64
+        known = np.asarray(known, dtype=np.float64)
+        if known.shape != tile.shape:
+            raise ValueError(f"known heights must be {tile.shape}; got {known.shape}")
+        data = np.where(np.isfinite(known) & tile.valid, known,
+                        tile.heights.astype(np.float64))
+        dtype = "float64"
     if np.isfinite(nodata):
-        data = np.where(tile.valid, tile.heights, np.float32(nodata)).astype(np.float32)
+        data = np.where(tile.valid, data, nodata).astype(dtype)
     profile = dict(
-        driver="GTiff", dtype="float32", count=1, width=ncols, height=nrows,
+        driver="GTiff", dtype=dtype, count=1, width=ncols, height=nrows,
         crs=CRS.from_wkt(tile.crs) if tile.crs else None, transform=tile.transform,
         nodata=nodata, compress="deflate", predictor=3, zlevel=6, tiled=True,
         blockxsize=BLOCK_SIZE, blockysize=BLOCK_SIZE, BIGTIFF="IF_SAFER",
