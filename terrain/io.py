@@ -391,6 +391,7 @@ def write_bands(bands, tile: DEMTile, path, *, descriptions=(), tags: dict | Non
     NaN is the nodata value; ``descriptions`` label the bands, ``tags`` go into the GDAL
     metadata beside the tile's own.
     """
+    check_output_path(path, inputs, suffixes=DEM_SUFFIXES, what="GeoTIFF")
     data = np.stack([np.asarray(b, dtype=np.float32) for b in bands])
     if data.shape[1:] != tile.shape:
         raise ValueError(f"bands must have the tile's shape {tile.shape}; got {data.shape[1:]}")
@@ -401,13 +402,16 @@ def write_bands(bands, tile: DEMTile, path, *, descriptions=(), tags: dict | Non
         tiled=True, blockxsize=BLOCK_SIZE, blockysize=BLOCK_SIZE, BIGTIFF="IF_SAFER")
     with atomic_path(path, inputs) as tmp, warnings.catch_warnings():
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        try:
-            with rasterio.open(tmp, "w", **profile) as dst:
-                dst.write(data)
-                dst.update_tags(**dict(tile.metadata), **{k: str(v) for k, v in
-                                                          (tags or {}).items()})
-                for i, text in enumerate(descriptions, start=1):
-                    dst.set_band_description(i, text)
-        except (RasterioIOError, RasterioError) as exc:
-            raise OutputPathError(f"cannot write '{path}': {_first_line(exc)}") from exc
+        with _c_stderr() as captured:
+            try:
+                with rasterio.open(tmp, "w", **profile) as dst:
+                    dst.write(data)
+                    dst.update_tags(**dict(tile.metadata), **{k: str(v) for k, v in
+                                                              (tags or {}).items()})
+                    for i, text in enumerate(descriptions, start=1):
+                        dst.set_band_description(i, text)
+            except (RasterioIOError, RasterioError) as exc:
+                raise OutputPathError(f"cannot write '{path}': {_first_line(exc)}") from exc
+        _verify(tmp, data, path, "".join(captured))
+        _replay(captured)
     return Path(path)

@@ -87,7 +87,7 @@ INCOMPLETE = ".craterscape.incomplete"
 #: Seconds an edit waits for readers before leaving old files to the next edit's sweep.
 READERS_TIMEOUT = 30.0
 #: Names of files a stack's writers create (swept when no manifest names them).
-_STACK_FILE_PATTERNS = ("layer_*.tif", "craters*.csv")
+_STACK_FILE_PATTERNS = ("layer_*.tif", "craters*.csv", "rocks*.csv")
 _LOCKS = (LOCK, READERS_LOCK, INCOMPLETE)
 #: Seconds an edit waits for another edit of the same stack before giving up.
 LOCK_TIMEOUT = 600.0
@@ -504,7 +504,7 @@ def _write_files(stack: LayerStack, outdir: Path, files: list[str], only=None,
         write_dem(tile.replace(metadata=meta), outdir / files[k])
     with atomic_path(outdir / catalog) as tmp:
         write_catalog(tmp, stack.catalog, CATALOG_LAYER_COLUMNS)
-    if stack.rocks is not None:
+    if stack.rocks is not None and only is None:  # edits leave the rocks as they are
         from terrain.rocks import write_rock_catalog
 
         with atomic_path(outdir / ROCK_CATALOG) as tmp:
@@ -779,7 +779,8 @@ def _sweep(outdir: Path) -> None:
     mpath = outdir / MANIFEST
     try:
         manifest = json.loads(mpath.read_text(encoding="utf-8"))
-        named = {e["file"] for e in manifest["layers"]} | {manifest.get("catalog", CATALOG)}
+        named = {e["file"] for e in manifest["layers"]} | {manifest.get("catalog", CATALOG),
+                                                            manifest.get("rock_catalog")}
     except (OSError, ValueError, KeyError, TypeError):
         return  # read_stack reports what is wrong
     orphans = [p for p in _stack_files(outdir) if p.name not in named]
