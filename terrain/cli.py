@@ -851,10 +851,11 @@ def rocks(input_dem, output, model, k, a, b, dmin, dmax, craters_csv, no_crater_
                   [window.col, window.row, window.width, window.height])
     out = out.with_metadata(CRATERSCAPE_COMMAND="terrain rocks", CRATERSCAPE_PARAMETERS=params,
                             CRATERSCAPE_VERSION=_version())
-    write_dem(out, output, inputs=[input_dem])
-    if catalog is not None:
-        with atomic_path(catalog, [input_dem, output]) as tmp:
-            write_rock_catalog(tmp, cat)
+    with transaction(folders=[Path(output).parent]):  # the DEM and its catalogue as one set
+        write_dem(out, output, inputs=[input_dem])
+        if catalog is not None:
+            with atomic_path(catalog, [input_dem, output]) as tmp:
+                write_rock_catalog(tmp, cat)
     click.echo(f"wrote {output}" + (f" and {catalog}" if catalog else "")
                + f" ({len(cat['id'])} rocks)", err=True)
 
@@ -937,11 +938,12 @@ def hazards(source, output, lander_diameter, max_slope, max_step, layer, png, ba
     tags = dict(result.tags(), CRATERSCAPE_COMMAND="terrain hazards",
                 CRATERSCAPE_PARAMETERS=json.dumps(params, sort_keys=True),
                 CRATERSCAPE_VERSION=_version())
-    write_bands([result.slope, result.step, result.safe], tile.replace(metadata={}), output,
-                descriptions=("slope (deg)", "step above plane (m)", "safe (1) / unsafe (0)"),
-                tags=tags, inputs=[source])
     shade = hillshade(tile, azimuth=315.0, altitude=30.0)
-    write_png(hazard_image(result, shade), png, inputs=[source, output])
+    with transaction(folders=[Path(output).parent]):  # the GeoTIFF and its PNG as one set
+        write_bands([result.slope, result.step, result.safe], tile.replace(metadata={}),
+                    output, descriptions=("slope (deg)", "step above plane (m)",
+                                          "safe (1) / unsafe (0)"), tags=tags, inputs=[source])
+        write_png(hazard_image(result, shade), png, inputs=[source, output])
     click.echo(f"wrote {output} and {png} ({100 * result.safe_fraction:.1f} % safe of the "
                f"{100 * result.known_fraction:.1f} % known, {tile.resolution:.4g} m pixels)",
                err=True)
