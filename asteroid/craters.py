@@ -58,6 +58,13 @@ Limits the paper recommends
   50 degrees, past the 32-35 degree angle of repose of loose regolith). A crater whose factor
   reaches 0 is not applied (it could not persist on such a slope; the catalogue keeps it with
   ``applied = 0``).
+  Before that guard, a crater on sloping ground also ages faster, as on flat terrain
+  (:class:`terrain.erosion.SlopeDegradation`, the model's ``slope``, switchable): its depth
+  and rim fractions are read at the effective age ``m(S) T``.
+* **Complex craters.** Craters wider than the model's
+  :attr:`~terrain.crater.Morphology.transition_diameter` take the complex profile (flat
+  floor, terraced wall, central peak or peak ring). The lunar default (15 km) scales roughly
+  as 1/g, so on small bodies set it for the body (or leave it: no crater reaches it).
 
 Reuse
 -----
