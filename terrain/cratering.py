@@ -75,8 +75,8 @@ from terrain.rng import check_seed
 from terrain.tile import DEMTile, Window
 
 __all__ = ["OBLITERATION_BLEND", "CraterModel", "CraterResult", "add_craters",
-           "class_planes", "crater_heights", "describe_craters", "empty_catalog", "fit_plane", "obliteration",
-           "rim_terrain"]
+           "class_planes", "crater_heights", "describe_craters", "empty_catalog", "fit_plane",
+           "obliteration", "rim_terrain"]
 
 log = logging.getLogger(__name__)
 

@@ -34,8 +34,9 @@ K, at the rate
 
 and since diffusive degradation depends on ``K t`` only (Soderblom 1970), a crater of age T on
 slope S looks as one of age ``m(S) T`` on flat ground: the age entered into the table. At
-r = 0.3 (about 12 degrees for Sc = tan 35 degrees) m = 1.21; at r = 0.7 (26 degrees), m = 3.8; at and beyond
-the critical slope nothing of age > 0 survives and the crater takes the table's last state.
+r = 0.3 (about 12 degrees for Sc = tan 35 degrees) m = 1.21; at r = 0.7 (26 degrees),
+m = 3.8; at and beyond the critical slope nothing of age > 0 survives and the crater takes
+the table's last state.
 Sc defaults to the tangent of 35 degrees, the angle of repose of lunar regolith (Carrier et al.
 1991, Lunar Sourcebook).
 """
