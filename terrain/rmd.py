@@ -42,7 +42,8 @@ so ``sigma^2 = V d^(2h) E(h)`` with E the sum at unit d for the predictor's poin
 (:func:`prediction_variance`; at h = 0.8, E = 0.232 for the four-point predictor, 0.262
 for the quadratic and 0.242 for the two-point mean). The relief R stays the paper's scale
 parameter: the four corners are N(0, R^2) and independent, which fixes ``V = 2 R^2 / W^(2h)``.
-On 513 x 513 tiles the fitted Hurst exponent is within 0.03 of nominal for h = 0.3 ... 0.9 (``tests/terrain/test_rmd.py``).
+On 513 x 513 tiles the fitted Hurst exponent is within 0.03 of nominal for h = 0.3 ... 0.9
+(``tests/terrain/test_rmd.py``).
 
 Every Gaussian is keyed by ``(seed, "rmd", pass, global column, global row)`` (pass -1 for the
 corners, 2j and 2j + 1 for the row and column passes of level j), and a window is computed
