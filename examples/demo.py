@@ -206,9 +206,9 @@ def lunar(out: Path, quick: bool) -> dict:
 
     The base is craters from 4 to 150 km, simple below 15 km and complex above (flat floors,
     terraced walls, central peaks; :class:`terrain.crater.Morphology`), on a fractal surface
-    of 4 km relief. The large complex craters give the base the tail of LOLA's polar slope
-    distribution: averaged to LDEM_4's 7.58 km pixels, its slopes are within KS 0.07 of the
-    south pole's (0.19 with simple craters to 15 km on 20 km of fractal relief). The enhancement uses fractal dimension 2.05 (Hurst exponent 0.95, what LOLA
+    of 8 km relief (R of eq. 15). The large complex craters give the base the tail of LOLA's
+    polar slope distribution: averaged to LDEM_4's 7.58 km pixels, its slopes are within
+    KS 0.06 of the south pole's (0.19 with simple craters to 15 km on 20 km of relief). The enhancement uses fractal dimension 2.05 (Hurst exponent 0.95, what LOLA
     measures over the lunar highlands, Rosenburg et al. 2011) and a height scale of 0.05
     rather than the values measured from the base, whose 1 km slopes are mostly crater
     walls: with those the metre-scale layers would be far rougher than real polar terrain
@@ -222,7 +222,7 @@ def lunar(out: Path, quick: bool) -> dict:
     levels = 13 if quick else 15
     facts = {}
     synth_args = ["--size", size, "--resolution", 1000.0, "--fractal-dimension", 2.3,
-                  "--relief", 4000.0 if not quick else 1500.0, "--seed", SEED,
+                  "--relief", 8000.0 if not quick else 3000.0, "--seed", SEED,
                   "--dmin", 4000.0, "--dmax", 150000.0 if not quick else 60000.0,
                   "--density", 0.004, "--sfd-exponent", -2.0]
     base = Stage(out, "lunar/base", dict(args=synth_args, v=3))

@@ -41,7 +41,8 @@ sigma is the exact conditional error of each predictor on fBm. For a surface wit
 so ``sigma^2 = V d^(2h) E(h)`` with E the sum at unit d for the predictor's points
 (:func:`prediction_variance`; at h = 0.8, E = 0.232 for the four-point predictor, 0.262
 for the quadratic and 0.242 for the two-point mean). The relief R stays the paper's scale
-parameter: the four corners are N(0, R^2) and independent, which fixes ``V = 2 R^2 / W^(2h)``.
+parameter: the four corners are independent, N(0, c^2) with ``c = S / S_f =
+R sqrt(1 - 2^(2h - 2))`` as in the paper (eq. 15), which fixes ``V = 2 c^2 / W^(2h)``.
 On 513 x 513 tiles the fitted Hurst exponent is within 0.03 of nominal for h = 0.3 ... 0.9
 (``tests/terrain/test_rmd.py``).
 
@@ -222,8 +223,9 @@ def synthesize(size: int, *, fractal_dimension: float = 2.2, relief: float = 100
     fractal_dimension : float
         F in [2, 3); the Hurst exponent is 3 - F.
     relief : float
-        Metres: the standard deviation of the corner heights (the paper's ``H * D_r * W``,
-        eq. 15), which sets the variogram of the whole tile (see the module docstring).
+        Metres: the paper's ``H * D_r * W`` (eq. 15); the corner heights have standard
+        deviation ``relief * sqrt(1 - 2^(2h - 2))``, which sets the variogram of the whole tile
+        (see the module docstring).
     seed : int
         Key of every Gaussian.
     window : Window, optional
@@ -260,15 +262,16 @@ def synthesize(size: int, *, fractal_dimension: float = 2.2, relief: float = 100
     cols = _needed_ranges(window.col, window.col + window.width - 1, w)
     hurst = 3.0 - f
     # V of the module docstring: independent N(0, R^2) corners W apart
-    unit = line_sigmas(hurst, 2.0 * relief**2 / float(w) ** (2.0 * hurst))
+    corner = initial_scale(f, relief) / scale_factor(f)  # S / S_f of eq. 15
+    unit = line_sigmas(hurst, 2.0 * corner**2 / float(w) ** (2.0 * hurst))
 
-    # Corners: spacing w, N(0, R^2), keyed at pass -1.
+    # Corners: spacing w, N(0, (S / S_f)^2), keyed at pass -1.
     (r0, r1), (c0, c1) = rows[n], cols[n]
     grid = np.empty(((r1 - r0) // w + 1, (c1 - c0) // w + 1))
     for i in range(grid.shape[0]):
         for j in range(grid.shape[1]):
             r, c = r0 + i * w, c0 + j * w
-            grid[i, j] = relief * normal_scalar(seed, STREAM_RMD, -1, gc0 + c, gr0 + r, 0)
+            grid[i, j] = corner * normal_scalar(seed, STREAM_RMD, -1, gc0 + c, gr0 + r, 0)
     origin_r, origin_c = r0, c0
     s = w
     level = 0
