@@ -117,7 +117,8 @@ def test_cascade_excess_is_what_an_rmd_tile_measures(hurst):
     from terrain.roughness import CASCADE_EXCESS, CASCADE_HURST, SQUARE_STENCIL, square_residual
 
     z = synthesize(513, fractal_dimension=3 - hurst, relief=1.0, seed=77)
-    v = 2.0 / 512 ** (2 * hurst)
+    corner2 = 1.0 - 2.0 ** (2 * hurst - 2)  # corner variance at relief 1 (eq. 15)
+    v = 2.0 * corner2 / 512 ** (2 * hurst)
     e = prediction_variance(hurst, SQUARE_STENCIL, (0.25,) * 4)
     k = np.mean([square_residual(z, s)[0] / (np.sqrt(v * e) * s**hurst) for s in (2, 4, 8, 16)])
     assert k == pytest.approx(np.interp(hurst, CASCADE_HURST, CASCADE_EXCESS), rel=0.06)
