@@ -210,10 +210,11 @@ def lunar(out: Path, quick: bool) -> dict:
     polar slope distribution: averaged to LDEM_4's 7.58 km pixels, its slopes are within
     KS 0.06 of the south pole's (0.19 with simple craters to 15 km on 20 km of relief).
     The enhancement uses fractal dimension 2.05 (Hurst exponent 0.95, what LOLA measures over
-    the lunar highlands, Rosenburg et al. 2011) and a height scale of 0.05 rather than the values measured from the base, whose 1 km slopes are mostly crater
-    walls: with those the metre-scale layers would be far rougher than real polar terrain
-    (median slopes near 30 degrees; the report compares the landing site with the LROC
-    shape-from-shading DEM where it is present).
+    the lunar highlands, Rosenburg et al. 2011) and a height scale of 0.05 rather than the
+    values measured from the base, whose 1 km slopes are mostly crater walls: with those the
+    metre-scale layers would be far rougher than real polar terrain (median slopes near 30
+    degrees; the report compares the landing site with the LROC shape-from-shading DEM where it
+    is present).
     Craters follow an equilibrium-like population, N(>=D) = 0.1 D^-2 per km^2 (D in km).
     """
     size = 257 if quick else 1025
