@@ -80,14 +80,6 @@ def _amplitude_col(buf, ac0, scale, c):
 
 
 @numba.njit(cache=True)
-def _line_value(grid, g_r0, g_c0, sr, sc, r, c, rmin, rmax, cmin, cmax):
-    """grid at global child (r, c) (spacings sr, sc), NaN outside the parent's extent."""
-    if r < rmin or r > rmax or c < cmin or c > cmax:
-        return math.nan
-    return float(grid[(r - g_r0) // sr, (c - g_c0) // sc])
-
-
-@numba.njit(cache=True)
 def _expand_pass(grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis, sig, key, amp, ar0, ac0,
                  scale, rmin, rmax, cmin, cmax):
     """One refinement pass of an expansion level, in global child pixels.
@@ -100,30 +92,39 @@ def _expand_pass(grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis, sig, key, 
     """
     ny, nx = out.shape
     buf = np.empty(amp.shape[1], dtype=np.float64)
+    nan = math.nan
     for i in range(ny):
         r = o_r0 + i * tr
         _amplitude_row(amp, ar0, scale, r, buf)
-        for j in range(nx):
-            c = o_c0 + j
-            if axis == 1:
-                if c % 2 == 0:
-                    out[i, j] = grid[(r - g_r0) // sr, (c - g_c0) // sc]
-                    continue
-                m3 = _line_value(grid, g_r0, g_c0, sr, sc, r, c - 3, rmin, rmax, cmin, cmax)
-                m1 = float(grid[(r - g_r0) // sr, (c - 1 - g_c0) // sc])
-                p1 = float(grid[(r - g_r0) // sr, (c + 1 - g_c0) // sc])
-                p3 = _line_value(grid, g_r0, g_c0, sr, sc, r, c + 3, rmin, rmax, cmin, cmax)
-            else:
-                if r % 2 == 0:
-                    out[i, j] = grid[(r - g_r0) // sr, (c - g_c0) // sc]
-                    continue
-                m3 = _line_value(grid, g_r0, g_c0, sr, sc, r - 3, c, rmin, rmax, cmin, cmax)
-                m1 = float(grid[(r - 1 - g_r0) // sr, (c - g_c0) // sc])
-                p1 = float(grid[(r + 1 - g_r0) // sr, (c - g_c0) // sc])
-                p3 = _line_value(grid, g_r0, g_c0, sr, sc, r + 3, c, rmin, rmax, cmin, cmax)
-            z, kind = predict(m3, m1, p1, p3)
-            sigma = sig[kind] * _amplitude_col(buf, ac0, scale, c)
-            out[i, j] = np.float32(z + sigma * normal_at(key, c, r))
+        if axis == 1:  # along the row: copies at even columns, predictions at odd ones
+            row = grid[(r - g_r0) // sr]
+            for j in range(o_c0 % 2, nx, 2):
+                out[i, j] = row[(o_c0 + j - g_c0) // sc]
+            for j in range(1 - o_c0 % 2, nx, 2):
+                c = o_c0 + j
+                k = (c - 1 - g_c0) // sc
+                m3 = float(row[k - 1]) if c - 3 >= cmin else nan
+                p3 = float(row[k + 2]) if c + 3 <= cmax else nan
+                z, kind = predict(m3, float(row[k]), float(row[k + 1]), p3)
+                sigma = sig[kind] * _amplitude_col(buf, ac0, scale, c)
+                out[i, j] = np.float32(z + sigma * normal_at(key, c, r))
+        else:  # along the column: a copied row, or a predicted one from the rows around it
+            if r % 2 == 0:
+                row = grid[(r - g_r0) // sr]
+                for j in range(nx):
+                    out[i, j] = row[(o_c0 + j - g_c0) // sc]
+                continue
+            k = (r - 1 - g_r0) // sr
+            have_m3 = r - 3 >= rmin
+            have_p3 = r + 3 <= rmax
+            for j in range(nx):
+                c = o_c0 + j
+                q = (c - g_c0) // sc
+                m3 = float(grid[k - 1, q]) if have_m3 else nan
+                p3 = float(grid[k + 2, q]) if have_p3 else nan
+                z, kind = predict(m3, float(grid[k, q]), float(grid[k + 1, q]), p3)
+                sigma = sig[kind] * _amplitude_col(buf, ac0, scale, c)
+                out[i, j] = np.float32(z + sigma * normal_at(key, c, r))
 
 
 def parent_region(lo: int, hi: int, parent_size: int) -> tuple[int, int]:
