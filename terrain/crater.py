@@ -75,7 +75,8 @@ The fits do not meet the simple ones at the transition (at 15 km the complex dep
 against the simple fit's 3.0 km): real craters change form there, and the profile does too.
 The central peak rises above the floor by ``Hp0 = 0.0049 D^1.297`` km (a power law of the form
 and size of Hale and Head 1979; 1.6 km for an 86 km crater like Tycho, whose peak stands
-about 1.6 km above its floor), on a base of diameter :data:`PEAK_BASE_FRACTION` D. At and above
+about 1.6 km above its floor), at most :data:`PEAK_DEPTH_FRACTION_MAX` of the depth, on a base
+of diameter :data:`PEAK_BASE_FRACTION` D. At and above
 :attr:`Morphology.peak_ring_diameter` (200 km; lunar peak-ring basins, Baker et al. 2011) the
 peak becomes a ring of diameter :data:`RING_FRACTION` D (Baker et al. 2011's ring/rim ratio
 of about 0.5) and base width :data:`RING_WIDTH_FRACTION` D, of the same height.
@@ -171,6 +172,10 @@ FLOOR_FRACTION_MAX = 0.8
 #: Central peak height above the floor, Hp0 = 0.0049 D^1.297 (km; after Hale and Head 1979).
 PEAK_COEFFICIENT = 0.0049
 PEAK_EXPONENT = 1.297
+#: Largest peak height over the fresh depth: the power law is fitted to central peaks, and
+#: capped here it does not raise a basin's peak ring above its rim (Tycho's peak stands about
+#: a third of its depth above the floor).
+PEAK_DEPTH_FRACTION_MAX = 0.4
 #: Diameter of a central peak's base over D.
 PEAK_BASE_FRACTION = 0.2
 #: Peak-ring diameter over D (Baker et al. 2011: about 0.5 for lunar peak-ring basins).
@@ -393,10 +398,15 @@ def fresh_floor_fraction(diameter):
 def fresh_peak_height(diameter):
     """Central peak (or peak ring) height above the floor, Hp0 (m), of a fresh crater.
 
+    The power law, at most PEAK_DEPTH_FRACTION_MAX of the complex depth.
+
     >>> round(float(fresh_peak_height(86e3)))
     1582
+    >>> round(float(fresh_peak_height(250e3) / fresh_complex_depth(250e3)), 2)
+    0.4
     """
-    return _km_fit(diameter, PEAK_COEFFICIENT, PEAK_EXPONENT)
+    return np.minimum(_km_fit(diameter, PEAK_COEFFICIENT, PEAK_EXPONENT),
+                      PEAK_DEPTH_FRACTION_MAX * fresh_complex_depth(diameter))
 
 
 def terrace_count(diameter):
