@@ -201,6 +201,14 @@ def landing_site(base_path: Path) -> tuple[float, float]:
     return float(x), float(y)
 
 
+def base_args(quick: bool) -> list:
+    """``craterscape terrain synth`` arguments of the lunar base (see :func:`lunar`)."""
+    return ["--size", 257 if quick else 1025, "--resolution", 1000.0,
+            "--fractal-dimension", 2.3, "--relief", 8000.0 if not quick else 3000.0,
+            "--seed", SEED, "--dmin", 4000.0, "--dmax", 150000.0 if not quick else 60000.0,
+            "--density", 0.004, "--sfd-exponent", -2.0]
+
+
 def lunar(out: Path, quick: bool) -> dict:
     """Base, layer stack and descent.
 
@@ -222,10 +230,7 @@ def lunar(out: Path, quick: bool) -> dict:
     # 20 m the finest layer under the image centre is no coarser than twice the frame's GSD
     levels = 13 if quick else 15
     facts = {}
-    synth_args = ["--size", size, "--resolution", 1000.0, "--fractal-dimension", 2.3,
-                  "--relief", 8000.0 if not quick else 3000.0, "--seed", SEED,
-                  "--dmin", 4000.0, "--dmax", 150000.0 if not quick else 60000.0,
-                  "--density", 0.004, "--sfd-exponent", -2.0]
+    synth_args = base_args(quick)
     base = Stage(out, "lunar/base", dict(args=synth_args, v=3))
     base_tif = base.dir / "base.tif"
     if not base.done():
