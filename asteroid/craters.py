@@ -58,10 +58,18 @@ Limits the paper recommends
   50 degrees, past the 32-35 degree angle of repose of loose regolith). A crater whose factor
   reaches 0 is not applied (it could not persist on such a slope; the catalogue keeps it with
   ``applied = 0``).
+  Before that guard, a crater on sloping ground also ages faster, as on flat terrain
+  (:class:`terrain.erosion.SlopeDegradation`, the model's ``slope``, switchable): its depth
+  and rim fractions are read at the effective age ``m(S) T``.
+* **Complex craters.** Craters wider than the model's
+  :attr:`~terrain.crater.Morphology.transition_diameter` take the complex profile (flat
+  floor, terraced wall, central peak or peak ring). The lunar default (15 km) scales roughly
+  as 1/g, so on small bodies set it for the body (or leave it: no crater reaches it).
 
 Reuse
 -----
-The profile (:func:`terrain.crater.interior_height`, :func:`~terrain.crater.exterior_height`,
+The profile (:func:`terrain.crater.crater_interior`, simple or complex by the model's
+:class:`~terrain.crater.Morphology`, :func:`~terrain.crater.exterior_height`,
 :func:`~terrain.crater.shape_arrays`), erosion, overlay and irregular rim are terrain's public
 functions. The plane fit, the rim-terrain table and the obliteration weight are terrain's
 compiled kernels ``fit_plane``, ``rim_terrain`` and ``obliteration``
@@ -103,7 +111,7 @@ from asteroid.sphere import (
     unit_vertex,
 )
 from terrain import memory
-from terrain.crater import exterior_height, interior_height, shape_arrays
+from terrain.crater import crater_interior, exterior_height, shape_arrays
 from terrain.cratering import (
     RIM_TERRAIN_MIN,
     RIM_TERRAIN_SAMPLES,
@@ -366,7 +374,7 @@ def _local_dem(radii, idx, dist, theta, rc, spacing, half):
 @numba.njit(cache=True)
 def _impact(radii, idx, dist, theta, rc, diameter, irregular, table, terrain_table, rough, patch,
             spacing, half_extent, p0, px, py, curvature, floor, hr, ejecta, beta, ca, cb, c2,
-            c3):
+            c3, cplx):
     """Rescale each vertex radius by the crater's new height (see the module docstring)."""
     radius = 0.5 * diameter
     for k in range(idx.size):
@@ -385,7 +393,7 @@ def _impact(radii, idx, dist, theta, rc, diameter, irregular, table, terrain_tab
         if x <= 0.0:
             plane = p0 + px * dx + py * dy
             rim_offset = periodic_sample(terrain_table, th)
-            h = interior_height(x, curvature, floor, hr + rim_offset)
+            h = crater_interior(x, curvature, floor, hr + rim_offset, cplx)
             # the terrain's relief about its smoothed rim level fades out down the inner
             # wall, so the rim joins the ejecta continuously (see the module docstring)
             residual = (radii[i] - rc) - (plane + rim_offset)
@@ -487,9 +495,15 @@ def add_craters(body: Body, craters: Placement, *, seed: int,
                                                   0.0, 0.5 * d)
         slope = math.atan(math.hypot(px, py)) if nvalid >= 3 else math.nan
         sf = settings.slope.factor(slope) if nvalid >= 3 else 0.0
+        if model.slope.enabled and nvalid >= 3 and math.isfinite(slope):
+            # faster degradation on steep ground (terrain.erosion.SlopeDegradation), then
+            # the paper's artefact guard on the steepest slopes
+            d0, r0 = model.factors(cr.ages[k], d, slope)
+            depth_f0[k], rim_f0[k] = float(d0), float(r0)
         depth_f = float(depth_f0[k]) * sf
         rim_f = float(rim_f0[k]) * sf
-        s = shape_arrays(np.array([d]), np.array([depth_f]), np.array([rim_f]))
+        s = shape_arrays(np.array([d]), np.array([depth_f]), np.array([rim_f]),
+                         model.morphology)
         cols["depth_fraction"][k] = depth_f
         cols["rim_fraction"][k] = rim_f
         cols["slope_deg"][k] = math.degrees(slope)
@@ -516,7 +530,9 @@ def add_craters(body: Body, craters: Placement, *, seed: int,
             spacing = 2.0 * half_extent / 2**level
             patch = np.empty((2**level + 1, 2**level + 1))
             crater_params(rough_params, d, depth_f, rms, pix, level, params)
-            overlay_patch(seed, uid, level, spacing, d, float(s["alpha"][0]), params, patch)
+            cplx = s["complex"][0]
+            region = cplx[0] if cplx[0] > -1.0 else float(s["alpha"][0])
+            overlay_patch(seed, uid, level, spacing, d, region, params, patch)
         else:
             half_extent, spacing, patch = 0.0, 1.0, np.zeros((2, 2))
         hr = float(s["rim_height"][0])
@@ -525,7 +541,7 @@ def add_craters(body: Body, craters: Placement, *, seed: int,
         _impact(radii, idx, dist, theta, rc, d, irregular, table, terrain_table, rough, patch,
                 spacing, half_extent, p0, px, py, curvature, floor, hr, float(s["ejecta"][0]),
                 float(s["beta"][0]), float(s["a"][0]), float(s["b"][0]), float(s["c2"][0]),
-                float(s["c3"][0]))
+                float(s["c3"][0]), s["complex"][0])
         cols["applied"][k] = 1
     if progress is not None:
         progress(n, n)

@@ -47,6 +47,8 @@ TOML layout (every key optional; units in the comments)::
     slope_erosion = true
     roughness = true             # fractal overlay and irregular rims
     erosion_exponent = 1.1
+    transition_diameter = 15000.0  # m: wider craters are complex (lunar; scales as 1/g)
+    slope_degradation = true     # craters on steep ground degrade faster
 
     [boulders]                   # N_cum(D) = c D^k per m^2
     c = 0.05                     # or density
@@ -97,8 +99,9 @@ from asteroid.faulting import FIG8_FAULTING, Faulting
 from asteroid.noise import FIG5_PRESETS, PerlinNoise
 from asteroid.shape import UNITS
 from asteroid.sphere import check_magnitude
+from terrain.crater import DEFAULT_PEAK_RING_DIAMETER, DEFAULT_TRANSITION_DIAMETER, Morphology
 from terrain.cratering import CraterModel
-from terrain.erosion import ErosionModel
+from terrain.erosion import ErosionModel, SlopeDegradation
 from terrain.errors import InvalidParameterError
 from terrain.population import Population
 from terrain.rng import check_seed
@@ -177,6 +180,8 @@ class CraterSpec:
     slope_erosion: bool = True
     roughness: bool = True
     erosion_exponent: float | None = None
+    transition_diameter: float = DEFAULT_TRANSITION_DIAMETER
+    slope_degradation: bool = True
 
     def __post_init__(self):
         if (self.c is None) == (self.density is None):
@@ -185,7 +190,10 @@ class CraterSpec:
 
     def settings(self) -> CraterSettings:
         kwargs = {} if self.erosion_exponent is None else {"exponent": self.erosion_exponent}
-        model = CraterModel(erosion=ErosionModel.default(**kwargs))
+        ring = max(DEFAULT_PEAK_RING_DIAMETER, 2.0 * float(self.transition_diameter))
+        model = CraterModel(erosion=ErosionModel.default(**kwargs),
+                            morphology=Morphology(self.transition_diameter, ring),
+                            slope=SlopeDegradation(bool(self.slope_degradation)))
         if not self.roughness:
             model = model.smooth()
         return CraterSettings(model, self.max_extent_deg,

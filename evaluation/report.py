@@ -23,7 +23,7 @@ thresholds`` prints them)::
     min_survival_at_layer_change = 0.8 # the same, across frames where the drawn layers change
 
     [dem]
-    max_ks_distance = 0.15             # slope distributions vs the reference (matched baseline)
+    max_ks_distance = 0.1              # slope distributions vs the reference (matched baseline)
     max_spectrum_log10_ratio = 0.5     # median |log10(P / P_ref)| over the common band
     max_hurst_difference = 0.15        # |H - H_ref|
 
@@ -76,7 +76,7 @@ DEFAULT_THRESHOLDS = {
         "min_survival_at_layer_change": 0.8,
     },
     "dem": {
-        "max_ks_distance": 0.15,
+        "max_ks_distance": 0.1,
         "max_spectrum_log10_ratio": 0.5,
         "max_hurst_difference": 0.15,
     },

@@ -4,7 +4,8 @@ Stages (each skipped when its outputs are complete from an earlier run with the 
 parameters; a stage interrupted part-way resumes where it can, or starts again):
 
 1. ``lunar/base/``: a synthetic polar-like base, 1025 x 1025 at 1 km per pixel (fractal
-   relief and simple craters of 4 to 15 km), and its hillshade.
+   relief, simple craters of 4 to 15 km and complex craters of 15 to 150 km), and its
+   hillshade.
 2. ``lunar/stack/stack/``: the base enhanced in 15 nested 1025 x 1025 layers down to 3 cm
    at the flattest spot near its centre, craters at every scale and a Golombek-Rapp rock
    field in every layer that resolves its rocks
@@ -200,18 +201,28 @@ def landing_site(base_path: Path) -> tuple[float, float]:
     return float(x), float(y)
 
 
+def base_args(quick: bool) -> list:
+    """``craterscape terrain synth`` arguments of the lunar base (see :func:`lunar`)."""
+    return ["--size", 257 if quick else 1025, "--resolution", 1000.0,
+            "--fractal-dimension", 2.3, "--relief", 8000.0 if not quick else 3000.0,
+            "--seed", SEED, "--dmin", 4000.0, "--dmax", 150000.0 if not quick else 60000.0,
+            "--density", 0.004, "--sfd-exponent", -2.0]
+
+
 def lunar(out: Path, quick: bool) -> dict:
     """Base, layer stack and descent.
 
-    The base is simple craters (4 to 15 km: the crater model is a simple-crater model, so
-    larger craters belong to the base DEM, as Martin et al. 2014 say) on a fractal surface
-    whose relief stands in for the larger basins; its median slope at 1 km is about 8
-    degrees. The enhancement uses fractal dimension 2.05 (Hurst exponent 0.95, what LOLA
-    measures over the lunar highlands, Rosenburg et al. 2011) and a height scale of 0.05
-    rather than the values measured from the base, whose 1 km slopes are mostly crater
-    walls: with those the metre-scale layers would be far rougher than real polar terrain
-    (median slopes near 30 degrees; the report compares the landing site with the LROC
-    shape-from-shading DEM where it is present).
+    The base is craters from 4 to 150 km, simple below 15 km and complex above (flat floors,
+    terraced walls, central peaks; :class:`terrain.crater.Morphology`), on a fractal surface
+    of 8 km relief (R of eq. 15). The large complex craters give the base the tail of LOLA's
+    polar slope distribution: averaged to LDEM_4's 7.58 km pixels, its slopes are within
+    KS 0.06 of the south pole's (0.19 with simple craters to 15 km on 20 km of relief).
+    The enhancement uses fractal dimension 2.05 (Hurst exponent 0.95, what LOLA measures over
+    the lunar highlands, Rosenburg et al. 2011) and a height scale of 0.05 rather than the
+    values measured from the base, whose 1 km slopes are mostly crater walls: with those the
+    metre-scale layers would be far rougher than real polar terrain (median slopes near 30
+    degrees; the report compares the landing site with the LROC shape-from-shading DEM where it
+    is present).
     Craters follow an equilibrium-like population, N(>=D) = 0.1 D^-2 per km^2 (D in km).
     """
     size = 257 if quick else 1025
@@ -219,11 +230,8 @@ def lunar(out: Path, quick: bool) -> dict:
     # 20 m the finest layer under the image centre is no coarser than twice the frame's GSD
     levels = 13 if quick else 15
     facts = {}
-    synth_args = ["--size", size, "--resolution", 1000.0, "--fractal-dimension", 2.3,
-                  "--relief", 20000.0 if not quick else 7000.0, "--seed", SEED,
-                  "--dmin", 4000.0, "--dmax", 15000.0, "--density", 0.004,
-                  "--sfd-exponent", -2.0]
-    base = Stage(out, "lunar/base", dict(args=synth_args, v=2))
+    synth_args = base_args(quick)
+    base = Stage(out, "lunar/base", dict(args=synth_args, v=3))
     base_tif = base.dir / "base.tif"
     if not base.done():
         say("lunar 1/3: synthetic polar-like base, 1 km per pixel")
@@ -542,10 +550,10 @@ def evaluate(out: Path, lunar_facts: dict, asteroid_facts: dict, quick: bool) ->
         "whether the model's slopes are those of real polar terrain at the same scale, not "
         "whether it reproduces a site. LDEM_4 (reprojected, 7.58 km pixels) judges the base; "
         "the LROC NAC shape-from-shading DEM near Malapert (1.08 m, 0.5 km across) judges the "
-        "0.5 m layer, the landing site, at its spacing. The crater model is a "
-        "simple-crater model (Martin et al. 2014), so the base has craters up to 15 km only "
-        "and lacks the steep walls of the large complex craters and basins a real polar "
-        "region has: expect its slope distribution to miss LOLA's heaviest tail.")
+        "0.5 m layer, the landing site, at its spacing. The base has craters up to 150 km, "
+        "complex above 15 km (flat floors, terraced walls, central peaks; Pike 1977's "
+        "depths and rim heights), which give its slopes the tail LOLA's polar slopes have; "
+        "basins beyond 150 km and the south pole's own shape are not modelled.")
     sections.append(sec)
     facts["dem_comparisons"] = [dict(label=c.label, reference=c.reference_label,
                                      ks=c.ks_distance, resolution_m=c.resolution_m,

@@ -278,6 +278,7 @@ def _crater_options(func):
                      help="P of the Ross/Soderblom scaling T_b = T_x (D_b/D_x)^P (default 1.1)."),
         click.option("--no-roughness", is_flag=True,
                      help="Switch off the crater fractal overlay and the irregular rim."),
+        *_morphology_options,
     ]
     for option in reversed(options):
         func = option(func)
@@ -285,16 +286,44 @@ def _crater_options(func):
 
 
 def _model(erosion_profile, erosion_exponent, no_roughness):
+    from terrain.crater import DEFAULT_PEAK_RING_DIAMETER, DEFAULT_TRANSITION_DIAMETER, Morphology
     from terrain.cratering import CraterModel
-    from terrain.erosion import ErosionModel
+    from terrain.erosion import ErosionModel, SlopeDegradation
 
     kwargs = {} if erosion_exponent is None else {"exponent": erosion_exponent}
     if erosion_profile is not None:
         erosion = ErosionModel.from_csv(erosion_profile, **kwargs)
     else:
         erosion = ErosionModel.default(**kwargs)
-    model = CraterModel(erosion=erosion)
+    # the complex-crater and slope options (_morphology_options) travel in the context
+    meta = click.get_current_context().meta
+    transition = meta.get("transition_diameter")
+    transition = DEFAULT_TRANSITION_DIAMETER if transition is None else transition
+    morphology = Morphology(transition, max(DEFAULT_PEAK_RING_DIAMETER, 2.0 * transition),
+                            enabled=not meta.get("simple_craters_only", False))
+    slope = SlopeDegradation(enabled=not meta.get("no_slope_degradation", False))
+    model = CraterModel(erosion=erosion, morphology=morphology, slope=slope)
     return model.smooth() if no_roughness else model
+
+
+def _to_meta(ctx, param, value):
+    ctx.meta[param.name] = value
+    return value
+
+
+#: Complex craters and slope-dependent degradation (read by :func:`_model` from the context,
+#: so that every crater command takes them without changing its signature).
+_morphology_options = [
+    click.option("--transition-diameter", type=click.FloatRange(min=0.0, min_open=True),
+                 default=None, expose_value=False, callback=_to_meta,
+                 help="Craters wider than this (m) are complex: flat floor, terraced walls, "
+                      "central peak (default 15000, the lunar value; it scales as 1/g)."),
+    click.option("--simple-craters-only", is_flag=True, expose_value=False, callback=_to_meta,
+                 help="Make every crater simple, whatever its size."),
+    click.option("--no-slope-degradation", is_flag=True, expose_value=False,
+                 callback=_to_meta,
+                 help="Age craters on steep ground at the flat-ground rate."),
+]
 
 
 def _population(population_file, *, dmin, dmax, density, sfd_exponent, max_age, resolution,
@@ -487,6 +516,9 @@ def craters(input_dem, output, seed, window, band, dmin, dmax, density, sfd_expo
               help="P of the Ross/Soderblom scaling (default 1.1).")
 @click.option("--no-roughness", is_flag=True,
               help="Switch off the fractal overlay and the irregular rim.")
+@_morphology_options[0]
+@_morphology_options[1]
+@_morphology_options[2]
 def add_crater(input_dem, output, at, diameter, age, seed, band, catalog, erosion_profile,
                erosion_exponent, no_roughness):
     """Add one crater at a map position."""

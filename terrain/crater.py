@@ -59,6 +59,53 @@ the printed eq. 8 with the sign the text asks for: ``beta = 1.5 |alpha_flat|`` (
 the rim, ``e = 0.14 (D/2)^0.74 Hr / Hr0``, which makes the exterior proportional to Hr: a
 fully eroded crater (Hr = 0) leaves the outside untouched, a rimless depression.
 
+Complex craters (above the transition diameter)
+-----------------------------------------------
+Above the simple-to-complex transition (:attr:`Morphology.transition_diameter`; 15 km on the
+Moon, where Pike's depth/diameter distribution inflects, Pike 1977) a fresh crater is shallow
+and flat-floored, with slumped, terraced walls and a central peak, or a ring of peaks at
+basin sizes (Melosh 1989, ch. 8; Li et al. 2022, section 3, kernel 4). Pike's (1977) lunar
+fits for complex craters, D in km::
+
+    H0 = 1.044 D^0.301      (rim crest to floor)
+    Hr0 = 0.236 D^0.399     (rim crest above the surroundings)
+    Df = 0.187 D^1.249      (floor diameter; Df / D at most FLOOR_FRACTION_MAX)
+
+The fits do not meet the simple ones at the transition (at 15 km the complex depth is 2.4 km
+against the simple fit's 3.0 km): real craters change form there, and the profile does too.
+The central peak rises above the floor by ``Hp0 = 0.0049 D^1.297`` km (a power law of the form
+and size of Hale and Head 1979; 1.6 km for an 86 km crater like Tycho, whose peak stands
+about 1.6 km above its floor), at most :data:`PEAK_DEPTH_FRACTION_MAX` of the depth, on a base
+of diameter :data:`PEAK_BASE_FRACTION` D. At and above
+:attr:`Morphology.peak_ring_diameter` (200 km; lunar peak-ring basins, Baker et al. 2011) the
+peak becomes a ring of diameter :data:`RING_FRACTION` D (Baker et al. 2011's ring/rim ratio
+of about 0.5) and base width :data:`RING_WIDTH_FRACTION` D, of the same height.
+
+With ``t = (x - xf) / (-xf)`` the position across the wall (0 at the floor's edge
+``xf = Df / D - 1``, 1 at the rim), the interior relative to the plane is::
+
+    floor:  h = C + Hp b(rho)                              x <= xf
+    wall:   h = C + K g(t) + Hp b(rho)                     xf < x, t <= tc
+    cap:    h = E - q (1 - t)^2                            tc < t <= 1
+
+with ``C = Hr - H`` and ``E`` the rim as for simple craters, the peak bump
+``b(rho) = (1 - rho^2)^2`` for ``rho < 1`` (rho the distance from the peak's axis, or from
+the ring's crest line, over the base half-width: 0 with zero slope at its foot, so the floor
+meets the peak smoothly) and the wall shape ``g(t) = s(t)^2``. ``s`` is the slumped
+position: ``s = (1 - tau) t + tau (k + S(f)) / N`` with ``N t = k + f`` (k integer) and
+``S(f) = 3 f^2 - 2 f^3``, which puts N terraces (flat benches at the integer points, steep
+scarps between, :func:`terrace_count` of them) into a wall that is otherwise parabolic;
+``g(0) = 0`` and ``g'(0) = 0`` (the wall leaves the floor with zero slope) and ``g(1) = 1``.
+A fresh crater has ``tc = 1`` and ``K = E - C``: the wall meets the rim crest in a kink, as
+the simple bowl does. An eroded crater's crest is rounded by a cap parabola over the top
+``1 - tc = |alpha|`` of the wall (alpha as on flat ground for simple craters): the cap has
+zero slope at the rim, like the eroded exterior's cubic, and matching value and slope with
+the wall at ``tc`` fixes ``q = K g'(tc) / (2 (1 - tc))`` and
+``K = (E - C) / (g(tc) + g'(tc) (1 - tc) / 2)`` (so the rim still stands at E). The terrace
+strength tau = :data:`TERRACE_STRENGTH` times the rim fraction and the peak height
+``Hp = Hp0 H / H0`` fade with erosion. The exterior (rim flank and ejecta) is the simple
+crater's, with the complex rim height.
+
 Examples
 --------
 >>> s = CraterShape.from_state(100.0)          # fresh 100 m crater
@@ -79,6 +126,12 @@ from terrain.errors import InvalidParameterError
 
 __all__ = [
     "BETA_FROM_ALPHA",
+    "COMPLEX_FIELDS",
+    "Morphology",
+    "complex_interior",
+    "fresh_floor_fraction",
+    "fresh_peak_height",
+    "terrace_count",
     "BETA_MAX",
     "CraterShape",
     "ejecta_amplitude",
@@ -105,6 +158,44 @@ BETA_FROM_ALPHA = 1.5
 BETA_MAX = 0.8
 #: Below this beta the exterior is treated as fresh (no rim cubic).
 BETA_FRESH = 1e-6
+
+#: Pike (1977) lunar complex craters: H0 = 1.044 D^0.301, Hr0 = 0.236 D^0.399 (D, H in km).
+COMPLEX_DEPTH_COEFFICIENT = 1.044
+COMPLEX_DEPTH_EXPONENT = 0.301
+COMPLEX_RIM_COEFFICIENT = 0.236
+COMPLEX_RIM_EXPONENT = 0.399
+#: Pike (1977) floor diameter of lunar complex craters: Df = 0.187 D^1.249 (km).
+FLOOR_COEFFICIENT = 0.187
+FLOOR_EXPONENT = 1.249
+#: Largest floor diameter over D (the fit passes 0.8 only for basins beyond 600 km).
+FLOOR_FRACTION_MAX = 0.8
+#: Central peak height above the floor, Hp0 = 0.0049 D^1.297 (km; after Hale and Head 1979).
+PEAK_COEFFICIENT = 0.0049
+PEAK_EXPONENT = 1.297
+#: Largest peak height over the fresh depth: the power law is fitted to central peaks, and
+#: capped here it does not raise a basin's peak ring above its rim (Tycho's peak stands about
+#: a third of its depth above the floor).
+PEAK_DEPTH_FRACTION_MAX = 0.4
+#: Diameter of a central peak's base over D.
+PEAK_BASE_FRACTION = 0.2
+#: Peak-ring diameter over D (Baker et al. 2011: about 0.5 for lunar peak-ring basins).
+RING_FRACTION = 0.5
+#: Base width of the peak ring over D.
+RING_WIDTH_FRACTION = 0.1
+#: Slumping of a fresh complex crater's wall into terraces (0: a smooth parabolic wall).
+TERRACE_STRENGTH = 0.5
+#: Diameter per terrace (m): one terrace per 15 km of diameter, 2 to 6 of them.
+TERRACE_SPACING = 15000.0
+TERRACES_MIN = 2
+TERRACES_MAX = 6
+#: Lunar simple-to-complex transition (m): Pike's (1977) d/D distribution inflects at 15 km.
+DEFAULT_TRANSITION_DIAMETER = 15000.0
+#: Lunar central-peak to peak-ring transition (m; Baker et al. 2011).
+DEFAULT_PEAK_RING_DIAMETER = 200000.0
+#: Per-crater complex parameters (columns of the array the kernels take); floor_x <= -1
+#: marks a simple crater.
+COMPLEX_FIELDS = ("floor_x", "cap_t", "peak_height", "peak_x", "peak_halfwidth", "terraces",
+                  "terrace_strength")
 
 
 def fresh_depth(diameter):
@@ -186,6 +277,206 @@ def interior_alpha(bowl_curvature, floor, rim):
     return d / a - 1.0
 
 
+@dataclass(frozen=True)
+class Morphology:
+    """Which craters are complex, and how (see the module docstring).
+
+    Parameters
+    ----------
+    transition_diameter : float
+        Craters wider than this (m) are complex. The lunar 15 km scales roughly as 1/g
+        between bodies (Pike 1980), so on a small asteroid no crater reaches it.
+    peak_ring_diameter : float
+        Complex craters at least this wide (m) have a peak ring instead of a central peak.
+    terraces : bool
+        Terraced walls (False: smooth parabolic walls).
+    enabled : bool
+        False makes every crater simple, whatever its size.
+
+    Examples
+    --------
+    >>> Morphology().is_complex(np.array([10e3, 40e3])).tolist()
+    [False, True]
+    >>> try:
+    ...     Morphology.from_mapping({"transition_diametr": 5e3})
+    ... except ValueError as exc:
+    ...     print(exc)
+    unknown crater morphology key 'transition_diametr' (did you mean 'transition_diameter'?)
+    """
+
+    transition_diameter: float = DEFAULT_TRANSITION_DIAMETER
+    peak_ring_diameter: float = DEFAULT_PEAK_RING_DIAMETER
+    terraces: bool = True
+    enabled: bool = True
+
+    def __post_init__(self):
+        for name in ("transition_diameter", "peak_ring_diameter"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.number)):
+                raise InvalidParameterError(f"crater morphology {name} must be a number of "
+                                            f"metres; got {v!r}")
+            v = float(v)
+            if not (v > 0 and math.isfinite(v)):
+                raise InvalidParameterError(
+                    f"crater morphology {name} must be a positive number of metres; got {v}")
+            object.__setattr__(self, name, v)
+        if self.peak_ring_diameter <= self.transition_diameter:
+            raise InvalidParameterError(
+                "crater morphology peak_ring_diameter must exceed transition_diameter; got "
+                f"{self.peak_ring_diameter} <= {self.transition_diameter}")
+        for name in ("terraces", "enabled"):
+            v = getattr(self, name)
+            if not isinstance(v, (bool, np.bool_)):
+                raise InvalidParameterError(f"crater morphology {name} must be true or false; "
+                                            f"got {v!r}")
+            object.__setattr__(self, name, bool(v))
+
+    @classmethod
+    def from_mapping(cls, data) -> Morphology:
+        """Build from a mapping (a TOML table), rejecting unknown keys by name."""
+        import difflib
+        from dataclasses import fields
+
+        if not isinstance(data, dict):
+            raise InvalidParameterError(
+                f"crater morphology must be a table; got {type(data).__name__}")
+        known = [f.name for f in fields(cls)]
+        for key in data:
+            if key not in known:
+                near = difflib.get_close_matches(str(key), known, n=1)
+                hint = f" (did you mean '{near[0]}'?)" if near else ""
+                raise InvalidParameterError(f"unknown crater morphology key '{key}'{hint}")
+        return cls(**data)
+
+    def is_complex(self, diameter) -> np.ndarray:
+        """Boolean array: which diameters (m) make complex craters."""
+        d = np.asarray(diameter, dtype=float)
+        if not self.enabled:
+            return np.zeros(d.shape, dtype=bool)
+        return d > self.transition_diameter
+
+    def as_dict(self) -> dict:
+        return dict(transition_diameter=self.transition_diameter,
+                    peak_ring_diameter=self.peak_ring_diameter, terraces=self.terraces,
+                    enabled=self.enabled)
+
+
+def _km_fit(diameter, coefficient, exponent):
+    d = np.asarray(diameter, dtype=float) / FIT_UNIT
+    return coefficient * d**exponent * FIT_UNIT
+
+
+def fresh_complex_depth(diameter):
+    """Pike's (1977) complex-crater depth H0 (m) for diameter(s) in metres.
+
+    >>> round(float(fresh_complex_depth(40e3)), 1)
+    3169.0
+    """
+    return _km_fit(diameter, COMPLEX_DEPTH_COEFFICIENT, COMPLEX_DEPTH_EXPONENT)
+
+
+def fresh_complex_rim_height(diameter):
+    """Pike's (1977) complex-crater rim height Hr0 (m) for diameter(s) in metres.
+
+    >>> round(float(fresh_complex_rim_height(40e3)), 1)
+    1028.3
+    """
+    return _km_fit(diameter, COMPLEX_RIM_COEFFICIENT, COMPLEX_RIM_EXPONENT)
+
+
+def fresh_floor_fraction(diameter):
+    """Df / D of a complex crater (Pike 1977, capped at FLOOR_FRACTION_MAX).
+
+    >>> round(float(fresh_floor_fraction(40e3)), 3)
+    0.469
+    """
+    d = np.asarray(diameter, dtype=float)
+    return np.minimum(FLOOR_FRACTION_MAX,
+                      _km_fit(d, FLOOR_COEFFICIENT, FLOOR_EXPONENT) / d)
+
+
+def fresh_peak_height(diameter):
+    """Central peak (or peak ring) height above the floor, Hp0 (m), of a fresh crater.
+
+    The power law, at most PEAK_DEPTH_FRACTION_MAX of the complex depth.
+
+    >>> round(float(fresh_peak_height(86e3)))
+    1582
+    >>> round(float(fresh_peak_height(250e3) / fresh_complex_depth(250e3)), 2)
+    0.4
+    """
+    return np.minimum(_km_fit(diameter, PEAK_COEFFICIENT, PEAK_EXPONENT),
+                      PEAK_DEPTH_FRACTION_MAX * fresh_complex_depth(diameter))
+
+
+def terrace_count(diameter):
+    """Terraces on the wall: one per TERRACE_SPACING of diameter, TERRACES_MIN to _MAX."""
+    d = np.asarray(diameter, dtype=float)
+    return np.clip(np.round(d / TERRACE_SPACING), TERRACES_MIN, TERRACES_MAX)
+
+
+@numba.njit(cache=True)
+def _wall(t, terraces, strength):
+    """g(t) and g'(t) of the terraced wall (see the module docstring)."""
+    if strength > 0.0 and terraces >= 1.0:
+        u = terraces * t
+        k = math.floor(u)
+        if k >= terraces:
+            k = terraces - 1.0
+        f = u - k
+        s = (1.0 - strength) * t + strength * (k + f * f * (3.0 - 2.0 * f)) / terraces
+        ds = (1.0 - strength) + strength * 6.0 * f * (1.0 - f)
+    else:
+        s = t
+        ds = 1.0
+    return s * s, 2.0 * s * ds
+
+
+@numba.njit(cache=True)
+def complex_interior(x, floor, rim, floor_x, cap_t, peak_height, peak_x, peak_halfwidth,
+                     terraces, terrace_strength):
+    """Interior of a complex crater at x in [-1, 0], relative to the plane (module docstring).
+
+    ``floor`` is C = Hr - H, ``rim`` is E = Hr + Tr - Pr; the other arguments are the
+    crater's :data:`COMPLEX_FIELDS`.
+    """
+    c = min(floor, rim)
+    d = rim - c
+    h = c
+    if x > floor_x and d > 0.0:
+        t = min(1.0, (x - floor_x) / (-floor_x))
+        tc = cap_t
+        g_c, dg_c = _wall(tc, terraces, terrace_strength)
+        denom = g_c + 0.5 * dg_c * (1.0 - tc)
+        if denom <= 0.0:
+            h = rim
+        else:
+            k = d / denom
+            if t <= tc:
+                h = c + k * _wall(t, terraces, terrace_strength)[0]
+            else:
+                q = k * dg_c / (2.0 * (1.0 - tc))
+                h = rim - q * (1.0 - t) ** 2
+    if peak_height > 0.0 and peak_halfwidth > 0.0:
+        rho = abs(x - peak_x) / peak_halfwidth
+        if rho < 1.0:
+            b = 1.0 - rho * rho
+            h += peak_height * b * b
+    return h
+
+
+@numba.njit(cache=True)
+def crater_interior(x, curvature, floor, rim, cplx):
+    """The interior of a simple (``cplx[0] <= -1``) or complex crater at x (relative to P).
+
+    ``cplx`` holds the crater's :data:`COMPLEX_FIELDS`.
+    """
+    if cplx[0] > -1.0:
+        return complex_interior(x, floor, rim, cplx[0], cplx[1], cplx[2], cplx[3], cplx[4],
+                                cplx[5], cplx[6])
+    return interior_height(x, curvature, floor, rim)
+
+
 @numba.njit(cache=True)
 def exterior_height(x, rim_height, ejecta, beta, a, b, c2, c3):
     """Exterior profile (h3 or h4) at x in [0, 1], change added to the terrain."""
@@ -213,11 +504,23 @@ class CraterShape:
     b: float
     c2: float
     c3: float
+    floor_x: float = -2.0
+    cap_t: float = 1.0
+    peak_height: float = 0.0
+    peak_x: float = -1.0
+    peak_halfwidth: float = 0.0
+    terraces: float = 0.0
+    terrace_strength: float = 0.0
 
     @classmethod
     def from_state(cls, diameter: float, depth_fraction: float = 1.0,
-                   rim_fraction: float = 1.0) -> CraterShape:
-        """Shape of a crater of ``diameter`` metres at the given erosion factors H/H0, Hr/Hr0."""
+                   rim_fraction: float = 1.0,
+                   morphology: Morphology | None = None) -> CraterShape:
+        """Shape of a crater of ``diameter`` metres at the given erosion factors H/H0, Hr/Hr0.
+
+        ``morphology`` decides whether it is complex (default: :class:`Morphology`'s lunar
+        transition).
+        """
         diameter = float(diameter)
         if not (diameter > 0 and math.isfinite(diameter)):
             raise InvalidParameterError(f"crater diameter must be positive; got {diameter}")
@@ -225,8 +528,20 @@ class CraterShape:
             if not 0.0 <= float(v) <= 1.0:
                 raise InvalidParameterError(f"{name} must lie in [0, 1]; got {v}")
         arrays = shape_arrays(np.array([diameter]), np.array([float(depth_fraction)]),
-                              np.array([float(rim_fraction)]))
-        return cls(**{k: float(v[0]) for k, v in arrays.items()})
+                              np.array([float(rim_fraction)]), morphology)
+        cplx = arrays.pop("complex")[0]
+        fields = {k: float(v[0]) for k, v in arrays.items()}
+        fields.update({k: float(v) for k, v in zip(COMPLEX_FIELDS, cplx, strict=True)})
+        return cls(**fields)
+
+    @property
+    def is_complex(self) -> bool:
+        return self.floor_x > -1.0
+
+    @property
+    def complex_row(self) -> np.ndarray:
+        """The :data:`COMPLEX_FIELDS` as the kernels take them."""
+        return np.array([getattr(self, k) for k in COMPLEX_FIELDS], dtype=np.float64)
 
     @property
     def bowl_curvature(self) -> float:
@@ -239,11 +554,20 @@ class CraterShape:
         return self.rim_height - self.depth
 
 
-def shape_arrays(diameter, depth_fraction, rim_fraction) -> dict[str, np.ndarray]:
-    """Vectorised :class:`CraterShape` fields for arrays of craters."""
+def shape_arrays(diameter, depth_fraction, rim_fraction,
+                 morphology: Morphology | None = None) -> dict[str, np.ndarray]:
+    """Vectorised :class:`CraterShape` fields for arrays of craters.
+
+    Besides the fields of a simple crater, ``"complex"`` is an (n, 7) float64 array of the
+    :data:`COMPLEX_FIELDS` (``floor_x`` = -2 for a simple crater).
+    """
+    morphology = morphology or Morphology()
     diameter = np.asarray(diameter, dtype=float)
-    h0 = fresh_depth(diameter)
-    hr0 = fresh_rim_height(diameter)
+    depth_fraction = np.broadcast_to(np.asarray(depth_fraction, dtype=float), diameter.shape)
+    rim_fraction = np.broadcast_to(np.asarray(rim_fraction, dtype=float), diameter.shape)
+    cx = morphology.is_complex(diameter)
+    h0 = np.where(cx, fresh_complex_depth(diameter), fresh_depth(diameter))
+    hr0 = np.where(cx, fresh_complex_rim_height(diameter), fresh_rim_height(diameter))
     h = h0 * depth_fraction
     hr = hr0 * rim_fraction
     ejecta = ejecta_amplitude(diameter) * rim_fraction
@@ -252,18 +576,34 @@ def shape_arrays(diameter, depth_fraction, rim_fraction) -> dict[str, np.ndarray
     beta = np.minimum(BETA_MAX, BETA_FROM_ALPHA * np.abs(alpha))
     beta = np.where(beta < BETA_FRESH, 0.0, beta)
     a, b, c2, c3 = exterior_coefficients(hr, ejecta, beta)
+    cplx = np.zeros((diameter.size, len(COMPLEX_FIELDS)))
+    cplx[:, 0] = -2.0
+    cplx[:, 1] = 1.0
+    cplx[:, 3] = -1.0
+    if cx.any():
+        d = diameter.reshape(-1)[cx.reshape(-1)]
+        ring = d >= morphology.peak_ring_diameter
+        sel = cx.reshape(-1)
+        cplx[sel, 0] = fresh_floor_fraction(d) - 1.0
+        cplx[sel, 1] = 1.0 - np.abs(alpha.reshape(-1)[sel])
+        cplx[sel, 2] = fresh_peak_height(d) * depth_fraction.reshape(-1)[sel]
+        cplx[sel, 3] = np.where(ring, RING_FRACTION - 1.0, -1.0)
+        cplx[sel, 4] = np.where(ring, RING_WIDTH_FRACTION, PEAK_BASE_FRACTION)
+        if morphology.terraces:
+            cplx[sel, 5] = terrace_count(d)
+            cplx[sel, 6] = TERRACE_STRENGTH * rim_fraction.reshape(-1)[sel]
     return dict(diameter=diameter, depth=h, rim_height=hr, fresh_depth=h0,
                 fresh_rim_height=hr0, ejecta=ejecta, alpha=alpha, beta=beta,
-                a=a, b=b, c2=c2, c3=c3)
+                a=a, b=b, c2=c2, c3=c3, complex=cplx)
 
 
 @numba.njit(cache=True)
 def _profile_flat(x, curvature, floor, rim_height, rim_offset, ejecta, beta, a, b, c2, c3,
-                  out):
+                  cplx, out):
     for i in range(x.size):
         xi = x[i]
         if xi <= 0.0:
-            out[i] = interior_height(xi, curvature, floor, rim_height + rim_offset)
+            out[i] = crater_interior(xi, curvature, floor, rim_height + rim_offset, cplx)
         elif xi <= 1.0:
             out[i] = exterior_height(xi, rim_height, ejecta, beta, a, b, c2, c3)
         else:
@@ -280,5 +620,5 @@ def profile(x, shape: CraterShape, rim_offset: float = 0.0) -> np.ndarray:
     out = np.empty(x.shape)
     _profile_flat(np.ascontiguousarray(x).ravel(), shape.bowl_curvature, shape.floor,
                   shape.rim_height, float(rim_offset), shape.ejecta, shape.beta, shape.a,
-                  shape.b, shape.c2, shape.c3, out.reshape(-1))
+                  shape.b, shape.c2, shape.c3, shape.complex_row, out.reshape(-1))
     return out

@@ -48,15 +48,15 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numba
 import numpy as np
 
 from terrain import memory
 from terrain.catalog import CATALOG_COLUMNS, CraterTable
-from terrain.crater import exterior_height, interior_height, shape_arrays
-from terrain.erosion import ErosionModel
+from terrain.crater import Morphology, crater_interior, exterior_height, shape_arrays
+from terrain.erosion import ErosionModel, SlopeDegradation
 from terrain.errors import InvalidParameterError
 from terrain.overlay import (
     MAX_PATCH_LEVEL,
@@ -75,8 +75,8 @@ from terrain.rng import check_seed
 from terrain.tile import DEMTile, Window
 
 __all__ = ["OBLITERATION_BLEND", "CraterModel", "CraterResult", "add_craters",
-           "crater_heights", "describe_craters", "empty_catalog", "fit_plane", "obliteration",
-           "rim_terrain"]
+           "class_planes", "crater_heights", "describe_craters", "empty_catalog", "fit_plane",
+           "obliteration", "rim_terrain"]
 
 log = logging.getLogger(__name__)
 
@@ -96,16 +96,34 @@ RIM_TERRAIN_SMOOTHING = 4
 
 @dataclass(frozen=True)
 class CraterModel:
-    """Everything about how a crater looks besides where it is: erosion and roughness."""
+    """Everything about how a crater looks besides where it is.
+
+    Erosion with age (:class:`terrain.erosion.ErosionModel`), roughness and irregular rim
+    (:mod:`terrain.overlay`), which craters are complex (:class:`terrain.crater.Morphology`)
+    and faster degradation on steep ground (:class:`terrain.erosion.SlopeDegradation`).
+    """
 
     erosion: ErosionModel = field(default_factory=ErosionModel.default)
     roughness: Roughness = field(default_factory=Roughness)
     rim: RimIrregularity = field(default_factory=RimIrregularity)
+    morphology: Morphology = field(default_factory=Morphology)
+    slope: SlopeDegradation = field(default_factory=SlopeDegradation)
 
-    def smooth(self) -> CraterModel:
-        """The same model with the fractal overlay and the irregular rim switched off."""
-        return CraterModel(self.erosion, Roughness(enabled=False),
-                           RimIrregularity(enabled=False))
+    def smooth(self, **changes) -> CraterModel:
+        """The same model with the fractal overlay and the irregular rim switched off.
+
+        ``changes`` replace further fields (``model.smooth(slope=SlopeDegradation(False))``).
+        """
+        return replace(self, roughness=Roughness(enabled=False),
+                       rim=RimIrregularity(enabled=False), **changes)
+
+    def factors(self, age, diameter, slope) -> tuple[np.ndarray, np.ndarray]:
+        """Depth and rim fractions at age(s) (Gyr), diameter(s) (m) and ground slope(s) (rad).
+
+        A crater whose plane could not be fitted (NaN slope) is aged as on flat ground.
+        """
+        slope = np.nan_to_num(np.asarray(slope, dtype=float), nan=0.0)
+        return self.erosion.factors(self.slope.effective_age(age, slope), diameter)
 
     @property
     def footprint_factor(self) -> float:
@@ -114,7 +132,8 @@ class CraterModel:
 
     def as_dict(self) -> dict:
         return dict(erosion=self.erosion.as_dict(), roughness=asdict(self.roughness),
-                    rim=asdict(self.rim))
+                    rim=asdict(self.rim), morphology=self.morphology.as_dict(),
+                    slope_degradation=self.slope.as_dict())
 
 
 @dataclass(frozen=True, eq=False)
@@ -269,14 +288,36 @@ def obliteration(x):
 
 
 @numba.njit(cache=True)
+def class_planes(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, diam):
+    """(n, 6) :func:`fit_plane` results (p0, px, py, samples, RMS, pixel roughness) of a class.
+
+    Each crater's plane is fitted over its bowl on the terrain ``T`` before its class, so the
+    planes (and the slope-dependent degradation they decide) need only that terrain.
+    """
+    out = np.empty((cx.size, 6))
+    for n in range(cx.size):
+        p0, px, py, nvalid, rms, pix = fit_plane(T, tr0, tc0, nrows, ncols, x0, y0, res,
+                                                  cx[n], cy[n], 0.5 * diam[n])
+        out[n, 0] = p0
+        out[n, 1] = px
+        out[n, 2] = py
+        out[n, 3] = nvalid
+        out[n, 4] = rms
+        out[n, 5] = pix
+    return out
+
+
+@numba.njit(cache=True)
 def _apply_class(T, tr0, tc0, out, or0, oc0, nrows, ncols, x0, y0, res,
                  cx, cy, diam, depth, rim_h, rim_h0, ejecta, beta, ca, cb, c2, c3, alpha,
                  depth_fraction, uid, seed, irr_amp, irr_hurst, rough, rough_params,
-                 footprint_factor, planes):
+                 footprint_factor, planes, cplx):
     """Compose one size class of craters (already in age order) onto ``out``.
 
     ``T`` is the terrain before this class (origin tr0, tc0 in DEM pixels); ``out`` starts as
-    a copy of T over the class's region (origin or0, oc0) and is updated in place.
+    a copy of T over the class's region (origin or0, oc0) and is updated in place. ``planes``
+    holds each crater's :func:`fit_plane` result (:func:`class_planes`), ``cplx`` its
+    :data:`terrain.crater.COMPLEX_FIELDS`.
     """
     table = np.zeros(RIM_SAMPLES)
     rim_terrain_buffer = np.zeros(RIM_TERRAIN_SAMPLES)
@@ -288,13 +329,15 @@ def _apply_class(T, tr0, tc0, out, or0, oc0, nrows, ncols, x0, y0, res,
         radius = 0.5 * d
         xc = cx[n]
         yc = cy[n]
-        p0, px, py, nvalid, rms, pix = fit_plane(T, tr0, tc0, nrows, ncols, x0, y0, res,
-                                                  xc, yc, radius)
-        planes[n, 0] = p0
-        planes[n, 1] = px
-        planes[n, 2] = py
+        p0 = planes[n, 0]
+        px = planes[n, 1]
+        py = planes[n, 2]
+        nvalid = planes[n, 3]
+        rms = planes[n, 4]
+        pix = planes[n, 5]
         if nvalid < 3.0:
             continue
+        row = cplx[n]
         irregular = irr_amp > 0.0
         if irregular:
             rim_table(seed, uid[n], irr_amp, irr_hurst, table)
@@ -312,7 +355,9 @@ def _apply_class(T, tr0, tc0, out, or0, oc0, nrows, ncols, x0, y0, res,
             spacing = 2.0 * half_extent / 2**level
             patch = np.empty((2**level + 1, 2**level + 1))
             crater_params(rough_params, d, depth_fraction[n], rms, pix, level, params)
-            overlay_patch(seed, uid[n], level, spacing, d, alpha[n], params, patch)
+            # the overlay's floor region ends where the flat floor does on a complex crater
+            region = row[0] if row[0] > -1.0 else alpha[n]
+            overlay_patch(seed, uid[n], level, spacing, d, region, params, patch)
         else:
             half_extent = 0.0
             spacing = 1.0
@@ -352,7 +397,7 @@ def _apply_class(T, tr0, tc0, out, or0, oc0, nrows, ncols, x0, y0, res,
                     if not irregular:
                         theta = math.atan2(dy, dx)
                     offset = periodic_sample(rim_terrain_table, theta)
-                    h = interior_height(x, curvature, floor, hr + offset)
+                    h = crater_interior(x, curvature, floor, hr + offset, row)
                     plane = p0 + px * dx + py * dy
                     # What the smoothed rim terrain and the plane leave out, here: the class's
                     # older changes (cur - t) and the terrain's own deviation from the smoothed
@@ -458,15 +503,17 @@ def crater_heights(base, shape, transform, craters, *, seed, model=None, window=
         out = terrain[q0 - origin[0]:q1 - origin[0], p0 - origin[1]:p1 - origin[1]].copy()
         if len(table):
             table = table.take(table.composition_order())
-            depth_f, rim_f = model.erosion.factors(table.age, table.diameter)
-            s = shape_arrays(table.diameter, depth_f, rim_f)
-            planes = np.full((len(table), 3), np.nan)
+            planes = class_planes(terrain, origin[0], origin[1], nrows, ncols, x0, y0, res,
+                                  table.x, table.y, table.diameter)
+            slope = np.arctan(np.hypot(planes[:, 1], planes[:, 2]))
+            depth_f, rim_f = model.factors(table.age, table.diameter, slope)
+            s = shape_arrays(table.diameter, depth_f, rim_f, model.morphology)
             _apply_class(terrain, origin[0], origin[1], out, q0, p0, nrows, ncols, x0, y0, res,
                          table.x, table.y, table.diameter, s["depth"], s["rim_height"],
                          s["fresh_rim_height"], s["ejecta"], s["beta"], s["a"], s["b"],
                          s["c2"], s["c3"], s["alpha"], depth_f, table.uid, seed,
                          model.rim.effective_amplitude, model.rim.hurst, rough, rough_params,
-                         factor, planes)
+                         factor, planes, s["complex"])
             placed.append((table, depth_f, rim_f, s, planes))
             log.debug("size class %d (D <= %.3g m): %d craters", cls, d_max, len(table))
         terrain, origin = out, (q0, p0)

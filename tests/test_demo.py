@@ -112,3 +112,24 @@ def test_a_second_run_reuses_finished_stages_and_absent_data_is_said(demo, tmp_p
     notes = [n for s in doc["sections"] for n in s["notes"]]
     assert any("not compared with LOLA" in n for n in notes)
     assert any("not compared with real Eros" in n for n in notes)
+
+
+@pytest.mark.slow
+def test_demo_base_matches_lolas_south_pole_slopes(tmp_path, shared_file):
+    """Stage 1's base (complex craters to 150 km) against LDEM_4 at its 7.58 km pixels."""
+    import importlib.util
+
+    from evaluation.compare import compare_dems
+    from terrain.io import read_dem
+    from tests.cli_helpers import run
+
+    shared_file("lunar", "LDEM_4.LBL")
+    spec = importlib.util.spec_from_file_location("demo_module", DEMO)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    base = tmp_path / "base.tif"
+    result = run("terrain", "synth", "-o", base, *module.base_args(False))
+    assert result.exit_code == 0, result.output
+    reference = read_dem(module.polar_ldem(tmp_path / "ldem.tif"))
+    comparison = compare_dems(read_dem(base), reference)
+    assert comparison.ks_distance <= 0.10

@@ -183,3 +183,27 @@ def test_rim_joins_rough_terrain_without_a_step():
     step = np.abs(out[inside] - body.radii[inside] - profile(x[inside], shape))
     assert relief > 2.0
     assert np.percentile(step, 95) < 0.25 * shape.rim_height
+
+
+def test_complex_crater_on_a_large_sphere_is_the_flat_complex_profile():
+    """A 40 km crater on a 100 km body: flat floor, peak and Pike's depth, in true distance."""
+    body = Body.sphere(MESH, R)
+    d = 40_000.0
+    crater = craters_at([30.0], [40.0], [d])
+    result = add_craters(body, crater, seed=1, model=SMOOTH)
+    dr = result.body.radii - R
+    s = _arc(MESH, crater.directions[0], R)
+    x = 2 * s / d - 1
+    shape = CraterShape.from_state(d)
+    assert shape.is_complex
+    near = x <= 1.0
+    chord = R * (MESH.mean_spacing / 2) ** 2
+    assert np.abs(dr[near] - profile(x[near], shape)).max() < chord + 1e-6 * d
+    floor = (x > shape.peak_x + shape.peak_halfwidth + 0.02) & (x < shape.floor_x - 0.02)
+    assert np.ptp(dr[floor]) < 2 * chord
+    top = np.argmin(x)  # the vertex nearest the centre, on the peak
+    rho = (x[top] + 1.0) / shape.peak_halfwidth
+    assert dr[top] - np.median(dr[floor]) == pytest.approx(
+        shape.peak_height * (1 - rho**2) ** 2, rel=0.05)
+    assert dr[top] - np.median(dr[floor]) > 0.8 * shape.peak_height
+    assert result.catalog["depth_m"][0] == pytest.approx(1.044 * 40**0.301 * 1000, rel=1e-3)

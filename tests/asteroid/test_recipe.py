@@ -95,3 +95,17 @@ def test_bad_recipes(tmp_path):
     bad.write_text("magnitude = = 3")
     with pytest.raises(InvalidParameterError, match="not valid TOML"):
         Recipe.from_sources(config=bad)
+
+
+def test_crater_morphology_and_slope_degradation_come_from_the_recipe():
+    spec = CraterSpec(c=0.5, transition_diameter=50.0, slope_degradation=False)
+    model = spec.settings().model
+    assert model.morphology.transition_diameter == 50.0
+    assert model.morphology.is_complex(np.array([40.0, 60.0])).tolist() == [False, True]
+    assert not model.slope.enabled
+    lunar = CraterSpec(c=0.5).settings().model
+    assert lunar.morphology.transition_diameter == 15000.0 and lunar.slope.enabled
+    with pytest.raises(InvalidParameterError, match="transition_diameter"):
+        Recipe.from_sources(preset="fig5-smooth", craters={"transition_diametr": 10.0})
+    with pytest.raises(InvalidParameterError, match="positive"):
+        CraterSpec(c=0.5, transition_diameter=-1.0)

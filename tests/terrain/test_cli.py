@@ -281,3 +281,28 @@ def test_replace_crater_on_a_missing_or_corrupt_stack(tmp_path):
     (tmp_path / "st" / "manifest.json").write_text("[]")
     one_line_error(run("terrain", "replace-crater", tmp_path / "st", "--at", "1,1",
                        "--diameter", 10), "corrupt")
+
+
+def test_add_crater_makes_complex_craters_and_takes_the_transition(tmp_path):
+    """A 40 km crater through the CLI is Pike-deep; raising the transition makes it simple."""
+    import csv
+
+    from terrain.io import read_dem, write_dem
+    from terrain.tile import DEMTile
+
+    flat = tmp_path / "flat.tif"
+    write_dem(DEMTile.from_array(np.zeros((301, 301), np.float32), resolution=400.0), flat)
+    depths = {}
+    for name, extra in (("complex", []), ("simple", ["--transition-diameter", "50000"])):
+        out, cat = tmp_path / f"{name}.tif", tmp_path / f"{name}.csv"
+        result = run("terrain", "add-crater", flat, "-o", out, "--at", "60200,60200",
+                     "--diameter", 40000, "--no-roughness", "--catalog", cat, *extra)
+        assert result.exit_code == 0, result.output
+        with open(cat, newline="") as f:
+            depths[name] = float(next(csv.DictReader(f))["depth_m"])
+        assert np.isfinite(read_dem(out).heights).all()
+    assert depths["complex"] == pytest.approx(1.044 * 40**0.301 * 1000, rel=1e-3)
+    assert depths["simple"] == pytest.approx(0.196 * 40**1.01 * 1000, rel=1e-3)
+    bad = run("terrain", "add-crater", flat, "-o", tmp_path / "x.tif", "--at", "60200,60200",
+              "--diameter", 40000, "--transition-diameter", -5)
+    assert bad.exit_code == 2 and "--transition-diameter" in bad.output

@@ -17,7 +17,7 @@ from terrain.crater import (
     profile,
 )
 from terrain.cratering import CraterModel, add_craters
-from terrain.erosion import ErosionModel
+from terrain.erosion import ErosionModel, SlopeDegradation
 from terrain.tile import DEMTile
 
 EPS = 1e-6
@@ -187,7 +187,9 @@ def test_crater_on_flat_and_tilted_planes_matches_the_profile(age, tilt):
     cx, cy = 40.3, 39.7
     crater = CraterTable.from_craters([Crater(cx, cy, d, age, 9)])
     out = add_craters(tile, crater, seed=1, model=CraterModel().smooth())
-    qd, qr = ErosionModel.default().factors(age, d)
+    # a crater on the tilted plane ages faster (terrain.erosion.SlopeDegradation)
+    qd, qr = ErosionModel.default().factors(
+        SlopeDegradation().effective_age(age, np.arctan(np.hypot(*tilt))), d)
     s = CraterShape.from_state(d, float(qd), float(qr))
     r = np.hypot(x - cx, y - cy)
     xn = 2 * r / d - 1
@@ -215,7 +217,7 @@ def test_rim_rides_on_the_terrain_along_each_radius():
     tile = DEMTile.from_array(z, resolution=res)
     cx, cy = 60.0, 60.0
     out = add_craters(tile, CraterTable.from_craters([Crater(cx, cy, d, 0.1, 3)]), seed=1,
-                      model=CraterModel().smooth())
+                      model=CraterModel().smooth(slope=SlopeDegradation(enabled=False)))
     qd, qr = ErosionModel.default().factors(0.1, d)
     s = CraterShape.from_state(d, float(qd), float(qr))
     for sign in (-1, 1):
@@ -268,3 +270,136 @@ def test_no_step_at_the_rim_on_rough_ground():
 
     # the degraded rim has zero slope at its crest: across it, steps are the terrain's own
     assert max_step(z) < 1.3 * max_step(b) + 0.05
+
+
+# ---------------------------------------------------------------- complex craters
+
+
+def _flat_crater(d, res, age=0.0, model=None):
+    """A crater of diameter d centred on a flat DEM 2.5 d wide: (change, radius) arrays."""
+    n = int(round(2.5 * d / res)) | 1
+    tile = DEMTile.from_array(np.full((n, n), 500.0), resolution=res)
+    c = n * res / 2
+    out = add_craters(tile, CraterTable.from_craters([Crater(c, c, d, age, 1)]), seed=1,
+                      model=model or CraterModel().smooth())
+    rows, cols = np.mgrid[0:n, 0:n]
+    r = np.hypot((cols + 0.5) * res - c, (n - rows - 0.5) * res - c)
+    return out.tile.heights.astype(np.float64) - 500.0, r, out.catalog
+
+
+def test_a_40_km_crater_on_a_flat_dem_has_pikes_complex_shape():
+    """Depth, rim height, flat floor and central peak of a fresh 40 km lunar crater."""
+    d = 40_000.0
+    change, r, cat = _flat_crater(d, 200.0)
+    d_km = d / 1000
+    depth_pike = 1.044 * d_km**0.301 * 1000      # Pike (1977), rim crest to floor
+    rim_pike = 0.236 * d_km**0.399 * 1000        # rim crest above the surroundings
+    floor_fraction = 0.187 * d_km**1.249 / d_km  # Df / D
+    peak = 0.0049 * d_km**1.297 * 1000           # peak height above the floor
+    crest = change[np.abs(r - d / 2) < 300].max()
+    floor_ring = (r > 0.12 * d) & (r < 0.45 * floor_fraction * d)
+    floor = np.median(change[floor_ring])
+    assert crest == pytest.approx(rim_pike, rel=0.10)
+    assert crest - floor == pytest.approx(depth_pike, rel=0.10)
+    # flat floor: between the peak's foot and the documented floor edge the floor is level
+    # (to the mm), and just beyond the edge the wall has begun to rise
+    assert np.ptp(change[floor_ring]) < 1e-3
+    assert np.ptp(change[(r > 0.1 * d) & (r < 0.5 * floor_fraction * d - 100)]) < 1e-3
+    wall = change[(r > 0.5 * floor_fraction * d + 1500) & (r < 0.5 * floor_fraction * d + 2000)]
+    assert wall.min() > floor + 10.0
+    # central peak of the documented height at the centre
+    assert change[r < 150].max() - floor == pytest.approx(peak, rel=0.10)
+    # the catalogue reports Pike's values
+    assert cat["depth_m"][0] == pytest.approx(depth_pike, rel=1e-3)
+    assert cat["rim_height_m"][0] == pytest.approx(rim_pike, rel=1e-3)
+
+
+def _complex_joins(s):
+    """x positions where the complex profile's pieces meet."""
+    tiny = 1e-9
+    xs = [s.floor_x + tiny, s.peak_x + s.peak_halfwidth]
+    for k in range(1, int(s.terraces)):
+        xs.append(s.floor_x + k / s.terraces * (-s.floor_x))
+    if s.cap_t < 1:
+        xs.append(s.floor_x + s.cap_t * (-s.floor_x))
+    return xs
+
+
+@pytest.mark.parametrize("state", [(1.0, 1.0), (0.8, 0.5), (0.5, 0.1)])
+@pytest.mark.parametrize("d", [16_000.0, 40_000.0, 120_000.0, 250_000.0])
+def test_complex_profile_is_continuous_with_continuous_slope_at_its_joins(d, state):
+    s = CraterShape.from_state(d, *state)
+    assert s.is_complex
+    for x in _complex_joins(s):
+        left = profile(np.array([x - 1e-7]), s)[0]
+        right = profile(np.array([x + 1e-7]), s)[0]
+        assert left == pytest.approx(right, abs=1e-6 * d)
+        assert slope(s, x, -1, h=1e-6) == pytest.approx(slope(s, x, +1, h=1e-6),
+                                                        abs=1e-3 * s.depth)
+    # the floor leaves the wall with zero slope, the peak's foot meets the floor flat
+    assert abs(slope(s, s.floor_x, +1, h=1e-6)) < 1e-3 * s.depth
+    # the rim stands at Hr on both sides; eroded craters meet it with zero slope (C1)
+    assert profile(np.array([-1e-9]), s)[0] == pytest.approx(s.rim_height, abs=1e-6 * d)
+    assert profile(np.array([1e-9]), s)[0] == pytest.approx(s.rim_height, abs=1e-6 * d)
+    if s.beta > 0:
+        assert abs(slope(s, 0.0, -1, h=1e-6)) < 1e-2 * s.depth
+        assert abs(slope(s, 0.0, +1, h=1e-6)) < 1e-2 * s.depth
+    # the wall rises monotonically from the floor to the rim
+    x = np.linspace(s.floor_x, 0.0, 2001)
+    assert np.all(np.diff(profile(x, s)) >= -1e-9 * d)
+    assert profile(np.array([1.0]), s)[0] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_peak_ring_replaces_the_central_peak_at_basin_sizes():
+    central = CraterShape.from_state(150_000.0)
+    ring = CraterShape.from_state(250_000.0)
+    xs = np.linspace(-1.0, -0.3, 701)
+    pc, pr = profile(xs, central), profile(xs, ring)
+    assert xs[np.argmax(pc)] == pytest.approx(-1.0)
+    assert xs[np.argmax(pr)] == pytest.approx(-0.5, abs=2e-3)   # ring diameter 0.5 D
+    assert pr[np.argmax(pr)] - ring.floor == pytest.approx(ring.peak_height, rel=1e-6)
+    assert pr[0] == pytest.approx(ring.floor)                  # no peak at the centre
+
+
+def test_transition_diameter_decides_the_morphology():
+    from terrain.crater import Morphology
+
+    assert not CraterShape.from_state(14_000.0).is_complex
+    assert CraterShape.from_state(16_000.0).is_complex
+    lower = Morphology(transition_diameter=5_000.0)
+    assert CraterShape.from_state(8_000.0, morphology=lower).is_complex
+    off = Morphology(enabled=False)
+    s = CraterShape.from_state(40_000.0, morphology=off)
+    assert not s.is_complex and s.depth == pytest.approx(fresh_depth(40_000.0))
+    with pytest.raises(ValueError, match="did you mean 'peak_ring_diameter'"):
+        Morphology.from_mapping({"peak_ring_diamter": 1e5})
+    with pytest.raises(ValueError, match="must exceed"):
+        Morphology(transition_diameter=2e5, peak_ring_diameter=1e5)
+
+
+def test_complex_crater_erodes_in_the_ross_framework():
+    """Older complex craters are shallower, with lower rims and peaks, and softer terraces."""
+    fresh = CraterShape.from_state(40_000.0)
+    old = CraterShape.from_state(40_000.0, 0.6, 0.3)
+    assert old.depth == pytest.approx(0.6 * fresh.depth)
+    assert old.rim_height == pytest.approx(0.3 * fresh.rim_height)
+    assert old.peak_height == pytest.approx(0.6 * fresh.peak_height)
+    assert old.terrace_strength < fresh.terrace_strength
+
+
+def test_steep_ground_degrades_craters_faster():
+    """The same crater on a 20 degree slope is shallower than on flat ground, unless off."""
+    d, res = 40.0, 0.5
+    model = CraterModel().smooth()
+    flat, r, cat_flat = _flat_crater(d, res, age=0.05, model=model)
+    n = flat.shape[0]
+    z, x, y = _plane(n, res, np.tan(np.radians(20.0)), 0.0)
+    tile = DEMTile.from_array(z, resolution=res)
+    c = n * res / 2
+    crater = CraterTable.from_craters([Crater(c, c, d, 0.05, 1)])
+    steep = add_craters(tile, crater, seed=1, model=model).catalog
+    off = add_craters(tile, crater, seed=1,
+                      model=model.smooth(slope=SlopeDegradation(enabled=False))).catalog
+    assert steep["depth_m"][0] < 0.9 * cat_flat["depth_m"][0]
+    assert off["depth_m"][0] == pytest.approx(cat_flat["depth_m"][0])
+    assert steep["rim_height_m"][0] <= off["rim_height_m"][0]

@@ -128,3 +128,14 @@ def test_catalogue_columns_are_consistent(full):
     assert np.all(cat["rim_fraction"] <= cat["depth_fraction"])
     assert np.allclose(cat["depth_m"] / cat["depth_fraction"],
                        0.196 * (cat["diameter_m"] / 1000) ** 1.01 * 1000)
+
+
+def test_windows_with_complex_craters_are_exact():
+    """Lunar-scale craters (complex above 15 km, with slope-dependent degradation) at 1 km."""
+    pop = Population(dmin=4000.0, dmax=60000.0, density=0.004, max_age=3.5)
+    full = synthesize_tile(129, resolution=1000.0, relief=3000.0, seed=9, craters=pop)
+    assert (full.catalog["diameter_m"] > 15000.0).any()
+    for w in (Window(40, 30, 50, 40), Window(0, 90, 129, 39)):
+        part = synthesize_tile(129, resolution=1000.0, relief=3000.0, seed=9, craters=pop,
+                               window=w)
+        assert np.array_equal(part.tile.heights, full.tile.heights[w.slices])

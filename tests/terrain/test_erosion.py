@@ -70,3 +70,28 @@ def test_bad_profiles_are_refused(text, message):
 def test_missing_profile_file(tmp_path):
     with pytest.raises(MissingInputError):
         ErosionModel.from_csv(tmp_path / "nope.csv")
+
+
+def test_slope_rate_is_the_mean_linearised_creep_diffusivity():
+    """m(S) against a finite-difference linearisation of q(S) = S / (1 - (S/Sc)^2)."""
+    from terrain.erosion import SlopeDegradation
+
+    deg = SlopeDegradation(critical_slope_deg=35.0)
+    sc = np.tan(np.radians(35.0))
+
+    def q(s):
+        return s / (1.0 - (s / sc) ** 2)
+
+    for angle in (5.0, 15.0, 25.0, 32.0):
+        s = np.tan(np.radians(angle))
+        h = 1e-6
+        along = (q(s + h) - q(s - h)) / (2 * h)
+        across = q(s) / s
+        assert deg.rate(np.radians(angle)) == pytest.approx(0.5 * (along + across), rel=1e-6)
+    assert deg.rate(0.0) == pytest.approx(1.0)
+    assert np.isinf(deg.rate(np.radians(36.0)))
+    assert deg.effective_age(0.0, np.radians(40.0)) == 0.0     # a fresh crater stays fresh
+    off = SlopeDegradation(enabled=False)
+    assert off.effective_age(1.2, np.radians(30.0)) == pytest.approx(1.2)
+    with pytest.raises(ValueError, match="did you mean 'critical_slope_deg'"):
+        SlopeDegradation.from_mapping({"critical_slope": 30})

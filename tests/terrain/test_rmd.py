@@ -81,3 +81,15 @@ def test_huge_tiles_are_refused_before_allocating(monkeypatch):
     monkeypatch.setenv("CRATERSCAPE_MEMORY_LIMIT", "64M")
     with pytest.raises(MemoryRequestError, match="needs about"):
         synthesize(2**16 + 1)
+
+
+@pytest.mark.parametrize("hurst", [0.3, 0.5, 0.7, 0.8, 0.9])
+def test_spectral_hurst_exponent_is_the_nominal_one(hurst):
+    """The radially averaged power spectrum of a synthesized tile has slope -(2H + 2)."""
+    from evaluation.spectrum import fit_hurst, radial_spectrum
+    from terrain.tile import DEMTile
+
+    fits = [fit_hurst(radial_spectrum(DEMTile.from_array(
+        synthesize(513, fractal_dimension=3 - hurst, relief=100.0, seed=seed)))).hurst
+        for seed in (0, 1)]
+    assert np.mean(fits) == pytest.approx(hurst, abs=0.05)
