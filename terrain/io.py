@@ -34,6 +34,7 @@ from terrain.tile import DEMTile
 __all__ = ["atomic_path", "check_output_path", "lonlat_to_xy", "read_dem", "read_dem_exact",
            "read_float_tiff", "same_crs", "write_bands", "write_dem", "write_float_tiff",
            "write_png"]
+__all__ += ["RasterReader", "write_cog"]  # chunked runs (terrain.chunked)
 
 log = logging.getLogger(__name__)
 
@@ -415,3 +416,200 @@ def write_bands(bands, tile: DEMTile, path, *, descriptions=(), tags: dict | Non
         _verify(tmp, data, path, "".join(captured))
         _replay(captured)
     return Path(path)
+
+
+# --------------------------------------------------------------------------------------
+# windowed reading and Cloud Optimized GeoTIFFs (chunked runs, terrain.chunked)
+
+
+class RasterReader:
+    """Read windows of one band of any GDAL raster, as :func:`read_dem` would read them.
+
+    The file is opened again for every read, so a reader is a small picklable value that
+    Dask ships to its workers. Heights are converted exactly as :func:`read_dem` converts
+    them (scale and offset in float64, then float32; nodata, NaN and GDAL masks unknown),
+    so a window read here equals the same window of ``read_dem(path).heights``, bitwise.
+
+    Parameters
+    ----------
+    path : str or Path
+    band : int
+        1-based band index.
+    """
+
+    def __init__(self, path, band: int = 1):
+        path = Path(path)
+        if not path.exists():
+            raise MissingInputError(f"input DEM '{path}' does not exist")
+        if path.is_dir():
+            raise InvalidDEMError(f"input DEM '{path}' is a folder, not a file")
+        self.path, self.band = path, int(band)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", NotGeoreferencedWarning)
+                src = rasterio.open(path)
+            with src:
+                if not 1 <= band <= src.count:
+                    raise InvalidDEMError(
+                        f"DEM '{path}' has {src.count} band(s); band {band} asked")
+                self.shape = (src.height, src.width)
+                scale = src.scales[band - 1] if src.scales else 1.0
+                offset = src.offsets[band - 1] if src.offsets else 0.0
+                crs, transform, nodata, tags = src.crs, src.transform, src.nodata, src.tags()
+                self.block = src.block_shapes[band - 1]
+                georeferenced = not (src.transform.is_identity and src.crs is None
+                                     and not src.gcps[0])
+        except (RasterioIOError, RasterioError) as exc:
+            raise InvalidDEMError(f"cannot read DEM '{path}': {_first_line(exc)}") from exc
+        if not georeferenced:
+            raise InvalidDEMError(f"DEM '{path}' has no georeferencing, so its pixel size is "
+                                  "unknown; assign one first (gdal_translate -a_ullr)")
+        if crs is not None and crs.is_geographic:
+            raise InvalidDEMError(f"DEM '{path}' is in geographic coordinates (degrees); "
+                                  "reproject it to a projected CRS in metres first")
+        if transform.b != 0 or transform.d != 0:
+            raise InvalidDEMError(f"DEM '{path}' is rotated; warp it to a north-up grid first")
+        self.metadata = {k: v for k, v in tags.items() if k.startswith("CRATERSCAPE_")}
+        self.metadata["CRATERSCAPE_SOURCE"] = str(path)
+        self.scale = 1.0 if scale is None else float(scale)
+        self.offset = 0.0 if offset is None else float(offset)
+        if self.offset != 0.0 and crs is not None and _is_reference_radius(crs, self.offset):
+            self.metadata["CRATERSCAPE_DATUM_RADIUS"] = repr(self.offset)
+            self.offset = 0.0
+        self.nodata = float("nan")
+        if (nodata is not None and np.isfinite(nodata) and self.scale == 1.0
+                and self.offset == 0.0 and np.isfinite(np.float32(nodata))):
+            self.nodata = float(np.float32(nodata))
+        self.transform = transform
+        self.crs = crs.to_wkt() if crs else None
+
+    @property
+    def resolution(self) -> float:
+        return float(self.transform.a)
+
+    def read(self, window=None) -> tuple[np.ndarray, np.ndarray]:
+        """Heights (float32 metres, NaN unknown) and valid mask of a window.
+
+        Parameters
+        ----------
+        window : terrain.tile.Window, optional
+            Default: the whole raster (which must then fit in memory).
+
+        Returns
+        -------
+        heights : (height, width) float32, metres
+        valid : (height, width) bool
+        """
+        from rasterio.windows import Window as RioWindow
+
+        from terrain.tile import Window
+
+        window = window or Window(0, 0, self.shape[1], self.shape[0])
+        window.check_inside(*self.shape)
+        memory.require(window.width * window.height * 20, f"reading a window of '{self.path}'")
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", NotGeoreferencedWarning)
+                with rasterio.open(self.path) as src:
+                    raw = src.read(self.band, masked=True, window=RioWindow(
+                        window.col, window.row, window.width, window.height))
+        except (RasterioIOError, RasterioError) as exc:
+            raise InvalidDEMError(f"cannot read DEM '{self.path}': {_first_line(exc)}") from exc
+        data = np.ma.getdata(raw).astype(np.float64)
+        valid = ~np.ma.getmaskarray(raw) & np.isfinite(data)
+        if self.scale != 1.0 or self.offset != 0.0:
+            data = data * self.scale + self.offset
+        h = data.astype(np.float32)
+        valid &= np.isfinite(h)
+        h[~valid] = np.nan
+        return h, valid
+
+
+#: Block (tile) side of written Cloud Optimized GeoTIFFs, pixels.
+COG_BLOCK = 512
+
+
+def write_cog(source, path, *, inputs: Iterable = (), description: str = "height (m)",
+              progress=None) -> Path:
+    """Convert a chunked DEM into a tiled, compressed Cloud Optimized GeoTIFF with overviews.
+
+    The DEM is copied window by window (memory bounded by one row of chunks) into a tiled
+    BigTIFF beside the output, overviews are built (average, down to one block), and GDAL's
+    COG driver lays it out as a COG (DEFLATE, floating-point predictor), renamed into place
+    atomically. QGIS and GDAL open the result directly.
+
+    Parameters
+    ----------
+    source
+        A chunked DEM: ``shape``, ``chunk``, ``transform``, ``crs``, ``nodata``, ``metadata``
+        and ``read(window) -> (heights, valid)`` (:class:`terrain.zarrstore.ZarrDEM`).
+    path : str or Path
+        Output ``.tif``; never an input.
+    progress : callable, optional
+        ``progress(done, total)`` per row of chunks copied.
+    """
+    import shutil
+
+    from rasterio.enums import Resampling
+    from rasterio.shutil import copy as rio_copy
+    from rasterio.windows import Window as RioWindow
+
+    from terrain.tile import Window
+
+    path = check_output_path(path, inputs)
+    ny, nx = source.shape
+    parent = path.parent if str(path.parent) else Path(".")
+    need = ny * nx * 4 * 2.7  # scratch copy with overviews + the COG, compressed at worst 1:1
+    free = shutil.disk_usage(parent).free
+    if free < need:
+        raise OutputPathError(f"writing the COG '{path}' needs up to {memory.format_bytes(need)}"
+                              f" of disk in '{parent}' but only {memory.format_bytes(free)} "
+                              "is free")
+    nodata = source.nodata
+    profile = dict(driver="GTiff", dtype="float32", count=1, width=nx, height=ny,
+                   crs=CRS.from_wkt(source.crs) if source.crs else None,
+                   transform=source.transform, nodata=nodata, tiled=True,
+                   blockxsize=COG_BLOCK, blockysize=COG_BLOCK, compress="zstd", zstd_level=1,
+                   predictor=3, BIGTIFF="YES")
+    factors = []
+    f = 2
+    while max(ny, nx) / f >= COG_BLOCK / 2 and f <= 2**16:
+        factors.append(f)
+        f *= 2
+    step = max(int(source.chunk), COG_BLOCK)
+    step = -(-step // COG_BLOCK) * COG_BLOCK
+    fd, scratch = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".scratch.tif", dir=parent)
+    os.close(fd)
+    scratch = Path(scratch)
+    try:
+        with atomic_path(path, inputs) as tmp:
+            try:
+                with rasterio.Env(GDAL_NUM_THREADS="ALL_CPUS"), \
+                        rasterio.open(scratch, "w", **profile) as dst:
+                    rows = range(0, ny, step)
+                    for done, r0 in enumerate(rows, start=1):
+                        h = min(step, ny - r0)
+                        for c0 in range(0, nx, step):
+                            w = min(step, nx - c0)
+                            heights, valid = source.read(Window(c0, r0, w, h))
+                            if np.isfinite(nodata):
+                                heights = np.where(valid, heights, np.float32(nodata))
+                            dst.write(heights.astype(np.float32), 1,
+                                      window=RioWindow(c0, r0, w, h))
+                        if progress is not None:
+                            progress(done, len(rows))
+                    dst.update_tags(**dict(source.metadata))
+                    dst.set_band_description(1, description)
+                    if factors:
+                        dst.build_overviews(factors, Resampling.average)
+                with rasterio.Env(GDAL_NUM_THREADS="ALL_CPUS"):
+                    rio_copy(scratch, tmp, driver="COG", COMPRESS="DEFLATE", PREDICTOR="YES",
+                             BLOCKSIZE=COG_BLOCK, BIGTIFF="IF_SAFER", OVERVIEWS="FORCE_USE_EXISTING",
+                             RESAMPLING="AVERAGE")
+            except (RasterioIOError, RasterioError) as exc:
+                raise OutputPathError(f"cannot write '{path}': {_first_line(exc)}") from exc
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            scratch.unlink()
+    log.info("wrote COG %s (%d x %d, overviews %s)", path, nx, ny, factors)
+    return path

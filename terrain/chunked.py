@@ -1,0 +1,767 @@
+"""Chunked runs on Dask: synthesis, craters and expansion, bitwise equal to a single run.
+
+Every random number in craterscape is keyed by its global position (:mod:`terrain.rng`), and
+synthesis, cratering and expansion each compute any window exactly from a halo around it.
+So a DEM far larger than memory is computed chunk by chunk, each chunk a pure function of
+(its global window, the seed, the inputs), and written into its own region of a Zarr store
+(:class:`terrain.zarrstore.ZarrDEM`): the chunks agree, bitwise, with the same pixels of a
+run that computes the whole DEM in one piece.
+
+The chunks are the blocks of a :mod:`dask.array` built by ``map_blocks`` (its ``block_info``
+gives each task its chunk's position), so they run on whatever Dask runs on: this process,
+a :class:`~dask.distributed.LocalCluster` of worker processes (``--workers N``), or any
+Dask cluster (``--scheduler tcp://HOST:PORT``, as printed by ``dask scheduler`` or a
+``dask-jobqueue`` cluster). Each task
+
+1. returns at once if its chunk's completion marker exists (a resumed run),
+2. reads the part of the input its window depends on (by window, from a GeoTIFF or any GDAL
+   raster, or from a Zarr DEM), computes the window with the library's public window
+   functions (:func:`terrain.synthetic.synthesize_tile`, :func:`terrain.cratering.
+   crater_heights`, :func:`terrain.expand.expand_level`, :func:`terrain.gapfill.fill_gaps`),
+3. writes the chunk, then its marker.
+
+Memory is bounded by one chunk and its halo per worker, never by the DEM. A worker that dies
+mid-run is replaced by Dask and its task run again; a run that stops part way is resumed by
+running the same command again: finished chunks are not computed again.
+
+Examples
+--------
+>>> import tempfile, pathlib
+>>> out = pathlib.Path(tempfile.mkdtemp()) / "tile.zarr"
+>>> report = run(SynthSource(65, seed=3), out, chunk=32)
+>>> report.computed, report.total
+(9, 9)
+>>> from terrain.synthetic import synthesize_tile
+>>> h, _ = ZarrDEM(out).read()
+>>> bool(np.array_equal(h, synthesize_tile(65, seed=3).tile.heights))
+True
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from affine import Affine
+
+from terrain.catalog import CATALOG_COLUMNS
+from terrain.errors import CraterscapeError, InvalidParameterError, OutputPathError
+from terrain.tile import Window, default_transform
+from terrain.zarrstore import ZarrDEM, is_zarr
+
+__all__ = ["DEFAULT_CHUNK", "CraterSource", "ExpandSource", "FillSource", "GapTooLargeError",
+           "RunReport", "SynthSource", "dask_client", "estimate_parameters", "open_reader",
+           "run"]
+
+log = logging.getLogger(__name__)
+
+#: Default chunk side in pixels (4 MiB of float32 per chunk).
+DEFAULT_CHUNK = 1024
+#: Smallest chunk side accepted (smaller chunks cost more in scheduling than they compute).
+MIN_CHUNK = 16
+
+
+class GapTooLargeError(CraterscapeError, ValueError):
+    """A gap does not fit inside a chunk's halo, so it cannot be filled chunk by chunk."""
+
+
+def open_reader(path, band: int = 1):
+    """A windowed reader of a DEM: a Zarr DEM or any raster GDAL reads.
+
+    Returns an object with ``shape``, ``transform``, ``crs``, ``nodata``, ``metadata``,
+    ``resolution`` and ``read(window) -> (heights, valid)``.
+    """
+    from terrain.io import RasterReader
+
+    path = Path(path)
+    if path.is_dir() and is_zarr(path):
+        store = ZarrDEM(path)
+        store.check_complete()
+        return store
+    return RasterReader(path, band=band)
+
+
+def _input_stamp(reader) -> dict:
+    """What identifies an input, so a resumed run refuses an input that has changed."""
+    path = Path(reader.path)
+    st = path.stat()
+    return dict(path=str(path.resolve()), size=st.st_size, mtime_ns=st.st_mtime_ns,
+                band=getattr(reader, "band", 1))
+
+
+def _read_base(reader):
+    """``base(r0, r1, c0, c1)`` of :func:`terrain.cratering.crater_heights` from a reader."""
+
+    def base(r0, r1, c0, c1):
+        h, _ = reader.read(Window(c0, r0, c1 - c0, r1 - r0))
+        return h.astype(np.float64)
+
+    return base
+
+
+# --------------------------------------------------------------------------------------
+# sources: what a chunk computes
+
+
+@dataclass(frozen=True)
+class SynthSource:
+    """An RMD tile, optionally cratered (:func:`terrain.synthetic.synthesize_tile`).
+
+    Parameters are those of :func:`~terrain.synthetic.synthesize_tile`; the chunks of a run
+    equal the same pixels of ``synthesize_tile(size, ...).tile.heights``, bitwise.
+    """
+
+    size: int
+    resolution: float = 1.0
+    fractal_dimension: float = 2.2
+    relief: float = 30.0
+    seed: int = 0
+    craters: object = None
+    model: object = None
+
+    def __post_init__(self):
+        from terrain.rmd import check_fractal_dimension, check_tile_size
+        from terrain.rng import check_seed
+
+        check_tile_size(self.size)
+        check_fractal_dimension(self.fractal_dimension)
+        check_seed(self.seed)
+        if not float(self.resolution) > 0:
+            raise InvalidParameterError(f"resolution must be positive; got {self.resolution}")
+        if self.craters is not None and self.model is None:
+            from terrain.cratering import CraterModel
+
+            object.__setattr__(self, "model", CraterModel())
+
+    @property
+    def shape(self):
+        return (self.size, self.size)
+
+    @property
+    def transform(self) -> Affine:
+        return default_transform(float(self.resolution), self.size)
+
+    crs = None
+    nodata = float("nan")
+
+    @property
+    def has_catalog(self) -> bool:
+        return self.craters is not None
+
+    @property
+    def metadata(self) -> dict:
+        from terrain.cratering import describe_craters
+
+        params = dict(size=self.size, resolution=float(self.resolution),
+                      fractal_dimension=float(self.fractal_dimension), relief=float(self.relief))
+        meta = {"CRATERSCAPE_SEED": str(self.seed),
+                "CRATERSCAPE_RMD": json.dumps(params, sort_keys=True)}
+        if self.craters is not None:
+            meta["CRATERSCAPE_CRATERS"] = json.dumps(describe_craters(self.craters),
+                                                     sort_keys=True)
+            meta["CRATERSCAPE_CRATER_MODEL"] = json.dumps(self.model.as_dict(), sort_keys=True)
+        return meta
+
+    def plan(self) -> dict:
+        return dict(kind="synth", metadata=self.metadata)
+
+    def halo(self) -> int:
+        return 0
+
+    def compute(self, window: Window):
+        from terrain.synthetic import synthesize_tile
+
+        result = synthesize_tile(self.size, resolution=self.resolution,
+                                 fractal_dimension=self.fractal_dimension, relief=self.relief,
+                                 seed=self.seed, craters=self.craters, model=self.model,
+                                 window=window)
+        return np.asarray(result.tile.heights), (result.catalog if self.has_catalog else None)
+
+
+@dataclass(frozen=True)
+class CraterSource:
+    """A crater population added to an input DEM (:func:`terrain.cratering.add_craters`).
+
+    Each chunk reads the input over its window grown by the crater halo (about 1.5 times the
+    largest crater's footprint per size class), so memory per chunk grows with ``dmax``.
+    """
+
+    reader: object
+    craters: object
+    seed: int = 0
+    model: object = None
+
+    def __post_init__(self):
+        from terrain.rng import check_seed
+
+        check_seed(self.seed)
+        if self.model is None:
+            from terrain.cratering import CraterModel
+
+            object.__setattr__(self, "model", CraterModel())
+
+    @property
+    def shape(self):
+        return self.reader.shape
+
+    @property
+    def transform(self):
+        return self.reader.transform
+
+    @property
+    def crs(self):
+        return self.reader.crs
+
+    @property
+    def nodata(self):
+        return self.reader.nodata
+
+    has_catalog = True
+
+    @property
+    def metadata(self) -> dict:
+        from terrain.cratering import describe_craters
+
+        meta = dict(self.reader.metadata)
+        meta["CRATERSCAPE_SEED"] = str(self.seed)
+        meta["CRATERSCAPE_CRATER_MODEL"] = json.dumps(self.model.as_dict(), sort_keys=True)
+        meta["CRATERSCAPE_CRATERS"] = json.dumps(describe_craters(self.craters), sort_keys=True)
+        return meta
+
+    def plan(self) -> dict:
+        return dict(kind="craters", input=_input_stamp(self.reader), metadata=self.metadata)
+
+    def compute(self, window: Window):
+        from terrain.cratering import crater_heights
+
+        z, catalog = crater_heights(_read_base(self.reader), self.shape, self.transform,
+                                    self.craters, seed=self.seed, model=self.model,
+                                    window=window)
+        _, valid = self.reader.read(window)
+        out = z.astype(np.float32)
+        out[~(valid & np.isfinite(out))] = np.nan
+        return out, catalog
+
+
+class _StridedHeights:
+    """The input's heights as :func:`terrain.roughness.square_residual` reads them.
+
+    ``square_residual`` slices the DEM with a stride (every k-th row and column of a large
+    DEM); this object answers those slices from the file, reading it once in strips and
+    keeping only the rows and columns the default spacings need, so estimating the roughness
+    of a DEM larger than memory gives the same parameters as the DEM in memory.
+    """
+
+    ndim = 2
+    dtype = np.dtype(np.float32)
+
+    def __init__(self, reader):
+        from terrain.roughness import DEFAULT_SPACINGS, RESIDUAL_POSITIONS
+
+        self.reader = reader
+        self.shape = tuple(reader.shape)
+        self.size = self.shape[0] * self.shape[1]
+        k = max(1, int(math.ceil(math.sqrt(self.size / RESIDUAL_POSITIONS))))
+        offsets = {(s + d) % k for s in DEFAULT_SPACINGS for d in (-s, 0, s)}
+        self._rows = np.array([r for r in range(self.shape[0]) if r % k in offsets], np.int64)
+        self._cols = np.array([c for c in range(self.shape[1]) if c % k in offsets], np.int64)
+        self._data = None
+
+    def astype(self, dtype):
+        return self
+
+    def _gather(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """Heights at rows x cols (sorted indices), read in strips of rows."""
+        ny, nx = self.shape
+        out = np.empty((rows.size, cols.size), dtype=np.float32)
+        strip = max(1, min(ny, (64 * 2**20) // max(1, nx * 20)))
+        done = 0
+        while done < rows.size:
+            s0 = int(rows[done])
+            s1 = min(ny, s0 + strip)
+            take = rows[done:][rows[done:] < s1]
+            h, _ = self.reader.read(Window(0, s0, nx, s1 - s0))
+            out[done:done + take.size] = h[take - s0][:, cols]
+            done += take.size
+        return out
+
+    def __getitem__(self, key):
+        rs, cs = key
+        rows = np.arange(*rs.indices(self.shape[0]), dtype=np.int64)
+        cols = np.arange(*cs.indices(self.shape[1]), dtype=np.int64)
+        if self._data is None:
+            self._data = self._gather(self._rows, self._cols)
+        ri = np.searchsorted(self._rows, rows)
+        ci = np.searchsorted(self._cols, cols)
+        if (np.all(ri < self._rows.size) and np.array_equal(self._rows[ri], rows)
+                and np.all(ci < self._cols.size) and np.array_equal(self._cols[ci], cols)):
+            return self._data[np.ix_(ri, ci)].astype(np.float64)
+        return self._gather(rows, cols).astype(np.float64)  # a slice the cache lacks
+
+
+@dataclass(frozen=True)
+class _LazyTile:
+    """What :meth:`terrain.roughness.ExpansionParameters.for_tile` reads of a tile."""
+
+    heights: _StridedHeights
+    resolution: float
+
+    @property
+    def shape(self):
+        return self.heights.shape
+
+
+def estimate_parameters(reader, fractal_dimension=None, height_scale=None, local_box=None):
+    """Expansion parameters of a DEM read by window, equal to those of the DEM in memory.
+
+    Calls :meth:`terrain.roughness.ExpansionParameters.for_tile` on the input; only the
+    strided rows and columns the roughness fit reads are held in memory.
+    """
+    from terrain.roughness import LOCAL_BOX, ExpansionParameters
+
+    lazy = _LazyTile(_StridedHeights(reader), float(reader.resolution))
+    return ExpansionParameters.for_tile(lazy, fractal_dimension, height_scale,
+                                        local_box=LOCAL_BOX if local_box is None else local_box)
+
+
+@dataclass(frozen=True)
+class ExpandSource:
+    """``times`` 2x fractal expansions of an input DEM (:func:`terrain.expand.expand`).
+
+    Each chunk reads its parent region (half its size plus a pixel per level, and the local
+    roughness box) and runs :func:`terrain.expand.expand_level` once per level with global
+    positions, so it equals the same pixels of ``expand(read_dem(input), times)``.
+    """
+
+    reader: object
+    times: int
+    seed: int = 0
+    params: object = None
+
+    def __post_init__(self):
+        from terrain.rng import check_seed
+
+        if isinstance(self.times, bool) or not isinstance(self.times, int) or self.times < 1:
+            raise InvalidParameterError(f"times must be a positive integer; got {self.times!r}")
+        check_seed(self.seed)
+        if min(self.reader.shape) < 2:
+            raise InvalidParameterError(
+                f"a DEM must be at least 2 x 2 to expand; got {self.reader.shape}")
+        if self.params is None:
+            object.__setattr__(self, "params", estimate_parameters(self.reader))
+
+    @property
+    def shape(self):
+        from terrain.expand import expanded_shape
+
+        return expanded_shape(self.reader.shape, self.times)
+
+    @property
+    def transform(self):
+        from terrain.expand import expanded_transform
+
+        return expanded_transform(self.reader.transform, self.times)
+
+    @property
+    def crs(self):
+        return self.reader.crs
+
+    @property
+    def nodata(self):
+        return self.reader.nodata
+
+    has_catalog = False
+
+    @property
+    def metadata(self) -> dict:
+        meta = dict(self.reader.metadata)
+        meta["CRATERSCAPE_SEED"] = str(self.seed)
+        meta["CRATERSCAPE_EXPANSION"] = json.dumps(dict(self.params.as_dict(),
+                                                        times=self.times), sort_keys=True)
+        return meta
+
+    def plan(self) -> dict:
+        return dict(kind="expand", input=_input_stamp(self.reader), metadata=self.metadata)
+
+    def compute(self, window: Window):
+        from terrain.expand import expand_level, expanded_shape, parent_region
+        from terrain.roughness import local_amplitude
+
+        full = [tuple(self.reader.shape)]
+        for _ in range(self.times):
+            full.append(expanded_shape(full[-1], 1))
+        rows = [(window.row, window.row + window.height - 1)]
+        cols = [(window.col, window.col + window.width - 1)]
+        for k in range(self.times, 0, -1):
+            rows.insert(0, parent_region(*rows[0], full[k - 1][0]))
+            cols.insert(0, parent_region(*cols[0], full[k - 1][1]))
+        (r0, r1), (c0, c1) = rows[0], cols[0]
+        p = self.params
+        amp = None
+        if p.uses_local_map:
+            # The local map needs the box and one residual neighbour around the region; the
+            # map is a fixed local function of the heights, clipped at the DEM's edges only.
+            halo = p.local_box // 2 + 1
+            ny, nx = full[0]
+            g0, g1 = max(0, r0 - halo), min(ny - 1, r1 + halo)
+            h0, h1 = max(0, c0 - halo), min(nx - 1, c1 + halo)
+            sub, _ = self.reader.read(Window(h0, g0, h1 - h0 + 1, g1 - g0 + 1))
+            grid = sub[r0 - g0:r1 - g0 + 1, c0 - h0:c1 - h0 + 1]
+            amp = local_amplitude(sub, p.base_sigma, p.local_box,
+                                  (r0 - g0, r1 - g0), (c0 - h0, c1 - h0))
+        else:
+            grid, _ = self.reader.read(Window(c0, r0, c1 - c0 + 1, r1 - r0 + 1))
+        origin = (r0, c0)
+        for level in range(1, self.times + 1):
+            grid = expand_level(grid, origin, rows[level], cols[level], level=level,
+                                sigmas=p.sigmas(level), seed=self.seed, amplitude=amp,
+                                amplitude_origin=(r0, c0))
+            origin = (rows[level][0], cols[level][0])
+        return grid, None
+
+
+@dataclass(frozen=True)
+class FillSource:
+    """Gap filling chunk by chunk (:func:`terrain.gapfill.fill_gaps`), with a halo.
+
+    A chunk fills its window grown by ``halo`` pixels; that equals the same pixels of
+    filling the whole DEM when every gap touching the chunk, with the band of known pixels
+    that sets its roughness and stops its rays, lies inside the halo. A gap that does not
+    raises :class:`GapTooLargeError` naming its size and the halo it needs (check the whole
+    input first with :meth:`check_gaps`).
+    """
+
+    reader: object
+    halo: int = 256
+    seed: int = 0
+    roughness: float | None = None
+
+    @property
+    def shape(self):
+        return self.reader.shape
+
+    @property
+    def transform(self):
+        return self.reader.transform
+
+    @property
+    def crs(self):
+        return self.reader.crs
+
+    @property
+    def nodata(self):
+        return self.reader.nodata
+
+    has_catalog = False
+
+    @property
+    def margin(self) -> int:
+        """Known pixels needed around a gap: the roughness ring, the Horn stencil, one more."""
+        from terrain.gapfill import RING
+
+        return RING + 2
+
+    @property
+    def metadata(self) -> dict:
+        meta = dict(self.reader.metadata)
+        meta["CRATERSCAPE_SEED"] = str(self.seed)
+        meta["CRATERSCAPE_FILL"] = json.dumps(dict(chunked=True, halo=self.halo,
+                                                   roughness=self.roughness), sort_keys=True)
+        return meta
+
+    def plan(self) -> dict:
+        return dict(kind="fill", input=_input_stamp(self.reader), metadata=self.metadata)
+
+    def _grown(self, window: Window) -> Window:
+        ny, nx = self.shape
+        r0, c0 = max(0, window.row - self.halo), max(0, window.col - self.halo)
+        r1 = min(ny, window.row + window.height + self.halo)
+        c1 = min(nx, window.col + window.width + self.halo)
+        return Window(c0, r0, c1 - c0, r1 - r0)
+
+    def gaps_touching(self, window: Window):
+        """The gap touching ``window`` that needs the largest halo, if it needs more than
+        ``halo``: ``(span, needed halo, (col, row), truncated)``, else None. ``truncated``:
+        the gap runs past the grown window, so its span and need are lower bounds."""
+        from scipy import ndimage
+
+        big = self._grown(window)
+        _, valid = self.reader.read(big)
+        labels, n = ndimage.label(~valid, structure=np.ones((3, 3), bool))
+        if n == 0:
+            return None
+        inner = labels[window.row - big.row:window.row - big.row + window.height,
+                       window.col - big.col:window.col - big.col + window.width]
+        ny, nx = self.shape
+        m = self.margin
+        worst = None
+        for lab in np.unique(inner[inner > 0]):
+            sl = ndimage.find_objects(labels == lab)[0]
+            g0, g1 = sl[0].start + big.row, sl[0].stop + big.row
+            h0, h1 = sl[1].start + big.col, sl[1].stop + big.col
+            need = max(window.row - max(0, g0 - m), window.col - max(0, h0 - m),
+                       min(ny, g1 + m) - (window.row + window.height),
+                       min(nx, h1 + m) - (window.col + window.width), 0)
+            if need <= self.halo:
+                continue
+            truncated = ((g0 == big.row > 0) or (h0 == big.col > 0)
+                         or (g1 == big.row + big.height < ny)
+                         or (h1 == big.col + big.width < nx))
+            candidate = (max(g1 - g0, h1 - h0), need, (h0, g0), truncated)
+            if worst is None or candidate[:2] > worst[:2]:
+                worst = candidate
+        return worst
+
+    def compute(self, window: Window):
+        from terrain.gapfill import fill_gaps
+        from terrain.tile import DEMTile
+
+        worst = self.gaps_touching(window)
+        if worst is not None:
+            raise GapTooLargeError(_gap_message(worst, self.halo))
+        big = self._grown(window)
+        h, valid = self.reader.read(big)
+        if valid.all():
+            out = h
+        else:
+            tile = DEMTile(h, valid, self.transform @ Affine.translation(big.col, big.row))
+            if not valid.any():
+                out = h
+            else:
+                out = fill_gaps(tile, seed=self.seed, roughness=self.roughness,
+                                origin=(big.row, big.col)).tile.heights
+        return (np.asarray(out)[window.row - big.row:window.row - big.row + window.height,
+                                window.col - big.col:window.col - big.col + window.width],
+                None)
+
+
+def _gap_message(worst, halo: int) -> str:
+    span, need, (col, row), truncated = worst
+    more = "at least " if truncated else ""
+    return (f"the largest gap (at column {col}, row {row}) spans {more}{span} pixels and "
+            f"needs a halo of {more}{need} pixels, more than the halo of {halo}; give "
+            f"--halo {need if not truncated else max(need, 2 * halo)} or more, or fill "
+            "without --chunk")
+
+
+# --------------------------------------------------------------------------------------
+# running
+
+
+@dataclass
+class RunReport:
+    """What a chunked run did.
+
+    Attributes
+    ----------
+    path : Path
+        The Zarr store.
+    total, computed, skipped : int
+        Chunks in the DEM, computed by this run, and already written by an earlier one.
+    pixels : int
+        Pixels computed by this run.
+    seconds : float
+        Wall time of the chunk phase.
+    catalog : dict or None
+        The crater catalogue of the whole DEM (craters sources).
+    """
+
+    path: Path
+    total: int
+    computed: int
+    skipped: int
+    pixels: int
+    seconds: float
+    catalog: dict | None = None
+    computed_chunks: list = field(default_factory=list)
+
+    @property
+    def pixels_per_second(self) -> float:
+        return self.pixels / self.seconds if self.seconds > 0 else float("nan")
+
+
+def _chunk_task(source, store_path, chunk, block_info=None):
+    """One block of the run's Dask array: compute and write chunk (i, j) unless done."""
+    i, j = block_info[None]["chunk-location"]
+    store = ZarrDEM(store_path)
+    if (i, j) in store.done_chunks():
+        return np.zeros((1, 1), dtype=np.int64)
+    window = store.chunk_window(i, j)
+    heights, catalog = source.compute(window)
+    store.write_chunk(i, j, heights, catalog)
+    return np.full((1, 1), window.width * window.height, dtype=np.int64)
+
+
+def _open_store(source, path: Path, chunk: int) -> ZarrDEM:
+    plan = dict(source.plan(), shape=list(source.shape), chunk=chunk)
+    plan = json.loads(json.dumps(plan, sort_keys=True))
+    if path.exists():
+        if not path.is_dir() or not is_zarr(path):
+            raise OutputPathError(f"output '{path}' exists and is not a Zarr store; choose "
+                                  "another name")
+        store = ZarrDEM(path)
+        if store.plan != plan:
+            raise OutputPathError(
+                f"output '{path}' holds another run (other parameters, input or chunk size); "
+                "give the same command to resume it, or choose another output")
+        log.info("resuming %s: %d chunks already written", path, len(store.done_chunks()))
+        return store
+    return ZarrDEM.create(path, source.shape, chunk, transform=source.transform,
+                          crs=source.crs, nodata=source.nodata, metadata=source.metadata,
+                          plan=plan)
+
+
+def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None, progress=None) -> RunReport:
+    """Compute ``source`` chunk by chunk into the Zarr store ``output``, or resume it.
+
+    Parameters
+    ----------
+    source : SynthSource, CraterSource, ExpandSource or FillSource
+    output : str or Path
+        Zarr store (a folder). If it exists and holds the same run, finished chunks are
+        kept and only the others are computed; if it holds another run, it is refused.
+    chunk : int
+        Chunk side in pixels.
+    client : dask.distributed.Client, optional
+        Cluster to run on; without one, chunks run one after another in this process.
+    progress : callable, optional
+        ``progress(done, total, pixels, seconds)`` after every chunk.
+
+    Returns
+    -------
+    RunReport
+    """
+    import dask
+    import dask.array as da
+
+    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < MIN_CHUNK:
+        raise InvalidParameterError(f"chunk must be an integer >= {MIN_CHUNK} pixels; "
+                                    f"got {chunk!r}")
+    chunk = int(chunk)
+    path = Path(output)
+    store = _open_store(source, path, chunk)
+    ny, nx = store.grid
+    done_before = store.done_chunks()
+    todo = [(i, j) for i in range(ny) for j in range(nx) if (i, j) not in done_before]
+    blocks = da.map_blocks(_chunk_task, source, str(path), chunk, dtype=np.int64,
+                           chunks=((1,) * ny, (1,) * nx), meta=np.empty((0, 0), np.int64),
+                           name=f"craterscape-chunk-{abs(hash((str(path), chunk)))}")
+    delayed = blocks.to_delayed()
+    t0 = time.perf_counter()
+    pixels = 0
+    done = len(done_before)
+    total = ny * nx
+    if progress is not None:
+        progress(done, total, 0, 0.0)
+    if client is None:
+        for i, j in todo:
+            (value,) = dask.compute(delayed[i, j], scheduler="synchronous")
+            pixels += int(value[0, 0])
+            done += 1
+            if progress is not None:
+                progress(done, total, pixels, time.perf_counter() - t0)
+    else:
+        from dask.distributed import as_completed
+
+        futures = client.compute([delayed[i, j] for i, j in todo])
+        try:
+            for future in as_completed(futures):
+                value = future.result()
+                pixels += int(value[0, 0])
+                done += 1
+                if progress is not None:
+                    progress(done, total, pixels, time.perf_counter() - t0)
+        finally:
+            for future in futures:
+                future.cancel()
+    seconds = time.perf_counter() - t0
+    catalog = _merge_catalogs(store, source) if source.has_catalog else None
+    store.mark_complete()
+    log.info("%s: %d chunks computed, %d reused, %.3g Mpixel/s", path, len(todo),
+             len(done_before), pixels / max(seconds, 1e-9) / 1e6)
+    return RunReport(path, total, len(todo), len(done_before), pixels, seconds, catalog, todo)
+
+
+def _merge_catalogs(store: ZarrDEM, source) -> dict:
+    """The whole DEM's crater catalogue from the chunks' rows, in composition order."""
+    parts = [store.chunk_catalog(i, j) for i in range(store.grid[0])
+             for j in range(store.grid[1])]
+    cols = {}
+    for k in CATALOG_COLUMNS:
+        arrays = [p[k] for p in parts if k in p]
+        cols[k] = np.concatenate(arrays) if arrays else np.zeros(0)
+    if not len(cols["id"]):
+        from terrain.cratering import empty_catalog
+
+        return empty_catalog()
+    _, first = np.unique(cols["id"], return_index=True)
+    cols = {k: v[first] for k, v in cols.items()}
+    order = np.lexsort((cols["id"], -cols["age_gyr"], -cols["size_class"]))
+    cols = {k: v[order] for k, v in cols.items()}
+    t = store.transform
+    cols["row"] = (t.f - cols["y_m"]) / t.a - 0.5
+    cols["col"] = (cols["x_m"] - t.c) / t.a - 0.5
+    return cols
+
+
+@contextlib.contextmanager
+def dask_client(workers: int | None = None, scheduler: str | None = None,
+                processes: bool = True, memory_limit="auto"):
+    """A Dask client: on the cluster at ``scheduler``, on a local pool of ``workers``, or
+    None (this process) when neither is given.
+
+    Parameters
+    ----------
+    workers : int, optional
+        Local workers, each single-threaded (the kernels hold the GIL, so processes are
+        what runs in parallel; threads share one process and its memory).
+    scheduler : str, optional
+        Address of a running scheduler, e.g. ``tcp://10.0.0.5:8786``.
+    processes : bool
+        Local workers are processes (default) or threads of this process.
+    """
+    if workers is not None and scheduler is not None:
+        raise InvalidParameterError("give --workers or --scheduler, not both")
+    if workers is None and scheduler is None:
+        yield None
+        return
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler is not None:
+        try:
+            client = Client(scheduler, timeout="10s")
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise InvalidParameterError(
+                f"cannot reach the Dask scheduler at {scheduler}: {exc}") from exc
+        with client:
+            yield client
+        return
+    if isinstance(workers, bool) or int(workers) < 1:
+        raise InvalidParameterError(f"--workers must be a positive integer; got {workers!r}")
+    env = {"OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
+    with _environ(env), LocalCluster(
+            n_workers=int(workers), threads_per_worker=1, processes=processes,
+            dashboard_address=None, memory_limit=memory_limit,
+            silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+        yield client
+
+
+@contextlib.contextmanager
+def _environ(values):
+    old = {k: os.environ.get(k) for k in values}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
