@@ -45,6 +45,7 @@ import logging
 import math
 import os
 import time
+import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -443,6 +444,17 @@ class FillSource:
     seed: int = 0
     roughness: float | None = None
 
+    def __post_init__(self):
+        from terrain.rng import check_seed
+
+        check_seed(self.seed)
+        if isinstance(self.halo, bool) or not isinstance(self.halo, int) or self.halo < 0:
+            raise InvalidParameterError(f"halo must be a non-negative integer; got {self.halo!r}")
+        if self.roughness is not None and not (self.roughness >= 0
+                                               and math.isfinite(self.roughness)):
+            raise InvalidParameterError(
+                f"roughness must be a non-negative number; got {self.roughness}")
+
     @property
     def shape(self):
         return self.reader.shape
@@ -463,7 +475,8 @@ class FillSource:
 
     @property
     def margin(self) -> int:
-        """Known pixels needed around a gap: the roughness ring, the Horn stencil, one more."""
+        """Pixels a cluster of gaps (each grown by its roughness ring) needs around it: a
+        ring more, so a gap whose ring meets the cluster's is in sight, and the Horn stencil."""
         from terrain.gapfill import RING
 
         return RING + 2
@@ -499,11 +512,24 @@ class FillSource:
             return None
         inner = labels[window.row - big.row:window.row - big.row + window.height,
                        window.col - big.col:window.col - big.col + window.width]
+        # Gaps whose roughness rings may share pixels are one cluster: the fill of one
+        # depends on the other's label order, so a cluster must be whole in the window.
+        from terrain.gapfill import RING
+
+        clusters, _ = ndimage.label(ndimage.binary_dilation(
+            labels > 0, structure=np.ones((3, 3), bool), iterations=RING + 1),
+            structure=np.ones((3, 3), bool))
         ny, nx = self.shape
+        # beyond a cluster (gaps dilated by their rings) the window must show RING + 1 more
+        # pixels, so that no gap whose ring meets the cluster's stays out of sight
         m = self.margin
         worst = None
-        for lab in np.unique(inner[inner > 0]):
-            sl = ndimage.find_objects(labels == lab)[0]
+        touching = np.unique(clusters[window.row - big.row:window.row - big.row + window.height,
+                                      window.col - big.col:window.col - big.col + window.width]
+                             [inner > 0])
+        objects = ndimage.find_objects(clusters)
+        for lab in touching:
+            sl = objects[lab - 1]
             g0, g1 = sl[0].start + big.row, sl[0].stop + big.row
             h0, h1 = sl[1].start + big.col, sl[1].stop + big.col
             need = max(window.row - max(0, g0 - m), window.col - max(0, h0 - m),
@@ -514,10 +540,25 @@ class FillSource:
             truncated = ((g0 == big.row > 0) or (h0 == big.col > 0)
                          or (g1 == big.row + big.height < ny)
                          or (h1 == big.col + big.width < nx))
-            candidate = (max(g1 - g0, h1 - h0), need, (h0, g0), truncated)
+            span = max(g1 - g0, h1 - h0) - 2 * (RING + 1)
+            candidate = (span, need, (h0 + RING + 1, g0 + RING + 1), truncated)
             if worst is None or candidate[:2] > worst[:2]:
                 worst = candidate
         return worst
+
+    def check(self, chunk: int) -> None:
+        """Raise :class:`GapTooLargeError` naming the gap that needs the largest halo, if
+        any gap does not fit (reads the input once, chunk by chunk)."""
+        ny, nx = self.shape
+        worst = None
+        for r0 in range(0, ny, chunk):
+            for c0 in range(0, nx, chunk):
+                w = Window(c0, r0, min(chunk, nx - c0), min(chunk, ny - r0))
+                found = self.gaps_touching(w)
+                if found is not None and (worst is None or found[:2] > worst[:2]):
+                    worst = found
+        if worst is not None:
+            raise GapTooLargeError(_gap_message(worst, self.halo))
 
     def compute(self, window: Window):
         from terrain.gapfill import fill_gaps
@@ -646,13 +687,15 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None, progress=Non
                                     f"got {chunk!r}")
     chunk = int(chunk)
     path = Path(output)
+    if hasattr(source, "check"):
+        source.check(chunk)
     store = _open_store(source, path, chunk)
     ny, nx = store.grid
     done_before = store.done_chunks()
     todo = [(i, j) for i in range(ny) for j in range(nx) if (i, j) not in done_before]
     blocks = da.map_blocks(_chunk_task, source, str(path), chunk, dtype=np.int64,
                            chunks=((1,) * ny, (1,) * nx), meta=np.empty((0, 0), np.int64),
-                           name=f"craterscape-chunk-{abs(hash((str(path), chunk)))}")
+                           name=f"craterscape-chunk-{uuid.uuid4().hex}")
     delayed = blocks.to_delayed()
     t0 = time.perf_counter()
     pixels = 0
@@ -679,8 +722,9 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None, progress=Non
                 if progress is not None:
                     progress(done, total, pixels, time.perf_counter() - t0)
         finally:
-            for future in futures:
-                future.cancel()
+            pending = [f for f in futures if not f.done()]
+            if pending:
+                client.cancel(pending)
     seconds = time.perf_counter() - t0
     catalog = _merge_catalogs(store, source) if source.has_catalog else None
     store.mark_complete()
@@ -746,6 +790,19 @@ def dask_client(workers: int | None = None, scheduler: str | None = None,
     if isinstance(workers, bool) or int(workers) < 1:
         raise InvalidParameterError(f"--workers must be a positive integer; got {workers!r}")
     env = {"OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
+    quiet = logging.getLogger("distributed")
+    level = quiet.level
+    if not log.isEnabledFor(logging.INFO):
+        quiet.setLevel(logging.ERROR)  # the scheduler's chatter, unless -v
+    with contextlib.ExitStack() as undo:
+        undo.callback(quiet.setLevel, level)
+        yield undo.enter_context(_local_client(workers, processes, memory_limit, env))
+
+
+@contextlib.contextmanager
+def _local_client(workers, processes, memory_limit, env):
+    from dask.distributed import Client, LocalCluster
+
     with _environ(env), LocalCluster(
             n_workers=int(workers), threads_per_worker=1, processes=processes,
             dashboard_address=None, memory_limit=memory_limit,

@@ -405,6 +405,98 @@ def _check_outputs(output, catalog, inputs):
 
 
 # --------------------------------------------------------------------------------------
+# chunked runs on Dask (terrain.chunked): --workers, --scheduler, --chunk, --cog
+
+
+def _dask_options(func):
+    options = [
+        click.option("--workers", type=click.IntRange(1, None), default=None,
+                     help="Run chunk by chunk on a local Dask pool of N workers (writes Zarr)."),
+        click.option("--threads", is_flag=True,
+                     help="Local workers are threads of this process instead of processes."),
+        click.option("--scheduler", default=None, metavar="tcp://HOST:PORT",
+                     help="Run chunk by chunk on the Dask cluster at this address."),
+        click.option("--chunk", type=click.IntRange(16, None), default=None,
+                     help="Chunk side in pixels (default 1024); implies a chunked run."),
+        click.option("--cog", type=click.Path(dir_okay=False, path_type=Path), default=None,
+                     help="After a chunked run, also convert the Zarr output into this "
+                          "Cloud Optimized GeoTIFF."),
+    ]
+    for option in reversed(options):
+        func = option(func)
+    return func
+
+
+def _chunked_requested(output, workers, scheduler, chunk, cog, window=None) -> bool:
+    from terrain.zarrstore import is_zarr
+
+    wanted = is_zarr(output) or any(v is not None for v in (workers, scheduler, chunk, cog))
+    if not wanted:
+        return False
+    if not is_zarr(output):
+        raise InvalidParameterError(
+            f"a chunked run (--workers, --scheduler, --chunk, --cog) writes a Zarr store: give "
+            f"-o NAME.zarr, not '{output}' (and --cog FILE.tif for a GeoTIFF)")
+    if window is not None:
+        raise InvalidParameterError("--window computes one window in memory; drop it for a "
+                                    "chunked run (or compute the window without --chunk)")
+    return True
+
+
+def _chunk_progress(label):
+    """A tqdm bar of chunks done out of total and throughput, on a terminal only."""
+    from tqdm import tqdm
+
+    if not sys.stderr.isatty():
+        return None, lambda: None
+    bar = tqdm(total=None, desc=label, unit="chunk", leave=False)
+
+    def update(done, total, pixels, seconds):
+        bar.total = total
+        bar.n = done
+        if seconds > 0:
+            bar.set_postfix_str(f"{pixels / seconds / 1e6:.3g} Mpixel/s", refresh=False)
+        bar.refresh()
+
+    return update, bar.close
+
+
+def _run_chunked(source, output, *, workers, threads, scheduler, chunk, cog, label,
+                 catalog=None, inputs=()):
+    from terrain.catalog import write_catalog
+    from terrain.chunked import DEFAULT_CHUNK, dask_client, run
+    from terrain.io import atomic_path, check_output_path, write_cog
+    from terrain.zarrstore import ZarrDEM
+
+    for item in inputs:
+        if item is not None and Path(output).resolve() == Path(item).resolve():
+            raise InvalidParameterError(f"output '{output}' is the same as input '{item}'")
+    if cog is not None:
+        check_output_path(cog, [*inputs, output])
+    if catalog is not None:
+        check_output_path(catalog, [*inputs, output])
+    update, close = _chunk_progress(label)
+    try:
+        with dask_client(workers, scheduler, processes=not threads) as client:
+            report = run(source, output, chunk=chunk or DEFAULT_CHUNK, client=client,
+                         progress=update)
+    finally:
+        close()
+    rate = report.pixels_per_second
+    click.echo(f"wrote {output} ({source.shape[1]}x{source.shape[0]}; {report.computed} of "
+               f"{report.total} chunks computed, {report.skipped} already written"
+               + (f"; {rate / 1e6:.3g} Mpixel/s" if report.computed else "") + ")", err=True)
+    if catalog is not None and report.catalog is not None:
+        with atomic_path(catalog, [*inputs, output]) as tmp:
+            write_catalog(tmp, report.catalog)
+        click.echo(f"wrote {catalog} ({len(report.catalog['id'])} craters)", err=True)
+    if cog is not None:
+        write_cog(ZarrDEM(output), cog, inputs=[*inputs, output])
+        click.echo(f"wrote {cog} (Cloud Optimized GeoTIFF)", err=True)
+    return report
+
+
+# --------------------------------------------------------------------------------------
 # the terrain group
 
 
@@ -427,9 +519,10 @@ def terrain():
 @_seed_option
 @_window_option
 @_crater_options
+@_dask_options
 def synth(output, size, resolution, fractal_dimension, relief, seed, window, dmin, dmax,
           density, sfd_exponent, max_age, population, catalog, erosion_profile,
-          erosion_exponent, no_roughness):
+          erosion_exponent, no_roughness, workers, threads, scheduler, chunk, cog):
     """Synthesise fractal terrain (RMD diamond-square), optionally cratered."""
     from terrain.rmd import check_fractal_dimension, check_tile_size
     from terrain.synthetic import synthesize_tile
@@ -451,6 +544,13 @@ def synth(output, size, resolution, fractal_dimension, relief, seed, window, dmi
     if pop is None and catalog is not None:
         raise InvalidParameterError("--catalog needs craters: give --density or --population")
     model = _model(erosion_profile, erosion_exponent, no_roughness)
+    if _chunked_requested(output, workers, scheduler, chunk, cog, window):
+        from terrain.chunked import SynthSource
+
+        source = SynthSource(size, resolution, fractal_dimension, relief, seed, pop, model)
+        _run_chunked(source, output, workers=workers, threads=threads, scheduler=scheduler,
+                     chunk=chunk, cog=cog, label="synth", catalog=catalog)
+        return
     update, close = _progress("craters")
     try:
         result = synthesize_tile(size, resolution=resolution,
@@ -472,12 +572,28 @@ def synth(output, size, resolution, fractal_dimension, relief, seed, window, dmi
 @_window_option
 @click.option("--band", type=int, default=1, show_default=True, help="Band of the input.")
 @_crater_options
+@_dask_options
 def craters(input_dem, output, seed, window, band, dmin, dmax, density, sfd_exponent, max_age,
-            population, catalog, erosion_profile, erosion_exponent, no_roughness):
+            population, catalog, erosion_profile, erosion_exponent, no_roughness, workers,
+            threads, scheduler, chunk, cog):
     """Add a power-law crater population to a DEM."""
     from terrain.cratering import add_craters
     from terrain.io import read_dem
 
+    if _chunked_requested(output, workers, scheduler, chunk, cog, window):
+        from terrain.chunked import CraterSource, open_reader
+
+        reader = open_reader(input_dem, band)
+        pop = _population(population, dmin=dmin, dmax=dmax, density=density,
+                          sfd_exponent=sfd_exponent, max_age=max_age,
+                          resolution=reader.resolution,
+                          extent=min(reader.shape) * reader.resolution, required=True)
+        source = CraterSource(reader, pop, seed,
+                              _model(erosion_profile, erosion_exponent, no_roughness))
+        _run_chunked(source, output, workers=workers, threads=threads, scheduler=scheduler,
+                     chunk=chunk, cog=cog, label="craters", catalog=catalog,
+                     inputs=[input_dem])
+        return
     _check_outputs(output, catalog, [input_dem])
     tile = read_dem(input_dem, band=band, exact=True)
     if window is not None:
@@ -606,6 +722,21 @@ def info(input_dem, band):
     click.echo(json.dumps(report, indent=2))
 
 
+def _out_of_core(input_dem, band, times) -> bool:
+    """Whether expanding the input ``times`` times needs more memory than is available."""
+    from terrain import memory
+    from terrain.expand import expanded_shape
+    from terrain.io import RasterReader
+    from terrain.zarrstore import is_zarr
+
+    if Path(input_dem).is_dir() and is_zarr(input_dem):
+        return True
+    reader = RasterReader(input_dem, band)
+    ny, nx = expanded_shape(reader.shape, times)
+    need = ny * nx * (4 * 2 + 1 * 2) + reader.shape[0] * reader.shape[1] * 20
+    return need > memory.available_bytes()
+
+
 def _expansion_params(tile, fractal_dimension, height_scale, uniform_roughness):
     from terrain.roughness import LOCAL_BOX, ExpansionParameters
 
@@ -640,11 +771,46 @@ def _with(options):
 @_with(_roughness_options)
 @_window_option
 @click.option("--band", type=int, default=1, show_default=True, help="Band of the input.")
+@_dask_options
 def expand(input_dem, output, times, seed, fractal_dimension, height_scale, uniform_roughness,
-           window, band):
-    """Double a DEM's resolution N times by fractal expansion (known heights kept)."""
+           window, band, workers, threads, scheduler, chunk, cog):
+    """Double a DEM's resolution N times by fractal expansion (known heights kept).
+
+    A result larger than memory runs chunk by chunk through Zarr (out of core) and is
+    written as a Cloud Optimized GeoTIFF, instead of being refused.
+    """
     from terrain.expand import expand as run_expand
     from terrain.io import check_output_path, read_dem, write_dem
+
+    if _chunked_requested(output, workers, scheduler, chunk, cog, window):
+        from terrain.chunked import ExpandSource, estimate_parameters, open_reader
+        from terrain.roughness import LOCAL_BOX
+
+        reader = open_reader(input_dem, band)
+        params = estimate_parameters(reader, fractal_dimension, height_scale,
+                                     0 if uniform_roughness else LOCAL_BOX)
+        _run_chunked(ExpandSource(reader, times, seed, params), output, workers=workers,
+                     threads=threads, scheduler=scheduler, chunk=chunk, cog=cog,
+                     label="expand", inputs=[input_dem])
+        return
+    if window is None and _out_of_core(input_dem, band, times):
+        import tempfile
+
+        from terrain.chunked import ExpandSource, estimate_parameters, open_reader
+        from terrain.roughness import LOCAL_BOX
+
+        check_output_path(output, [input_dem])
+        reader = open_reader(input_dem, band)
+        params = estimate_parameters(reader, fractal_dimension, height_scale,
+                                     0 if uniform_roughness else LOCAL_BOX)
+        parent = output.parent if str(output.parent) else Path(".")
+        with tempfile.TemporaryDirectory(prefix=f".{output.name}.", dir=parent) as scratch:
+            log.warning("the expansion does not fit in memory: running it chunk by chunk "
+                        "through %s", scratch)
+            _run_chunked(ExpandSource(reader, times, seed, params), Path(scratch) / "out.zarr",
+                         workers=workers, threads=threads, scheduler=scheduler, chunk=chunk,
+                         cog=output, label="expand", inputs=[input_dem])
+        return
 
     check_output_path(output, [input_dem])
     tile = read_dem(input_dem, band=band, exact=True)
@@ -777,10 +943,28 @@ def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, lay
               help="First smooth known pixels with a Gaussian of this many pixels.")
 @_seed_option
 @click.option("--band", type=int, default=1, show_default=True, help="Band of the input.")
-def fill(input_dem, output, roughness, craters_at, despike, denoise, seed, band):
+@click.option("--halo", type=click.IntRange(0, None), default=None,
+              help="Chunked runs: pixels around each chunk that every gap must fit in "
+                   "(default 256).")
+@_dask_options
+def fill(input_dem, output, roughness, craters_at, despike, denoise, seed, band, halo, workers,
+         threads, scheduler, chunk, cog):
     """Fill DEM gaps with fractal terrain (and craters), keeping every known height."""
     import numpy as np
 
+    if _chunked_requested(output, workers, scheduler, chunk if halo is None else 0, cog):
+        from terrain.chunked import FillSource, open_reader
+
+        if craters_at is not None or despike is not None or denoise is not None:
+            raise InvalidParameterError("a chunked fill takes no --craters-at, --despike or "
+                                        "--denoise; run those on the DEM first")
+        source = FillSource(open_reader(input_dem, band), 256 if halo is None else halo, seed,
+                            roughness)
+        _run_chunked(source, output, workers=workers, threads=threads, scheduler=scheduler,
+                     chunk=chunk, cog=cog, label="fill", inputs=[input_dem])
+        return
+    if halo is not None:
+        raise InvalidParameterError("--halo is for chunked runs: give -o NAME.zarr or --chunk")
     from terrain.catalog import read_circles
     from terrain.gapfill import denoise as run_denoise
     from terrain.gapfill import despike as run_despike
@@ -978,4 +1162,20 @@ def hazards(source, output, lander_diameter, max_slope, max_step, layer, png, ba
         write_png(hazard_image(result, shade), png, inputs=[source, output])
     click.echo(f"wrote {output} and {png} ({100 * result.safe_fraction:.1f} % safe of the "
                f"{100 * result.known_fraction:.1f} % known, {tile.resolution:.4g} m pixels)",
+               err=True)
+
+
+@terrain.command("cog")
+@click.argument("input_zarr", type=click.Path(path_type=Path))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="Output Cloud Optimized GeoTIFF.")
+def cog_cmd(input_zarr, output):
+    """Convert a chunked (Zarr) DEM into a tiled, compressed COG with overviews."""
+    from terrain.io import write_cog
+    from terrain.zarrstore import ZarrDEM
+
+    store = ZarrDEM(input_zarr)
+    store.check_complete()
+    write_cog(store, output, inputs=[input_zarr])
+    click.echo(f"wrote {output} ({store.shape[1]}x{store.shape[0]} Cloud Optimized GeoTIFF)",
                err=True)

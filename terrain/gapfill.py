@@ -139,14 +139,15 @@ def _count_known(known, i, j):
 
 
 @numba.njit(cache=True)
-def _fill(z, known, fillable, sigma, key, max_ray):
+def _fill(z, known, fillable, sigma, key, max_ray, row0=0, col0=0):
     """Fill every fillable pixel reachable from a known one; returns the number filled.
 
     ``sigma`` is the per-pixel Gaussian scale (m). The queue is eight FIFO buckets, one per
     count of known neighbours (1..8), always served from the fullest count: O(1) per push and
     pop. A pixel whose count rises is pushed again into the higher bucket and its old entry
     is skipped when it comes up (lazy deletion). Unknown pixels that are not fillable are
-    never filled; rays pass through them.
+    never filled; rays pass through them. ``row0, col0``: global position of pixel (0, 0),
+    which keys the Gaussians.
     """
     ny, nx = z.shape
     count = np.zeros((ny, nx), dtype=np.int8)
@@ -178,7 +179,7 @@ def _fill(z, known, fillable, sigma, key, max_ray):
         if known[i, j] or count[i, j] != top:
             continue  # already filled, or a stale entry superseded by a newer count
         value = _idw(z, known, i, j, max_ray)
-        z[i, j] = value + sigma[i, j] * normal_at(key, j, i)
+        z[i, j] = value + sigma[i, j] * normal_at(key, col0 + j, row0 + i)
         known[i, j] = True
         filled += 1
         for d in range(8):
@@ -255,7 +256,8 @@ def estimate_roughness(tile: DEMTile, gaps: np.ndarray | None = None, *, ring: i
 
 
 def fill_gaps(tile: DEMTile, *, seed: int = 0, roughness: float | None = None,
-              gaps: np.ndarray | None = None, max_ray: int = MAX_RAY) -> FillResult:
+              gaps: np.ndarray | None = None, max_ray: int = MAX_RAY,
+              origin: tuple[int, int] = (0, 0)) -> FillResult:
     """Fill unknown pixels with fractal terrain, from the outside in.
 
     Parameters
@@ -269,6 +271,10 @@ def fill_gaps(tile: DEMTile, *, seed: int = 0, roughness: float | None = None,
         Which unknown pixels to fill (default: all of them).
     max_ray : int
         Longest ray walk in pixels.
+    origin : (row, col)
+        Global pixel position of the tile's pixel (0, 0), which keys the randomness: a part
+        of a larger DEM filled with its origin equals the same pixels of the whole DEM
+        filled, when every gap in it is whole (:class:`terrain.chunked.FillSource`).
 
     Returns
     -------
@@ -305,7 +311,8 @@ def fill_gaps(tile: DEMTile, *, seed: int = 0, roughness: float | None = None,
     known = tile.valid.copy()
     key = np.uint64(key_prefix(seed, STREAM_FILL, 0, 0))
     n = _fill(z, known, np.ascontiguousarray(todo),
-              np.ascontiguousarray(sigma, dtype=np.float64), key, int(max_ray))
+              np.ascontiguousarray(sigma, dtype=np.float64), key, int(max_ray),
+              int(origin[0]), int(origin[1]))
     log.info("filled %d pixels", n)
     out = z.astype(np.float32)
     # Known heights are copied back untouched (float32 -> float64 -> float32 is exact anyway).

@@ -604,8 +604,8 @@ def write_cog(source, path, *, inputs: Iterable = (), description: str = "height
                         dst.build_overviews(factors, Resampling.average)
                 with rasterio.Env(GDAL_NUM_THREADS="ALL_CPUS"):
                     rio_copy(scratch, tmp, driver="COG", COMPRESS="DEFLATE", PREDICTOR="YES",
-                             BLOCKSIZE=COG_BLOCK, BIGTIFF="IF_SAFER", OVERVIEWS="FORCE_USE_EXISTING",
-                             RESAMPLING="AVERAGE")
+                             BLOCKSIZE=COG_BLOCK, BIGTIFF="IF_SAFER",
+                             OVERVIEWS="FORCE_USE_EXISTING", RESAMPLING="AVERAGE")
             except (RasterioIOError, RasterioError) as exc:
                 raise OutputPathError(f"cannot write '{path}': {_first_line(exc)}") from exc
     finally:
