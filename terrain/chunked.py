@@ -776,7 +776,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None,
     if workers is None and scheduler is None:
         yield None
         return
-    from dask.distributed import Client, LocalCluster
+    from dask.distributed import Client
 
     if scheduler is not None:
         try:
