@@ -805,7 +805,7 @@ def _local_client(workers, processes, memory_limit, env):
 
     with _environ(env), LocalCluster(
             n_workers=int(workers), threads_per_worker=1, processes=processes,
-            dashboard_address=None, memory_limit=memory_limit,
+            dashboard_address=":0", memory_limit=memory_limit,
             silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
         yield client
 

@@ -247,6 +247,10 @@ PAIR = _PairType()
 _output_option = click.option(
     "-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
     help="Output GeoTIFF (written atomically; never over an input).")
+_store_output_option = click.option(
+    "-o", "--output", required=True, type=click.Path(path_type=Path),
+    help="Output GeoTIFF (written atomically; never over an input), or a Zarr store "
+         "(NAME.zarr: a chunked run, resumed if it exists).")
 _seed_option = click.option("--seed", type=click.IntRange(0, 2**63 - 1), default=0,
                             show_default=True, help="Keys every random draw.")
 _window_option = click.option(
@@ -506,7 +510,7 @@ def terrain():
 
 
 @terrain.command()
-@_output_option
+@_store_output_option
 @click.option("--size", type=int, default=1025, show_default=True,
               help="Tile side in pixels, 2^n + 1.")
 @click.option("--resolution", type=float, default=1.0, show_default=True,
@@ -537,7 +541,8 @@ def synth(output, size, resolution, fractal_dimension, relief, seed, window, dmi
             f"{relief:g}")
     if window is not None:
         window.check_inside(size, size)
-    _check_outputs(output, catalog, [])
+    if not _chunked_requested(output, workers, scheduler, chunk, cog, window):
+        _check_outputs(output, catalog, [])
     pop = _population(population, dmin=dmin, dmax=dmax, density=density,
                       sfd_exponent=sfd_exponent, max_age=max_age, resolution=resolution,
                       extent=(size - 1) * resolution, required=False)
@@ -567,7 +572,7 @@ def synth(output, size, resolution, fractal_dimension, relief, seed, window, dmi
 
 @terrain.command()
 @click.argument("input_dem", type=click.Path(path_type=Path))
-@_output_option
+@_store_output_option
 @_seed_option
 @_window_option
 @click.option("--band", type=int, default=1, show_default=True, help="Band of the input.")
@@ -764,7 +769,7 @@ def _with(options):
 
 @terrain.command()
 @click.argument("input_dem", type=click.Path(path_type=Path))
-@_output_option
+@_store_output_option
 @click.option("--times", type=click.IntRange(1, 16), default=1, show_default=True,
               help="Number of 2x expansions.")
 @_seed_option
@@ -931,7 +936,7 @@ def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, lay
 
 @terrain.command()
 @click.argument("input_dem", type=click.Path(path_type=Path))
-@_output_option
+@_store_output_option
 @click.option("--roughness", type=float, default=None,
               help="Gaussian per filled pixel, in units of the resolution; measured around "
                    "each gap by default.")

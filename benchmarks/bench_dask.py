@@ -1,0 +1,261 @@
+"""Benchmarks for chunked runs on Dask (terrain.chunked): one JSON document on stdout.
+
+What the issue asks to show, each against a baseline measured in the same run:
+
+* ``throughput``: one 2x fractal expansion of an N^2 DEM (the enhancement's main cost) in
+  pixels per second, by the in-memory single-process path (``terrain.expand.expand``, the
+  baseline), chunk by chunk in this process, and on a ``LocalCluster`` of 1 and 2 worker
+  processes; peak memory of the in-memory run and of every worker; and the cluster's
+  start-up time (paid once per run).
+* ``overhead``: the scheduler's cost per chunk: N no-op chunk tasks through the same
+  ``map_blocks`` path on the 2-worker cluster, and the Zarr write of an empty chunk.
+* ``out_of_core`` (full run only): a 16385^2 DEM synthesised into Zarr, expanded once to
+  32769^2 (1.07e9 pixels) on 2 workers and converted into a COG, with the peak memory of the
+  whole process tree (sampled) and the COG's georeferencing read back through GDAL.
+
+Every configuration runs in its own child process. Usage::
+
+    .venv/bin/python benchmarks/bench_dask.py            # full benchmark (~15 minutes)
+    .venv/bin/python benchmarks/bench_dask.py --quick    # small sizes (a minute)
+
+Progress goes to stderr. Timings taken on a shared machine vary; compare ratios.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+from _common import logger, machine_facts, peak_rss_bytes, summary
+from _common import run_child as _run_child
+
+ROOT = Path(__file__).resolve().parent.parent
+log = logger("bench-dask")
+
+#: Out-of-core target of the issue: 16385^2 -> 32769^2 with peak memory under 4 GB.
+OOC_SIZE = 16385
+OOC_TARGET_BYTES = 4 * 10**9
+SEED = 14
+
+
+def _input(path: Path, size: int, chunk: int, workers: int | None = None):
+    """A synthetic size^2 DEM at 8 m written as Zarr (chunked, so any size fits)."""
+    from terrain.chunked import SynthSource, dask_client, run
+
+    with dask_client(workers) as client:
+        return run(SynthSource(size, resolution=8.0, relief=200.0, seed=SEED), path,
+                   chunk=chunk, client=client)
+
+
+def child_throughput(spec):
+    import numpy as np
+
+    from terrain.chunked import ExpandSource, dask_client, estimate_parameters, open_reader, run
+    from terrain.expand import expand
+    from terrain.tile import DEMTile
+
+    work = Path(spec["dir"])
+    src = work / "in.zarr"
+    reader = open_reader(src)
+    params = estimate_parameters(reader)
+    mode = spec["mode"]
+    times = []
+    extra = {}
+    for k in range(spec["repeat"]):
+        out = work / f"{mode}-{k}.zarr"
+        if mode == "memory":
+            h, v = reader.read()
+            tile = DEMTile(h, v, reader.transform, reader.crs)
+            t0 = time.perf_counter()
+            e = expand(tile, 1, seed=SEED, params=params)
+            times.append(time.perf_counter() - t0)
+            pixels = e.heights.size
+            del e, tile, h, v
+            continue
+        workers = None if mode == "inprocess" else spec["workers"]
+        t0 = time.perf_counter()
+        with dask_client(workers) as client:
+            started = time.perf_counter() - t0
+            report = run(ExpandSource(reader, 1, SEED, params), out, chunk=spec["chunk"],
+                         client=client)
+            if client is not None:
+                import resource
+
+                rss = client.run(lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+                extra["worker_peak_rss_bytes"] = sorted(int(v) * 1024 for v in rss.values())
+        times.append(report.seconds)
+        extra["cluster_start_s"] = started
+        pixels = report.pixels
+        extra["chunks"] = report.total
+        shutil.rmtree(out)
+    med = float(np.median(times))
+    return dict(summary(times), pixels=pixels, pixels_per_s=pixels / med,
+                peak_rss_bytes=peak_rss_bytes(), **extra)
+
+
+def child_overhead(spec):
+    import dask.array as da
+    import numpy as np
+    from dask.distributed import as_completed
+
+    from terrain.chunked import dask_client
+    from terrain.zarrstore import ZarrDEM
+
+    n = spec["tasks"]
+
+    def noop(block_info=None):
+        return np.zeros((1, 1), np.int64)
+
+    with dask_client(2) as client:
+        arr = da.map_blocks(noop, dtype=np.int64, chunks=((1,) * n, (1,)),
+                            meta=np.empty((0, 0), np.int64))
+        tasks = arr.to_delayed().ravel().tolist()
+        t0 = time.perf_counter()
+        for f in as_completed(client.compute(tasks)):
+            f.result()
+        per_task = (time.perf_counter() - t0) / n
+    from affine import Affine
+
+    store = ZarrDEM.create(Path(spec["dir"]) / "overhead.zarr", (spec["chunk"] * 4,) * 2,
+                           spec["chunk"], transform=Affine(1, 0, 0, 0, -1, 0), crs=None,
+                           nodata=float("nan"), metadata={}, plan={})
+    block = np.zeros((spec["chunk"], spec["chunk"]), np.float32)
+    t0 = time.perf_counter()
+    for j in range(4):
+        store.write_chunk(0, j, block)
+    write = (time.perf_counter() - t0) / 4
+    return dict(tasks=n, scheduler_s_per_chunk=per_task, zarr_write_s_per_chunk=write,
+                chunk=spec["chunk"])
+
+
+def _tree_rss(pid):
+    import psutil
+
+    try:
+        proc = psutil.Process(pid)
+        procs = [proc, *proc.children(recursive=True)]
+    except psutil.NoSuchProcess:
+        return 0
+    total = 0
+    for p in procs:
+        try:
+            total += p.memory_info().rss
+        except psutil.NoSuchProcess:
+            pass
+    return total
+
+
+def _run_sampled(cmd, cwd):
+    """Run a command, sampling the summed RSS of its process tree every 0.2 s."""
+    proc = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    peak = [0]
+    stop = threading.Event()
+
+    def sample():
+        while not stop.is_set():
+            peak[0] = max(peak[0], _tree_rss(proc.pid))
+            time.sleep(0.2)
+
+    thread = threading.Thread(target=sample, daemon=True)
+    thread.start()
+    t0 = time.perf_counter()
+    out, err = proc.communicate()
+    wall = time.perf_counter() - t0
+    stop.set()
+    thread.join()
+    if proc.returncode != 0:
+        raise RuntimeError(f"{cmd} failed: {err.strip().splitlines()[-1:]}")
+    return wall, peak[0], err.strip().splitlines()
+
+
+def out_of_core(work: Path, size: int, chunk: int) -> dict:
+    import rasterio
+
+    exe = str(Path(sys.executable).with_name("craterscape"))
+    src, out, cog = work / "ooc-in.zarr", work / "ooc-out.zarr", work / "ooc-out.tif"
+    free = shutil.disk_usage(work).free
+    need = (size * 2) ** 2 * 4 * 4
+    if free < need:
+        return dict(skipped=f"needs about {need / 1e9:.1f} GB of disk, {free / 1e9:.1f} free")
+    log(f"out of core: synthesising {size}^2 into Zarr")
+    synth_wall, synth_peak, _ = _run_sampled(
+        [exe, "terrain", "synth", "--size", str(size), "--resolution", "8", "--relief", "200",
+         "--seed", str(SEED), "-o", str(src), "--workers", "2", "--chunk", str(chunk)], ROOT)
+    log(f"out of core: expanding to {2 * size - 1}^2 and converting to a COG")
+    wall, peak, lines = _run_sampled(
+        [exe, "terrain", "expand", str(src), "--times", "1", "--seed", str(SEED),
+         "-o", str(out), "--workers", "2", "--chunk", str(chunk), "--cog", str(cog)], ROOT)
+    with rasterio.open(cog) as ds:
+        geo = dict(width=ds.width, height=ds.height, transform=list(ds.transform)[:6],
+                   overviews=ds.overviews(1), driver=ds.driver,
+                   layout=ds.tags(ns="IMAGE_STRUCTURE").get("LAYOUT"))
+    expected = [4.0, 0.0, 4.0 - 2.0, 0.0, -4.0, 8.0 * size - 4.0 + 2.0]
+    result = dict(size_in=size, size_out=2 * size - 1, chunk=chunk, workers=2,
+                  synth_wall_s=synth_wall, synth_peak_tree_rss_bytes=synth_peak,
+                  expand_and_cog_wall_s=wall, peak_tree_rss_bytes=peak,
+                  target_peak_bytes=OOC_TARGET_BYTES, meets_target=peak < OOC_TARGET_BYTES,
+                  pixels=(2 * size - 1) ** 2, cog=geo, cog_bytes=cog.stat().st_size,
+                  expected_transform=expected,
+                  georeferencing_ok=(geo["width"] == 2 * size - 1
+                                     and all(abs(a - b) < 1e-9 for a, b in
+                                             zip(geo["transform"], expected, strict=True))),
+                  messages=lines[-3:])
+    for p in (src, out):
+        shutil.rmtree(p, ignore_errors=True)
+    cog.unlink(missing_ok=True)
+    return result
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="small sizes (about a minute)")
+    parser.add_argument("--child", default=None, help=argparse.SUPPRESS)
+    parser.add_argument("--skip-out-of-core", action="store_true",
+                        help="full run without the 16385^2 out-of-core configuration")
+    args = parser.parse_args(argv)
+    if args.child:
+        spec = json.loads(args.child)
+        result = {"throughput": child_throughput, "overhead": child_overhead}[spec["kind"]](spec)
+        print(json.dumps(result))
+        return 0
+
+    size, chunk, repeat = (1025, 256, 1) if args.quick else (4097, 1024, 3)
+    work = Path(tempfile.mkdtemp(prefix="bench-dask-"))
+    results = dict(machine=machine_facts(note="shared machine: other jobs ran concurrently"))
+    try:
+        log(f"input: {size}^2 synthetic DEM")
+        _input(work / "in.zarr", size, chunk)
+        runs = {}
+        for mode, workers in (("memory", None), ("inprocess", None), ("cluster1", 1),
+                              ("cluster2", 2)):
+            spec = dict(kind="throughput", name=mode, mode=mode, workers=workers, chunk=chunk,
+                        repeat=repeat, dir=str(work))
+            runs[mode] = _run_child(__file__, spec, 3600, log)
+        base = runs["memory"]["pixels_per_s"]
+        results["throughput"] = dict(
+            input_size=size, output_size=2 * size - 1, chunk=chunk, runs=runs,
+            baseline="memory",
+            speedup_vs_memory={k: v["pixels_per_s"] / base for k, v in runs.items()},
+            per_chunk_compute_s=runs["inprocess"]["median_s"] / runs["inprocess"]["chunks"],
+            two_vs_one_worker=runs["cluster2"]["pixels_per_s"] / runs["cluster1"]["pixels_per_s"])
+        results["overhead"] = _run_child(__file__, dict(
+            kind="overhead", name="overhead", tasks=200, chunk=chunk, repeat=1, dir=str(work)),
+            600, log)
+        if not args.quick and not args.skip_out_of_core:
+            results["out_of_core"] = out_of_core(work, OOC_SIZE, 2048)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    print(json.dumps(results, indent=2, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

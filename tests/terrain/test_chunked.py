@@ -1,0 +1,252 @@
+"""Chunked runs on Dask: every chunk equals the same pixels of a single in-memory run.
+
+The cluster tests use a real ``LocalCluster`` of 2 worker processes; arrays are small so the
+module runs in seconds once the workers are up.
+"""
+
+import os
+import signal
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import cloudpickle
+import numpy as np
+import pytest
+import rasterio
+
+from terrain.chunked import (
+    CraterSource,
+    ExpandSource,
+    FillSource,
+    GapTooLargeError,
+    SynthSource,
+    dask_client,
+    open_reader,
+    run,
+)
+from terrain.cratering import add_craters
+from terrain.errors import OutputPathError
+from terrain.expand import expand
+from terrain.gapfill import fill_gaps
+from terrain.io import read_dem, write_cog, write_dem
+from terrain.population import Population
+from terrain.synthetic import synthesize_tile
+from terrain.tile import DEMTile
+from terrain.zarrstore import ZarrDEM
+from tests.cli_helpers import one_line_error
+from tests.cli_helpers import run as cli
+
+# Workers unpickle the test's own source subclasses by value (they cannot import this file).
+cloudpickle.register_pickle_by_value(sys.modules[__name__])
+
+POP = Population(dmin=6.0, dmax=40.0, density=1500.0)
+
+
+@pytest.fixture(scope="module")
+def client():
+    with dask_client(2) as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def dem(tmp_path_factory):
+    """A 97 x 129 cratered DEM at 2 m in a projected CRS, with nodata -9999."""
+    path = tmp_path_factory.mktemp("chunked") / "in.tif"
+    tile = synthesize_tile(129, resolution=2.0, seed=5, relief=40.0).tile
+    tile = DEMTile(tile.heights[:97], tile.valid[:97], tile.transform,
+                   rasterio.crs.CRS.from_epsg(32633).to_wkt(), -9999.0, {})
+    write_dem(tile, path)
+    return path
+
+
+def stored(path):
+    heights, _ = ZarrDEM(path).read()
+    return heights
+
+
+def test_synth_on_two_workers_equals_the_single_run(client, tmp_path):
+    report = run(SynthSource(129, resolution=2.0, seed=5, craters=POP), tmp_path / "s.zarr",
+                 chunk=48, client=client)
+    single = synthesize_tile(129, resolution=2.0, seed=5, craters=POP)
+    assert report.computed == report.total == 9
+    assert np.array_equal(stored(tmp_path / "s.zarr"), single.tile.heights)  # bitwise
+    assert len(single.catalog["id"]) > 10
+    for name, column in single.catalog.items():  # the same craters, in the same order
+        assert np.array_equal(report.catalog[name], column), name
+
+
+def test_craters_on_two_workers_equal_the_single_run(client, dem, tmp_path):
+    report = run(CraterSource(open_reader(dem), POP, seed=9), tmp_path / "c.zarr", chunk=40,
+                 client=client)
+    single = add_craters(read_dem(dem), POP, seed=9)
+    assert np.array_equal(stored(tmp_path / "c.zarr"), single.tile.heights, equal_nan=True)
+    assert np.array_equal(report.catalog["id"], single.catalog["id"])
+
+
+def test_two_level_expansion_on_two_workers_equals_the_single_run(client, dem, tmp_path):
+    run(ExpandSource(open_reader(dem), 2, seed=7), tmp_path / "e.zarr", chunk=100,
+        client=client)
+    single = expand(read_dem(dem), 2, seed=7)
+    store = ZarrDEM(tmp_path / "e.zarr")
+    assert store.shape == single.shape == (385, 513)
+    assert np.array_equal(stored(tmp_path / "e.zarr"), single.heights)
+    assert store.transform == single.transform and store.crs == single.crs
+    assert np.array_equal(single.heights[::4, ::4], read_dem(dem).heights)  # known heights
+
+
+@dataclass(frozen=True)
+class KillsItsWorkerOnce(ExpandSource):
+    """Expansion whose chunk (1, 1) kills the worker process computing it, the first time."""
+
+    guard: str = ""
+
+    def compute(self, window):
+        if window.row > 0 and window.col > 0:
+            try:
+                os.close(os.open(self.guard, os.O_CREAT | os.O_EXCL))
+            except FileExistsError:
+                pass
+            else:
+                os.kill(os.getpid(), signal.SIGKILL)
+        return super().compute(window)
+
+
+def test_a_worker_killed_mid_run_is_replaced_and_the_bytes_are_unchanged(client, dem,
+                                                                         tmp_path):
+    guard = tmp_path / "killed-once"
+    source = KillsItsWorkerOnce(open_reader(dem), 2, seed=7, guard=str(guard))
+    report = run(source, tmp_path / "k.zarr", chunk=100, client=client)
+    assert guard.exists()  # a worker did die
+    assert report.computed == report.total
+    assert np.array_equal(stored(tmp_path / "k.zarr"), expand(read_dem(dem), 2, seed=7).heights)
+
+
+class Interrupted(RuntimeError):
+    pass
+
+
+@dataclass(frozen=True)
+class StopsAfter(SynthSource):
+    """Synthesis that stops the run (like a kill) when it reaches chunk row 2."""
+
+    def compute(self, window):
+        if window.row >= 64:
+            raise Interrupted("stopped part way")
+        return super().compute(window)
+
+
+def test_an_interrupted_run_resumes_without_recomputing_finished_chunks(tmp_path):
+    out = tmp_path / "r.zarr"
+    with pytest.raises(Interrupted):
+        run(StopsAfter(129, seed=3, craters=POP), out, chunk=32)
+    store = ZarrDEM(out)
+    finished = store.done_chunks()
+    assert len(finished) == 10 and not store.complete  # rows 0-1 of a 5 x 5 grid
+    with pytest.raises(Exception, match="incomplete"):
+        open_reader(out)
+    stamps = {p: p.stat().st_mtime_ns for p in (out / "height").iterdir()
+              if not p.name.startswith(".")}
+    report = run(SynthSource(129, seed=3, craters=POP), out, chunk=32)
+    assert report.skipped == 10 and report.computed == 15
+    assert not set(report.computed_chunks) & finished
+    for p, t in stamps.items():  # finished chunks were not written again
+        assert p.stat().st_mtime_ns == t, p
+    single = synthesize_tile(129, seed=3, craters=POP)
+    assert np.array_equal(stored(out), single.tile.heights)
+    assert np.array_equal(report.catalog["id"], single.catalog["id"])
+
+
+def test_resuming_with_other_parameters_is_refused(tmp_path):
+    out = tmp_path / "p.zarr"
+    run(SynthSource(65, seed=1), out, chunk=32)
+    with pytest.raises(OutputPathError, match="another run"):
+        run(SynthSource(65, seed=2), out, chunk=32)
+
+
+def _gappy(tmp_path):
+    tile = synthesize_tile(129, resolution=2.0, seed=11, relief=40.0).tile
+    h = np.array(tile.heights)
+    for r, c, a, b in ((10, 20, 4, 6), (70, 90, 7, 3), (100, 30, 5, 5), (40, 60, 3, 8)):
+        h[r:r + a, c:c + b] = np.nan
+    path = tmp_path / "gappy.tif"
+    write_dem(DEMTile(h, np.isfinite(h), tile.transform, None, -9999.0, {}), path)
+    return path
+
+
+def test_chunked_gap_filling_equals_the_single_fill_and_keeps_known_heights(tmp_path):
+    path = _gappy(tmp_path)
+    run(FillSource(open_reader(path), halo=40, seed=4), tmp_path / "f.zarr", chunk=32)
+    single = fill_gaps(read_dem(path), seed=4)
+    out = stored(tmp_path / "f.zarr")
+    assert np.array_equal(out, single.tile.heights)
+    known = read_dem(path)
+    assert np.array_equal(out[known.valid], known.heights[known.valid])
+    assert np.isfinite(out).all()
+
+
+def test_a_gap_larger_than_the_halo_is_named_with_the_halo_it_needs(tmp_path):
+    path = _gappy(tmp_path)
+    with pytest.raises(GapTooLargeError, match=r"needs a halo of .*give --halo \d+"):
+        run(FillSource(open_reader(path), halo=8, seed=4), tmp_path / "g.zarr", chunk=32)
+    assert not (tmp_path / "g.zarr").exists()  # refused before any work
+    result = cli("terrain", "fill", path, "-o", tmp_path / "g.zarr", "--halo", "8", "--chunk", "32")
+    one_line_error(result, "largest gap", "--halo")
+
+
+def test_cli_chunked_expand_writes_zarr_and_a_cog_that_gdal_reads(dem, tmp_path):
+    single = tmp_path / "single.tif"
+    assert cli("terrain", "expand", dem, "-o", single, "--seed", "3").exit_code == 0
+    result = cli("terrain", "expand", dem, "-o", tmp_path / "e.zarr", "--seed", "3",
+                 "--chunk", "64", "--cog", tmp_path / "e.tif")
+    assert result.exit_code == 0, result.output
+    with rasterio.open(single) as a, rasterio.open(tmp_path / "e.tif") as b:
+        assert b.tags(ns="IMAGE_STRUCTURE")["LAYOUT"] == "COG"
+        assert (b.transform, b.crs, b.nodata, b.shape) == (a.transform, a.crs, a.nodata,
+                                                           a.shape)
+        assert np.array_equal(a.read(1), b.read(1))
+        assert b.tags()["CRATERSCAPE_SEED"] == "3"
+
+
+def test_cog_has_overviews_and_the_same_pixels_as_the_store(tmp_path):
+    run(SynthSource(1025, resolution=0.5, seed=2), tmp_path / "big.zarr", chunk=256)
+    store = ZarrDEM(tmp_path / "big.zarr")
+    write_cog(store, tmp_path / "big.tif")
+    with rasterio.open(tmp_path / "big.tif") as ds:
+        assert ds.overviews(1) == [2, 4]
+        assert ds.block_shapes[0] == (512, 512)
+        assert ds.profile["compress"].lower() == "deflate"
+        assert np.array_equal(ds.read(1), store.read()[0])
+        assert ds.transform == store.transform
+
+
+def test_cli_refuses_a_chunked_run_into_a_tif_and_a_store_over_its_input(dem, tmp_path):
+    one_line_error(cli("terrain", "expand", dem, "-o", tmp_path / "x.tif", "--chunk", "64"),
+                   "Zarr")
+    store = tmp_path / "s.zarr"
+    assert cli("terrain", "synth", "--size", "65", "-o", store).exit_code == 0
+    one_line_error(cli("terrain", "expand", store, "-o", store, "--chunk", "32"), "input")
+    one_line_error(cli("terrain", "synth", "--size", "65", "--seed", "9", "-o", store),
+                   "another run")
+
+
+def test_cli_resumes_a_finished_store_without_computing(tmp_path):
+    store = tmp_path / "s.zarr"
+    assert cli("terrain", "synth", "--size", "65", "-o", store, "--chunk", "32").exit_code == 0
+    again = cli("terrain", "synth", "--size", "65", "-o", store, "--chunk", "32")
+    assert again.exit_code == 0 and "0 of 9 chunks computed, 9 already written" in again.output
+
+
+def test_a_zarr_store_is_an_input_like_any_raster(dem, tmp_path):
+    store = tmp_path / "in.zarr"
+    assert cli("terrain", "craters", dem, "-o", store, "--density", "500", "--dmax", "30",
+               "--chunk", "48").exit_code == 0
+    single = tmp_path / "single.tif"
+    assert cli("terrain", "craters", dem, "-o", single, "--density", "500",
+               "--dmax", "30").exit_code == 0
+    reader = open_reader(store)
+    assert reader.transform == read_dem(dem).transform
+    assert np.array_equal(reader.read()[0], read_dem(single).heights, equal_nan=True)
+    out = tmp_path / "e.zarr"
+    assert cli("terrain", "expand", store, "-o", out, "--chunk", "64").exit_code == 0
+    assert Path(out, "height").is_dir()
