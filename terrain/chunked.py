@@ -640,7 +640,7 @@ def _chunk_task(source, store_path, chunk, block_info=None):
     return np.full((1, 1), window.width * window.height, dtype=np.int64)
 
 
-def _open_store(source, path: Path, chunk: int) -> ZarrDEM:
+def _open_store(source, path: Path, chunk: int, metadata=None) -> ZarrDEM:
     plan = dict(source.plan(), shape=list(source.shape), chunk=chunk)
     plan = json.loads(json.dumps(plan, sort_keys=True))
     if path.exists():
@@ -655,11 +655,12 @@ def _open_store(source, path: Path, chunk: int) -> ZarrDEM:
         log.info("resuming %s: %d chunks already written", path, len(store.done_chunks()))
         return store
     return ZarrDEM.create(path, source.shape, chunk, transform=source.transform,
-                          crs=source.crs, nodata=source.nodata, metadata=source.metadata,
-                          plan=plan)
+                          crs=source.crs, nodata=source.nodata,
+                          metadata=dict(source.metadata, **(metadata or {})), plan=plan)
 
 
-def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None, progress=None) -> RunReport:
+def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None, progress=None,
+        metadata=None) -> RunReport:
     """Compute ``source`` chunk by chunk into the Zarr store ``output``, or resume it.
 
     Parameters
@@ -674,6 +675,8 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None, progress=Non
         Cluster to run on; without one, chunks run one after another in this process.
     progress : callable, optional
         ``progress(done, total, pixels, seconds)`` after every chunk.
+    metadata : dict, optional
+        Provenance tags added to the source's (command, version).
 
     Returns
     -------
@@ -689,7 +692,7 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None, progress=Non
     path = Path(output)
     if hasattr(source, "check"):
         source.check(chunk)
-    store = _open_store(source, path, chunk)
+    store = _open_store(source, path, chunk, metadata)
     ny, nx = store.grid
     done_before = store.done_chunks()
     todo = [(i, j) for i in range(ny) for j in range(nx) if (i, j) not in done_before]

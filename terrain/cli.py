@@ -483,7 +483,8 @@ def _run_chunked(source, output, *, workers, threads, scheduler, chunk, cog, lab
     try:
         with dask_client(workers, scheduler, processes=not threads) as client:
             report = run(source, output, chunk=chunk or DEFAULT_CHUNK, client=client,
-                         progress=update)
+                         progress=update, metadata=dict(CRATERSCAPE_COMMAND=f"terrain {label}",
+                                                        CRATERSCAPE_VERSION=_version()))
     finally:
         close()
     rate = report.pixels_per_second
@@ -555,6 +556,13 @@ def synth(output, size, resolution, fractal_dimension, relief, seed, window, dmi
         source = SynthSource(size, resolution, fractal_dimension, relief, seed, pop, model)
         _run_chunked(source, output, workers=workers, threads=threads, scheduler=scheduler,
                      chunk=chunk, cog=cog, label="synth", catalog=catalog)
+        return
+    if window is None and not _fits_in_memory(size * size * 40.0):
+        from terrain.chunked import SynthSource
+
+        source = SynthSource(size, resolution, fractal_dimension, relief, seed, pop, model)
+        _run_out_of_core(source, output, workers=workers, threads=threads, scheduler=scheduler,
+                         chunk=chunk, label="synth", catalog=catalog)
         return
     update, close = _progress("craters")
     try:
@@ -799,22 +807,15 @@ def expand(input_dem, output, times, seed, fractal_dimension, height_scale, unif
                      label="expand", inputs=[input_dem])
         return
     if window is None and _out_of_core(input_dem, band, times):
-        import tempfile
-
         from terrain.chunked import ExpandSource, estimate_parameters, open_reader
         from terrain.roughness import LOCAL_BOX
 
-        check_output_path(output, [input_dem])
         reader = open_reader(input_dem, band)
         params = estimate_parameters(reader, fractal_dimension, height_scale,
                                      0 if uniform_roughness else LOCAL_BOX)
-        parent = output.parent if str(output.parent) else Path(".")
-        with tempfile.TemporaryDirectory(prefix=f".{output.name}.", dir=parent) as scratch:
-            log.warning("the expansion does not fit in memory: running it chunk by chunk "
-                        "through %s", scratch)
-            _run_chunked(ExpandSource(reader, times, seed, params), Path(scratch) / "out.zarr",
-                         workers=workers, threads=threads, scheduler=scheduler, chunk=chunk,
-                         cog=output, label="expand", inputs=[input_dem])
+        _run_out_of_core(ExpandSource(reader, times, seed, params), output, workers=workers,
+                         threads=threads, scheduler=scheduler, chunk=chunk, label="expand",
+                         inputs=[input_dem])
         return
 
     check_output_path(output, [input_dem])
@@ -1168,6 +1169,42 @@ def hazards(source, output, lander_diameter, max_slope, max_step, layer, png, ba
     click.echo(f"wrote {output} and {png} ({100 * result.safe_fraction:.1f} % safe of the "
                f"{100 * result.known_fraction:.1f} % known, {tile.resolution:.4g} m pixels)",
                err=True)
+
+
+def _run_out_of_core(source, output, *, workers, threads, scheduler, chunk, label,
+                     catalog=None, inputs=()):
+    """Run a request larger than memory chunk by chunk through a scratch Zarr store beside
+    the output, and write the output GeoTIFF as a COG from it (instead of refusing)."""
+    import shutil
+    import tempfile
+
+    from terrain import memory
+    from terrain.io import check_output_path
+
+    check_output_path(output, inputs)
+    parent = output.parent if str(output.parent) else Path(".")
+    ny, nx = source.shape
+    need = ny * nx * 4 * (1 + 2.7)  # the Zarr store, then the COG and its scratch copy
+    free = shutil.disk_usage(parent).free
+    if need > free:
+        avail = memory.format_bytes(memory.available_bytes())
+        raise InvalidParameterError(
+            f"{label}: {nx}x{ny} pixels do not fit in memory ({avail} available) and "
+            "running them out of core needs "
+            f"about {memory.format_bytes(need)} of disk in '{parent}', but only "
+            f"{memory.format_bytes(free)} is free")
+    with tempfile.TemporaryDirectory(prefix=f".{output.name}.", dir=parent) as scratch:
+        log.warning("%s: %dx%d pixels do not fit in memory; running chunk by chunk through "
+                    "%s", label, source.shape[1], source.shape[0], scratch)
+        _run_chunked(source, Path(scratch) / "out.zarr", workers=workers, threads=threads,
+                     scheduler=scheduler, chunk=chunk, cog=output, label=label,
+                     catalog=catalog, inputs=inputs)
+
+
+def _fits_in_memory(nbytes: float) -> bool:
+    from terrain import memory
+
+    return nbytes <= memory.available_bytes()
 
 
 @terrain.command("cog")

@@ -74,7 +74,7 @@ def read_dem(path, *, band: int = 1, exact: bool = False) -> DEMTile:
     Parameters
     ----------
     path : str or Path
-        File to read (GeoTIFF, PDS3 ``.LBL``, ...).
+        File to read (GeoTIFF, PDS3 ``.LBL``, ...), or a Zarr DEM written by a chunked run.
     band : int
         1-based band index.
     exact : bool
@@ -95,7 +95,7 @@ def _read_dem(path, band: int, exact: bool) -> tuple[DEMTile, np.ndarray | None]
     if not path.exists():
         raise MissingInputError(f"input DEM '{path}' does not exist")
     if path.is_dir():
-        raise InvalidDEMError(f"input DEM '{path}' is a folder, not a file")
+        return _read_zarr_dem(path)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
@@ -161,6 +161,22 @@ def _read_dem(path, band: int, exact: bool) -> tuple[DEMTile, np.ndarray | None]
             out_nodata = float(np.float32(nodata))
     return (DEMTile(data, valid, transform, crs.to_wkt() if crs else None, out_nodata, metadata),
             exact_heights)
+
+
+def _read_zarr_dem(path: Path) -> DEMTile:
+    """A whole Zarr DEM written by a chunked run (:mod:`terrain.zarrstore`) as a tile."""
+    from terrain.zarrstore import ZarrDEM, is_zarr
+
+    if not is_zarr(path):
+        raise InvalidDEMError(f"input DEM '{path}' is a folder, not a file (nor a Zarr store)")
+    store = ZarrDEM(path)
+    store.check_complete()
+    memory.require(store.shape[0] * store.shape[1] * (4 + 4 + 2), f"reading DEM '{path}'")
+    heights, valid = store.read()
+    if not valid.any():
+        raise InvalidDEMError(f"DEM '{path}' has no valid pixels (all nodata)")
+    metadata = dict(store.metadata, CRATERSCAPE_SOURCE=str(path))
+    return DEMTile(heights, valid, store.transform, store.crs, store.nodata, metadata)
 
 
 def _is_reference_radius(crs: CRS, offset: float) -> bool:

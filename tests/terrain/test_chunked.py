@@ -250,3 +250,26 @@ def test_a_zarr_store_is_an_input_like_any_raster(dem, tmp_path):
     out = tmp_path / "e.zarr"
     assert cli("terrain", "expand", store, "-o", out, "--chunk", "64").exit_code == 0
     assert Path(out, "height").is_dir()
+
+
+def test_a_request_larger_than_memory_runs_out_of_core_instead_of_being_refused(dem, tmp_path):
+    single = tmp_path / "single.tif"
+    assert cli("terrain", "expand", dem, "-o", single, "--times", "2").exit_code == 0
+    ooc = tmp_path / "ooc.tif"
+    result = cli("terrain", "expand", dem, "-o", ooc, "--times", "2",
+                 env={"CRATERSCAPE_MEMORY_LIMIT": "1500K"})  # the result needs about 2 MB
+    assert result.exit_code == 0, result.output
+    assert "do not fit in memory" in result.output
+    with rasterio.open(single) as a, rasterio.open(ooc) as b:
+        assert (b.transform, b.crs, b.shape) == (a.transform, a.crs, a.shape)
+        assert np.array_equal(a.read(1), b.read(1))
+        assert b.tags()["CRATERSCAPE_COMMAND"] == "terrain expand"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ooc.tif", "single.tif"]
+
+
+def test_progress_counts_chunks_and_pixels(tmp_path):
+    seen = []
+    run(SynthSource(65, seed=1), tmp_path / "p.zarr", chunk=32,
+        progress=lambda done, total, pixels, seconds: seen.append((done, total, pixels)))
+    assert [s[0] for s in seen] == list(range(10)) and {s[1] for s in seen} == {9}
+    assert seen[-1][2] == 65 * 65

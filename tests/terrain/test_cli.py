@@ -160,10 +160,12 @@ def test_output_equal_to_input_is_refused_and_input_untouched(dem, tmp_path):
     assert dem.read_bytes() == before
 
 
-def test_request_too_large_for_memory(tmp_path):
-    r = run("terrain", "synth", "-o", tmp_path / "big.tif", "--size", 65537,
+def test_request_too_large_for_memory_and_for_the_disk(tmp_path):
+    # Larger than memory alone runs out of core (tests/terrain/test_chunked.py); a request
+    # whose out-of-core run would not fit on the disk either is refused before any work.
+    r = run("terrain", "synth", "-o", tmp_path / "big.tif", "--size", 2**22 + 1,
             env={"CRATERSCAPE_MEMORY_LIMIT": "1G"})
-    one_line_error(r, "memory")
+    one_line_error(r, "memory", "disk")
     assert not (tmp_path / "big.tif").exists()
 
 
