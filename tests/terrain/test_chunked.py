@@ -4,9 +4,12 @@ The cluster tests use a real ``LocalCluster`` of 2 worker processes; arrays are 
 module runs in seconds once the workers are up.
 """
 
+import json
 import os
 import signal
+import subprocess
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -273,3 +276,32 @@ def test_progress_counts_chunks_and_pixels(tmp_path):
         progress=lambda done, total, pixels, seconds: seen.append((done, total, pixels)))
     assert [s[0] for s in seen] == list(range(10)) and {s[1] for s in seen} == {9}
     assert seen[-1][2] == 65 * 65
+
+
+@pytest.mark.slow
+def test_a_cluster_started_with_dask_scheduler_and_dask_worker(dem, tmp_path):
+    """The address a `dask scheduler` prints is all `--scheduler` needs (loopback here)."""
+    dask = Path(sys.executable).with_name("dask")
+    info = tmp_path / "scheduler.json"
+    quiet = dict(stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", "0",
+                               "--no-dashboard", "--scheduler-file", info], **quiet)]
+    try:
+        deadline = time.monotonic() + 60
+        while not info.exists() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        address = json.loads(info.read_text())["address"]
+        assert address.startswith("tcp://127.0.0.1:")
+        procs.append(subprocess.Popen([dask, "worker", address, "--nworkers", "2",
+                                       "--nthreads", "1", "--no-dashboard",
+                                       "--host", "127.0.0.1"], **quiet))
+        out = tmp_path / "e.zarr"
+        result = cli("terrain", "expand", dem, "-o", out, "--times", "2", "--seed", "7",
+                     "--scheduler", address, "--chunk", "100")
+        assert result.exit_code == 0, result.output
+        assert "24 of 24 chunks computed" in result.output
+        assert np.array_equal(stored(out), expand(read_dem(dem), 2, seed=7).heights)
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+            p.wait(timeout=30)
