@@ -628,11 +628,10 @@ class RunReport:
         return self.pixels / self.seconds if self.seconds > 0 else float("nan")
 
 
-def _chunk_task(source, store_path, chunk, block_info=None):
+def _chunk_task(source, store, block_info=None):
     """One block of the run's Dask array: compute and write chunk (i, j) unless done."""
     i, j = block_info[None]["chunk-location"]
-    store = ZarrDEM(store_path)
-    if (i, j) in store.done_chunks():
+    if store.is_done(i, j):
         return np.zeros((1, 1), dtype=np.int64)
     window = store.chunk_window(i, j)
     heights, catalog = source.compute(window)
@@ -696,7 +695,7 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None, progress=Non
     ny, nx = store.grid
     done_before = store.done_chunks()
     todo = [(i, j) for i in range(ny) for j in range(nx) if (i, j) not in done_before]
-    blocks = da.map_blocks(_chunk_task, source, str(path), chunk, dtype=np.int64,
+    blocks = da.map_blocks(_chunk_task, source, store, dtype=np.int64,
                            chunks=((1,) * ny, (1,) * nx), meta=np.empty((0, 0), np.int64),
                            name=f"craterscape-chunk-{uuid.uuid4().hex}")
     delayed = blocks.to_delayed()

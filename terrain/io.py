@@ -543,6 +543,10 @@ class RasterReader:
 
 #: Block (tile) side of written Cloud Optimized GeoTIFFs, pixels.
 COG_BLOCK = 512
+#: DEFLATE level of COGs: the fastest. On fractal float32 heights with the floating-point
+#: predictor, level 6 saves only a few per cent more and costs several times the CPU, which
+#: dominates converting a 1e9-pixel DEM (benchmarks/bench_dask.py, out_of_core).
+COG_DEFLATE_LEVEL = 1
 
 
 def write_cog(source, path, *, inputs: Iterable = (), description: str = "height (m)",
@@ -620,6 +624,7 @@ def write_cog(source, path, *, inputs: Iterable = (), description: str = "height
                         dst.build_overviews(factors, Resampling.average)
                 with rasterio.Env(GDAL_NUM_THREADS="ALL_CPUS"):
                     rio_copy(scratch, tmp, driver="COG", COMPRESS="DEFLATE", PREDICTOR="YES",
+                             LEVEL=COG_DEFLATE_LEVEL, NUM_THREADS="ALL_CPUS",
                              BLOCKSIZE=COG_BLOCK, BIGTIFF="IF_SAFER",
                              OVERVIEWS="FORCE_USE_EXISTING", RESAMPLING="AVERAGE")
             except (RasterioIOError, RasterioError) as exc:

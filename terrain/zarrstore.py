@@ -69,6 +69,22 @@ def _zarr():
     return zarr
 
 
+_ARRAYS: dict = {}
+
+
+def _array(path: Path, mode: str):
+    """The store's height array, opened once per process and mode (opening costs a few
+    milliseconds of metadata reads, as much as writing a small chunk)."""
+    key = (str(path), mode)
+    array = _ARRAYS.get(key)
+    if array is None:
+        array = _zarr().open_array(str(path / ARRAY_NAME), mode=mode)
+        if len(_ARRAYS) > 64:
+            _ARRAYS.clear()
+        _ARRAYS[key] = array
+    return array
+
+
 class ZarrDEM:
     """A georeferenced float32 DEM in a Zarr store, with per-chunk completion markers.
 
@@ -176,6 +192,10 @@ class ZarrDEM:
     def _marker(self, i: int, j: int) -> Path:
         return self.path / MARKERS / f"{i}_{j}.npz"
 
+    def is_done(self, i: int, j: int) -> bool:
+        """Whether chunk (i, j)'s completion marker exists."""
+        return self._marker(i, j).exists()
+
     def done_chunks(self) -> set[tuple[int, int]]:
         """Chunks whose completion marker exists."""
         done = set()
@@ -198,8 +218,7 @@ class ZarrDEM:
                                   f"got {heights.shape}")
         if np.isfinite(self.nodata):
             heights = np.where(np.isnan(heights), np.float32(self.nodata), heights)
-        array = _zarr().open_array(str(self.path / ARRAY_NAME), mode="r+")
-        array[w.row:w.row + w.height, w.col:w.col + w.width] = heights
+        _array(self.path, "r+")[w.row:w.row + w.height, w.col:w.col + w.width] = heights
         marker = self._marker(i, j)
         fd, tmp = tempfile.mkstemp(prefix=f".{marker.stem}.", suffix=".partial",
                                    dir=marker.parent)
@@ -221,9 +240,8 @@ class ZarrDEM:
         """Heights (float32, NaN unknown) and valid mask of a window (default: everything)."""
         window = window or Window(0, 0, self.shape[1], self.shape[0])
         window.check_inside(*self.shape)
-        array = _zarr().open_array(str(self.path / ARRAY_NAME), mode="r")
         rs, cs = window.slices
-        h = np.asarray(array[rs, cs], dtype=np.float32)
+        h = np.asarray(_array(self.path, "r")[rs, cs], dtype=np.float32)
         valid = np.isfinite(h)
         if np.isfinite(self.nodata):
             valid &= h != np.float32(self.nodata)
