@@ -53,7 +53,7 @@ import numpy as np
 from affine import Affine
 
 from terrain.catalog import CATALOG_COLUMNS
-from terrain.errors import CraterscapeError, InvalidParameterError, OutputPathError
+from terrain.errors import GapTooLargeError, InvalidParameterError, OutputPathError
 from terrain.tile import Window, default_transform
 from terrain.zarrstore import ZarrDEM, is_zarr
 
@@ -67,10 +67,6 @@ log = logging.getLogger(__name__)
 DEFAULT_CHUNK = 1024
 #: Smallest chunk side accepted (smaller chunks cost more in scheduling than they compute).
 MIN_CHUNK = 16
-
-
-class GapTooLargeError(CraterscapeError, ValueError):
-    """A gap does not fit inside a chunk's halo, so it cannot be filled chunk by chunk."""
 
 
 def open_reader(path, band: int = 1):

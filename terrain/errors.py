@@ -9,6 +9,7 @@ from __future__ import annotations
 
 __all__ = [
     "CraterscapeError",
+    "GapTooLargeError",
     "InvalidDEMError",
     "InvalidParameterError",
     "MemoryRequestError",
@@ -39,3 +40,7 @@ class OutputPathError(CraterscapeError, ValueError):
 
 class MemoryRequestError(CraterscapeError, MemoryError):
     """A request would need more memory than the machine has; refused before allocating."""
+
+
+class GapTooLargeError(CraterscapeError, ValueError):
+    """A gap does not fit inside a chunk's halo, so it cannot be filled chunk by chunk."""
