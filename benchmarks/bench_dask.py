@@ -91,11 +91,14 @@ def child_throughput(spec):
                 rss = client.run(lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
                 extra["worker_peak_rss_bytes"] = sorted(int(v) * 1024 for v in rss.values())
         times.append(report.seconds)
+        extra.setdefault("worker_s_per_chunk_runs", []).append(report.seconds_per_chunk)
         extra["cluster_start_s"] = started
         pixels = report.pixels
         extra["chunks"] = report.total
         shutil.rmtree(out)
     med = float(np.median(times))
+    if "worker_s_per_chunk_runs" in extra:
+        extra["worker_s_per_chunk"] = float(np.median(extra["worker_s_per_chunk_runs"]))
     return dict(summary(times), pixels=pixels, pixels_per_s=pixels / med,
                 peak_rss_bytes=peak_rss_bytes(), **extra)
 
@@ -245,6 +248,7 @@ def main(argv=None) -> int:
             baseline="memory",
             speedup_vs_memory={k: v["pixels_per_s"] / base for k, v in runs.items()},
             per_chunk_compute_s=runs["inprocess"]["median_s"] / runs["inprocess"]["chunks"],
+            worker_s_per_chunk={k: v.get("worker_s_per_chunk") for k, v in runs.items()},
             two_vs_one_worker=runs["cluster2"]["pixels_per_s"] / runs["cluster1"]["pixels_per_s"])
         results["overhead"] = _run_child(__file__, dict(
             kind="overhead", name="overhead", tasks=200, chunk=chunk, repeat=1, dir=str(work)),

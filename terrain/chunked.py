@@ -608,6 +608,9 @@ class RunReport:
         Wall time of the chunk phase.
     catalog : dict or None
         The crater catalogue of the whole DEM (craters sources).
+    computed_chunks : list of (row, col)
+    busy_seconds : float
+        Time the tasks spent computing and writing their chunks, summed over workers.
     """
 
     path: Path
@@ -618,6 +621,12 @@ class RunReport:
     seconds: float
     catalog: dict | None = None
     computed_chunks: list = field(default_factory=list)
+    busy_seconds: float = 0.0
+
+    @property
+    def seconds_per_chunk(self) -> float:
+        """Worker time per computed chunk (compute and write, without scheduling)."""
+        return self.busy_seconds / self.computed if self.computed else float("nan")
 
     @property
     def pixels_per_second(self) -> float:
@@ -625,14 +634,18 @@ class RunReport:
 
 
 def _chunk_task(source, store, block_info=None):
-    """One block of the run's Dask array: compute and write chunk (i, j) unless done."""
+    """One block of the run's Dask array: compute and write chunk (i, j) unless done.
+
+    Returns ``[[pixels, seconds]]`` computed (zeros for a chunk already written).
+    """
     i, j = block_info[None]["chunk-location"]
     if store.is_done(i, j):
-        return np.zeros((1, 1), dtype=np.int64)
+        return np.zeros((1, 2))
+    t0 = time.perf_counter()
     window = store.chunk_window(i, j)
     heights, catalog = source.compute(window)
     store.write_chunk(i, j, heights, catalog)
-    return np.full((1, 1), window.width * window.height, dtype=np.int64)
+    return np.array([[window.width * window.height, time.perf_counter() - t0]])
 
 
 def _open_store(source, path: Path, chunk: int, metadata=None) -> ZarrDEM:
@@ -691,12 +704,13 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None, progress=Non
     ny, nx = store.grid
     done_before = store.done_chunks()
     todo = [(i, j) for i in range(ny) for j in range(nx) if (i, j) not in done_before]
-    blocks = da.map_blocks(_chunk_task, source, store, dtype=np.int64,
-                           chunks=((1,) * ny, (1,) * nx), meta=np.empty((0, 0), np.int64),
+    blocks = da.map_blocks(_chunk_task, source, store, dtype=np.float64,
+                           chunks=((1,) * ny, (2,) * nx), meta=np.empty((0, 0)),
                            name=f"craterscape-chunk-{uuid.uuid4().hex}")
     delayed = blocks.to_delayed()
     t0 = time.perf_counter()
     pixels = 0
+    busy = 0.0
     done = len(done_before)
     total = ny * nx
     if progress is not None:
@@ -705,6 +719,7 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None, progress=Non
         for i, j in todo:
             (value,) = dask.compute(delayed[i, j], scheduler="synchronous")
             pixels += int(value[0, 0])
+            busy += float(value[0, 1])
             done += 1
             if progress is not None:
                 progress(done, total, pixels, time.perf_counter() - t0)
@@ -716,6 +731,7 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None, progress=Non
             for future in as_completed(futures):
                 value = future.result()
                 pixels += int(value[0, 0])
+                busy += float(value[0, 1])
                 done += 1
                 if progress is not None:
                     progress(done, total, pixels, time.perf_counter() - t0)
@@ -728,7 +744,8 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None, progress=Non
     store.mark_complete()
     log.info("%s: %d chunks computed, %d reused, %.3g Mpixel/s", path, len(todo),
              len(done_before), pixels / max(seconds, 1e-9) / 1e6)
-    return RunReport(path, total, len(todo), len(done_before), pixels, seconds, catalog, todo)
+    return RunReport(path, total, len(todo), len(done_before), pixels, seconds, catalog, todo,
+                     busy)
 
 
 def _merge_catalogs(store: ZarrDEM, source) -> dict:
