@@ -305,3 +305,21 @@ def test_a_cluster_started_with_dask_scheduler_and_dask_worker(dem, tmp_path):
         for p in reversed(procs):
             p.terminate()
             p.wait(timeout=30)
+
+
+def test_thread_workers_give_the_same_bytes(tmp_path):
+    with dask_client(2, processes=False) as threads:
+        run(SynthSource(129, seed=8), tmp_path / "t.zarr", chunk=48, client=threads)
+    assert np.array_equal(stored(tmp_path / "t.zarr"), synthesize_tile(129, seed=8).tile.heights)
+
+
+@pytest.mark.slow
+def test_an_unreachable_scheduler_is_one_line(tmp_path):
+    import socket
+
+    with socket.socket() as s:  # a free loopback port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    result = cli("terrain", "synth", "--size", "65", "-o", tmp_path / "s.zarr",
+                 "--scheduler", f"tcp://127.0.0.1:{port}")
+    one_line_error(result, "cannot reach the Dask scheduler", str(port))
