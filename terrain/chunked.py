@@ -169,9 +169,6 @@ class SynthSource:
     def plan(self) -> dict:
         return dict(kind="synth", metadata=self.metadata)
 
-    def halo(self) -> int:
-        return 0
-
     def compute(self, window: Window):
         from terrain.synthetic import synthesize_tile
 

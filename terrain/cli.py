@@ -608,6 +608,19 @@ def craters(input_dem, output, seed, window, band, dmin, dmax, density, sfd_expo
                      inputs=[input_dem])
         return
     _check_outputs(output, catalog, [input_dem])
+    if window is None and not _input_fits(input_dem, band):
+        from terrain.chunked import CraterSource, open_reader
+
+        reader = open_reader(input_dem, band)
+        pop = _population(population, dmin=dmin, dmax=dmax, density=density,
+                          sfd_exponent=sfd_exponent, max_age=max_age,
+                          resolution=reader.resolution,
+                          extent=min(reader.shape) * reader.resolution, required=True)
+        source = CraterSource(reader, pop, seed,
+                              _model(erosion_profile, erosion_exponent, no_roughness))
+        _run_out_of_core(source, output, workers=workers, threads=threads, scheduler=scheduler,
+                         chunk=chunk, label="craters", catalog=catalog, inputs=[input_dem])
+        return
     tile = read_dem(input_dem, band=band, exact=True)
     if window is not None:
         window.check_inside(*tile.shape)
@@ -978,6 +991,14 @@ def fill(input_dem, output, roughness, craters_at, despike, denoise, seed, band,
     from terrain.io import check_output_path, read_dem_exact, write_dem
 
     check_output_path(output, [input_dem, craters_at])
+    if (craters_at is None and despike is None and denoise is None
+            and not _input_fits(input_dem, band)):
+        from terrain.chunked import FillSource, open_reader
+
+        _run_out_of_core(FillSource(open_reader(input_dem, band), 256, seed, roughness), output,
+                         workers=workers, threads=threads, scheduler=scheduler, chunk=chunk,
+                         label="fill", inputs=[input_dem])
+        return
     tile, exact = read_dem_exact(input_dem, band=band)
     circles = read_circles(craters_at) if craters_at is not None else None
     removed = 0
@@ -1193,12 +1214,34 @@ def _run_out_of_core(source, output, *, workers, threads, scheduler, chunk, labe
             "running them out of core needs "
             f"about {memory.format_bytes(need)} of disk in '{parent}', but only "
             f"{memory.format_bytes(free)} is free")
+    if chunk is None:  # a chunk (with its halo) per worker well inside the memory there is
+        from terrain.chunked import DEFAULT_CHUNK
+
+        halo = getattr(source, "halo", 0)
+        share = memory.available_bytes() / (workers or 1) / 4
+        chunk = DEFAULT_CHUNK
+        while chunk > 64 and (chunk + 2 * halo) ** 2 * 64 > share:
+            chunk //= 2
     with tempfile.TemporaryDirectory(prefix=f".{output.name}.", dir=parent) as scratch:
         log.warning("%s: %dx%d pixels do not fit in memory; running chunk by chunk through "
                     "%s", label, source.shape[1], source.shape[0], scratch)
         _run_chunked(source, Path(scratch) / "out.zarr", workers=workers, threads=threads,
                      scheduler=scheduler, chunk=chunk, cog=output, label=label,
                      catalog=catalog, inputs=inputs)
+
+
+def _input_fits(input_dem, band) -> bool:
+    """Whether an input DEM and a whole-DEM operation's working copies fit in memory."""
+    from terrain.io import RasterReader
+    from terrain.zarrstore import is_zarr
+
+    if Path(input_dem).is_dir() and is_zarr(input_dem):
+        from terrain.zarrstore import ZarrDEM
+
+        ny, nx = ZarrDEM(input_dem).shape
+    else:
+        ny, nx = RasterReader(input_dem, band).shape
+    return _fits_in_memory(ny * nx * 40.0)
 
 
 def _fits_in_memory(nbytes: float) -> bool:

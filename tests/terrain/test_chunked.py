@@ -323,3 +323,14 @@ def test_an_unreachable_scheduler_is_one_line(tmp_path):
     result = cli("terrain", "synth", "--size", "65", "-o", tmp_path / "s.zarr",
                  "--scheduler", f"tcp://127.0.0.1:{port}")
     one_line_error(result, "cannot reach the Dask scheduler", str(port))
+
+
+def test_craters_larger_than_memory_run_out_of_core(dem, tmp_path):
+    small = {"CRATERSCAPE_MEMORY_LIMIT": "400K"}  # the input needs about 0.5 MB in memory
+    for args in (("craters", dem, "--density", "500", "--dmax", "20"),):
+        single, ooc = tmp_path / f"{args[0]}-single.tif", tmp_path / f"{args[0]}-ooc.tif"
+        assert cli("terrain", *args, "-o", single).exit_code == 0
+        result = cli("terrain", *args, "-o", ooc, env=small)
+        assert result.exit_code == 0, result.output
+        assert "do not fit in memory" in result.output
+        assert np.array_equal(read_dem(ooc).heights, read_dem(single).heights, equal_nan=True)
