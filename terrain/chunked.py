@@ -426,10 +426,14 @@ class FillSource:
     """Gap filling chunk by chunk (:func:`terrain.gapfill.fill_gaps`), with a halo.
 
     A chunk fills its window grown by ``halo`` pixels; that equals the same pixels of
-    filling the whole DEM when every gap touching the chunk, with the band of known pixels
-    that sets its roughness and stops its rays, lies inside the halo. A gap that does not
-    raises :class:`GapTooLargeError` naming its size and the halo it needs (check the whole
-    input first with :meth:`check_gaps`).
+    filling the whole DEM when every gap touching the chunk lies inside the halo together
+    with the gaps whose roughness rings meet its ring and a ring of known pixels around them
+    (:meth:`gaps_touching`). :func:`run` checks the whole input first (:meth:`check`) and
+    raises :class:`~terrain.errors.GapTooLargeError` naming the gap that needs the largest
+    halo and that halo. The Gaussians are keyed by global position (``fill_gaps(origin=)``).
+    Where a gap's ring has fewer than 4 measurable pixels, ``fill_gaps`` falls back to the
+    DEM-wide roughness, which a chunk measures on its own window: give ``roughness`` for
+    such tiny inputs.
     """
 
     reader: object
