@@ -150,6 +150,8 @@ class ZarrDEM:
             raise OutputPathError(f"output '{path}' already exists")
         zarr = _zarr()
         ny, nx = (int(v) for v in shape)
+        for mode in ("r", "r+"):  # a store made again at a path read before is a new store
+            _ARRAYS.pop((str(path), mode), None)
         group = zarr.open_group(str(path), mode="w-", zarr_format=2)
         fill = float(nodata) if np.isfinite(nodata) else float("nan")
         array = group.create_array(ARRAY_NAME, shape=(ny, nx), chunks=(chunk, chunk),

@@ -334,3 +334,13 @@ def test_craters_larger_than_memory_run_out_of_core(dem, tmp_path):
         assert result.exit_code == 0, result.output
         assert "do not fit in memory" in result.output
         assert np.array_equal(read_dem(ooc).heights, read_dem(single).heights, equal_nan=True)
+
+
+def test_a_store_made_again_at_the_same_path_is_read_afresh(tmp_path):
+    import shutil
+
+    out = tmp_path / "again.zarr"
+    run(SynthSource(65, seed=1), out, chunk=32)
+    shutil.rmtree(out)
+    run(SynthSource(129, seed=1), out, chunk=32)
+    assert np.array_equal(stored(out), synthesize_tile(129, seed=1).tile.heights)
