@@ -53,7 +53,12 @@ import numpy as np
 from affine import Affine
 
 from terrain.catalog import CATALOG_COLUMNS
-from terrain.errors import GapTooLargeError, InvalidParameterError, OutputPathError
+from terrain.errors import (
+    GapTooLargeError,
+    InvalidDEMError,
+    InvalidParameterError,
+    OutputPathError,
+)
 from terrain.tile import Window, default_transform
 from terrain.zarrstore import ZarrDEM, is_zarr
 
@@ -82,7 +87,15 @@ def open_reader(path, band: int = 1):
         store = ZarrDEM(path)
         store.check_complete()
         return store
-    return RasterReader(path, band=band)
+    reader = RasterReader(path, band=band)
+    if reader.wide:
+        # Chunks are float32: a wider type's known heights could be rounded, and a known
+        # height is never changed (in memory, read_dem_exact keeps them).
+        raise InvalidDEMError(
+            f"DEM '{path}' stores {reader.stored} heights, which a chunked run (float32 "
+            "chunks) could round; convert it first (gdal_translate -ot Float32) or run it in "
+            "memory")
+    return reader
 
 
 def _input_stamp(reader) -> dict:

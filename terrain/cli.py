@@ -47,7 +47,7 @@ MAX_CRATER_TO_DEM = 100.0
 MAX_Z_FACTOR = 1.0e6
 #: Path parameters that name what a command writes; every other path parameter is an input
 #: that no output may replace or enter (:func:`terrain.outputs.protect`).
-OUTPUT_PARAMS = frozenset({"output", "catalog"})
+OUTPUT_PARAMS = frozenset({"output", "catalog", "cog"})
 #: Path parameters a command edits in place (protected from nothing but themselves).
 IN_PLACE_PARAMS = frozenset({"stack_dir"})
 

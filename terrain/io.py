@@ -17,6 +17,8 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import os
+import tempfile
 import warnings
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -95,7 +97,7 @@ def _read_dem(path, band: int, exact: bool) -> tuple[DEMTile, np.ndarray | None]
     if not path.exists():
         raise MissingInputError(f"input DEM '{path}' does not exist")
     if path.is_dir():
-        return _read_zarr_dem(path)
+        return _read_zarr_dem(path), None
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
@@ -469,6 +471,7 @@ class RasterReader:
                     raise InvalidDEMError(
                         f"DEM '{path}' has {src.count} band(s); band {band} asked")
                 self.shape = (src.height, src.width)
+                stored = src.dtypes[band - 1]
                 scale = src.scales[band - 1] if src.scales else 1.0
                 offset = src.offsets[band - 1] if src.offsets else 0.0
                 crs, transform, nodata, tags = src.crs, src.transform, src.nodata, src.tags()
@@ -485,6 +488,9 @@ class RasterReader:
                                   "reproject it to a projected CRS in metres first")
         if transform.b != 0 or transform.d != 0:
             raise InvalidDEMError(f"DEM '{path}' is rotated; warp it to a north-up grid first")
+        self.stored = stored
+        #: Whether float32 may not hold the stored values exactly (see read_dem_exact).
+        self.wide = stored in _WIDE_TYPES
         self.metadata = {k: v for k, v in tags.items() if k.startswith("CRATERSCAPE_")}
         self.metadata["CRATERSCAPE_SOURCE"] = str(path)
         self.scale = 1.0 if scale is None else float(scale)

@@ -344,3 +344,15 @@ def test_a_store_made_again_at_the_same_path_is_read_afresh(tmp_path):
     shutil.rmtree(out)
     run(SynthSource(129, seed=1), out, chunk=32)
     assert np.array_equal(stored(out), synthesize_tile(129, seed=1).tile.heights)
+
+
+def test_a_float64_input_is_refused_by_chunked_runs_so_no_known_height_is_rounded(tmp_path):
+    from affine import Affine
+
+    path = tmp_path / "f64.tif"
+    heights = 1737400.0 + np.arange(33 * 33, dtype=np.float64).reshape(33, 33) * 0.0123
+    with rasterio.open(path, "w", driver="GTiff", width=33, height=33, count=1,
+                       dtype="float64", transform=Affine(1, 0, 0, 0, -1, 33)) as dst:
+        dst.write(heights, 1)
+    one_line_error(cli("terrain", "expand", path, "-o", tmp_path / "x.zarr"), "float64",
+                   "Float32")
