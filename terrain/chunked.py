@@ -43,7 +43,6 @@ import contextlib
 import json
 import logging
 import math
-import os
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -832,22 +831,12 @@ def dask_client(workers: int | None = None, scheduler: str | None = None,
 def _local_client(workers, processes, memory_limit, env):
     from dask.distributed import Client, LocalCluster
 
-    with _environ(env), LocalCluster(
+    # Worker processes get single-threaded numerics through the nanny's environment. This
+    # process's own environment is left alone: numba re-reads NUMBA_NUM_THREADS and refuses
+    # a value that differs from the one its thread pool started with.
+    extra = {"env": env} if processes else {}
+    with LocalCluster(
             n_workers=int(workers), threads_per_worker=1, processes=processes,
             dashboard_address=":0", memory_limit=memory_limit,
-            silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+            silence_logs=logging.ERROR, **extra) as cluster, Client(cluster) as client:
         yield client
-
-
-@contextlib.contextmanager
-def _environ(values):
-    old = {k: os.environ.get(k) for k in values}
-    os.environ.update(values)
-    try:
-        yield
-    finally:
-        for k, v in old.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
