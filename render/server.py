@@ -135,6 +135,7 @@ class _Connection:
         sc = server.scenario
         self.state = _State(sc, sc.lighting, dict(sc.raw.get("sensor", {})))
         self.thread = threading.Thread(target=self.run, name=f"client-{number}", daemon=True)
+        self.busy = False     # a request of this client is queued, in hand or being answered
         self._closed = threading.Event()
 
     # ------------------------------------------------------------------ I/O thread
@@ -157,7 +158,9 @@ class _Connection:
                 if reply is None:
                     return
                 rtype, rbody = reply
-                if not self.send(rtype, rid, rbody):
+                sent = self.send(rtype, rid, rbody)
+                self.busy = False
+                if not sent:
                     return
                 if rtype == ERROR and int.from_bytes(rbody[:2], "little") in CLOSING:
                     return
@@ -189,6 +192,7 @@ class _Connection:
             if kind == MsgType.HELLO and len(body) > MAX_TOKEN:
                 return ERROR, error_body(ErrorCode.MALFORMED, "token longer than 256 bytes")
             return kind | REPLY, b""
+        self.busy = True
         srv.work.put((self, kind, body))
         while True:
             try:
@@ -381,11 +385,11 @@ class RenderServer:
                                                 "the server is shutting down")))
         with self._lock:
             clients = list(self._clients)
-        for conn in clients:
-            if conn.replies.empty():
+        for conn in clients:  # idle ones now; busy ones once their reply is sent
+            if not conn.busy:
                 conn.close()
         for conn in clients:
-            conn.thread.join(timeout=2.0)
+            conn.thread.join(timeout=self.write_timeout + 1.0 if conn.busy else 2.0)
             conn.close()
         log.info("server stopped after %d requests", self.requests)
 
@@ -411,7 +415,7 @@ class RenderServer:
         if kind == MsgType.SET_SUN:
             sun = SUN.unpack(body)
             _finite("sun direction", sun)
-            st.lighting = dataclasses.replace(st.lighting, sun=sun)
+            st.lighting = dataclasses.replace(st.lighting, sun=_scaled(sun, "sun direction"))
             st.frame = None
             return b""
         if kind == MsgType.SET_SENSOR:
@@ -481,7 +485,7 @@ class RenderServer:
         if math.hypot(x, y, z) > MAX_POSITION:
             raise ProtocolError(ErrorCode.INVALID_VALUE,
                                 f"camera position more than {MAX_POSITION:g} m from the origin")
-        pose = Pose((x, y, z), (qw, qx, qy, qz))
+        pose = Pose((x, y, z), _scaled((qw, qx, qy, qz), "attitude quaternion"))
         self._check_outside(pose, t)
         st.pose, st.time, st.index, st.frame = pose, float(t), int(index), None
 
@@ -560,10 +564,8 @@ class RenderServer:
         """(range, point x, y, z, normal x, y, z) where a ray first meets the surface; NaN
         when it meets nothing. Rendered as one pixel at the finest level of detail."""
         o = np.asarray(origin, dtype=np.float64)
-        d = np.asarray(direction, dtype=np.float64)
+        d = np.asarray(_scaled(direction, "ray direction"))
         n = float(np.linalg.norm(d))
-        if not n > 0:
-            raise ProtocolError(ErrorCode.INVALID_VALUE, "ray direction must be non-zero")
         pose = look_at(o, o + d / n * max(1.0, float(np.linalg.norm(o))))
         axis = pose.rotation[:, 2]
         if self.scene.kind == "asteroid":
@@ -606,3 +608,17 @@ def _finite(what: str, values) -> None:
     if not all(math.isfinite(v) for v in values):
         raise ProtocolError(ErrorCode.INVALID_VALUE, f"{what} has a non-finite number: "
                             f"{[float(v) for v in values]}")
+
+
+def _scaled(values, what: str) -> tuple:
+    """A direction whose norm can neither overflow nor vanish: divided by its largest
+    magnitude when that lies outside [1e-100, 1e100] (kept as sent otherwise, so a pose sent
+    back from a truth file gives the same bytes); a zero vector is refused."""
+    v = np.asarray(values, dtype=np.float64)
+    m = float(np.max(np.abs(v)))
+    if not m > 0:
+        raise ProtocolError(ErrorCode.INVALID_VALUE, f"{what} must be non-zero; got "
+                            f"{v.tolist()}")
+    if not 1e-100 <= m <= 1e100:
+        v = v / m
+    return tuple(v.tolist())
