@@ -82,6 +82,9 @@ MAX_PIXELS = 4096 * 4096
 #: Focal length (pixels) of the one-pixel camera that casts a single ray: a 10 microradian
 #: pixel, so the terrain and the body are drawn at their finest level of detail along it.
 RAY_FOCAL = 1e5
+#: Bytes of last frames kept for all clients together (radiance, range, normals, image); the
+#: least recently rendered are dropped first and rendered again if asked for (same bytes).
+FRAME_CACHE_BYTES = 1 << 30
 #: Keys of SET_SENSOR handled by the server itself; the rest belong to the [sensor] table.
 SERVER_SENSOR_KEYS = ("width", "height", "noise")
 #: Sensor fields that carry noise (switched off by ``noise = false``) when the sensor record
@@ -144,8 +147,10 @@ class _Connection:
         try:
             while not srv.stopping.is_set():
                 try:
+                    # a client that has not yet shown the token gets no idle allowance
+                    idle = srv.idle_timeout if self.authorized else srv.read_timeout
                     _, msg_type, rid, body = read_message(
-                        self.sock, MAX_REQUEST_BODY, first_timeout=srv.idle_timeout,
+                        self.sock, MAX_REQUEST_BODY, first_timeout=idle,
                         timeout=srv.read_timeout)
                 except ProtocolError as exc:
                     self.send(ERROR, 0, error_body(exc.code, exc.reason))
@@ -274,6 +279,7 @@ class RenderServer:
         self._lock = threading.Lock()
         self._count = 0
         self._listener: socket.socket | None = None
+        self._cached: dict[int, _State] = {}   # insertion order = render order
         self.renderer: Renderer | None = None
         self.scene = None
         self.requests = 0
@@ -312,6 +318,7 @@ class RenderServer:
     def forget(self, conn: _Connection) -> None:
         with self._lock:
             self._clients.discard(conn)
+        self.work.put((conn, None, b""))  # the render thread drops its frame
 
     def stop(self, *_args) -> None:
         """Ask the server to stop after the request in hand (also the signal handler)."""
@@ -336,6 +343,10 @@ class RenderServer:
                 try:
                     conn, kind, body = self.work.get(timeout=0.25)
                 except queue.Empty:
+                    continue
+                if kind is None:  # the client is gone
+                    self._cached.pop(id(conn.state), None)
+                    conn.state.frame = None
                     continue
                 conn.replies.put(self._reply(conn, kind, body))
         finally:
@@ -378,11 +389,12 @@ class RenderServer:
         acceptor.join(timeout=2.0)
         while True:
             try:
-                conn, _, _ = self.work.get_nowait()
+                conn, kind, _ = self.work.get_nowait()
             except queue.Empty:
                 break
-            conn.replies.put((ERROR, error_body(ErrorCode.SHUTTING_DOWN,
-                                                "the server is shutting down")))
+            if kind is not None:
+                conn.replies.put((ERROR, error_body(ErrorCode.SHUTTING_DOWN,
+                                                    "the server is shutting down")))
         with self._lock:
             clients = list(self._clients)
         for conn in clients:  # idle ones now; busy ones once their reply is sent
@@ -549,7 +561,20 @@ class RenderServer:
             sc = dataclasses.replace(st.scenario, lighting=st.lighting, sensor=st.sensor)
             sample = Sample(st.time, st.pose, tuple(self.body_rotation(st.time).tolist()))
             st.frame = render_sample(self.renderer, self.scene, sc, sample, st.index)
+            self._remember(st)
         return st.frame
+
+    def _remember(self, st: _State) -> None:
+        """Keep ``st``'s frame; drop the oldest other frames beyond FRAME_CACHE_BYTES."""
+        self._cached.pop(id(st), None)
+        self._cached[id(st)] = st
+        total = sum(_frame_bytes(s.frame) for s in self._cached.values())
+        for key in list(self._cached):
+            if total <= FRAME_CACHE_BYTES or key == id(st):
+                break
+            old = self._cached.pop(key)
+            total -= _frame_bytes(old.frame)
+            old.frame = None
 
     def body_rotation(self, t: float) -> np.ndarray:
         """R_WB at time ``t`` as the scenario's [scene] spin says (identity for terrain)."""
@@ -602,6 +627,13 @@ class RenderServer:
         nrm = np.array([-gx, -gy, 1.0])
         nrm /= np.linalg.norm(nrm)
         return (h, *nrm.tolist())
+
+
+def _frame_bytes(frame) -> int:
+    if frame is None:
+        return 0
+    image, fr, _ = frame
+    return image.nbytes + fr.radiance.nbytes + fr.range.nbytes + fr.normals.nbytes
 
 
 def _finite(what: str, values) -> None:

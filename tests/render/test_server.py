@@ -583,3 +583,29 @@ def test_asteroid_time_turns_the_body_as_render_frame_does(asteroid_scenario, tm
         with pytest.raises(ServerError) as err:
             c.height_at(0.0, 0.0)
         assert err.value.code == E_UNSUPPORTED
+
+
+def test_last_frames_beyond_the_cache_budget_are_dropped_oldest_first(monkeypatch, scenario):
+    from render import server as mod
+    from render.renderer import Frame
+    from render.scenario import load_scenario
+
+    srv = mod.RenderServer(load_scenario(scenario), port=0)
+    sc = srv.scenario
+
+    def state():
+        st = mod._State(sc, sc.lighting, {})
+        z = np.zeros((100, 100), np.float32)
+        st.frame = (z.astype(np.uint8), Frame(z, z, np.zeros((100, 100, 3), np.float32)), None)
+        return st
+
+    one = mod._frame_bytes(state().frame)
+    monkeypatch.setattr(mod, "FRAME_CACHE_BYTES", 2 * one)
+    a, b, c = state(), state(), state()
+    for st in (a, b, c):
+        srv._remember(st)
+    assert a.frame is None and b.frame is not None and c.frame is not None
+    srv._remember(b)  # b used again: c is now the oldest
+    d = state()
+    srv._remember(d)
+    assert c.frame is None and b.frame is not None and d.frame is not None
