@@ -477,6 +477,10 @@ def test_binding_beyond_loopback_needs_a_token(scenario):
                    "token")
 
 
+def test_a_port_in_use_is_a_one_line_error(server, scenario):
+    one_line_error(run("render", "serve", scenario, "--port", server[1]), "cannot listen")
+
+
 def test_a_token_server_refuses_clients_without_it(scenario):
     from render.client import Client
     from render.errors import ServerError
@@ -492,7 +496,8 @@ def test_a_token_server_refuses_clients_without_it(scenario):
             assert c.info()["scene"] == "terrain"
 
 
-def test_sigterm_finishes_the_request_in_hand_and_exits_cleanly(scenario):
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_finishes_the_request_in_hand_and_exits_cleanly(scenario, sig):
     from render.client import Client
 
     with served(scenario) as (proc, port):
@@ -504,7 +509,7 @@ def test_sigterm_finishes_the_request_in_hand_and_exits_cleanly(scenario):
             th = threading.Thread(target=lambda: got.setdefault("image", c.get_image()))
             th.start()
             time.sleep(0.3)               # the frame is being rendered
-            proc.send_signal(signal.SIGTERM)
+            proc.send_signal(sig)
             th.join(timeout=60)
             assert got["image"].shape == (1536, 1536)
         assert proc.wait(timeout=30) == 0
