@@ -13,10 +13,15 @@ scaled about the principal point by the altitude ratio (the altimeter's), so onl
 translation is left, which phase correlation measures to a fraction of a pixel; pixels become
 metres through the altitude and the focal length (the camera's intrinsics, from ``INFO``).
 The position estimate starts from an orbit-determination guess (``--initial-error`` metres
-off) and integrates that velocity. Guidance brings the estimated position over the site with
-a proportional-derivative law (acceleration limited to 1 m/s^2) while descending at the
-altitude over a time constant (``--tau``), slowing to 1 m/s for the last metres, and
-stops at touchdown (altimeter below ``--touchdown`` metres).
+off) and integrates that velocity. Above ``--trn-above`` metres it is also fixed by
+terrain-relative navigation: the server renders what the camera should see from the
+estimated position (standing in for the onboard map a real lander carries) and phase
+correlation against the real image gives the position error. Below that, and whenever the
+correlation peak is weak, navigation runs on optical flow and dead reckoning alone.
+Guidance brings the estimated position over the site with a proportional-derivative law
+(acceleration limited to 1 m/s^2) while descending at the altitude over a time constant
+(``--tau``), slowing to 1 m/s for the last metres, and stops at touchdown (altimeter below
+``--touchdown`` metres).
 
 The truth (the vehicle's real motion, with keyed thruster noise) is simulated here and used
 only to score the navigation. Written to ``--out``: ``trajectory.csv`` (truth, estimate,
@@ -99,7 +104,8 @@ def optical_flow(previous: np.ndarray, current: np.ndarray, zoom: float, centre)
 
 
 def fly(client, out: Path, *, size: int, dt: float, tau: float, touchdown: float,
-        start_altitude: float, offset, drift, initial_error, max_steps: int = 2000) -> dict:
+        start_altitude: float, offset, drift, initial_error, trn_above: float = 500.0,
+        max_steps: int = 2000) -> dict:
     """Fly one landing against a connected :class:`render.client.Client`; see the module
     docstring. Returns the summary."""
     from render.errors import ServerError
@@ -152,12 +158,25 @@ def fly(client, out: Path, *, size: int, dt: float, tau: float, touchdown: float
             dxy = 0.5 * (est_vxy + predicted) * dt if previous is not None else np.zeros(2)
             est_vxy = predicted
         est_xy = est_xy + dxy
+        trn = (math.nan, math.nan, math.nan)
+        if trn_above > 0 and math.isfinite(alt) and alt >= trn_above:
+            # terrain-relative navigation: the onboard map (the server rendering the scene from
+            # the estimated pose) against the real image; their shift is the position error
+            try:
+                client.set_pose((est_xy[0], est_xy[1], ground + alt), NADIR, time=t, frame=step)
+                trn = optical_flow(client.get_image(bits=8), image, 1.0, (cx, cy))
+            except ServerError as exc:
+                if exc.code != ErrorCode.INSIDE_SURFACE:
+                    raise
+            if math.isfinite(trn[2]) and trn[2] >= MIN_PEAK:
+                est_xy = est_xy + np.array([-trn[0] * alt / f, trn[1] * alt / f])
         est_z = ground + alt
         true_alt = p[2] - client.height_at(p[0], p[1])[0]
         rows.append(dict(step=step, time=t, x=p[0], y=p[1], z=p[2], vx=v[0], vy=v[1], vz=v[2],
                          est_x=est_xy[0], est_y=est_xy[1], est_z=est_z, est_vx=est_vxy[0],
                          est_vy=est_vxy[1], altimeter=alt, true_altitude=true_alt,
                          flow_du=flow[0], flow_dv=flow[1], flow_peak=flow[2],
+                         trn_du=trn[0], trn_dv=trn[1], trn_peak=trn[2],
                          err_x=est_xy[0] - p[0], err_y=est_xy[1] - p[1], err_z=est_z - p[2],
                          err_vx=est_vxy[0] - v[0], err_vy=est_vxy[1] - v[1]))
         if not math.isfinite(alt) or alt <= touchdown:
@@ -179,6 +198,7 @@ def fly(client, out: Path, *, size: int, dt: float, tau: float, touchdown: float
     summary = write_outputs(out, rows, site, ground, dict(
         size=size, dt=dt, tau=tau, touchdown=touchdown, start_altitude=start_altitude,
         offset=list(offset), drift=list(drift), initial_error=list(initial_error),
+        trn_above=trn_above,
         scenario=info["scenario"], seed=SEED), crashed)
     return summary
 
@@ -263,6 +283,8 @@ def main(argv=None) -> int:
                         help="start velocity east, north (m/s)")
     parser.add_argument("--initial-error", type=float, nargs=2, default=(30.0, -20.0),
                         help="error of the initial position estimate (m)")
+    parser.add_argument("--trn-above", type=float, default=500.0,
+                        help="terrain-relative position fixes above this altitude (m; 0: none)")
     args = parser.parse_args(argv)
     if args.port is None and args.scenario is None:
         parser.error("give a SCENARIO to serve, or --port of a running server")
@@ -278,7 +300,7 @@ def main(argv=None) -> int:
             summary = fly(client, args.out, size=args.size, dt=args.dt, tau=args.tau,
                           touchdown=args.touchdown, start_altitude=args.start_altitude,
                           offset=args.offset, drift=args.drift,
-                          initial_error=args.initial_error)
+                          initial_error=args.initial_error, trn_above=args.trn_above)
     finally:
         if proc is not None:
             proc.send_signal(signal.SIGTERM)

@@ -731,8 +731,10 @@ def closed_loop_section(folder: Path, report_dir: Path):
         f"and a {s['size']} x {s['size']} nadir image (SET_POSE, GET_IMAGE), and nothing else. "
         "Lateral velocity is optical flow (phase correlation after scaling the previous image "
         "by the altimeter's altitude ratio); position integrates it from an initial guess "
-        f"{math.hypot(*s['initial_error']):.0f} m off; the vehicle's true motion, with thruster "
-        "noise, is simulated beside it and used only to score the navigation.")
+        f"{math.hypot(*s['initial_error']):.0f} m off, fixed above {s['trn_above']:.0f} m by "
+        "terrain-relative navigation (the server's view from the estimated position, standing "
+        "in for an onboard map, correlated with the real image). The vehicle's true motion, "
+        "with thruster noise, is simulated beside it and used only to score the navigation.")
     sec.tables.append(("The landing", ["quantity", "value"], [
         ["start", f"{s['start_altitude']:.0f} m above the site, "
                   f"{math.hypot(*s['offset']):.0f} m off it"],
