@@ -231,16 +231,18 @@ def write_outputs(out: Path, rows: list[dict], site, ground, params: dict,
                                  median=float(np.median(lateral)), max=float(lateral.max())),
         nav_error_velocity_mps=dict(median=float(np.nanmedian(vel)),
                                     max=float(np.nanmax(vel))),
-        nav_error_vertical_m=dict(final=float(last["err_z"]),
-                                  max_abs=float(max(abs(r["err_z"]) for r in rows))),
+        nav_error_altitude_m=dict(max_abs=float(max(abs(r["altimeter"] - r["true_altitude"])
+                                                    for r in rows))),
+        nav_error_height_above_site_m=dict(final=float(last["err_z"]),
+                                           max_abs=float(max(abs(r["err_z"]) for r in rows))),
         touchdown_speed_mps=math.hypot(last["vx"], last["vy"], last["vz"]),
         site=[float(site[0]), float(site[1]), float(ground)])
     (out / "summary.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
-    plot(out / "closed_loop.png", rows, site)
+    plot(out / "closed_loop.png", rows, site, ground)
     return summary
 
 
-def plot(path: Path, rows: list[dict], site) -> None:
+def plot(path: Path, rows: list[dict], site, ground: float) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -255,13 +257,14 @@ def plot(path: Path, rows: list[dict], site) -> None:
     ax[0].set(xlabel="east of site (m)", ylabel="north of site (m)", title="ground track")
     ax[0].set_aspect("equal", "datalim")
     ax[0].legend(fontsize=8)
-    ax[1].plot(t, [r["z"] - rows[0]["z"] + rows[0]["true_altitude"] for r in rows],
-               label="height above the site's start (truth)")
-    ax[1].plot(t, [r["altimeter"] for r in rows], ".", ms=3, label="laser altimeter")
+    ax[1].plot(t, [r["z"] - ground for r in rows], label="height above the site (truth)")
+    ax[1].plot(t, [r["altimeter"] for r in rows], ".", ms=3,
+               label="laser altimeter (to the ground below)")
     ax[1].set(xlabel="time (s)", ylabel="m", title="descent", yscale="log")
     ax[1].legend(fontsize=8)
     ax[2].plot(t, [math.hypot(r["err_x"], r["err_y"]) for r in rows], label="lateral (m)")
-    ax[2].plot(t, [abs(r["err_z"]) for r in rows], label="vertical (m)")
+    ax[2].plot(t, [abs(r["altimeter"] - r["true_altitude"]) + 1e-6 for r in rows],
+               label="altitude (m)")
     ax[2].plot(t, [math.hypot(r["err_vx"], r["err_vy"]) for r in rows],
                label="lateral velocity (m/s)")
     ax[2].set(xlabel="time (s)", title="navigation error against truth", yscale="log")
