@@ -17,6 +17,7 @@ import json
 import math
 import socket
 import struct
+import time
 from enum import IntEnum
 
 from render.errors import ProtocolError
@@ -135,13 +136,22 @@ def parse_error(body: bytes) -> tuple[int, str]:
     return code, body[ERROR_HEAD.size:].decode("utf-8", "replace")
 
 
-def read_exact(sock: socket.socket, n: int) -> bytes:
-    """Exactly ``n`` bytes from ``sock`` (its timeout applies to each recv); EOF before that
-    raises ConnectionError."""
+def read_exact(sock: socket.socket, n: int, deadline: float | None = None) -> bytes:
+    """Exactly ``n`` bytes from ``sock``; EOF before that raises ConnectionError.
+
+    ``deadline`` (a ``time.monotonic()`` value) bounds the whole read, so a peer trickling a
+    byte at a time cannot stretch it (TimeoutError); without one, the socket's own timeout
+    applies to each recv.
+    """
     buf = bytearray(n)
     view = memoryview(buf)
     got = 0
     while got < n:
+        if deadline is not None:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise TimeoutError(f"message incomplete after the timeout ({got} of {n} bytes)")
+            sock.settimeout(left)
         k = sock.recv_into(view[got:], n - got)
         if k == 0:
             raise ConnectionError(f"connection closed after {got} of {n} bytes")
@@ -153,17 +163,18 @@ def read_message(sock: socket.socket, max_body: int, *, first_timeout: float | N
                  timeout: float | None = None) -> tuple[int, int, int, bytes]:
     """Read one message: (version, type, request id, body).
 
-    ``first_timeout`` bounds the wait for the header's first byte, ``timeout`` every later
-    read. The length is checked against ``max_body`` before the body is read. Raises
-    :class:`~render.errors.ProtocolError` for a bad magic or an oversized body, ConnectionError
-    at EOF and TimeoutError when a read times out.
+    ``first_timeout`` bounds the wait for the header's first byte, ``timeout`` the rest of the
+    message from then on (header and body together). The length is checked against
+    ``max_body`` before the body is read. Raises :class:`~render.errors.ProtocolError` for a
+    bad magic or an oversized body, ConnectionError at EOF and TimeoutError when a read times
+    out.
     """
     sock.settimeout(first_timeout)
     first = sock.recv(1)
     if not first:
         raise ConnectionError("connection closed")
-    sock.settimeout(timeout)
-    head = first + read_exact(sock, HEADER.size - 1)
+    deadline = None if timeout is None else time.monotonic() + timeout
+    head = first + read_exact(sock, HEADER.size - 1, deadline)
     version, msg_type, request_id, length = unpack_header(head)
     if version != VERSION:
         raise ProtocolError(ErrorCode.BAD_VERSION,
@@ -172,7 +183,7 @@ def read_message(sock: socket.socket, max_body: int, *, first_timeout: float | N
     if length > max_body:
         raise ProtocolError(ErrorCode.TOO_LARGE,
                             f"message body of {length} bytes exceeds the maximum {max_body}")
-    body = read_exact(sock, length) if length else b""
+    body = read_exact(sock, length, deadline) if length else b""
     return version, msg_type, request_id, body
 
 

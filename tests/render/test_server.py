@@ -430,6 +430,16 @@ def test_a_stalled_client_does_not_stall_the_others_and_times_out(server, refere
     rtype, _, body = slow.reply()       # the read timeout (3 s here) then closes it
     assert error_of(rtype, body) == E_TIMEOUT and slow.closed()
     slow.close()
+    # trickling a byte at a time does not stretch the read timeout
+    trickle = Raw(port)
+    message = HDR.pack(b"CSRV", 1, T_SET_SENSOR, 1, 2000) + b"{" * 2000
+    t0 = time.monotonic()
+    with contextlib.suppress(OSError):
+        for byte in message:
+            trickle.s.sendall(bytes([byte]))
+            time.sleep(0.05)
+    assert time.monotonic() - t0 < 6.0
+    trickle.close()
 
 
 def test_four_clients_fifty_requests_each_memory_flat(server, reference):
