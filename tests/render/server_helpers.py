@@ -10,7 +10,9 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
+REPO = Path(__file__).resolve().parents[2]
 #: Starts the command line exactly as the `craterscape` script does.
 CRATERSCAPE = [sys.executable, "-c", "import sys; from terrain.cli import main; sys.exit(main())"]
 

@@ -221,6 +221,33 @@ def test_raw_socket_client_from_the_spec(server, reference):
         c.close()
 
 
+def test_a_c_client_written_from_the_spec(server, reference, tmp_path):
+    import shutil
+    import subprocess
+
+    import cv2
+
+    from render.client import Client
+    from tests.render.server_helpers import REPO
+
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        pytest.skip("no C compiler here (apt-get install gcc) for examples/render_client.c")
+    exe = tmp_path / "render_client"
+    subprocess.run([cc, "-O2", "-Wall", "-Werror", "-o", str(exe),
+                    str(REPO / "examples" / "render_client.c")], check=True, timeout=120)
+    t = reference["truth"]
+    out = tmp_path / "c.pgm"
+    args = [*t["camera"]["position"], *t["camera"]["attitude"], t["time"], t["index"]]
+    done = subprocess.run([str(exe), "127.0.0.1", str(server[1]), *map(repr, args), str(out)],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert cv2.imread(str(out), cv2.IMREAD_UNCHANGED).tobytes() == reference["image"].tobytes()
+    with Client("127.0.0.1", server[1]) as c:
+        expected = c.ray(t["camera"]["position"], (0.0, 0.0, -1.0)).range
+    assert float(done.stdout) == pytest.approx(expected, abs=1e-6)
+
+
 # ---------------------------------------------------------------- surface queries
 def test_height_normal_and_rays_agree_with_the_dem(server, stack_dir):
     from render.client import Client
