@@ -118,8 +118,19 @@ class Client:
         return json.loads(self.request(MsgType.INFO))
 
     def set_pose(self, position, attitude, time: float = 0.0, frame: int = 0) -> None:
-        """Camera centre (world, m), attitude quaternion [w, x, y, z] of R_WC, time (s) and the
-        frame index that keys the sensor noise."""
+        """Place the camera.
+
+        Parameters
+        ----------
+        position : (3,) float, metres
+            Camera centre in the world frame.
+        attitude : (4,) float
+            Quaternion [w, x, y, z] of R_WC (camera to world; normalised by the server).
+        time : float, seconds
+            Scene time (turns an asteroid as its scenario's spin says).
+        frame : int
+            Frame index that keys the sensor noise (same index, same noise).
+        """
         p = [float(v) for v in position]
         q = [float(v) for v in attitude]
         if len(p) != 3 or len(q) != 4:
@@ -138,7 +149,18 @@ class Client:
                                        json.dumps(settings).encode("utf-8")))
 
     def get_image(self, bits: int = 0) -> np.ndarray:
-        """(h, w) uint8 or uint16 camera image; ``bits`` 0 keeps the sensor's depth."""
+        """The camera image of the current pose.
+
+        Parameters
+        ----------
+        bits : {0, 8, 16}
+            Bit depth; 0 keeps the sensor's.
+
+        Returns
+        -------
+        image : (height, width) uint8 or uint16, DN
+            Top row first; equals ``craterscape render frame`` at the same pose and index.
+        """
         body = self.request(MsgType.GET_IMAGE, BITS.pack(int(bits)))
         w, h, b, _ = IMAGE_HEAD.unpack_from(body)
         dtype = np.dtype("<u1") if b == 8 else np.dtype("<u2")
@@ -146,13 +168,25 @@ class Client:
             np.uint8 if b == 8 else np.uint16)
 
     def get_range(self) -> np.ndarray:
-        """(h, w) float32 LIDAR range (m along each pixel's ray); NaN where nothing is hit."""
+        """The LIDAR range image of the current pose.
+
+        Returns
+        -------
+        range : (height, width) float32, metres
+            Distance from the camera centre along each pixel's ray; NaN where nothing is hit.
+        """
         body = self.request(MsgType.GET_RANGE)
         w, h = ARRAY_HEAD.unpack_from(body)
         return _array(body[ARRAY_HEAD.size:], np.dtype("<f4"), (h, w)).astype(np.float32)
 
     def get_normals(self) -> np.ndarray:
-        """(h, w, 3) float32 world-frame surface normals; NaN where nothing is hit."""
+        """The surface normals seen from the current pose.
+
+        Returns
+        -------
+        normals : (height, width, 3) float32, unit vectors
+            World frame; NaN where nothing is hit.
+        """
         body = self.request(MsgType.GET_NORMALS)
         w, h = ARRAY_HEAD.unpack_from(body)
         return _array(body[ARRAY_HEAD.size:], np.dtype("<f4"), (h, w, 3)).astype(np.float32)
@@ -162,7 +196,20 @@ class Client:
         return json.loads(self.request(MsgType.GET_TRUTH))
 
     def height_at(self, x: float, y: float) -> tuple[float, np.ndarray]:
-        """Terrain height (m) and unit normal at map (x, y)."""
+        """Terrain height and normal at a map point (terrain scenes).
+
+        Parameters
+        ----------
+        x, y : float, metres
+            Map coordinates.
+
+        Returns
+        -------
+        height : float, metres
+            World-frame height as rendered (curvature applied).
+        normal : (3,) float64
+            Unit surface normal, world frame.
+        """
         h, *n = HEIGHT_REPLY.unpack(self.request(MsgType.HEIGHT_AT, XY.pack(x, y)))
         return h, np.array(n)
 
@@ -171,7 +218,20 @@ class Client:
         return _hit(self.request(MsgType.PIXEL_RAY, XY.pack(u, v)))
 
     def ray(self, origin, direction) -> RayHit:
-        """Range along one ray (a laser altimeter) and where it meets the surface."""
+        """Where one ray first meets the surface (a laser altimeter).
+
+        Parameters
+        ----------
+        origin : (3,) float, metres
+            World frame.
+        direction : (3,) float
+            Any non-zero length.
+
+        Returns
+        -------
+        RayHit
+            Range (m), point and normal; NaN when the ray meets nothing.
+        """
         values = [float(v) for v in origin] + [float(v) for v in direction]
         return _hit(self.request(MsgType.RAY, RAY.pack(*values)))
 
