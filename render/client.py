@@ -153,19 +153,19 @@ class Client:
 
         Parameters
         ----------
-        bits : {0, 8, 16}
-            Bit depth; 0 keeps the sensor's.
+        bits : int
+            Bit depth 1 to 16; 0 keeps the sensor's.
 
         Returns
         -------
-        image : (height, width) uint8 or uint16, DN
+        image : (height, width) uint8 (bits <= 8) or uint16, DN
             Top row first; equals ``craterscape render frame`` at the same pose and index.
         """
         body = self.request(MsgType.GET_IMAGE, BITS.pack(int(bits)))
         w, h, b, _ = IMAGE_HEAD.unpack_from(body)
-        dtype = np.dtype("<u1") if b == 8 else np.dtype("<u2")
+        dtype = np.dtype("<u1") if b <= 8 else np.dtype("<u2")
         return _array(body[IMAGE_HEAD.size:], dtype, (h, w)).astype(
-            np.uint8 if b == 8 else np.uint16)
+            np.uint8 if b <= 8 else np.uint16)
 
     def get_range(self) -> np.ndarray:
         """The LIDAR range image of the current pose.

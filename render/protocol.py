@@ -91,7 +91,7 @@ CLOSING = frozenset({ErrorCode.BAD_MAGIC, ErrorCode.BAD_VERSION, ErrorCode.TOO_L
 # Fixed bodies (little-endian).
 POSE = struct.Struct("<3d4ddII")      # position, attitude (w, x, y, z), time, frame, flags
 SUN = struct.Struct("<3d")            # direction towards the sun
-BITS = struct.Struct("<B")            # 0, 8 or 16
+BITS = struct.Struct("<B")            # 0 (the sensor's) or 1 to 16
 XY = struct.Struct("<2d")             # map x, y  /  pixel u, v
 RAY = struct.Struct("<6d")            # origin, direction
 HEIGHT_REPLY = struct.Struct("<4d")   # height, normal

@@ -87,9 +87,9 @@ RAY_FOCAL = 1e5
 FRAME_CACHE_BYTES = 1 << 30
 #: Keys of SET_SENSOR handled by the server itself; the rest belong to the [sensor] table.
 SERVER_SENSOR_KEYS = ("width", "height", "noise")
-#: Sensor fields that carry noise (switched off by ``noise = false``) when the sensor record
-#: has no ``noiseless()`` method of its own.
-NOISE_FIELDS = ("gain", "read_noise")
+#: What ``noise = false`` sets on the sensor: no shot noise, no read noise, no fixed pattern
+#: (dark current stays: its mean is signal).
+NOISELESS = {"shot_noise": False, "read_noise": 0.0, "prnu": 0.0}
 
 
 def is_loopback(host: str) -> bool:
@@ -102,11 +102,7 @@ def is_loopback(host: str) -> bool:
 
 
 def _noiseless(sensor):
-    own = getattr(sensor, "noiseless", None)
-    if callable(own):
-        return own()
-    fields = {f.name for f in dataclasses.fields(sensor)}
-    return dataclasses.replace(sensor, **{k: 0.0 for k in NOISE_FIELDS if k in fields})
+    return dataclasses.replace(sensor, **NOISELESS)
 
 
 @dataclass(eq=False)
@@ -434,15 +430,19 @@ class RenderServer:
             return json_body(self._set_sensor(st, body))
         if kind == MsgType.GET_IMAGE:
             (bits,) = BITS.unpack(body)
-            if bits not in (0, 8, 16):
-                raise ProtocolError(ErrorCode.INVALID_VALUE, f"bits must be 0, 8 or 16; got {bits}")
+            if bits > 16:
+                raise ProtocolError(ErrorCode.INVALID_VALUE,
+                                    f"bits must be 0 (the sensor's) or 1 to 16; got {bits}")
             image, frame, _ = self._frame(st)
-            if bits and bits != image.itemsize * 8:
-                image = dataclasses.replace(st.sensor, bits=bits).expose(frame.radiance,
-                                                                         frame=st.index)
+            sensor = st.sensor
+            if bits and bits != sensor.bits:
+                sensor = dataclasses.replace(sensor, bits=bits)
+                image = sensor.expose(frame.radiance, frame=st.index,
+                                      intrinsics=st.scenario.intrinsics,
+                                      spectral_irradiance=st.lighting.spectral_irradiance)
             h, w = image.shape
-            return IMAGE_HEAD.pack(w, h, image.itemsize * 8, 0) + image.astype(
-                "<u1" if image.itemsize == 1 else "<u2").tobytes()
+            return IMAGE_HEAD.pack(w, h, sensor.bits, 0) + image.astype(
+                "<u1" if sensor.bits <= 8 else "<u2").tobytes()
         if kind in (MsgType.GET_RANGE, MsgType.GET_NORMALS):
             _, frame, _ = self._frame(st)
             a = frame.range if kind == MsgType.GET_RANGE else frame.normals
@@ -485,7 +485,7 @@ class RenderServer:
         return out
 
     def _sensor_info(self, st: _State) -> dict:
-        d = dict(dataclasses.asdict(st.scenario.sensor), noise=st.noise)
+        d = dict(st.scenario.sensor.as_dict(), noise=st.noise)
         d.update(st.scenario.intrinsics.as_dict())
         return d
 

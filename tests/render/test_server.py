@@ -322,7 +322,7 @@ def test_bad_requests_get_error_replies_and_the_connection_lives_on(server):
             (lambda: c.set_pose((sx, sy, 1e12), (0, 1, 0, 0)), E_INVALID),
             (lambda: c.set_sun((0.0, 0.0, 0.0)), E_INVALID),
             (lambda: c.set_sensor(expsure=3.0), E_INVALID),
-            (lambda: c.set_sensor(bits=12), E_INVALID),
+            (lambda: c.set_sensor(bits=17), E_INVALID),
             (lambda: c.set_sensor(width=100000), E_INVALID),
             (lambda: c.set_sensor(noise="yes"), E_INVALID),
             (lambda: c.height_at(-1e6, 0.0), E_INVALID),
@@ -330,7 +330,7 @@ def test_bad_requests_get_error_replies_and_the_connection_lives_on(server):
             (lambda: c.request(T_SET_SENSOR, b"[1, 2"), E_MALFORMED),
             (lambda: c.request(T_SET_SENSOR, b"\xff\xfe"), E_MALFORMED),
             (lambda: c.request(T_SET_POSE, b"\x00" * 10), E_MALFORMED),
-            (lambda: c.request(T_GET_IMAGE, b"\x07"), E_INVALID),
+            (lambda: c.request(T_GET_IMAGE, b"\x11"), E_INVALID),
             (lambda: c.request(0x4242), E_UNKNOWN_TYPE),
         ]
         for call, code in cases:
