@@ -29,6 +29,7 @@ from render.protocol import (
     HEIGHT_REPLY,
     IMAGE_HEAD,
     MAX_REPLY_BODY,
+    MOTION,
     POSE,
     RAY,
     RAY_REPLY,
@@ -141,6 +142,26 @@ class Client:
     def set_sun(self, direction) -> None:
         """Direction towards the sun (world frame)."""
         self.request(MsgType.SET_SUN, SUN.pack(*(float(v) for v in direction)))
+
+    def set_motion(self, velocity, angular_velocity=(0.0, 0.0, 0.0),
+                   body_angular_velocity=(0.0, 0.0, 0.0)) -> None:
+        """Velocities held during the exposure (motion blur, rolling shutter).
+
+        Parameters
+        ----------
+        velocity : (3,) float, m/s
+            Camera velocity, world frame.
+        angular_velocity : (3,) float, rad/s
+            Camera angular velocity, world frame.
+        body_angular_velocity : (3,) float, rad/s
+            The asteroid's spin, world frame.
+        """
+        values = [float(x) for v in (velocity, angular_velocity, body_angular_velocity)
+                  for x in v]
+        if len(values) != 9:
+            raise ValueError("velocity, angular_velocity and body_angular_velocity need 3 "
+                             "numbers each")
+        self.request(MsgType.SET_MOTION, MOTION.pack(*values))
 
     def set_sensor(self, **settings) -> dict:
         """Change sensor settings (any [sensor] key, ``width``, ``height``, ``noise``); returns

@@ -55,6 +55,7 @@ class MsgType(IntEnum):
     SET_POSE = 0x0010
     SET_SUN = 0x0011
     SET_SENSOR = 0x0012
+    SET_MOTION = 0x0013
     GET_IMAGE = 0x0020
     GET_RANGE = 0x0021
     GET_NORMALS = 0x0022
@@ -91,6 +92,7 @@ CLOSING = frozenset({ErrorCode.BAD_MAGIC, ErrorCode.BAD_VERSION, ErrorCode.TOO_L
 # Fixed bodies (little-endian).
 POSE = struct.Struct("<3d4ddII")      # position, attitude (w, x, y, z), time, frame, flags
 SUN = struct.Struct("<3d")            # direction towards the sun
+MOTION = struct.Struct("<9d")         # velocity, angular velocity, body angular velocity
 BITS = struct.Struct("<B")            # 0 (the sensor's) or 1 to 16
 XY = struct.Struct("<2d")             # map x, y  /  pixel u, v
 RAY = struct.Struct("<6d")            # origin, direction
@@ -103,7 +105,8 @@ ERROR_HEAD = struct.Struct("<HH")     # code, 0
 #: Body length of each fixed-size request (None: variable).
 REQUEST_SIZES = {MsgType.HELLO: None, MsgType.INFO: 0, MsgType.PING: 0,
                  MsgType.SET_POSE: POSE.size, MsgType.SET_SUN: SUN.size,
-                 MsgType.SET_SENSOR: None, MsgType.GET_IMAGE: BITS.size, MsgType.GET_RANGE: 0,
+                 MsgType.SET_SENSOR: None, MsgType.SET_MOTION: MOTION.size,
+                 MsgType.GET_IMAGE: BITS.size, MsgType.GET_RANGE: 0,
                  MsgType.GET_NORMALS: 0, MsgType.GET_TRUTH: 0, MsgType.HEIGHT_AT: XY.size,
                  MsgType.PIXEL_RAY: XY.size, MsgType.RAY: RAY.size}
 

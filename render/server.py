@@ -40,6 +40,7 @@ import numpy as np
 
 from render.camera import Intrinsics, Pose, look_at
 from render.errors import ProtocolError
+from render.motion import Motion
 from render.protocol import (
     ARRAY_HEAD,
     BITS,
@@ -49,6 +50,7 @@ from render.protocol import (
     IMAGE_HEAD,
     MAX_REQUEST_BODY,
     MAX_TOKEN,
+    MOTION,
     POSE,
     RAY,
     RAY_REPLY,
@@ -116,6 +118,7 @@ class _State:
     pose: Pose | None = None
     time: float = 0.0
     index: int = 0
+    motion: Motion | None = None  # velocities during the exposure, as the client set them
     frame: tuple | None = None    # (image, Frame, FrameTruth)
 
     @property
@@ -428,6 +431,14 @@ class RenderServer:
             return b""
         if kind == MsgType.SET_SENSOR:
             return json_body(self._set_sensor(st, body))
+        if kind == MsgType.SET_MOTION:
+            v = MOTION.unpack(body)
+            _finite("motion", v)
+            base = self.scenario.motion.get("motion") or Motion()
+            st.motion = dataclasses.replace(base, velocity=v[0:3], angular_velocity=v[3:6],
+                                            body_angular_velocity=v[6:9])
+            st.frame = None
+            return b""
         if kind == MsgType.GET_IMAGE:
             (bits,) = BITS.unpack(body)
             if bits > 16:
@@ -550,7 +561,7 @@ class RenderServer:
         raw = dict(self.scenario.raw, sensor=table)
         parsed = parse_scenario(raw, self.scenario.path)  # the scenario's own validation
         base = self.scenario.with_overrides(None, (w, h))
-        st.scenario = dataclasses.replace(base, sensor=parsed.sensor)
+        st.scenario = dataclasses.replace(base, sensor=parsed.sensor, motion=parsed.motion)
         st.sensor_table, st.noise, st.frame = table, noise, None
         return self._sensor_info(st)
 
@@ -560,7 +571,11 @@ class RenderServer:
         if st.frame is None:
             sc = dataclasses.replace(st.scenario, lighting=st.lighting, sensor=st.sensor)
             sample = Sample(st.time, st.pose, tuple(self.body_rotation(st.time).tolist()))
-            st.frame = render_sample(self.renderer, self.scene, sc, sample, st.index)
+            # velocities the client set, where the sensor integrates over time (blur or a
+            # rolling shutter); otherwise the scenario's [motion] (see frame_motion)
+            moving = st.motion if st.scenario.motion.get("blur") else None
+            st.frame = render_sample(self.renderer, self.scene, sc, sample, st.index,
+                                     motion=moving)
             self._remember(st)
         return st.frame
 

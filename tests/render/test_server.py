@@ -659,3 +659,60 @@ def test_last_frames_beyond_the_cache_budget_are_dropped_oldest_first(monkeypatc
     d = state()
     srv._remember(d)
     assert c.frame is None and b.frame is not None and d.frame is not None
+
+
+def test_motion_blur_as_render_frame_with_the_velocities_the_client_sends(stack_dir, tmp_path):
+    """A data-sheet camera blurring over its exposure: the client sends the velocities the
+    trajectory gave `render frame` (its truth lists them) and gets the same bytes."""
+    from render.client import Client
+
+    path = tmp_path / "blur.toml"
+    path.write_text(f"""
+name = "blur"
+seed = 8
+[scene]
+type = "terrain"
+stack = "{stack_dir}"
+[sun]
+azimuth = 100.0
+elevation = 20.0
+[camera]
+width = 48
+height = 40
+fov = 40.0
+[sensor]
+bits = 12
+exposure_time = 0.05
+aperture = 0.004
+pixel_pitch = 5.5
+qe = 0.5
+bandwidth = 100.0
+read_noise = 5.0
+gain = 3.0
+[motion]
+blur = true
+[render]
+shadow_size = 512
+[trajectory]
+type = "descent"
+frames = 3
+duration = 2.0
+start_altitude = 900.0
+end_altitude = 200.0
+ground_track = [400.0, 0.0]
+""")
+    out = tmp_path / "blur.png"
+    render_frame(path, out, 1)
+    import cv2
+
+    truth = json.loads((tmp_path / "blur_truth.json").read_text())
+    m = truth["motion"]
+    assert np.linalg.norm(m["velocity"]) > 100.0  # fast enough to smear
+    with served(path) as (_, port), Client("127.0.0.1", port) as c:
+        set_reference_pose(c, truth)
+        still = c.get_image()
+        c.set_motion(m["velocity"], m["angular_velocity"], m["body_angular_velocity"])
+        blurred = c.get_image()
+        assert blurred.tobytes() == cv2.imread(str(out), cv2.IMREAD_UNCHANGED).tobytes()
+        assert c.get_truth()["motion"]["velocity"] == m["velocity"]
+    assert not np.array_equal(still, blurred)
