@@ -12,6 +12,8 @@ parameters; a stage interrupted part-way resumes where it can, or starts again):
    (``craterscape terrain enhance``).
 3. ``lunar/run/run/``: a descent from 10 km to 20 m under a sun 7 degrees high, 120 frames
    at 1024 x 1024 with LIDAR range, normals and truth (``examples/lunar_descent.toml``).
+   ``lunar/closed_loop/``: a landing from 2 km flown through ``craterscape render serve`` by
+   guidance that sees only the laser altimeter and the camera (``examples/closed_loop.py``).
 4. ``asteroid/body/``: an Eros-like body (``examples/eros_like.toml``): native ``body.npz``,
    ``body.ply`` and crater and boulder catalogues.
 5. ``asteroid/run/run/``: an approach from 60 km to 24 km while it spins, 30 frames
@@ -64,8 +66,8 @@ LANDER = (4.0, 12.0, 0.3)
 log = logging.getLogger("demo")
 
 #: The stages in the order they run (their markers are ``.<stage with _>.done.json``).
-STAGES = ("lunar/base", "lunar/stack", "lunar/run", "asteroid/body", "asteroid/run",
-          "evaluation")
+STAGES = ("lunar/base", "lunar/stack", "lunar/run", "lunar/closed_loop", "asteroid/body",
+          "asteroid/run", "evaluation")
 
 
 def say(message: str) -> None:
@@ -279,6 +281,27 @@ def lunar(out: Path, quick: bool) -> dict:
     facts["stack"] = str(stack_dir)
     facts["run"] = str(run_dir)
     return facts
+
+
+def closed_loop(out: Path, quick: bool) -> dict:
+    """A landing flown through the render server (examples/closed_loop.py): guidance that
+    sees the descent's terrain only through the laser altimeter and the camera."""
+    import closed_loop as loop  # examples/closed_loop.py, beside this script
+
+    scenario = out / "lunar" / "run" / "descent.toml"
+    args = ["--size", 128 if quick else 256, "--dt", 2.0 if quick else 1.0]
+    stage = Stage(out, "lunar/closed_loop", dict(
+        scenario=scenario.read_text(encoding="utf-8"), args=args,
+        code=hashlib.sha256((HERE / "closed_loop.py").read_bytes()).hexdigest(), v=1))
+    if not stage.done():
+        say("lunar closed loop: landing from 2 km through the render server")
+        stage.begin()
+        t0 = time.perf_counter()
+        loop.main([str(scenario), "--out", str(stage.dir), *map(str, args)])
+        seconds = time.perf_counter() - t0
+        steps = json.loads((stage.dir / "summary.json").read_text())["steps"]
+        stage.finish(seconds, frames=steps, fps=steps / seconds)
+    return {"dir": str(stage.dir)}
 
 
 # ------------------------------------------------------------------------------ asteroid
@@ -583,6 +606,11 @@ def evaluate(out: Path, lunar_facts: dict, asteroid_facts: dict, quick: bool) ->
     ks = [c for c in sec.checks if c.name.startswith("KS distance")]
     facts["asteroid_ks"] = ks[0].value if ks else None
 
+    # -- the closed-loop landing through the render server
+    summary_path = out / "lunar" / "closed_loop" / "summary.json"
+    if summary_path.exists():
+        sections.append(closed_loop_section(summary_path.parent, stage.dir))
+
     # -- campaign overview: timings, gallery, links
     overview = campaign_section(out, stage.dir, lunar_facts, asteroid_facts, tracked)
     rep = Report("craterscape demo: lunar descent and asteroid approach",
@@ -691,6 +719,53 @@ def campaign_section(out, folder, lunar_facts, asteroid_facts, tracked):
     return sec
 
 
+def closed_loop_section(folder: Path, report_dir: Path):
+    """The closed-loop landing: where it went, what navigation believed, how wrong it was."""
+    from evaluation.report import Section, image_figure
+
+    s = json.loads((folder / "summary.json").read_text())
+    sec = Section("closed-loop", "Closed loop: a landing flown through the render server")
+    sec.paragraphs.append(
+        f"examples/closed_loop.py drove `craterscape render serve` on the descent's scenario: "
+        f"every {s['dt']:g} s the guidance asked the server for a laser-altimeter range (RAY) "
+        f"and a {s['size']} x {s['size']} nadir image (SET_POSE, GET_IMAGE), and nothing else. "
+        "Lateral velocity is optical flow (phase correlation after scaling the previous image "
+        "by the altimeter's altitude ratio); position integrates it from an initial guess "
+        f"{math.hypot(*s['initial_error']):.0f} m off, fixed above {s['trn_above']:.0f} m by "
+        "terrain-relative navigation (the server's view from the estimated position, standing "
+        "in for an onboard map, correlated with the real image). The vehicle's true motion, "
+        "with thruster noise, is simulated beside it and used only to score the navigation.")
+    sec.tables.append(("The landing", ["quantity", "value"], [
+        ["start", f"{s['start_altitude']:.0f} m above the site, "
+                  f"{math.hypot(*s['offset']):.0f} m off it"],
+        ["steps, time to touchdown", f"{s['steps']}, {s['touchdown_time_s']:.0f} s"],
+        ["touchdown", "ground contact between steps" if s["crashed"]
+         else f"altimeter {s['touchdown_altimeter_m']:.2f} m, "
+              f"{s['touchdown_speed_mps']:.2f} m/s"],
+        ["landing error from the site (truth)", f"{s['landing_error_m']:.1f} m"],
+        ["lateral navigation error: start, median, at touchdown",
+         f"{s['nav_error_lateral_m']['initial']:.1f}, {s['nav_error_lateral_m']['median']:.1f},"
+         f" {s['nav_error_lateral_m']['final']:.1f} m"],
+        ["lateral velocity error (median)", f"{s['nav_error_velocity_mps']['median']:.2f} m/s"],
+    ]))
+    frames = sorted((folder / "frames").glob("frame_*.png"))
+    gallery = report_dir / "gallery"
+    gallery.mkdir(exist_ok=True)
+    sec.figures.append(image_figure("closed-loop-track", "Ground track, descent and navigation "
+                                    "error against truth", folder / "closed_loop.png"))
+    for k in (0, len(frames) // 2, len(frames) - 1):
+        sec.figures.append(image_figure(
+            f"closed-loop-frame-{k}", f"What the camera returned, step {k}",
+            gallery_png(read_png(frames[k]), gallery / f"closed_loop_{k:04d}.png")))
+    sec.data = s
+    sec.links = [(label, Path(os.path.relpath(folder / name, report_dir)).as_posix())
+                 for label, name in (("closed-loop trajectory, estimates and errors (CSV)",
+                                      "trajectory.csv"),
+                                     ("closed-loop camera frames", "frames"),
+                                     ("closed-loop summary (JSON)", "summary.json"))]
+    return sec
+
+
 def read_png(path: Path) -> np.ndarray:
     import cv2
 
@@ -718,6 +793,7 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     lunar_facts = lunar(out, args.quick)
+    closed_loop(out, args.quick)
     asteroid_facts = asteroid(out, args.quick)
     report = evaluate(out, lunar_facts, asteroid_facts, args.quick)
     timings = {}

@@ -123,3 +123,35 @@ def frame(scenario_file, output, index, resolution):
             tmp.write_text(json.dumps(truth.as_dict(), indent=2), encoding="utf-8")
     click.echo(f"wrote {output} (frame {index}, {fr.drawn.get('triangles', 0)} triangles)",
                err=True)
+
+
+@render.command()
+@click.argument("scenario_file", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--host", default="127.0.0.1", show_default=True,
+              help="Address to listen on; anything but loopback needs --token.")
+@click.option("--port", type=click.IntRange(0, 65535), default=10363, show_default=True,
+              help="TCP port (0: a free one, printed on stderr).")
+@click.option("--token", envvar="CRATERSCAPE_TOKEN", default=None,
+              help="Shared secret every client must send first (env CRATERSCAPE_TOKEN).")
+@click.option("--idle-timeout", type=click.FloatRange(min=0, min_open=True), default=300.0,
+              show_default=True, help="Close a client silent this long (s).")
+@click.option("--read-timeout", type=click.FloatRange(min=0, min_open=True), default=10.0,
+              show_default=True, help="Close a client whose message stalls this long (s).")
+@click.option("--max-clients", type=click.IntRange(1, 1024), default=32, show_default=True,
+              help="Clients connected at once.")
+def serve(scenario_file, host, port, token, idle_timeout, read_timeout, max_clients):
+    """Serve a scenario's scene over TCP until SIGINT/SIGTERM (protocol: docs/protocol.md)."""
+    from render.scenario import load_scenario
+    from render.server import RenderServer
+
+    scenario = load_scenario(scenario_file)
+    server = RenderServer(scenario, host, port, token=token, idle_timeout=idle_timeout,
+                          read_timeout=read_timeout, max_clients=max_clients)
+    server.bind()
+    server.load()
+    bound_host, bound_port = server.address
+    click.echo(f"craterscape: serving {scenario.name} ({server.scene.kind}) on "
+               f"{bound_host}:{bound_port}", err=True)
+    sys.stderr.flush()
+    server.serve()
+    click.echo(f"craterscape: server stopped after {server.requests} requests", err=True)

@@ -29,7 +29,7 @@ import numpy as np
 from render.camera import Pose, look_at, quat_from_matrix, slerp
 from terrain.errors import InvalidParameterError
 
-__all__ = ["Sample", "approach", "axis_angle", "descent", "keyframes"]
+__all__ = ["Sample", "approach", "axis_angle", "descent", "keyframes", "spin_rotation"]
 
 
 @dataclass(frozen=True)
@@ -164,12 +164,23 @@ def approach(frames: int, *, start_distance: float, end_distance: float, duratio
         f = i / (len(times) - 1) if len(times) > 1 else 1.0
         dist = start_distance * (end_distance / start_distance) ** f
         pose = look_at(d * dist, (0.0, 0.0, 0.0), up)
-        angle = math.radians(spin_phase_deg)
-        if spin_period:
-            angle += 2 * math.pi * t / spin_period
-        q = axis_angle(spin_axis, angle)
+        q = spin_rotation(t, spin_axis, spin_period, spin_phase_deg)
         out.append(Sample(float(t), pose, tuple(q.tolist())))
     return out
+
+
+def spin_rotation(t: float, spin_axis=(0.0, 0.0, 1.0), spin_period: float = 0.0,
+                  spin_phase_deg: float = 0.0) -> np.ndarray:
+    """Body rotation R_WB (quaternion [w, x, y, z]) at time ``t`` (s) of a body spinning about
+    ``spin_axis`` with ``spin_period`` (s; 0: no spin) from ``spin_phase_deg`` at t = 0.
+
+    >>> spin_rotation(25.0, spin_period=100.0).round(6).tolist()
+    [0.707107, 0.0, 0.0, 0.707107]
+    """
+    angle = math.radians(spin_phase_deg)
+    if spin_period:
+        angle += 2 * math.pi * t / spin_period
+    return axis_angle(spin_axis, angle)
 
 
 def rotation_quaternion(matrix) -> np.ndarray:

@@ -45,7 +45,7 @@ def test_demo_writes_one_folder_and_a_report_with_every_figure(demo):
     doc = json.loads(report.with_suffix(".json").read_text(encoding="utf-8"))
     ids = [s["id"] for s in doc["sections"]]
     assert ids == ["campaign", "tracking-lunar descent", "tracking-asteroid approach",
-                   "dem-lunar layers", "site", "asteroid"]
+                   "dem-lunar layers", "site", "asteroid", "closed-loop"]
     # every figure is embedded, and none is empty
     images = re.findall(r'<img alt="[^"]*" src="data:image/png;base64,([A-Za-z0-9+/=]+)"', text)
     assert len(images) == len(doc["figures"]) >= 15
@@ -73,8 +73,8 @@ def test_demo_leaves_no_partial_files_and_times_every_stage(demo):
     leftovers = [p for p in out.rglob("*") if p.name.endswith(".partial")]
     assert leftovers == []
     timings = json.loads((out / "demo.json").read_text())["stages"]
-    assert set(timings) == {"lunar_base", "lunar_stack", "lunar_run", "asteroid_body",
-                            "asteroid_run", "evaluation"}
+    assert set(timings) == {"lunar_base", "lunar_stack", "lunar_run", "lunar_closed_loop",
+                            "asteroid_body", "asteroid_run", "evaluation"}
     assert all(t["seconds"] > 0 for t in timings.values())
     assert timings["lunar_run"]["frames"] == 8 and timings["asteroid_run"]["frames"] == 6
 

@@ -1,0 +1,270 @@
+"""A Python client of the render server (protocol in ``docs/protocol.md``).
+
+One method per request; every error reply raises :class:`~render.errors.ServerError` with the
+server's code and reason, and the connection stays usable unless the code closes it::
+
+    from render.client import Client
+
+    with Client("127.0.0.1", 10363) as c:
+        c.set_pose((1000.0, 2000.0, 2000.0), (0.0, 1.0, 0.0, 0.0), time=0.0, frame=0)
+        image = c.get_image()            # (h, w) uint8 or uint16
+        rng = c.get_range()              # (h, w) float32 metres, NaN = no return
+        hit = c.ray((1000.0, 2000.0, 2000.0), (0.0, 0.0, -1.0))   # a laser altimeter
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+from dataclasses import dataclass
+
+import numpy as np
+
+from render.errors import ProtocolError, ServerError
+from render.protocol import (
+    ARRAY_HEAD,
+    BITS,
+    DEFAULT_PORT,
+    ERROR,
+    HEIGHT_REPLY,
+    IMAGE_HEAD,
+    MAX_REPLY_BODY,
+    MOTION,
+    POSE,
+    RAY,
+    RAY_REPLY,
+    REPLY,
+    SUN,
+    XY,
+    ErrorCode,
+    MsgType,
+    pack_header,
+    parse_error,
+    read_message,
+)
+
+__all__ = ["Client", "RayHit"]
+
+
+@dataclass(frozen=True)
+class RayHit:
+    """Where a ray first meets the surface: ``range`` (m), ``point`` (3,) and unit ``normal``
+    (3,) in the world frame; all NaN when it meets nothing."""
+
+    range: float
+    point: np.ndarray
+    normal: np.ndarray
+
+    @property
+    def hit(self) -> bool:
+        return bool(np.isfinite(self.range))
+
+
+class Client:
+    """A connection to ``craterscape render serve`` (a context manager).
+
+    Parameters
+    ----------
+    host, port : where the server listens (default 127.0.0.1:10363)
+    token : str, optional
+        The server's shared token; sent in HELLO on connecting.
+    timeout : float, seconds
+        Longest wait for a reply (rendering included).
+    """
+
+    def __init__(self, host: str = "127.0.0.1", port: int = DEFAULT_PORT,
+                 token: str | None = None, *, timeout: float = 120.0):
+        self.timeout = float(timeout)
+        self._sock = socket.create_connection((host, int(port)), timeout=self.timeout)
+        self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._id = 0
+        if token is not None:
+            self.hello(token)
+
+    def __enter__(self) -> Client:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._sock.close()
+
+    # ------------------------------------------------------------------ transport
+    def request(self, msg_type: int, body: bytes = b"") -> bytes:
+        """Send one request and return its reply body (raw access to the protocol)."""
+        self._id = (self._id + 1) & 0xFFFFFFFF
+        self._sock.settimeout(self.timeout)
+        self._sock.sendall(pack_header(msg_type, self._id, len(body)) + body)
+        _, rtype, rid, rbody = read_message(self._sock, MAX_REPLY_BODY,
+                                            first_timeout=self.timeout, timeout=self.timeout)
+        if rtype == ERROR:
+            raise ServerError(*parse_error(rbody))
+        if rtype != (msg_type | REPLY) or rid != self._id:
+            raise ProtocolError(ErrorCode.MALFORMED,
+                                f"reply type 0x{rtype:04x} id {rid} does not answer request "
+                                f"0x{msg_type:04x} id {self._id}")
+        return rbody
+
+    # ------------------------------------------------------------------ requests
+    def hello(self, token: str = "") -> None:
+        """Authenticate with the server's token."""
+        self.request(MsgType.HELLO, str(token).encode("utf-8"))
+
+    def ping(self) -> None:
+        self.request(MsgType.PING)
+
+    def info(self) -> dict:
+        """The scene, the site, its bounds, the sun and the sensor (see docs/protocol.md)."""
+        return json.loads(self.request(MsgType.INFO))
+
+    def set_pose(self, position, attitude, time: float = 0.0, frame: int = 0) -> None:
+        """Place the camera.
+
+        Parameters
+        ----------
+        position : (3,) float, metres
+            Camera centre in the world frame.
+        attitude : (4,) float
+            Quaternion [w, x, y, z] of R_WC (camera to world; normalised by the server).
+        time : float, seconds
+            Scene time (turns an asteroid as its scenario's spin says).
+        frame : int
+            Frame index that keys the sensor noise (same index, same noise).
+        """
+        p = [float(v) for v in position]
+        q = [float(v) for v in attitude]
+        if len(p) != 3 or len(q) != 4:
+            raise ValueError(f"position must have 3 numbers and attitude 4; got {len(p)}, "
+                             f"{len(q)}")
+        self.request(MsgType.SET_POSE, POSE.pack(*p, *q, float(time), int(frame), 0))
+
+    def set_sun(self, direction) -> None:
+        """Direction towards the sun (world frame)."""
+        self.request(MsgType.SET_SUN, SUN.pack(*(float(v) for v in direction)))
+
+    def set_motion(self, velocity, angular_velocity=(0.0, 0.0, 0.0),
+                   body_angular_velocity=(0.0, 0.0, 0.0)) -> None:
+        """Velocities held during the exposure (motion blur, rolling shutter).
+
+        Parameters
+        ----------
+        velocity : (3,) float, m/s
+            Camera velocity, world frame.
+        angular_velocity : (3,) float, rad/s
+            Camera angular velocity, world frame.
+        body_angular_velocity : (3,) float, rad/s
+            The asteroid's spin, world frame.
+        """
+        values = [float(x) for v in (velocity, angular_velocity, body_angular_velocity)
+                  for x in v]
+        if len(values) != 9:
+            raise ValueError("velocity, angular_velocity and body_angular_velocity need 3 "
+                             "numbers each")
+        self.request(MsgType.SET_MOTION, MOTION.pack(*values))
+
+    def set_sensor(self, **settings) -> dict:
+        """Change sensor settings (any [sensor] key, ``width``, ``height``, ``noise``); returns
+        the settings in force."""
+        return json.loads(self.request(MsgType.SET_SENSOR,
+                                       json.dumps(settings).encode("utf-8")))
+
+    def get_image(self, bits: int = 0) -> np.ndarray:
+        """The camera image of the current pose.
+
+        Parameters
+        ----------
+        bits : int
+            Bit depth 1 to 16; 0 keeps the sensor's.
+
+        Returns
+        -------
+        image : (height, width) uint8 (bits <= 8) or uint16, DN
+            Top row first; equals ``craterscape render frame`` at the same pose and index.
+        """
+        body = self.request(MsgType.GET_IMAGE, BITS.pack(int(bits)))
+        w, h, b, _ = IMAGE_HEAD.unpack_from(body)
+        dtype = np.dtype("<u1") if b <= 8 else np.dtype("<u2")
+        return _array(body[IMAGE_HEAD.size:], dtype, (h, w)).astype(
+            np.uint8 if b <= 8 else np.uint16)
+
+    def get_range(self) -> np.ndarray:
+        """The LIDAR range image of the current pose.
+
+        Returns
+        -------
+        range : (height, width) float32, metres
+            Distance from the camera centre along each pixel's ray; NaN where nothing is hit.
+        """
+        body = self.request(MsgType.GET_RANGE)
+        w, h = ARRAY_HEAD.unpack_from(body)
+        return _array(body[ARRAY_HEAD.size:], np.dtype("<f4"), (h, w)).astype(np.float32)
+
+    def get_normals(self) -> np.ndarray:
+        """The surface normals seen from the current pose.
+
+        Returns
+        -------
+        normals : (height, width, 3) float32, unit vectors
+            World frame; NaN where nothing is hit.
+        """
+        body = self.request(MsgType.GET_NORMALS)
+        w, h = ARRAY_HEAD.unpack_from(body)
+        return _array(body[ARRAY_HEAD.size:], np.dtype("<f4"), (h, w, 3)).astype(np.float32)
+
+    def get_truth(self) -> dict:
+        """The frame's ground truth (a run's truth.json entry, without file names)."""
+        return json.loads(self.request(MsgType.GET_TRUTH))
+
+    def height_at(self, x: float, y: float) -> tuple[float, np.ndarray]:
+        """Terrain height and normal at a map point (terrain scenes).
+
+        Parameters
+        ----------
+        x, y : float, metres
+            Map coordinates.
+
+        Returns
+        -------
+        height : float, metres
+            World-frame height as rendered (curvature applied).
+        normal : (3,) float64
+            Unit surface normal, world frame.
+        """
+        h, *n = HEIGHT_REPLY.unpack(self.request(MsgType.HEIGHT_AT, XY.pack(x, y)))
+        return h, np.array(n)
+
+    def pixel_ray(self, u: float, v: float) -> RayHit:
+        """The 3-D point seen through pixel (u, v) of the current pose."""
+        return _hit(self.request(MsgType.PIXEL_RAY, XY.pack(u, v)))
+
+    def ray(self, origin, direction) -> RayHit:
+        """Where one ray first meets the surface (a laser altimeter).
+
+        Parameters
+        ----------
+        origin : (3,) float, metres
+            World frame.
+        direction : (3,) float
+            Any non-zero length.
+
+        Returns
+        -------
+        RayHit
+            Range (m), point and normal; NaN when the ray meets nothing.
+        """
+        values = [float(v) for v in origin] + [float(v) for v in direction]
+        return _hit(self.request(MsgType.RAY, RAY.pack(*values)))
+
+
+def _array(data: bytes, dtype, shape) -> np.ndarray:
+    n = int(np.prod(shape)) * dtype.itemsize
+    if len(data) != n:
+        raise ProtocolError(ErrorCode.MALFORMED,
+                            f"reply holds {len(data)} bytes of pixels; expected {n}")
+    return np.frombuffer(data, dtype=dtype).reshape(shape)
+
+
+def _hit(body: bytes) -> RayHit:
+    r, *rest = RAY_REPLY.unpack(body)
+    return RayHit(r, np.array(rest[:3]), np.array(rest[3:]))

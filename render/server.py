@@ -1,0 +1,671 @@
+"""The render server: flight software drives the camera pose by pose over TCP.
+
+``craterscape render serve SCENARIO.toml`` loads the scenario's scene once (terrain layer
+stack or asteroid), prepares its shadows with a first frame, and answers requests in the wire
+protocol of ``docs/protocol.md`` (codecs in :mod:`render.protocol`) until SIGINT or SIGTERM.
+
+Threads:
+
+- The thread that calls :meth:`RenderServer.serve` (the main thread under the CLI) owns the
+  OpenGL context and does every render, one request at a time.
+- An acceptor thread accepts connections (at most ``max_clients``; the next gets ``BUSY``).
+- One thread per connection reads its messages with a timeout on every read, checks framing
+  and authorisation, queues the request, waits for its reply and sends it (with a write
+  timeout). A slow, silent or vanished client only ever blocks its own thread.
+
+Fairness: a connection has at most one request in the queue (its thread reads the next only
+after sending the reply), so the FIFO queue serves busy clients round robin.
+
+Every frame is made by :func:`render.sequence.render_sample`, the path of ``craterscape render
+frame``, so the server's image equals that command's at the same pose, time and frame index,
+byte for byte. Each connection has its own pose, time, sun and sensor settings, and keeps its
+last frame, so asking for the image and then the range renders once.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hmac
+import ipaddress
+import json
+import logging
+import math
+import queue
+import signal
+import socket
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+
+from render.camera import Intrinsics, Pose, look_at
+from render.errors import ProtocolError
+from render.motion import Motion
+from render.protocol import (
+    ARRAY_HEAD,
+    BITS,
+    CLOSING,
+    ERROR,
+    HEIGHT_REPLY,
+    IMAGE_HEAD,
+    MAX_REQUEST_BODY,
+    MAX_TOKEN,
+    MOTION,
+    POSE,
+    RAY,
+    RAY_REPLY,
+    REPLY,
+    REQUEST_SIZES,
+    SUN,
+    VERSION,
+    XY,
+    ErrorCode,
+    MsgType,
+    error_body,
+    json_body,
+    pack_header,
+    read_message,
+)
+from render.renderer import Lighting, Renderer, View
+from render.scenario import Scenario, parse_scenario
+from render.sequence import load_scene, render_sample
+from render.trajectory import Sample, spin_rotation
+from terrain.errors import InvalidParameterError
+
+__all__ = ["RenderServer", "is_loopback"]
+
+log = logging.getLogger(__name__)
+
+#: Camera positions farther than this from the world origin are refused (m).
+MAX_POSITION = 1e10
+#: Largest image side and pixel count a client may ask for.
+MAX_SIDE = 8192
+MAX_PIXELS = 4096 * 4096
+#: Focal length (pixels) of the one-pixel camera that casts a single ray: a 10 microradian
+#: pixel, so the terrain and the body are drawn at their finest level of detail along it.
+RAY_FOCAL = 1e5
+#: Bytes of last frames kept for all clients together (radiance, range, normals, image); the
+#: least recently rendered are dropped first and rendered again if asked for (same bytes).
+FRAME_CACHE_BYTES = 1 << 30
+#: Keys of SET_SENSOR handled by the server itself; the rest belong to the [sensor] table.
+SERVER_SENSOR_KEYS = ("width", "height", "noise")
+#: What ``noise = false`` sets on the sensor: no shot noise, no read noise, no fixed pattern
+#: (dark current stays: its mean is signal).
+NOISELESS = {"shot_noise": False, "read_noise": 0.0, "prnu": 0.0}
+
+
+def is_loopback(host: str) -> bool:
+    """Whether every address ``host`` resolves to is a loopback address."""
+    try:
+        infos = socket.getaddrinfo(host, None)
+    except socket.gaierror as exc:
+        raise InvalidParameterError(f"cannot resolve host '{host}': {exc}") from None
+    return all(ipaddress.ip_address(info[4][0].split("%")[0]).is_loopback for info in infos)
+
+
+def _noiseless(sensor):
+    return dataclasses.replace(sensor, **NOISELESS)
+
+
+@dataclass(eq=False)
+class _State:
+    """One connection's settings and its last frame (touched by the render thread only)."""
+
+    scenario: Scenario            # sensor and resolution as set by the client
+    lighting: Lighting
+    sensor_table: dict
+    noise: bool = True
+    pose: Pose | None = None
+    time: float = 0.0
+    index: int = 0
+    motion: Motion | None = None  # velocities during the exposure, as the client set them
+    frame: tuple | None = None    # (image, Frame, FrameTruth)
+
+    @property
+    def sensor(self):
+        return self.scenario.sensor if self.noise else _noiseless(self.scenario.sensor)
+
+
+class _Connection:
+    def __init__(self, server: RenderServer, sock: socket.socket, address, number: int):
+        self.server = server
+        self.sock = sock
+        self.address = address
+        self.number = number
+        self.replies: queue.Queue = queue.Queue(maxsize=1)
+        self.authorized = server.token is None
+        sc = server.scenario
+        self.state = _State(sc, sc.lighting, dict(sc.raw.get("sensor", {})))
+        self.thread = threading.Thread(target=self.run, name=f"client-{number}", daemon=True)
+        self.busy = False     # a request of this client is queued, in hand or being answered
+        self._closed = threading.Event()
+
+    # ------------------------------------------------------------------ I/O thread
+    def run(self):
+        srv = self.server
+        try:
+            while not srv.stopping.is_set():
+                try:
+                    # a client that has not yet shown the token gets no idle allowance
+                    idle = srv.idle_timeout if self.authorized else srv.read_timeout
+                    _, msg_type, rid, body = read_message(
+                        self.sock, MAX_REQUEST_BODY, first_timeout=idle,
+                        timeout=srv.read_timeout)
+                except ProtocolError as exc:
+                    self.send(ERROR, 0, error_body(exc.code, exc.reason))
+                    return
+                except TimeoutError:
+                    self.send(ERROR, 0, error_body(
+                        ErrorCode.TIMEOUT, "no complete message within the timeout; closing"))
+                    return
+                reply = self.answer(msg_type, rid, body)
+                if reply is None:
+                    return
+                rtype, rbody = reply
+                sent = self.send(rtype, rid, rbody)
+                self.busy = False
+                if not sent:
+                    return
+                if rtype == ERROR and int.from_bytes(rbody[:2], "little") in CLOSING:
+                    return
+        except (ConnectionError, OSError) as exc:
+            log.info("client %d %s: %s", self.number, self.address, exc)
+        finally:
+            self.close()
+            srv.forget(self)
+
+    def answer(self, msg_type: int, rid: int, body: bytes):
+        """The reply (type, body) to one message, or None when the server stopped."""
+        srv = self.server
+        if not self.authorized:
+            if msg_type != MsgType.HELLO or not srv.check_token(body):
+                return ERROR, error_body(ErrorCode.UNAUTHORIZED,
+                                         "this server needs a HELLO with its token first")
+            self.authorized = True
+            return msg_type | REPLY, b""
+        try:
+            kind = MsgType(msg_type)
+        except ValueError:
+            return ERROR, error_body(ErrorCode.UNKNOWN_TYPE,
+                                     f"unknown request type 0x{msg_type:04x}")
+        size = REQUEST_SIZES[kind]
+        if size is not None and len(body) != size:
+            return ERROR, error_body(ErrorCode.MALFORMED,
+                                     f"{kind.name} body must be {size} bytes; got {len(body)}")
+        if kind in (MsgType.HELLO, MsgType.PING):
+            if kind == MsgType.HELLO and len(body) > MAX_TOKEN:
+                return ERROR, error_body(ErrorCode.MALFORMED, "token longer than 256 bytes")
+            return kind | REPLY, b""
+        self.busy = True
+        srv.work.put((self, kind, body))
+        while True:
+            try:
+                return self.replies.get(timeout=0.5)
+            except queue.Empty:
+                if self._closed.is_set():
+                    return None
+
+    def send(self, msg_type: int, rid: int, body: bytes) -> bool:
+        try:
+            self.sock.settimeout(self.server.write_timeout)
+            self.sock.sendall(pack_header(msg_type, rid, len(body)))
+            if body:
+                self.sock.sendall(body)
+            return True
+        except OSError as exc:  # vanished or too slow to read: drop it
+            log.info("client %d: cannot send reply (%s); closing", self.number, exc)
+            return False
+
+    def close(self):
+        if not self._closed.is_set():
+            self._closed.set()
+            try:
+                self.sock.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+            self.sock.close()
+
+
+class RenderServer:
+    """Serves one scenario's scene (see the module docstring).
+
+    Parameters
+    ----------
+    scenario : render.scenario.Scenario
+    host : str
+        Address to bind; anything but loopback needs ``token``.
+    port : int
+        TCP port; 0 picks a free one (see :attr:`address` after :meth:`bind`).
+    token : str, optional
+        Shared secret every client sends in HELLO first.
+    idle_timeout, read_timeout, write_timeout : float, seconds
+        Longest wait for a client's next request, for the rest of a message once it has begun,
+        and for a client to take its reply.
+    max_clients : int
+        Connections served at once.
+    """
+
+    def __init__(self, scenario: Scenario, host: str = "127.0.0.1", port: int = 10363, *,
+                 token: str | None = None, idle_timeout: float = 300.0,
+                 read_timeout: float = 10.0, write_timeout: float = 30.0,
+                 max_clients: int = 32):
+        if token is not None:
+            token = str(token)
+            if not token or len(token.encode("utf-8")) > MAX_TOKEN:
+                raise InvalidParameterError("the token must be 1 to 256 bytes of UTF-8")
+        elif not is_loopback(host):
+            raise InvalidParameterError(
+                f"binding to {host} (not loopback) needs a shared token: give --token or set "
+                "CRATERSCAPE_TOKEN")
+        if not 0 <= int(port) <= 65535:
+            raise InvalidParameterError(f"port must lie in [0, 65535]; got {port}")
+        for name, v in (("idle timeout", idle_timeout), ("read timeout", read_timeout),
+                        ("write timeout", write_timeout)):
+            if not (v > 0 and math.isfinite(v)):
+                raise InvalidParameterError(f"{name} must be a positive number of seconds; "
+                                            f"got {v}")
+        if int(max_clients) < 1:
+            raise InvalidParameterError(f"max_clients must be at least 1; got {max_clients}")
+        self.scenario = scenario
+        self.host, self.port = host, int(port)
+        self.token = token
+        self.idle_timeout, self.read_timeout = float(idle_timeout), float(read_timeout)
+        self.write_timeout = float(write_timeout)
+        self.max_clients = int(max_clients)
+        self.work: queue.Queue = queue.Queue()
+        self.stopping = threading.Event()
+        self._clients: set[_Connection] = set()
+        self._lock = threading.Lock()
+        self._count = 0
+        self._listener: socket.socket | None = None
+        self._cached: dict[int, _State] = {}   # insertion order = render order
+        self.renderer: Renderer | None = None
+        self.scene = None
+        self.requests = 0
+
+    # ------------------------------------------------------------------ set-up
+    def load(self) -> None:
+        """Load the scene and render the scenario's first frame (uploads the geometry,
+        compiles the programs and prepares the shadow maps)."""
+        self.renderer = Renderer()
+        self.scene = load_scene(self.scenario)
+        samples = self.scenario.samples(self.scene)
+        if samples:
+            render_sample(self.renderer, self.scene, self.scenario, samples[0], 0)
+
+    def bind(self) -> tuple[str, int]:
+        """Open the listening socket; returns the (host, port) bound."""
+        family = socket.AF_INET6 if ":" in self.host else socket.AF_INET
+        try:
+            self._listener = socket.create_server((self.host, self.port), family=family,
+                                                  backlog=64)
+        except OSError as exc:
+            raise InvalidParameterError(
+                f"cannot listen on {self.host}:{self.port}: {exc.strerror or exc}") from None
+        self._listener.settimeout(0.25)
+        return self.address
+
+    @property
+    def address(self) -> tuple[str, int]:
+        return self._listener.getsockname()[:2]
+
+    def check_token(self, body: bytes) -> bool:
+        if self.token is None:
+            return True
+        return hmac.compare_digest(body, self.token.encode("utf-8"))
+
+    def forget(self, conn: _Connection) -> None:
+        with self._lock:
+            self._clients.discard(conn)
+        self.work.put((conn, None, b""))  # the render thread drops its frame
+
+    def stop(self, *_args) -> None:
+        """Ask the server to stop after the request in hand (also the signal handler)."""
+        self.stopping.set()
+
+    # ------------------------------------------------------------------ main loop
+    def serve(self, *, handle_signals: bool = True) -> None:
+        """Answer requests until :meth:`stop` (or SIGINT/SIGTERM); then close everything."""
+        if self.renderer is None:
+            self.load()
+        if self._listener is None:
+            self.bind()
+        previous = {}
+        if handle_signals and threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                previous[sig] = signal.signal(sig, self.stop)
+        acceptor = threading.Thread(target=self._accept, name="acceptor", daemon=True)
+        acceptor.start()
+        log.info("serving %s on %s:%d", self.scenario.name, *self.address)
+        try:
+            while not self.stopping.is_set():
+                try:
+                    conn, kind, body = self.work.get(timeout=0.25)
+                except queue.Empty:
+                    continue
+                if kind is None:  # the client is gone
+                    self._cached.pop(id(conn.state), None)
+                    conn.state.frame = None
+                    continue
+                conn.replies.put(self._reply(conn, kind, body))
+        finally:
+            self.stopping.set()
+            self._shutdown(acceptor)
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+
+    def _accept(self):
+        while not self.stopping.is_set():
+            try:
+                sock, address = self._listener.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            with self._lock:
+                full = len(self._clients) >= self.max_clients
+                if not full:
+                    self._count += 1
+                    conn = _Connection(self, sock, address, self._count)
+                    self._clients.add(conn)
+            if full:
+                body = error_body(ErrorCode.BUSY, f"{self.max_clients} clients are already "
+                                  "connected; try again later")
+                try:
+                    sock.settimeout(1.0)
+                    sock.sendall(pack_header(ERROR, 0, len(body)) + body)
+                except OSError:
+                    pass
+                sock.close()
+                continue
+            log.info("client %d connected from %s", conn.number, address)
+            conn.thread.start()
+
+    def _shutdown(self, acceptor):
+        if self._listener is not None:
+            self._listener.close()
+        acceptor.join(timeout=2.0)
+        while True:
+            try:
+                conn, kind, _ = self.work.get_nowait()
+            except queue.Empty:
+                break
+            if kind is not None:
+                conn.replies.put((ERROR, error_body(ErrorCode.SHUTTING_DOWN,
+                                                    "the server is shutting down")))
+        with self._lock:
+            clients = list(self._clients)
+        for conn in clients:  # idle ones now; busy ones once their reply is sent
+            if not conn.busy:
+                conn.close()
+        for conn in clients:
+            conn.thread.join(timeout=self.write_timeout + 1.0 if conn.busy else 2.0)
+            conn.close()
+        log.info("server stopped after %d requests", self.requests)
+
+    # ------------------------------------------------------------------ requests
+    def _reply(self, conn: _Connection, kind: MsgType, body: bytes):
+        self.requests += 1
+        try:
+            return kind | REPLY, self._handle(conn.state, kind, body)
+        except ProtocolError as exc:
+            return ERROR, error_body(exc.code, exc.reason)
+        except (InvalidParameterError, ValueError, TypeError) as exc:
+            return ERROR, error_body(ErrorCode.INVALID_VALUE, str(exc))
+        except Exception as exc:  # a failed render must not take the server down
+            log.exception("request %s failed", kind.name)
+            return ERROR, error_body(ErrorCode.INTERNAL, f"{type(exc).__name__}: {exc}")
+
+    def _handle(self, st: _State, kind: MsgType, body: bytes) -> bytes:
+        if kind == MsgType.INFO:
+            return json_body(self._info(st))
+        if kind == MsgType.SET_POSE:
+            self._set_pose(st, POSE.unpack(body))
+            return b""
+        if kind == MsgType.SET_SUN:
+            sun = SUN.unpack(body)
+            _finite("sun direction", sun)
+            st.lighting = dataclasses.replace(st.lighting, sun=_scaled(sun, "sun direction"))
+            st.frame = None
+            return b""
+        if kind == MsgType.SET_SENSOR:
+            return json_body(self._set_sensor(st, body))
+        if kind == MsgType.SET_MOTION:
+            v = MOTION.unpack(body)
+            _finite("motion", v)
+            base = self.scenario.motion.get("motion") or Motion()
+            st.motion = dataclasses.replace(base, velocity=v[0:3], angular_velocity=v[3:6],
+                                            body_angular_velocity=v[6:9])
+            st.frame = None
+            return b""
+        if kind == MsgType.GET_IMAGE:
+            (bits,) = BITS.unpack(body)
+            if bits > 16:
+                raise ProtocolError(ErrorCode.INVALID_VALUE,
+                                    f"bits must be 0 (the sensor's) or 1 to 16; got {bits}")
+            image, frame, _ = self._frame(st)
+            sensor = st.sensor
+            if bits and bits != sensor.bits:
+                sensor = dataclasses.replace(sensor, bits=bits)
+                image = sensor.expose(frame.radiance, frame=st.index,
+                                      intrinsics=st.scenario.intrinsics,
+                                      spectral_irradiance=st.lighting.spectral_irradiance)
+            h, w = image.shape
+            return IMAGE_HEAD.pack(w, h, sensor.bits, 0) + image.astype(
+                "<u1" if sensor.bits <= 8 else "<u2").tobytes()
+        if kind in (MsgType.GET_RANGE, MsgType.GET_NORMALS):
+            _, frame, _ = self._frame(st)
+            a = frame.range if kind == MsgType.GET_RANGE else frame.normals
+            return ARRAY_HEAD.pack(a.shape[1], a.shape[0]) + a.astype("<f4").tobytes()
+        if kind == MsgType.GET_TRUTH:
+            _, _, truth = self._frame(st)
+            d = truth.as_dict()
+            for key in ("image", "range", "normals"):
+                d.pop(key, None)
+            return json_body(d)
+        if kind == MsgType.HEIGHT_AT:
+            x, y = XY.unpack(body)
+            _finite("map point", (x, y))
+            return HEIGHT_REPLY.pack(*self.height_and_normal(x, y))
+        if kind == MsgType.PIXEL_RAY:
+            u, v = XY.unpack(body)
+            _finite("pixel", (u, v))
+            if st.pose is None:
+                raise ProtocolError(ErrorCode.NO_POSE, "set a pose (SET_POSE) first")
+            k = st.scenario.intrinsics
+            d = st.pose.rotation @ np.array([(u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0])
+            return RAY_REPLY.pack(*self.cast(st.pose.position, d, st.time, st.lighting))
+        if kind == MsgType.RAY:
+            values = RAY.unpack(body)
+            _finite("ray", values)
+            origin, direction = values[:3], values[3:]
+            if np.linalg.norm(origin) > MAX_POSITION:
+                raise ProtocolError(ErrorCode.INVALID_VALUE,
+                                    f"ray origin more than {MAX_POSITION:g} m from the origin")
+            return RAY_REPLY.pack(*self.cast(origin, direction, st.time, st.lighting))
+        raise ProtocolError(ErrorCode.UNKNOWN_TYPE, f"unknown request type {kind!r}")
+
+    def _info(self, st: _State) -> dict:
+        lo, hi = self.scene.bounds()
+        out = dict(protocol=VERSION, scenario=self.scenario.name, scene=self.scene.kind,
+                   bounds=[lo.tolist(), hi.tolist()], sun=list(st.lighting.sun),
+                   seed=self.scenario.seed, sensor=self._sensor_info(st))
+        if self.scene.kind == "terrain":
+            out["site"] = list(self.scene.site)
+        return out
+
+    def _sensor_info(self, st: _State) -> dict:
+        d = dict(st.scenario.sensor.as_dict(), noise=st.noise)
+        d.update(st.scenario.intrinsics.as_dict())
+        return d
+
+    def _set_pose(self, st: _State, values) -> None:
+        x, y, z, qw, qx, qy, qz, t, index, flags = values
+        _finite("pose", (x, y, z, qw, qx, qy, qz, t))
+        if flags:
+            raise ProtocolError(ErrorCode.INVALID_VALUE, f"SET_POSE flags must be 0; got {flags}")
+        if math.hypot(x, y, z) > MAX_POSITION:
+            raise ProtocolError(ErrorCode.INVALID_VALUE,
+                                f"camera position more than {MAX_POSITION:g} m from the origin")
+        pose = Pose((x, y, z), _scaled((qw, qx, qy, qz), "attitude quaternion"))
+        self._check_outside(pose, t)
+        st.pose, st.time, st.index, st.frame = pose, float(t), int(index), None
+
+    def _check_outside(self, pose: Pose, t: float) -> None:
+        p = np.asarray(pose.position)
+        if self.scene.kind == "terrain":
+            try:
+                ground = self.scene.height_at(p[0], p[1])
+            except InvalidParameterError:
+                return  # beyond the terrain's edge: nothing underneath to be inside of
+            if p[2] <= ground:
+                raise ProtocolError(ErrorCode.INSIDE_SURFACE,
+                                    f"camera at height {p[2]:.3f} m is on or below the terrain "
+                                    f"({ground:.3f} m at {p[0]:.3f}, {p[1]:.3f})")
+            return
+        r = float(np.linalg.norm(p))
+        inside = r < float(self.scene.body.radii.min())
+        if not inside and r <= self.scene.radius:
+            rng, _, _, _, nx, ny, nz = self.cast(p, -p, t, self.scenario.lighting)
+            # from outside the ray meets the near side (normal against the ray); from inside,
+            # the far side's inner face (normal along it) or nothing
+            inside = not math.isfinite(rng) or float(np.dot((nx, ny, nz), -p)) > 0
+        if inside:
+            raise ProtocolError(ErrorCode.INSIDE_SURFACE,
+                                f"camera at {r:.3f} m from the centre is inside the body")
+
+    def _set_sensor(self, st: _State, body: bytes) -> dict:
+        try:
+            settings = json.loads(body.decode("utf-8"))
+        except (UnicodeDecodeError, ValueError) as exc:
+            raise ProtocolError(ErrorCode.MALFORMED,
+                                f"SET_SENSOR body is not UTF-8 JSON: {exc}") from None
+        if not isinstance(settings, dict):
+            raise ProtocolError(ErrorCode.MALFORMED, "SET_SENSOR body must be a JSON object")
+        k = st.scenario.intrinsics
+        w, h = settings.pop("width", k.width), settings.pop("height", k.height)
+        for name, v in (("width", w), ("height", h)):
+            if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= MAX_SIDE:
+                raise ProtocolError(ErrorCode.INVALID_VALUE,
+                                    f"sensor {name} must be an integer in [1, {MAX_SIDE}]; "
+                                    f"got {v!r}")
+        if w * h > MAX_PIXELS:
+            raise ProtocolError(ErrorCode.INVALID_VALUE,
+                                f"sensor {w}x{h} exceeds {MAX_PIXELS} pixels")
+        noise = settings.pop("noise", st.noise)
+        if not isinstance(noise, bool):
+            raise ProtocolError(ErrorCode.INVALID_VALUE,
+                                f"sensor noise must be true or false; got {noise!r}")
+        table = dict(st.sensor_table, **settings)
+        raw = dict(self.scenario.raw, sensor=table)
+        parsed = parse_scenario(raw, self.scenario.path)  # the scenario's own validation
+        base = self.scenario.with_overrides(None, (w, h))
+        st.scenario = dataclasses.replace(base, sensor=parsed.sensor, motion=parsed.motion)
+        st.sensor_table, st.noise, st.frame = table, noise, None
+        return self._sensor_info(st)
+
+    def _frame(self, st: _State):
+        if st.pose is None:
+            raise ProtocolError(ErrorCode.NO_POSE, "set a pose (SET_POSE) first")
+        if st.frame is None:
+            sc = dataclasses.replace(st.scenario, lighting=st.lighting, sensor=st.sensor)
+            sample = Sample(st.time, st.pose, tuple(self.body_rotation(st.time).tolist()))
+            # velocities the client set, where the sensor integrates over time (blur or a
+            # rolling shutter); otherwise the scenario's [motion] (see frame_motion)
+            moving = st.motion if st.scenario.motion.get("blur") else None
+            st.frame = render_sample(self.renderer, self.scene, sc, sample, st.index,
+                                     motion=moving)
+            self._remember(st)
+        return st.frame
+
+    def _remember(self, st: _State) -> None:
+        """Keep ``st``'s frame; drop the oldest other frames beyond FRAME_CACHE_BYTES."""
+        self._cached.pop(id(st), None)
+        self._cached[id(st)] = st
+        total = sum(_frame_bytes(s.frame) for s in self._cached.values())
+        for key in list(self._cached):
+            if total <= FRAME_CACHE_BYTES or key == id(st):
+                break
+            old = self._cached.pop(key)
+            total -= _frame_bytes(old.frame)
+            old.frame = None
+
+    def body_rotation(self, t: float) -> np.ndarray:
+        """R_WB at time ``t`` as the scenario's [scene] spin says (identity for terrain)."""
+        s = self.scenario.scene
+        if self.scene.kind != "asteroid":
+            return np.array([1.0, 0.0, 0.0, 0.0])
+        return spin_rotation(t, s.get("spin_axis", (0.0, 0.0, 1.0)),
+                             float(s.get("spin_period", 0.0)), float(s.get("spin_phase", 0.0)))
+
+    # ------------------------------------------------------------------ surface queries
+    def cast(self, origin, direction, t: float, lighting: Lighting) -> tuple:
+        """(range, point x, y, z, normal x, y, z) where a ray first meets the surface; NaN
+        when it meets nothing. Rendered as one pixel at the finest level of detail."""
+        o = np.asarray(origin, dtype=np.float64)
+        d = np.asarray(_scaled(direction, "ray direction"))
+        n = float(np.linalg.norm(d))
+        pose = look_at(o, o + d / n * max(1.0, float(np.linalg.norm(o))))
+        axis = pose.rotation[:, 2]
+        if self.scene.kind == "asteroid":
+            self.scene.set_body_rotation(self.body_rotation(t))
+        view = View(pose, Intrinsics(1, 1, RAY_FOCAL, RAY_FOCAL, 0.0, 0.0), t)
+        options = dataclasses.replace(self.scenario.options, shadows=False)
+        frame = self.renderer.render(self.scene, view, lighting, options)
+        r = float(frame.range[0, 0])
+        if not math.isfinite(r):
+            return (math.nan,) * 7
+        p = np.asarray(pose.position) + r * axis
+        return (r, *p.tolist(), *frame.normals[0, 0].astype(np.float64).tolist())
+
+    def height_and_normal(self, x: float, y: float) -> tuple:
+        """(height, normal x, y, z) of the terrain at map (x, y) (see docs/protocol.md)."""
+        if self.scene.kind != "terrain":
+            raise ProtocolError(ErrorCode.UNSUPPORTED,
+                                "HEIGHT_AT needs a terrain scene; use RAY on an asteroid")
+        h = self.scene.height_at(x, y)
+        step = next(t.resolution for t in reversed(self.scene.stack.tiles)
+                    if t.bounds[0] <= x <= t.bounds[2] and t.bounds[1] <= y <= t.bounds[3])
+
+        def slope(dx, dy):
+            pts = []
+            for s in (1.0, -1.0):
+                try:
+                    pts.append((s, self.scene.height_at(x + s * dx, y + s * dy)))
+                except InvalidParameterError:
+                    pts.append((0.0, h))  # at the edge: one-sided difference
+            (s0, h0), (s1, h1) = pts
+            return (h0 - h1) / ((s0 - s1) * step) if s0 != s1 else 0.0
+
+        gx, gy = slope(step, 0.0), slope(0.0, step)
+        nrm = np.array([-gx, -gy, 1.0])
+        nrm /= np.linalg.norm(nrm)
+        return (h, *nrm.tolist())
+
+
+def _frame_bytes(frame) -> int:
+    if frame is None:
+        return 0
+    image, fr, _ = frame
+    return image.nbytes + fr.radiance.nbytes + fr.range.nbytes + fr.normals.nbytes
+
+
+def _finite(what: str, values) -> None:
+    if not all(math.isfinite(v) for v in values):
+        raise ProtocolError(ErrorCode.INVALID_VALUE, f"{what} has a non-finite number: "
+                            f"{[float(v) for v in values]}")
+
+
+def _scaled(values, what: str) -> tuple:
+    """A direction whose norm can neither overflow nor vanish: divided by its largest
+    magnitude when that lies outside [1e-100, 1e100] (kept as sent otherwise, so a pose sent
+    back from a truth file gives the same bytes); a zero vector is refused."""
+    v = np.asarray(values, dtype=np.float64)
+    m = float(np.max(np.abs(v)))
+    if not m > 0:
+        raise ProtocolError(ErrorCode.INVALID_VALUE, f"{what} must be non-zero; got "
+                            f"{v.tolist()}")
+    if not 1e-100 <= m <= 1e100:
+        v = v / m
+    return tuple(v.tolist())
