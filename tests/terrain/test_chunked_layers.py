@@ -136,6 +136,17 @@ def test_enhance_cli_runs_chunked_on_request_and_equals_the_in_memory_stack(base
     assert "chunked:" in r.output
     a, b = read_stack(mem), read_stack(chunked)
     assert_same_stack(a, b)
+    # too big for the memory there is: built out of core instead of refused, the base (too
+    # big for one read) kept as a Zarr layer, the layers that fit as GeoTIFFs
+    ooc = tmp_path / "ooc"
+    r = cli("terrain", "enhance", base_path, "-o", ooc, *common,
+            env={"CRATERSCAPE_MEMORY_LIMIT": "150K"})
+    assert r.exit_code == 0, r.output
+    assert "does not fit in memory" in r.output
+    manifest = json.loads((ooc / "manifest.json").read_text())
+    assert [e["file"] for e in manifest["layers"]] == ["layer_00.zarr", "layer_01.tif",
+                                                        "layer_02.tif"]
+    assert_same_stack(a, read_stack(ooc))
     one_line_error(cli("terrain", "enhance", base_path, "-o", tmp_path / "x", *common,
                        "--chunk", 16, "--despike", 4), "--despike")
     one_line_error(cli("terrain", "enhance", base_path, "-o", tmp_path / "y", *common,
