@@ -440,6 +440,10 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
     prepare_folder(outdir, inputs=inputs, keep=(WORK,))
     outdir.mkdir(parents=True, exist_ok=True)
     with stack_lock(outdir):
+        if (outdir / "manifest.json").exists():  # another build finished here meanwhile
+            raise InvalidParameterError(
+                f"output folder '{outdir}' received a stack from another command meanwhile; "
+                "give a new folder")
         (outdir / INCOMPLETE).write_text("a craterscape layer stack is being written here\n",
                                          encoding="utf-8")
         work = _work_folder(outdir, dict(
