@@ -151,6 +151,12 @@ def test_enhance_cli_runs_chunked_on_request_and_equals_the_in_memory_stack(base
     assert [e["file"] for e in manifest["layers"]] == ["layer_00.zarr", "layer_01.tif",
                                                         "layer_02.tif"]
     assert_same_stack(a, read_stack(ooc))
+    # and it is edited like any stack: the changed Zarr layer is replaced by a new version
+    r = cli("terrain", "replace-crater", ooc, "--at", "130,130", "--diameter", 6)
+    assert r.exit_code == 0, r.output
+    edited = read_stack(ooc)
+    assert not (ooc / "layer_00.zarr").exists()
+    assert not np.array_equal(edited.tiles[0].heights, a.tiles[0].heights)
     one_line_error(cli("terrain", "enhance", base_path, "-o", tmp_path / "x", *common,
                        "--chunk", 16, "--despike", 4), "--despike")
     one_line_error(cli("terrain", "enhance", base_path, "-o", tmp_path / "y", *common,
