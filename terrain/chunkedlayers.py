@@ -17,7 +17,12 @@ of the in-memory build, in its order:
 
 The stages live in a work folder inside the stack folder (``.craterscape.work``); a build
 that stops part way is resumed by giving the same command again (finished stages and chunks
-are not computed again). The stack's commit point is unchanged: the manifest, written last.
+are not computed again), so unlike an in-memory build, one that fails keeps its work folder
+(and the folder's ``.craterscape.incomplete`` marker) until it is run again; a rerun with other
+parameters starts the work folder anew. The stack's commit point is unchanged: the manifest,
+written last, under the stack's edit lock. Memory per worker is bounded by a chunk and its
+halo (the crater halo, the expansion's parent pixels, four chunks of the finer layer in the
+agreement step); the client holds the layers' crater and rock catalogues, never a layer.
 Layers small enough for memory are written as GeoTIFFs (``layer_NN.tif``) as in-memory
 builds write them; larger ones stay Zarr DEMs (``layer_NN.zarr``), which
 :func:`terrain.io.read_dem` and so :func:`terrain.layers.read_stack` open too.
@@ -407,7 +412,6 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
         stack_lock,
     )
     from terrain.rng import check_seed
-    from terrain.roughness import ExpansionParameters  # noqa: F401 (params' type)
 
     seed = check_seed(seed)
     if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 0:
@@ -586,12 +590,13 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
 
 
 def _count_unknown(reader, chunk: int) -> int:
-    """Unknown pixels of the input, read in strips of ``chunk`` rows."""
+    """Unknown pixels of the input, read chunk by chunk."""
     ny, nx = reader.shape
     n = 0
     for r0 in range(0, ny, chunk):
-        _, valid = reader.read(Window(0, r0, nx, min(chunk, ny - r0)))
-        n += int(valid.size - np.count_nonzero(valid))
+        for c0 in range(0, nx, chunk):
+            _, valid = reader.read(Window(c0, r0, min(chunk, nx - c0), min(chunk, ny - r0)))
+            n += int(valid.size - np.count_nonzero(valid))
     return n
 
 
