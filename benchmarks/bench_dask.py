@@ -153,7 +153,7 @@ def child_enhance(spec):
     work = Path(spec["dir"])
     reader = open_reader(work / "in.zarr")
     ny, nx = reader.shape
-    site = reader.transform * (nx / 2, ny / 2)
+    site = reader.transform @ (nx / 2, ny / 2)
     pop = Population(dmin=16.0, dmax=400.0, density=200.0)
     args = dict(levels=2, layer_size=spec["layer_size"], seed=SEED, population=pop)
     times = []
