@@ -9,6 +9,10 @@ What the issue asks to show, each against a baseline measured in the same run:
   start-up time (paid once per run).
 * ``overhead``: the scheduler's cost per chunk: N no-op chunk tasks through the same
   ``map_blocks`` path on the 2-worker cluster, and the Zarr write of an empty chunk.
+* ``enhance``: a layer stack (the base and 2 expanded layers as large as the base, craters
+  on every layer) built in memory (``terrain.layers.build_stack``, the baseline, written as
+  GeoTIFFs) and chunk by chunk on a 2-worker ``LocalCluster``
+  (``terrain.chunkedlayers.build_stack_chunked``), in stack pixels per second.
 * ``out_of_core`` (full run only): a 16385^2 DEM synthesised into Zarr, expanded once to
   32769^2 (1.07e9 pixels) on 2 workers and converted into a COG, with the peak memory of the
   whole process tree (sampled) and the COG's georeferencing read back through GDAL.
@@ -138,6 +142,46 @@ def child_overhead(spec):
                 chunk=spec["chunk"])
 
 
+def child_enhance(spec):
+    import numpy as np
+
+    from terrain.chunked import dask_client, open_reader
+    from terrain.chunkedlayers import build_stack_chunked
+    from terrain.layers import build_stack, write_stack
+    from terrain.population import Population
+
+    work = Path(spec["dir"])
+    reader = open_reader(work / "in.zarr")
+    ny, nx = reader.shape
+    site = reader.transform @ (nx / 2, ny / 2)
+    pop = Population(dmin=16.0, dmax=400.0, density=200.0)
+    args = dict(levels=2, layer_size=spec["layer_size"], seed=SEED, population=pop)
+    times = []
+    for k in range(spec["repeat"]):
+        out = work / f"stack-{spec['mode']}-{k}"
+        if spec["mode"] == "memory":
+            from terrain.io import read_dem
+
+            t0 = time.perf_counter()
+            stack = build_stack(read_dem(work / "in.zarr"), site, **args)
+            write_stack(stack, out)
+            times.append(time.perf_counter() - t0)
+            pixels = sum(t.heights.size for t in stack.tiles)
+            del stack
+        else:
+            with dask_client(spec["workers"]) as client:
+                t0 = time.perf_counter()
+                result = build_stack_chunked(reader, out, site, chunk=spec["chunk"],
+                                             client=client, **args)
+                times.append(time.perf_counter() - t0)
+            pixels = ny * nx + 2 * spec["layer_size"] ** 2
+            assert result["craters"] > 0
+        shutil.rmtree(out)
+    med = float(np.median(times))
+    return dict(summary(times), pixels=pixels, pixels_per_s=pixels / med,
+                peak_rss_bytes=peak_rss_bytes())
+
+
 def _tree_rss(pid):
     import psutil
 
@@ -226,7 +270,8 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if args.child:
         spec = json.loads(args.child)
-        result = {"throughput": child_throughput, "overhead": child_overhead}[spec["kind"]](spec)
+        result = {"throughput": child_throughput, "overhead": child_overhead,
+                  "enhance": child_enhance}[spec["kind"]](spec)
         print(json.dumps(result))
         return 0
 
@@ -253,6 +298,15 @@ def main(argv=None) -> int:
         results["overhead"] = _run_child(__file__, dict(
             kind="overhead", name="overhead", tasks=200, chunk=chunk, repeat=1, dir=str(work)),
             600, log)
+        stack = {}
+        for mode, workers in (("memory", None), ("cluster2", 2)):
+            spec = dict(kind="enhance", name=f"enhance-{mode}", mode=mode, workers=workers,
+                        chunk=chunk, repeat=1, layer_size=size, dir=str(work))
+            stack[mode] = _run_child(__file__, spec, 3600, log)
+        results["enhance"] = dict(
+            base_size=size, layer_size=size, levels=2, chunk=chunk, runs=stack,
+            baseline="memory",
+            speedup_vs_memory=stack["cluster2"]["pixels_per_s"] / stack["memory"]["pixels_per_s"])
         if not args.quick and not args.skip_out_of_core:
             results["out_of_core"] = out_of_core(work, OOC_SIZE, 2048)
     finally:

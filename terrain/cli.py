@@ -851,6 +851,21 @@ def expand(input_dem, output, times, seed, fractal_dimension, height_scale, unif
                f"F={params.fractal_dimension:.3f}, H={params.height_scale:.4g})", err=True)
 
 
+_stack_dask_options = [
+    click.option("--workers", type=click.IntRange(1, None), default=None,
+                 help="Build the stack chunk by chunk on a local Dask pool of N workers."),
+    click.option("--threads", is_flag=True,
+                 help="Local workers are threads of this process instead of processes."),
+    click.option("--scheduler", default=None, metavar="tcp://HOST:PORT",
+                 help="Build the stack chunk by chunk on the Dask cluster at this address."),
+    click.option("--chunk", type=click.IntRange(16, None), default=None,
+                 help="Chunk side in pixels (default 1024); implies a chunked build."),
+    click.option("--halo", type=click.IntRange(0, None), default=None,
+                 help="Chunked builds: pixels around each chunk that every gap of the base "
+                      "must fit in (default 256)."),
+]
+
+
 @terrain.command()
 @click.argument("input_dem", type=click.Path(path_type=Path))
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False, path_type=Path),
@@ -876,11 +891,19 @@ def expand(input_dem, output, times, seed, fractal_dimension, height_scale, unif
                    "power:a=3e-4,b=-2.482 (keys as `terrain rocks`; dmin defaults to two "
                    "pixels of the finest layer).")
 @_crater_options
+@_with(_stack_dask_options)
 def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, layer_size, seed,
             fractal_dimension, height_scale, uniform_roughness, min_crater_pixels, despike,
             band, rocks_spec, dmin, dmax, density, sfd_exponent, max_age, population, catalog,
-            erosion_profile, erosion_exponent, no_roughness):
-    """Build nested multi-resolution layers around a landing site."""
+            erosion_profile, erosion_exponent, no_roughness, workers, threads, scheduler,
+            chunk, halo):
+    """Build nested multi-resolution layers around a landing site.
+
+    A stack too large for memory (or any stack with --workers, --scheduler or --chunk) is
+    built chunk by chunk on Dask, bitwise equal to the in-memory build; its layers too large
+    for memory are written as Zarr DEMs, the others as GeoTIFFs. Rerun an interrupted
+    chunked build with the same command to resume it.
+    """
     import math
 
     from terrain.gapfill import despike as run_despike
@@ -896,6 +919,11 @@ def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, lay
                                     "(craters.csv); drop --catalog")
     from terrain.layers import prepare_folder
 
+    asked = any(v is not None for v in (workers, scheduler, chunk, halo))
+    if asked or not _stack_fits(input_dem, band, site, site_lonlat, levels, finest_resolution,
+                                layer_size):
+        _enhance_chunked(auto=not asked, **locals())
+        return
     prepare_folder(output, inputs=[input_dem])
     tile = read_dem(input_dem, band=band, exact=True)
     if site_lonlat is not None:
@@ -946,6 +974,116 @@ def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, lay
     click.echo(f"wrote {len(stack.tiles)} layers to {output} (finest "
                f"{stack.tiles[-1].resolution:.4g} m/pixel, {len(stack.catalog['id'])} craters"
                f"{n_rocks})", err=True)
+
+
+
+
+def _stack_geometry(input_dem, band, site, site_lonlat, levels, finest_resolution, layer_size):
+    """(reader, site, levels, layer shapes) of a stack, from the input's header only."""
+    import math
+
+    from terrain.chunked import open_reader
+    from terrain.io import lonlat_to_xy
+    from terrain.layers import _plan, _Shape
+
+    reader = open_reader(input_dem, band)
+    if site_lonlat is not None:
+        site = lonlat_to_xy(reader.crs, *site_lonlat)
+    if finest_resolution is not None:
+        if not finest_resolution > 0:
+            raise InvalidParameterError(
+                f"finest resolution must be positive; got {finest_resolution}")
+        levels = max(0, math.ceil(math.log2(reader.resolution / finest_resolution) - 1e-9))
+        if levels > MAX_LEVELS:
+            raise InvalidParameterError(
+                f"--finest-resolution {finest_resolution:g} m needs {levels} expansions of the "
+                f"{reader.resolution:.4g} m base; at most {MAX_LEVELS} are possible")
+    _, _, shapes, _ = _plan(_Shape(tuple(reader.shape), reader.transform),
+                            tuple(float(v) for v in site), levels, layer_size)
+    return reader, site, levels, shapes
+
+
+def _stack_fits(input_dem, band, site, site_lonlat, levels, finest_resolution,
+                layer_size) -> bool:
+    """Whether the in-memory build of this stack fits in memory (else it runs chunked)."""
+    from terrain.chunkedlayers import stack_fits_in_memory
+    from terrain.io import RasterReader
+    from terrain.zarrstore import is_zarr
+
+    if Path(input_dem).is_dir() and is_zarr(input_dem):
+        return False  # a Zarr base is read by window
+    reader = RasterReader(input_dem, band)
+    if reader.wide:
+        return True  # read exactly in memory (a chunked run would round it)
+    try:
+        _, _, _, shapes = _stack_geometry(input_dem, band, site, site_lonlat, levels,
+                                          finest_resolution, layer_size)
+    except InvalidParameterError:
+        return True  # the in-memory path reports it as it always has
+    return stack_fits_in_memory(reader.shape, shapes)
+
+
+def _enhance_chunked(*, input_dem, output, site, site_lonlat, levels, finest_resolution,
+                     layer_size, seed, fractal_dimension, height_scale, uniform_roughness,
+                     min_crater_pixels, despike, band, rocks_spec, dmin, dmax, density,
+                     sfd_exponent, max_age, population, erosion_profile, erosion_exponent,
+                     no_roughness, workers, threads, scheduler, chunk, halo, auto, **_):
+    """`terrain enhance` chunk by chunk (:func:`terrain.chunkedlayers.build_stack_chunked`)."""
+    from terrain.chunked import DEFAULT_CHUNK, dask_client
+    from terrain.chunkedlayers import build_stack_chunked
+    from terrain.roughness import LOCAL_BOX
+
+    if despike is not None:
+        raise InvalidParameterError("a chunked enhance takes no --despike; run `terrain fill "
+                                    "--despike` on the DEM first")
+    from terrain.layers import prepare_folder
+
+    prepare_folder(output, inputs=[input_dem], keep=(".craterscape.work",))
+    reader, site, levels, shapes = _stack_geometry(input_dem, band, site, site_lonlat, levels,
+                                                   finest_resolution, layer_size)
+    finest = reader.resolution / 2**levels
+    rocks = None
+    if rocks_spec is not None:
+        from terrain.rocks import MIN_ROCK_PIXELS, RockModel
+
+        rocks = RockModel.from_spec(rocks_spec, defaults=dict(dmin=MIN_ROCK_PIXELS * finest))
+    pop = _population(population, dmin=dmin, dmax=dmax, density=density,
+                      sfd_exponent=sfd_exponent, max_age=max_age, resolution=finest,
+                      extent=min(reader.shape) * reader.resolution, required=False,
+                      warn_small=False)
+    model = _model(erosion_profile, erosion_exponent, no_roughness)
+    estimate = dict(fractal_dimension=fractal_dimension, height_scale=height_scale,
+                    local_box=0 if uniform_roughness else LOCAL_BOX)
+    pixels = sum(h * w for h, w in shapes)
+    (log.warning if auto else log.info)(
+        "enhance: building %d layers (%.3g Mpixel) chunk by chunk in %s%s", levels + 1,
+        pixels / 1e6, output, " (the stack does not fit in memory)" if auto else "")
+    bars = []
+
+    def progress(stage):
+        update, close = _chunk_progress(f"enhance {stage}")
+        bars.append(close)
+        return update
+
+    try:
+        with dask_client(workers, scheduler, processes=not threads) as client:
+            result = build_stack_chunked(
+                reader, output, site, levels=levels, layer_size=layer_size, seed=seed,
+                population=pop, model=model, estimate=estimate,
+                min_crater_pixels=min_crater_pixels, rocks=rocks,
+                chunk=chunk or DEFAULT_CHUNK, client=client, progress=progress,
+                halo=256 if halo is None else halo, inputs=[input_dem],
+                info=dict(source=str(input_dem), command="terrain enhance",
+                          craterscape_version=_version()))
+    finally:
+        for close in bars:
+            close()
+    computed = sum(s["computed"] for s in result["stages"].values())
+    total = sum(s["total"] for s in result["stages"].values())
+    n_rocks = "" if result["rocks"] is None else f", {result['rocks']} rocks"
+    click.echo(f"wrote {levels + 1} layers to {output} (finest {result['finest_resolution']:.4g}"
+               f" m/pixel, {result['craters']} craters{n_rocks}; chunked: {computed} of "
+               f"{total} chunks computed, {total - computed} already written)", err=True)
 
 
 @terrain.command()

@@ -18,7 +18,9 @@ pixels, and after the stack is built every coarser pixel inside a finer layer is
 co-located fine pixel (so craters added to a fine layer appear, sampled, in the coarse ones):
 a coarse pixel equals the co-located fine pixel, exactly.
 
-On disk: ``layer_NN.tif`` per layer (float32 GeoTIFF), ``manifest.json`` (each layer's file,
+On disk: ``layer_NN.tif`` per layer (float32 GeoTIFF; a layer too large for memory, built
+chunk by chunk by :mod:`terrain.chunkedlayers`, is a Zarr DEM ``layer_NN.zarr``),
+``manifest.json`` (each layer's file,
 level, resolution, extent, transform, parent and window in the parent; the site, seed and
 parameters) and ``craters.csv`` (the catalogue with a ``layer`` column).
 
@@ -87,7 +89,9 @@ INCOMPLETE = ".craterscape.incomplete"
 #: Seconds an edit waits for readers before leaving old files to the next edit's sweep.
 READERS_TIMEOUT = 30.0
 #: Names of files a stack's writers create (swept when no manifest names them).
-_STACK_FILE_PATTERNS = ("layer_*.tif", "craters*.csv", "rocks*.csv")
+_STACK_FILE_PATTERNS = ("layer_*.tif", "layer_*.zarr", "craters*.csv", "rocks*.csv")
+#: Work folder of a chunked build (:mod:`terrain.chunkedlayers`), kept for its resumption.
+WORK = ".craterscape.work"
 _LOCKS = (LOCK, READERS_LOCK, INCOMPLETE)
 #: Seconds an edit waits for another edit of the same stack before giving up.
 LOCK_TIMEOUT = 600.0
@@ -401,11 +405,12 @@ def _manifest(stack: LayerStack, files: list[str]) -> dict:
                 catalog=CATALOG, crater_counts=counts, **stack.info)
 
 
-def prepare_folder(outdir, *, inputs=()) -> Path:
+def prepare_folder(outdir, *, inputs=(), keep=()) -> Path:
     """Check that ``outdir`` can take a new stack, before any work.
 
     A missing or empty folder is fine; so is a folder a killed build left (its
-    ``.craterscape.incomplete`` marker and no manifest), whose files are removed here.
+    ``.craterscape.incomplete`` marker and no manifest), whose files are removed here,
+    except those named in ``keep`` (a chunked build keeps its work folder to resume it).
     Anything else is refused.
     """
     from terrain.outputs import check_output_folder
@@ -421,7 +426,9 @@ def prepare_folder(outdir, *, inputs=()) -> Path:
     names = {p.name for p in outdir.iterdir()}
     if INCOMPLETE in names and MANIFEST not in names:
         ours = _stack_files(outdir)
-        strangers = names - {p.name for p in ours} - set(_LOCKS)
+        if WORK in names and WORK not in keep:
+            ours.append(outdir / WORK)
+        strangers = names - {p.name for p in ours} - set(_LOCKS) - set(keep)
         strangers = {n for n in strangers if not n.endswith(".partial")}
         if strangers:
             raise InvalidParameterError(
@@ -429,12 +436,12 @@ def prepare_folder(outdir, *, inputs=()) -> Path:
                 f"({sorted(strangers)[0]}, ...); give a new folder")
         log.warning("removing the interrupted stack build in %s", outdir)
         for p in ours:
-            p.unlink()
+            _remove(p)
         from terrain.outputs import sweep_partials
 
         sweep_partials(outdir)
         names = {p.name for p in outdir.iterdir()}
-    if names - set(_LOCKS):
+    if names - set(_LOCKS) - set(keep):
         raise InvalidParameterError(
             f"output folder '{outdir}' is not empty; give a new folder (layer stacks are "
             "edited with replace-crater, never overwritten)")
@@ -443,6 +450,17 @@ def prepare_folder(outdir, *, inputs=()) -> Path:
 
 def _stack_files(outdir: Path) -> list[Path]:
     return sorted({p for pattern in _STACK_FILE_PATTERNS for p in outdir.glob(pattern)})
+
+
+def _remove(path: Path) -> None:
+    """Delete a stack file or a Zarr layer (a folder); a missing one is fine."""
+    import shutil
+
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
 
 
 def write_stack(stack: LayerStack, outdir, *, inputs=()) -> Path:
@@ -764,8 +782,7 @@ def _commit(stack: LayerStack, outdir: Path, changed: set) -> None:
             log.warning("readers still hold %s; its old files go at the next edit", outdir)
             return
         for name in old:
-            with contextlib.suppress(FileNotFoundError):
-                (outdir / name).unlink()
+            _remove(outdir / name)
 
 
 def _sweep(outdir: Path) -> None:
@@ -790,8 +807,7 @@ def _sweep(outdir: Path) -> None:
         if not held:
             return
         for p in orphans:
-            with contextlib.suppress(FileNotFoundError):
-                p.unlink()
+            _remove(p)
     log.info("removed %d file(s) of an interrupted edit from %s", len(orphans), outdir)
 
 
