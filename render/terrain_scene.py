@@ -56,11 +56,12 @@ Layer fade-in: a finer layer's heights blend into its parent's surface across
 triangulated full-resolution surface at the layer's edge to the layer's own heights), so the
 finer detail fades in instead of starting with a step at the layer's edge.
 
-Range and truth: range, normals and images all come from the drawn (morphed) geometry, per
-fragment, so they agree with each other and with the poses exactly. Morphing moves a vertex
-only between two levels of detail of the same layer, within the error the level of detail
-already allowed; only the fade margin draws heights other than the layer's own (the parent's
-surface blended in), and :meth:`TerrainScene.height_at` reads the layers' own heights.
+Range and truth: range comes from the drawn (morphed) geometry, per fragment, and the images
+and normal images from the same fragments (shaded with the layers' full-resolution normals),
+so they agree with each other and with the poses exactly. Morphing moves a vertex only
+between two levels of detail of the same layer, within the error the level of detail already
+allowed; only the fade margin draws heights other than the layer's own (the parent's surface
+blended in), and :meth:`TerrainScene.height_at` reads the layers' own heights.
 """
 
 from __future__ import annotations

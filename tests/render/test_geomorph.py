@@ -192,3 +192,30 @@ def test_shading_does_not_depend_on_the_level_of_detail(renderer, scene):
         ok = np.isfinite(fine) & np.isfinite(coarse)
         change[morph] = float(np.sqrt(np.mean((fine[ok] - coarse[ok]) ** 2)))
     assert change[True] < 0.4 * change[False]
+
+
+def test_the_normal_texture_lies_where_its_pixels_are(renderer):
+    """An asymmetric terrain (a hill in the north-east quarter only) shaded from the normal
+    texture looks as it does shaded from the vertices: the texture is not flipped or
+    shifted."""
+    from terrain.layers import LayerStack
+    from terrain.tile import DEMTile
+
+    n = 65
+    rows, cols = np.mgrid[0:n, 0:n].astype(np.float64)
+    z = 12.0 * np.exp(-((rows - 16.0) ** 2 + (cols - 46.0) ** 2) / 60.0)  # row 16: north
+    tile = DEMTile.from_array(z, resolution=1.0)
+    left, bottom, right, top = tile.bounds
+    cat = {"layer": np.zeros(0, np.int64), "id": np.zeros(0, np.uint64)}
+    stack = LayerStack([tile], [None], [(0, 0)], cat,
+                       {"site": [(left + right) / 2, (bottom + top) / 2]})
+    scene = TerrainScene(stack, curvature=False)
+    k = Intrinsics.from_fov(96, 96, 50.0)
+    pose = look_at((left + 20.0, bottom + 5.0, 60.0), (left + 32.0, bottom + 32.0, 0.0))
+    light = Lighting.from_angles(200.0, 30.0, albedo=0.2, brdf="lambert")
+    a, b = (renderer.render(scene, View(pose, k), light,
+                            RenderOptions(shadows=False, lod_pixels=0.05, geomorph=m)).radiance
+            for m in (True, False))
+    ok = np.isfinite(a) & np.isfinite(b)
+    assert ok.mean() > 0.9
+    assert np.sqrt(np.mean((a[ok] - b[ok]) ** 2)) < 0.05 * b[ok].std()
