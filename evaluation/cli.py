@@ -477,6 +477,9 @@ def _tracker_options(func):
                      help="Pyramid levels."),
         click.option("--fb-threshold", type=float, default=0.5, show_default=True,
                      help="Largest forward-backward error of a kept point (px)."),
+        click.option("--prewarp/--no-prewarp", default=True, show_default=True,
+                     help="Track from the previous frame warped by the step's homography "
+                          "(no drift under zoom and roll), or plain Lucas-Kanade."),
         click.option("--outlier-px", type=float, default=None,
                      help="Errors above this are outliers (px; default 2, or the thresholds "
                           "file's tracking.outlier_px)."),
@@ -487,12 +490,12 @@ def _tracker_options(func):
 
 
 def _run_tracking(run_dir, max_corners, quality, min_distance, win_size, levels, fb_threshold,
-                  outlier_px):
+                  outlier_px, prewarp=True):
     from evaluation.tracking import TrackerSettings, load_run, score, track
 
     settings = TrackerSettings(max_corners=max_corners, quality=quality,
                                min_distance=min_distance, win_size=win_size, levels=levels,
-                               fb_threshold=fb_threshold)
+                               fb_threshold=fb_threshold, prewarp=prewarp)
     run = load_run(run_dir)
     update, close = _progress("tracking")
     try:
@@ -508,7 +511,7 @@ def _run_tracking(run_dir, max_corners, quality, min_distance, win_size, levels,
               help="Output folder (created if missing).")
 @_tracker_options
 def track_cmd(run_dir, output, max_corners, quality, min_distance, win_size, levels,
-              fb_threshold, outlier_px):
+              fb_threshold, prewarp, outlier_px):
     """Track Harris corners through a rendered run and score them against its truth."""
     from evaluation.tracking import save_tracks
     from terrain.outputs import check_output_folder, transaction
@@ -517,7 +520,8 @@ def track_cmd(run_dir, output, max_corners, quality, min_distance, win_size, lev
         raise InvalidParameterError("the output folder must differ from the run directory")
     check_output_folder(output, [run_dir])
     run, scored = _run_tracking(run_dir, max_corners, quality, min_distance, win_size, levels,
-                                fb_threshold, 2.0 if outlier_px is None else outlier_px)
+                                fb_threshold, 2.0 if outlier_px is None else outlier_px,
+                                prewarp)
     with transaction():  # every file or none
         s = save_tracks(scored, run, _outdir(output, [run_dir]),
                         inputs=[run_dir / "truth.json", run_dir / "manifest.json"])
@@ -600,7 +604,8 @@ def consistency_cmd(run_dir, output, edge_px, occlusion_tolerance):
 def report(run_dirs, output, thresholds, title, dems, band, reference, reference_band,
            slope_band, meshes, reference_mesh, reference_units, hazards, units, density, mass,
            period_hours, spin_axis, radius_deg, coarse_faces, no_gravity, max_corners,
-           quality, min_distance, win_size, levels, fb_threshold, outlier_px, compute_edges):
+           quality, min_distance, win_size, levels, fb_threshold, prewarp, outlier_px,
+           compute_edges):
     """One self-contained HTML validation report (and its JSON) with pass/fail checks.
 
     Every RUN_DIR (rendered sequences, any number) gets a feature-tracking section; --dem and
@@ -639,7 +644,7 @@ def report(run_dirs, output, thresholds, title, dems, band, reference, reference
     for run_dir, key in zip(run_dirs, keys, strict=True):
         opx = limits["tracking"]["outlier_px"] if outlier_px is None else outlier_px
         run, scored = _run_tracking(run_dir, max_corners, quality, min_distance, win_size,
-                                    levels, fb_threshold, opx)
+                                    levels, fb_threshold, opx, prewarp)
         sections.append(tracking_section(scored, run.image(len(run) - 1), limits,
                                          run_label=str(run_dir),
                                          key=key if len(run_dirs) > 1 else ""))

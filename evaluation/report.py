@@ -366,9 +366,11 @@ def tracking_section(scored, last_image, thresholds: dict | None = None, *,
     sec = Section("tracking", "Feature tracking against truth")
     if key:
         sec.id, sec.title = f"tracking-{key}", f"Feature tracking against truth: {key}"
+    warp = (" (from each previous frame warped by the step's homography)"
+            if tr["settings"].get("prewarp") else "")
     sec.paragraphs.append(
-        f"Harris corners tracked with pyramidal Lucas-Kanade, forward-backward checked and "
-        f"replenished, through {tr['frames']} frames of {run_label or 'the run'}. Each "
+        f"Harris corners tracked with pyramidal Lucas-Kanade{warp}, forward-backward checked "
+        f"and replenished, through {tr['frames']} frames of {run_label or 'the run'}. Each "
         "feature is lifted to 3-D with the range image and pose of its first frame and "
         "projected into every later frame with that frame's truth; the error is the distance "
         "between the tracked and the true position.")

@@ -12,7 +12,11 @@ Tracking (:func:`track`)
 * Corners: Harris response (``cv2.goodFeaturesToTrack(..., useHarrisDetector=True)``; Harris
   and Stephens 1988), at most ``max_corners``, at least ``min_distance`` pixels apart.
 * Motion: pyramidal Lucas-Kanade (``cv2.calcOpticalFlowPyrLK``; Bouguet 2001) from each frame
-  to the next.
+  to the next. With ``prewarp`` (the default), a first pass gives every live track's motion,
+  the homography of the step is fitted to them (RANSAC), and Lucas-Kanade runs again from
+  the previous frame warped by that homography: each window then follows only what the
+  homography leaves (parallax, noise), not the zoom and roll of a descent, under which a
+  shift-only window drifts by a biased fraction of a pixel at every step.
 * Forward-backward check (Kalal, Mikolajczyk and Matas 2010): each point is tracked back to
   the previous frame; a track ends when the round trip misses its start by more than
   ``fb_threshold`` pixels, when either pass fails, or when it leaves the image (less
@@ -127,6 +131,12 @@ class TrackerSettings:
         Largest forward-backward round-trip error of a kept point.
     border : int, pixels
         Points closer than this to the image edge are dropped.
+    prewarp : bool
+        Before Lucas-Kanade, warp the previous frame by the homography the step's first pass
+        implies (RANSAC over all tracks), so that each window only has to follow what that
+        homography does not: a shift-only window then no longer drifts under the zoom and
+        roll of a descent (module docstring). Off: plain pyramidal Lucas-Kanade, frame to
+        frame.
     """
 
     max_corners: int = 300
@@ -138,8 +148,12 @@ class TrackerSettings:
     levels: int = 3
     fb_threshold: float = 0.5
     border: int = 4
+    prewarp: bool = True
 
     def __post_init__(self):
+        if not isinstance(self.prewarp, (bool, np.bool_)):
+            raise InvalidParameterError(f"tracker prewarp must be true or false; got "
+                                        f"{self.prewarp!r}")
         for name in ("max_corners", "block_size", "win_size", "levels", "border"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
@@ -161,7 +175,8 @@ class TrackerSettings:
         return dict(max_corners=self.max_corners, quality=self.quality,
                     min_distance=self.min_distance, block_size=self.block_size,
                     harris_k=self.harris_k, win_size=self.win_size, levels=self.levels,
-                    fb_threshold=self.fb_threshold, border=self.border)
+                    fb_threshold=self.fb_threshold, border=self.border,
+                    prewarp=bool(self.prewarp))
 
 
 @dataclass(frozen=True, eq=False)
@@ -377,8 +392,11 @@ def track(run, settings: TrackerSettings | None = None, *, progress=None) -> Tra
         if live:
             p0 = np.array([tracks[t][1][-1] for t in live], dtype=np.float32).reshape(-1, 1, 2)
             p1, st1, _ = cv2.calcOpticalFlowPyrLK(prev, image, p0, None, **lk)
-            p0b, st2, _ = cv2.calcOpticalFlowPyrLK(image, prev, p1, None, **lk)
-            fb = np.linalg.norm((p0b - p0).reshape(-1, 2), axis=1)
+            source, start = prev, p0
+            if s.prewarp:
+                source, start, p1, st1 = _prewarped(prev, image, p0, p1, st1, lk)
+            p0b, st2, _ = cv2.calcOpticalFlowPyrLK(image, source, p1, None, **lk)
+            fb = np.linalg.norm((p0b - start).reshape(-1, 2), axis=1)
             q = p1.reshape(-1, 2)
             inside = ((q[:, 0] >= s.border) & (q[:, 0] <= w - 1 - s.border)
                       & (q[:, 1] >= s.border) & (q[:, 1] <= h - 1 - s.border))
@@ -405,6 +423,33 @@ def track(run, settings: TrackerSettings | None = None, *, progress=None) -> Tra
         stop[i] = k0 + len(pts) - 1
     log.info("tracked %d features through %d frames", len(tracks), n)
     return Tracks(positions, start, stop, layer_change, (h, w), s)
+
+
+#: Fewest first-pass tracks from which a step's homography is estimated for prewarping.
+PREWARP_MIN_TRACKS = 12
+#: RANSAC inlier distance (pixels) of that homography.
+PREWARP_RANSAC_PX = 2.0
+
+
+def _prewarped(prev, image, p0, p1, st1, lk):
+    """(source, start, p1, status): the previous frame warped by the step's homography, the
+    points' positions in it, and Lucas-Kanade's answer from there (see ``prewarp``)."""
+    import cv2
+
+    ok = (st1.reshape(-1) == 1) & np.isfinite(p1.reshape(-1, 2)).all(axis=1)
+    if ok.sum() < PREWARP_MIN_TRACKS:
+        return prev, p0, p1, st1
+    hom, _ = cv2.findHomography(p0.reshape(-1, 2)[ok], p1.reshape(-1, 2)[ok], cv2.RANSAC,
+                                PREWARP_RANSAC_PX)
+    if hom is None or not np.all(np.isfinite(hom)):
+        return prev, p0, p1, st1
+    h, w = prev.shape
+    source = cv2.warpPerspective(prev, hom, (w, h), flags=cv2.INTER_LINEAR,
+                                 borderMode=cv2.BORDER_REPLICATE)
+    start = cv2.perspectiveTransform(p0.astype(np.float64), hom).astype(np.float32)
+    p1w, st, _ = cv2.calcOpticalFlowPyrLK(source, image, start, start.copy(),
+                                          flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
+    return source, start, p1w, st
 
 
 # ------------------------------------------------------------------------------ truth
@@ -800,7 +845,10 @@ def ideal_one_step(scored: ScoredTracks, run, *, sensor_noise: bool = False,
             if sensor_noise:
                 ideal = _fresh_noise(ideal, sensor, seed, k)
             p0 = tracks.positions[sel, k - 1].astype(np.float32).reshape(-1, 1, 2)
-            p1, st, _ = cv2.calcOpticalFlowPyrLK(grey(prev_img), grey(ideal), p0, None, **lk)
+            a, b = grey(prev_img), grey(ideal)
+            p1, st, _ = cv2.calcOpticalFlowPyrLK(a, b, p0, None, **lk)
+            if s.prewarp:  # the same tracker: its homography from these tracks
+                _, _, p1, st = _prewarped(a, b, p0, p1, st, lk)
             p0_64 = p0.reshape(-1, 2).astype(np.float64)
             q = _carry(run, k - 1, k, p0_64, run.range(k - 1), run.range(k), 0.02)
             err = np.linalg.norm(p1.reshape(-1, 2).astype(np.float64) - q, axis=1)

@@ -56,10 +56,25 @@ def test_one_step_error_separates_drift_from_each_step(scored):
     assert e["one_step"]["median_px"] < 0.5 * e["median_px"]
 
 
+def test_prewarping_removes_the_drift_of_a_shift_only_window(planar_run, scored):
+    """Plain Lucas-Kanade drifts under the descent's zoom and roll, step after step in the
+    same direction; tracking from the homography-warped previous frame does not, and its
+    tracks live as long and are as many."""
+    plain = score(track(planar_run, TrackerSettings(prewarp=False)), planar_run)
+    p, w = plain.error_summary(), scored.error_summary()
+    assert scored.tracks.settings.prewarp
+    assert w["median_px"] < 0.4 * p["median_px"]
+    assert w["one_step"]["median_px"] < 0.5 * p["one_step"]["median_px"]
+    tp, tw = plain.tracks.summary(), scored.tracks.summary()
+    assert tw["track_length_mean"] >= tp["track_length_mean"]
+    assert tw["tracks_per_frame_mean"] >= 0.95 * tp["tracks_per_frame_mean"]
+
+
 def test_ideal_tracker_tells_the_trackers_share_from_the_images(scored, planar_run,
                                                                 tmp_path):
-    """On exact frames the same tracker errs as much on truth-warped frames as on real
-    ones; on a frame whose content jumps (a popped frame) only the real error jumps."""
+    """On exact frames the same tracker errs a few thousandths of a pixel on truth-warped
+    frames and on real ones; on a frame whose content jumps (a popped frame) only the real
+    error jumps."""
     import json
     import shutil
 
@@ -70,7 +85,8 @@ def test_ideal_tracker_tells_the_trackers_share_from_the_images(scored, planar_r
     ideal = ideal_one_step(scored, planar_run)
     both = np.isfinite(ideal) & np.isfinite(scored.one_step)
     assert both.sum() > 1000
-    assert np.median(ideal[both]) == pytest.approx(np.median(scored.one_step[both]), rel=0.3)
+    # exact frames: both tiny; what the real frames add is their fresh rounding to 8 bits
+    assert np.median(ideal[both]) <= np.median(scored.one_step[both]) < 0.05
     # the warped frame is the next frame, up to resampling (8-bit, texture of 3-4 px)
     run = RunReader(planar_run)
     warped = truth_warped_frame(run, 3, 4).astype(np.float64)
