@@ -462,10 +462,11 @@ TRACKING_NOTES = {
     "lunar": (
         "The surface is grey (uniform albedo), so every corner is a shading corner, and the "
         "camera closes in by several per cent between frames: Lucas-Kanade, which models "
-        "the motion of a patch as a shift, drifts a little under that zoom at every step, "
-        "which is why the error grows with a track's age. The round trip through the "
-        "truth and range images of consecutive frames (last row of the table) shows the "
-        "ground truth itself is exact."),
+        "the motion of a patch as a shift, would drift a little under that zoom at every "
+        "step, so the tracker follows each feature from the previous frame warped by the "
+        "step's homography; what drift is left grows with a track's age. The round trip "
+        "through the truth and range images of consecutive frames (last row of the table) "
+        "shows the ground truth itself is exact."),
     "asteroid": (
         "The body turns about 1.2 degrees between frames under a fixed sun. With a uniform "
         "albedo every corner is a shading corner, and shading moves over the surface as "
