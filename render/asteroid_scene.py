@@ -34,6 +34,13 @@ being drawn. The imposter fades in: while the body spans between ``imposter_pixe
 :data:`IMPOSTER_FADE` times that, the frame is the geometry's with the imposter's radiance
 blended in (weight 0 to 1 as the body shrinks; range and normals stay the geometry's).
 
+Shading normals: with geomorphing on, the body is shaded with its finest level's normals
+whatever level is drawn: a cube map (:data:`NORMAL_CUBE_SIZE` texels a side) holds, for each
+body-frame direction from the centre, the normal interpolated on the finest triangle that
+direction meets (the body is star-shaped about its centre), so the shading of the surface,
+and every shading corner a tracker follows, stays on the surface while levels change; the
+normal images are these normals too. Boulders keep their own.
+
 Shadows: one orthographic map fitted to the body's bounding sphere, whose projection depends
 on the sun alone (never on the camera), with casters drawn at one level of detail chosen from
 the map's texel size (never from the camera's distance), so nothing in the map changes as the
@@ -79,6 +86,8 @@ MORPH_BAND = 1.0
 #: The imposter fades in while the body spans from this many times ``imposter_pixels`` down
 #: to ``imposter_pixels``.
 IMPOSTER_FADE = 1.5
+#: Texels per side of each face of the cube map of the body's finest normals.
+NORMAL_CUBE_SIZE = 512
 #: Shadow casters are drawn at the coarsest body level whose vertex spacing stays below this
 #: many shadow-map texels.
 SHADOW_CELL_TEXELS = 2.0
@@ -98,6 +107,7 @@ class _BodyLod:
     vaos: dict
     abo: object = None    # per-vertex albedo factors (float32) or None
     morph: object = None   # per-vertex targets on the next coarser level (None: coarsest)
+    cube: object = None    # the finest level's normals by direction (finest level only)
 
 
 @dataclass(eq=False)
@@ -238,6 +248,7 @@ class AsteroidScene:
                 lods[:-1], surfaces[:-1], surfaces[1:], strict=True):
             targets = _coarser_surface(mesh.directions(), coarse, c_radii, c_normals)
             fine.morph = ctx.buffer(targets.astype(np.float32).tobytes())
+        lods[0].cube = _normal_cube(ctx, *surfaces[0])
         levels = []
         if self.boulders is not None and len(self.boulders):
             # coarse levels for every boulder up front; finer ones only for the boulders a
@@ -319,7 +330,8 @@ class AsteroidScene:
             morph = Morph(1, math.log2(switch), MORPH_BAND, level=1.0)
         batches = [DrawBatch(vao, dvao, ranges, world_from_model=self.rotation, shadow=shadow,
                              triangles=tris, vertex_albedo=body.abo is not None,
-                             morph=morph)]
+                             morph=morph, normal_cube=(lods[0].cube if options.geomorph
+                                                       else None))]
         drawn = {"body_magnitude": body.magnitude, "patches": int(patches.size),
                  "patches_total": int(len(body.radii)), "triangles": tris, "imposter": False}
         b_tris, counts = self._boulder_batches(batches, levels, view, options, renderer,
@@ -522,6 +534,27 @@ class _ImposterFade:
         self.composite(view, rad, r, n)
         both = np.isfinite(r) & np.isfinite(rng)
         radiance[both] = (1.0 - self.weight) * radiance[both] + self.weight * rad[both]
+
+
+def _normal_cube(ctx, mesh, radii, normals):
+    """A cube map of the finest level's normals by body-frame direction (module docstring):
+    each texel holds the normal interpolated on the triangle its direction meets."""
+    import moderngl
+
+    n = NORMAL_CUBE_SIZE
+    c = (np.arange(n) + 0.5) / n * 2.0 - 1.0
+    tc, sc = np.meshgrid(c, c, indexing="ij")  # rows run along t, columns along s
+    one = np.ones_like(sc)
+    faces = [np.stack(f, axis=-1) for f in (  # GL's cube faces +X, -X, +Y, -Y, +Z, -Z
+        (one, -tc, -sc), (-one, -tc, sc), (sc, one, tc), (sc, -one, -tc), (sc, -tc, one),
+        (-sc, -tc, -one))]
+    dirs = np.concatenate([f.reshape(-1, 3) for f in faces])
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    nrm = _coarser_surface(dirs, mesh, radii, normals)[:, 4:]
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    tex = ctx.texture_cube((n, n), 3, nrm.astype("f2").tobytes(), dtype="f2")
+    tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+    return tex
 
 
 def _coarser_surface(directions, coarse, c_radii, c_normals) -> np.ndarray:

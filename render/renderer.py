@@ -196,6 +196,8 @@ class Renderer:
         self._dummy_albedo = self.ctx.texture((1, 1), 1, np.ones(1, "f4").tobytes(), dtype="f4")
         self._dummy_normals = self.ctx.texture((1, 1), 3, np.array([0, 0, 1], "f2").tobytes(),
                                                dtype="f2")
+        self._dummy_cube = self.ctx.texture_cube((1, 1), 3, np.tile(np.array([0, 0, 1], "f2"),
+                                                                     6).tobytes(), dtype="f2")
 
     # ------------------------------------------------------------------ framebuffers
     def _target(self, size):
@@ -363,6 +365,13 @@ class Renderer:
         else:
             prog["u_normal_map"].value = 0
             self._dummy_normals.use(location=2)
+        prog["u_normal_cube_map"].value = 3
+        if batch.normal_cube is not None:
+            batch.normal_cube.use(location=3)
+            prog["u_normal_cube"].value = 1
+        else:
+            prog["u_normal_cube"].value = 0
+            self._dummy_cube.use(location=3)
         shadow = batch.shadow if shadows else None
         if shadow is not None:
             prog["u_shadows"].value = 1

@@ -82,6 +82,9 @@ class DrawBatch:
     #: 1/height)) mapping scene-local x, y to texture coordinates ``((x - x0) / width,
     #: (y0 - y) / height)``, or None.
     normal_map: tuple | None = None
+    #: Shading normals from a cube map looked up by model-frame direction from the model
+    #: origin (a star-shaped body's finest normals), or None.
+    normal_cube: object = None
 
 
 @dataclass(eq=False)

@@ -24,6 +24,9 @@ uniform int u_use_discard;      // terrain layers: draw only outside the finer l
 uniform vec4 u_discard;         // xmin, ymin, xmax, ymax (world)
 
 uniform int u_normal_map;       // terrain layers: shade with the layer's full-resolution
+uniform int u_normal_cube;      // asteroid bodies: shade with the finest level's normals,
+uniform samplerCube u_normal_cube_map;  // looked up by body-frame direction from the centre
+uniform mat3 u_world_from_model;  // (the body rotation, as in the vertex stage)
 uniform sampler2D u_normals;    // normals (texture of unit normals, one texel per pixel),
 uniform vec4 u_normal_rect;     // whatever the level of detail: (x0, y0, 1/width, 1/height)
 
@@ -152,6 +155,9 @@ void main() {
     if (u_normal_map == 1)
         n = normalize(texture(u_normals, vec2((world.x - u_normal_rect.x) * u_normal_rect.z,
                                                (u_normal_rect.y - world.y) * u_normal_rect.w)).xyz);
+    if (u_normal_cube == 1)
+        n = normalize(u_world_from_model
+                      * texture(u_normal_cube_map, transpose(u_world_from_model) * world).xyz);
     float r = length(v_rel);
     vec3 e = -v_rel / r;                       // towards the camera
     float mu0 = dot(n, u_sun);
