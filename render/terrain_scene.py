@@ -52,7 +52,8 @@ detail; the normal images are these normals too. The level of detail then change
 geometry's outline and range, within the error it allows.
 
 Layer fade-in: a finer layer's heights blend into its parent's surface across
-:data:`FADE_PARENT_PIXELS` parent pixels inside its extent (a smoothstep from the parent's
+:data:`FADE_PARENT_PIXELS` parent pixels inside its extent (at most an eighth of the
+layer's side; a smoothstep from the parent's
 triangulated full-resolution surface at the layer's edge to the layer's own heights), so the
 finer detail fades in instead of starting with a step at the layer's edge.
 
@@ -104,6 +105,9 @@ MOON_RADIUS = 1_737_400.0
 MORPH_BAND = 0.5
 #: Width (parent pixels) of the margin inside a finer layer's edge across which it fades in.
 FADE_PARENT_PIXELS = 8.0
+#: ... but at most this fraction of the layer's smaller side (small layers keep their own
+#: heights over most of their extent).
+FADE_MAX_FRACTION = 0.125
 #: Bisection steps of the budget-limited target (a 1.25 bracket to 1e-7 relative).
 BUDGET_BISECTIONS = 22
 
@@ -655,10 +659,11 @@ def _fade_in(z: np.ndarray, xs: np.ndarray, ys: np.ndarray, parent) -> np.ndarra
     heights, scene-local); its surface is its full-resolution triangulation (the diagonal
     from top-right to bottom-left, as drawn). The weight of the layer's own heights is a
     smoothstep of the distance to the layer's edge over :data:`FADE_PARENT_PIXELS` parent
-    pixels.
+    pixels (at most :data:`FADE_MAX_FRACTION` of the layer's smaller side).
     """
     pz, px0, py0, pres = parent
-    margin = FADE_PARENT_PIXELS * pres
+    size = min(abs(xs[-1] - xs[0]), abs(ys[0] - ys[-1]))
+    margin = min(FADE_PARENT_PIXELS * pres, FADE_MAX_FRACTION * size)
     ex = np.minimum(xs - xs[0], xs[-1] - xs)
     ey = np.minimum(ys[0] - ys, ys - ys[-1])
     t = np.clip(np.minimum(ey[:, None], ex[None, :]) / margin, 0.0, 1.0)

@@ -141,7 +141,7 @@ def test_morph_targets_lie_on_the_coarser_level():
 
 def test_a_finer_layer_fades_in_from_its_parents_surface():
     """At its edge a layer lies on its parent's surface; past the margin, on its own."""
-    from render.terrain_scene import FADE_PARENT_PIXELS, _fade_in
+    from render.terrain_scene import FADE_MAX_FRACTION, FADE_PARENT_PIXELS, _fade_in
 
     rng = np.random.default_rng(5)
     parent = rng.normal(size=(40, 40)) * 3.0  # parent cells of 4 m, x from 0, y from 156
@@ -151,7 +151,9 @@ def test_a_finer_layer_fades_in_from_its_parents_surface():
     own = rng.normal(size=(65, 65))
     faded = _fade_in(own, xs, ys, (parent, 0.0, 156.0, res_p))
     # deep inside: the layer's own heights, bit for bit
-    inner = int(FADE_PARENT_PIXELS * res_p / res) + 1
+    margin = min(FADE_PARENT_PIXELS * res_p, FADE_MAX_FRACTION * 64 * res)
+    inner = int(margin / res) + 1
+    assert not np.array_equal(faded[inner - 2], own[inner - 2])  # inside the margin: blended
     assert np.array_equal(faded[inner:-inner, inner:-inner], own[inner:-inner, inner:-inner])
     # on the edge: the parent's triangulated surface (here at parent vertices and mid-edges)
     col = (xs[0] - 0.0) / res_p  # 10: a parent column
