@@ -49,6 +49,15 @@ def _rms(frames) -> np.ndarray:
                      for a, b in zip(frames[:-1], frames[1:], strict=True)])
 
 
+def _local_ratio(rms: np.ndarray, half: int = 4) -> np.ndarray:
+    """Each pair's rms over the median of the pairs within ``half`` of it (itself left out)."""
+    out = np.empty(rms.size)
+    for i in range(rms.size):
+        around = np.r_[rms[max(0, i - half):i], rms[i + 1:i + 1 + half]]
+        out[i] = rms[i] / np.median(around)
+    return out
+
+
 def _traverse(scene, n=24):
     """Descending from 900 m to 300 m while flying 400 m east: the finest layer enters."""
     z0 = scene.height_at(*SITE)
@@ -65,7 +74,9 @@ def test_a_sequence_across_a_layer_change_stays_consistent_and_a_pop_is_caught(r
     layer, lod = change_marks([f[3].drawn for f in frames])
     assert layer.any(), "the sequence must cross a layer change"
     rms = _rms(frames)
-    assert rms.max() <= SPIKE_BOUND * np.median(rms)
+    # no pair jumps above its neighbours (the residual drifts slowly with the view: each pair
+    # is judged against the median of the pairs around it), least of all at the changes
+    assert _local_ratio(rms).max() <= SPIKE_BOUND
     # the same sequence with one frame's level of detail forced four levels coarser
     popped = 10
     frames[popped] = _render(renderer, scene, [poses[popped]], k,
@@ -74,8 +85,7 @@ def test_a_sequence_across_a_layer_change_stays_consistent_and_a_pop_is_caught(r
                                                       LIGHT.sun,
                                                       drawn=frames[popped][3].drawn),)
     rms_popped = _rms(frames)
-    median = np.median(rms_popped)
-    spikes = np.flatnonzero(rms_popped > SPIKE_BOUND * median).tolist()
+    spikes = np.flatnonzero(_local_ratio(rms_popped) > SPIKE_BOUND).tolist()
     assert spikes == [popped - 1, popped]  # the pairs into and out of the popped frame
     assert change_marks([f[3].drawn for f in frames])[1][popped]
 
