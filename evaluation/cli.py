@@ -8,6 +8,7 @@ point, so the root command in :mod:`terrain.cli` never imports this package).
     craterscape evaluation asteroid-slopes MESH... -o OUTDIR [--units km] [--density D | --mass M]
         [--period-hours H] [--spin-axis X,Y,Z] [--reference MESH] [--no-gravity]
     craterscape evaluation track RUN_DIR -o OUTDIR [--max-corners N] [--fb-threshold PX]
+    craterscape evaluation consistency RUN_DIR -o OUTDIR [--edge-px N]
     craterscape evaluation report [RUN_DIR] -o REPORT.html [--thresholds T.toml]
         [--dem DEM ...] [--reference REF.tif] [--mesh MESH ...] [--reference-mesh MESH]
     craterscape evaluation thresholds          # print the default thresholds (TOML)
@@ -476,6 +477,9 @@ def _tracker_options(func):
                      help="Pyramid levels."),
         click.option("--fb-threshold", type=float, default=0.5, show_default=True,
                      help="Largest forward-backward error of a kept point (px)."),
+        click.option("--prewarp/--no-prewarp", default=True, show_default=True,
+                     help="Track from the previous frame warped by the step's homography "
+                          "(no drift under zoom and roll), or plain Lucas-Kanade."),
         click.option("--outlier-px", type=float, default=None,
                      help="Errors above this are outliers (px; default 2, or the thresholds "
                           "file's tracking.outlier_px)."),
@@ -486,12 +490,12 @@ def _tracker_options(func):
 
 
 def _run_tracking(run_dir, max_corners, quality, min_distance, win_size, levels, fb_threshold,
-                  outlier_px):
+                  outlier_px, prewarp=True):
     from evaluation.tracking import TrackerSettings, load_run, score, track
 
     settings = TrackerSettings(max_corners=max_corners, quality=quality,
                                min_distance=min_distance, win_size=win_size, levels=levels,
-                               fb_threshold=fb_threshold)
+                               fb_threshold=fb_threshold, prewarp=prewarp)
     run = load_run(run_dir)
     update, close = _progress("tracking")
     try:
@@ -507,7 +511,7 @@ def _run_tracking(run_dir, max_corners, quality, min_distance, win_size, levels,
               help="Output folder (created if missing).")
 @_tracker_options
 def track_cmd(run_dir, output, max_corners, quality, min_distance, win_size, levels,
-              fb_threshold, outlier_px):
+              fb_threshold, prewarp, outlier_px):
     """Track Harris corners through a rendered run and score them against its truth."""
     from evaluation.tracking import save_tracks
     from terrain.outputs import check_output_folder, transaction
@@ -516,7 +520,8 @@ def track_cmd(run_dir, output, max_corners, quality, min_distance, win_size, lev
         raise InvalidParameterError("the output folder must differ from the run directory")
     check_output_folder(output, [run_dir])
     run, scored = _run_tracking(run_dir, max_corners, quality, min_distance, win_size, levels,
-                                fb_threshold, 2.0 if outlier_px is None else outlier_px)
+                                fb_threshold, 2.0 if outlier_px is None else outlier_px,
+                                prewarp)
     with transaction():  # every file or none
         s = save_tracks(scored, run, _outdir(output, [run_dir]),
                         inputs=[run_dir / "truth.json", run_dir / "manifest.json"])
@@ -525,8 +530,43 @@ def track_cmd(run_dir, output, max_corners, quality, min_distance, win_size, lev
     if s["errors"] is not None and s["errors"]["median_px"] is not None:
         msg += (f"; median error {s['errors']['median_px']:.3f} px, outliers "
                 f"{100 * s['errors']['outlier_fraction']:.2f} %")
+        one = s["errors"].get("one_step") or {}
+        if one.get("median_px") is not None:
+            msg += f"; one-step median {one['median_px']:.3f} px"
     else:
         msg += "; no truth, so no tracking errors"
+    click.echo(msg, err=True)
+
+
+@evaluation.command("consistency")
+@click.argument("run_dir", type=click.Path(file_okay=False, path_type=Path))
+@click.option("-o", "--output", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Output folder (created if missing).")
+@click.option("--edge-px", type=int, default=2, show_default=True,
+              help="Margin around silhouettes and moving shadow edges (px).")
+@click.option("--occlusion-tolerance", type=float, default=0.002, show_default=True,
+              help="Relative range disagreement above which a point is hidden in the next "
+                   "frame.")
+def consistency_cmd(run_dir, output, edge_px, occlusion_tolerance):
+    """Frame-to-frame consistency: each frame warped into the previous one through the truth."""
+    from evaluation.consistency import consistency, save_consistency
+
+    if output.resolve() == run_dir.resolve():
+        raise InvalidParameterError("the output folder must differ from the run directory")
+    update, close = _progress("consistency")
+    try:
+        result = consistency(run_dir, edge_px=edge_px, occlusion_tolerance=occlusion_tolerance,
+                             progress=update)
+    finally:
+        close()
+    s = save_consistency(result, _outdir(output),
+                         inputs=[run_dir / "truth.json", run_dir / "manifest.json"])
+    msg = f"wrote the consistency of {s['pairs']} frame pairs to {output}"
+    if s["rms_dn_median"] is not None:
+        msg += (f"; residual rms median {s['rms_dn_median']:.3g} DN, largest "
+                f"{s['rms_dn_max']:.3g} DN ({s['spike_ratio']:.2f} x the median)")
+        if s["noise_floor_dn_median"] is not None:
+            msg += f", sensor noise of a pair {s['noise_floor_dn_median']:.3g} DN"
     click.echo(msg, err=True)
 
 
@@ -564,7 +604,8 @@ def track_cmd(run_dir, output, max_corners, quality, min_distance, win_size, lev
 def report(run_dirs, output, thresholds, title, dems, band, reference, reference_band,
            slope_band, meshes, reference_mesh, reference_units, hazards, units, density, mass,
            period_hours, spin_axis, radius_deg, coarse_faces, no_gravity, max_corners,
-           quality, min_distance, win_size, levels, fb_threshold, outlier_px, compute_edges):
+           quality, min_distance, win_size, levels, fb_threshold, prewarp, outlier_px,
+           compute_edges):
     """One self-contained HTML validation report (and its JSON) with pass/fail checks.
 
     Every RUN_DIR (rendered sequences, any number) gets a feature-tracking section; --dem and
@@ -603,10 +644,17 @@ def report(run_dirs, output, thresholds, title, dems, band, reference, reference
     for run_dir, key in zip(run_dirs, keys, strict=True):
         opx = limits["tracking"]["outlier_px"] if outlier_px is None else outlier_px
         run, scored = _run_tracking(run_dir, max_corners, quality, min_distance, win_size,
-                                    levels, fb_threshold, opx)
+                                    levels, fb_threshold, opx, prewarp)
         sections.append(tracking_section(scored, run.image(len(run) - 1), limits,
                                          run_label=str(run_dir),
                                          key=key if len(run_dirs) > 1 else ""))
+        if run.has_truth and len(run) > 1 and all(t.range for t in run.truth):
+            from evaluation.consistency import consistency
+            from evaluation.report import consistency_section
+
+            sections.append(consistency_section(consistency(run), limits,
+                                                run_label=str(run_dir),
+                                                key=key if len(run_dirs) > 1 else ""))
     if len(run_dirs) == 1:
         inputs["run_dir"] = str(run_dirs[0])
     elif run_dirs:

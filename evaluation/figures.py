@@ -20,7 +20,7 @@ import numpy as np
 
 from terrain.io import atomic_path
 
-__all__ = ["error_figure", "png_bytes", "save_png", "slope_area_figure",
+__all__ = ["consistency_figure", "error_figure", "png_bytes", "save_png", "slope_area_figure",
            "slope_distribution_figure", "spectrum_figure", "tracks_figure"]
 
 #: Figure size (inches) and resolution (dots per inch) of every figure.
@@ -217,7 +217,12 @@ def error_figure(scored, *, title: str = "") -> object:
         summary = scored.error_summary() or {}
         by_age = np.array(summary.get("median_px_by_track_age") or [], dtype=np.float64)
         if by_age.size:
-            ax2.plot(by_age[:, 0], by_age[:, 1], "o-")
+            ax2.plot(by_age[:, 0], by_age[:, 1], "o-", label="accumulated")
+        one = np.array(summary.get("one_step_median_px_by_track_age") or [],
+                       dtype=np.float64)
+        if one.size:
+            ax2.plot(one[:, 0], one[:, 1], "s--", label="one step")
+            ax2.legend(fontsize="small")
     ax1.set_xlabel("tracking error (px)")
     ax1.set_ylabel("observations")
     ax2.set_xlabel("frames since the feature was found")
@@ -225,4 +230,42 @@ def error_figure(scored, *, title: str = "") -> object:
     ax1.grid(True, alpha=0.3)
     ax2.grid(True, alpha=0.3)
     fig.suptitle(title or "Tracking error against the renderer's truth")
+    return fig
+
+
+def consistency_figure(result, *, title: str = "") -> object:
+    """Per-frame consistency residual over a run, with layer and level-of-detail changes.
+
+    ``result`` is an :class:`evaluation.consistency.Consistency`.
+    """
+    fig = _figure(figsize=(9.0, 4.0))
+    ax = fig.subplots()
+    frames = result.frames
+    x = np.array([f["next"] for f in frames], dtype=np.float64)
+    rms = result.rms()
+    ax.plot(x, rms, "o-", ms=3, color="tab:blue", label="residual rms (DN)")
+    floor = np.array([np.nan if f["noise_floor_dn"] is None else f["noise_floor_dn"]
+                      for f in frames], dtype=np.float64)
+    if np.isfinite(floor).any():
+        ax.plot(x, floor, "--", color="tab:gray", label="sensor noise of a pair (DN)")
+    summary = result.summary()
+    if summary["rms_dn_median"]:
+        ax.axhline(summary["spike_bound"] * summary["rms_dn_median"], color="tab:red",
+                   linestyle=":", label=f"{summary['spike_bound']:g} x median")
+    first_layer = first_lod = True
+    for f in frames:
+        if f["layer_change"]:
+            ax.axvline(f["next"], color="tab:orange", alpha=0.6, lw=1.2,
+                       label="layers change" if first_layer else None)
+            first_layer = False
+        elif f["lod_change"]:
+            ax.axvline(f["next"], color="tab:green", alpha=0.25, lw=0.8,
+                       label="level of detail changes" if first_lod else None)
+            first_lod = False
+    ax.set_xlabel("frame (residual of it warped into the previous frame)")
+    ax.set_ylabel("DN")
+    ax.set_ylim(bottom=0)
+    ax.grid(True, alpha=0.3)
+    _legend(fig, ax)
+    ax.set_title(title or "Frame-to-frame consistency through the truth")
     return fig

@@ -33,10 +33,15 @@ thresholds`` prints them)::
     steep_slope_deg = 35.0             # about the angle of repose of loose regolith
     max_area_fraction_steep = 0.05     # surface area steeper than steep_slope_deg
 
-The tracking defaults are the issue's acceptance figure (median <= 0.5 px) and common
-practice for KLT front ends; 35 degrees is where lunar slope-frequency distributions roll
-over (Kreslavsky and Head 2016) and below which nearly all Eros slopes lie (Thomas et al.
-2002); the KS and spectrum limits are starting points to tune per mission.
+    [consistency]
+    max_spike_ratio = 1.5              # largest per-frame residual rms over the median
+
+The consistency bound is the consistency issue's (no spikes at layer or level-of-detail
+changes: see :mod:`evaluation.consistency`). The tracking defaults are the issue's acceptance
+figure (median <= 0.5 px) and common practice for KLT front ends; 35 degrees is where lunar
+slope-frequency distributions roll over (Kreslavsky and Head 2016) and below which nearly all
+Eros slopes lie (Thomas et al. 2002); the KS and spectrum limits are starting points to tune
+per mission.
 """
 
 from __future__ import annotations
@@ -58,8 +63,9 @@ from terrain.io import atomic_path
 from terrain.tomlfile import read_toml
 
 __all__ = ["DEFAULT_THRESHOLDS", "REPORT_FORMAT", "Check", "Figure", "Report", "Section",
-           "asteroid_section", "dem_section", "image_figure", "load_thresholds", "render_html",
-           "thresholds_toml", "tracking_section", "write_report"]
+           "asteroid_section", "consistency_section", "dem_section", "image_figure",
+           "load_thresholds", "render_html", "thresholds_toml", "tracking_section",
+           "write_report"]
 
 log = logging.getLogger(__name__)
 
@@ -86,6 +92,9 @@ DEFAULT_THRESHOLDS = {
         "steep_slope_deg": 35.0,
         "max_area_fraction_steep": 0.05,
     },
+    "consistency": {
+        "max_spike_ratio": 1.5,
+    },
 }
 
 _COMMENTS = {
@@ -101,6 +110,7 @@ _COMMENTS = {
     "slope_kind": "'gravitational' or 'radial': the slopes the asteroid checks compare",
     "steep_slope_deg": "about the angle of repose of loose regolith (degrees)",
     "max_area_fraction_steep": "surface area steeper than steep_slope_deg",
+    "max_spike_ratio": "largest per-frame consistency residual over the median",
 }
 
 #: Thresholds with a natural upper end: fractions and distances of distributions (1) and
@@ -356,9 +366,11 @@ def tracking_section(scored, last_image, thresholds: dict | None = None, *,
     sec = Section("tracking", "Feature tracking against truth")
     if key:
         sec.id, sec.title = f"tracking-{key}", f"Feature tracking against truth: {key}"
+    warp = (" (from each previous frame warped by the step's homography)"
+            if tr["settings"].get("prewarp") else "")
     sec.paragraphs.append(
-        f"Harris corners tracked with pyramidal Lucas-Kanade, forward-backward checked and "
-        f"replenished, through {tr['frames']} frames of {run_label or 'the run'}. Each "
+        f"Harris corners tracked with pyramidal Lucas-Kanade{warp}, forward-backward checked "
+        f"and replenished, through {tr['frames']} frames of {run_label or 'the run'}. Each "
         "feature is lifted to 3-D with the range image and pose of its first frame and "
         "projected into every later frame with that frame's truth; the error is the distance "
         "between the tracked and the true position.")
@@ -379,8 +391,13 @@ def tracking_section(scored, last_image, thresholds: dict | None = None, *,
                   f"{_fmt(err['median_px'])} / {_fmt(err['mean_px'])} / "
                   f"{_fmt(err.get('p95_px'))} / {_fmt(err['max_px'])}"],
                  [f"outlier fraction (> {err['outlier_px']:g} px)",
-                  _fmt(err["outlier_fraction"])],
-                 ["not scored: hidden / outside / unliftable tracks",
+                  _fmt(err["outlier_fraction"])]]
+        one = err.get("one_step")
+        if one is not None:
+            rows += [["one-step error median / mean / p90 (px)",
+                      f"{_fmt(one['median_px'])} / {_fmt(one['mean_px'])} / "
+                      f"{_fmt(one['p90_px'])}"]]
+        rows += [["not scored: hidden / outside / unliftable tracks",
                   f"{err['hidden']} / {err['outside']} / {err['unlifted_tracks']}"]]
         surface = err.get("surface_tracks")
         if surface is not None:
@@ -417,8 +434,64 @@ def tracking_section(scored, last_image, thresholds: dict | None = None, *,
         sec.figures.append(_figure(
             "tracking_error", "Tracking error", error_figure(scored),
             dict(errors_px=scored.error_values(),
-                 median_px_by_track_age=err["median_px_by_track_age"]),
-            "Left: every scored observation; right: median error against track age."))
+                 median_px_by_track_age=err["median_px_by_track_age"],
+                 one_step_median_px_by_track_age=err.get("one_step_median_px_by_track_age")),
+            "Left: every scored observation; right: median error against track age, "
+            "accumulated (what a track delivers) and one-step (what each step of tracking "
+            "adds)."))
+    return _keyed(sec, key)
+
+
+def consistency_section(result, thresholds: dict | None = None, *, run_label: str = "",
+                        key: str = "") -> Section:
+    """Frame-to-frame consistency of a run (:mod:`evaluation.consistency`).
+
+    Parameters
+    ----------
+    result : evaluation.consistency.Consistency
+    thresholds : dict, optional
+        :func:`load_thresholds` output.
+    run_label : str
+        How the text names the run.
+    key : str
+        Distinguishes this section from other consistency sections of the same report.
+    """
+    from evaluation.figures import consistency_figure
+
+    t = (thresholds or DEFAULT_THRESHOLDS)["consistency"]
+    s = result.summary()
+    sec = Section("consistency", "Frame-to-frame consistency")
+    if key:
+        sec.id, sec.title = f"consistency-{key}", f"Frame-to-frame consistency: {key}"
+    sec.paragraphs.append(
+        f"Each frame of {run_label or 'the run'} warped into the previous one through the "
+        "truth (range, pose and body rotation), and the photometric residual measured on the "
+        "pixels seen and lit in both (occlusions, silhouettes and shadow edges that move are "
+        "masked). A renderer whose levels of detail or layers switch between frames shows a "
+        "spike at the switch; the sensor's own noise sets the floor.")
+    sec.notes.extend(result.notes)
+    rows = [["frame pairs", _fmt(s["pairs"])],
+            ["residual rms, median / largest (DN)",
+             f"{_fmt(s['rms_dn_median'])} / {_fmt(s['rms_dn_max'])}"],
+            ["largest over median", _fmt(s["spike_ratio"])],
+            ["sensor noise of a pair, median (DN)", _fmt(s["noise_floor_dn_median"])],
+            ["residual beyond the noise, median / largest (DN)",
+             f"{_fmt(s['excess_dn_median'])} / {_fmt(s['excess_dn_max'])}"],
+            ["worst 32 px tile, median / largest (DN)",
+             f"{_fmt(s['worst_tile_dn_median'])} / {_fmt(s['worst_tile_dn_max'])}"],
+            [f"median at layer or level changes ({s['lod_changes']}) / elsewhere (DN)",
+             f"{_fmt(s['rms_dn_median_at_changes'])} / {_fmt(s['rms_dn_median_elsewhere'])}"],
+            ["pixels counted (median fraction)", _fmt(s["counted_fraction_median"])]]
+    sec.tables.append(("Consistency", ["measure", "value"], rows))
+    sec.data = _jsonable(result.as_dict())
+    sec.figures.append(_figure(
+        "consistency", "Consistency residual per frame", consistency_figure(result),
+        dict(frames=result.frames),
+        "Residual rms of each frame warped into the previous one, with the sensor noise of a "
+        "pair; orange lines: the drawn layers change, green: levels of detail change."))
+    sec.checks.append(Check("consistency", "largest per-frame residual over the median",
+                            s["spike_ratio"], t["max_spike_ratio"], "<=", "",
+                            "" if s["spike_ratio"] is not None else "nothing counted"))
     return _keyed(sec, key)
 
 

@@ -12,7 +12,11 @@ Tracking (:func:`track`)
 * Corners: Harris response (``cv2.goodFeaturesToTrack(..., useHarrisDetector=True)``; Harris
   and Stephens 1988), at most ``max_corners``, at least ``min_distance`` pixels apart.
 * Motion: pyramidal Lucas-Kanade (``cv2.calcOpticalFlowPyrLK``; Bouguet 2001) from each frame
-  to the next.
+  to the next. With ``prewarp`` (the default), a first pass gives every live track's motion,
+  the homography of the step is fitted to them (RANSAC), and Lucas-Kanade runs again from
+  the previous frame warped by that homography: each window then follows only what the
+  homography leaves (parallax, noise), not the zoom and roll of a descent, under which a
+  shift-only window drifts by a biased fraction of a pixel at every step.
 * Forward-backward check (Kalal, Mikolajczyk and Matas 2010): each point is tracked back to
   the previous frame; a track ends when the round trip misses its start by more than
   ``fb_threshold`` pixels, when either pass fails, or when it leaves the image (less
@@ -37,6 +41,16 @@ position. Observations whose true point is hidden (the range image at its projec
 shorter than its distance by more than ``occlusion_tolerance`` of it) or out of the image
 are not scored, and are counted. An observation further than ``outlier_px`` from the truth
 is an outlier.
+
+One step against many: the error above accumulates along a track (each step's error
+stays in the position the next step starts from). The *one-step error* separates one step
+from the rest: the tracked position at frame k-1 is lifted with frame k-1's range and pose
+and carried by the truth into frame k; the distance of the tracked position at frame k from
+it is what that single step of tracking got wrong, whatever the track did before. Both are
+reported, each by track age: a one-step error that stays flat while the accumulated error
+grows is tracker drift; a one-step error that jumps at some frames is the images changing
+under the features (a renderer's level-of-detail switch, see
+:mod:`evaluation.consistency`).
 
 Silhouettes: a corner where the surface meets the sky, or where a nearer surface occludes a
 farther one, is a strong Harris feature that is not fixed to the surface: as the view
@@ -72,8 +86,8 @@ from render.rundir import RunReader
 from terrain import memory
 from terrain.errors import InvalidParameterError
 
-__all__ = ["ScoredTracks", "TrackerSettings", "Tracks", "load_run", "save_tracks", "score",
-           "track"]
+__all__ = ["ScoredTracks", "TrackerSettings", "Tracks", "ideal_one_step", "load_run",
+           "save_tracks", "score", "track", "truth_warped_frame"]
 
 log = logging.getLogger(__name__)
 
@@ -117,6 +131,12 @@ class TrackerSettings:
         Largest forward-backward round-trip error of a kept point.
     border : int, pixels
         Points closer than this to the image edge are dropped.
+    prewarp : bool
+        Before Lucas-Kanade, warp the previous frame by the homography the step's first pass
+        implies (RANSAC over all tracks), so that each window only has to follow what that
+        homography does not: a shift-only window then no longer drifts under the zoom and
+        roll of a descent (module docstring). Off: plain pyramidal Lucas-Kanade, frame to
+        frame.
     """
 
     max_corners: int = 300
@@ -128,8 +148,12 @@ class TrackerSettings:
     levels: int = 3
     fb_threshold: float = 0.5
     border: int = 4
+    prewarp: bool = True
 
     def __post_init__(self):
+        if not isinstance(self.prewarp, (bool, np.bool_)):
+            raise InvalidParameterError(f"tracker prewarp must be true or false; got "
+                                        f"{self.prewarp!r}")
         for name in ("max_corners", "block_size", "win_size", "levels", "border"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
@@ -151,7 +175,8 @@ class TrackerSettings:
         return dict(max_corners=self.max_corners, quality=self.quality,
                     min_distance=self.min_distance, block_size=self.block_size,
                     harris_k=self.harris_k, win_size=self.win_size, levels=self.levels,
-                    fb_threshold=self.fb_threshold, border=self.border)
+                    fb_threshold=self.fb_threshold, border=self.border,
+                    prewarp=bool(self.prewarp))
 
 
 @dataclass(frozen=True, eq=False)
@@ -367,8 +392,11 @@ def track(run, settings: TrackerSettings | None = None, *, progress=None) -> Tra
         if live:
             p0 = np.array([tracks[t][1][-1] for t in live], dtype=np.float32).reshape(-1, 1, 2)
             p1, st1, _ = cv2.calcOpticalFlowPyrLK(prev, image, p0, None, **lk)
-            p0b, st2, _ = cv2.calcOpticalFlowPyrLK(image, prev, p1, None, **lk)
-            fb = np.linalg.norm((p0b - p0).reshape(-1, 2), axis=1)
+            source, start = prev, p0
+            if s.prewarp:
+                source, start, p1, st1 = _prewarped(prev, image, p0, p1, st1, lk)
+            p0b, st2, _ = cv2.calcOpticalFlowPyrLK(image, source, p1, None, **lk)
+            fb = np.linalg.norm((p0b - start).reshape(-1, 2), axis=1)
             q = p1.reshape(-1, 2)
             inside = ((q[:, 0] >= s.border) & (q[:, 0] <= w - 1 - s.border)
                       & (q[:, 1] >= s.border) & (q[:, 1] <= h - 1 - s.border))
@@ -395,6 +423,33 @@ def track(run, settings: TrackerSettings | None = None, *, progress=None) -> Tra
         stop[i] = k0 + len(pts) - 1
     log.info("tracked %d features through %d frames", len(tracks), n)
     return Tracks(positions, start, stop, layer_change, (h, w), s)
+
+
+#: Fewest first-pass tracks from which a step's homography is estimated for prewarping.
+PREWARP_MIN_TRACKS = 12
+#: RANSAC inlier distance (pixels) of that homography.
+PREWARP_RANSAC_PX = 2.0
+
+
+def _prewarped(prev, image, p0, p1, st1, lk):
+    """(source, start, p1, status): the previous frame warped by the step's homography, the
+    points' positions in it, and Lucas-Kanade's answer from there (see ``prewarp``)."""
+    import cv2
+
+    ok = (st1.reshape(-1) == 1) & np.isfinite(p1.reshape(-1, 2)).all(axis=1)
+    if ok.sum() < PREWARP_MIN_TRACKS:
+        return prev, p0, p1, st1
+    hom, _ = cv2.findHomography(p0.reshape(-1, 2)[ok], p1.reshape(-1, 2)[ok], cv2.RANSAC,
+                                PREWARP_RANSAC_PX)
+    if hom is None or not np.all(np.isfinite(hom)):
+        return prev, p0, p1, st1
+    h, w = prev.shape
+    source = cv2.warpPerspective(prev, hom, (w, h), flags=cv2.INTER_LINEAR,
+                                 borderMode=cv2.BORDER_REPLICATE)
+    start = cv2.perspectiveTransform(p0.astype(np.float64), hom).astype(np.float32)
+    p1w, st, _ = cv2.calcOpticalFlowPyrLK(source, image, start, start.copy(),
+                                          flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
+    return source, start, p1w, st
 
 
 # ------------------------------------------------------------------------------ truth
@@ -469,6 +524,10 @@ class ScoredTracks:
         Why metrics are missing, if they are.
     silhouette : (n_tracks,) bool or None
         Tracks that start on a silhouette (module docstring).
+    one_step : (n_tracks, n_frames) float64, pixels, or None
+        One-step error: the distance of the tracked position at frame k from where the
+        truth carries the *tracked* position at frame k-1 (module docstring). NaN where not
+        scored.
     """
 
     tracks: Tracks
@@ -478,6 +537,7 @@ class ScoredTracks:
     outlier_px: float = 2.0
     notes: list = field(default_factory=list)
     silhouette: np.ndarray | None = None
+    one_step: np.ndarray | None = None
 
     @property
     def has_errors(self) -> bool:
@@ -509,6 +569,26 @@ class ScoredTracks:
             if sel.any():
                 by_age.append([a, float(np.median(self.errors[sel])), int(sel.sum())])
         out["median_px_by_track_age"] = by_age
+        if self.one_step is not None:
+            one = self.one_step[np.isfinite(self.one_step)]
+            out["one_step"] = dict(
+                observations=int(one.size),
+                median_px=float(np.median(one)) if one.size else None,
+                mean_px=float(one.mean()) if one.size else None,
+                p90_px=float(np.quantile(one, 0.9)) if one.size else None,
+                outlier_fraction=(float((one > self.outlier_px).mean()) if one.size
+                                  else None))
+            by_age = []
+            for a in range(1, int(age.max()) + 1 if age.size else 1):
+                sel = np.isfinite(self.one_step) & (age == a)
+                if sel.any():
+                    by_age.append([a, float(np.median(self.one_step[sel])), int(sel.sum())])
+            out["one_step_median_px_by_track_age"] = by_age
+            if self.silhouette is not None:
+                surface = self.one_step[~self.silhouette]
+                surface = surface[np.isfinite(surface)]
+                out["one_step"]["surface_median_px"] = (float(np.median(surface))
+                                                        if surface.size else None)
         if self.silhouette is not None:
             surface = self.errors[~self.silhouette]
             surface = surface[np.isfinite(surface)]
@@ -615,7 +695,167 @@ def score(tracks: Tracks, run, *, outlier_px: float = 2.0,
     counts = dict(scored=int(np.isfinite(errors).sum()), hidden=hidden, outside=outside,
                   unlifted_tracks=int((~lifted).sum()),
                   silhouette_tracks=int(silhouette.sum()))
-    return ScoredTracks(tracks, errors, predicted, counts, float(outlier_px), [], silhouette)
+    one_step = _one_step_errors(tracks, run, occlusion_tolerance)
+    return ScoredTracks(tracks, errors, predicted, counts, float(outlier_px), [], silhouette,
+                        one_step)
+
+
+def _carry(run, k0: int, k1: int, uv: np.ndarray, rng0: np.ndarray, rng1: np.ndarray,
+           tolerance: float) -> np.ndarray:
+    """Where the truth puts pixels ``uv`` of frame k0 in frame k1 (NaN: unliftable, hidden
+    or outside)."""
+    a, b = run.truth[k0], run.truth[k1]
+    h, w = rng1.shape
+    out = np.full((len(uv), 2), np.nan)
+    r = _sample_range(rng0, uv, tolerance)
+    ok = np.flatnonzero(np.isfinite(r))
+    if not ok.size:
+        return out
+    world = (a.pose.unproject(uv[ok], r[ok], a.intrinsics) @ quat_to_matrix(a.body_rotation)
+             @ quat_to_matrix(b.body_rotation).T)
+    q = b.pose.project(world, b.intrinsics)
+    dist = np.linalg.norm(world - np.asarray(b.pose.position), axis=1)
+    seen = _sample_range(rng1, q, tolerance)
+    with np.errstate(invalid="ignore"):
+        good = (np.isfinite(q).all(axis=1) & (q[:, 0] >= -0.5) & (q[:, 0] <= w - 0.5)
+                & (q[:, 1] >= -0.5) & (q[:, 1] <= h - 0.5) & np.isfinite(seen)
+                & (seen >= dist * (1.0 - tolerance)))
+    out[ok[good]] = q[good]
+    return out
+
+
+def _one_step_errors(tracks: Tracks, run, tolerance: float) -> np.ndarray:
+    """(n_tracks, n_frames) one-step errors (see :class:`ScoredTracks`)."""
+    n = tracks.n_frames
+    alive = tracks.alive()
+    out = np.full((tracks.n_tracks, n), np.nan)
+    prev = run.range(0) if n else None
+    for k in range(1, n):
+        rng = run.range(k)
+        sel = np.flatnonzero(alive[:, k] & alive[:, k - 1])
+        if sel.size:
+            q = _carry(run, k - 1, k, tracks.positions[sel, k - 1].astype(np.float64), prev,
+                       rng, tolerance)
+            out[sel, k] = np.linalg.norm(tracks.positions[sel, k].astype(np.float64) - q,
+                                         axis=1)
+        prev = rng
+    return out
+
+
+def truth_warped_frame(run, k0: int, k1: int, image0=None, image1=None) -> np.ndarray:
+    """Frame k0 warped through the truth into frame k1's view (same dtype as the frames).
+
+    Every pixel of frame k1 with a range return is lifted with frame k1's range and pose,
+    carried into frame k0 (body rotation included) and, where frame k0 sees that point,
+    takes frame k0's brightness there (bilinear); other pixels keep frame k1's own. The
+    result shows frame k1's geometry with frame k0's pixels: what a perfectly consistent
+    renderer (and a sensor without fresh noise) would deliver.
+    """
+    import cv2
+
+    img0 = run.image(k0) if image0 is None else image0
+    img1 = run.image(k1) if image1 is None else image1
+    rng0, rng1 = run.range(k0), run.range(k1)
+    if rng0 is None or rng1 is None:
+        raise InvalidParameterError("truth-warped frames need range images")
+    h, w = rng1.shape
+    v, u = np.mgrid[0:h, 0:w]
+    uv = np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64)
+    q = _carry(run, k1, k0, uv, rng1, rng0, 0.002)
+    ok = np.isfinite(q).all(axis=1)
+    mu = np.where(ok, q[:, 0], -10.0).astype(np.float32).reshape(h, w)
+    mv = np.where(ok, q[:, 1], -10.0).astype(np.float32).reshape(h, w)
+    src = img0.astype(np.float32)
+    warped = cv2.remap(src, mu, mv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    okm = ok.reshape(h, w)
+    if src.ndim == 3:
+        okm = okm[:, :, None]
+    out = np.where(okm, warped, img1.astype(np.float32))
+    return np.clip(np.rint(out), 0, np.iinfo(img1.dtype).max).astype(img1.dtype)
+
+
+#: Random stream of the fresh sensor noise :func:`ideal_one_step` may add.
+STREAM_IDEAL_NOISE = "ideal-tracker-noise"
+
+
+def _fresh_noise(image: np.ndarray, sensor: dict, seed: int, frame: int) -> np.ndarray:
+    """``image`` with new shot and read noise of the run's sensor (keyed by seed, frame,
+    column and row), rounded and clipped as the sensor does."""
+    from terrain.rng import normal, stream_id
+
+    gain = float(sensor.get("gain", 0.0))
+    read = float(sensor.get("read_noise", 0.0))
+    dn = image.astype(np.float64)
+    sigma = np.sqrt((np.maximum(dn, 0.0) / gain if gain > 0 else 0.0) + read * read)
+    h, w = dn.shape[:2]
+    z = normal(seed, stream_id(STREAM_IDEAL_NOISE), frame, np.arange(w)[None, :],
+               np.arange(h)[:, None])
+    if dn.ndim == 3:
+        z = z[:, :, None]
+    top = np.iinfo(image.dtype).max
+    return np.clip(np.rint(dn + sigma * z), 0, top).astype(image.dtype)
+
+
+def ideal_one_step(scored: ScoredTracks, run, *, sensor_noise: bool = False,
+                   seed: int = 0) -> np.ndarray:
+    """One-step errors of the same tracker on truth-warped frames (tracker's own share).
+
+    For every step k-1 -> k, the tracker (the same Lucas-Kanade settings, from the same
+    tracked positions at k-1) follows its features from frame k-1 into
+    :func:`truth_warped_frame` (frame k-1 warped into frame k's view), and is scored as
+    :attr:`ScoredTracks.one_step` is. The images then agree with the truth exactly, so the
+    error left is the tracker's own (its motion model, interpolation and the warp's
+    resampling); the rest of the real one-step error comes from the frames themselves
+    (renderer inconsistency and fresh sensor noise).
+
+    With ``sensor_noise``, the warped frame gets fresh shot and read noise of the run's
+    sensor (its manifest's ``sensor`` record; keyed by ``seed``, frame, column and row), as a
+    new exposure would: the error is then the tracker's and the noise's, and what the real
+    frames add beyond it is how the images themselves change (the renderer, and the shading
+    that truly changes with the view and, on a spinning body, the sun).
+
+    Returns
+    -------
+    (n_tracks, n_frames) float64, pixels; NaN where the real one-step error is NaN or the
+    tracker lost the point.
+    """
+    import cv2
+
+    if scored.one_step is None:
+        raise InvalidParameterError("the tracks were scored without truth: no one-step error")
+    if not isinstance(run, RunReader):
+        run = RunReader(run)
+    tracks = scored.tracks
+    s = tracks.settings
+    sensor = run.manifest.get("sensor") or {}
+    if sensor_noise and not sensor:
+        raise InvalidParameterError(
+            f"run directory '{run.dir}' records no sensor: no noise to add to ideal frames")
+    lk = dict(winSize=(s.win_size, s.win_size), maxLevel=s.levels,
+              criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
+    grey = _Grey()
+    out = np.full((tracks.n_tracks, tracks.n_frames), np.nan)
+    prev_img = run.image(0)
+    grey(prev_img)  # the sequence's scale comes from frame 0, as in track()
+    for k in range(1, tracks.n_frames):
+        img = run.image(k)
+        sel = np.flatnonzero(np.isfinite(scored.one_step[:, k]))
+        if sel.size:
+            ideal = truth_warped_frame(run, k - 1, k, prev_img, img)
+            if sensor_noise:
+                ideal = _fresh_noise(ideal, sensor, seed, k)
+            p0 = tracks.positions[sel, k - 1].astype(np.float32).reshape(-1, 1, 2)
+            a, b = grey(prev_img), grey(ideal)
+            p1, st, _ = cv2.calcOpticalFlowPyrLK(a, b, p0, None, **lk)
+            if s.prewarp:  # the same tracker: its homography from these tracks
+                _, _, p1, st = _prewarped(a, b, p0, p1, st, lk)
+            p0_64 = p0.reshape(-1, 2).astype(np.float64)
+            q = _carry(run, k - 1, k, p0_64, run.range(k - 1), run.range(k), 0.02)
+            err = np.linalg.norm(p1.reshape(-1, 2).astype(np.float64) - q, axis=1)
+            err[st.reshape(-1) != 1] = np.nan
+            out[sel, k] = err
+        prev_img = img
+    return out
 
 
 def save_tracks(scored: ScoredTracks, run, folder, *, inputs=()) -> dict:

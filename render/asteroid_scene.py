@@ -20,6 +20,32 @@ mapped by a homography, which is how it is composited here; range and normals co
 imposter's nearest texel (range is measured from the same centre, so it stays the true
 range), radiance is interpolated.
 
+Seamless level of detail (the terrain's geomorphing, :mod:`render.terrain_scene`, carried
+over): every body level but the coarsest carries, per vertex, the next coarser level's
+surface along the vertex's direction (the flat triangle of magnitude M/2 that the ray from
+the centre meets) and its interpolated normal; the vertex shader slides each vertex there as
+its distance approaches the distance at which the planner switches to that level, over the
+last :data:`MORPH_BAND` octave, so the switch itself changes nothing on screen (magnitude M/2's
+vertices are a subset of M's, so the fully morphed mesh is the coarser one). Boulders
+likewise: the vertices a refinement level adds slide to the midpoints of the edges they split
+as the boulder nears the distance of the next coarser level, and at the coarsest level the
+whole boulder shrinks to its centre as it nears :data:`MIN_BOULDER_PIXELS`, where it stops
+being drawn. The imposter fades in: while the body spans between ``imposter_pixels`` and
+:data:`IMPOSTER_FADE` times that, the frame is the geometry's with the imposter's radiance
+blended in (weight 0 to 1 as the body shrinks; range and normals stay the geometry's).
+
+Shading normals: with geomorphing on, the body is shaded with its finest level's normals
+whatever level is drawn: a cube map (:data:`NORMAL_CUBE_SIZE` texels a side) holds, for each
+body-frame direction from the centre, the normal interpolated on the finest triangle that
+direction meets (the body is star-shaped about its centre), so the shading of the surface,
+and every shading corner a tracker follows, stays on the surface while levels change; the
+normal images are these normals too. Boulders keep their own.
+
+Shadows: one orthographic map fitted to the body's bounding sphere, whose projection depends
+on the sun alone (never on the camera), with casters drawn at one level of detail chosen from
+the map's texel size (never from the camera's distance), so nothing in the map changes as the
+camera moves; the body's rotation under a fixed sun moves its shadows, as it must.
+
 The world frame is inertial with the body's centre at the origin; the body turns by the
 rotation set with :meth:`AsteroidScene.set_body_rotation`, R_WB, as the trajectory's spin
 says.
@@ -27,6 +53,7 @@ says.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from dataclasses import dataclass
@@ -35,10 +62,10 @@ from pathlib import Path
 import numpy as np
 
 from render.camera import Intrinsics, look_at, quat_to_matrix
-from render.scene import DrawBatch, FrameState, ShadowMap, ortho_light
+from render.scene import DrawBatch, FrameState, Morph, ShadowMap, ortho_light
 from terrain.errors import InvalidParameterError
 
-__all__ = ["MIN_BOULDER_PIXELS", "MIN_MAGNITUDE", "AsteroidScene"]
+__all__ = ["IMPOSTER_FADE", "MIN_BOULDER_PIXELS", "MIN_MAGNITUDE", "MORPH_BAND", "AsteroidScene"]
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +80,17 @@ IMPOSTER_OVERSAMPLING = 3
 #: Boulder levels of detail kept on the GPU for every boulder; finer levels are built for the
 #: boulders that need them, frame by frame.
 COARSE_BOULDER_LEVELS = 2
+#: Octaves of distance over which a vertex morphs toward the next coarser level (as
+#: :data:`render.terrain_scene.MORPH_BAND`).
+MORPH_BAND = 1.0
+#: The imposter fades in while the body spans from this many times ``imposter_pixels`` down
+#: to ``imposter_pixels``.
+IMPOSTER_FADE = 1.5
+#: Texels per side of each face of the cube map of the body's finest normals.
+NORMAL_CUBE_SIZE = 512
+#: Shadow casters are drawn at the coarsest body level whose vertex spacing stays below this
+#: many shadow-map texels.
+SHADOW_CELL_TEXELS = 2.0
 
 
 @dataclass(eq=False)
@@ -68,6 +106,8 @@ class _BodyLod:
     counts: np.ndarray
     vaos: dict
     abo: object = None    # per-vertex albedo factors (float32) or None
+    morph: object = None   # per-vertex targets on the next coarser level (None: coarsest)
+    cube: object = None    # the finest level's normals by direction (finest level only)
 
 
 @dataclass(eq=False)
@@ -77,6 +117,7 @@ class _BoulderLevel:
     ibo: object
     faces_per: int
     vaos: dict
+    morph: object = None
 
 
 class AsteroidScene:
@@ -168,6 +209,7 @@ class AsteroidScene:
         from render.mesh_scene import vertex_normals
 
         lods = []
+        surfaces = []
         m = self.body.magnitude
         magnitudes = [m]
         while magnitudes[-1] // 2 >= MIN_MAGNITUDE:
@@ -201,6 +243,12 @@ class AsteroidScene:
             lods.append(_BodyLod(mag, spacing, len(faces), vbo, ibo,
                                  tree.spheres[leaves, :3].copy(), tree.spheres[leaves, 3].copy(),
                                  np.array(firsts), np.array(counts), {}, abo))
+            surfaces.append((mesh, radii, normals))
+        for fine, (mesh, _, _), (coarse, c_radii, c_normals) in zip(
+                lods[:-1], surfaces[:-1], surfaces[1:], strict=True):
+            targets = _coarser_surface(mesh.directions(), coarse, c_radii, c_normals)
+            fine.morph = ctx.buffer(targets.astype(np.float32).tobytes())
+        lods[0].cube = _normal_cube(ctx, *surfaces[0])
         levels = []
         if self.boulders is not None and len(self.boulders):
             # coarse levels for every boulder up front; finer ones only for the boulders a
@@ -210,8 +258,10 @@ class AsteroidScene:
                 normals = vertex_normals(verts, faces)
                 vbo = ctx.buffer(np.hstack([verts, normals]).astype(np.float32).tobytes())
                 ibo = ctx.buffer(faces.astype(np.uint32).tobytes())
+                morph = _boulder_targets(verts, normals, level, self._boulder_centres(),
+                                         self._boulder_radii(), self.boulders.settings.levels)
                 levels.append(_BoulderLevel(level, vbo, ibo, len(faces) // len(self.boulders),
-                                            {}))
+                                            {}, ctx.buffer(morph.astype(np.float32).tobytes())))
         self._gpu[id(ctx)] = (ctx, lods, levels)
         log.info("asteroid scene: body LODs %s, %d boulders", magnitudes,
                  0 if self.boulders is None else len(self.boulders))
@@ -222,8 +272,18 @@ class AsteroidScene:
         key = renderer.token
         if key not in item.vaos:
             item.vaos[key] = renderer.vertex_arrays(item.vbo, item.ibo,
-                                                    getattr(item, "abo", None))
+                                                    getattr(item, "abo", None),
+                                                    morph=getattr(item, "morph", None))
         return item.vaos[key]
+
+    def _boulder_centres(self) -> np.ndarray:
+        c = self.boulders.catalog
+        return np.column_stack([c["x_m"], c["y_m"], c["z_m"]])
+
+    def _boulder_radii(self) -> np.ndarray:
+        """(n,) bounding radius (m) the level-of-detail and visibility rules use."""
+        c = self.boulders.catalog
+        return 0.5 * c["diameter_m"] * np.sqrt(np.maximum(c["elongation"], 1.0))
 
     # ------------------------------------------------------------------ per frame
     def frame_state(self, view, lighting, options, renderer) -> FrameState:
@@ -239,11 +299,20 @@ class AsteroidScene:
         span = 2.0 * focal * math.tan(math.asin(min(self.radius / max(dist, 1e-9), 1.0)))
         if dist > self.radius * 1.01 and span < self.imposter_pixels:
             return self._imposter_state(view, lighting, options, renderer, far, span)
+        fade = None
+        if (options.geomorph and dist > self.radius * 1.01
+                and span < IMPOSTER_FADE * self.imposter_pixels):
+            # the imposter fades in (module docstring): weight 0 at IMPOSTER_FADE x, 1 at 1 x
+            weight = (IMPOSTER_FADE * self.imposter_pixels - span) / (
+                (IMPOSTER_FADE - 1.0) * self.imposter_pixels)
+            fade = (self._imposter_state(view, lighting, options, renderer, far, span),
+                    weight)
         near = max(dist - self.radius, 1e-3)
         body = lods[0]
-        for lod in lods:
+        chosen = 0
+        for i, lod in enumerate(lods):
             if lod.spacing * focal / near <= options.lod_pixels:
-                body = lod
+                body, chosen = lod, i
         rot = view.pose.rotation
         c = (body.centres @ self.rotation.T - cam) @ rot
         vis = _sphere_visible(c, body.radii, k)
@@ -252,28 +321,37 @@ class AsteroidScene:
         ranges = _merge(body.firsts[patches], body.counts[patches])
         shadow = None
         if options.shadows and lighting is not None:
-            shadow = self._shadow_map(renderer, lighting, options, lods[-1] if len(lods) > 1
-                                      and lods[-1].spacing < 0.02 * self.radius else body,
-                                      levels)
+            shadow = self._shadow_map(renderer, lighting, options, lods, levels)
         tris = int(body.counts[patches].sum()) // 3
+        morph = None
+        if options.geomorph and body.morph is not None:
+            # every vertex has arrived on the next level where the planner switches to it
+            switch = lods[chosen + 1].spacing * focal / options.lod_pixels
+            morph = Morph(1, math.log2(switch), MORPH_BAND, level=1.0)
         batches = [DrawBatch(vao, dvao, ranges, world_from_model=self.rotation, shadow=shadow,
-                             triangles=tris, vertex_albedo=body.abo is not None)]
+                             triangles=tris, vertex_albedo=body.abo is not None,
+                             morph=morph, normal_cube=(lods[0].cube if options.geomorph
+                                                       else None))]
         drawn = {"body_magnitude": body.magnitude, "patches": int(patches.size),
                  "patches_total": int(len(body.radii)), "triangles": tris, "imposter": False}
         b_tris, counts = self._boulder_batches(batches, levels, view, options, renderer,
                                                shadow)
         drawn["boulders"] = counts
         drawn["triangles"] += b_tris
-        return FrameState(batches, far, drawn)
+        post = None
+        if fade is not None:
+            state, weight = fade
+            post = _ImposterFade(state.post, weight)
+            drawn["imposter_fade"] = float(weight)
+        return FrameState(batches, far, drawn, post=post)
 
     def _boulder_batches(self, batches, levels, view, options, renderer, shadow):
         if not levels:
             return 0, {}
         k = view.intrinsics
         focal = max(k.fx, k.fy)
-        c = self.boulders.catalog
-        centres = np.column_stack([c["x_m"], c["y_m"], c["z_m"]]) @ self.rotation.T
-        radius = 0.5 * c["diameter_m"] * np.sqrt(np.maximum(c["elongation"], 1.0))
+        centres = self._boulder_centres() @ self.rotation.T
+        radius = self._boulder_radii()
         cam = np.asarray(view.pose.position)
         rel = (centres - cam) @ view.pose.rotation
         dist = np.maximum(np.linalg.norm(centres - cam, axis=1) - radius, 1e-3)
@@ -296,12 +374,14 @@ class AsteroidScene:
             tris += n
             counts[str(lv.level)] = int(sel.size)
             batches.append(DrawBatch(vao, dvao, ranges, world_from_model=self.rotation,
-                                     shadow=shadow, triangles=n))
+                                     shadow=shadow, triangles=n,
+                                     morph=_boulder_morph(lv.level, focal, options)))
         for lv in range(len(levels), n_levels):
             sel = np.flatnonzero(vis & (level == lv))
             if not sel.size:
                 continue
             batch = self._fine_batch(renderer, lv, sel, shadow)
+            batch.morph = _boulder_morph(lv, focal, options)
             tris += batch.triangles
             counts[str(lv)] = int(sel.size)
             batches.append(batch)
@@ -326,12 +406,16 @@ class AsteroidScene:
         ctx = renderer.ctx
         vbo = ctx.buffer(np.hstack([verts, normals]).astype(np.float32).tobytes())
         ibo = ctx.buffer(faces.astype(np.uint32).tobytes())
-        vao, dvao = renderer.vertex_arrays(vbo, ibo)
-        self._fine.extend([vao, dvao, vbo, ibo])
+        targets = _boulder_targets(verts, normals, level, centres,
+                                   self._boulder_radii()[indices],
+                                   self.boulders.settings.levels)
+        mbo = ctx.buffer(targets.astype(np.float32).tobytes())
+        vao, dvao = renderer.vertex_arrays(vbo, ibo, morph=mbo)
+        self._fine.extend([vao, dvao, vbo, ibo, mbo])
         return DrawBatch(vao, dvao, [(0, faces.size)], world_from_model=self.rotation,
                          shadow=shadow, triangles=len(faces))
 
-    def _shadow_map(self, renderer, lighting, options, body_lod, levels) -> ShadowMap:
+    def _shadow_map(self, renderer, lighting, options, lods, levels) -> ShadowMap:
         size = options.shadow_size
         if self._shadow is None or self._shadow.size != size:
             if self._shadow is not None:
@@ -342,6 +426,12 @@ class AsteroidScene:
         pts = np.array([[sx * r, sy * r, sz * r] for sx in (-1, 1) for sy in (-1, 1)
                         for sz in (-1, 1)])
         clip, light, extent, depth, _ = ortho_light(lighting.sun, pts, pts, margin=0.01 * r)
+        # casters at the coarsest level the map's texels resolve: fixed by the map, not by
+        # where the camera is (module docstring)
+        body_lod = lods[0]
+        for lod in lods:
+            if lod.spacing <= SHADOW_CELL_TEXELS * extent / size:
+                body_lod = lod
         _, dvao = self._vaos(renderer, body_lod)
         casters = [DrawBatch(None, dvao, [(0, body_lod.triangles * 3)],
                              world_from_model=self.rotation)]
@@ -374,7 +464,13 @@ class AsteroidScene:
         saved = self.imposter_pixels
         self.imposter_pixels = 0.0  # render the imposter itself as geometry
         try:
-            sub = renderer.render(self, View(pose_imp, k_imp, view.time), lighting, options)
+            # cells as large on screen as the geometry it stands for would draw: the
+            # imposter's texels are IMPOSTER_OVERSAMPLING times finer than the frame's pixels
+            sub_options = dataclasses.replace(
+                options, lod_pixels=options.lod_pixels * f / max(view.intrinsics.fx,
+                                                                  view.intrinsics.fy))
+            sub = renderer.render(self, View(pose_imp, k_imp, view.time), lighting,
+                                  sub_options)
         finally:
             self.imposter_pixels = saved
         post = _ImposterComposite(sub, pose_imp, k_imp)
@@ -422,6 +518,103 @@ class _ImposterComposite:
         radiance[rows, cols] = rad[rows, cols]
         rng[rows, cols] = self.frame.range[jv, ju]
         normals[rows, cols] = self.frame.normals[jv, ju]
+
+
+class _ImposterFade:
+    """Blends an imposter's radiance into a geometry frame with a weight (module docstring)."""
+
+    def __init__(self, composite, weight: float):
+        self.composite = composite
+        self.weight = float(min(max(weight, 0.0), 1.0))
+
+    def __call__(self, view, radiance, rng, normals):
+        rad = np.zeros_like(radiance)
+        r = np.full_like(rng, np.nan)
+        n = np.full_like(normals, np.nan)
+        self.composite(view, rad, r, n)
+        both = np.isfinite(r) & np.isfinite(rng)
+        radiance[both] = (1.0 - self.weight) * radiance[both] + self.weight * rad[both]
+
+
+def _normal_cube(ctx, mesh, radii, normals):
+    """A cube map of the finest level's normals by body-frame direction (module docstring):
+    each texel holds the normal interpolated on the triangle its direction meets."""
+    import moderngl
+
+    n = NORMAL_CUBE_SIZE
+    c = (np.arange(n) + 0.5) / n * 2.0 - 1.0
+    tc, sc = np.meshgrid(c, c, indexing="ij")  # rows run along t, columns along s
+    one = np.ones_like(sc)
+    faces = [np.stack(f, axis=-1) for f in (  # GL's cube faces +X, -X, +Y, -Y, +Z, -Z
+        (one, -tc, -sc), (-one, -tc, sc), (sc, one, tc), (sc, -one, -tc), (sc, -tc, one),
+        (-sc, -tc, -one))]
+    dirs = np.concatenate([f.reshape(-1, 3) for f in faces])
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    nrm = _coarser_surface(dirs, mesh, radii, normals)[:, 4:]
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    tex = ctx.texture_cube((n, n), 3, nrm.astype("f2").tobytes(), dtype="f2")
+    tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+    return tex
+
+
+def _coarser_surface(directions, coarse, c_radii, c_normals) -> np.ndarray:
+    """(n, 7) morph targets of a body level: the coarser level's surface along each vertex's
+    direction (the flat triangle the ray meets), key 1, and the interpolated normal.
+
+    In the coarser triangle whose cone holds u, ``u = a A + b B + c C``; the ray meets the
+    plane through the radii at ``t = 1 / (a / r_A + b / r_B + c / r_C)`` with barycentric
+    weights ``t a / r_A`` ... (as :func:`asteroid.sphere.surface_radius_scalar`).
+    """
+    _, idx, w = coarse.locate(directions)
+    inv = w / c_radii[idx]
+    t = 1.0 / inv.sum(axis=1)
+    bary = inv * t[:, None]
+    out = np.empty((len(directions), 7))
+    out[:, :3] = directions * t[:, None]
+    out[:, 3] = 1.0
+    out[:, 4:] = np.einsum("nk,nkj->nj", bary, c_normals[idx])
+    return out
+
+
+def _boulder_targets(verts, normals, level: int, centres, radii, levels: int) -> np.ndarray:
+    """(n V_l, 7) morph targets of boulders drawn at ``level`` (module docstring).
+
+    Level 0: every vertex slides to the boulder's centre, keyed ``log2(2 r)``; level l >= 1:
+    the vertices level l adds slide to the midpoint of the edge they split, keyed
+    ``log2(1.05 r) - (l - 1)`` (see :func:`_boulder_morph`); the others stay.
+    """
+    from asteroid.boulders import subdivision
+
+    n = len(radii)
+    nv = 10 * 4**level + 2
+    v = np.asarray(verts, dtype=np.float64).reshape(n, nv, 3)
+    nn = np.asarray(normals, dtype=np.float64).reshape(n, nv, 3)
+    out = np.empty((n, nv, 7))
+    out[..., :3] = v
+    out[..., 4:] = nn
+    if level == 0:
+        out[..., :3] = np.asarray(centres, dtype=np.float64)[:, None, :]
+        out[..., 3] = np.log2(2.0 * radii)[:, None]
+    else:
+        _, parents = subdivision(levels)
+        par = parents[level - 1]
+        old = 10 * 4 ** (level - 1) + 2
+        out[:, old:, :3] = 0.5 * (v[:, par[:, 0]] + v[:, par[:, 1]])
+        out[:, old:, 4:] = 0.5 * (nn[:, par[:, 0]] + nn[:, par[:, 1]])
+        out[..., 3] = (np.log2(1.05 * radii) - (level - 1))[:, None]
+    return out.reshape(-1, 7)
+
+
+def _boulder_morph(level: int, focal: float, options) -> Morph | None:
+    """The morph of a boulder batch: a boulder of radius r is drawn at level l while
+    ``1.05 r focal / (d lod_pixels)`` exceeds ``2^(l - 1)``, and not at all once
+    ``2 r focal / d`` drops below :data:`MIN_BOULDER_PIXELS`; each vertex's key adds its
+    boulder's part of the threshold distance (``log2`` metres)."""
+    if not options.geomorph:
+        return None
+    if level == 0:
+        return Morph(2, math.log2(focal / MIN_BOULDER_PIXELS), MORPH_BAND)
+    return Morph(2, math.log2(focal / options.lod_pixels), MORPH_BAND)
 
 
 def _sphere_visible(c: np.ndarray, radii: np.ndarray, k) -> np.ndarray:

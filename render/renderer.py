@@ -120,12 +120,15 @@ class RenderOptions:
     ``lod_pixels``: target on-screen size (pixels) of a terrain cell; terrain blocks are drawn
     at the coarsest level of detail that keeps cells below it. ``triangle_budget``: the most
     triangles a frame may draw; the target is relaxed until the frame fits.
+    ``geomorph``: levels of detail change continuously (vertices morph toward the coarser
+    level over a band of distance, see :mod:`render.terrain_scene`); off, they switch.
     """
 
     shadows: bool = True
     shadow_size: int = 2048
     lod_pixels: float = 3.0
     triangle_budget: int = 1_000_000
+    geomorph: bool = True
 
     def __post_init__(self):
         if not 64 <= int(self.shadow_size) <= 8192:
@@ -191,6 +194,10 @@ class Renderer:
         self._dummy_shadow = self.ctx.depth_texture((1, 1))
         self._dummy_shadow.compare_func = "<="
         self._dummy_albedo = self.ctx.texture((1, 1), 1, np.ones(1, "f4").tobytes(), dtype="f4")
+        self._dummy_normals = self.ctx.texture((1, 1), 3, np.array([0, 0, 1], "f2").tobytes(),
+                                               dtype="f2")
+        self._dummy_cube = self.ctx.texture_cube((1, 1), 3, np.tile(np.array([0, 0, 1], "f2"),
+                                                                     6).tobytes(), dtype="f2")
 
     # ------------------------------------------------------------------ framebuffers
     def _target(self, size):
@@ -223,16 +230,21 @@ class Renderer:
         fbo = self.ctx.framebuffer(depth_attachment=tex)
         return tex, fbo
 
-    def vertex_arrays(self, vbo, ibo, albedo=None):
+    def vertex_arrays(self, vbo, ibo, albedo=None, morph=None):
         """(scene, depth) vertex arrays binding this renderer's programs to a mesh.
 
         ``vbo`` interleaves position and normal (3f 3f); the depth pass reads positions only.
         ``albedo``, if given, is a buffer of one float32 albedo factor per vertex (draw such a
-        mesh with ``DrawBatch.vertex_albedo`` set). Scenes cache the pair under :attr:`token`.
+        mesh with ``DrawBatch.vertex_albedo`` set). ``morph``, if given, is a buffer of
+        per-vertex geomorphing targets (4f 3f: the coarser level's position, a key, the
+        coarser level's normal; see :class:`render.scene.Morph` and ``shaders/scene.vert``).
+        Scenes cache the pair under :attr:`token`.
         """
         content = [(vbo, "3f 3f", "in_position", "in_normal")]
         if albedo is not None:
             content.append((albedo, "1f", "in_albedo"))
+        if morph is not None:
+            content.append((morph, "4f 3f", "in_morph", "in_morph_normal"))
         vao = self.ctx.vertex_array(self.scene_program, content, ibo)
         dvao = self.ctx.vertex_array(self.depth_program, [(vbo, "3f 12x", "in_position")], ibo)
         return vao, dvao
@@ -333,6 +345,33 @@ class Renderer:
             prog["u_discard"].value = tuple(batch.discard)
         else:
             prog["u_use_discard"].value = 0
+        morph = batch.morph
+        if morph is not None:
+            prog["u_morph"].value = int(morph.mode)
+            prog["u_morph_level"].value = float(morph.level)
+            prog["u_morph_k"].value = float(morph.k)
+            prog["u_morph_band"].value = float(morph.band)
+            prog["u_morph_scale"].value = float(morph.scale)
+            prog["u_morph_top"].value = float(morph.top)
+            prog["u_bias_per_level"].value = float(morph.bias_per_level)
+        else:
+            prog["u_morph"].value = 0
+        prog["u_normals"].value = 2  # its own unit, never the shadow map's (a 2-D sampler)
+        if batch.normal_map is not None:
+            texture, rect = batch.normal_map
+            texture.use(location=2)
+            prog["u_normal_map"].value = 1
+            prog["u_normal_rect"].value = tuple(float(v) for v in rect)
+        else:
+            prog["u_normal_map"].value = 0
+            self._dummy_normals.use(location=2)
+        prog["u_normal_cube_map"].value = 3
+        if batch.normal_cube is not None:
+            batch.normal_cube.use(location=3)
+            prog["u_normal_cube"].value = 1
+        else:
+            prog["u_normal_cube"].value = 0
+            self._dummy_cube.use(location=3)
         shadow = batch.shadow if shadows else None
         if shadow is not None:
             prog["u_shadows"].value = 1

@@ -54,6 +54,7 @@ trajectory. Paths are relative to the scenario file. Example (``examples/lunar_d
     shadow_size = 2048
     lod_pixels = 1.5
     triangle_budget = 3000000
+    geomorph = true                  # levels of detail morph instead of switching
 
     [output]
     range = true
@@ -346,13 +347,15 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
               "given": sorted(k for k in mot if k in ("velocity", "angular_velocity",
                                                       "body_angular_velocity")),
               "motion": Motion.from_mapping(mot)}
-    ren = _section(data, "render", {"shadows", "shadow_size", "lod_pixels", "triangle_budget"})
+    ren = _section(data, "render", {"shadows", "shadow_size", "lod_pixels", "triangle_budget",
+                                    "geomorph"})
     options = RenderOptions(shadows=_bool(ren, "shadows", True, "render"),
                             shadow_size=_int(ren, "shadow_size", 2048, "render", 1,
                                              MAX_IMAGE_SIDE),
                             lod_pixels=_number(ren, "lod_pixels", 1.5, "render", True),
                             triangle_budget=_int(ren, "triangle_budget", 3_000_000, "render",
-                                                 1))
+                                                 1),
+                            geomorph=_bool(ren, "geomorph", True, "render"))
     out = _section(data, "output", {"range", "normals", "radiance"})
     outputs = {"range": _bool(out, "range", True, "output"),
                "normals": _bool(out, "normals", True, "output"),

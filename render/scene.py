@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["DrawBatch", "FrameState", "ShadowMap", "frustum_visible", "light_basis",
+__all__ = ["DrawBatch", "FrameState", "Morph", "ShadowMap", "frustum_visible", "light_basis",
            "ortho_light"]
 
 
@@ -42,6 +42,27 @@ class ShadowMap:
         self.texture.release()
 
 
+@dataclass(frozen=True)
+class Morph:
+    """How a batch's vertices morph toward the next coarser level of detail.
+
+    The vertex buffer's morph attributes hold each vertex's position on the coarser level and
+    a key (``Renderer.vertex_arrays``). ``mode`` 1: vertices whose key equals ``level`` morph,
+    completing at distance ``2^k`` metres; mode 2: every vertex morphs, completing at
+    ``2^(k + key)``. ``band``: octaves of distance the morph takes. ``scale``, ``top`` and
+    ``bias_per_level`` widen a terrain shadow map's bias with the continuous level
+    ``clamp(scale * d, level, top)`` (0: no extra bias).
+    """
+
+    mode: int
+    k: float
+    band: float
+    level: float = 0.0
+    scale: float = 0.0
+    top: float = 0.0
+    bias_per_level: float = 0.0
+
+
 @dataclass(eq=False)
 class DrawBatch:
     """Index ranges of one vertex array to draw with one set of uniforms."""
@@ -55,6 +76,15 @@ class DrawBatch:
     shadow: ShadowMap | None = None
     triangles: int = 0
     vertex_albedo: bool = False   # the vertex array binds a per-vertex albedo factor
+    #: Geomorphing of the batch's vertices (see ``render/shaders/scene.vert``), or None.
+    morph: Morph | None = None
+    #: Shading normals from a texture instead of the vertices: (texture, (x0, y0, 1/width,
+    #: 1/height)) mapping scene-local x, y to texture coordinates ``((x - x0) / width,
+    #: (y0 - y) / height)``, or None.
+    normal_map: tuple | None = None
+    #: Shading normals from a cube map looked up by model-frame direction from the model
+    #: origin (a star-shaped body's finest normals), or None.
+    normal_cube: object = None
 
 
 @dataclass(eq=False)

@@ -23,6 +23,46 @@ centre from the catalogue, so truth and images agree.
 
 Shadows: one map per layer, fitted to the layer's extent and deep enough for every caster up
 sun, computed once per sun direction and reused by every frame (the terrain does not move).
+The maps' light-space projections depend on the sun and the stack alone, never on the
+camera, so for a fixed sun every shadow texel stays on the same patch of ground through a
+whole sequence (no swimming), and the casters are drawn at one level of detail per layer,
+chosen from the texel size, whatever the camera does.
+
+Geomorphing: levels of detail change continuously, never from one frame to the next. With
+``lambda(d) = log2(target * d / (cell * focal))`` the continuous level at distance d (the
+planner's rule above picks ``s = 2^floor(lambda)`` at a block's nearest point), a vertex of a
+block drawn at level s that level 2s lacks slides, in the vertex shader, from its own height
+to the height of level 2s's surface below it (the coarser triangle's interpolation; its
+normal likewise) as ``lambda`` at the vertex runs over the last :data:`MORPH_BAND` octave
+before ``log2(2 s)``. Where the planner switches the block to 2s, every such vertex has
+arrived, so the switch changes nothing on screen. The factor depends on the vertex's own
+distance only, so a vertex shared by two blocks moves the same in both, and an edge between
+a block at s and one at 2s matches exactly (the vertices of the finer block's edge are then
+fully morphed); where levels differ by more, the skirts still close the seam. The
+shadow-map bias that coarse geometry needs grows with the same continuous level instead of
+jumping with s. When the triangle budget forces a coarser target, the target is the
+smallest that fits (found by bisection), not the next of a few fixed steps, so it too moves
+continuously. ``RenderOptions.geomorph = False`` restores switching.
+
+Shading normals: with geomorphing on, every fragment is shaded with its layer's
+full-resolution normals (a texture of the per-pixel normals, bilinear), not with normals
+interpolated across the drawn triangles, so the shading of the ground, and with it every
+shading corner a tracker follows, stays where it is on the ground whatever the level of
+detail; the normal images are these normals too. The level of detail then changes only the
+geometry's outline and range, within the error it allows.
+
+Layer fade-in: a finer layer's heights blend into its parent's surface across
+:data:`FADE_PARENT_PIXELS` parent pixels inside its extent (at most an eighth of the
+layer's side; a smoothstep from the parent's
+triangulated full-resolution surface at the layer's edge to the layer's own heights), so the
+finer detail fades in instead of starting with a step at the layer's edge.
+
+Range and truth: range comes from the drawn (morphed) geometry, per fragment, and the images
+and normal images from the same fragments (shaded with the layers' full-resolution normals),
+so they agree with each other and with the poses exactly. Morphing moves a vertex only
+between two levels of detail of the same layer, within the error the level of detail already
+allowed; only the fade margin draws heights other than the layer's own (the parent's surface
+blended in), and :meth:`TerrainScene.height_at` reads the layers' own heights.
 """
 
 from __future__ import annotations
@@ -37,6 +77,7 @@ import numpy as np
 from render.scene import (
     DrawBatch,
     FrameState,
+    Morph,
     ShadowMap,
     box_corners,
     box_distance,
@@ -46,7 +87,8 @@ from render.scene import (
 )
 from terrain.errors import InvalidParameterError
 
-__all__ = ["BLOCK", "MOON_RADIUS", "SKIRT_PIXELS", "TerrainScene"]
+__all__ = ["BLOCK", "FADE_PARENT_PIXELS", "MOON_RADIUS", "MORPH_BAND", "SKIRT_PIXELS",
+           "TerrainScene"]
 
 log = logging.getLogger(__name__)
 
@@ -58,6 +100,16 @@ SKIRT_PIXELS = 8.0
 SHADOW_CELL_TEXELS = 2.0
 #: Mean lunar radius (m), the default body radius for curvature (IAU/LOLA reference sphere).
 MOON_RADIUS = 1_737_400.0
+#: Octaves of distance over which a vertex morphs toward the next coarser level (half the
+#: range a level is used over; CDLOD's morph region is of this order, Strugar 2009).
+MORPH_BAND = 0.5
+#: Width (parent pixels) of the margin inside a finer layer's edge across which it fades in.
+FADE_PARENT_PIXELS = 8.0
+#: ... but at most this fraction of the layer's smaller side (small layers keep their own
+#: heights over most of their extent).
+FADE_MAX_FRACTION = 0.125
+#: Bisection steps of the budget-limited target (a 1.25 bracket to 1e-7 relative).
+BUDGET_BISECTIONS = 22
 
 
 @dataclass(eq=False)
@@ -76,6 +128,8 @@ class _Layer:
     discard: tuple | None  # finer layer's extent (scene-local), or None
     covered: np.ndarray   # (n_blocks,) bool: entirely inside the finer layer
     extent: tuple         # (xmin, ymin, xmax, ymax) scene-local, pixel centres
+    morph_vbo: object = None
+    normal_map: tuple | None = None  # (texture, rect): see DrawBatch.normal_map
 
 
 def _lods() -> list[int]:
@@ -202,9 +256,10 @@ class TerrainScene:
         self._layers = []
         tiles = self.stack.tiles
         total = 0
+        parent = None
         for k, tile in enumerate(tiles):
             finer = tiles[k + 1] if k + 1 < len(tiles) else None
-            layer = self._build_layer(ctx, k, tile, finer)
+            layer, parent = self._build_layer(ctx, k, tile, finer, parent)
             self._layers.append(layer)
             total += int(layer.counts[1].sum()) // 3
         self.triangles_full = total
@@ -216,7 +271,8 @@ class TerrainScene:
         return (left + r / 2 - self.site[0], bottom + r / 2 - self.site[1],
                 right - r / 2 - self.site[0], top - r / 2 - self.site[1])
 
-    def _build_layer(self, ctx, k, tile, finer) -> _Layer:
+    def _build_layer(self, ctx, k, tile, finer, parent=None):
+        """The layer's GPU buffers, and its surface (for the next layer's fade-in)."""
         h, w = tile.shape
         res = tile.resolution
         x0, y0, x1, y1 = self._local_extent(tile)
@@ -231,11 +287,23 @@ class TerrainScene:
             z = z[tuple(idx)]
         if self.curvature:
             z = z - (xs[None, :] ** 2 + ys[:, None] ** 2) / (2.0 * self.radius)
+        if parent is not None:
+            z = _fade_in(z, xs, ys, parent)
+        surface = (z, xs[0], ys[0], res)
         # normals from central differences of the (curved) heights
         dzdx = np.gradient(z, res, axis=1)
         dzdy = -np.gradient(z, res, axis=0)  # rows run south
         n = np.stack([-dzdx, -dzdy, np.ones_like(z)], axis=-1)
         n /= np.linalg.norm(n, axis=-1, keepdims=True)
+        # the full-resolution normals as a texture (shading independent of the level of
+        # detail, module docstring): texel (i, j) at pixel centre (xs[j], ys[i])
+        import moderngl
+
+        normal_tex = ctx.texture((w, h), 3, n.astype("f2").tobytes(), dtype="f2")
+        normal_tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+        normal_tex.repeat_x = False
+        normal_tex.repeat_y = False
+        normal_rect = (xs[0] - 0.5 * res, ys[0] + 0.5 * res, 1.0 / (w * res), 1.0 / (h * res))
         xx = np.broadcast_to(xs[None, :], (h, w))
         yy = np.broadcast_to(ys[:, None], (h, w))
         main = np.stack([xx, yy, z], axis=-1).reshape(-1, 3)
@@ -256,6 +324,20 @@ class TerrainScene:
                               normals.reshape(h, w, 3)[:, bcols].transpose(1, 0, 2)
                               .reshape(-1, 3)]).astype(np.float32)
         vbo = ctx.buffer(np.hstack([pos, nor]).tobytes())
+        # geomorphing targets (module docstring); skirts follow their edge vertex
+        target, level, tnormal = _morph_targets(z, n)
+        m = np.zeros((h, w, 7), dtype=np.float64)
+        m[..., 0] = xx
+        m[..., 1] = yy
+        m[..., 2] = target
+        m[..., 3] = level
+        m[..., 4:] = tnormal
+        sk_m_rows = m[brows].reshape(-1, 7).copy()
+        sk_m_cols = m[:, bcols].transpose(1, 0, 2).reshape(-1, 7).copy()
+        sk_m_rows[:, 2] -= depth
+        sk_m_cols[:, 2] -= depth
+        morph_vbo = ctx.buffer(np.concatenate([m.reshape(-1, 7), sk_m_rows, sk_m_cols])
+                               .astype(np.float32).tobytes())
         row_index = {int(r): i for i, r in enumerate(brows)}
         col_index = {int(c): i for i, c in enumerate(bcols)}
 
@@ -320,14 +402,16 @@ class TerrainScene:
         else:
             covered = np.zeros(nby * nbx, dtype=bool)
         layer = _Layer(k, res, (h, w), None, None, ibos, vaos, offsets, counts, lo, hi,
-                       discard, covered, (x0, y0, x1, y1))
+                       discard, covered, (x0, y0, x1, y1), morph_vbo,
+                       (normal_tex, normal_rect))
         layer.vbo = vbo
-        return layer
+        return layer, surface
 
     def _vaos(self, renderer, layer: _Layer, s: int):
         key = (renderer.token, s)
         if key not in layer.vaos:
-            layer.vaos[key] = renderer.vertex_arrays(layer.vbo, layer.ibos[s])
+            layer.vaos[key] = renderer.vertex_arrays(layer.vbo, layer.ibos[s],
+                                                     morph=layer.morph_vbo)
         return layer.vaos[key]
 
     # ------------------------------------------------------------------ per frame
@@ -344,11 +428,25 @@ class TerrainScene:
             vis = frustum_visible(corners, rot, cam, k) & ~layer.covered
             visible.append(vis)
             dist.append(np.maximum(box_distance(layer.lo, layer.hi, cam), 1e-3))
-        for _ in range(40):
-            plan, total = self._plan(visible, dist, focal, target)
-            if total <= options.triangle_budget:
-                break
-            target *= 1.25
+        plan, total = self._plan(visible, dist, focal, target)
+        if total > options.triangle_budget:
+            # the smallest target that fits the budget (module docstring): bracket, bisect
+            fits = target
+            for _ in range(40):
+                fits *= 1.25
+                plan, total = self._plan(visible, dist, focal, fits)
+                if total <= options.triangle_budget:
+                    break
+            if options.geomorph:
+                low = fits / 1.25
+                for _ in range(BUDGET_BISECTIONS):
+                    mid = math.sqrt(low * fits)
+                    if self._plan(visible, dist, focal, mid)[1] <= options.triangle_budget:
+                        fits = mid
+                    else:
+                        low = mid
+                plan, total = self._plan(visible, dist, focal, fits)
+            target = fits
         shadows = None
         if options.shadows and lighting is not None:
             shadows = self._shadow_maps(renderer, lighting, options)
@@ -368,7 +466,17 @@ class TerrainScene:
                 shadow = shadows[layer.level] if shadows else None
                 batch = DrawBatch(vao, dvao, ranges, discard=layer.discard, shadow=shadow,
                                   triangles=n)
-                if shadow is not None and s > 1:
+                if options.geomorph:
+                    # coarser visible geometry than the shadow map saw: the shader widens
+                    # the bias with the continuous level (module docstring)
+                    per_level = (0.25 * layer.resolution / shadow.depth_range_m
+                                 if shadow is not None else 0.0)
+                    scale = target / (layer.resolution * focal)  # 2^lambda per metre
+                    batch.morph = Morph(1, math.log2(2 * s / scale), MORPH_BAND, level=s,
+                                        scale=scale, top=min(2 * s, BLOCK),
+                                        bias_per_level=per_level)
+                    batch.normal_map = layer.normal_map
+                elif shadow is not None and s > 1:
                     # coarser visible geometry than the shadow map saw: widen the bias
                     batch.shadow = _with_extra_bias(shadow, 0.25 * s * layer.resolution)
                 batches.append(batch)
@@ -379,7 +487,7 @@ class TerrainScene:
         far = float(np.max(np.linalg.norm(box_corners(lo - self.origin, hi - self.origin)[0]
                                           - cam, axis=1))) * 1.01 + 1.0
         drawn = {"layers": drawn_layers, "triangles": sum(d["triangles"] for d in drawn_layers),
-                 "lod_pixels": target}
+                 "lod_pixels": target, "geomorph": bool(options.geomorph)}
         return FrameState(batches, far, drawn, albedo=self._albedo(renderer.ctx))
 
     def _albedo(self, ctx):
@@ -469,6 +577,116 @@ class TerrainScene:
             ranges = _merge_ranges(layer.offsets[s][blocks], layer.counts[s][blocks])
             batches.append(DrawBatch(vao, dvao, ranges, discard=layer.discard))
         return batches
+
+
+def _levels_1d(n: int) -> np.ndarray:
+    """(n,) float64: the coarsest level of detail whose samples include each grid line.
+
+    Levels sample every s-th line of a block and its last line (:func:`_samples`); blocks
+    start at multiples of :data:`BLOCK`, so line i is in level s when s divides i, or when i
+    is a block boundary (then it is in every level).
+    """
+    out = np.ones(n)
+    i = np.arange(n)
+    for s in _lods()[1:]:
+        out[i % s == 0] = s
+    out[_samples(0, n - 1, BLOCK)] = BLOCK
+    return out
+
+
+def _morph_targets(z: np.ndarray, normals: np.ndarray):
+    """Per vertex: the next coarser level's height and normal below it, and its own level.
+
+    Parameters
+    ----------
+    z : (h, w) float64, metres
+        The layer's (curved) heights at its pixel centres.
+    normals : (h, w, 3) float64
+        Unit normals.
+
+    Returns
+    -------
+    target : (h, w) float64, metres
+        For a vertex whose coarsest level is s < BLOCK: the height of level 2s's surface at
+        its position (linear on the triangle of level 2s's cell that holds it, with the
+        cells' diagonal from top-right to bottom-left as the index buffers cut them);
+        otherwise its own height.
+    level : (h, w) float64
+        The vertex's coarsest level s (1, 2, 4, ... BLOCK).
+    target_normal : (h, w, 3) float64
+        The coarser level's normal, interpolated the same way (not normalised).
+    """
+    h, w = z.shape
+    rl, cl = _levels_1d(h), _levels_1d(w)
+    level = np.minimum(rl[:, None], cl[None, :])
+    target = z.copy()
+    tnormal = normals.copy()
+    for s in _lods()[:-1]:
+        rows, cols = np.nonzero(level == s)
+        if not rows.size:
+            continue
+        coarse = 2 * s
+        rset = np.union1d(np.arange(0, h, coarse), [h - 1])
+        cset = np.union1d(np.arange(0, w, coarse), [w - 1])
+
+        def cell(idx, grid):
+            k = np.searchsorted(grid, idx, side="right") - 1
+            a = grid[k]
+            b = grid[np.minimum(k + 1, len(grid) - 1)]
+            t = np.where(b > a, (idx - a) / np.maximum(b - a, 1), 0.0)
+            return a, np.where(b > a, b, a), t
+
+        ra, rb, ti = cell(rows, rset)
+        ca, cb, tj = cell(cols, cset)
+        upper = (ti + tj) <= 1.0  # triangle (a, c, b); else (b, c, d)
+        for src, dst in ((z, target), (normals, tnormal)):
+            za, zb = src[ra, ca], src[ra, cb]
+            zc, zd = src[rb, ca], src[rb, cb]
+            if src.ndim == 3:
+                t_i, t_j, up = ti[:, None], tj[:, None], upper[:, None]
+            else:
+                t_i, t_j, up = ti, tj, upper
+            first = za + t_i * (zc - za) + t_j * (zb - za)
+            second = zd + (1.0 - t_i) * (zb - zd) + (1.0 - t_j) * (zc - zd)
+            dst[rows, cols] = np.where(up, first, second)
+    return target, level, tnormal
+
+
+def _fade_in(z: np.ndarray, xs: np.ndarray, ys: np.ndarray, parent) -> np.ndarray:
+    """Heights blended into the parent's surface across the margin inside the layer's edge.
+
+    ``parent`` is ``(z, x of column 0, y of row 0, cell size)`` of the parent layer (curved
+    heights, scene-local); its surface is its full-resolution triangulation (the diagonal
+    from top-right to bottom-left, as drawn). The weight of the layer's own heights is a
+    smoothstep of the distance to the layer's edge over :data:`FADE_PARENT_PIXELS` parent
+    pixels (at most :data:`FADE_MAX_FRACTION` of the layer's smaller side).
+    """
+    pz, px0, py0, pres = parent
+    size = min(abs(xs[-1] - xs[0]), abs(ys[0] - ys[-1]))
+    margin = min(FADE_PARENT_PIXELS * pres, FADE_MAX_FRACTION * size)
+    ex = np.minimum(xs - xs[0], xs[-1] - xs)
+    ey = np.minimum(ys[0] - ys, ys - ys[-1])
+    t = np.clip(np.minimum(ey[:, None], ex[None, :]) / margin, 0.0, 1.0)
+    weight = t * t * (3.0 - 2.0 * t)
+    band = weight < 1.0
+    if not band.any():
+        return z
+    rows, cols = np.nonzero(band)
+    c = (xs[cols] - px0) / pres
+    r = (py0 - ys[rows]) / pres
+    ph, pw = pz.shape
+    i0 = np.clip(np.floor(r).astype(np.int64), 0, ph - 2)
+    j0 = np.clip(np.floor(c).astype(np.int64), 0, pw - 2)
+    ti = np.clip(r - i0, 0.0, 1.0)
+    tj = np.clip(c - j0, 0.0, 1.0)
+    za, zb = pz[i0, j0], pz[i0, j0 + 1]
+    zc, zd = pz[i0 + 1, j0], pz[i0 + 1, j0 + 1]
+    under = np.where(ti + tj <= 1.0, za + ti * (zc - za) + tj * (zb - za),
+                     zd + (1.0 - ti) * (zb - zd) + (1.0 - tj) * (zc - zd))
+    out = z.copy()
+    wb = weight[rows, cols]
+    out[rows, cols] = wb * z[rows, cols] + (1.0 - wb) * under
+    return out
 
 
 def _merge_ranges(offsets, counts) -> list[tuple[int, int]]:

@@ -44,7 +44,8 @@ def test_demo_writes_one_folder_and_a_report_with_every_figure(demo):
     text = report.read_text(encoding="utf-8")
     doc = json.loads(report.with_suffix(".json").read_text(encoding="utf-8"))
     ids = [s["id"] for s in doc["sections"]]
-    assert ids == ["campaign", "tracking-lunar descent", "tracking-asteroid approach",
+    assert ids == ["campaign", "tracking-lunar descent", "consistency-lunar descent",
+                   "tracking-asteroid approach", "consistency-asteroid approach",
                    "dem-lunar layers", "site", "asteroid", "closed-loop"]
     # every figure is embedded, and none is empty
     images = re.findall(r'<img alt="[^"]*" src="data:image/png;base64,([A-Za-z0-9+/=]+)"', text)
@@ -65,6 +66,13 @@ def test_demo_writes_one_folder_and_a_report_with_every_figure(demo):
     facts = json.loads((out / ".evaluation.done.json").read_text())
     assert facts["tracking_lunar"]["truth_round_trip_px"] < 0.01
     assert facts["tracking_asteroid"]["truth_round_trip_px"] < 0.01
+    # frame-to-frame consistency and the tracker's own share were measured for both runs
+    for name in ("lunar", "asteroid"):
+        cons = json.loads((out / "evaluation" / f"{name}_consistency" / "consistency.json")
+                          .read_text())
+        assert len(cons["frames"]) == len(json.loads(
+            (out / name / "run" / "run" / "truth.json").read_text())) - 1
+        assert facts[f"tracking_{name}"]["ideal_one_step_median_px"] is not None
     assert doc["verdict"] in ("pass", "fail", "incomplete")
 
 

@@ -4,6 +4,7 @@ in vec3 v_rel;
 in vec3 v_normal;
 in float v_albedo;              // per-vertex albedo factor, used where u_vertex_albedo is 1
 uniform int u_vertex_albedo;
+in float v_shadow_bias;          // geomorphing terrain: extra bias of coarse geometry
 
 uniform vec3 u_camera;          // camera position in world (m), for world-frame tests
 uniform vec3 u_axis;            // optical axis (unit, world)
@@ -21,6 +22,13 @@ uniform float u_log_near;       // log depth: (log(z) - u_log_near) * u_log_scal
 uniform float u_log_scale;
 uniform int u_use_discard;      // terrain layers: draw only outside the finer layer
 uniform vec4 u_discard;         // xmin, ymin, xmax, ymax (world)
+
+uniform int u_normal_map;       // terrain layers: shade with the layer's full-resolution
+uniform int u_normal_cube;      // asteroid bodies: shade with the finest level's normals,
+uniform samplerCube u_normal_cube_map;  // looked up by body-frame direction from the centre
+uniform mat3 u_world_from_model;  // (the body rotation, as in the vertex stage)
+uniform sampler2D u_normals;    // normals (texture of unit normals, one texel per pixel),
+uniform vec4 u_normal_rect;     // whatever the level of detail: (x0, y0, 1/width, 1/height)
 
 uniform int u_shadows;
 uniform sampler2DShadow u_shadow_map;
@@ -133,7 +141,7 @@ float visibility(vec3 n, float mu0) {
     vec3 c = lc.xyz / lc.w;
     if (c.x < 0.0 || c.x > 1.0 || c.y < 0.0 || c.y > 1.0 || c.z > 1.0) return 1.0;
     float tan_i = sqrt(max(1.0 - mu0 * mu0, 0.0)) / max(mu0, 0.05);
-    float ref = c.z - u_bias - u_slope_bias * min(tan_i, 20.0);
+    float ref = c.z - u_bias - v_shadow_bias - u_slope_bias * min(tan_i, 20.0);
     // one bilinear comparison (the map's LINEAR filter gives 2x2 percentage-closer filtering)
     return texture(u_shadow_map, vec3(c.xy, ref));
 }
@@ -144,6 +152,12 @@ void main() {
             && world.y > u_discard.y && world.y < u_discard.w)
         discard;
     vec3 n = normalize(v_normal);
+    if (u_normal_map == 1)
+        n = normalize(texture(u_normals, vec2((world.x - u_normal_rect.x) * u_normal_rect.z,
+                                               (u_normal_rect.y - world.y) * u_normal_rect.w)).xyz);
+    if (u_normal_cube == 1)
+        n = normalize(u_world_from_model
+                      * texture(u_normal_cube_map, transpose(u_world_from_model) * world).xyz);
     float r = length(v_rel);
     vec3 e = -v_rel / r;                       // towards the camera
     float mu0 = dot(n, u_sun);

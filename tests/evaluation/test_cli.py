@@ -163,9 +163,12 @@ def test_asteroid_slopes_refuses_open_meshes(tmp_path):
 def test_track_command_with_and_without_truth(planar_run, run_without_truth, tmp_path):
     r = run("evaluation", "track", planar_run, "-o", tmp_path / "t")
     assert r.exit_code == 0, r.output
-    assert "median error" in r.output
+    assert "median error" in r.output and "one-step median" in r.output
     doc = json.loads((tmp_path / "t" / "tracking.json").read_text())
     assert doc["errors"]["median_px"] <= 0.5
+    # one step of tracking errs less than a whole track; both are given by track age
+    assert doc["errors"]["one_step"]["median_px"] < doc["errors"]["median_px"]
+    assert doc["errors"]["one_step_median_px_by_track_age"][0][0] == 1
     rows = list(csv.DictReader((tmp_path / "t" / "tracks.csv").open()))
     assert {"track", "frame", "u_px", "v_px", "true_u_px", "true_v_px", "error_px"} <= set(rows[0])
     assert (tmp_path / "t" / "tracks.png").exists()
@@ -195,7 +198,9 @@ def test_report_command_and_thresholds(planar_run, dems, tmp_path):
     assert "verdict fail" in r.output and "median tracking error" in r.output
     doc = json.loads(out.with_suffix(".json").read_text())
     assert doc["thresholds"]["tracking"]["max_median_error_px"] == 0.01
-    assert {s["id"] for s in doc["sections"]} == {"tracking", "dem"}
+    assert {s["id"] for s in doc["sections"]} == {"tracking", "consistency", "dem"}
+    assert any(c["name"] == "largest per-frame residual over the median" and c["passed"]
+               for c in doc["checks"])
     text = out.read_text()
     assert "data:image/png;base64," in text and "<script" not in text
 
@@ -204,11 +209,15 @@ def test_report_command_and_thresholds(planar_run, dems, tmp_path):
     assert r.exit_code == 0, r.output
     doc = json.loads((tmp_path / "two.json").read_text())
     name = f"{planar_run.resolve().parent.name}/{planar_run.resolve().name}"  # names clash
-    assert [s["id"] for s in doc["sections"]] == [f"tracking-{name}", f"tracking-{name}_2"]
+    assert [s["id"] for s in doc["sections"]] == [f"tracking-{name}", f"consistency-{name}",
+                                                  f"tracking-{name}_2",
+                                                  f"consistency-{name}_2"]
     assert {c["section"] for c in doc["checks"]} == {f"tracking {name}",
-                                                     f"tracking {name}_2"}
+                                                     f"tracking {name}_2",
+                                                     f"consistency {name}",
+                                                     f"consistency {name}_2"}
     figure_ids = [f["id"] for f in doc["figures"]]
-    assert len(figure_ids) == len(set(figure_ids)) == 4
+    assert len(figure_ids) == len(set(figure_ids)) == 6
     assert doc["inputs"]["run_dirs"] == [str(planar_run)] * 2
 
     one_line_error(run("evaluation", "report", "-o", tmp_path / "r.html"), "nothing to report")

@@ -40,6 +40,83 @@ def test_tracking_error_against_truth_is_sub_pixel(scored):
     assert t["layer_changes"] == 1 and t["survival_at_layer_change"] > 0.8
 
 
+def test_one_step_error_separates_drift_from_each_step(scored):
+    """On exact images the one-step error stays flat with track age; accumulated grows."""
+    e = scored.error_summary()
+    one = np.array(e["one_step_median_px_by_track_age"])
+    acc = np.array(e["median_px_by_track_age"])
+    # a track's first step is both its one-step and its accumulated error
+    assert one[0, 1] == pytest.approx(acc[0, 1]) and one[0, 2] == acc[0, 2]
+    both = np.isfinite(scored.one_step) & np.isfinite(scored.errors)
+    first = both & (np.arange(scored.tracks.n_frames)[None, :]
+                    == scored.tracks.start[:, None] + 1)
+    assert np.allclose(scored.one_step[first], scored.errors[first])
+    # later steps: each step errs as little as the first, while the sum grows
+    assert one[:, 1].max() < 2 * one[0, 1] and acc[-1, 1] > 4 * acc[0, 1]
+    assert e["one_step"]["median_px"] < 0.5 * e["median_px"]
+
+
+def test_prewarping_removes_the_drift_of_a_shift_only_window(planar_run, scored):
+    """Plain Lucas-Kanade drifts under the descent's zoom and roll, step after step in the
+    same direction; tracking from the homography-warped previous frame does not, and its
+    tracks live as long and are as many."""
+    plain = score(track(planar_run, TrackerSettings(prewarp=False)), planar_run)
+    p, w = plain.error_summary(), scored.error_summary()
+    assert scored.tracks.settings.prewarp
+    assert w["median_px"] < 0.4 * p["median_px"]
+    assert w["one_step"]["median_px"] < 0.5 * p["one_step"]["median_px"]
+    tp, tw = plain.tracks.summary(), scored.tracks.summary()
+    assert tw["track_length_mean"] >= tp["track_length_mean"]
+    assert tw["tracks_per_frame_mean"] >= 0.95 * tp["tracks_per_frame_mean"]
+
+
+def test_ideal_tracker_tells_the_trackers_share_from_the_images(scored, planar_run,
+                                                                tmp_path):
+    """On exact frames the same tracker errs a few thousandths of a pixel on truth-warped
+    frames and on real ones; on a frame whose content jumps (a popped frame) only the real
+    error jumps."""
+    import json
+    import shutil
+
+    import cv2
+
+    from evaluation.tracking import ideal_one_step, truth_warped_frame
+
+    ideal = ideal_one_step(scored, planar_run)
+    both = np.isfinite(ideal) & np.isfinite(scored.one_step)
+    assert both.sum() > 1000
+    # exact frames: both tiny; what the real frames add is their fresh rounding to 8 bits
+    assert np.median(ideal[both]) <= np.median(scored.one_step[both]) < 0.05
+    # the warped frame is the next frame, up to resampling (8-bit, texture of 3-4 px)
+    run = RunReader(planar_run)
+    warped = truth_warped_frame(run, 3, 4).astype(np.float64)
+    assert np.sqrt(np.mean((warped - run.image(4)) ** 2)) < 0.05 * run.image(4).std()
+    # fresh sensor noise on the warped frames (as a new exposure would add) costs accuracy
+    with pytest.raises(InvalidParameterError, match="no sensor"):
+        ideal_one_step(scored, planar_run, sensor_noise=True)
+    noisy_run = tmp_path / "noisy"
+    shutil.copytree(planar_run, noisy_run)
+    manifest = json.loads((noisy_run / "manifest.json").read_text())
+    manifest["sensor"] = dict(bits=8, exposure=1.0, gain=2.0, read_noise=4.0)
+    (noisy_run / "manifest.json").write_text(json.dumps(manifest))
+    noisy = ideal_one_step(scored, noisy_run, sensor_noise=True)
+    again_noisy = ideal_one_step(scored, noisy_run, sensor_noise=True)
+    assert np.array_equal(noisy, again_noisy, equal_nan=True)  # keyed: the same noise
+    both = np.isfinite(noisy) & np.isfinite(ideal)
+    assert np.median(noisy[both]) > 1.2 * np.median(ideal[both])
+    # a frame shifted by 2 px (its content jumps under the features)
+    popped = tmp_path / "popped"
+    shutil.copytree(planar_run, popped)
+    frame = popped / "frames" / "frame_000006.png"
+    img = cv2.imread(str(frame), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(frame), np.roll(img, 2, axis=1))
+    again = score(track(popped), popped)
+    real = again.one_step[:, 6]
+    ideal = ideal_one_step(again, popped)[:, 6]
+    ok = np.isfinite(real) & np.isfinite(ideal)
+    assert np.median(real[ok]) > 1.5 and np.median(ideal[ok]) < 0.3
+
+
 def test_a_wrong_position_is_detected_as_large_error(planar_run, tmp_path, scored):
     """A navigation truth drifting 0.5 m per frame (about 3.5 px per frame at 45 m)."""
 

@@ -120,3 +120,58 @@ def test_spin_turns_the_body_under_the_camera(renderer, rocky):
     centre_range = b.range[47:49, 47:49].mean()
     assert centre_range == pytest.approx(1500.0 - r, rel=0.01)
     scene.set_body_rotation((1.0, 0.0, 0.0, 0.0))
+
+
+def test_an_approach_through_levels_and_the_imposter_stays_consistent(renderer, rocky):
+    """Imposter fading out, body levels and boulder levels changing: no pair jumps; a
+    frame whose levels are forced four steps coarser, switched, is caught."""
+    from evaluation.consistency import SPIKE_BOUND, change_marks, pair_residual
+    from render.rundir import FrameTruth
+    from render.sensor import Sensor
+
+    scene = AsteroidScene(rocky)
+    k = Intrinsics.from_fov(128, 128, 40.0)
+    sensor = Sensor(bits=16, exposure=1.5)
+    poses = [look_at((d, 0.3 * d, 0.2 * d), (0.0, 0.0, 0.0))
+             for d in np.geomspace(6000.0, 1500.0, 24)]
+
+    def frame(i, lod=3.0, morph=True):
+        f = renderer.render(scene, View(poses[i], k), LIGHT,
+                            RenderOptions(shadow_size=1024, lod_pixels=lod, geomorph=morph))
+        return (sensor.expose(f.radiance), f.range, f.normals,
+                FrameTruth(i, 0.0, poses[i], k, LIGHT.sun, drawn=f.drawn))
+
+    def rms(frames):
+        return np.array([pair_residual(a[0], b[0], a[1], b[1], a[3], b[3], normals0=a[2],
+                                       normals1=b[2]).rms_dn
+                         for a, b in zip(frames[:-1], frames[1:], strict=True)])
+
+    frames = [frame(i) for i in range(len(poses))]
+    drawn = [f[3].drawn for f in frames]
+    layer, _ = change_marks(drawn)
+    assert drawn[0]["imposter"] and not drawn[-1]["imposter"]
+    assert any("imposter_fade" in d for d in drawn)
+    assert len({d["body_magnitude"] for d in drawn}) >= 3 and layer.sum() >= 3
+    r = rms(frames)
+    assert r.max() <= SPIKE_BOUND * np.median(r)
+    popped = 14
+    frames[popped] = frame(popped, lod=3.0 * 16, morph=False)  # switched, coarser levels
+    r = rms(frames)
+    assert np.flatnonzero(r > SPIKE_BOUND * np.median(r)).tolist() == [popped - 1, popped]
+
+
+def test_the_shadow_map_is_the_same_from_near_and_far(renderer, rocky):
+    """Fixed sun, fixed body rotation: the map (projection and depths) ignores the camera,
+    although the body is drawn at different levels of detail from the two distances."""
+    scene = AsteroidScene(rocky)
+    k = Intrinsics.from_fov(128, 128, 40.0)
+    maps, levels = [], []
+    for d in (6000.0, 700.0):
+        f = renderer.render(scene, View(look_at((d, 0.3 * d, 0.2 * d), (0, 0, 0)), k), LIGHT,
+                            RenderOptions(shadow_size=512))
+        levels.append(f.drawn["body_magnitude"])
+        m = scene._shadow
+        maps.append((m.light_from_world.copy(), m.texture.read()))
+    assert levels[0] != levels[1]
+    assert np.array_equal(maps[0][0], maps[1][0]) and maps[0][1] == maps[1][1]
+

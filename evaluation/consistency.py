@@ -1,0 +1,487 @@
+r"""Frame-to-frame consistency of a rendered run, measured through its own truth.
+
+A renderer that is consistent with itself shows the same surface point with the same
+brightness in consecutive frames (up to the sensor's noise and the slow change of the viewing
+geometry). Level-of-detail switches, layers switching on and shadow maps that move with the
+camera break that: the shading under a feature jumps between two frames, and a tracker reads
+the jump as motion. This module measures it, pair by pair.
+
+Warp (:func:`pair_residual`)
+----------------------------
+For consecutive frames t and t+1, every pixel of frame t with a range return is lifted to
+3-D with frame t's range image and pose (:meth:`render.camera.Pose.unproject`), carried into
+the body frame with frame t's ``body_rotation`` R_WB and back into the world with frame
+t+1's (identity for terrain), and projected into frame t+1. Frame t+1's image, sampled there
+bilinearly, is frame t+1 warped into frame t; the residual is frame t minus it, in DN.
+
+Masks: a pixel counts only when
+
+* it is *seen in both*: frame t+1's range at the projection agrees with the point's distance
+  from frame t+1's camera within ``occlusion_tolerance`` (relative), and the projection lies
+  inside frame t+1;
+* it is away from *silhouettes and occlusion edges*: more than ``edge_px`` pixels from a
+  pixel without return or from a relative range jump above :data:`SILHOUETTE_JUMP`, in
+  frame t and (through the warp) in frame t+1; there, the surface behind an outline slides
+  against it and no warp can match the two frames;
+* it is *lit in both*: its surface faces the sun in both frames (the normal images), and it
+  is not dark (at most :data:`DARK_SIGMAS` noise levels above black) in both. A pixel that is
+  lit in one frame and dark in the other stays in: on a fixed surface under a fixed sun, a
+  shadow edge must not move, so one that does is an inconsistency to see;
+* it is not next to a *shadow edge that moves*: where the sun turns in the body frame
+  between the two frames (a spinning asteroid), shadows legitimately move, and pixels within
+  ``edge_px`` of a dark pixel in either frame are dropped.
+
+Noise: the run's manifest records the sensor (:class:`render.sensor.Sensor`); a pixel of
+``DN`` digital numbers carries shot noise of variance ``DN / gain``, read noise
+``read_noise^2`` and rounding ``1/12`` (DN^2). ``noise_dn`` is the rms of one frame's noise
+over the counted pixels; ``noise_floor_dn`` is the rms the residual of two frames that agree
+perfectly would have: frame t's noise plus frame t+1's, averaged by the bilinear sampling
+(the squared weights), and ``excess_dn = sqrt(rms^2 - floor^2)`` what is left beyond the
+noise. That excess holds the change of the viewing
+geometry (the reflectance depends on the emission and phase angles), resampling of texture
+finer than a pixel, and the renderer's own inconsistency.
+
+Per frame, the residual's rms, mean and the counted fraction are reported; the run's
+figure of merit is ``spike_ratio``, the largest per-frame rms over the median (the issue's
+bound is 1.5): a level-of-detail switch or a layer switching on shows as a spike at its
+frame. Frames where the drawn layers or the levels of detail change are marked, from each
+frame's truth ``drawn`` record (:func:`change_marks`).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from render.camera import quat_to_matrix
+from render.rundir import RunReader
+from terrain.errors import InvalidParameterError
+
+__all__ = ["DARK_SIGMAS", "SILHOUETTE_JUMP", "SPIKE_BOUND", "Consistency", "PairResidual",
+           "change_marks", "consistency", "pair_residual", "save_consistency"]
+
+log = logging.getLogger(__name__)
+
+#: A pixel at most this many noise levels (read and rounding noise) above black is dark.
+DARK_SIGMAS = 4.0
+#: Relative range jump between neighbouring pixels that marks an occluding contour (as in
+#: :data:`evaluation.tracking.SILHOUETTE_JUMP`).
+SILHOUETTE_JUMP = 0.05
+#: The issue's bound: the largest per-frame rms at most this many times the median.
+SPIKE_BOUND = 1.5
+#: Sun directions (in the body frame) closer than this (radians) count as the same sun.
+SUN_STILL_RAD = 1e-7
+#: Side (pixels) of the tiles of :attr:`PairResidual.worst_tile_dn`.
+TILE = 32
+
+
+@dataclass(frozen=True, eq=False)
+class PairResidual:
+    """The residual of one pair of frames (t, t+1), warped into frame t.
+
+    Parameters
+    ----------
+    residual : (h, w) float32, DN
+        Frame t minus frame t+1 warped into frame t; NaN outside ``mask``.
+    mask : (h, w) bool
+        Pixels counted (module docstring).
+    rms_dn, mean_dn : float
+        Over ``mask`` (NaN when empty).
+    noise_dn : float or None
+        The rms of one frame's sensor noise over ``mask`` (None without a sensor record).
+    fraction : float
+        Counted pixels over all pixels.
+    noise_floor_dn : float or None
+        The rms the residual would have from the sensor noise alone: frame t's noise plus
+        frame t+1's, averaged by the bilinear sampling.
+    worst_tile_dn : float or None
+        The largest residual rms over :data:`TILE` x :data:`TILE` pixel tiles at least half
+        counted: a local jump (a few blocks changing level) that the frame's rms dilutes.
+    """
+
+    residual: np.ndarray
+    mask: np.ndarray
+    rms_dn: float
+    mean_dn: float
+    noise_dn: float | None
+    fraction: float
+    noise_floor_dn: float | None = None
+    worst_tile_dn: float | None = None
+
+
+def _edges(rng: np.ndarray) -> np.ndarray:
+    """(h, w) bool: pixels without return, or beside a relative range jump."""
+    edge = ~np.isfinite(rng)
+    with np.errstate(invalid="ignore"):
+        for axis in (0, 1):
+            a = rng[:-1] if axis == 0 else rng[:, :-1]
+            b = rng[1:] if axis == 0 else rng[:, 1:]
+            jump = np.abs(a - b) > SILHOUETTE_JUMP * np.minimum(a, b)
+            if axis == 0:
+                edge[:-1] |= jump
+                edge[1:] |= jump
+            else:
+                edge[:, :-1] |= jump
+                edge[:, 1:] |= jump
+    return edge
+
+
+def _dilate(mask: np.ndarray, px: int) -> np.ndarray:
+    import cv2
+
+    if px <= 0:
+        return mask
+    size = 2 * px + 1
+    return cv2.dilate(mask.astype(np.uint8), np.ones((size, size), np.uint8)) > 0
+
+
+def _grey(image: np.ndarray) -> np.ndarray:
+    import cv2
+
+    img = np.asarray(image)
+    if img.ndim == 3:
+        code = cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY
+        img = cv2.cvtColor(img, code)
+    return img.astype(np.float32)
+
+
+def _sensor_noise(sensor: dict | None):
+    """(variance(DN) function, dark threshold DN) from a manifest's sensor record."""
+    if not sensor:
+        return None, 0.5
+    gain = float(sensor.get("gain", 0.0))
+    read = float(sensor.get("read_noise", 0.0))
+    floor = read * read + 1.0 / 12.0
+
+    def variance(dn):
+        return (dn / gain if gain > 0 else 0.0) + floor
+
+    return variance, DARK_SIGMAS * math.sqrt(floor)
+
+
+def pair_residual(image0, image1, range0, range1, truth0, truth1, *, normals0=None,
+                  normals1=None, sensor: dict | None = None, edge_px: int = 2,
+                  occlusion_tolerance: float = 0.002) -> PairResidual:
+    """Photometric residual of frame t+1 warped into frame t through the truth.
+
+    Parameters
+    ----------
+    image0, image1 : (h, w) uint8 or uint16 (or colour), DN
+        Frames t and t+1.
+    range0, range1 : (h, w) float32, metres
+        Their range images (NaN: no return).
+    truth0, truth1 : render.rundir.FrameTruth
+        Their pose, intrinsics, sun and body rotation.
+    normals0, normals1 : (h, w, 3) float32, optional
+        World-frame normals; without them every surface counts as facing the sun.
+    sensor : dict, optional
+        The run manifest's ``sensor`` record (gain, read_noise), for the noise level and the
+        dark threshold.
+    edge_px : int, pixels
+        Margin around silhouettes, occlusion edges and moving shadow edges.
+    occlusion_tolerance : float
+        Relative range disagreement above which a point counts as hidden in frame t+1.
+
+    Returns
+    -------
+    PairResidual
+    """
+    import cv2
+
+    i0, i1 = _grey(image0), _grey(image1)
+    h, w = i0.shape
+    if i1.shape != (h, w) or range0.shape != (h, w) or range1.shape != (h, w):
+        raise InvalidParameterError(
+            f"frames, range images must share one shape; got {i0.shape}, {i1.shape}, "
+            f"{range0.shape}, {range1.shape}")
+    if not (occlusion_tolerance > 0 and edge_px >= 0):
+        raise InvalidParameterError(
+            f"occlusion_tolerance must be > 0 and edge_px >= 0; got {occlusion_tolerance}, "
+            f"{edge_px}")
+    variance, dark_dn = _sensor_noise(sensor)
+    v, u = np.mgrid[0:h, 0:w]
+    r0 = range0.reshape(-1).astype(np.float64)
+    have = np.isfinite(r0) & (r0 > 0)
+    uv = np.stack([u.reshape(-1), v.reshape(-1)], axis=1).astype(np.float64)[have]
+    rot0 = quat_to_matrix(truth0.body_rotation)
+    rot1 = quat_to_matrix(truth1.body_rotation)
+    world0 = truth0.pose.unproject(uv, r0[have], truth0.intrinsics)
+    world1 = (world0 @ rot0) @ rot1.T
+    uv1 = truth1.pose.project(world1, truth1.intrinsics)
+    dist1 = np.linalg.norm(world1 - np.asarray(truth1.pose.position), axis=1)
+    map_u = np.full(h * w, -10.0, dtype=np.float32)
+    map_v = np.full(h * w, -10.0, dtype=np.float32)
+    finite = np.isfinite(uv1).all(axis=1)
+    idx = np.flatnonzero(have)
+    map_u[idx[finite]] = uv1[finite, 0]
+    map_v[idx[finite]] = uv1[finite, 1]
+    map_u = map_u.reshape(h, w)
+    map_v = map_v.reshape(h, w)
+    inside = (map_u >= 0) & (map_u <= w - 1) & (map_v >= 0) & (map_v <= h - 1)
+    # seen in both: frame t+1's range at the projection (nearest return) against the distance
+    seen = np.full(h * w, np.nan)
+    seen[idx] = dist1
+    seen = seen.reshape(h, w)
+    r1_at = cv2.remap(np.nan_to_num(range1, nan=-1.0).astype(np.float32), map_u, map_v,
+                      cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0)
+    with np.errstate(invalid="ignore"):
+        visible = inside & (r1_at > 0) & (np.abs(r1_at - seen) <= occlusion_tolerance * seen)
+    edges1 = cv2.remap(_dilate(_edges(range1), edge_px).astype(np.uint8), map_u, map_v,
+                       cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=1) > 0
+    mask = visible & ~_dilate(_edges(range0), edge_px) & ~edges1
+    warped = cv2.remap(i1, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    # lit in both
+    sun = np.asarray(truth0.sun, dtype=np.float64)
+    sun1 = np.asarray(truth1.sun, dtype=np.float64)
+    if normals0 is not None and normals1 is not None:
+        with np.errstate(invalid="ignore"):
+            facing0 = np.nan_to_num(normals0 @ sun.astype(np.float32), nan=-1.0) > 0
+            facing1 = cv2.remap(np.nan_to_num(normals1 @ sun1.astype(np.float32), nan=-1.0)
+                                .astype(np.float32), map_u, map_v, cv2.INTER_NEAREST,
+                                borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0) > 0
+        mask &= facing0 & facing1
+    dark0 = i0 <= dark_dn
+    dark1 = warped <= dark_dn
+    mask &= ~(dark0 & dark1)
+    sun_body0 = rot0.T @ sun
+    sun_body1 = rot1.T @ sun1
+    turn = math.acos(min(1.0, float(np.dot(sun_body0, sun_body1))
+                         / (np.linalg.norm(sun_body0) * np.linalg.norm(sun_body1))))
+    if turn > SUN_STILL_RAD:  # shadows move on the surface: drop their edges
+        mask &= ~_dilate(dark0 | dark1, edge_px)
+    residual = np.where(mask, i0 - warped, np.nan).astype(np.float32)
+    vals = residual[mask].astype(np.float64)
+    rms = float(np.sqrt(np.mean(vals * vals))) if vals.size else float("nan")
+    mean = float(vals.mean()) if vals.size else float("nan")
+    noise = floor = None
+    if variance is not None and vals.size:
+        noise = float(np.sqrt(np.mean(0.5 * (variance(i0[mask]) + variance(warped[mask])))))
+        # bilinear sampling averages frame t+1's noise: sum of the squared weights
+        fu = map_u[mask] - np.floor(map_u[mask])
+        fv = map_v[mask] - np.floor(map_v[mask])
+        w2 = ((1 - fu) ** 2 + fu**2) * ((1 - fv) ** 2 + fv**2)
+        floor = float(np.sqrt(np.mean(variance(i0[mask]) + w2 * variance(warped[mask]))))
+    return PairResidual(residual, mask, rms, mean, noise, float(mask.mean()), floor,
+                        _worst_tile(residual, mask))
+
+
+def _worst_tile(residual: np.ndarray, mask: np.ndarray) -> float | None:
+    """The largest rms (DN) over TILE x TILE pixel tiles at least half counted."""
+    h, w = residual.shape
+    ny, nx = h // TILE, w // TILE
+    if ny == 0 or nx == 0:
+        return None
+    r = np.where(mask, residual, 0.0)[:ny * TILE, :nx * TILE].astype(np.float64)
+    m = mask[:ny * TILE, :nx * TILE]
+    sq = (r * r).reshape(ny, TILE, nx, TILE).sum(axis=(1, 3))
+    n = m.reshape(ny, TILE, nx, TILE).sum(axis=(1, 3))
+    ok = n >= TILE * TILE // 2
+    return float(np.sqrt(sq[ok] / n[ok]).max()) if ok.any() else None
+
+
+def change_marks(drawn_records) -> tuple[np.ndarray, np.ndarray]:
+    """Frames where the drawn layers, and where the levels of detail, change.
+
+    Parameters
+    ----------
+    drawn_records : sequence of dict
+        Each frame's truth ``drawn`` record.
+
+    Returns
+    -------
+    layer_change, lod_change : (n,) bool
+        ``layer_change[k]``: frame k draws another set of terrain layers, or another body
+        level of detail or imposter state, than frame k-1. ``lod_change[k]``: any level of
+        detail changed (a terrain layer's set of block levels, the target on-screen cell
+        size, a body magnitude or the boulder levels drawn).
+    """
+    from evaluation.tracking import _resolution_key
+
+    n = len(drawn_records)
+    layer = np.zeros(n, dtype=bool)
+    lod = np.zeros(n, dtype=bool)
+
+    def lod_key(d):
+        if not isinstance(d, dict):
+            return json.dumps(d, sort_keys=True, default=str)
+        if isinstance(d.get("layers"), list):
+            return json.dumps([[x.get("level"), x.get("lod")] for x in d["layers"]]
+                              + [d.get("lod_pixels")], default=str)
+        return json.dumps([d.get("body_magnitude"), d.get("imposter"),
+                           sorted((d.get("boulders") or {}).keys()), d.get("lod_edge_m")],
+                          default=str)
+
+    keys = [_resolution_key(d) for d in drawn_records]
+    lods = [lod_key(d) for d in drawn_records]
+    for k in range(1, n):
+        layer[k] = keys[k] != keys[k - 1]
+        lod[k] = layer[k] or lods[k] != lods[k - 1]
+    return layer, lod
+
+
+def _median(values) -> float | None:
+    v = [x for x in values if x is not None]
+    return float(np.median(v)) if v else None
+
+
+def _max(values) -> float | None:
+    v = [x for x in values if x is not None]
+    return float(max(v)) if v else None
+
+
+@dataclass(frozen=True, eq=False)
+class Consistency:
+    """Per-pair consistency of a run (see the module docstring).
+
+    ``frames[i]`` describes the pair (i, i+1): rms_dn, mean_dn, noise_dn, noise_floor_dn,
+    excess_dn (the rms beyond the noise floor, ``sqrt(rms^2 - floor^2)``), worst_tile_dn,
+    fraction, and whether frame i+1 changes layers (``layer_change``) or levels of detail
+    (``lod_change``).
+    """
+
+    run_dir: str
+    frames: list
+    settings: dict
+    notes: list = field(default_factory=list)
+
+    def rms(self) -> np.ndarray:
+        """(n_pairs,) float64, DN (NaN where nothing was counted)."""
+        return np.array([f["rms_dn"] if f["rms_dn"] is not None else np.nan
+                         for f in self.frames], dtype=np.float64)
+
+    def summary(self) -> dict:
+        rms = self.rms()
+        ok = np.isfinite(rms)
+        median = float(np.median(rms[ok])) if ok.any() else None
+        largest = float(rms[ok].max()) if ok.any() else None
+        noise = [f["noise_dn"] for f in self.frames if f["noise_dn"] is not None]
+        at_change = [f["rms_dn"] for f in self.frames
+                     if (f["layer_change"] or f["lod_change"]) and f["rms_dn"] is not None]
+        ordinary = [f["rms_dn"] for f in self.frames
+                    if not (f["layer_change"] or f["lod_change"]) and f["rms_dn"] is not None]
+        spikes = [i for i, r in enumerate(rms) if median and np.isfinite(r)
+                  and r > SPIKE_BOUND * median]
+        return dict(
+            pairs=len(self.frames),
+            rms_dn_median=median, rms_dn_max=largest,
+            spike_ratio=(largest / median) if median else None,
+            spike_bound=SPIKE_BOUND,
+            spikes=spikes,
+            noise_dn_median=float(np.median(noise)) if noise else None,
+            noise_floor_dn_median=_median(f["noise_floor_dn"] for f in self.frames),
+            excess_dn_median=_median(f["excess_dn"] for f in self.frames),
+            excess_dn_max=_max(f["excess_dn"] for f in self.frames),
+            worst_tile_dn_median=_median(f["worst_tile_dn"] for f in self.frames),
+            worst_tile_dn_max=_max(f["worst_tile_dn"] for f in self.frames),
+            rms_dn_median_at_changes=float(np.median(at_change)) if at_change else None,
+            rms_dn_median_elsewhere=float(np.median(ordinary)) if ordinary else None,
+            layer_changes=int(sum(f["layer_change"] for f in self.frames)),
+            lod_changes=int(sum(f["lod_change"] for f in self.frames)),
+            counted_fraction_median=(float(np.median([f["fraction"] for f in self.frames]))
+                                     if self.frames else None))
+
+    def as_dict(self) -> dict:
+        return dict(format="craterscape-consistency", version=1, run_dir=self.run_dir,
+                    settings=self.settings, summary=self.summary(), frames=self.frames,
+                    notes=list(self.notes))
+
+
+def consistency(run, *, edge_px: int = 2, occlusion_tolerance: float = 0.002,
+                progress=None) -> Consistency:
+    """Measure every consecutive pair of a run (see the module docstring).
+
+    Parameters
+    ----------
+    run : RunReader or path
+        Needs truth and range images.
+    edge_px, occlusion_tolerance :
+        As in :func:`pair_residual`.
+    progress : callable, optional
+        ``progress(done, total)`` after each pair.
+
+    Returns
+    -------
+    Consistency
+    """
+    if not isinstance(run, RunReader):
+        run = RunReader(run)
+    if not run.has_truth:
+        raise InvalidParameterError(
+            f"run directory '{run.dir}' has no truth.json: consistency needs each frame's "
+            "pose and range")
+    if any(t.range is None for t in run.truth):
+        raise InvalidParameterError(
+            f"run directory '{run.dir}' has frames without range images: consistency warps "
+            "frames through range, so render with range output on")
+    if len(run) < 2:
+        raise InvalidParameterError(f"run directory '{run.dir}' has {len(run)} frame; "
+                                    "consistency compares consecutive frames")
+    sensor = run.manifest.get("sensor")
+    notes = []
+    if not sensor:
+        notes.append("the run's manifest records no sensor: noise levels are omitted")
+    layer, lod = change_marks([t.drawn for t in run.truth])
+    frames = []
+    image0, range0, normals0 = run.image(0), run.range(0), run.normals(0)
+    for k in range(len(run) - 1):
+        image1, range1, normals1 = run.image(k + 1), run.range(k + 1), run.normals(k + 1)
+        pr = pair_residual(image0, image1, range0, range1, run.truth[k], run.truth[k + 1],
+                           normals0=normals0, normals1=normals1, sensor=sensor,
+                           edge_px=edge_px, occlusion_tolerance=occlusion_tolerance)
+        frames.append(dict(
+            frame=k, next=k + 1,
+            rms_dn=pr.rms_dn if math.isfinite(pr.rms_dn) else None,
+            mean_dn=pr.mean_dn if math.isfinite(pr.mean_dn) else None,
+            noise_dn=pr.noise_dn,
+            noise_floor_dn=pr.noise_floor_dn,
+            excess_dn=(math.sqrt(max(pr.rms_dn**2 - pr.noise_floor_dn**2, 0.0))
+                       if pr.noise_floor_dn is not None and math.isfinite(pr.rms_dn) else None),
+            worst_tile_dn=pr.worst_tile_dn,
+            fraction=pr.fraction, layer_change=bool(layer[k + 1]),
+            lod_change=bool(lod[k + 1])))
+        image0, range0, normals0 = image1, range1, normals1
+        if progress is not None:
+            progress(k + 1, len(run) - 1)
+    result = Consistency(str(run.dir), frames,
+                         dict(edge_px=int(edge_px), occlusion_tolerance=occlusion_tolerance,
+                              dark_sigmas=DARK_SIGMAS, silhouette_jump=SILHOUETTE_JUMP),
+                         notes)
+    s = result.summary()
+    log.info("consistency of %d pairs: median rms %s DN, spike ratio %s", s["pairs"],
+             s["rms_dn_median"], s["spike_ratio"])
+    return result
+
+
+def save_consistency(result: Consistency, folder, *, inputs=()) -> dict:
+    """Write ``consistency.json``, ``consistency.csv`` and ``consistency.png`` atomically.
+
+    Returns the summary.
+    """
+    import csv
+    import io
+
+    from evaluation.figures import consistency_figure, save_png
+    from terrain.io import atomic_path
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    cols = ["frame", "next", "rms_dn", "mean_dn", "noise_dn", "noise_floor_dn", "excess_dn",
+            "worst_tile_dn", "fraction",
+            "layer_change", "lod_change"]
+    writer.writerow(cols)
+    for f in result.frames:
+        writer.writerow(["" if f[c] is None else (f"{f[c]:.5g}" if isinstance(f[c], float)
+                                                  else int(f[c])) for c in cols])
+    for name, text in (("consistency.csv", buf.getvalue()),
+                       ("consistency.json", json.dumps(result.as_dict(), indent=1))):
+        with atomic_path(folder / name, inputs) as tmp:
+            tmp.write_text(text, encoding="utf-8")
+    save_png(consistency_figure(result), folder / "consistency.png", inputs=inputs)
+    return result.summary()
