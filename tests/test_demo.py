@@ -76,6 +76,26 @@ def test_demo_writes_one_folder_and_a_report_with_every_figure(demo):
     assert doc["verdict"] in ("pass", "fail", "incomplete")
 
 
+def test_the_base_and_every_layer_open_at_the_south_pole(demo):
+    """GDAL places every DEM the campaign makes: the base's centre is the pole."""
+    import rasterio
+    from rasterio.warp import transform
+
+    _, out, _ = demo
+    base = out / "lunar" / "base" / "base.tif"
+    layers = sorted((out / "lunar" / "stack" / "stack").rglob("*.tif"))
+    assert len(layers) >= 10
+    for path in [base, *layers]:
+        with rasterio.open(path) as ds:
+            assert ds.crs is not None and ds.crs.is_projected, path
+    with rasterio.open(base) as ds:
+        x, y = ds.transform * (ds.width / 2, ds.height / 2)
+        geographic = rasterio.crs.CRS.from_user_input(
+            json.dumps(ds.crs.to_dict(projjson=True)["base_crs"]))
+        _, (lat,) = transform(ds.crs, geographic, [x], [y])
+    assert lat == pytest.approx(-90.0, abs=1e-6)
+
+
 def test_demo_leaves_no_partial_files_and_times_every_stage(demo):
     _, out, _ = demo
     leftovers = [p for p in out.rglob("*") if p.name.endswith(".partial")]
