@@ -9,7 +9,9 @@ makes; :func:`run_campaign` runs the stages in order into one output folder:
    near its centre (:func:`terrain.site.landing_site`; ``craterscape terrain enhance``
    with the ``[lunar.stack]`` options).
 3. ``lunar/run/run/``: the descent scenario rendered onto that stack, under the sun azimuth
-   that lights the site (:func:`terrain.site.lit_sun_azimuth`).
+   that lights the site (:func:`terrain.site.lit_sun_azimuth`); ``lunar/closed_loop/``: a
+   landing flown through ``craterscape render serve`` by the ``[lunar.closed_loop]`` script
+   (``examples/closed_loop.py``: guidance that sees only the altimeter and the camera).
 4. ``asteroid/body/``: a body built from the ``[asteroid.body]`` recipe, with a PLY copy.
 5. ``asteroid/run/run/``: the approach scenario rendered around it.
 6. ``evaluation/``: feature tracks of both runs against truth, slope distributions and
@@ -49,11 +51,12 @@ __all__ = ["STAGES", "Campaign", "Stage", "load_campaign", "run_campaign"]
 log = logging.getLogger(__name__)
 
 #: The stages in the order they run (their markers are ``.<stage with _>.done.json``).
-STAGES = ("lunar/base", "lunar/stack", "lunar/run", "asteroid/body", "asteroid/run",
-          "evaluation")
+STAGES = ("lunar/base", "lunar/stack", "lunar/run", "lunar/closed_loop", "asteroid/body",
+          "asteroid/run", "evaluation")
 
 _TOP = {"title", "seed", "summary", "lunar", "asteroid", "evaluation", "quick"}
 _RUN_KEYS = {"scenario", "frames", "image", "sun_elevation"}
+_LOOP_KEYS = {"script", "size", "dt"}
 _EVAL_KEYS = {"shared_data", "ldem", "sfs", "eros", "eros_density", "eros_period_h",
               "lander_diameter", "max_slope", "max_step"}
 
@@ -144,6 +147,10 @@ class Campaign:
         Real data (``ldem``, ``sfs``, ``eros`` relative to ``shared_data``), Eros's density
         (kg m^-3) and spin period (h), and the lander of the hazard map
         (``lander_diameter`` m, ``max_slope`` degrees, ``max_step`` m).
+    closed_loop : Mapping or None
+        The closed-loop landing: ``script`` (a Python file with ``main(argv)``, relative to
+        the campaign file), its image ``size`` (pixels) and guidance step ``dt`` (s); None:
+        no closed loop.
     path : pathlib.Path or None
         The campaign file.
     quick : bool
@@ -159,6 +166,7 @@ class Campaign:
     body: Mapping
     asteroid_run: RunSpec
     evaluation: Mapping = field(default_factory=dict)
+    closed_loop: Mapping | None = None
     path: Path | None = None
     quick: bool = False
 
@@ -189,7 +197,8 @@ class Campaign:
             data = merge_tables(data, check_keys(data.get("quick", {}), _TOP - {"quick"},
                                                  "campaign [quick]"))
         folder = Path(path).resolve().parent if path is not None else Path.cwd()
-        lunar = check_keys(data.get("lunar", {}), {"base", "stack", "run"}, "campaign [lunar]")
+        lunar = check_keys(data.get("lunar", {}), {"base", "stack", "run", "closed_loop"},
+                           "campaign [lunar]")
         ast = check_keys(data.get("asteroid", {}), {"body", "run"}, "campaign [asteroid]")
         try:
             seed = check_seed(data.get("seed", 0))
@@ -207,6 +216,18 @@ class Campaign:
             body["config"] = str(folder / body["config"])
         evaluation = check_keys(data.get("evaluation", {}), _EVAL_KEYS, "campaign [evaluation]")
         evaluation.setdefault("shared_data", "shared-data")
+        loop = None
+        if "closed_loop" in lunar:
+            loop = check_keys(lunar["closed_loop"], _LOOP_KEYS, "campaign [lunar.closed_loop]")
+            if not isinstance(loop.get("script"), str):
+                raise InvalidParameterError("campaign [lunar.closed_loop] needs "
+                                            "script = \"FILE.py\"")
+            loop["script"] = str(folder / loop["script"])
+            loop["size"] = int(number(loop.get("size", 256), "size", low=8,
+                                      where="campaign [lunar.closed_loop]"))
+            loop["dt"] = number(loop.get("dt", 1.0), "dt", low=0.0, low_open=True,
+                                where="campaign [lunar.closed_loop]")
+            loop = MappingProxyType(loop)
         return cls(
             title=str(data.get("title", "craterscape campaign")), seed=seed,
             summary=str(data.get("summary", "")),
@@ -216,7 +237,8 @@ class Campaign:
             lunar_run=RunSpec.from_mapping(lunar["run"], "campaign [lunar.run]", folder),
             body=MappingProxyType(body),
             asteroid_run=RunSpec.from_mapping(ast["run"], "campaign [asteroid.run]", folder),
-            evaluation=MappingProxyType(evaluation), path=Path(path) if path else None,
+            evaluation=MappingProxyType(evaluation), closed_loop=loop,
+            path=Path(path) if path else None,
             quick=quick)
 
     def real_data(self, shared: Path | None = None) -> dict:
@@ -463,6 +485,53 @@ def lunar(c: Campaign, out: Path, say: Callable[[str], None]) -> dict:
     return {"stack": str(stack_dir), "run": str(run_dir)}
 
 
+def closed_loop(c: Campaign, out: Path, say: Callable[[str], None]) -> dict | None:
+    """A landing flown through the render server on the descent's scenario (stage 3b).
+
+    The campaign's ``[lunar.closed_loop]`` script is loaded from its file and its
+    ``main(argv)`` called with the descent scenario as run, ``--out``, ``--size`` and
+    ``--dt``; it writes ``summary.json`` (with ``steps``) into the stage's folder.
+
+    Parameters
+    ----------
+    c : Campaign
+        The campaign.
+    out : pathlib.Path
+        The output folder (the descent's stage has run).
+    say : callable
+        Called with one line of progress.
+
+    Returns
+    -------
+    dict or None
+        ``dir``: the stage's folder; None where the campaign has no closed loop.
+    """
+    import importlib.util
+
+    if c.closed_loop is None:
+        return None
+    script = Path(c.closed_loop["script"])
+    scenario = out / "lunar" / "run" / "descent.toml"
+    args = ["--size", c.closed_loop["size"], "--dt", c.closed_loop["dt"]]
+    stage = Stage(out, "lunar/closed_loop", dict(
+        scenario=scenario.read_text(encoding="utf-8"), args=args,
+        code=hashlib.sha256(script.read_bytes()).hexdigest(), v=1))
+    if not stage.done():
+        say("lunar closed loop: landing from 2 km through the render server")
+        stage.begin()
+        spec = importlib.util.spec_from_file_location(f"campaign_{script.stem}", script)
+        if spec is None or spec.loader is None:
+            raise InvalidParameterError(f"cannot load the closed-loop script '{script}'")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        t0 = time.perf_counter()
+        module.main([str(scenario), "--out", str(stage.dir), *map(str, args)])
+        seconds = time.perf_counter() - t0
+        steps = json.loads((stage.dir / "summary.json").read_text())["steps"]
+        stage.finish(seconds, frames=steps, fps=steps / seconds)
+    return {"dir": str(stage.dir)}
+
+
 def asteroid(c: Campaign, out: Path, say: Callable[[str], None]) -> dict:
     """The body and the approach (stages 4 and 5); see :func:`lunar` for the parameters.
 
@@ -532,6 +601,7 @@ def run_campaign(c: Campaign, out, *, shared=None, fresh: bool = False,
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     lunar_facts = lunar(c, out, say)
+    closed_loop(c, out, say)
     asteroid_facts = asteroid(c, out, say)
     report = evaluate(c, out, lunar_facts, asteroid_facts, c.real_data(
         None if shared is None else Path(shared)), say, summary_name)

@@ -236,6 +236,11 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     ks = [x for x in sec.checks if x.name.startswith("KS distance")]
     facts["asteroid_ks"] = ks[0].value if ks else None
 
+    # -- the closed-loop landing through the render server
+    summary_path = out / "lunar" / "closed_loop" / "summary.json"
+    if summary_path.exists():
+        sections.append(closed_loop_section(summary_path.parent, stage.dir))
+
     # -- campaign overview: timings, gallery, links
     overview = campaign_section(c, out, stage.dir, lunar_facts, asteroid_facts, tracked,
                                 summary_name)
@@ -462,4 +467,65 @@ def campaign_section(c: Campaign, out, folder, lunar_facts, asteroid_facts, trac
     ]
     sec.links = [(label, rel(path)) for label, path in links if path.exists()
                  or path.name in ("report.json", summary_name)]
+    return sec
+
+
+def closed_loop_section(folder: Path, report_dir: Path):
+    """The closed-loop landing: where it went, what navigation believed, how wrong it was.
+
+    Parameters
+    ----------
+    folder : pathlib.Path
+        The closed-loop stage's folder (``summary.json``, ``closed_loop.png``, ``frames/``).
+    report_dir : pathlib.Path
+        The evaluation folder (links are relative to it).
+
+    Returns
+    -------
+    evaluation.report.Section
+        The closed-loop section.
+    """
+    from evaluation.figures import read_png, thumbnail
+    from evaluation.report import Section, image_figure
+
+    s = json.loads((folder / "summary.json").read_text())
+    sec = Section("closed-loop", "Closed loop: a landing flown through the render server")
+    sec.paragraphs.append(
+        f"examples/closed_loop.py drove `craterscape render serve` on the descent's scenario: "
+        f"every {s['dt']:g} s the guidance asked the server for a laser-altimeter range (RAY) "
+        f"and a {s['size']} x {s['size']} nadir image (SET_POSE, GET_IMAGE), and nothing else. "
+        "Lateral velocity is optical flow (phase correlation after scaling the previous image "
+        "by the altimeter's altitude ratio); position integrates it from an initial guess "
+        f"{math.hypot(*s['initial_error']):.0f} m off, fixed above {s['trn_above']:.0f} m by "
+        "terrain-relative navigation (the server's view from the estimated position, standing "
+        "in for an onboard map, correlated with the real image). The vehicle's true motion, "
+        "with thruster noise, is simulated beside it and used only to score the navigation.")
+    sec.tables.append(("The landing", ["quantity", "value"], [
+        ["start", f"{s['start_altitude']:.0f} m above the site, "
+                  f"{math.hypot(*s['offset']):.0f} m off it"],
+        ["steps, time to touchdown", f"{s['steps']}, {s['touchdown_time_s']:.0f} s"],
+        ["touchdown", "ground contact between steps" if s["crashed"]
+         else f"altimeter {s['touchdown_altimeter_m']:.2f} m, "
+              f"{s['touchdown_speed_mps']:.2f} m/s"],
+        ["landing error from the site (truth)", f"{s['landing_error_m']:.1f} m"],
+        ["lateral navigation error: start, median, at touchdown",
+         f"{s['nav_error_lateral_m']['initial']:.1f}, {s['nav_error_lateral_m']['median']:.1f},"
+         f" {s['nav_error_lateral_m']['final']:.1f} m"],
+        ["lateral velocity error (median)", f"{s['nav_error_velocity_mps']['median']:.2f} m/s"],
+    ]))
+    frames = sorted((folder / "frames").glob("frame_*.png"))
+    gallery = report_dir / "gallery"
+    gallery.mkdir(exist_ok=True)
+    sec.figures.append(image_figure("closed-loop-track", "Ground track, descent and navigation "
+                                    "error against truth", folder / "closed_loop.png"))
+    for k in (0, len(frames) // 2, len(frames) - 1):
+        sec.figures.append(image_figure(
+            f"closed-loop-frame-{k}", f"What the camera returned, step {k}",
+            thumbnail(read_png(frames[k]), gallery / f"closed_loop_{k:04d}.png")))
+    sec.data = s
+    sec.links = [(label, Path(os.path.relpath(folder / name, report_dir)).as_posix())
+                 for label, name in (("closed-loop trajectory, estimates and errors (CSV)",
+                                      "trajectory.csv"),
+                                     ("closed-loop camera frames", "frames"),
+                                     ("closed-loop summary (JSON)", "summary.json"))]
     return sec

@@ -10,6 +10,8 @@ complete from an earlier run with the same parameters:
    flattest spot near its centre, with craters and rocks at every scale.
 3. ``lunar/run/run/``: a descent from 10 km to 20 m under a sun 7 degrees high, 120 frames
    at 1024 x 1024 with LIDAR range, normals and truth (``examples/lunar_descent.toml``).
+   ``lunar/closed_loop/``: a landing from 2 km flown through ``craterscape render serve`` by
+   guidance that sees only the laser altimeter and the camera (``examples/closed_loop.py``).
 4. ``asteroid/body/``: an Eros-like body (``examples/eros_like.toml``).
 5. ``asteroid/run/run/``: an approach while it spins (``examples/asteroid_approach.toml``).
 6. ``evaluation/``: tracks, slopes, spectra, real-data comparisons (where ``../shared/data``

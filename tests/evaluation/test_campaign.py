@@ -37,6 +37,7 @@ def test_the_demo_campaign_parses_and_quick_merges_over_it():
     (("lunar", "base"), "fractal_dimensoin", "fractal_dimension"),
     (("lunar", "stack"), "rock", "rocks"),
     (("lunar", "run"), "frame", "frames"),
+    (("lunar", "closed_loop"), "sise", "size"),
     (("evaluation",), "max_slop", "max_slope"),
     ((), "titel", "title"),
 ])
