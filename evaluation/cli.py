@@ -35,9 +35,6 @@ __all__ = ["evaluation"]
 
 log = logging.getLogger(__name__)
 
-#: Metadata key marking a tile as layer k of a layer stack (see _dem_inputs).
-
-
 def _progress(label: str):
     """(callback, close): a tqdm bar on a terminal, nothing in pipes and tests."""
     if not sys.stderr.isatty():
