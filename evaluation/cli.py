@@ -35,6 +35,7 @@ __all__ = ["evaluation"]
 
 log = logging.getLogger(__name__)
 
+
 def _progress(label: str):
     """(callback, close): a tqdm bar on a terminal, nothing in pipes and tests."""
     if not sys.stderr.isatty():
