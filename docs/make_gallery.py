@@ -35,11 +35,11 @@ def stretch(img: np.ndarray) -> np.ndarray:
 
 
 def range_colour(path: Path, size: int) -> np.ndarray:
-    import rasterio
     from matplotlib import colormaps
 
-    with rasterio.open(path) as ds:
-        rng = ds.read(1)
+    from terrain.io import read_float_tiff
+
+    rng = read_float_tiff(path)
     ok = np.isfinite(rng)
     lo, hi = np.percentile(rng[ok], [0.5, 99.5])
     rgb = np.zeros(rng.shape + (3,), np.uint8)

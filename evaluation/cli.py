@@ -20,8 +20,6 @@ traceback).
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 import logging
 import math
@@ -30,14 +28,12 @@ from pathlib import Path
 
 import click
 
+from evaluation.evidence import STACK_LAYER, write_csv
 from terrain.errors import InvalidParameterError, MissingInputError
 
 __all__ = ["evaluation"]
 
 log = logging.getLogger(__name__)
-
-#: Metadata key marking a tile as layer k of a layer stack (see _dem_inputs).
-STACK_LAYER = "CRATERSCAPE_STACK_LAYER"
 
 
 def _progress(label: str):
@@ -95,14 +91,6 @@ def _write_text(path: Path, text: str, inputs=()) -> None:
         tmp.write_text(text, encoding="utf-8")
 
 
-def _write_csv(path: Path, header, rows, inputs=()) -> None:
-    buf = io.StringIO()
-    writer = csv.writer(buf, lineterminator="\n")
-    writer.writerow(header)
-    writer.writerows(rows)
-    _write_text(path, buf.getvalue(), inputs)
-
-
 def _unique(names):
     seen: dict = {}
     out = []
@@ -111,10 +99,6 @@ def _unique(names):
         seen[name] = k + 1
         out.append(name if k == 0 else f"{name}_{k + 1}")
     return out
-
-
-def _num(v):
-    return "" if v is None else f"{v:.6g}"
 
 
 def _version() -> str:
@@ -160,17 +144,6 @@ def _with_stack_folders(paths) -> list:
     return out
 
 
-def _baseline(tile, baseline, label):
-    from evaluation.slope import resample
-
-    if baseline is None or baseline <= tile.resolution * (1 + 1e-9):
-        if baseline is not None and baseline < tile.resolution * (1 - 1e-9):
-            log.warning("%s is coarser (%.6g m) than --baseline %.6g m; kept at its own "
-                        "resolution", label, tile.resolution, baseline)
-        return tile
-    return resample(tile, baseline)
-
-
 def _reference(dems, reference, reference_band):
     """The reference DEM, after checking every input shares its CRS (before any work)."""
     from evaluation.compare import check_same_crs
@@ -182,57 +155,6 @@ def _reference(dems, reference, reference_band):
     for label, tile in dems:
         check_same_crs(tile, ref_tile, names=(label, Path(reference).stem))
     return ref_tile
-
-
-def _dem_evidence(dems, *, reference, ref_tile, slope_band, baseline, edges):
-    """Distributions, spectra, fits, comparisons and slope-map checks of DEM inputs."""
-    from evaluation.compare import compare_dems, compare_slope_maps
-    from evaluation.slope import horn_slope, slope_distribution
-    from evaluation.spectrum import fit_hurst, radial_spectrum
-    from terrain.errors import InvalidDEMError
-    from terrain.io import read_dem
-
-    distributions, spectra, fits, comparisons, agreements = [], [], [], [], []
-    for label, tile in dems:
-        measured = _baseline(tile, baseline, label)
-        distributions.append(slope_distribution(measured, label=label, edges=edges))
-        try:
-            spec = radial_spectrum(measured, label=label)
-            spectra.append(spec)
-            try:
-                fits.append(fit_hurst(spec))
-            except InvalidDEMError as exc:
-                log.warning("%s: no Hurst exponent (%s)", label, exc)
-                fits.append(None)
-        except InvalidDEMError as exc:
-            log.warning("%s: no power spectrum (%s)", label, exc)
-        if ref_tile is not None:
-            try:
-                comparisons.append(compare_dems(tile, ref_tile, label=label,
-                                                reference_label=Path(reference).stem,
-                                                edges=edges))
-            except (InvalidDEMError, InvalidParameterError) as exc:
-                if STACK_LAYER not in tile.metadata:
-                    raise
-                # a stack spans scales from kilometres to centimetres: its layers far coarser
-                # than the reference (or far finer and smaller) cannot be compared with it
-                log.warning("%s not compared with the reference: %s", label, exc)
-        if slope_band is not None:
-            source = tile.metadata.get("CRATERSCAPE_SOURCE")
-            if not source:
-                raise InvalidParameterError(f"--slope-band needs a DEM file; {label} is a "
-                                            "layer of a stack")
-            theirs = read_dem(source, band=slope_band)
-            if theirs.shape != tile.shape:
-                raise InvalidDEMError(f"band {slope_band} of '{source}' is not on the height "
-                                      "band's grid")
-            agreements.append((f"{label} band {slope_band}",
-                               compare_slope_maps(horn_slope(tile, edges=edges),
-                                                  theirs.heights)))
-    if ref_tile is not None:
-        ref_label = f"reference {Path(reference).stem}"
-        distributions.append(slope_distribution(ref_tile, label=ref_label, edges=edges))
-    return distributions, spectra, fits, comparisons, agreements
 
 
 # ------------------------------------------------------------------------------ group
@@ -268,6 +190,7 @@ _edges_option = click.option(
 def slopes(inputs, output, band, reference, reference_band, slope_band, baseline,
            compute_edges):
     """Slope maps, slope distributions and power spectra of DEMs or layer stacks."""
+    from evaluation.evidence import dem_evidence
     from evaluation.slope import slope_tile
 
     if baseline is not None and not baseline > 0:
@@ -283,49 +206,30 @@ def slopes(inputs, output, band, reference, reference_band, slope_band, baseline
     slope_maps = [(label, slope_tile(tile, edges=edges).with_metadata(
         CRATERSCAPE_COMMAND="evaluation slopes", CRATERSCAPE_VERSION=_version()))
         for label, tile in dems]
-    distributions, spectra, fits, comparisons, agreements = _dem_evidence(
-        dems, reference=reference, ref_tile=ref_tile, slope_band=slope_band,
-        baseline=baseline, edges=edges)
+    evidence = dem_evidence(dems, reference=reference, ref_tile=ref_tile,
+                            slope_band=slope_band, baseline=baseline, edges=edges)
     with transaction():
-        _write_slopes(output, srcs, slope_maps, distributions, spectra, fits, comparisons,
-                      agreements)
+        _write_slopes(output, srcs, slope_maps, evidence)
     message = f"wrote slopes of {len(dems)} DEM(s) to {output}"
-    for c in comparisons:
+    for c in evidence.comparisons:
         message += (f"; {c.label} vs {c.reference_label}: KS {c.ks_distance:.3f} at "
                     f"{c.resolution_m:.4g} m")
-    for label, a in agreements:
+    for label, a in evidence.agreements:
         message += f"; {label}: median |diff| {a.median_abs_deg:.3g} deg"
     click.echo(message, err=True)
 
 
-def _write_slopes(output, srcs, slope_maps, distributions, spectra, fits, comparisons,
-                  agreements):
+def _write_slopes(output, srcs, slope_maps, evidence):
+    from evaluation.evidence import write_evidence_csvs
     from evaluation.figures import save_png, slope_distribution_figure, spectrum_figure
     from terrain.io import write_dem
 
     outdir = _outdir(output, srcs)
     for label, out in slope_maps:
         write_dem(out, outdir / f"{label}_slope.tif", inputs=srcs, description="slope (deg)")
-    angles = distributions[0].angles_deg
-    _write_csv(outdir / "slope_distributions.csv",
-               ["angle_deg"] + [d.label for d in distributions],
-               [[f"{a:g}"] + [f"{d.percent_steeper[i]:.6g}" for d in distributions]
-                for i, a in enumerate(angles)], srcs)
-    fit_of = {s.label: f for s, f in zip(spectra, fits, strict=True)}
-    ks_of = {c.label: c.ks_distance for c in comparisons}
-    keys = ["p10", "p25", "p50", "p75", "p90", "p95", "p99", "mean", "max"]
-    _write_csv(outdir / "slope_summary.csv",
-               ["label", "resolution_m", "slopes"] + [f"{k}_deg" for k in keys]
-               + ["hurst", "ks_vs_reference"],
-               [[d.label, f"{d.resolution_m:.6g}", d.pixels]
-                + [f"{d.quantiles[k]:.6g}" for k in keys]
-                + [_num(fit_of[d.label].hurst) if fit_of.get(d.label) else "",
-                   _num(ks_of.get(d.label))] for d in distributions], srcs)
-    _write_csv(outdir / "spectra.csv",
-               ["label", "frequency_per_m", "wavelength_m", "power_m4", "samples"],
-               [[s.label, f"{f:.6g}", f"{1 / f:.6g}", f"{p:.6g}", int(c)]
-                for s in spectra for f, p, c in zip(s.frequency, s.power, s.counts,
-                                                    strict=True)], srcs)
+    write_evidence_csvs(evidence, outdir, srcs)
+    distributions, spectra, fits = evidence.distributions, evidence.spectra, evidence.fits
+    comparisons, agreements = evidence.comparisons, evidence.agreements
     save_png(slope_distribution_figure(distributions), outdir / "slope_distributions.png",
              inputs=srcs)
     from terrain.outputs import discard
@@ -428,7 +332,7 @@ def asteroid_slopes(meshes, output, reference, reference_units, bin_deg, units, 
             header = ["vertex", "area_m2", "radial_slope_deg"]
             if grav is not None:
                 header += ["gravitational_slope_deg", "g_x_m_s2", "g_y_m_s2", "g_z_m_s2"]
-            _write_csv(outdir / f"{label}_vertex_slopes.csv", header, vrows, srcs)
+            write_csv(outdir / f"{label}_vertex_slopes.csv", header, vrows, srcs)
             for kind in kinds:
                 h = b.histogram(kind, bin_deg=bin_deg)
                 rows += [[label, kind, f"{h.edges_deg[i]:g}", f"{h.edges_deg[i + 1]:g}",
@@ -444,7 +348,7 @@ def asteroid_slopes(meshes, output, reference, reference_units, bin_deg, units, 
                 summary["reference"] = entry
             else:
                 summary["bodies"].append(entry)
-        _write_csv(outdir / "slope_area_histograms.csv",
+        write_csv(outdir / "slope_area_histograms.csv",
                    ["label", "kind", "bin_low_deg", "bin_high_deg", "area_percent",
                     "percent_steeper_than_bin_low"], rows, srcs)
         _write_text(outdir / "asteroid_slopes.json", json.dumps(summary, indent=1), srcs)
@@ -662,15 +566,17 @@ def report(run_dirs, output, thresholds, title, dems, band, reference, reference
     if dems:
         edges = "gdal" if compute_edges else "mask"
         dem_tiles = _dem_inputs(dems, band)
-        evidence = _dem_evidence(dem_tiles, reference=reference,
-                                 ref_tile=_reference(dem_tiles, reference, reference_band),
-                                 slope_band=slope_band, baseline=None, edges=edges)
-        distributions, spectra, fits, comparisons, agreements = evidence
+        from evaluation.evidence import dem_evidence
+
+        evidence = dem_evidence(dem_tiles, reference=reference,
+                                ref_tile=_reference(dem_tiles, reference, reference_band),
+                                slope_band=slope_band, baseline=None, edges=edges)
         inputs["dems"] = [str(p) for p in dems]
         if reference is not None:
             inputs["reference_dem"] = str(reference)
-        sections.append(dem_section(distributions, spectra, fits, comparisons, limits,
-                                    slope_agreements=agreements))
+        sections.append(dem_section(evidence.distributions, evidence.spectra, evidence.fits,
+                                    evidence.comparisons, limits,
+                                    slope_agreements=evidence.agreements))
     if meshes or reference_mesh is not None:
         common = dict(density=density, mass=mass, period_hours=period_hours,
                       spin_axis=spin_axis, radius_deg=radius_deg, coarse_faces=coarse_faces,

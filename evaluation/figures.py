@@ -20,8 +20,9 @@ import numpy as np
 
 from terrain.io import atomic_path
 
-__all__ = ["consistency_figure", "error_figure", "png_bytes", "save_png", "slope_area_figure",
-           "slope_distribution_figure", "spectrum_figure", "tracks_figure"]
+__all__ = ["consistency_figure", "error_figure", "png_bytes", "range_thumbnail", "read_png",
+           "save_png", "slope_area_figure", "slope_distribution_figure", "spectrum_figure",
+           "thumbnail", "tracks_figure"]
 
 #: Figure size (inches) and resolution (dots per inch) of every figure.
 FIGSIZE = (7.0, 4.5)
@@ -269,3 +270,96 @@ def consistency_figure(result, *, title: str = "") -> object:
     _legend(fig, ax)
     ax.set_title(title or "Frame-to-frame consistency through the truth")
     return fig
+
+
+# ------------------------------------------------------------------------------ thumbnails
+
+#: Longest side of a report thumbnail (pixels).
+THUMBNAIL_SIDE = 384
+
+
+def read_png(path) -> np.ndarray:
+    """A PNG as an array: ``(h, w)`` grey or ``(h, w, 3)`` RGB, uint8 or uint16.
+
+    Parameters
+    ----------
+    path : path-like
+        The PNG file.
+
+    Returns
+    -------
+    numpy.ndarray
+        The image, RGB channel order where it has colour.
+    """
+    import cv2
+
+    from terrain.errors import MissingInputError
+
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise MissingInputError(f"cannot read the image '{path}'")
+    return img if img.ndim == 2 else img[..., ::-1]
+
+
+def thumbnail(image: np.ndarray, target, size: int = THUMBNAIL_SIDE):
+    """Write a small 8-bit copy of a grey or RGB image (a frame, a hillshade) as PNG.
+
+    Images that are not uint8 are scaled so their 99.9th percentile is white.
+
+    Parameters
+    ----------
+    image : (h, w) or (h, w, 3) array
+        Grey or RGB image, any numeric dtype.
+    target : path-like
+        The PNG to write (atomically).
+    size : int, optional
+        Longest side of the thumbnail (pixels).
+
+    Returns
+    -------
+    pathlib.Path
+        ``target``.
+    """
+    import cv2
+
+    from terrain.io import write_png
+
+    img = np.asarray(image)
+    if img.dtype != np.uint8:
+        top = float(np.percentile(img, 99.9)) or 1.0
+        img = np.clip(img.astype(np.float64) / top * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    h, w = img.shape[:2]
+    scale = size / max(h, w)
+    small = cv2.resize(img, (max(1, round(w * scale)), max(1, round(h * scale))),
+                       interpolation=cv2.INTER_AREA)
+    if small.ndim == 3:  # RGB in, BGR for OpenCV
+        small = np.ascontiguousarray(small[..., ::-1])
+    return write_png(small, target)
+
+
+def range_thumbnail(rng: np.ndarray, target, size: int = THUMBNAIL_SIDE):
+    """Write a range image colour-mapped (viridis, near = dark; no return black) as PNG.
+
+    Parameters
+    ----------
+    rng : (h, w) float array, metres
+        Range image; NaN or 0 where there is no return.
+    target : path-like
+        The PNG to write (atomically).
+    size : int, optional
+        Longest side of the thumbnail (pixels).
+
+    Returns
+    -------
+    pathlib.Path
+        ``target``.
+    """
+    from matplotlib import colormaps
+
+    finite = np.isfinite(rng) & (rng > 0)
+    rgb = np.zeros(rng.shape + (3,), dtype=np.uint8)
+    if finite.any():
+        lo, hi = np.percentile(rng[finite], [0.5, 99.5])
+        t = np.clip((rng - lo) / max(hi - lo, 1e-9), 0, 1)
+        rgb[finite] = (colormaps["viridis"](t[finite])[:, :3] * 255 + 0.5).astype(np.uint8)
+    return thumbnail(rgb, target, size)

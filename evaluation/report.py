@@ -237,6 +237,37 @@ class Section:
     notes: list = field(default_factory=list)
     links: list = field(default_factory=list)  # (label, href): files beside the report
 
+    def table(self, caption: str) -> list:
+        """The rows of the table with this caption (a list to read or extend).
+
+        Parameters
+        ----------
+        caption : str
+            The table's caption, e.g. ``"Tracking"``.
+
+        Returns
+        -------
+        list
+            The table's rows, each a list of cells.
+
+        Raises
+        ------
+        KeyError
+            No table has that caption; the message names the captions there are.
+
+        Examples
+        --------
+        >>> sec = Section("s", "S", tables=[("Tracking", ["measure", "value"], [])])
+        >>> sec.table("Tracking").append(["tracks", "12"])
+        >>> sec.tables[0][2]
+        [['tracks', '12']]
+        """
+        for name, _, rows in self.tables:
+            if name == caption:
+                return rows
+        raise KeyError(f"section {self.id!r} has no table {caption!r}; it has "
+                       f"{[t[0] for t in self.tables]}")
+
 
 @dataclass(eq=False)
 class Report:

@@ -134,6 +134,7 @@ class SynthSource:
     seed: int = 0
     craters: object = None
     model: object = None
+    crs: str | None = None  # WKT (terrain.io.synthetic_crs); heights do not depend on it
 
     def __post_init__(self):
         from terrain.rmd import check_fractal_dimension, check_tile_size
@@ -157,7 +158,6 @@ class SynthSource:
     def transform(self) -> Affine:
         return default_transform(float(self.resolution), self.size)
 
-    crs = None
     nodata = float("nan")
 
     @property

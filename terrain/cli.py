@@ -521,14 +521,21 @@ def terrain():
 @click.option("--relief", type=float, default=30.0, show_default=True,
               help="Tile-scale relief R = H * D_r * W of eq. 15 (m): the standard deviation "
                    "of the corner heights.")
+@click.option("--body", type=str, default=None,
+              help="Body the DEM lies on (moon, mars, mercury): the DEM gets a CRS on its "
+                   "sphere, centred on the tile (default: a local frame without CRS).")
+@click.option("--crs", "projection", type=str, default=None,
+              help="Projection with --body: south-polar (default), north-polar, or "
+                   "ortho:LON,LAT (a site-centred orthographic CRS).")
 @_seed_option
 @_window_option
 @_crater_options
 @_dask_options
-def synth(output, size, resolution, fractal_dimension, relief, seed, window, dmin, dmax,
-          density, sfd_exponent, max_age, population, catalog, erosion_profile,
+def synth(output, size, resolution, fractal_dimension, relief, body, projection, seed, window,
+          dmin, dmax, density, sfd_exponent, max_age, population, catalog, erosion_profile,
           erosion_exponent, no_roughness, workers, threads, scheduler, chunk, cog):
     """Synthesise fractal terrain (RMD diamond-square), optionally cratered."""
+    from terrain.bodies import check_projection
     from terrain.rmd import check_fractal_dimension, check_tile_size
     from terrain.synthetic import synthesize_tile
 
@@ -542,6 +549,11 @@ def synth(output, size, resolution, fractal_dimension, relief, seed, window, dmi
             f"{relief:g}")
     if window is not None:
         window.check_inside(size, size)
+    crs = None
+    if check_projection(body, projection) is not None:
+        from terrain.io import synthetic_crs
+
+        crs = synthetic_crs(body, projection, (size * resolution / 2, size * resolution / 2))
     if not _chunked_requested(output, workers, scheduler, chunk, cog, window):
         _check_outputs(output, catalog, [])
     pop = _population(population, dmin=dmin, dmax=dmax, density=density,
@@ -553,14 +565,14 @@ def synth(output, size, resolution, fractal_dimension, relief, seed, window, dmi
     if _chunked_requested(output, workers, scheduler, chunk, cog, window):
         from terrain.chunked import SynthSource
 
-        source = SynthSource(size, resolution, fractal_dimension, relief, seed, pop, model)
+        source = SynthSource(size, resolution, fractal_dimension, relief, seed, pop, model, crs)
         _run_chunked(source, output, workers=workers, threads=threads, scheduler=scheduler,
                      chunk=chunk, cog=cog, label="synth", catalog=catalog)
         return
     if window is None and not _fits_in_memory(size * size * 40.0):
         from terrain.chunked import SynthSource
 
-        source = SynthSource(size, resolution, fractal_dimension, relief, seed, pop, model)
+        source = SynthSource(size, resolution, fractal_dimension, relief, seed, pop, model, crs)
         _run_out_of_core(source, output, workers=workers, threads=threads, scheduler=scheduler,
                          chunk=chunk, label="synth", catalog=catalog)
         return
@@ -568,11 +580,13 @@ def synth(output, size, resolution, fractal_dimension, relief, seed, window, dmi
     try:
         result = synthesize_tile(size, resolution=resolution,
                                  fractal_dimension=fractal_dimension, relief=relief, seed=seed,
-                                 craters=pop, model=model, window=window, progress=update)
+                                 craters=pop, model=model, window=window, progress=update,
+                                 crs=crs)
     finally:
         close()
     params = dict(size=size, resolution=resolution, fractal_dimension=fractal_dimension,
                   relief=relief, seed=seed, population=pop.as_dict() if pop else None,
+                  **({"body": body, "crs": projection or "south-polar"} if body else {}),
                   window=None if window is None else
                   [window.col, window.row, window.width, window.height])
     _write_outputs(result, output, catalog, [], "terrain synth", params)

@@ -36,6 +36,7 @@ from terrain.tile import DEMTile
 __all__ = ["atomic_path", "check_output_path", "lonlat_to_xy", "read_dem", "read_dem_exact",
            "read_float_tiff", "same_crs", "write_bands", "write_dem", "write_float_tiff",
            "write_png"]
+__all__ += ["orthographic_crs", "polar_crs", "reproject_polar", "synthetic_crs"]
 __all__ += ["RasterReader", "write_cog"]  # chunked runs (terrain.chunked)
 
 log = logging.getLogger(__name__)
@@ -640,3 +641,142 @@ def write_cog(source, path, *, inputs: Iterable = (), description: str = "height
             scratch.unlink()
     log.info("wrote COG %s (%d x %d, overviews %s)", path, nx, ny, factors)
     return path
+
+
+def polar_crs(radius: float, *, pole: str = "south", false_easting: float = 0.0,
+              false_northing: float = 0.0) -> str:
+    """WKT of a polar stereographic CRS on a sphere of ``radius`` (m).
+
+    Parameters
+    ----------
+    radius : float
+        Sphere radius (m), e.g. the Moon's 1737400.
+    pole : {"south", "north"}
+        The pole at the projection's centre.
+    false_easting, false_northing : float
+        Map coordinates of the pole (m).
+
+    Returns
+    -------
+    str
+        The CRS as WKT.
+
+    Examples
+    --------
+    >>> "Polar_Stereographic" in polar_crs(1737400.0) or "Stereographic" in polar_crs(1737400.0)
+    True
+    """
+    if pole not in ("south", "north"):
+        raise ValueError(f"pole must be 'south' or 'north'; got {pole!r}")
+    lat0 = -90 if pole == "south" else 90
+    return CRS.from_proj4(f"+proj=stere +lat_0={lat0} +lon_0=0 +k=1 +x_0={false_easting!r} "
+                          f"+y_0={false_northing!r} +R={radius:.0f} +units=m +no_defs").to_wkt()
+
+
+def orthographic_crs(radius: float, lon: float, lat: float, *, false_easting: float = 0.0,
+                     false_northing: float = 0.0) -> str:
+    """WKT of an orthographic CRS centred on ``lon, lat`` (degrees) on a sphere (m).
+
+    Parameters
+    ----------
+    radius : float
+        Sphere radius (m).
+    lon, lat : float
+        Centre of the projection (degrees).
+    false_easting, false_northing : float
+        Map coordinates of the centre (m).
+
+    Returns
+    -------
+    str
+        The CRS as WKT.
+    """
+    if not (-360.0 <= lon <= 360.0 and -90.0 <= lat <= 90.0):
+        raise ValueError(f"centre longitude/latitude out of range: {lon}, {lat}")
+    return CRS.from_proj4(f"+proj=ortho +lat_0={lat!r} +lon_0={lon!r} +x_0={false_easting!r} "
+                          f"+y_0={false_northing!r} +R={radius:.0f} +units=m +no_defs").to_wkt()
+
+
+def reproject_polar(src: DEMTile, *, radius: float, half_width_m: float,
+                    pole: str = "south", limit_lat: float = 60.0) -> DEMTile:
+    """A global DEM reprojected onto a polar stereographic grid around one pole.
+
+    A simple-cylindrical product's pixels are far from square near a pole, so slopes are
+    only comparable after reprojection: bilinear, onto square pixels of the product's own
+    spacing along a meridian, ``half_width_m`` either side of the pole. Only rows poleward
+    of ``limit_lat`` are read (the projection cannot take the other pole, and GDAL would
+    warn for every row it tried).
+
+    Parameters
+    ----------
+    src : DEMTile
+        A simple-cylindrical DEM in metres on a sphere of ``radius`` (y = latitude x R).
+    radius : float
+        Sphere radius (m).
+    half_width_m : float
+        Half the side of the output grid (m).
+    pole : {"south", "north"}
+        The pole at the centre.
+    limit_lat : float
+        Latitude (degrees, unsigned) beyond which the source is read.
+
+    Returns
+    -------
+    DEMTile
+        Heights ``(n, n) float64`` metres, NaN where the source has none, CRS
+        :func:`polar_crs` with the pole at (0, 0).
+    """
+    import math
+
+    from affine import Affine
+    from rasterio.transform import from_origin
+    from rasterio.warp import Resampling, reproject
+
+    res = src.resolution
+    sign = -1.0 if pole == "south" else 1.0
+    row = int(round((~src.transform @ (0.0, sign * limit_lat * math.pi / 180.0 * radius))[1]))
+    rows = slice(row, None) if pole == "south" else slice(0, row)
+    heights = src.heights[rows].astype(np.float64)
+    src_transform = src.transform @ Affine.translation(0, rows.start or 0)
+    n = int(2 * half_width_m / res)
+    crs = CRS.from_proj4(f"+proj=stere +lat_0={int(sign * 90)} +lon_0=0 +k=1 +x_0=0 +y_0=0 "
+                         f"+R={radius:.0f} +units=m +no_defs")
+    transform = from_origin(-n * res / 2, n * res / 2, res, res)
+    dst = np.full((n, n), np.nan, dtype=np.float64)
+    logging.getLogger("rasterio._err").setLevel(logging.ERROR)  # PROJ's per-row chatter
+    reproject(heights, dst, src_transform=src_transform,
+              src_crs=src.crs, dst_transform=transform, dst_crs=crs,
+              resampling=Resampling.bilinear, src_nodata=np.nan, dst_nodata=np.nan)
+    return DEMTile.from_array(dst, transform=transform, crs=crs.to_wkt(),
+                              metadata=dict(src.metadata))
+
+
+def synthetic_crs(body: str | None, projection: str | None, centre: tuple[float, float]
+                  ) -> str | None:
+    """WKT of a synthetic DEM's CRS on a body, its centre at map point ``centre``.
+
+    Parameters
+    ----------
+    body : str or None
+        A body of :data:`terrain.bodies.BODY_RADII`; None: no CRS.
+    projection : str or None
+        A projection of :data:`terrain.bodies.PROJECTIONS` (default south-polar).
+    centre : (float, float)
+        Map coordinates (m) of the projection's centre: the tile's centre.
+
+    Returns
+    -------
+    str or None
+        The CRS as WKT; None without a body.
+    """
+    from terrain.bodies import BODY_RADII, check_projection
+
+    kind = check_projection(body, projection)
+    if kind is None:
+        return None
+    radius = BODY_RADII[body]
+    if kind[0] == "stere":
+        return polar_crs(radius, pole="south" if kind[1] < 0 else "north",
+                         false_easting=centre[0], false_northing=centre[1])
+    return orthographic_crs(radius, kind[1], kind[2], false_easting=centre[0],
+                            false_northing=centre[1])

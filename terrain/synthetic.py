@@ -30,7 +30,7 @@ __all__ = ["synthesize_tile"]
 def synthesize_tile(size: int, *, resolution: float = 1.0, fractal_dimension: float = 2.2,
                     relief: float = 30.0, seed: int = 0, craters=None,
                     model: CraterModel | None = None, window: Window | None = None,
-                    progress=None) -> CraterResult:
+                    progress=None, crs: str | None = None) -> CraterResult:
     """A (size x size) RMD tile with optional craters, or a window of it.
 
     Parameters
@@ -47,12 +47,15 @@ def synthesize_tile(size: int, *, resolution: float = 1.0, fractal_dimension: fl
     window : Window, optional
     progress : callable, optional
         Called as ``progress(done, total)`` after each crater size class.
+    crs : str, optional
+        WKT of the tile's CRS (e.g. :func:`terrain.io.synthetic_crs`); the heights and map
+        coordinates do not depend on it.
 
     Returns
     -------
     CraterResult
-        float32 tile in a local map frame (lower-left corner at 0, 0; no CRS) and the crater
-        catalogue (empty without craters).
+        float32 tile in a map frame with its lower-left corner at (0, 0) (no CRS unless
+        ``crs``) and the crater catalogue (empty without craters).
 
     Examples
     --------
@@ -81,7 +84,7 @@ def synthesize_tile(size: int, *, resolution: float = 1.0, fractal_dimension: fl
         z, catalog = crater_heights(base, (size, size), transform, craters, seed=seed,
                                     model=model, window=window, progress=progress)
     sub_transform = transform @ Affine.translation(window.col, window.row)
-    tile = DEMTile.from_array(z.astype(np.float32), transform=sub_transform)
+    tile = DEMTile.from_array(z.astype(np.float32), transform=sub_transform, crs=crs)
     meta = {"CRATERSCAPE_SEED": str(seed), "CRATERSCAPE_RMD": json.dumps(params, sort_keys=True)}
     if window.width != size or window.height != size:
         meta["CRATERSCAPE_WINDOW"] = f"{window.col},{window.row},{window.width},{window.height}"

@@ -1,0 +1,620 @@
+"""A campaign: a lunar descent and an asteroid approach, built, rendered and evaluated.
+
+A campaign file (TOML, parsed into a frozen :class:`Campaign`) names what each stage
+makes; :func:`run_campaign` runs the stages in order into one output folder:
+
+1. ``lunar/base/``: a synthetic base (``craterscape terrain synth`` with the campaign's
+   ``[lunar.base]`` options) and its hillshade.
+2. ``lunar/stack/stack/``: the base enhanced in nested layers around the flattest spot
+   near its centre (:func:`terrain.site.landing_site`; ``craterscape terrain enhance``
+   with the ``[lunar.stack]`` options).
+3. ``lunar/run/run/``: the descent scenario rendered onto that stack, under the sun azimuth
+   that lights the site (:func:`terrain.site.lit_sun_azimuth`); ``lunar/closed_loop/``: a
+   landing flown through ``craterscape render serve`` by the ``[lunar.closed_loop]`` script
+   (``examples/closed_loop.py``: guidance that sees only the altimeter and the camera).
+4. ``asteroid/body/``: a body built from the ``[asteroid.body]`` recipe, with a PLY copy.
+5. ``asteroid/run/run/``: the approach scenario rendered around it.
+6. ``evaluation/``: feature tracks of both runs against truth, slope distributions and
+   spectra of every layer, comparisons with real DEMs where the shared data folder holds
+   them, the hazard map of the site, the asteroid's slopes against real Eros, and
+   ``report.html``.
+
+Each stage is skipped when its marker (``.<stage with _>.done.json``) holds the key of the
+same parameters; a stage interrupted part-way resumes where it can (rendering) or starts
+again. ``campaign.json`` (``demo.json`` for the demo) holds the time of every stage. Nothing
+outside the output folder is written, and every file is written atomically.
+
+Scenario overrides (the scene, the sun, ``--quick``'s frames and image size) are merged
+into the scenario's tables and parsed by :func:`render.scenario.parse_scenario`; the
+scenario as run is written beside the run.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import shutil
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import MappingProxyType
+
+from render.records import check_keys, number
+from terrain.errors import InvalidParameterError
+from terrain.tomlfile import merge_tables, read_toml, toml_text
+
+__all__ = ["STAGES", "Campaign", "Stage", "load_campaign", "run_campaign"]
+
+log = logging.getLogger(__name__)
+
+#: The stages in the order they run (their markers are ``.<stage with _>.done.json``).
+STAGES = ("lunar/base", "lunar/stack", "lunar/run", "lunar/closed_loop", "asteroid/body",
+          "asteroid/run", "evaluation")
+
+_TOP = {"title", "seed", "summary", "lunar", "asteroid", "evaluation", "quick"}
+_RUN_KEYS = {"scenario", "frames", "image", "sun_elevation"}
+_LOOP_KEYS = {"script", "size", "dt"}
+_EVAL_KEYS = {"shared_data", "ldem", "sfs", "eros", "eros_density", "eros_period_h",
+              "lander_diameter", "max_slope", "max_step"}
+
+
+def _options(table, where: str, command) -> Mapping:
+    """CLI options of a stage, checked against the click command's own long options
+    (``--fractal-dimension`` is ``fractal_dimension``)."""
+    names = {o[2:].replace("-", "_") for p in command.params for o in getattr(p, "opts", ())
+             if o.startswith("--")}
+    return MappingProxyType(check_keys(table, names, where))
+
+
+def _optional_int(table: dict, key: str, where: str) -> int | None:
+    if key not in table:
+        return None
+    v = table[key]
+    if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+        raise InvalidParameterError(f"{where} {key} must be a positive integer; got {v!r}")
+    return v
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """A rendered run of a campaign: its scenario and what the campaign overrides in it.
+
+    Attributes
+    ----------
+    scenario : pathlib.Path
+        The scenario file (its scene is replaced by the campaign's own).
+    frames : int or None
+        Frame count override.
+    image : int or None
+        Square image side override (pixels; field of view kept).
+    sun_elevation : float or None
+        Sun elevation (degrees) under which the lit azimuth is chosen (terrain runs).
+    """
+
+    scenario: Path
+    frames: int | None = None
+    image: int | None = None
+    sun_elevation: float | None = None
+
+    @classmethod
+    def from_mapping(cls, table, where: str, folder: Path) -> RunSpec:
+        """Build from a campaign table (paths relative to ``folder``); see :class:`Campaign`."""
+        t = check_keys(table, _RUN_KEYS, where)
+        if "scenario" not in t or not isinstance(t["scenario"], str):
+            raise InvalidParameterError(f"{where} needs scenario = \"FILE.toml\"")
+        elev = t.get("sun_elevation")
+        return cls(folder / t["scenario"], _optional_int(t, "frames", where),
+                   _optional_int(t, "image", where),
+                   None if elev is None else number(elev, "sun_elevation", low=0.0,
+                                                    low_open=True, high=90.0, where=where))
+
+    def overrides(self) -> dict:
+        """The scenario tables this run overrides (frames and image size)."""
+        out: dict = {}
+        if self.frames is not None:
+            out["trajectory"] = {"frames": self.frames}
+        if self.image is not None:
+            out["camera"] = {"width": self.image, "height": self.image}
+        return out
+
+
+@dataclass(frozen=True)
+class Campaign:
+    """A campaign file, parsed and checked (see the module docstring).
+
+    Attributes
+    ----------
+    title : str
+        The report's title.
+    seed : int
+        Seed of the base and the stack (``--seed`` of synth and enhance).
+    summary : str
+        The report's opening paragraph.
+    base : Mapping
+        ``craterscape terrain synth`` options of the lunar base (names as in Python,
+        e.g. ``fractal_dimension``).
+    stack : Mapping
+        ``craterscape terrain enhance`` options of the layer stack (the site and the layer
+        size are the campaign's).
+    lunar_run, asteroid_run : RunSpec
+        The descent and the approach.
+    body : Mapping
+        ``craterscape asteroid build`` options (``config`` relative to the campaign file).
+    evaluation : Mapping
+        Real data (``ldem``, ``sfs``, ``eros`` relative to ``shared_data``), Eros's density
+        (kg m^-3) and spin period (h), and the lander of the hazard map
+        (``lander_diameter`` m, ``max_slope`` degrees, ``max_step`` m).
+    closed_loop : Mapping or None
+        The closed-loop landing: ``script`` (a Python file with ``main(argv)``, relative to
+        the campaign file), its image ``size`` (pixels) and guidance step ``dt`` (s); None:
+        no closed loop.
+    path : pathlib.Path or None
+        The campaign file.
+    quick : bool
+        Whether the ``[quick]`` tables were merged in (a reduced campaign).
+    """
+
+    title: str
+    seed: int
+    summary: str
+    base: Mapping
+    stack: Mapping
+    lunar_run: RunSpec
+    body: Mapping
+    asteroid_run: RunSpec
+    evaluation: Mapping = field(default_factory=dict)
+    closed_loop: Mapping | None = None
+    path: Path | None = None
+    quick: bool = False
+
+    @classmethod
+    def from_mapping(cls, data, path=None, *, quick: bool = False) -> Campaign:
+        """Build a campaign from its parsed TOML; ``quick`` merges the ``[quick]`` tables in.
+
+        Parameters
+        ----------
+        data : dict
+            The campaign file's tables.
+        path : path-like, optional
+            The file, which relative paths are resolved against.
+        quick : bool, optional
+            Merge the ``[quick]`` tables over the others (a reduced campaign).
+
+        Returns
+        -------
+        Campaign
+            The checked record.
+        """
+        from asteroid.cli import asteroid
+        from terrain.cli import terrain
+        from terrain.rng import check_seed
+
+        data = check_keys(data, _TOP, "campaign")
+        if quick:
+            data = merge_tables(data, check_keys(data.get("quick", {}), _TOP - {"quick"},
+                                                 "campaign [quick]"))
+        folder = Path(path).resolve().parent if path is not None else Path.cwd()
+        lunar = check_keys(data.get("lunar", {}), {"base", "stack", "run", "closed_loop"},
+                           "campaign [lunar]")
+        ast = check_keys(data.get("asteroid", {}), {"body", "run"}, "campaign [asteroid]")
+        try:
+            seed = check_seed(data.get("seed", 0))
+        except ValueError as exc:
+            raise InvalidParameterError(f"campaign seed: {exc}") from None
+        for key in ("base", "stack", "run"):
+            if key not in lunar:
+                raise InvalidParameterError(f"campaign needs a [lunar.{key}] table")
+        for key in ("body", "run"):
+            if key not in ast:
+                raise InvalidParameterError(f"campaign needs an [asteroid.{key}] table")
+        body = dict(_options(ast["body"], "campaign [asteroid.body]",
+                             asteroid.commands["build"]))
+        if "config" in body:
+            body["config"] = str(folder / body["config"])
+        evaluation = check_keys(data.get("evaluation", {}), _EVAL_KEYS, "campaign [evaluation]")
+        evaluation.setdefault("shared_data", "shared-data")
+        loop = None
+        if "closed_loop" in lunar:
+            loop = check_keys(lunar["closed_loop"], _LOOP_KEYS, "campaign [lunar.closed_loop]")
+            if not isinstance(loop.get("script"), str):
+                raise InvalidParameterError("campaign [lunar.closed_loop] needs "
+                                            "script = \"FILE.py\"")
+            loop["script"] = str(folder / loop["script"])
+            loop["size"] = int(number(loop.get("size", 256), "size", low=8,
+                                      where="campaign [lunar.closed_loop]"))
+            loop["dt"] = number(loop.get("dt", 1.0), "dt", low=0.0, low_open=True,
+                                where="campaign [lunar.closed_loop]")
+            loop = MappingProxyType(loop)
+        return cls(
+            title=str(data.get("title", "craterscape campaign")), seed=seed,
+            summary=str(data.get("summary", "")),
+            base=_options(lunar["base"], "campaign [lunar.base]", terrain.commands["synth"]),
+            stack=_options(lunar["stack"], "campaign [lunar.stack]",
+                           terrain.commands["enhance"]),
+            lunar_run=RunSpec.from_mapping(lunar["run"], "campaign [lunar.run]", folder),
+            body=MappingProxyType(body),
+            asteroid_run=RunSpec.from_mapping(ast["run"], "campaign [asteroid.run]", folder),
+            evaluation=MappingProxyType(evaluation), closed_loop=loop,
+            path=Path(path) if path else None,
+            quick=quick)
+
+    def real_data(self, shared: Path | None = None) -> dict:
+        """Paths of the real data the report compares with (``ldem``, ``sfs``, ``eros``).
+
+        Parameters
+        ----------
+        shared : pathlib.Path, optional
+            The shared data folder (default: ``shared_data`` of the campaign file).
+
+        Returns
+        -------
+        dict
+            ``{"ldem": Path, "sfs": Path, "eros": Path}``; the files may be absent.
+        """
+        ev = self.evaluation
+        if shared is None:
+            base = self.path.resolve().parent if self.path else Path.cwd()
+            shared = base / ev["shared_data"]
+        shared = Path(os.path.normpath(Path(shared).absolute()))
+        return {k: shared / ev[k] for k in ("ldem", "sfs", "eros") if k in ev}
+
+
+def load_campaign(path, *, quick: bool = False) -> Campaign:
+    """Parse and check a campaign file (see :meth:`Campaign.from_mapping`).
+
+    Parameters
+    ----------
+    path : path-like
+        The campaign TOML file.
+    quick : bool, optional
+        The reduced campaign (the file's ``[quick]`` tables merged in).
+
+    Returns
+    -------
+    Campaign
+        The checked record.
+    """
+    return Campaign.from_mapping(read_toml(path, "campaign file"), path, quick=quick)
+
+
+def cli_args(options: Mapping) -> list:
+    """Command-line arguments of a mapping of option names (``fractal_dimension = 2.3`` ->
+    ``--fractal-dimension 2.3``; ``true`` -> the bare flag).
+
+    Parameters
+    ----------
+    options : Mapping
+        Option names as click's parameter names, and their values.
+
+    Returns
+    -------
+    list
+        The arguments, in the mapping's order.
+
+    Examples
+    --------
+    >>> cli_args({"fractal_dimension": 2.3, "size": 257})
+    ['--fractal-dimension', 2.3, '--size', 257]
+    """
+    out: list = []
+    for key, value in options.items():
+        flag = "--" + key.replace("_", "-")
+        if value is True:
+            out.append(flag)
+        elif value is not False:
+            out += [flag, value]
+    return out
+
+
+# ------------------------------------------------------------------------------ stages
+
+
+class Stage:
+    """A step whose outputs are complete when its marker file holds the same parameters.
+
+    Parameters
+    ----------
+    out : pathlib.Path
+        The campaign's output folder.
+    name : str
+        The stage (one of :data:`STAGES`); its folder is ``out / name``.
+    params : dict
+        Everything the stage's outputs depend on (JSON-able); its hash is the stage's key.
+    """
+
+    def __init__(self, out: Path, name: str, params: dict):
+        self.dir = out / name
+        self.name = name
+        self.params = params
+        self.marker = out / f".{name.replace('/', '_')}.done.json"
+        self.key = hashlib.sha256(json.dumps(params, sort_keys=True).encode()).hexdigest()
+
+    def done(self) -> bool:
+        """Whether the stage's marker holds this key (its outputs are complete)."""
+        if not self.marker.exists():
+            return False
+        try:
+            return json.loads(self.marker.read_text())["key"] == self.key
+        except (ValueError, KeyError):
+            return False
+
+    def begin(self) -> None:
+        """Make the stage's folder ready: kept when it holds a partial run of these same
+        parameters (so rendering resumes), emptied otherwise."""
+        stamp = self.dir / ".stage-key"
+        if not (stamp.exists() and stamp.read_text() == self.key):
+            shutil.rmtree(self.dir, ignore_errors=True)
+            self.dir.mkdir(parents=True)
+            stamp.write_text(self.key)
+
+    def finish(self, seconds: float, **facts) -> dict:
+        """Write the marker (atomically) with the key, the stage's seconds and ``facts``."""
+        info = dict(key=self.key, seconds=seconds, **facts)
+        tmp = self.marker.with_suffix(".partial")
+        tmp.write_text(json.dumps(info, indent=2))
+        tmp.replace(self.marker)
+        return info
+
+
+def run_cli(*args) -> None:
+    """Run a ``craterscape`` command in this process; raise on failure.
+
+    Parameters
+    ----------
+    *args
+        The command line after ``craterscape`` (converted with ``str``).
+    """
+    from terrain.cli import main
+
+    try:
+        main.main([str(a) for a in args], standalone_mode=False, prog_name="craterscape")
+    except SystemExit as exc:  # click exits with the command's status
+        if exc.code not in (0, None):
+            raise RuntimeError(f"craterscape {' '.join(map(str, args))} failed ({exc.code})") \
+                from exc
+
+
+def write_scenario(template: Path, target: Path, overrides: dict):
+    """The scenario ``template`` with ``overrides`` merged into its tables, checked by the
+    scenario parser and written to ``target`` (the scenario as run).
+
+    Parameters
+    ----------
+    template : pathlib.Path
+        A scenario file.
+    target : pathlib.Path
+        Where the scenario as run is written (atomically).
+    overrides : dict
+        Tables to merge (e.g. ``{"sun": {"azimuth": 210.0}}``).
+
+    Returns
+    -------
+    render.scenario.Scenario
+        The parsed scenario, read from ``target``.
+    """
+    from render.scenario import load_scenario, parse_scenario
+    from terrain.io import atomic_path
+
+    data = merge_tables(read_toml(template, "scenario"), overrides)
+    parse_scenario(data, target)  # refused before anything is written
+    with atomic_path(target) as tmp:
+        tmp.write_text(f"# {template.name} as run by a campaign\n" + toml_text(data),
+                       encoding="utf-8")
+    return load_scenario(target)
+
+
+def _render(stage: Stage, scenario_file: Path, run_dir: Path) -> dict:
+    from render.scenario import load_scenario
+    from render.sequence import run_sequence
+
+    t0 = time.perf_counter()
+    run_sequence(load_scenario(scenario_file), run_dir, resume=True)
+    seconds = time.perf_counter() - t0
+    n = len(json.loads((run_dir / "truth.json").read_text()))
+    return stage.finish(seconds, frames=n, fps=n / seconds)
+
+
+def lunar(c: Campaign, out: Path, say: Callable[[str], None]) -> dict:
+    """Base, layer stack and descent (stages 1 to 3).
+
+    Parameters
+    ----------
+    c : Campaign
+        The campaign.
+    out : pathlib.Path
+        The output folder.
+    say : callable
+        Called with one line of progress per stage.
+
+    Returns
+    -------
+    dict
+        ``stack`` and ``run``: the layer-stack folder and the run folder.
+    """
+    from evaluation.slope import horn_slope
+    from terrain.io import read_dem
+    from terrain.site import landing_site, lit_sun_azimuth
+
+    synth_args = cli_args({**c.base, "seed": c.seed})
+    base = Stage(out, "lunar/base", dict(args=synth_args, v=4))
+    base_tif = base.dir / "base.tif"
+    if not base.done():
+        say(f"lunar 1/3: synthetic base, {c.base.get('resolution', 1.0):g} m per pixel")
+        base.begin()
+        t0 = time.perf_counter()
+        run_cli("terrain", "synth", "-o", base_tif, *synth_args,
+                "--catalog", base.dir / "base_craters.csv")
+        run_cli("terrain", "hillshade", base_tif, "-o", base.dir / "base_hillshade.png",
+                "--azimuth", 45, "--altitude", 10)
+        base.finish(time.perf_counter() - t0)
+    tile = read_dem(base_tif)
+    site = landing_site(tile, horn_slope(tile))
+    enhance_args = ["--site", f"{site[0]},{site[1]}",
+                    *cli_args({"layer_size": tile.shape[0], "seed": c.seed, **c.stack})]
+    stack = Stage(out, "lunar/stack", dict(base=base.key, args=enhance_args, v=4))
+    stack_dir = stack.dir / "stack"
+    if not stack.done():
+        say(f"lunar 2/3: enhancing the base in {c.stack.get('levels')} nested layers around "
+            f"the site ({site[0] / 1000:.1f} km, {site[1] / 1000:.1f} km)")
+        stack.begin()
+        shutil.rmtree(stack_dir, ignore_errors=True)  # a stack is written whole, or not at all
+        t0 = time.perf_counter()
+        run_cli("terrain", "enhance", base_tif, "-o", stack_dir, *enhance_args)
+        stack.finish(time.perf_counter() - t0)
+    spec = c.lunar_run
+    elevation = spec.sun_elevation
+    if elevation is None:
+        elevation = read_toml(spec.scenario, "scenario").get("sun", {}).get("elevation", 10.0)
+    azimuth = lit_sun_azimuth(tile, site, elevation)
+    overrides = merge_tables(spec.overrides(), {
+        "scene": {"stack": str(stack_dir)},
+        "sun": {"azimuth": float(azimuth), "elevation": elevation}})
+    render = Stage(out, "lunar/run", dict(
+        stack=stack.key, overrides=overrides,
+        scenario=read_toml(spec.scenario, "scenario"), v=2))
+    run_dir = render.dir / "run"
+    if not render.done():
+        say(f"lunar 3/3: rendering the descent (sun azimuth {azimuth:.0f}, elevation "
+            f"{elevation:.0f} degrees)")
+        render.begin()
+        write_scenario(spec.scenario, render.dir / "descent.toml", overrides)
+        _render(render, render.dir / "descent.toml", run_dir)
+    return {"stack": str(stack_dir), "run": str(run_dir)}
+
+
+def closed_loop(c: Campaign, out: Path, say: Callable[[str], None]) -> dict | None:
+    """A landing flown through the render server on the descent's scenario (stage 3b).
+
+    The campaign's ``[lunar.closed_loop]`` script is loaded from its file and its
+    ``main(argv)`` called with the descent scenario as run, ``--out``, ``--size`` and
+    ``--dt``; it writes ``summary.json`` (with ``steps``) into the stage's folder.
+
+    Parameters
+    ----------
+    c : Campaign
+        The campaign.
+    out : pathlib.Path
+        The output folder (the descent's stage has run).
+    say : callable
+        Called with one line of progress.
+
+    Returns
+    -------
+    dict or None
+        ``dir``: the stage's folder; None where the campaign has no closed loop.
+    """
+    import importlib.util
+
+    if c.closed_loop is None:
+        return None
+    script = Path(c.closed_loop["script"])
+    scenario = out / "lunar" / "run" / "descent.toml"
+    args = ["--size", c.closed_loop["size"], "--dt", c.closed_loop["dt"]]
+    stage = Stage(out, "lunar/closed_loop", dict(
+        scenario=scenario.read_text(encoding="utf-8"), args=args,
+        code=hashlib.sha256(script.read_bytes()).hexdigest(), v=1))
+    if not stage.done():
+        say("lunar closed loop: landing from 2 km through the render server")
+        stage.begin()
+        spec = importlib.util.spec_from_file_location(f"campaign_{script.stem}", script)
+        if spec is None or spec.loader is None:
+            raise InvalidParameterError(f"cannot load the closed-loop script '{script}'")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        t0 = time.perf_counter()
+        module.main([str(scenario), "--out", str(stage.dir), *map(str, args)])
+        seconds = time.perf_counter() - t0
+        steps = json.loads((stage.dir / "summary.json").read_text())["steps"]
+        stage.finish(seconds, frames=steps, fps=steps / seconds)
+    return {"dir": str(stage.dir)}
+
+
+def asteroid(c: Campaign, out: Path, say: Callable[[str], None]) -> dict:
+    """The body and the approach (stages 4 and 5); see :func:`lunar` for the parameters.
+
+    Returns
+    -------
+    dict
+        ``body`` and ``run``: the body's ``.npz`` and the run folder.
+    """
+    recipe = Path(c.body["config"]).read_text(encoding="utf-8") if "config" in c.body else ""
+    body = Stage(out, "asteroid/body", dict(
+        recipe=recipe, options={k: v for k, v in c.body.items() if k != "config"}, v=2))
+    body_npz = body.dir / "body.npz"
+    if not body.done():
+        say("asteroid 1/2: building an Eros-like body (Perlin base, craters, boulders)")
+        body.begin()
+        t0 = time.perf_counter()
+        run_cli("asteroid", "build", "-o", body_npz, *cli_args(c.body))
+        # a mesh to open in a viewer: the body with its boulders at their coarsest level
+        # (the finest levels, which the renderer uses close up, would make it 0.6 GB)
+        run_cli("asteroid", "export", body_npz, "-o", body.dir / "body.ply", "--level", 0)
+        body.finish(time.perf_counter() - t0)
+    spec = c.asteroid_run
+    overrides = merge_tables(spec.overrides(), {"scene": {"body": str(body_npz)}})
+    render = Stage(out, "asteroid/run", dict(
+        body=body.key, overrides=overrides,
+        scenario=read_toml(spec.scenario, "scenario"), v=2))
+    run_dir = render.dir / "run"
+    if not render.done():
+        say("asteroid 2/2: rendering the approach")
+        render.begin()
+        write_scenario(spec.scenario, render.dir / "approach.toml", overrides)
+        _render(render, render.dir / "approach.toml", run_dir)
+    return {"body": str(body_npz), "run": str(run_dir)}
+
+
+def run_campaign(c: Campaign, out, *, shared=None, fresh: bool = False,
+                 say: Callable[[str], None] | None = None, summary_name: str = "campaign.json"
+                 ) -> Path:
+    """Run every stage of a campaign into ``out`` (finished stages are reused).
+
+    Parameters
+    ----------
+    c : Campaign
+        The campaign.
+    out : path-like
+        The output folder (created).
+    shared : path-like, optional
+        The real-data folder (default: the campaign's ``shared_data``).
+    fresh : bool, optional
+        Delete the output folder first.
+    say : callable, optional
+        Called with one line per step (default: the log, at INFO).
+    summary_name : str, optional
+        Name of the JSON file of stage timings written in ``out``.
+
+    Returns
+    -------
+    pathlib.Path
+        The report (``out/evaluation/report.html``).
+    """
+    from evaluation.campaign_report import evaluate
+
+    say = say or log.info
+    out = Path(out).resolve()
+    if fresh:
+        shutil.rmtree(out, ignore_errors=True)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    lunar_facts = lunar(c, out, say)
+    closed_loop(c, out, say)
+    asteroid_facts = asteroid(c, out, say)
+    report = evaluate(c, out, lunar_facts, asteroid_facts, c.real_data(
+        None if shared is None else Path(shared)), say, summary_name)
+    timings = {}
+    for name in STAGES:
+        marker = out / f".{name.replace('/', '_')}.done.json"
+        if marker.exists():
+            timings[name.replace("/", "_")] = json.loads(marker.read_text())
+    summary = dict(seconds=time.perf_counter() - t0, stages=timings, report=str(report))
+    from terrain.io import atomic_path
+
+    with atomic_path(out / summary_name) as tmp:
+        tmp.write_text(json.dumps(summary, indent=2))
+    say(f"done in {summary['seconds']:.0f} s; open {report}")
+    return report
+

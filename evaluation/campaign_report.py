@@ -1,0 +1,531 @@
+"""The evaluation stage of a campaign (:mod:`evaluation.campaign`): tracks, slopes, report.
+
+Both runs are tracked and scored against their truth (with the truth's own round trip,
+:func:`evaluation.tracking.truth_round_trip`); every layer of the stack gets its slope
+distribution and spectrum (:func:`evaluation.evidence.dem_evidence`); the base is compared
+with LOLA's LDEM_4 reprojected onto the south pole (:func:`terrain.io.reproject_polar`) and
+the landing-site layer with the LROC shape-from-shading DEM; the site's hazard map, its
+rocks and the layers drawn under the descent; the asteroid's slopes against Gaskell's Eros.
+Real data are used where the shared data folder holds them, and their absence is said.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import time
+from pathlib import Path
+
+from evaluation.campaign import STAGES, Campaign, Stage, run_cli
+
+__all__ = ["evaluate"]
+
+log = logging.getLogger(__name__)
+
+#: Mean radius of the Moon (m), the sphere of LOLA's LDEM products.
+MOON_RADIUS = 1_737_400.0
+#: Half the side of the polar grid LDEM_4 is reprojected onto (m): about 70 to 90 degrees S.
+LDEM_HALF_WIDTH_M = 600_000.0
+
+TRACKING_NOTES = {
+    "lunar": (
+        "The surface is grey (uniform albedo), so every corner is a shading corner, and the "
+        "camera closes in by several per cent between frames: Lucas-Kanade, which models "
+        "the motion of a patch as a shift, would drift a little under that zoom at every "
+        "step, so the tracker follows each feature from the previous frame warped by the "
+        "step's homography; what drift is left grows with a track's age. The round trip "
+        "through the truth and range images of consecutive frames (last row of the table) "
+        "shows the ground truth itself is exact."),
+    "asteroid": (
+        "The body turns about 1.2 degrees between frames under a fixed sun. With a uniform "
+        "albedo every corner is a shading corner, and shading moves over the surface as "
+        "the local lighting angle changes: features slide, and the error grows with a "
+        "track's age, as the right-hand panel shows. This is what a real tracker meets on "
+        "a spinning body; the round trip through the truth (last row) shows the ground "
+        "truth itself is exact."),
+}
+
+DEM_NOTE = (
+    "The synthetic base and the real DEMs are different places: the comparisons ask "
+    "whether the model's slopes are those of real polar terrain at the same scale, not "
+    "whether it reproduces a site. LDEM_4 (reprojected, 7.58 km pixels) judges the base; "
+    "the LROC NAC shape-from-shading DEM near Malapert (1.08 m, 0.5 km across) judges the "
+    "0.5 m layer, the landing site, at its spacing. The base has craters up to 150 km, "
+    "complex above 15 km (flat floors, terraced walls, central peaks; Pike 1977's "
+    "depths and rim heights), which give its slopes the tail LOLA's polar slopes have; "
+    "basins beyond 150 km and the south pole's own shape are not modelled.")
+
+
+def polar_ldem(ldem: Path, target: Path) -> Path:
+    """LOLA's LDEM_4 around the south pole on a polar stereographic grid, written to
+    ``target`` (see :func:`terrain.io.reproject_polar`).
+
+    Parameters
+    ----------
+    ldem : pathlib.Path
+        The LDEM_4 label (``LDEM_4.LBL``).
+    target : pathlib.Path
+        The GeoTIFF to write.
+
+    Returns
+    -------
+    pathlib.Path
+        ``target``.
+    """
+    from terrain.io import read_dem, reproject_polar, write_dem
+
+    tile = reproject_polar(read_dem(ldem), radius=MOON_RADIUS, half_width_m=LDEM_HALF_WIDTH_M)
+    write_dem(tile.replace(metadata={"CRATERSCAPE_SOURCE": str(ldem)}), target, inputs=[ldem])
+    return target
+
+
+def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, real: dict,
+             say, summary_name: str = "campaign.json") -> Path:
+    """Tracks, slopes and the report (stage 6 of :mod:`evaluation.campaign`).
+
+    Parameters
+    ----------
+    c : Campaign
+        The campaign.
+    out : pathlib.Path
+        The output folder.
+    lunar_facts, asteroid_facts : dict
+        What :func:`evaluation.campaign.lunar` and :func:`evaluation.campaign.asteroid`
+        returned.
+    real : dict
+        Paths of the real data (``ldem``, ``sfs``, ``eros``), present or not.
+    say : callable
+        Called with one line per step.
+    summary_name : str, optional
+        The campaign's timing file, linked from the report.
+
+    Returns
+    -------
+    pathlib.Path
+        The report.
+    """
+    from evaluation.compare import compare_dems
+    from evaluation.evidence import dem_evidence
+    from evaluation.meshslope import Spin, load_body, mesh_slopes
+    from evaluation.report import (
+        DEFAULT_THRESHOLDS,
+        Report,
+        asteroid_section,
+        dem_section,
+        tracking_section,
+        write_report,
+    )
+    from evaluation.tracking import (
+        TrackerSettings,
+        load_run,
+        save_tracks,
+        score,
+        track,
+        truth_round_trip,
+    )
+    from terrain.errors import InvalidDEMError, InvalidParameterError
+    from terrain.io import read_dem
+    from terrain.layers import read_stack
+
+    ev = c.evaluation
+    have = {k: Path(p).exists() for k, p in real.items()}
+    keys = sorted(p.name for p in out.glob(".*.done.json") if "evaluation" not in p.name)
+    stage = Stage(out, "evaluation", dict(
+        inputs=[json.loads((out / k).read_text())["key"] for k in keys], real=have,
+        evaluation=dict(ev), v=3))
+    report_path = stage.dir / "report.html"
+    if stage.done() and report_path.exists():
+        return report_path
+    say("evaluation: feature tracks, slope distributions, asteroid slopes, report")
+    stage.begin()
+    t0 = time.perf_counter()
+    limits = json.loads(json.dumps(DEFAULT_THRESHOLDS))
+    sections, facts = [], {}
+
+    # -- feature tracking against truth, both runs
+    tracked = {}
+    for key, name, run_dir in (("lunar descent", "lunar", Path(lunar_facts["run"])),
+                               ("asteroid approach", "asteroid",
+                                Path(asteroid_facts["run"]))):
+        say(f"evaluation: tracking Harris corners through the {key}")
+        run = load_run(run_dir)
+        scored = score(track(run, TrackerSettings()), run,
+                       outlier_px=limits["tracking"]["outlier_px"])
+        summary = save_tracks(scored, run, stage.dir / f"{name}_tracks")
+        tracked[name] = (run, scored)
+        facts[f"tracking_{name}"] = dict(tracks=summary["tracking"]["tracks"],
+                                         median_px=(summary["errors"] or {}).get("median_px"))
+        sec = tracking_section(scored, run.image(len(run) - 1), limits,
+                               run_label=f"the {key} ({run_dir})", key=key)
+        consistency = truth_round_trip(run)
+        facts[f"tracking_{name}"]["truth_round_trip_px"] = consistency
+        sec.table("Tracking").append(
+            ["truth round trip through consecutive frames (median px)", f"{consistency:.2g}"])
+        sec.paragraphs.append(TRACKING_NOTES[name])
+        sections.append(sec)
+        sections.append(consistency_report(run, scored, sec, stage.dir / f"{name}_consistency",
+                                           limits, key, facts[f"tracking_{name}"], c.seed,
+                                           say))
+
+    # -- slopes per layer, and against real DEMs at the two ends of the stack
+    say("evaluation: slope distributions and spectra of every layer")
+    stack = read_stack(Path(lunar_facts["stack"]))
+    evidence = dem_evidence([(f"layer {k}", t) for k, t in enumerate(stack.tiles)])
+    comparisons, notes = [], []
+
+    def compare(tile, ref, label, ref_label):
+        # different places compared as slope distributions: the layer's CRS is not the
+        # reference's, and need not be (both are metres on square pixels)
+        try:
+            comparisons.append(compare_dems(tile.replace(crs=None), ref.replace(crs=None),
+                                            label=label, reference_label=ref_label))
+        except (InvalidDEMError, InvalidParameterError) as exc:  # --quick: too small to say
+            notes.append(f"{label} not compared with {ref_label}: {exc}")
+
+    if have.get("ldem"):
+        ref = read_dem(polar_ldem(real["ldem"], stage.dir / "reference_ldem4_south_pole.tif"))
+        compare(stack.tiles[0], ref, "layer 0 (base)", "LOLA LDEM_4 south pole")
+    else:
+        notes.append(f"{real.get('ldem')} not found: the base is not compared with LOLA")
+    if have.get("sfs"):
+        # the layer of about 0.5 m is the landing site as wide as the SFS DEM (0.5 km), and
+        # finer, so it is averaged onto the SFS DEM's 1.08 m pixels before the comparison
+        # (the centimetre layers below it are far narrower than one SFS pixel row is long)
+        ref = read_dem(real["sfs"])
+        k = min(range(len(stack.tiles)),
+                key=lambda i: abs(math.log(stack.tiles[i].resolution / 0.5)))
+        compare(stack.tiles[k], ref, f"layer {k} (site)", "LROC NAC SFS DEM (85 S)")
+    else:
+        notes.append(f"{real.get('sfs')} not found: the finest layers are not compared with "
+                     "real data")
+    sec = dem_section(evidence.distributions, evidence.spectra, evidence.fits,
+                      comparisons, limits, key="lunar layers")
+    sec.notes += notes
+    sec.paragraphs.append(DEM_NOTE)
+    sections.append(sec)
+    facts["dem_comparisons"] = [dict(label=x.label, reference=x.reference_label,
+                                     ks=x.ks_distance, resolution_m=x.resolution_m,
+                                     median=x.distribution.quantiles["p50"],
+                                     reference_median=x.reference_distribution.quantiles["p50"])
+                                for x in comparisons]
+
+    # -- the landing site at lander scale: hazards, rocks, the layers under the descent
+    say("evaluation: hazard map, rocks and the layers drawn under the descent")
+    sections.append(site(c, stage.dir, Path(lunar_facts["stack"]), tracked["lunar"][0], facts,
+                         say))
+
+    # -- the asteroid's slopes next to real Eros
+    say("evaluation: asteroid slopes (polyhedron gravity and spin)")
+    density = float(ev.get("eros_density", 2670.0))
+    spin = Spin(float(ev.get("eros_period_h", 5.27)), (0.0, 0.0, 1.0))
+    shape = load_body(Path(asteroid_facts["body"]))
+    body = mesh_slopes(shape.vertices, shape.faces, label="synthetic Eros-like body",
+                       density=density, spin=spin)
+    reference = None
+    if have.get("eros"):
+        eros = load_body(real["eros"], units="km")
+        reference = mesh_slopes(eros.vertices, eros.faces, label="433 Eros (Gaskell)",
+                                density=density, spin=spin)
+    sec = asteroid_section([body], reference, limits)
+    if reference is None:
+        sec.notes.append(f"{real.get('eros')} not found: the body is not compared with real "
+                         "Eros")
+    sections.append(sec)
+    ks = [x for x in sec.checks if x.name.startswith("KS distance")]
+    facts["asteroid_ks"] = ks[0].value if ks else None
+
+    # -- the closed-loop landing through the render server
+    summary_path = out / "lunar" / "closed_loop" / "summary.json"
+    if summary_path.exists():
+        sections.append(closed_loop_section(summary_path.parent, stage.dir))
+
+    # -- campaign overview: timings, gallery, links
+    overview = campaign_section(c, out, stage.dir, lunar_facts, asteroid_facts, tracked,
+                                summary_name)
+    rep = Report(c.title, [overview] + sections, limits,
+                 dict(output=str(out), seed=c.seed, quick=c.quick,
+                      real_data={k: bool(v) for k, v in have.items()}))
+    write_report(rep, report_path)
+    facts["verdict"] = rep.verdict
+    facts["checks"] = [x.as_dict() for x in rep.checks]
+    stage.finish(time.perf_counter() - t0, **facts)
+    return report_path
+
+
+def consistency_report(run, scored, tracking_sec, folder: Path, limits, key, facts, seed,
+                       say):
+    """Consistency of a run's frames and the tracker's own share of its one-step error.
+
+    Writes ``folder`` (:func:`evaluation.consistency.save_consistency`), adds the one-step
+    error of the same tracker on truth-warped frames to the tracking table and ``facts``, and
+    returns the report's consistency section.
+
+    Parameters
+    ----------
+    run : render.rundir.RunReader
+        The rendered run.
+    scored : evaluation.tracking.ScoredTracks
+        Its tracks, scored against truth.
+    tracking_sec : evaluation.report.Section
+        The run's tracking section (its "Tracking" table and paragraphs are extended).
+    folder : pathlib.Path
+        Where the consistency files go.
+    limits : dict
+        The report's thresholds.
+    key : str
+        The run's name in the report (``"lunar descent"``).
+    facts : dict
+        The run's facts, extended with the one-step and consistency figures.
+    seed : int
+        Seed of the fresh sensor noise.
+    say : callable
+        Called with one line of progress.
+
+    Returns
+    -------
+    evaluation.report.Section
+        The consistency section.
+    """
+    import numpy as np
+
+    from evaluation.consistency import consistency, save_consistency
+    from evaluation.report import consistency_section
+    from evaluation.tracking import ideal_one_step
+
+    say(f"evaluation: frame-to-frame consistency of the {key}")
+    result = consistency(run)
+    summary = save_consistency(result, folder)
+    ideal = ideal_one_step(scored, run)
+    ideal = ideal[np.isfinite(ideal)]
+    noisy = ideal_one_step(scored, run, sensor_noise=True, seed=seed)
+    noisy = noisy[np.isfinite(noisy)]
+    errors = scored.error_summary() or {}
+    one = (errors.get("one_step") or {}).get("median_px")
+    facts.update(one_step_median_px=one,
+                 one_step_surface_median_px=(errors.get("one_step") or {}).get(
+                     "surface_median_px"),
+                 ideal_one_step_median_px=float(np.median(ideal)) if ideal.size else None,
+                 ideal_noisy_one_step_median_px=(float(np.median(noisy)) if noisy.size
+                                                 else None),
+                 consistency_spike_ratio=summary["spike_ratio"],
+                 consistency_rms_dn_median=summary["rms_dn_median"],
+                 consistency_noise_floor_dn_median=summary["noise_floor_dn_median"])
+    if ideal.size and noisy.size and one is not None:
+        tracking_sec.table("Tracking").append(
+            ["one-step error of the same tracker on truth-warped frames, without / with "
+             "fresh sensor noise (median px)", f"{np.median(ideal):.3g} / "
+             f"{np.median(noisy):.3g}"])
+        tracking_sec.paragraphs.append(
+            f"The one-step error (median {one:.3g} px) is what one step of tracking adds. "
+            f"The same tracker following frames warped through the truth, which agree with "
+            f"the truth exactly, errs by {np.median(ideal):.3g} px per step: that much is "
+            "the tracker's own (its shift-only motion model under zoom and rotation). With "
+            f"the sensor's fresh noise added to those frames it errs by "
+            f"{np.median(noisy):.3g} px: the rest of the real error comes from how the "
+            "frames themselves change (shading that truly changes with the view and the "
+            "sun, and anything the renderer changes between frames; the consistency "
+            "section measures that). The accumulated error grows with a track's age by "
+            "the sum of those steps.")
+    return consistency_section(result, limits, run_label=f"the {key}", key=key)
+
+
+def site(c: Campaign, folder: Path, stack_dir: Path, run, facts: dict, say):
+    """Hazard map of the site (``craterscape terrain hazards``), the rocks against their
+    model and the finest layer drawn under each descent frame's centre.
+
+    Parameters
+    ----------
+    c : Campaign
+        The campaign (its lander).
+    folder : pathlib.Path
+        The evaluation folder.
+    stack_dir : pathlib.Path
+        The layer stack.
+    run : render.rundir.RunReader
+        The descent.
+    facts : dict
+        The stage's facts, extended with ``site``.
+    say : callable
+        Called with one line per frame reported.
+
+    Returns
+    -------
+    evaluation.report.Section
+        The site section.
+    """
+    from evaluation.hazards import hazards_file_section
+
+    ev = c.evaluation
+    tif = folder / "hazards.tif"
+    run_cli("terrain", "hazards", stack_dir, "-o", tif,
+            "--lander-diameter", ev.get("lander_diameter", 4.0),
+            "--max-slope", ev.get("max_slope", 12.0), "--max-step", ev.get("max_step", 0.3))
+    n = len(run)
+    frames = (60, 90, 110, 119) if n == 120 else sorted({n // 2, 3 * n // 4, n - 2, n - 1})
+    sec = hazards_file_section(tif, run=run, frames=frames)
+    sec.links = [("hazard bands: slope, step, safe (GeoTIFF)", "hazards.tif"),
+                 ("hazard map (PNG)", "hazards.png"),
+                 ("rock catalogue (CSV)", os.path.relpath(stack_dir / "rocks.csv", folder))]
+    descent = sec.data.get("descent", [])
+    facts["site"] = dict(safe_fraction=sec.data["safe_fraction"], layer=sec.data["layer"],
+                         rocks=sec.data.get("rocks", {}).get("total"),
+                         descent=[r for r in descent if r["frame"] in frames])
+    for r in facts["site"]["descent"]:
+        say(f"frame {r['frame']}: GSD {r['gsd_m']:.3g} m at the centre, finest layer drawn "
+            f"{r['layer']} ({r['layer_resolution_m']:.3g} m)")
+    return sec
+
+
+def campaign_section(c: Campaign, out, folder, lunar_facts, asteroid_facts, tracked,
+                     summary_name: str = "campaign.json"):
+    """The report's first section: what was made, how long it took, pictures, links.
+
+    Parameters
+    ----------
+    c : Campaign
+        The campaign (its summary paragraph).
+    out, folder : pathlib.Path
+        The output folder and the evaluation folder (links are relative to it).
+    lunar_facts, asteroid_facts : dict
+        The runs' folders.
+    tracked : dict
+        ``{"lunar": (run, scored), "asteroid": (run, scored)}``.
+    summary_name : str, optional
+        The campaign's timing file.
+
+    Returns
+    -------
+    evaluation.report.Section
+        The overview section.
+    """
+    from evaluation.figures import range_thumbnail, read_png, thumbnail
+    from evaluation.report import Section, image_figure
+
+    sec = Section("campaign", "The campaign")
+    if c.summary:
+        sec.paragraphs.append(c.summary)
+    rows = []
+    for name in STAGES[:-1]:
+        marker = out / f".{name.replace('/', '_')}.done.json"
+        if not marker.exists():
+            continue
+        info = json.loads(marker.read_text())
+        fps = info.get("fps")
+        rows.append([name, f"{info['seconds']:.1f}", info.get("frames", ""),
+                     f"{fps:.2f}" if fps else ""])
+    sec.tables.append(("Stages (seconds of wall time on this machine)",
+                       ["stage", "seconds", "frames", "frames per second"], rows))
+    gallery = folder / "gallery"
+    gallery.mkdir(exist_ok=True)
+    res = c.base.get("resolution", 1.0)
+    figures = [("base", f"Base DEM, hillshaded ({res / 1000:g} km per pixel)"
+                if res >= 1000 else f"Base DEM, hillshaded ({res:g} m per pixel)",
+                thumbnail(read_png(out / "lunar" / "base" / "base_hillshade.png"),
+                          gallery / "lunar_base.png"))]
+    for name, label in (("lunar", "Lunar descent"), ("asteroid", "Asteroid approach")):
+        run, _ = tracked[name]
+        n = len(run)
+        for k, when in ((0, "first frame"), (n // 2, "middle frame"), (n - 1, "last frame")):
+            figures.append((f"{name}-{k}", f"{label}, {when} ({k})",
+                            thumbnail(run.image(k), gallery / f"{name}_frame_{k:03d}.png")))
+        rng = run.range(n - 1)
+        if rng is not None:
+            figures.append((f"{name}-range", f"{label}, LIDAR range of the last frame",
+                            range_thumbnail(rng, gallery / f"{name}_range_{n - 1:03d}.png")))
+    sec.figures += [image_figure(fid, title, path) for fid, title, path in figures]
+
+    def rel(path: Path) -> str:
+        return Path(os.path.relpath(path, folder)).as_posix()
+
+    lunar_run, asteroid_run = Path(lunar_facts["run"]), Path(asteroid_facts["run"])
+    body = Path(asteroid_facts["body"])
+    links = [
+        ("lunar base DEM (GeoTIFF)", out / "lunar" / "base" / "base.tif"),
+        ("lunar base craters (CSV)", out / "lunar" / "base" / "base_craters.csv"),
+        ("layer stack manifest (layers, windows, crater counts)",
+         Path(lunar_facts["stack"]) / "manifest.json"),
+        ("descent frames", lunar_run / "frames"),
+        ("descent LIDAR range images (metres, float32 GeoTIFF)", lunar_run / "range"),
+        ("descent truth: pose, intrinsics, sun, drawn layers per frame", lunar_run / "truth.json"),
+        ("descent scenario as run", lunar_run / "scenario.toml"),
+        ("descent feature tracks (CSV)", folder / "lunar_tracks" / "tracks.csv"),
+        ("asteroid model (PLY; boulders at their coarsest level)", body.with_suffix(".ply")),
+        ("asteroid model (native .npz: body, craters, boulders at every level)", body),
+        ("asteroid craters and boulders (CSV)", body.parent / "body_craters.csv"),
+        ("approach frames", asteroid_run / "frames"),
+        ("approach LIDAR range images", asteroid_run / "range"),
+        ("approach truth", asteroid_run / "truth.json"),
+        ("approach feature tracks (CSV)", folder / "asteroid_tracks" / "tracks.csv"),
+        ("descent frame-to-frame consistency (JSON)",
+         folder / "lunar_consistency" / "consistency.json"),
+        ("approach frame-to-frame consistency (JSON)",
+         folder / "asteroid_consistency" / "consistency.json"),
+        ("this report's numbers (JSON)", folder / "report.json"),
+        ("stage timings (JSON)", out / summary_name),
+    ]
+    sec.links = [(label, rel(path)) for label, path in links if path.exists()
+                 or path.name in ("report.json", summary_name)]
+    return sec
+
+
+def closed_loop_section(folder: Path, report_dir: Path):
+    """The closed-loop landing: where it went, what navigation believed, how wrong it was.
+
+    Parameters
+    ----------
+    folder : pathlib.Path
+        The closed-loop stage's folder (``summary.json``, ``closed_loop.png``, ``frames/``).
+    report_dir : pathlib.Path
+        The evaluation folder (links are relative to it).
+
+    Returns
+    -------
+    evaluation.report.Section
+        The closed-loop section.
+    """
+    from evaluation.figures import read_png, thumbnail
+    from evaluation.report import Section, image_figure
+
+    s = json.loads((folder / "summary.json").read_text())
+    sec = Section("closed-loop", "Closed loop: a landing flown through the render server")
+    sec.paragraphs.append(
+        f"examples/closed_loop.py drove `craterscape render serve` on the descent's scenario: "
+        f"every {s['dt']:g} s the guidance asked the server for a laser-altimeter range (RAY) "
+        f"and a {s['size']} x {s['size']} nadir image (SET_POSE, GET_IMAGE), and nothing else. "
+        "Lateral velocity is optical flow (phase correlation after scaling the previous image "
+        "by the altimeter's altitude ratio); position integrates it from an initial guess "
+        f"{math.hypot(*s['initial_error']):.0f} m off, fixed above {s['trn_above']:.0f} m by "
+        "terrain-relative navigation (the server's view from the estimated position, standing "
+        "in for an onboard map, correlated with the real image). The vehicle's true motion, "
+        "with thruster noise, is simulated beside it and used only to score the navigation.")
+    sec.tables.append(("The landing", ["quantity", "value"], [
+        ["start", f"{s['start_altitude']:.0f} m above the site, "
+                  f"{math.hypot(*s['offset']):.0f} m off it"],
+        ["steps, time to touchdown", f"{s['steps']}, {s['touchdown_time_s']:.0f} s"],
+        ["touchdown", "ground contact between steps" if s["crashed"]
+         else f"altimeter {s['touchdown_altimeter_m']:.2f} m, "
+              f"{s['touchdown_speed_mps']:.2f} m/s"],
+        ["landing error from the site (truth)", f"{s['landing_error_m']:.1f} m"],
+        ["lateral navigation error: start, median, at touchdown",
+         f"{s['nav_error_lateral_m']['initial']:.1f}, {s['nav_error_lateral_m']['median']:.1f},"
+         f" {s['nav_error_lateral_m']['final']:.1f} m"],
+        ["lateral velocity error (median)", f"{s['nav_error_velocity_mps']['median']:.2f} m/s"],
+    ]))
+    frames = sorted((folder / "frames").glob("frame_*.png"))
+    gallery = report_dir / "gallery"
+    gallery.mkdir(exist_ok=True)
+    sec.figures.append(image_figure("closed-loop-track", "Ground track, descent and navigation "
+                                    "error against truth", folder / "closed_loop.png"))
+    for k in (0, len(frames) // 2, len(frames) - 1):
+        sec.figures.append(image_figure(
+            f"closed-loop-frame-{k}", f"What the camera returned, step {k}",
+            thumbnail(read_png(frames[k]), gallery / f"closed_loop_{k:04d}.png")))
+    sec.data = s
+    sec.links = [(label, Path(os.path.relpath(folder / name, report_dir)).as_posix())
+                 for label, name in (("closed-loop trajectory, estimates and errors (CSV)",
+                                      "trajectory.csv"),
+                                     ("closed-loop camera frames", "frames"),
+                                     ("closed-loop summary (JSON)", "summary.json"))]
+    return sec
