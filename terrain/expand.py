@@ -41,7 +41,7 @@ from affine import Affine
 
 from terrain import memory
 from terrain.errors import InvalidParameterError
-from terrain.rmd import predict
+from terrain.rmd import correlated_normal, predict
 from terrain.rng import check_seed, key_prefix, normal_at, stream_id
 from terrain.roughness import ExpansionParameters, local_amplitude
 from terrain.tile import DEMTile, Window
@@ -80,8 +80,8 @@ def _amplitude_col(buf, ac0, scale, c):
 
 
 @numba.njit(cache=True)
-def _expand_pass(grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis, sig, key, amp, ar0, ac0,
-                 scale, rmin, rmax, cmin, cmax):
+def _expand_pass(grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis, sig, taps, key, amp, ar0,
+                 ac0, scale, rmin, rmax, cmin, cmax):
     """One refinement pass of an expansion level, in global child pixels.
 
     ``grid`` (origin g_r0, g_c0; spacings sr, sc) holds the points the pass reads; ``out``
@@ -107,7 +107,8 @@ def _expand_pass(grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis, sig, key, 
                 p3 = float(row[k + 2]) if c + 3 <= cmax else nan
                 z, kind = predict(m3, float(row[k]), float(row[k + 1]), p3)
                 sigma = sig[kind] * _amplitude_col(buf, ac0, scale, c)
-                out[i, j] = np.float32(z + sigma * normal_at(key, c, r))
+                e = correlated_normal(key, c, r, 2, 0, 0, 2, taps[0], taps[1])
+                out[i, j] = np.float32(z + sigma * e)
         else:  # along the column: a copied row, or a predicted one from the rows around it
             if r % 2 == 0:
                 row = grid[(r - g_r0) // sr]
@@ -124,7 +125,8 @@ def _expand_pass(grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis, sig, key, 
                 p3 = float(grid[k + 2, q]) if have_p3 else nan
                 z, kind = predict(m3, float(grid[k, q]), float(grid[k + 1, q]), p3)
                 sigma = sig[kind] * _amplitude_col(buf, ac0, scale, c)
-                out[i, j] = np.float32(z + sigma * normal_at(key, c, r))
+                e = correlated_normal(key, c, r, 0, 2, 1, 0, taps[0], taps[2])
+                out[i, j] = np.float32(z + sigma * e)
 
 
 def parent_region(lo: int, hi: int, parent_size: int) -> tuple[int, int]:
@@ -137,6 +139,7 @@ _NO_MAP = np.zeros((0, 0), dtype=np.float32)
 
 def expand_level(parent: np.ndarray, parent_origin: tuple[int, int], child_rows, child_cols,
                  *, level: int, sigmas: tuple[float, float], seed: int, amplitude=None,
+                 taps=(0.0, 0.0, 0.0),
                  amplitude_origin=(0, 0), amplitude_level: int = 0) -> np.ndarray:
     """One 2x expansion of a region, in global pixel coordinates.
 
@@ -177,6 +180,9 @@ def expand_level(parent: np.ndarray, parent_origin: tuple[int, int], child_rows,
     if sig.shape != (3,):
         raise InvalidParameterError(
             f"sigmas must be (cubic, quadratic, linear) standard deviations; got {sigmas!r}")
+    taps = np.asarray(taps, dtype=np.float64)
+    if taps.shape != (3,):
+        raise InvalidParameterError(f"taps must be three noise taps (noise_taps); got {taps!r}")
     amp = _NO_MAP if amplitude is None else np.ascontiguousarray(amplitude, dtype=np.float32)
     scale = 0.5 ** (level - amplitude_level)
     parent = np.ascontiguousarray(parent, dtype=np.float32)
@@ -186,12 +192,12 @@ def expand_level(parent: np.ndarray, parent_origin: tuple[int, int], child_rows,
     ra1 = min(rmax, r1 + 3)
     ra1 += ra1 % 2
     rows = np.empty(((ra1 - ra0) // 2 + 1, c1 - c0 + 1), dtype=np.float32)
-    _expand_pass(parent, rmin, cmin, 2, 2, rows, ra0, c0, 2, 1, sig,
+    _expand_pass(parent, rmin, cmin, 2, 2, rows, ra0, c0, 2, 1, sig, taps,
                  np.uint64(key_prefix(seed, STREAM_EXPAND, 2 * level, 0)), amp,
                  float(amplitude_origin[0]), float(amplitude_origin[1]), scale,
                  rmin, rmax, cmin, cmax)
     out = np.empty((r1 - r0 + 1, c1 - c0 + 1), dtype=np.float32)
-    _expand_pass(rows, ra0, c0, 2, 1, out, r0, c0, 1, 0, sig,
+    _expand_pass(rows, ra0, c0, 2, 1, out, r0, c0, 1, 0, sig, taps,
                  np.uint64(key_prefix(seed, STREAM_EXPAND, 2 * level + 1, 0)), amp,
                  float(amplitude_origin[0]), float(amplitude_origin[1]), scale,
                  rmin, rmax, cmin, cmax)
@@ -281,6 +287,7 @@ def expand(tile: DEMTile, times: int = 1, *, seed: int = 0,
     for level in range(1, times + 1):
         grid = expand_level(grid, origin, rows[level], cols[level], level=level,
                             sigmas=params.sigmas(level), seed=seed, amplitude=amp,
+                            taps=params.taps(),
                             amplitude_origin=(r0, c0))
         origin = (rows[level][0], cols[level][0])
         if progress is not None:

@@ -137,6 +137,73 @@ def line_sigmas(hurst: float, unit_variance: float) -> np.ndarray:
         hurst, *PREDICTORS[k]))) for k in (CUBIC, QUADRATIC, LINEAR)])
 
 
+def _error_terms(offset, across, axis_points=PREDICTORS[CUBIC]):
+    """Points and coefficients of the four-point error ``z(q) - sum w_i z(q + p_i)`` at
+    q = (offset, across), the predictor running along x."""
+    pts, w = axis_points
+    pos = [(offset, across)] + [(offset + p, across) for p in pts]
+    return np.array(pos, dtype=float), np.r_[1.0, -np.asarray(w, dtype=float)]
+
+
+def error_correlations(hurst: float) -> tuple[float, float, float]:
+    """Correlations of neighbouring four-point prediction errors on fBm (module docstring).
+
+    Returns (along, across the coarse rows, across the fine columns): the error at q with
+    the error at the next new point on its line (2 half-spacings along), on the next coarse
+    line of the row pass (2 half-spacings across) and on the next line of the column pass
+    (1 half-spacing across).
+
+    >>> [round(r, 4) for r in error_correlations(0.9)]
+    [-0.1374, 0.0837, 0.3205]
+    """
+    def cov(a, b):
+        (pa, wa), (pb, wb) = a, b
+        dist = np.sqrt(((pa[:, None, :] - pb[None, :, :]) ** 2).sum(-1))
+        return float(-0.5 * wa @ dist ** (2.0 * hurst) @ wb)
+
+    e0 = _error_terms(0.0, 0.0)
+    var = cov(e0, e0)
+    return tuple(cov(e0, _error_terms(dx, dy)) / var for dx, dy in ((2.0, 0.0), (0.0, 2.0),
+                                                                      (0.0, 1.0)))
+
+
+def noise_taps(hurst: float) -> np.ndarray:
+    """(along, row-pass across, column-pass across) taps beta of the correlated displacements.
+
+    A three-tap moving average ``g(0) + beta (g(-1) + g(1))`` of independent Gaussians has
+    lag-one correlation ``rho = 2 beta / (1 + 2 beta^2)``; beta is the root of smaller
+    magnitude, ``(1 - sqrt(1 - 2 rho^2)) / (2 rho)``, for each of :func:`error_correlations`.
+    """
+    out = []
+    for rho in error_correlations(hurst):
+        rho = min(max(rho, -0.7), 0.7)
+        out.append(0.0 if abs(rho) < 1e-12 else (1.0 - math.sqrt(1.0 - 2.0 * rho * rho))
+                   / (2.0 * rho))
+    return np.array(out)
+
+
+@numba.njit(cache=True)
+def correlated_normal(key, c, r, ac, ar, xc, xr, b_along, b_across):
+    """Unit-variance Gaussian at (c, r) correlated with its neighbours (:func:`noise_taps`).
+
+    The separable 3 x 3 moving average of the keyed Gaussians at ``(c, r) + i (ac, ar) +
+    j (xc, xr)``, i, j in {-1, 0, 1}, with weight 1 at the centre and ``b_along``,
+    ``b_across`` one step out along and across the line: a function of global positions
+    only, so windows stay exact.
+    """
+    t = 0.0
+    for i in range(-1, 2):
+        wa = 1.0 if i == 0 else b_along
+        if wa == 0.0:
+            continue
+        for j in range(-1, 2):
+            wx = 1.0 if j == 0 else b_across
+            if wx == 0.0:
+                continue
+            t += wa * wx * normal_at(key, c + i * ac + j * xc, r + i * ar + j * xr)
+    return t / math.sqrt((1.0 + 2.0 * b_along * b_along) * (1.0 + 2.0 * b_across * b_across))
+
+
 @numba.njit(cache=True)
 def predict(m3, m1, p1, p3):
     """(prediction, kind) of the point between m1 and p1 from up to four line neighbours.
@@ -162,7 +229,8 @@ def _at(prev, pr0, pc0, sr, sc, r, c, w_r, w_c):
 
 
 @numba.njit(cache=True)
-def _pass(prev, pr0, pc0, sr, sc, out, or0, oc0, tr, tc, axis, w_r, w_c, sig, key, gr0, gc0):
+def _pass(prev, pr0, pc0, sr, sc, out, or0, oc0, tr, tc, axis, w_r, w_c, sig, taps, key, gr0,
+          gc0):
     """One separable refinement pass (see the module docstring), in global pixel indices.
 
     ``prev`` (origin pr0, pc0; spacings sr, sc) holds the coarse points; ``out`` (origin or0,
@@ -194,7 +262,11 @@ def _pass(prev, pr0, pc0, sr, sc, out, or0, oc0, tr, tc, axis, w_r, w_c, sig, ke
                 p1 = prev[(r + d - pr0) // sr, (c - pc0) // sc]
                 p3 = _at(prev, pr0, pc0, sr, sc, r + 3 * d, c, w_r, w_c)
             z, kind = predict(m3, m1, p1, p3)
-            out[i, j] = z + sig[kind] * normal_at(key, gc0 + c, gr0 + r)
+            if axis == 1:
+                e = correlated_normal(key, gc0 + c, gr0 + r, 2 * d, 0, 0, sr, taps[0], taps[1])
+            else:
+                e = correlated_normal(key, gc0 + c, gr0 + r, 0, 2 * d, tc, 0, taps[0], taps[2])
+            out[i, j] = z + sig[kind] * e
 
 
 def _needed_ranges(lo: int, hi: int, w: int) -> list[tuple[int, int]]:
@@ -264,6 +336,7 @@ def synthesize(size: int, *, fractal_dimension: float = 2.2, relief: float = 100
     # V of the module docstring: independent N(0, R^2) corners W apart
     corner = initial_scale(f, relief) / scale_factor(f)  # S / S_f of eq. 15
     unit = line_sigmas(hurst, 2.0 * corner**2 / float(w) ** (2.0 * hurst))
+    taps = noise_taps(hurst)
 
     # Corners: spacing w, N(0, (S / S_f)^2), keyed at pass -1.
     (r0, r1), (c0, c1) = rows[n], cols[n]
@@ -283,11 +356,11 @@ def synthesize(size: int, *, fractal_dimension: float = 2.2, relief: float = 100
         sig = unit * float(h) ** hurst
         # pass 1: midpoints between columns, on the coarse rows
         part = np.empty(((sr1 - sr0) // s + 1, (hc1 - hc0) // h + 1))
-        _pass(grid, origin_r, origin_c, s, s, part, sr0, hc0, s, h, 1, w, w, sig,
+        _pass(grid, origin_r, origin_c, s, s, part, sr0, hc0, s, h, 1, w, w, sig, taps,
               np.uint64(key_prefix(seed, STREAM_RMD, 2 * level, 0)), gr0, gc0)
         # pass 2: midpoints between rows, on every column
         out = np.empty(((hr1 - hr0) // h + 1, part.shape[1]))
-        _pass(part, sr0, hc0, s, h, out, hr0, hc0, h, h, 0, w, w, sig,
+        _pass(part, sr0, hc0, s, h, out, hr0, hc0, h, h, 0, w, w, sig, taps,
               np.uint64(key_prefix(seed, STREAM_RMD, 2 * level + 1, 0)), gr0, gc0)
         grid, origin_r, origin_c = out, hr0, hc0
         s = h

@@ -46,7 +46,7 @@ import numba
 import numpy as np
 
 from terrain.errors import InvalidDEMError, InvalidParameterError
-from terrain.rmd import line_sigmas, prediction_variance, scale_factor
+from terrain.rmd import line_sigmas, noise_taps, prediction_variance, scale_factor
 from terrain.tile import DEMTile
 
 __all__ = ["DEFAULT_SPACINGS", "LOCAL_BOX", "ExpansionParameters", "FractalFit", "estimate",
@@ -391,6 +391,10 @@ class ExpansionParameters:
             raise InvalidParameterError(f"expansion level must be >= 1; got {level}")
         return (line_sigmas(self.hurst, self.unit_variance()) * 2.0 ** (-level * self.hurst)
                 / self.excess)
+
+    def taps(self) -> np.ndarray:
+        """Moving-average taps of the correlated displacements (:func:`terrain.rmd.noise_taps`)."""
+        return noise_taps(self.hurst)
 
     def as_dict(self) -> dict:
         return asdict(self)
