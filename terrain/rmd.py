@@ -43,11 +43,37 @@ so ``sigma^2 = V d^(2h) E(h)`` with E the sum at unit d for the predictor's poin
 for the quadratic and 0.242 for the two-point mean). The relief R stays the paper's scale
 parameter: the four corners are independent, N(0, c^2) with ``c = S / S_f =
 R sqrt(1 - 2^(2h - 2))`` as in the paper (eq. 15), which fixes ``V = 2 c^2 / W^(2h)``.
-On 513 x 513 tiles the fitted Hurst exponent is within 0.03 of nominal for h = 0.3 ... 0.9
-(``tests/terrain/test_rmd.py``).
+
+Correlated displacements
+------------------------
+On fBm the errors of neighbouring predictions are not independent: two errors share
+variogram terms, so their covariance follows from the same sum,
+
+    Cov(e, e') = -1/2 sum_i sum_j a_i a'_j V |p_i - p'_j|^(2h),
+
+(:func:`error_correlations`). For the four-point predictor the correlation of the next new
+point on the line (2d along) is +0.064 at h = 0.3, 0 at 0.5 and -0.137 at 0.9; of the next
+line of the row pass (2d across) +0.018 ... +0.084; of the next line of the column pass
+(d across, every column is refined there) +0.105 ... +0.321. Independent displacements
+put the error's power evenly over the new octave where fBm concentrates it (at h near 1)
+at the octave's low end, and between neighbouring columns, where fBm's errors move
+together, they add a white high-frequency floor: a re-expanded h = 0.9 fBm measured
+h = 0.85. Each displacement here is therefore a separable three-tap moving average of
+keyed Gaussians, ``sum_(i, j in -1..1) b_i c_j g(q + i step_along + j step_across)`` with
+``b_0 = c_0 = 1``, ``b_(+-1) = beta_along``, ``c_(+-1) = beta_across`` normalised to unit
+variance (:func:`correlated_normal`), whose lag-one correlations ``2 beta / (1 + 2 beta^2)``
+equal the fBm's (:func:`noise_taps`); lag-two and diagonal terms are second order (below
+0.05). On 513 x 513 tiles the fitted Hurst exponent is within 0.03 of nominal for
+h = 0.3 ... 0.9 (``tests/terrain/test_rmd.py``).
+
+Expansion (:mod:`terrain.expand`) refines real data, not a cascade of its own, and uses at
+its first level the best linear predictor on the line instead of the four-point one
+(:func:`kriging_line_weights`, :meth:`terrain.roughness.ExpansionParameters.sigmas` says why).
 
 Every Gaussian is keyed by ``(seed, "rmd", pass, global column, global row)`` (pass -1 for the
-corners, 2j and 2j + 1 for the row and column passes of level j), and a window is computed
+corners, 2j and 2j + 1 for the row and column passes of level j; a displacement's moving
+average reads the Gaussians keyed at its neighbours' positions, a function of position
+alone), and a window is computed
 from exactly the points its pixels depend on (three half-spacings either side per level, the
 index-range recursion of Gaskell 2005, section 2), so a window computed alone equals the same
 window of the full tile, bitwise.
@@ -65,8 +91,10 @@ from terrain.errors import InvalidParameterError
 from terrain.rng import check_seed, key_prefix, normal_at, normal_scalar, stream_id
 from terrain.tile import Window
 
-__all__ = ["PREDICTORS", "check_fractal_dimension", "check_tile_size", "initial_scale",
-           "line_sigmas", "predict", "prediction_variance", "scale_factor", "synthesize"]
+__all__ = ["DD_WEIGHTS", "PREDICTORS", "check_fractal_dimension", "check_tile_size",
+           "correlated_normal", "error_correlations", "initial_scale", "kriging_line_weights",
+           "kriging_weights", "line_sigmas", "noise_taps", "predict", "prediction_variance",
+           "scale_factor", "synthesize"]
 
 STREAM_RMD = stream_id("rmd")
 
@@ -131,10 +159,53 @@ def prediction_variance(hurst: float, points, weights) -> float:
     return float(-0.5 * a @ (dist ** (2.0 * hurst)) @ a)
 
 
-def line_sigmas(hurst: float, unit_variance: float) -> np.ndarray:
-    """(cubic, quadratic, linear) displacement std at unit half-spacing: sqrt(V E(h))."""
+#: (outer, u, v, t) line weights of :func:`predict` for the Deslauriers-Dubuc predictors of
+#: :data:`PREDICTORS`: four points ``outer (z(-3d) + z(3d)) + (1/2 - outer) (z(-d) + z(d))``,
+#: three points (no point at -3d) ``u z(-d) + v z(d) + t z(3d)``.
+DD_WEIGHTS = np.array([-1 / 16, 3 / 8, 6 / 8, -1 / 8])
+
+
+def kriging_weights(hurst: float, points) -> np.ndarray:
+    """Weights of the best linear predictor of ``z(0)`` from ``z(points)`` on a line of fBm.
+
+    Minimises :func:`prediction_variance` for the variogram ``|r|^(2h)`` subject to
+    ``sum w = 1`` and ``sum w p = 0`` (intrinsic kriging with a linear drift, so a plane is
+    predicted exactly): the Lagrange system ``sum_j w_j g(p_i - p_j) + mu + nu p_i = g(p_i)``
+    with the semivariogram ``g(r) = |r|^(2h) / 2`` (Chiles and Delfiner 2012, section 3.4).
+
+    >>> [round(float(w), 6) + 0.0 for w in kriging_weights(0.5, (-3.0, -1.0, 1.0, 3.0))]
+    [0.0, 0.5, 0.5, 0.0]
+    """
+    p = np.asarray(points, dtype=float)
+    n = p.size
+    a = np.zeros((n + 2, n + 2))
+    a[:n, :n] = 0.5 * np.abs(p[:, None] - p[None, :]) ** (2.0 * hurst)
+    a[:n, n] = a[n, :n] = 1.0
+    a[:n, n + 1] = a[n + 1, :n] = p
+    b = np.r_[0.5 * np.abs(p) ** (2.0 * hurst), 1.0, 0.0]
+    return np.linalg.solve(a, b)[:n]
+
+
+def kriging_line_weights(hurst: float) -> np.ndarray:
+    """(outer, u, v, t) weights (as :data:`DD_WEIGHTS`) of the kriging predictors at h.
+
+    >>> [round(float(w), 4) for w in kriging_line_weights(0.3)]
+    [0.0678, 0.5286, 0.4428, 0.0286]
+    """
+    four = kriging_weights(hurst, PREDICTORS[CUBIC][0])
+    three = kriging_weights(hurst, PREDICTORS[QUADRATIC][0])
+    return np.array([0.5 * (four[0] + four[3]), three[0], three[1], three[2]])
+
+
+def line_sigmas(hurst: float, unit_variance: float, weights=DD_WEIGHTS) -> np.ndarray:
+    """(four-, three-, two-point) displacement std at unit half-spacing: sqrt(V E(h)).
+
+    ``weights`` are the (outer, u, v, t) line weights of :func:`predict`.
+    """
+    o, u, v, t = (float(x) for x in weights)
+    w = {CUBIC: (o, 0.5 - o, 0.5 - o, o), QUADRATIC: (u, v, t), LINEAR: (0.5, 0.5)}
     return np.array([math.sqrt(max(0.0, unit_variance * prediction_variance(
-        hurst, *PREDICTORS[k]))) for k in (CUBIC, QUADRATIC, LINEAR)])
+        hurst, PREDICTORS[k][0], w[k]))) for k in (CUBIC, QUADRATIC, LINEAR)])
 
 
 def _error_terms(offset, across, axis_points=PREDICTORS[CUBIC]):
@@ -205,19 +276,20 @@ def correlated_normal(key, c, r, ac, ar, xc, xr, b_along, b_across):
 
 
 @numba.njit(cache=True)
-def predict(m3, m1, p1, p3):
+def predict(m3, m1, p1, p3, w):
     """(prediction, kind) of the point between m1 and p1 from up to four line neighbours.
 
     m3 and p3 (three half-spacings out) may be NaN where the line has no point there; the
-    predictor falls back to the quadratic, then to the mean of the two parents.
+    predictor falls back to three points, then to the mean of the two parents. ``w`` holds
+    the (outer, u, v, t) line weights (:data:`DD_WEIGHTS`, :func:`kriging_line_weights`).
     """
     if math.isnan(m3):
         if math.isnan(p3):
             return 0.5 * (m1 + p1), LINEAR
-        return 0.375 * m1 + 0.75 * p1 - 0.125 * p3, QUADRATIC
+        return w[1] * m1 + w[2] * p1 + w[3] * p3, QUADRATIC
     if math.isnan(p3):
-        return 0.375 * p1 + 0.75 * m1 - 0.125 * m3, QUADRATIC
-    return (9.0 * (m1 + p1) - (m3 + p3)) * 0.0625, CUBIC
+        return w[1] * p1 + w[2] * m1 + w[3] * m3, QUADRATIC
+    return w[0] * (m3 + p3) + (0.5 - w[0]) * (m1 + p1), CUBIC
 
 
 @numba.njit(cache=True)
@@ -261,7 +333,7 @@ def _pass(prev, pr0, pc0, sr, sc, out, or0, oc0, tr, tc, axis, w_r, w_c, sig, ta
                 m1 = prev[(r - d - pr0) // sr, (c - pc0) // sc]
                 p1 = prev[(r + d - pr0) // sr, (c - pc0) // sc]
                 p3 = _at(prev, pr0, pc0, sr, sc, r + 3 * d, c, w_r, w_c)
-            z, kind = predict(m3, m1, p1, p3)
+            z, kind = predict(m3, m1, p1, p3, DD_WEIGHTS)
             if axis == 1:
                 e = correlated_normal(key, gc0 + c, gr0 + r, 2 * d, 0, 0, sr, taps[0], taps[1])
             else:
