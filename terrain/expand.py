@@ -47,7 +47,7 @@ from affine import Affine
 
 from terrain import memory
 from terrain.errors import InvalidParameterError
-from terrain.rmd import correlated_normal, predict
+from terrain.rmd import NO_ROW, correlated_value, noise_rows, predict
 from terrain.rng import check_seed, key_prefix, stream_id
 from terrain.roughness import ExpansionParameters, local_amplitude
 from terrain.tile import DEMTile, Window
@@ -95,27 +95,40 @@ def _expand_pass(grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis, sig, wts, 
     ``grid`` are copied, the midpoints along ``axis`` (1: between columns, 0: between rows)
     are predicted (:func:`terrain.rmd.predict` with the line weights ``wts``) and displaced by
     ``sig[kind]`` times the local amplitude and the correlated Gaussian
-    (:func:`terrain.rmd.correlated_normal` with the moving-average ``taps``) keyed at
+    (:func:`terrain.rmd.noise_rows` with the moving-average ``taps``) keyed at
     (column, row); results are rounded to float32.
     """
     ny, nx = out.shape
     buf = np.empty(amp.shape[1], dtype=np.float64)
     nan = math.nan
+    if axis == 1:  # new points at the odd columns of every (even) row
+        j_new = 1 - o_c0 % 2
+        n_new = len(range(j_new, nx, 2))
+        step, b_row, b_col = 2, taps[0], taps[1]
+    else:  # new (odd) rows, every column
+        j_new = 0
+        n_new = nx
+        step, b_row, b_col = 1, taps[2], taps[0]
+    norm = 1.0 / math.sqrt((1.0 + 2.0 * b_row * b_row) * (1.0 + 2.0 * b_col * b_col))
+    g = np.empty(n_new + 2)
+    noise = np.empty((3, n_new))
+    held = NO_ROW
     for i in range(ny):
         r = o_r0 + i * tr
         _amplitude_row(amp, ar0, scale, r, buf)
         if axis == 1:  # along the row: copies at even columns, predictions at odd ones
+            held = noise_rows(key, r, 2, o_c0 + j_new, step, b_row, g, noise, held)
             row = grid[(r - g_r0) // sr]
             for j in range(o_c0 % 2, nx, 2):
                 out[i, j] = row[(o_c0 + j - g_c0) // sc]
-            for j in range(1 - o_c0 % 2, nx, 2):
+            for j in range(j_new, nx, 2):
                 c = o_c0 + j
                 k = (c - 1 - g_c0) // sc
                 m3 = float(row[k - 1]) if c - 3 >= cmin else nan
                 p3 = float(row[k + 2]) if c + 3 <= cmax else nan
                 z, kind = predict(m3, float(row[k]), float(row[k + 1]), p3, wts)
                 sigma = sig[kind] * _amplitude_col(buf, ac0, scale, c)
-                e = correlated_normal(key, c, r, 2, 0, 0, 2, taps[0], taps[1])
+                e = correlated_value(noise, (j - j_new) // 2, b_col, norm)
                 out[i, j] = np.float32(z + sigma * e)
         else:  # along the column: a copied row, or a predicted one from the rows around it
             if r % 2 == 0:
@@ -123,6 +136,7 @@ def _expand_pass(grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis, sig, wts, 
                 for j in range(nx):
                     out[i, j] = row[(o_c0 + j - g_c0) // sc]
                 continue
+            held = noise_rows(key, r, 2, o_c0, step, b_row, g, noise, held)
             k = (r - 1 - g_r0) // sr
             have_m3 = r - 3 >= rmin
             have_p3 = r + 3 <= rmax
@@ -133,8 +147,7 @@ def _expand_pass(grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis, sig, wts, 
                 p3 = float(grid[k + 2, q]) if have_p3 else nan
                 z, kind = predict(m3, float(grid[k, q]), float(grid[k + 1, q]), p3, wts)
                 sigma = sig[kind] * _amplitude_col(buf, ac0, scale, c)
-                e = correlated_normal(key, c, r, 0, 2, 1, 0, taps[0], taps[2])
-                out[i, j] = np.float32(z + sigma * e)
+                out[i, j] = np.float32(z + sigma * correlated_value(noise, j, b_col, norm))
 
 
 def parent_region(lo: int, hi: int, parent_size: int) -> tuple[int, int]:

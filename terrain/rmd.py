@@ -61,10 +61,11 @@ together, they add a white high-frequency floor: a re-expanded h = 0.9 fBm measu
 h = 0.85. Each displacement here is therefore a separable three-tap moving average of
 keyed Gaussians, ``sum_(i, j in -1..1) b_i c_j g(q + i step_along + j step_across)`` with
 ``b_0 = c_0 = 1``, ``b_(+-1) = beta_along``, ``c_(+-1) = beta_across`` normalised to unit
-variance (:func:`correlated_normal`), whose lag-one correlations ``2 beta / (1 + 2 beta^2)``
-equal the fBm's (:func:`noise_taps`); lag-two and diagonal terms are second order (below
-0.05). On 513 x 513 tiles the fitted Hurst exponent is within 0.03 of nominal for
-h = 0.3 ... 0.9 (``tests/terrain/test_rmd.py``).
+variance (:func:`noise_rows`, :func:`correlated_value`; one Gaussian per position, summed
+row by row), whose lag-one correlations ``2 beta / (1 + 2 beta^2)`` equal the fBm's
+(:func:`noise_taps`); lag-two and diagonal terms are second order (below 0.05). On
+513 x 513 tiles the fitted Hurst exponent is within 0.03 of nominal for h = 0.3 ... 0.9
+(``tests/terrain/test_rmd.py``).
 
 Expansion (:mod:`terrain.expand`) refines real data, not a cascade of its own, and uses at
 its first level the best linear predictor on the line instead of the four-point one
@@ -91,10 +92,10 @@ from terrain.errors import InvalidParameterError
 from terrain.rng import check_seed, key_prefix, normal_at, normal_scalar, stream_id
 from terrain.tile import Window
 
-__all__ = ["DD_WEIGHTS", "PREDICTORS", "check_fractal_dimension", "check_tile_size",
-           "correlated_normal", "error_correlations", "initial_scale", "kriging_line_weights",
-           "kriging_weights", "line_sigmas", "noise_taps", "predict", "prediction_variance",
-           "scale_factor", "synthesize"]
+__all__ = ["DD_WEIGHTS", "NO_ROW", "PREDICTORS", "check_fractal_dimension", "check_tile_size",
+           "correlated_value", "error_correlations", "initial_scale", "kriging_line_weights",
+           "kriging_weights", "line_sigmas", "noise_norm", "noise_rows", "noise_taps", "predict",
+           "prediction_variance", "scale_factor", "synthesize"]
 
 STREAM_RMD = stream_id("rmd")
 
@@ -253,26 +254,50 @@ def noise_taps(hurst: float) -> np.ndarray:
     return np.array(out)
 
 
-@numba.njit(cache=True)
-def correlated_normal(key, c, r, ac, ar, xc, xr, b_along, b_across):
-    """Unit-variance Gaussian at (c, r) correlated with its neighbours (:func:`noise_taps`).
+#: Row index no pass reaches: :func:`noise_rows` holds nothing yet.
+NO_ROW = -(2**62)
 
-    The separable 3 x 3 moving average of the keyed Gaussians at ``(c, r) + i (ac, ar) +
-    j (xc, xr)``, i, j in {-1, 0, 1}, with weight 1 at the centre and ``b_along``,
-    ``b_across`` one step out along and across the line: a function of global positions
-    only, so windows stay exact.
+
+@numba.njit(cache=True)
+def _noise_row(key, r, c_first, step, b_row, g, out):
+    """Along-row sums ``g(c) + b_row (g(c - step) + g(c + step))`` of the Gaussians keyed at
+    row r, columns ``c_first + m step`` (m = 0 .. out.size - 1); ``g`` is scratch."""
+    n = out.size
+    for m in range(n + 2):
+        g[m] = normal_at(key, c_first + (m - 1) * step, r)
+    for m in range(n):
+        out[m] = g[m + 1] + b_row * (g[m] + g[m + 2])
+
+
+@numba.njit(cache=True)
+def noise_rows(key, r, dr, c_first, step, b_row, g, rows, held):
+    """Make ``rows`` hold the along-row sums of rows ``r - dr, r, r + dr`` (:func:`_noise_row`).
+
+    ``held`` is the r ``rows`` was last filled for (:data:`NO_ROW` at first): moving on by
+    ``dr`` computes one new row. Returns r. With :func:`correlated_value` this draws the
+    separable three-tap moving average of the module docstring with one Gaussian per position.
     """
-    t = 0.0
-    for i in range(-1, 2):
-        wa = 1.0 if i == 0 else b_along
-        if wa == 0.0:
-            continue
-        for j in range(-1, 2):
-            wx = 1.0 if j == 0 else b_across
-            if wx == 0.0:
-                continue
-            t += wa * wx * normal_at(key, c + i * ac + j * xc, r + i * ar + j * xr)
-    return t / math.sqrt((1.0 + 2.0 * b_along * b_along) * (1.0 + 2.0 * b_across * b_across))
+    if held == r - dr:
+        rows[0, :] = rows[1, :]
+        rows[1, :] = rows[2, :]
+        _noise_row(key, r + dr, c_first, step, b_row, g, rows[2])
+    elif held != r:
+        for k in range(3):
+            _noise_row(key, r + (k - 1) * dr, c_first, step, b_row, g, rows[k])
+    return r
+
+
+@numba.njit(cache=True)
+def correlated_value(rows, m, b_col, norm):
+    """Unit-variance correlated Gaussian at column index m of the rows of :func:`noise_rows`:
+    ``(rows[1, m] + b_col (rows[0, m] + rows[2, m])) norm``, a function of global position
+    only (so windows stay exact)."""
+    return (rows[1, m] + b_col * (rows[0, m] + rows[2, m])) * norm
+
+
+def noise_norm(b_row: float, b_col: float) -> float:
+    """1 / sqrt((1 + 2 b_row^2)(1 + 2 b_col^2)): unit variance of the moving average."""
+    return 1.0 / math.sqrt((1.0 + 2.0 * b_row * b_row) * (1.0 + 2.0 * b_col * b_col))
 
 
 @numba.njit(cache=True)
@@ -308,11 +333,28 @@ def _pass(prev, pr0, pc0, sr, sc, out, or0, oc0, tr, tc, axis, w_r, w_c, sig, ta
     ``prev`` (origin pr0, pc0; spacings sr, sc) holds the coarse points; ``out`` (origin or0,
     oc0; spacings tr, tc) is filled: points on ``prev``'s grid are copied, the others
     (midpoints along ``axis``: 1 = between columns, 0 = between rows) are predicted and
-    displaced by ``sig[kind]`` times the Gaussian keyed at their global position.
+    displaced by ``sig[kind]`` times the correlated Gaussian (``taps``: along, row-pass
+    across, column-pass across) keyed at their global position.
     """
     ny, nx = out.shape
+    if axis == 1:  # new points at every other column of every row
+        j0 = 1 if oc0 % sc == 0 else 0
+        n_new = len(range(j0, nx, 2))
+        c_first, step, dr = gc0 + oc0 + j0 * tc, 2 * tc, sr
+        b_row, b_col = taps[0], taps[1]
+    else:  # new rows, every column
+        j0 = 0
+        n_new = nx
+        c_first, step, dr = gc0 + oc0, tc, 2 * tr
+        b_row, b_col = taps[2], taps[0]
+    norm = 1.0 / math.sqrt((1.0 + 2.0 * b_row * b_row) * (1.0 + 2.0 * b_col * b_col))
+    g = np.empty(n_new + 2)
+    rows = np.empty((3, n_new))
+    held = NO_ROW
     for i in range(ny):
         r = or0 + i * tr
+        if axis == 1 or r % sr != 0:
+            held = noise_rows(key, gr0 + r, dr, c_first, step, b_row, g, rows, held)
         for j in range(nx):
             c = oc0 + j * tc
             if axis == 1:
@@ -320,6 +362,7 @@ def _pass(prev, pr0, pc0, sr, sc, out, or0, oc0, tr, tc, axis, w_r, w_c, sig, ta
                     out[i, j] = prev[(r - pr0) // sr, (c - pc0) // sc]
                     continue
                 d = tc
+                m = (j - j0) // 2
                 m3 = _at(prev, pr0, pc0, sr, sc, r, c - 3 * d, w_r, w_c)
                 m1 = prev[(r - pr0) // sr, (c - d - pc0) // sc]
                 p1 = prev[(r - pr0) // sr, (c + d - pc0) // sc]
@@ -329,16 +372,13 @@ def _pass(prev, pr0, pc0, sr, sc, out, or0, oc0, tr, tc, axis, w_r, w_c, sig, ta
                     out[i, j] = prev[(r - pr0) // sr, (c - pc0) // sc]
                     continue
                 d = tr
+                m = j
                 m3 = _at(prev, pr0, pc0, sr, sc, r - 3 * d, c, w_r, w_c)
                 m1 = prev[(r - d - pr0) // sr, (c - pc0) // sc]
                 p1 = prev[(r + d - pr0) // sr, (c - pc0) // sc]
                 p3 = _at(prev, pr0, pc0, sr, sc, r + 3 * d, c, w_r, w_c)
             z, kind = predict(m3, m1, p1, p3, DD_WEIGHTS)
-            if axis == 1:
-                e = correlated_normal(key, gc0 + c, gr0 + r, 2 * d, 0, 0, sr, taps[0], taps[1])
-            else:
-                e = correlated_normal(key, gc0 + c, gr0 + r, 0, 2 * d, tc, 0, taps[0], taps[2])
-            out[i, j] = z + sig[kind] * e
+            out[i, j] = z + sig[kind] * correlated_value(rows, m, b_col, norm)
 
 
 def _needed_ranges(lo: int, hi: int, w: int) -> list[tuple[int, int]]:
