@@ -427,7 +427,8 @@ class ExpandSource:
         origin = (r0, c0)
         for level in range(1, self.times + 1):
             grid = expand_level(grid, origin, rows[level], cols[level], level=level,
-                                sigmas=p.sigmas(level), seed=self.seed, amplitude=amp,
+                                sigmas=p.sigmas(level), weights=p.weights(level),
+                                taps=p.taps(), seed=self.seed, amplitude=amp,
                                 amplitude_origin=(r0, c0))
             origin = (rows[level][0], cols[level][0])
         return grid, None

@@ -43,11 +43,38 @@ so ``sigma^2 = V d^(2h) E(h)`` with E the sum at unit d for the predictor's poin
 for the quadratic and 0.242 for the two-point mean). The relief R stays the paper's scale
 parameter: the four corners are independent, N(0, c^2) with ``c = S / S_f =
 R sqrt(1 - 2^(2h - 2))`` as in the paper (eq. 15), which fixes ``V = 2 c^2 / W^(2h)``.
-On 513 x 513 tiles the fitted Hurst exponent is within 0.03 of nominal for h = 0.3 ... 0.9
+
+Correlated displacements
+------------------------
+On fBm the errors of neighbouring predictions are not independent: two errors share
+variogram terms, so their covariance follows from the same sum,
+
+    Cov(e, e') = -1/2 sum_i sum_j a_i a'_j V |p_i - p'_j|^(2h),
+
+(:func:`error_correlations`). For the four-point predictor the correlation of the next new
+point on the line (2d along) is +0.064 at h = 0.3, 0 at 0.5 and -0.137 at 0.9; of the next
+line of the row pass (2d across) +0.018 ... +0.084; of the next line of the column pass
+(d across, every column is refined there) +0.105 ... +0.321. Independent displacements
+put the error's power evenly over the new octave where fBm concentrates it (at h near 1)
+at the octave's low end, and between neighbouring columns, where fBm's errors move
+together, they add a white high-frequency floor: a re-expanded h = 0.9 fBm measured
+h = 0.85. Each displacement here is therefore a separable three-tap moving average of
+keyed Gaussians, ``sum_(i, j in -1..1) b_i c_j g(q + i step_along + j step_across)`` with
+``b_0 = c_0 = 1``, ``b_(+-1) = beta_along``, ``c_(+-1) = beta_across`` normalised to unit
+variance (:func:`noise_rows`, :func:`correlated_value`; one Gaussian per position, summed
+row by row), whose lag-one correlations ``2 beta / (1 + 2 beta^2)`` equal the fBm's
+(:func:`noise_taps`); lag-two and diagonal terms are second order (below 0.05). On
+513 x 513 tiles the fitted Hurst exponent is within 0.03 of nominal for h = 0.3 ... 0.9
 (``tests/terrain/test_rmd.py``).
 
+Expansion (:mod:`terrain.expand`) refines real data, not a cascade of its own, and uses at
+its first level the best linear predictor on the line instead of the four-point one
+(:func:`kriging_line_weights`, :meth:`terrain.roughness.ExpansionParameters.sigmas` says why).
+
 Every Gaussian is keyed by ``(seed, "rmd", pass, global column, global row)`` (pass -1 for the
-corners, 2j and 2j + 1 for the row and column passes of level j), and a window is computed
+corners, 2j and 2j + 1 for the row and column passes of level j; a displacement's moving
+average reads the Gaussians keyed at its neighbours' positions, a function of position
+alone), and a window is computed
 from exactly the points its pixels depend on (three half-spacings either side per level, the
 index-range recursion of Gaskell 2005, section 2), so a window computed alone equals the same
 window of the full tile, bitwise.
@@ -65,8 +92,10 @@ from terrain.errors import InvalidParameterError
 from terrain.rng import check_seed, key_prefix, normal_at, normal_scalar, stream_id
 from terrain.tile import Window
 
-__all__ = ["PREDICTORS", "check_fractal_dimension", "check_tile_size", "initial_scale",
-           "line_sigmas", "predict", "prediction_variance", "scale_factor", "synthesize"]
+__all__ = ["DD_WEIGHTS", "NO_ROW", "PREDICTORS", "check_fractal_dimension", "check_tile_size",
+           "correlated_value", "error_correlations", "initial_scale", "kriging_line_weights",
+           "kriging_weights", "line_sigmas", "noise_norm", "noise_rows", "noise_taps", "predict",
+           "prediction_variance", "scale_factor", "synthesize"]
 
 STREAM_RMD = stream_id("rmd")
 
@@ -131,26 +160,161 @@ def prediction_variance(hurst: float, points, weights) -> float:
     return float(-0.5 * a @ (dist ** (2.0 * hurst)) @ a)
 
 
-def line_sigmas(hurst: float, unit_variance: float) -> np.ndarray:
-    """(cubic, quadratic, linear) displacement std at unit half-spacing: sqrt(V E(h))."""
+#: (outer, u, v, t) line weights of :func:`predict` for the Deslauriers-Dubuc predictors of
+#: :data:`PREDICTORS`: four points ``outer (z(-3d) + z(3d)) + (1/2 - outer) (z(-d) + z(d))``,
+#: three points (no point at -3d) ``u z(-d) + v z(d) + t z(3d)``.
+DD_WEIGHTS = np.array([-1 / 16, 3 / 8, 6 / 8, -1 / 8])
+
+
+def kriging_weights(hurst: float, points) -> np.ndarray:
+    """Weights of the best linear predictor of ``z(0)`` from ``z(points)`` on a line of fBm.
+
+    Minimises :func:`prediction_variance` for the variogram ``|r|^(2h)`` subject to
+    ``sum w = 1`` and ``sum w p = 0`` (intrinsic kriging with a linear drift, so a plane is
+    predicted exactly): the Lagrange system ``sum_j w_j g(p_i - p_j) + mu + nu p_i = g(p_i)``
+    with the semivariogram ``g(r) = |r|^(2h) / 2`` (Chiles and Delfiner 2012, section 3.4).
+
+    >>> [round(float(w), 6) + 0.0 for w in kriging_weights(0.5, (-3.0, -1.0, 1.0, 3.0))]
+    [0.0, 0.5, 0.5, 0.0]
+    """
+    p = np.asarray(points, dtype=float)
+    n = p.size
+    a = np.zeros((n + 2, n + 2))
+    a[:n, :n] = 0.5 * np.abs(p[:, None] - p[None, :]) ** (2.0 * hurst)
+    a[:n, n] = a[n, :n] = 1.0
+    a[:n, n + 1] = a[n + 1, :n] = p
+    b = np.r_[0.5 * np.abs(p) ** (2.0 * hurst), 1.0, 0.0]
+    return np.linalg.solve(a, b)[:n]
+
+
+def kriging_line_weights(hurst: float) -> np.ndarray:
+    """(outer, u, v, t) weights (as :data:`DD_WEIGHTS`) of the kriging predictors at h.
+
+    >>> [round(float(w), 4) for w in kriging_line_weights(0.3)]
+    [0.0678, 0.5286, 0.4428, 0.0286]
+    """
+    four = kriging_weights(hurst, PREDICTORS[CUBIC][0])
+    three = kriging_weights(hurst, PREDICTORS[QUADRATIC][0])
+    return np.array([0.5 * (four[0] + four[3]), three[0], three[1], three[2]])
+
+
+def line_sigmas(hurst: float, unit_variance: float, weights=DD_WEIGHTS) -> np.ndarray:
+    """(four-, three-, two-point) displacement std at unit half-spacing: sqrt(V E(h)).
+
+    ``weights`` are the (outer, u, v, t) line weights of :func:`predict`.
+    """
+    o, u, v, t = (float(x) for x in weights)
+    w = {CUBIC: (o, 0.5 - o, 0.5 - o, o), QUADRATIC: (u, v, t), LINEAR: (0.5, 0.5)}
     return np.array([math.sqrt(max(0.0, unit_variance * prediction_variance(
-        hurst, *PREDICTORS[k]))) for k in (CUBIC, QUADRATIC, LINEAR)])
+        hurst, PREDICTORS[k][0], w[k]))) for k in (CUBIC, QUADRATIC, LINEAR)])
+
+
+def _error_terms(offset, across, axis_points=PREDICTORS[CUBIC]):
+    """Points and coefficients of the four-point error ``z(q) - sum w_i z(q + p_i)`` at
+    q = (offset, across), the predictor running along x."""
+    pts, w = axis_points
+    pos = [(offset, across)] + [(offset + p, across) for p in pts]
+    return np.array(pos, dtype=float), np.r_[1.0, -np.asarray(w, dtype=float)]
+
+
+def error_correlations(hurst: float) -> tuple[float, float, float]:
+    """Correlations of neighbouring four-point prediction errors on fBm (module docstring).
+
+    Returns (along, across the coarse rows, across the fine columns): the error at q with
+    the error at the next new point on its line (2 half-spacings along), on the next coarse
+    line of the row pass (2 half-spacings across) and on the next line of the column pass
+    (1 half-spacing across).
+
+    >>> [round(r, 4) for r in error_correlations(0.9)]
+    [-0.1374, 0.0837, 0.3205]
+    """
+    def cov(a, b):
+        (pa, wa), (pb, wb) = a, b
+        dist = np.sqrt(((pa[:, None, :] - pb[None, :, :]) ** 2).sum(-1))
+        return float(-0.5 * wa @ dist ** (2.0 * hurst) @ wb)
+
+    e0 = _error_terms(0.0, 0.0)
+    var = cov(e0, e0)
+    return tuple(cov(e0, _error_terms(dx, dy)) / var for dx, dy in ((2.0, 0.0), (0.0, 2.0),
+                                                                      (0.0, 1.0)))
+
+
+def noise_taps(hurst: float) -> np.ndarray:
+    """(along, row-pass across, column-pass across) taps beta of the correlated displacements.
+
+    A three-tap moving average ``g(0) + beta (g(-1) + g(1))`` of independent Gaussians has
+    lag-one correlation ``rho = 2 beta / (1 + 2 beta^2)``; beta is the root of smaller
+    magnitude, ``(1 - sqrt(1 - 2 rho^2)) / (2 rho)``, for each of :func:`error_correlations`.
+    """
+    out = []
+    for rho in error_correlations(hurst):
+        rho = min(max(rho, -0.7), 0.7)
+        out.append(0.0 if abs(rho) < 1e-12 else (1.0 - math.sqrt(1.0 - 2.0 * rho * rho))
+                   / (2.0 * rho))
+    return np.array(out)
+
+
+#: Row index no pass reaches: :func:`noise_rows` holds nothing yet.
+NO_ROW = -(2**62)
 
 
 @numba.njit(cache=True)
-def predict(m3, m1, p1, p3):
+def _noise_row(key, r, c_first, step, b_row, g, out):
+    """Along-row sums ``g(c) + b_row (g(c - step) + g(c + step))`` of the Gaussians keyed at
+    row r, columns ``c_first + m step`` (m = 0 .. out.size - 1); ``g`` is scratch."""
+    n = out.size
+    for m in range(n + 2):
+        g[m] = normal_at(key, c_first + (m - 1) * step, r)
+    for m in range(n):
+        out[m] = g[m + 1] + b_row * (g[m] + g[m + 2])
+
+
+@numba.njit(cache=True)
+def noise_rows(key, r, dr, c_first, step, b_row, g, rows, held):
+    """Make ``rows`` hold the along-row sums of rows ``r - dr, r, r + dr`` (:func:`_noise_row`).
+
+    ``held`` is the r ``rows`` was last filled for (:data:`NO_ROW` at first): moving on by
+    ``dr`` computes one new row. Returns r. With :func:`correlated_value` this draws the
+    separable three-tap moving average of the module docstring with one Gaussian per position.
+    """
+    if held == r - dr:
+        rows[0, :] = rows[1, :]
+        rows[1, :] = rows[2, :]
+        _noise_row(key, r + dr, c_first, step, b_row, g, rows[2])
+    elif held != r:
+        for k in range(3):
+            _noise_row(key, r + (k - 1) * dr, c_first, step, b_row, g, rows[k])
+    return r
+
+
+@numba.njit(cache=True)
+def correlated_value(rows, m, b_col, norm):
+    """Unit-variance correlated Gaussian at column index m of the rows of :func:`noise_rows`:
+    ``(rows[1, m] + b_col (rows[0, m] + rows[2, m])) norm``, a function of global position
+    only (so windows stay exact)."""
+    return (rows[1, m] + b_col * (rows[0, m] + rows[2, m])) * norm
+
+
+def noise_norm(b_row: float, b_col: float) -> float:
+    """1 / sqrt((1 + 2 b_row^2)(1 + 2 b_col^2)): unit variance of the moving average."""
+    return 1.0 / math.sqrt((1.0 + 2.0 * b_row * b_row) * (1.0 + 2.0 * b_col * b_col))
+
+
+@numba.njit(cache=True)
+def predict(m3, m1, p1, p3, w):
     """(prediction, kind) of the point between m1 and p1 from up to four line neighbours.
 
     m3 and p3 (three half-spacings out) may be NaN where the line has no point there; the
-    predictor falls back to the quadratic, then to the mean of the two parents.
+    predictor falls back to three points, then to the mean of the two parents. ``w`` holds
+    the (outer, u, v, t) line weights (:data:`DD_WEIGHTS`, :func:`kriging_line_weights`).
     """
     if math.isnan(m3):
         if math.isnan(p3):
             return 0.5 * (m1 + p1), LINEAR
-        return 0.375 * m1 + 0.75 * p1 - 0.125 * p3, QUADRATIC
+        return w[1] * m1 + w[2] * p1 + w[3] * p3, QUADRATIC
     if math.isnan(p3):
-        return 0.375 * p1 + 0.75 * m1 - 0.125 * m3, QUADRATIC
-    return (9.0 * (m1 + p1) - (m3 + p3)) * 0.0625, CUBIC
+        return w[1] * p1 + w[2] * m1 + w[3] * m3, QUADRATIC
+    return w[0] * (m3 + p3) + (0.5 - w[0]) * (m1 + p1), CUBIC
 
 
 @numba.njit(cache=True)
@@ -162,17 +326,35 @@ def _at(prev, pr0, pc0, sr, sc, r, c, w_r, w_c):
 
 
 @numba.njit(cache=True)
-def _pass(prev, pr0, pc0, sr, sc, out, or0, oc0, tr, tc, axis, w_r, w_c, sig, key, gr0, gc0):
+def _pass(prev, pr0, pc0, sr, sc, out, or0, oc0, tr, tc, axis, w_r, w_c, sig, taps, key, gr0,
+          gc0):
     """One separable refinement pass (see the module docstring), in global pixel indices.
 
     ``prev`` (origin pr0, pc0; spacings sr, sc) holds the coarse points; ``out`` (origin or0,
     oc0; spacings tr, tc) is filled: points on ``prev``'s grid are copied, the others
     (midpoints along ``axis``: 1 = between columns, 0 = between rows) are predicted and
-    displaced by ``sig[kind]`` times the Gaussian keyed at their global position.
+    displaced by ``sig[kind]`` times the correlated Gaussian (``taps``: along, row-pass
+    across, column-pass across) keyed at their global position.
     """
     ny, nx = out.shape
+    if axis == 1:  # new points at every other column of every row
+        j0 = 1 if oc0 % sc == 0 else 0
+        n_new = len(range(j0, nx, 2))
+        c_first, step, dr = gc0 + oc0 + j0 * tc, 2 * tc, sr
+        b_row, b_col = taps[0], taps[1]
+    else:  # new rows, every column
+        j0 = 0
+        n_new = nx
+        c_first, step, dr = gc0 + oc0, tc, 2 * tr
+        b_row, b_col = taps[2], taps[0]
+    norm = 1.0 / math.sqrt((1.0 + 2.0 * b_row * b_row) * (1.0 + 2.0 * b_col * b_col))
+    g = np.empty(n_new + 2)
+    rows = np.empty((3, n_new))
+    held = NO_ROW
     for i in range(ny):
         r = or0 + i * tr
+        if axis == 1 or r % sr != 0:
+            held = noise_rows(key, gr0 + r, dr, c_first, step, b_row, g, rows, held)
         for j in range(nx):
             c = oc0 + j * tc
             if axis == 1:
@@ -180,6 +362,7 @@ def _pass(prev, pr0, pc0, sr, sc, out, or0, oc0, tr, tc, axis, w_r, w_c, sig, ke
                     out[i, j] = prev[(r - pr0) // sr, (c - pc0) // sc]
                     continue
                 d = tc
+                m = (j - j0) // 2
                 m3 = _at(prev, pr0, pc0, sr, sc, r, c - 3 * d, w_r, w_c)
                 m1 = prev[(r - pr0) // sr, (c - d - pc0) // sc]
                 p1 = prev[(r - pr0) // sr, (c + d - pc0) // sc]
@@ -189,12 +372,13 @@ def _pass(prev, pr0, pc0, sr, sc, out, or0, oc0, tr, tc, axis, w_r, w_c, sig, ke
                     out[i, j] = prev[(r - pr0) // sr, (c - pc0) // sc]
                     continue
                 d = tr
+                m = j
                 m3 = _at(prev, pr0, pc0, sr, sc, r - 3 * d, c, w_r, w_c)
                 m1 = prev[(r - d - pr0) // sr, (c - pc0) // sc]
                 p1 = prev[(r + d - pr0) // sr, (c - pc0) // sc]
                 p3 = _at(prev, pr0, pc0, sr, sc, r + 3 * d, c, w_r, w_c)
-            z, kind = predict(m3, m1, p1, p3)
-            out[i, j] = z + sig[kind] * normal_at(key, gc0 + c, gr0 + r)
+            z, kind = predict(m3, m1, p1, p3, DD_WEIGHTS)
+            out[i, j] = z + sig[kind] * correlated_value(rows, m, b_col, norm)
 
 
 def _needed_ranges(lo: int, hi: int, w: int) -> list[tuple[int, int]]:
@@ -264,6 +448,7 @@ def synthesize(size: int, *, fractal_dimension: float = 2.2, relief: float = 100
     # V of the module docstring: independent N(0, R^2) corners W apart
     corner = initial_scale(f, relief) / scale_factor(f)  # S / S_f of eq. 15
     unit = line_sigmas(hurst, 2.0 * corner**2 / float(w) ** (2.0 * hurst))
+    taps = noise_taps(hurst)
 
     # Corners: spacing w, N(0, (S / S_f)^2), keyed at pass -1.
     (r0, r1), (c0, c1) = rows[n], cols[n]
@@ -283,11 +468,11 @@ def synthesize(size: int, *, fractal_dimension: float = 2.2, relief: float = 100
         sig = unit * float(h) ** hurst
         # pass 1: midpoints between columns, on the coarse rows
         part = np.empty(((sr1 - sr0) // s + 1, (hc1 - hc0) // h + 1))
-        _pass(grid, origin_r, origin_c, s, s, part, sr0, hc0, s, h, 1, w, w, sig,
+        _pass(grid, origin_r, origin_c, s, s, part, sr0, hc0, s, h, 1, w, w, sig, taps,
               np.uint64(key_prefix(seed, STREAM_RMD, 2 * level, 0)), gr0, gc0)
         # pass 2: midpoints between rows, on every column
         out = np.empty(((hr1 - hr0) // h + 1, part.shape[1]))
-        _pass(part, sr0, hc0, s, h, out, hr0, hc0, h, h, 0, w, w, sig,
+        _pass(part, sr0, hc0, s, h, out, hr0, hc0, h, h, 0, w, w, sig, taps,
               np.uint64(key_prefix(seed, STREAM_RMD, 2 * level + 1, 0)), gr0, gc0)
         grid, origin_r, origin_c = out, hr0, hc0
         s = h

@@ -46,7 +46,14 @@ import numba
 import numpy as np
 
 from terrain.errors import InvalidDEMError, InvalidParameterError
-from terrain.rmd import line_sigmas, prediction_variance, scale_factor
+from terrain.rmd import (
+    DD_WEIGHTS,
+    kriging_line_weights,
+    line_sigmas,
+    noise_taps,
+    prediction_variance,
+    scale_factor,
+)
 from terrain.tile import DEMTile
 
 __all__ = ["DEFAULT_SPACINGS", "LOCAL_BOX", "ExpansionParameters", "FractalFit", "estimate",
@@ -71,8 +78,8 @@ CASCADE_HURST = tuple(round(0.05 * k, 2) for k in range(1, 20))
 #: prediction errors set its displacements (:mod:`terrain.rmd`), mean over spacings 2, 4, 8
 #: and 16 pixels of four 513 x 513 tiles per h (seeds 1000-1003); see
 #: :meth:`ExpansionParameters.sigmas`. ``tests/terrain/test_expand.py`` re-measures it.
-CASCADE_EXCESS = (1.943, 1.835, 1.741, 1.657, 1.583, 1.518, 1.46, 1.41, 1.365, 1.326, 1.292,
-                  1.263, 1.237, 1.215, 1.196, 1.181, 1.168, 1.158, 1.15)
+CASCADE_EXCESS = (1.937, 1.832, 1.739, 1.656, 1.584, 1.52, 1.463, 1.412, 1.368, 1.328, 1.293,
+                  1.262, 1.234, 1.21, 1.188, 1.169, 1.152, 1.138, 1.125)
 #: The square residual's neighbours (base pixels): the four diagonal ones.
 SQUARE_STENCIL = ((-1.0, -1.0), (-1.0, 1.0), (1.0, -1.0), (1.0, 1.0))
 
@@ -360,37 +367,76 @@ class ExpansionParameters:
 
         A new pixel of level L lies d = 2^-L base pixels from its parents on its line; its
         predictor's error on the fBm of :meth:`unit_variance` has standard deviation
-        ``sqrt(V E(h)) d^h`` (:mod:`terrain.rmd`, module docstring). Each level's
-        displacements are 2^-h times the previous level's, the paper's eq. 14 scaling over two
-        half-steps.
+        ``sqrt(V E(h)) d^h`` (:mod:`terrain.rmd`, module docstring). From level 2 on, each
+        level's displacements are 2^-h times the previous level's, the paper's eq. 14 scaling
+        over two half-steps (level 1's predictor differs: see below).
 
         One correction: those errors are exact for a prediction from true fBm heights, as
         level 1's are (the base is the data), but from level 2 on the predictor reads heights
         the expansion made, which carry their own independent displacements where fBm's
         errors are correlated. A stationary cascade built this way (an RMD tile,
         :func:`terrain.rmd.synthesize`) is an fBm of the right h whose square residual is
-        k(h) times that of the fBm its displacements were computed for (k = 1.18 at h = 0.8,
+        k(h) times that of the fBm its displacements were computed for (k = 1.17 at h = 0.8,
         1.52 at h = 0.3: :data:`CASCADE_EXCESS`, measured). Uncorrected, the expanded levels
         are k^2 times too strong in power, which flattened the spectrum of a decimated,
         re-expanded fBm to h = 0.71 for 0.8. Dividing every displacement by k(h) makes the
         cascade continue the data's own fBm: on 1025 x 1025 fBm surfaces decimated 8x and
-        expanded back, the spectral h is within 0.05 of nominal for h = 0.5 ... 0.8, 0.04 to
-        0.06 low at 0.9 and 0.05 to 0.08 high at 0.3 (``tests/terrain/test_expand.py``). What
-        remains is not the displacement's size but its spectrum: independent displacements
-        put some power below the coarse grid's Nyquist frequency, where the data already holds
-        it (at h = 0.3, 1.4 times the truth's power at 16-22 m from an 8 m base), and the
-        four-point predictor slightly attenuates the coarse data just below it (0.86-0.9 at
-        h = 0.9). Displacements with that low-frequency power removed along their line
-        (``(g(p) - (g(p - 2d) + g(p + 2d)) / 2) / sqrt(1.5)`` for keyed Gaussians g) were
-        tried: they bring h within 0.05 for 0.5 ... 0.9 and the slope KS of a re-expanded
-        h = 0.8 fBm to 0.05-0.07 of bicubic's, but continue the real shape-from-shading DEM
-        no better than bicubic (KS 0.088 against 0.089, 0.071 with these), so they are not
-        used.
+        expanded back, the spectral h was within 0.05 of nominal for h = 0.5 ... 0.8, but
+        0.06 to 0.08 high at h = 0.3 and 0.04 to 0.06 low at 0.9. Two causes remained, and two
+        corrections, each derived from the fBm variogram, remove them:
+
+        * at h near 1, independent displacements spread the error's power evenly over the new
+          octave, and between neighbouring columns, where fBm's errors move together, they add
+          a white high-frequency floor (measured: 0.84-0.88 of the truth's power at 10-16 m
+          from an 8 m base, 1.1-1.3 at 3-4 m). The displacements are drawn with the fBm
+          errors' own correlations along and across the line (:func:`terrain.rmd.noise_taps`,
+          derived in :mod:`terrain.rmd`).
+        * at small h, level 1 reads data sampled from a rough surface, which holds the power
+          that sampling aliased into it from above its Nyquist frequency (for an
+          ``f^-(2h + 2)`` spectrum at h = 0.3, about a third of the power just below
+          Nyquist). The four-point predictor reproduces cubics, so it keeps that power where
+          it was aliased to: with only the data interpolated (no displacements), 16-42 m
+          wavelengths carried 1.1-1.2 times the truth's power. The conditional expectation of
+          the fBm, which a prediction should be, instead attenuates the data near Nyquist and
+          leaves the power to the displacements: level 1 predicts by kriging on the fBm
+          variogram from the same four (three, two) points on the line
+          (:func:`terrain.rmd.kriging_line_weights`: outer weights +0.068 at h = 0.3, 0 at 0.5,
+          -0.063 at 0.9, where Deslauriers-Dubuc has -1/16), displacing by its own error,
+          ``sqrt(V E_krig(h)) d^h / k(h)``. Later levels read the cascade's heights, which
+          carry no aliased power (each level's kernel band-limits them), and keep the
+          four-point predictor: kriging there too loses the cascade's self-similarity (an RMD
+          tile built by kriging at every level measured h = 0.16 for 0.3).
+
+        Measured on 1025 x 1025 spectral fBm surfaces decimated 8x and expanded back (seeds 0
+        and 1, mean of the two): h = 0.306, 0.488, 0.684, 0.787, 0.891 for nominal 0.3, 0.5,
+        0.7, 0.8, 0.9 (0.361, 0.507, 0.671, 0.759, 0.849 before the two corrections; the
+        surfaces' own fits are 0.295, 0.495, 0.696, 0.796, 0.896):
+        ``tests/terrain/test_expand.py``. Displacements with all power below the coarse
+        grid's Nyquist frequency removed along their line (``(g(p) - (g(p - 2d) +
+        g(p + 2d)) / 2) / sqrt(1.5)``) were also tried: they bring h within 0.05 for
+        0.5 ... 0.9 but continue the real shape-from-shading DEM no better than bicubic (KS
+        0.088 against 0.089; 0.072 with these), so they are not used.
         """
         if level < 1:
             raise InvalidParameterError(f"expansion level must be >= 1; got {level}")
-        return (line_sigmas(self.hurst, self.unit_variance()) * 2.0 ** (-level * self.hurst)
-                / self.excess)
+        return (line_sigmas(self.hurst, self.unit_variance(), self.weights(level))
+                * 2.0 ** (-level * self.hurst) / self.excess)
+
+    def weights(self, level: int) -> np.ndarray:
+        """(outer, u, v, t) line weights of expansion ``level``'s predictors.
+
+        Level 1 reads the data: kriging on the fBm variogram
+        (:func:`terrain.rmd.kriging_line_weights`); later levels read the cascade's own
+        heights: the four-point Deslauriers-Dubuc predictor (:data:`terrain.rmd.DD_WEIGHTS`).
+        See :meth:`sigmas`.
+        """
+        if level < 1:
+            raise InvalidParameterError(f"expansion level must be >= 1; got {level}")
+        return kriging_line_weights(self.hurst) if level == 1 else DD_WEIGHTS.copy()
+
+    def taps(self) -> np.ndarray:
+        """Moving-average taps of the correlated displacements (:func:`terrain.rmd.noise_taps`)."""
+        return noise_taps(self.hurst)
 
     def as_dict(self) -> dict:
         return asdict(self)
