@@ -51,6 +51,7 @@ def test_build_perlin_with_craters_and_boulders_is_reproducible(tmp_path):
     assert len(loaded.faces) == 12 * 16**2 + n_boulders * 1280
 
 
+@pytest.mark.slow
 def test_build_faulting_preset_and_native_only(tmp_path):
     r = run("asteroid", "build", "-o", tmp_path / "f.npz", "--preset", "fig9-faulting",
             "--magnitude", 10, "--craters", "none", "--seed", 2)

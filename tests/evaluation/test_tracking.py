@@ -253,6 +253,7 @@ def test_bad_input_is_refused(planar_run, tmp_path):
         score(short, planar_run, outlier_px=0.0)
 
 
+@pytest.mark.slow
 def test_tracking_a_sequence_from_the_gl_renderer(tmp_path):
     """End to end with `craterscape render sequence` (skipped without headless OpenGL).
 
