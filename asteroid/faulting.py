@@ -108,7 +108,7 @@ def _gaussians(p):
 
 @numba.njit(cache=True, inline="always")
 def _side(h, x, y, z, a, b, c):
-    """h where (x, y, z) lies on the positive side of the great circle with normal (a, b, c)."""
+    """H where (x, y, z) lies on the positive side of the great circle with normal (a, b, c)."""
     return h if x * a + y * b + z * c > 0.0 else 0.0
 
 

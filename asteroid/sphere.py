@@ -256,7 +256,8 @@ def band_triangle(m, b, t):
 @numba.njit(cache=True)
 def ring_unit(m, g, p):
     """Unit vector of position p (0 <= p < n_g) on global ring g: the one formula every
-    direction of the mesh comes from, so all of them agree bitwise."""
+    direction of the mesh comes from, so all of them agree bitwise.
+    """
     if g == 0:
         return 0.0, 0.0, 1.0
     if g == 2 * m:
@@ -455,7 +456,8 @@ def _cone(ax, ay, az, bx, by, bz, cx, cy, cz, ux, uy, uz):
 @numba.njit(cache=True)
 def cone_coordinates(m, tri, ux, uy, uz):
     """(alpha, beta, gamma) with u = alpha A + beta B + gamma C for triangle ``tri``'s unit
-    vertex directions A, B, C (Cramer's rule); all >= 0 when u lies in the triangle's cone."""
+    vertex directions A, B, C (Cramer's rule); all >= 0 when u lies in the triangle's cone.
+    """
     i0, i1, i2 = triangle_vertices(m, tri)
     ax, ay, az = unit_vertex(m, i0)
     bx, by, bz = unit_vertex(m, i1)
@@ -698,7 +700,8 @@ class SphereMesh:
 
     def across(self, index, rings=1) -> np.ndarray:
         """Vertex of the ring ``rings`` further south (negative: north) nearest in longitude;
-        a path over a pole continues on the far side (longitude + pi)."""
+        a path over a pole continues on the far side (longitude + pi).
+        """
         idx = _as_index(index, self.n_vertices)
         dg = np.broadcast_to(np.asarray(rings, dtype=np.int64), idx.shape)
         if dg.size and np.abs(dg).max() > 2 * self.magnitude:
@@ -719,7 +722,8 @@ class SphereMesh:
 
     def cap(self, direction, angle: float) -> np.ndarray:
         """Flat indices of vertices within ``angle`` radians of ``direction`` (conservative
-        by 1e-9 rad), ring by ring from the north."""
+        by 1e-9 rad), ring by ring from the north.
+        """
         u = _unit_vectors(direction)[0]
         return cap_vertices(self.magnitude, u[0], u[1], u[2], float(angle))
 
@@ -759,7 +763,8 @@ class SphereMesh:
 
     def locate(self, directions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Triangle holding each direction: (triangle (n,) int64, its vertices (n, 3) int64,
-        cone coordinates (n, 3) float64 with ``u = sum_k w_k A_k`` for unit vertex vectors)."""
+        cone coordinates (n, 3) float64 with ``u = sum_k w_k A_k`` for unit vertex vectors).
+        """
         u = _unit_vectors(directions)
         tri = np.empty(len(u), np.int64)
         idx = np.empty((len(u), 3), np.int64)
@@ -769,7 +774,8 @@ class SphereMesh:
 
     def surface_radius(self, radii, directions) -> np.ndarray:
         """Distance from the centre to the mesh surface (flat triangles through the vertices
-        at ``radii``) along each direction, (n,) float64 in the units of ``radii``."""
+        at ``radii``) along each direction, (n,) float64 in the units of ``radii``.
+        """
         radii = np.ascontiguousarray(radii, dtype=np.float64)
         if radii.shape != (self.n_vertices,):
             raise InvalidParameterError(

@@ -200,7 +200,7 @@ class Polyhedron:
 
     @property
     def mass(self) -> float:
-        """kg."""
+        """Kg."""
         return self.density * self.volume
 
     def field(self, points, *, progress=None) -> tuple[np.ndarray, np.ndarray]:

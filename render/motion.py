@@ -102,7 +102,8 @@ class Motion:
     @classmethod
     def from_mapping(cls, mapping) -> Motion:
         """Motion from a table (a scenario's ``[motion]`` less its ``blur`` switch, or a
-        request); unknown keys are errors naming the nearest valid key."""
+        request); unknown keys are errors naming the nearest valid key.
+        """
         return cls(**check_keys(mapping, set(cls.__dataclass_fields__), "motion"))
 
     @property
@@ -142,7 +143,8 @@ def row_time(row, exposure_time: float, line_time: float):
 
 def trajectory_velocities(samples, index: int) -> Motion:
     """Velocities at frame ``index`` of a trajectory by central differences between its
-    neighbouring frames (one-sided at the ends; zero for a single frame)."""
+    neighbouring frames (one-sided at the ends; zero for a single frame).
+    """
     n = len(samples)
     if n < 2:
         return Motion()

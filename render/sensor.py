@@ -355,7 +355,8 @@ class Sensor:
 
     def _shot(self, e, frame, cols, rows):
         """Poisson electrons of mean ``e``: exact below :data:`POISSON_EXACT_BELOW`, else
-        Gaussian; one keyed uniform per pixel either way."""
+        Gaussian; one keyed uniform per pixel either way.
+        """
         from scipy.special import ndtri
 
         u = uniform(self.seed, STREAM_SHOT, frame, cols, rows)
@@ -368,7 +369,8 @@ class Sensor:
 
 def _poisson_inverse(u: np.ndarray, lam: np.ndarray) -> np.ndarray:
     """Smallest k with P(K <= k) >= u for Poisson means ``lam`` < 30 (inverse transform,
-    summing the probability mass term by term; exact up to float64 rounding)."""
+    summing the probability mass term by term; exact up to float64 rounding).
+    """
     p = np.exp(-lam)
     cdf = p.copy()
     k = np.zeros_like(lam)

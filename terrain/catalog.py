@@ -156,7 +156,8 @@ CATALOG_COLUMNS = (
 @contextlib.contextmanager
 def csv_sink(path_or_file):
     """Yield a text file for a CSV writer: ``path_or_file`` itself if it has ``write``, else
-    that path opened for writing (and closed afterwards)."""
+    that path opened for writing (and closed afterwards).
+    """
     if hasattr(path_or_file, "write"):
         yield path_or_file
         return

@@ -486,7 +486,8 @@ class FillSource:
     @property
     def margin(self) -> int:
         """Pixels a cluster of gaps (each grown by its roughness ring) needs around it: a
-        ring more, so a gap whose ring meets the cluster's is in sight, and the Horn stencil."""
+        ring more, so a gap whose ring meets the cluster's is in sight, and the Horn stencil.
+        """
         from terrain.gapfill import RING
 
         return RING + 2
@@ -512,7 +513,8 @@ class FillSource:
     def gaps_touching(self, window: Window):
         """The gap touching ``window`` that needs the largest halo, if it needs more than
         ``halo``: ``(span, needed halo, (col, row), truncated)``, else None. ``truncated``:
-        the gap runs past the grown window, so its span and need are lower bounds."""
+        the gap runs past the grown window, so its span and need are lower bounds.
+        """
         from scipy import ndimage
 
         big = self._grown(window)
@@ -558,7 +560,8 @@ class FillSource:
 
     def check(self, chunk: int) -> None:
         """Raise :class:`GapTooLargeError` naming the gap that needs the largest halo, if
-        any gap does not fit (reads the input once, chunk by chunk)."""
+        any gap does not fit (reads the input once, chunk by chunk).
+        """
         ny, nx = self.shape
         worst = None
         for r0 in range(0, ny, chunk):

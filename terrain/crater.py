@@ -268,7 +268,7 @@ def interior_height(x, bowl_curvature, floor, rim):
 
 @numba.njit(cache=True)
 def interior_alpha(bowl_curvature, floor, rim):
-    """alpha (eq. 6, with the clamps of interior_height)."""
+    """Alpha (eq. 6, with the clamps of interior_height)."""
     c = min(floor, rim)
     d = rim - c
     a = max(bowl_curvature, d)

@@ -62,7 +62,8 @@ STREAM_EXPAND = stream_id("expand")
 @numba.njit(cache=True)
 def _amplitude_row(amp, ar0, scale, r, buf):
     """The local roughness map bilinearly interpolated to child row r, at the map's column
-    spacing, into buf (then :func:`_amplitude_col` along the row); nothing without a map."""
+    spacing, into buf (then :func:`_amplitude_col` along the row); nothing without a map.
+    """
     if amp.shape[0] == 0:
         return
     fr = min(max(r * scale - ar0, 0.0), amp.shape[0] - 1.0)

@@ -211,7 +211,8 @@ def _steps(z, full, offsets, c0, c1, c2, res, out):
 
 def pick_layer(resolutions, lander_diameter: float) -> int:
     """Index of the finest layer with at most :data:`MAX_FOOTPRINT_PIXELS` pixels across the
-    footprint (the coarsest layer if none qualifies)."""
+    footprint (the coarsest layer if none qualifies).
+    """
     best = 0
     for k, res in enumerate(resolutions):
         if lander_diameter / res <= MAX_FOOTPRINT_PIXELS:
@@ -221,7 +222,8 @@ def pick_layer(resolutions, lander_diameter: float) -> int:
 
 def hazard_image(hazards: HazardMap, shade: np.ndarray | None = None) -> np.ndarray:
     """(ny, nx, 3) uint8 BGR picture: green safe, red unsafe, dark grey unknown, modulated by
-    a shaded relief (uint8, 0-255) when given."""
+    a shaded relief (uint8, 0-255) when given.
+    """
     ny, nx = hazards.safe.shape
     img = np.zeros((ny, nx, 3), np.float64)
     safe = hazards.safe == 1

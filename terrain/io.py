@@ -266,7 +266,8 @@ def _replay(captured: list) -> None:
 
 def same_crs(a: str | None, b: str | None) -> bool:
     """Whether two CRS definitions (WKT) describe the same CRS (GDAL's own equality, so
-    equivalent CRSs written differently compare equal); None equals only None."""
+    equivalent CRSs written differently compare equal); None equals only None.
+    """
     if a is None or b is None:
         return a is None and b is None
     try:

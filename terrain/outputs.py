@@ -248,7 +248,8 @@ def _forget(tmp: Path) -> None:
 
 def remove_temporaries() -> list[Path]:
     """Remove every temporary this process still holds (the command line calls it when
-    interrupted; a temporary a committed set's journal names is never among them)."""
+    interrupted; a temporary a committed set's journal names is never among them).
+    """
     removed = []
     for tmp in list(_LIVE):
         with contextlib.suppress(OSError):
@@ -370,7 +371,7 @@ def sweep_partials(folder, *, recursive: bool = False) -> list[Path]:
 
 @contextlib.contextmanager
 def _folder_lock(folder: Path, shared: bool = False) -> Iterator[None]:
-    """flock on the folder itself: commits (and roll-forwards) in a folder never interleave."""
+    """Flock on the folder itself: commits (and roll-forwards) in a folder never interleave."""
     try:
         fd = os.open(folder, os.O_RDONLY)
     except OSError:  # unreadable folder: nothing to lock against
@@ -518,14 +519,16 @@ class Transaction:
 
 def discard(*paths) -> None:
     """Stale companions of the outputs being written: removed when the current
-    :func:`transaction` commits (at once outside one). Absent paths are ignored."""
+    :func:`transaction` commits (at once outside one). Absent paths are ignored.
+    """
     with transaction(stale=paths):
         pass
 
 
 def make_output_folder(folder, inputs: Iterable = ()) -> Path:
     """Check (:func:`check_output_folder`) and create an output folder; inside a
-    :func:`transaction` a folder it creates is removed again if the transaction fails."""
+    :func:`transaction` a folder it creates is removed again if the transaction fails.
+    """
     folder = check_output_folder(folder, inputs)
     txn = _ACTIVE.get()
     if txn is not None:

@@ -157,7 +157,7 @@ class Population:
 
     @property
     def sfd_constant(self) -> float:
-        """c of N_cum = c D^k (per km^2, D in metres)."""
+        """C of N_cum = c D^k (per km^2, D in metres)."""
         return self.density * self.dmin ** (-self.sfd_exponent)
 
     def cumulative(self, diameter):

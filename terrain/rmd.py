@@ -319,7 +319,7 @@ def predict(m3, m1, p1, p3, w):
 
 @numba.njit(cache=True)
 def _at(prev, pr0, pc0, sr, sc, r, c, w_r, w_c):
-    """prev at global (r, c) on its grid, NaN outside the tile [0, w_r] x [0, w_c]."""
+    """Prev at global (r, c) on its grid, NaN outside the tile [0, w_r] x [0, w_c]."""
     if r < 0 or c < 0 or r > w_r or c > w_c:
         return math.nan
     return prev[(r - pr0) // sr, (c - pc0) // sc]
@@ -383,7 +383,8 @@ def _pass(prev, pr0, pc0, sr, sc, out, or0, oc0, tr, tc, axis, w_r, w_c, sig, ta
 
 def _needed_ranges(lo: int, hi: int, w: int) -> list[tuple[int, int]]:
     """Index range (inclusive) needed at every spacing 1, 2, 4, ..., w (three half-spacings
-    of the finer level either side, on the coarser grid, clipped to the tile)."""
+    of the finer level either side, on the coarser grid, clipped to the tile).
+    """
     ranges = [(lo, hi)]
     h = 1
     while h < w:

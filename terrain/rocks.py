@@ -398,7 +398,8 @@ class RockModel:
 
 def _half_length(d: float) -> float:
     """Largest half-length of a rock of diameter d: a = d / sqrt(b/a) with b/a >= 0.4, and
-    the outline perturbation."""
+    the outline perturbation.
+    """
     return 0.5 * d / math.sqrt(0.4) * (1 + 3 * SHAPE_PERTURBATION)
 
 
@@ -739,7 +740,8 @@ def rock_catalog(rocks: RockTable, z0, layer) -> dict:
 
 def write_rock_catalog(path_or_file, catalog: dict) -> None:
     """Write a rock catalogue CSV: ``id`` as 16 hex digits, lengths in metres,
-    ``orientation_deg`` the long axis's angle from map east towards north, in [0, 180)."""
+    ``orientation_deg`` the long axis's angle from map east towards north, in [0, 180).
+    """
     from terrain.catalog import write_catalog
 
     write_catalog(path_or_file, catalog, columns=ROCK_COLUMNS)

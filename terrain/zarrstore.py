@@ -74,7 +74,8 @@ _ARRAYS: dict = {}
 
 def _array(path: Path, mode: str):
     """The store's height array, opened once per process and mode (opening costs a few
-    milliseconds of metadata reads, as much as writing a small chunk)."""
+    milliseconds of metadata reads, as much as writing a small chunk).
+    """
     key = (str(path), mode)
     array = _ARRAYS.get(key)
     if array is None:
