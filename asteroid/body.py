@@ -102,10 +102,12 @@ class Stretch:
 
     @property
     def factors(self) -> np.ndarray:
+        """The stretch factors (x, y, z) as a (3,) float64 array."""
         return np.array([self.x, self.y, self.z])
 
     @property
     def is_identity(self) -> bool:
+        """Whether the stretch leaves every point where it is (all factors 1)."""
         return self.x == self.y == self.z == 1.0
 
     def source(self, directions) -> tuple[np.ndarray, np.ndarray]:
@@ -118,6 +120,7 @@ class Stretch:
         return v / length[..., None], 1.0 / length
 
     def as_list(self) -> list[float]:
+        """The factors as a list [x, y, z] (for TOML and JSON)."""
         return [self.x, self.y, self.z]
 
 
@@ -211,6 +214,7 @@ class Body:
 
     @property
     def magnitude(self) -> int:
+        """The mesh magnitude M (6 M^2 + 2 vertices)."""
         return self.mesh.magnitude
 
     @property

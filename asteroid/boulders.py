@@ -271,6 +271,7 @@ class BoulderSettings:
             object.__setattr__(self, name, float(getattr(self, name)))
 
     def as_dict(self) -> dict:
+        """Return the settings as plain data for the model's metadata (tuples as lists)."""
         d = asdict(self)
         d["flattening"] = list(self.flattening)
         d["elongation"] = list(self.elongation)

@@ -185,6 +185,7 @@ class OutputPaths:
     stale: tuple = ()
 
     def all(self) -> list[Path]:
+        """Return every path of the set that is written (the optional ones only when present)."""
         return [p for p in (self.mesh, self.native, self.craters, self.boulders)
                 if p is not None]
 

@@ -213,6 +213,7 @@ class CraterSettings:
         object.__setattr__(self, "max_extent_deg", v)
 
     def as_dict(self) -> dict:
+        """Return the settings as plain data for the model's metadata."""
         return dict(model=self.model.as_dict(), max_extent_deg=self.max_extent_deg,
                     slope=asdict(self.slope))
 

@@ -237,6 +237,7 @@ class Faulting:
             object.__setattr__(self, name, v)
 
     def as_dict(self) -> dict:
+        """Return the parameters as plain data (metres and counts) for recipes and metadata."""
         return asdict(self)
 
     def radii(self, mesh: SphereMesh, radius: float, *, seed: int,

@@ -255,6 +255,7 @@ class PatchTree:
 
     @property
     def n_nodes(self) -> int:
+        """The number of nodes in the tree (all levels)."""
         return int(self.band_start.size)
 
     def leaves(self) -> np.ndarray:

@@ -107,6 +107,7 @@ class Placement:
         return np.mod(np.arctan2(self.directions[:, 1], self.directions[:, 0]), 2 * np.pi)
 
     def take(self, order) -> Placement:
+        """Return the placements in the given order (an index array or boolean mask)."""
         return Placement(self.directions[order], self.diameters[order], self.ages[order],
                          self.uid[order], self.size_class[order], self.index[order],
                          self.extra[order])

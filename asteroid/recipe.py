@@ -189,6 +189,7 @@ class CraterSpec:
         self.settings()  # validates the settings now, not at build time
 
     def settings(self) -> CraterSettings:
+        """Return the crater settings this spec describes, with the paper's defaults filled in."""
         kwargs = {} if self.erosion_exponent is None else {"exponent": self.erosion_exponent}
         ring = max(DEFAULT_PEAK_RING_DIAMETER, 2.0 * float(self.transition_diameter))
         model = CraterModel(erosion=ErosionModel.default(**kwargs),
@@ -229,6 +230,7 @@ class BoulderSpec:
         _density("boulders", self.c, self.density, -3.0, 1.0)
 
     def population(self, spacing: float) -> Population:
+        """Return the boulder population for a mesh of this mean vertex spacing (metres)."""
         dmin = BOULDER_DMIN_SPACINGS * spacing if self.dmin is None else float(self.dmin)
         dmax = BOULDER_RANGE * dmin if self.dmax is None else float(self.dmax)
         density = _density("boulders", self.c, self.density, self.k, dmin)

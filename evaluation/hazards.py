@@ -1,5 +1,7 @@
-"""The landing site at lander scale: hazard map, rock size-frequency against the model, and
-which layer a descent's frames were drawn from.
+"""The landing site at lander scale.
+
+The hazard map, the rock size-frequency against the model, and which layer a descent's
+frames were drawn from.
 
 :func:`rock_sfd` measures, from a rock catalogue, what the model promises: the cumulative
 fractional area F(>=D) (Golombek and Rapp 1997) and the cumulative number N(>=D) per m^2,

@@ -313,9 +313,11 @@ class SlopeAreaHistogram:
 
     @property
     def centres_deg(self) -> np.ndarray:
+        """The bin centres in degrees, (n,) float64."""
         return 0.5 * (self.edges_deg[1:] + self.edges_deg[:-1])
 
     def as_dict(self) -> dict:
+        """Return the histogram as plain data for the report's JSON."""
         return dict(label=self.label, kind=self.kind, edges_deg=self.edges_deg.tolist(),
                     area_percent=self.area_percent.tolist(),
                     percent_steeper=self.percent_steeper.tolist())
@@ -390,6 +392,7 @@ class MeshSlopes:
         return q
 
     def as_dict(self) -> dict:
+        """Return the summaries (not the per-vertex arrays) as plain data for the report's JSON."""
         out = dict(label=self.label, vertices=int(self.vertex_area.size),
                    radius_deg=self.radius_deg, info=self.info,
                    radial=self.summary("radial"))

@@ -330,6 +330,7 @@ class SlopeDistribution:
     source: str = ""
 
     def as_dict(self) -> dict:
+        """Return the distribution as plain data for the report's JSON."""
         return dict(label=self.label, resolution_m=self.resolution_m, pixels=self.pixels,
                     source=self.source, quantiles=self.quantiles,
                     angles_deg=self.angles_deg.tolist(),
@@ -460,7 +461,7 @@ def resample(tile: DEMTile, resolution: float) -> DEMTile:
 
 
 def matched_baseline(a: DEMTile, b: DEMTile) -> tuple[DEMTile, DEMTile]:
-    """Both DEMs at the coarser one's spacing (the finer one is :func:`resample`\\ d).
+    r"""Return both DEMs at the coarser one's spacing (the finer one is :func:`resample`\ d).
 
     >>> fine = DEMTile.from_array(np.zeros((8, 8)), resolution=1.0)
     >>> coarse = DEMTile.from_array(np.zeros((4, 4)), resolution=2.0)

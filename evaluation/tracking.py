@@ -172,6 +172,7 @@ class TrackerSettings:
                 f"{self.min_distance}, {self.fb_threshold}, {self.harris_k}")
 
     def as_dict(self) -> dict:
+        """Return the settings as plain data for the report's JSON."""
         return dict(max_corners=self.max_corners, quality=self.quality,
                     min_distance=self.min_distance, block_size=self.block_size,
                     harris_k=self.harris_k, win_size=self.win_size, levels=self.levels,
@@ -208,10 +209,12 @@ class Tracks:
 
     @property
     def n_frames(self) -> int:
+        """The number of frames of the sequence."""
         return self.positions.shape[1]
 
     @property
     def n_tracks(self) -> int:
+        """The number of tracks (features ever detected)."""
         return self.positions.shape[0]
 
     @property
@@ -234,6 +237,7 @@ class Tracks:
         return out
 
     def summary(self) -> dict:
+        """Return counts of alive tracks per frame and their survival, as plain data."""
         alive = self.alive()
         per_frame = alive.sum(axis=0)
         surv = self.survival()
@@ -590,6 +594,7 @@ class ScoredTracks:
 
     @property
     def has_errors(self) -> bool:
+        """Whether the tracks were scored against ground truth."""
         return self.errors is not None
 
     def error_values(self) -> np.ndarray:
@@ -649,6 +654,7 @@ class ScoredTracks:
         return out
 
     def summary(self) -> dict:
+        """Return the tracking and error summaries and the notes, as plain data."""
         return dict(tracking=self.tracks.summary(), errors=self.error_summary(),
                     notes=list(self.notes))
 

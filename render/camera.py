@@ -92,6 +92,7 @@ class Intrinsics:
 
     @property
     def fov_y(self) -> float:
+        """The vertical field of view in degrees (through the pixel edges)."""
         top = (self.cy + 0.5) / self.fy
         bottom = (self.height - 0.5 - self.cy) / self.fy
         return math.degrees(math.atan(top) + math.atan(bottom))
@@ -104,6 +105,7 @@ class Intrinsics:
         return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
     def as_dict(self) -> dict:
+        """Return the intrinsics as plain data (pixels) for truth files."""
         return dict(width=self.width, height=self.height, fx=self.fx, fy=self.fy, cx=self.cx,
                     cy=self.cy)
 
@@ -218,6 +220,7 @@ class Pose:
         return np.asarray(self.position) + (d * np.asarray(ranges)[:, None]) @ self.rotation.T
 
     def as_dict(self) -> dict:
+        """Return the pose as plain data (metres; attitude quaternion) for truth files."""
         return dict(position=list(self.position), attitude=list(self.attitude))
 
 

@@ -101,13 +101,15 @@ class Motion:
 
     @classmethod
     def from_mapping(cls, mapping) -> Motion:
-        """Motion from a table (a scenario's ``[motion]`` less its ``blur`` switch, or a
-        request); unknown keys are errors naming the nearest valid key.
+        """Build the motion from a table (a scenario's ``[motion]`` less ``blur``, or a request).
+
+        Unknown keys are errors naming the nearest valid key.
         """
         return cls(**check_keys(mapping, set(cls.__dataclass_fields__), "motion"))
 
     @property
     def still(self) -> bool:
+        """Whether nothing moves during the exposure (no velocity, no rotation)."""
         return not any(np.any(np.asarray(v)) for v in (
             self.velocity, self.angular_velocity, self.body_angular_velocity))
 
@@ -124,6 +126,7 @@ class Motion:
         return tuple(quat_from_matrix(r).tolist())
 
     def as_dict(self) -> dict:
+        """Return the motion as plain data (m/s and rad/s) for truth files."""
         return dict(velocity=list(self.velocity), angular_velocity=list(self.angular_velocity),
                     body_angular_velocity=list(self.body_angular_velocity))
 
@@ -142,8 +145,10 @@ def row_time(row, exposure_time: float, line_time: float):
 
 
 def trajectory_velocities(samples, index: int) -> Motion:
-    """Velocities at frame ``index`` of a trajectory by central differences between its
-    neighbouring frames (one-sided at the ends; zero for a single frame).
+    """Return the velocities at frame ``index`` of a trajectory.
+
+    Central differences between its neighbouring frames (one-sided at the ends; zero for a
+    single frame).
     """
     n = len(samples)
     if n < 2:

@@ -214,6 +214,7 @@ class Sensor:
         return cls(seed=seed, **m)
 
     def as_dict(self) -> dict:
+        """Return the sensor model as plain data for run manifests."""
         d = asdict(self)
         d["psf"] = [list(t) for t in self.psf]
         return d
@@ -226,10 +227,12 @@ class Sensor:
 
     @property
     def full_scale(self) -> int:
+        """The largest digital number the sensor can output (2^bits - 1)."""
         return 2**self.bits - 1
 
     @property
     def rolling(self) -> bool:
+        """Whether rows are exposed one after another (rolling shutter)."""
         return self.line_time > 0
 
     @property
@@ -354,8 +357,10 @@ class Sensor:
         return out.astype(np.uint8 if self.bits <= 8 else np.uint16)
 
     def _shot(self, e, frame, cols, rows):
-        """Poisson electrons of mean ``e``: exact below :data:`POISSON_EXACT_BELOW`, else
-        Gaussian; one keyed uniform per pixel either way.
+        """Draw Poisson electrons of mean ``e``.
+
+        Exact below :data:`POISSON_EXACT_BELOW`, else Gaussian; one keyed uniform per pixel
+        either way.
         """
         from scipy.special import ndtri
 
@@ -368,8 +373,10 @@ class Sensor:
 
 
 def _poisson_inverse(u: np.ndarray, lam: np.ndarray) -> np.ndarray:
-    """Smallest k with P(K <= k) >= u for Poisson means ``lam`` < 30 (inverse transform,
-    summing the probability mass term by term; exact up to float64 rounding).
+    """Return the smallest k with P(K <= k) >= u for Poisson means ``lam`` < 30.
+
+    Inverse transform, summing the probability mass term by term; exact up to float64
+    rounding.
     """
     p = np.exp(-lam)
     cdf = p.copy()

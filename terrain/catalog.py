@@ -105,6 +105,7 @@ class CraterTable:
 
     @classmethod
     def empty(cls) -> CraterTable:
+        """Return a table without craters."""
         z = np.zeros(0)
         return cls(z, z, z, z, z.astype(np.uint64), z.astype(np.int64))
 
@@ -121,11 +122,13 @@ class CraterTable:
                    np.floor(np.log2(d)).astype(np.int64))
 
     def take(self, index) -> CraterTable:
+        """Return the craters selected by ``index`` (an index array or boolean mask)."""
         return CraterTable(self.x[index], self.y[index], self.diameter[index], self.age[index],
                            self.uid[index], self.size_class[index], dict(self.meta))
 
     @staticmethod
     def concatenate(tables) -> CraterTable:
+        """Return one table of the craters of ``tables``, in order."""
         tables = [t for t in tables if len(t)]
         if not tables:
             return CraterTable.empty()
@@ -155,8 +158,10 @@ CATALOG_COLUMNS = (
 
 @contextlib.contextmanager
 def csv_sink(path_or_file):
-    """Yield a text file for a CSV writer: ``path_or_file`` itself if it has ``write``, else
-    that path opened for writing (and closed afterwards).
+    """Yield a text file for a CSV writer.
+
+    ``path_or_file`` itself if it has ``write``, else that path opened for writing (and
+    closed afterwards).
     """
     if hasattr(path_or_file, "write"):
         yield path_or_file

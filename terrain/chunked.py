@@ -152,20 +152,24 @@ class SynthSource:
 
     @property
     def shape(self):
+        """The output's (rows, cols)."""
         return (self.size, self.size)
 
     @property
     def transform(self) -> Affine:
+        """The output's affine transform (metres)."""
         return default_transform(float(self.resolution), self.size)
 
     nodata = float("nan")
 
     @property
     def has_catalog(self) -> bool:
+        """Whether the run writes a crater catalogue."""
         return self.craters is not None
 
     @property
     def metadata(self) -> dict:
+        """The output's metadata tags (seed and parameters)."""
         from terrain.cratering import describe_craters
 
         params = dict(size=self.size, resolution=float(self.resolution),
@@ -179,9 +183,11 @@ class SynthSource:
         return meta
 
     def plan(self) -> dict:
+        """Return what decides the output's bytes, to match a resumed run."""
         return dict(kind="synth", metadata=self.metadata)
 
     def compute(self, window: Window):
+        """Compute the heights of one window, equal to the same window of a whole run."""
         from terrain.synthetic import synthesize_tile
 
         result = synthesize_tile(self.size, resolution=self.resolution,
@@ -215,24 +221,29 @@ class CraterSource:
 
     @property
     def shape(self):
+        """The output's (rows, cols), those of the input."""
         return self.reader.shape
 
     @property
     def transform(self):
+        """The output's affine transform, that of the input."""
         return self.reader.transform
 
     @property
     def crs(self):
+        """The output's CRS, that of the input."""
         return self.reader.crs
 
     @property
     def nodata(self):
+        """The input's nodata value."""
         return self.reader.nodata
 
     has_catalog = True
 
     @property
     def metadata(self) -> dict:
+        """The output's metadata tags (the input's, with the craters' seed and parameters)."""
         from terrain.cratering import describe_craters
 
         meta = dict(self.reader.metadata)
@@ -242,9 +253,11 @@ class CraterSource:
         return meta
 
     def plan(self) -> dict:
+        """Return what decides the output's bytes, to match a resumed run."""
         return dict(kind="craters", input=_input_stamp(self.reader), metadata=self.metadata)
 
     def compute(self, window: Window):
+        """Compute the cratered heights of one window, equal to the same window of a whole run."""
         from terrain.cratering import crater_heights
 
         z, catalog = crater_heights(_read_base(self.reader), self.shape, self.transform,
@@ -365,28 +378,33 @@ class ExpandSource:
 
     @property
     def shape(self):
+        """The expanded output's (rows, cols)."""
         from terrain.expand import expanded_shape
 
         return expanded_shape(self.reader.shape, self.times)
 
     @property
     def transform(self):
+        """The expanded output's affine transform (finer spacing, same origin)."""
         from terrain.expand import expanded_transform
 
         return expanded_transform(self.reader.transform, self.times)
 
     @property
     def crs(self):
+        """The output's CRS, that of the input."""
         return self.reader.crs
 
     @property
     def nodata(self):
+        """The input's nodata value."""
         return self.reader.nodata
 
     has_catalog = False
 
     @property
     def metadata(self) -> dict:
+        """The output's metadata tags (the input's, with the expansion's seed and parameters)."""
         meta = dict(self.reader.metadata)
         meta["CRATERSCAPE_SEED"] = str(self.seed)
         meta["CRATERSCAPE_EXPANSION"] = json.dumps(dict(self.params.as_dict(),
@@ -394,9 +412,11 @@ class ExpandSource:
         return meta
 
     def plan(self) -> dict:
+        """Return what decides the output's bytes, to match a resumed run."""
         return dict(kind="expand", input=_input_stamp(self.reader), metadata=self.metadata)
 
     def compute(self, window: Window):
+        """Compute the expanded heights of one window, equal to the same window of a whole run."""
         from terrain.expand import expand_level, expanded_shape, parent_region
         from terrain.roughness import local_amplitude
 
@@ -467,26 +487,32 @@ class FillSource:
 
     @property
     def shape(self):
+        """The output's (rows, cols), those of the input."""
         return self.reader.shape
 
     @property
     def transform(self):
+        """The output's affine transform, that of the input."""
         return self.reader.transform
 
     @property
     def crs(self):
+        """The output's CRS, that of the input."""
         return self.reader.crs
 
     @property
     def nodata(self):
+        """The input's nodata value."""
         return self.reader.nodata
 
     has_catalog = False
 
     @property
     def margin(self) -> int:
-        """Pixels a cluster of gaps (each grown by its roughness ring) needs around it: a
-        ring more, so a gap whose ring meets the cluster's is in sight, and the Horn stencil.
+        """Return the pixels a cluster of gaps needs around it.
+
+        Each gap is grown by its roughness ring; a ring more, so a gap whose ring meets the
+        cluster's is in sight, and the Horn stencil.
         """
         from terrain.gapfill import RING
 
@@ -494,6 +520,7 @@ class FillSource:
 
     @property
     def metadata(self) -> dict:
+        """The output's metadata tags (the input's, with the fill's seed and parameters)."""
         meta = dict(self.reader.metadata)
         meta["CRATERSCAPE_SEED"] = str(self.seed)
         meta["CRATERSCAPE_FILL"] = json.dumps(dict(chunked=True, halo=self.halo,
@@ -501,6 +528,7 @@ class FillSource:
         return meta
 
     def plan(self) -> dict:
+        """Return what decides the output's bytes, to match a resumed run."""
         return dict(kind="fill", input=_input_stamp(self.reader), metadata=self.metadata)
 
     def _grown(self, window: Window) -> Window:
@@ -511,9 +539,10 @@ class FillSource:
         return Window(c0, r0, c1 - c0, r1 - r0)
 
     def gaps_touching(self, window: Window):
-        """The gap touching ``window`` that needs the largest halo, if it needs more than
-        ``halo``: ``(span, needed halo, (col, row), truncated)``, else None. ``truncated``:
-        the gap runs past the grown window, so its span and need are lower bounds.
+        """Return the gap touching ``window`` that needs the largest halo, if above ``halo``.
+
+        ``(span, needed halo, (col, row), truncated)``, else None. ``truncated``: the gap runs
+        past the grown window, so its span and need are lower bounds.
         """
         from scipy import ndimage
 
@@ -559,8 +588,10 @@ class FillSource:
         return worst
 
     def check(self, chunk: int) -> None:
-        """Raise :class:`GapTooLargeError` naming the gap that needs the largest halo, if
-        any gap does not fit (reads the input once, chunk by chunk).
+        """Raise :class:`GapTooLargeError` if any gap does not fit the halo.
+
+        The error names the gap that needs the largest halo; the input is read once, chunk by
+        chunk.
         """
         ny, nx = self.shape
         worst = None
@@ -574,6 +605,7 @@ class FillSource:
             raise GapTooLargeError(_gap_message(worst, self.halo))
 
     def compute(self, window: Window):
+        """Compute the filled heights of one window from the window grown by the halo."""
         from terrain.gapfill import fill_gaps
         from terrain.tile import DEMTile
 
@@ -647,6 +679,7 @@ class RunReport:
 
     @property
     def pixels_per_second(self) -> float:
+        """Throughput of the run (NaN when it took no measurable time)."""
         return self.pixels / self.seconds if self.seconds > 0 else float("nan")
 
 
@@ -790,8 +823,9 @@ def _merge_catalogs(store: ZarrDEM, source) -> dict:
 @contextlib.contextmanager
 def dask_client(workers: int | None = None, scheduler: str | None = None,
                 processes: bool = True, memory_limit="auto"):
-    """A Dask client: on the cluster at ``scheduler``, on a local pool of ``workers``, or
-    None (this process) when neither is given.
+    """Yield a Dask client, or None (this process) when neither argument is given.
+
+    The client runs on the cluster at ``scheduler`` or on a local pool of ``workers``.
 
     Parameters
     ----------

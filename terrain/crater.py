@@ -356,6 +356,7 @@ class Morphology:
         return d > self.transition_diameter
 
     def as_dict(self) -> dict:
+        """Return the morphology as plain data for metadata."""
         return dict(transition_diameter=self.transition_diameter,
                     peak_ring_diameter=self.peak_ring_diameter, terraces=self.terraces,
                     enabled=self.enabled)
@@ -536,6 +537,7 @@ class CraterShape:
 
     @property
     def is_complex(self) -> bool:
+        """Whether the crater is complex (it has a flat floor)."""
         return self.floor_x > -1.0
 
     @property

@@ -61,8 +61,10 @@ STREAM_EXPAND = stream_id("expand")
 
 @numba.njit(cache=True)
 def _amplitude_row(amp, ar0, scale, r, buf):
-    """The local roughness map bilinearly interpolated to child row r, at the map's column
-    spacing, into buf (then :func:`_amplitude_col` along the row); nothing without a map.
+    """Interpolate the local roughness map bilinearly to child row r.
+
+    At the map's column spacing, into buf (then :func:`_amplitude_col` along the row);
+    nothing without a map.
     """
     if amp.shape[0] == 0:
         return

@@ -265,8 +265,10 @@ def _replay(captured: list) -> None:
 
 
 def same_crs(a: str | None, b: str | None) -> bool:
-    """Whether two CRS definitions (WKT) describe the same CRS (GDAL's own equality, so
-    equivalent CRSs written differently compare equal); None equals only None.
+    """Return whether two CRS definitions (WKT) describe the same CRS.
+
+    GDAL's own equality, so equivalent CRSs written differently compare equal; None equals
+    only None.
     """
     if a is None or b is None:
         return a is None and b is None
@@ -509,6 +511,7 @@ class RasterReader:
 
     @property
     def resolution(self) -> float:
+        """The pixel spacing in metres (square pixels)."""
         return float(self.transform.a)
 
     def read(self, window=None) -> tuple[np.ndarray, np.ndarray]:

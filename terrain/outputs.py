@@ -1,5 +1,7 @@
-"""Guarding and committing outputs: nothing a command reads is overwritten, nothing half-written
-is ever seen, and files that belong together appear together.
+"""Guarding and committing outputs.
+
+Nothing a command reads is overwritten, nothing half-written is ever seen, and files that
+belong together appear together.
 
 Every craterscape writer goes through :func:`atomic_path`; three mechanisms sit behind it.
 
@@ -247,8 +249,10 @@ def _forget(tmp: Path) -> None:
 
 
 def remove_temporaries() -> list[Path]:
-    """Remove every temporary this process still holds (the command line calls it when
-    interrupted; a temporary a committed set's journal names is never among them).
+    """Remove every temporary this process still holds.
+
+    The command line calls it when interrupted; a temporary a committed set's journal names
+    is never among them.
     """
     removed = []
     for tmp in list(_LIVE):
@@ -518,16 +522,20 @@ class Transaction:
 
 
 def discard(*paths) -> None:
-    """Stale companions of the outputs being written: removed when the current
-    :func:`transaction` commits (at once outside one). Absent paths are ignored.
+    """Mark stale companions of the outputs being written for removal.
+
+    They are removed when the current :func:`transaction` commits (at once outside one).
+    Absent paths are ignored.
     """
     with transaction(stale=paths):
         pass
 
 
 def make_output_folder(folder, inputs: Iterable = ()) -> Path:
-    """Check (:func:`check_output_folder`) and create an output folder; inside a
-    :func:`transaction` a folder it creates is removed again if the transaction fails.
+    """Check (:func:`check_output_folder`) and create an output folder.
+
+    Inside a :func:`transaction` a folder it creates is removed again if the transaction
+    fails.
     """
     folder = check_output_folder(folder, inputs)
     txn = _ACTIVE.get()

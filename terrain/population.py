@@ -153,6 +153,7 @@ class Population:
         return cls(**values)
 
     def as_dict(self) -> dict:
+        """Return the population as plain data for metadata."""
         return asdict(self)
 
     @property

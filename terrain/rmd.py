@@ -382,8 +382,10 @@ def _pass(prev, pr0, pc0, sr, sc, out, or0, oc0, tr, tc, axis, w_r, w_c, sig, ta
 
 
 def _needed_ranges(lo: int, hi: int, w: int) -> list[tuple[int, int]]:
-    """Index range (inclusive) needed at every spacing 1, 2, 4, ..., w (three half-spacings
-    of the finer level either side, on the coarser grid, clipped to the tile).
+    """Return the index range (inclusive) needed at every spacing 1, 2, 4, ..., w.
+
+    Three half-spacings of the finer level either side, on the coarser grid, clipped to the
+    tile.
     """
     ranges = [(lo, hi)]
     h = 1

@@ -272,6 +272,7 @@ class RockModel:
         return cls.from_mapping(data, defaults=defaults)
 
     def as_dict(self) -> dict:
+        """Return the model's set parameters as plain data for metadata."""
         return {k: v for k, v in asdict(self).items() if v is not None}
 
     # ------------------------------------------------------------------ statistics
@@ -397,8 +398,9 @@ class RockModel:
 
 
 def _half_length(d: float) -> float:
-    """Largest half-length of a rock of diameter d: a = d / sqrt(b/a) with b/a >= 0.4, and
-    the outline perturbation.
+    """Return the largest half-length of a rock of diameter d.
+
+    a = d / sqrt(b/a) with b/a >= 0.4, and the outline perturbation.
     """
     return 0.5 * d / math.sqrt(0.4) * (1 + 3 * SHAPE_PERTURBATION)
 
@@ -573,6 +575,7 @@ class RockTable:
         return self.rows[:, _C] * (1.0 - self.rows[:, _BETA])
 
     def take(self, index) -> RockTable:
+        """Return the rocks selected by ``index`` (an index array or boolean mask)."""
         return RockTable(self.rows[index], self.uid[index])
 
     def inside(self, extent) -> RockTable:
@@ -739,8 +742,10 @@ def rock_catalog(rocks: RockTable, z0, layer) -> dict:
 
 
 def write_rock_catalog(path_or_file, catalog: dict) -> None:
-    """Write a rock catalogue CSV: ``id`` as 16 hex digits, lengths in metres,
-    ``orientation_deg`` the long axis's angle from map east towards north, in [0, 180).
+    """Write a rock catalogue CSV.
+
+    ``id`` as 16 hex digits, lengths in metres, ``orientation_deg`` the long axis's angle
+    from map east towards north, in [0, 180).
     """
     from terrain.catalog import write_catalog
 

@@ -78,6 +78,7 @@ class Window:
 
     @property
     def slices(self) -> tuple[slice, slice]:
+        """The (rows, cols) slices that cut this window out of an array."""
         return (slice(self.row, self.row + self.height), slice(self.col, self.col + self.width))
 
 
@@ -195,6 +196,7 @@ class DEMTile:
     # --- geometry ---------------------------------------------------------------------
     @property
     def shape(self) -> tuple[int, int]:
+        """The (rows, cols) of the heights."""
         return self.heights.shape
 
     @property
@@ -233,4 +235,5 @@ class DEMTile:
 
     @property
     def valid_fraction(self) -> float:
+        """The fraction of valid pixels."""
         return float(self.valid.mean())
