@@ -120,7 +120,7 @@ class Stretch:
         return v / length[..., None], 1.0 / length
 
     def as_list(self) -> list[float]:
-        """The factors as a list [x, y, z] (for TOML and JSON)."""
+        """Return the factors as a list [x, y, z] (for TOML and JSON)."""
         return [self.x, self.y, self.z]
 
 
@@ -209,7 +209,7 @@ class Body:
 
     @classmethod
     def sphere(cls, mesh: SphereMesh, radius: float, **metadata) -> Body:
-        """A perfect sphere of ``radius`` metres."""
+        """Return a perfect sphere of ``radius`` metres."""
         return cls(mesh, radius, np.full(mesh.n_vertices, float(radius)), metadata)
 
     @property
@@ -223,7 +223,7 @@ class Body:
         return self.radii - self.radius
 
     def replace(self, radii=None, **metadata) -> Body:
-        """A new body with other radii and/or extra metadata keys."""
+        """Return a new body with other radii and/or extra metadata keys."""
         meta = dict(self.metadata)
         meta.update(metadata)
         return Body(self.mesh, self.radius, self.radii if radii is None else radii, meta)

@@ -149,7 +149,7 @@ class BiResolutionNode:
 
 
 def lod_tree(base_level: int, levels: int) -> BiResolutionNode:
-    """The chain of bi-resolution nodes for ``levels`` levels starting at ``base_level``."""
+    """Return the chain of bi-resolution nodes for ``levels`` levels starting at ``base_level``."""
     if levels < 2:
         raise InvalidParameterError(f"a bi-resolution tree needs >= 2 levels; got {levels}")
     node: BiResolutionNode | int = base_level + levels - 1

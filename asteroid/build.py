@@ -191,7 +191,7 @@ class OutputPaths:
 
 
 def output_paths(output, *, craters: bool, boulders: bool, inputs=()) -> OutputPaths:
-    """The files ``-o output`` names, checked before any work (folder exists, no input)."""
+    """Return the files ``-o output`` names, checked before any work (folder exists, no input)."""
     output = Path(output)
     if output.suffix.lower() == ".npz":
         mesh = None
@@ -254,7 +254,7 @@ def _write_all(result: BuildResult, paths: OutputPaths, inputs) -> list[Path]:
 
 
 def boulders_of(native) -> Boulders | None:
-    """The boulders stored in a native model (regenerated from catalogue and settings)."""
+    """Return the boulders stored in a native model (regenerated from catalogue and settings)."""
     table = native.tables.get("boulders")
     info = native.body.metadata.get("boulders")
     if table is None or info is None:

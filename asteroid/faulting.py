@@ -86,7 +86,7 @@ _FAULT_BATCH = 1 << 16
 
 
 def fault_table(seed: int, phase: int, count: int, max_size: float, start: int = 0):
-    """Normals (n, 3) and heights (n,) of faults ``start .. start + count - 1`` of a phase."""
+    """Return normals (n, 3) and heights (n,) of a phase's faults ``start .. start + count - 1``."""
     j = np.arange(start, start + count, dtype=np.int64)
     u = uniform(seed, STREAM_FAULT, phase, j[:, None], np.arange(3)[None, :])
     z = 1.0 - 2.0 * u[:, 0]

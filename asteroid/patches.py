@@ -126,7 +126,7 @@ def _leaf_sphere(m, b0, b1, lo, hi, depth, vertices, out):
 
 
 def _enclose(spheres: np.ndarray) -> np.ndarray:
-    """A sphere enclosing spheres (rows x, y, z, r): bounding-box centre, farthest reach."""
+    """Return a sphere enclosing spheres (rows x, y, z, r): bounding-box centre, farthest reach."""
     lo = (spheres[:, :3] - spheres[:, 3:]).min(axis=0)
     hi = (spheres[:, :3] + spheres[:, 3:]).max(axis=0)
     centre = 0.5 * (lo + hi)
@@ -259,7 +259,7 @@ class PatchTree:
         return int(self.band_start.size)
 
     def leaves(self) -> np.ndarray:
-        """Indices of the leaf nodes (the patches), in depth-first order."""
+        """Return indices of the leaf nodes (the patches), in depth-first order."""
         return np.flatnonzero((self.children < 0).all(axis=1))
 
     def _pieces(self, node: int):

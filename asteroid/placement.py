@@ -59,7 +59,7 @@ _BYTES_PER_FEATURE = 256
 
 
 def uniform_directions(u1, u2) -> np.ndarray:
-    """Unit vectors uniform on the sphere from two uniforms in (0, 1) (Archimedes).
+    """Return unit vectors uniform on the sphere from two uniforms in (0, 1) (Archimedes).
 
     >>> uniform_directions(np.array([0.5]), np.array([0.25])).round(12).tolist()
     [[0.0, 1.0, 0.0]]
@@ -114,7 +114,7 @@ class Placement:
 
 
 def expected_counts(population: Population, area_m2: float) -> np.ndarray:
-    """Expected features per octave bin over ``area_m2`` square metres (eq. 5)."""
+    """Return expected features per octave bin over ``area_m2`` square metres (eq. 5)."""
     bins = population.bins()
     return np.array([population.bin_density(lo, hi) * area_m2 for lo, hi in bins])
 

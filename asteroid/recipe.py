@@ -202,7 +202,7 @@ class CraterSpec:
                                            self.slope_erosion))
 
     def population(self, radius: float, spacing: float) -> Population:
-        """The population on a body of reference ``radius`` and mean vertex ``spacing`` (m)."""
+        """Return the population on a body of ``radius`` and mean vertex ``spacing`` (metres)."""
         dmin = CRATER_DMIN_SPACINGS * spacing if self.dmin is None else float(self.dmin)
         dmax = max_diameter(radius, self.max_extent_deg) if self.dmax is None \
             else float(self.dmax)
@@ -364,7 +364,7 @@ class Recipe:
 
     @classmethod
     def from_dict(cls, data: dict) -> Recipe:
-        """A recipe from the TOML layout (a preset named in it is applied underneath)."""
+        """Build a recipe from the TOML layout (a preset named in it is applied underneath)."""
         unknown = set(data) - _TOP_KEYS - _TABLES
         if unknown:
             raise InvalidParameterError(

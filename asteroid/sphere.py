@@ -215,7 +215,7 @@ def _ring_of(m, idx, rings, positions):
 
 @numba.njit(cache=True)
 def triangle_vertices(m, t_global):
-    """The three flat vertex indices of canonical triangle ``t_global``, wound outwards."""
+    """Return the three flat vertex indices of canonical triangle ``t_global``, wound outwards."""
     # find the band by bisection on band offsets
     lo, hi = 0, 2 * m - 1
     while lo < hi:
@@ -438,7 +438,7 @@ def cap_vertices(m, cx, cy, cz, angle):
 
 @numba.njit(cache=True)
 def unit_vertex(m, i):
-    """Unit vector of flat vertex index i."""
+    """Return the unit vector of flat vertex index i."""
     g = _ring_of_scalar(m, i)
     return ring_unit(m, g, i - ring_offset(m, g))
 
@@ -719,7 +719,7 @@ class SphereMesh:
         return out
 
     def neighbours(self, index: int) -> np.ndarray:
-        """The vertices sharing an edge with vertex ``index`` (4 or 6 of them), sorted."""
+        """Return the vertices sharing an edge with vertex ``index`` (4 or 6 of them), sorted."""
         i = int(_as_index(index, self.n_vertices))
         out = np.empty(8, np.int64)
         count = _neighbours_scalar(self.magnitude, i, out)
@@ -736,7 +736,7 @@ class SphereMesh:
     # --- arrays ----------------------------------------------------------------------------
 
     def directions(self, index=None) -> np.ndarray:
-        """Unit vectors of the vertices, (n, 3) float64 (all N vertices when index is None).
+        """Return unit vectors of the vertices, (n, 3) float64 (all N when index is None).
 
         The full array is computed once and cached; rows are read-only.
         """

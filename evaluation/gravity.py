@@ -113,7 +113,7 @@ def volume_centroid(vertices, faces) -> np.ndarray:
 
 
 def closed_chain(faces) -> bool:
-    """True when every edge is traversed as often in one direction as in the other.
+    """Return True when every edge is traversed as often in one direction as in the other.
 
     That is the condition for the divergence theorem, hence for :func:`polyhedron_field`; a
     manifold closed surface is the special case of once each way.
@@ -360,7 +360,7 @@ def centrifugal(points, *, rate: float, axis=(0.0, 0.0, 1.0), centre=(0.0, 0.0, 
 
 
 def coarsen(vertices, faces, target_faces: int) -> tuple[np.ndarray, np.ndarray]:
-    """A closed surface with about ``target_faces`` triangles, by vertex clustering.
+    """Return a closed surface with about ``target_faces`` triangles, by vertex clustering.
 
     See the module docstring. The grid step is searched so that the result lands within
     about 25 % of the target; a surface already at or below the target is returned as is.

@@ -133,7 +133,9 @@ def descent_layers(run, stack) -> list[dict]:
 
 def site_section(hazards, hazard_png, *, layer: int, resolution: float, rocks=None,
                  rock_model=None, rock_extent=None, descent=None, frames=()) -> Section:
-    """The landing site at lander scale (hazard truth, rocks, descent layers).
+    """Return the report section on the landing site at lander scale.
+
+    It holds the hazard truth, the rocks and the descent's layers.
 
     Parameters
     ----------

@@ -119,7 +119,7 @@ class Spin:
 
 
 def load_body(path, *, units: str = "m"):
-    """A closed body from a mesh file or a native asteroid model, centred on its centroid.
+    """Return a closed body from a mesh file or a native asteroid model, centred on its centroid.
 
     Parameters
     ----------

@@ -107,7 +107,7 @@ def _check_tile(tile) -> DEMTile:
 
 
 def _windows(tile: DEMTile, edges: str) -> list[np.ndarray]:
-    """The nine (ny, nx) float32 views a..i of every pixel's 3x3 window (row-major)."""
+    """Return the nine (ny, nx) float32 views a..i of every pixel's 3x3 window (row-major)."""
     if edges not in EDGE_MODES:
         raise InvalidParameterError(f"edges must be one of {EDGE_MODES}; got {edges!r}")
     z = tile.heights  # float32, NaN where invalid
@@ -206,7 +206,7 @@ def horn_aspect(tile: DEMTile, *, edges: str = "mask") -> np.ndarray:
 
 
 def slope_tile(tile: DEMTile, *, edges: str = "mask") -> DEMTile:
-    """The slope map as a tile with the DEM's georeferencing (values in degrees, not metres).
+    """Return the slope map as a tile with the DEM's georeferencing (values in degrees, not metres).
 
     The quantity is recorded in the metadata (``CRATERSCAPE_QUANTITY``), since a DEMTile's
     values are heights by default.

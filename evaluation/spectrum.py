@@ -291,7 +291,7 @@ def fit_hurst(spectrum: RadialSpectrum, *, f_low: float | None = None,
 
 def fractional_brownian_surface(size: int, hurst: float, *, resolution: float = 1.0,
                                 rms: float = 1.0, seed: int = 0) -> DEMTile:
-    """A non-periodic fractional Brownian surface of known Hurst exponent (for validation).
+    """Return a non-periodic fractional Brownian surface of known Hurst exponent (for validation).
 
     Spectral synthesis (Saupe 1988, in *The Science of Fractal Images*, algorithm
     SpectralSynthesisFM2D): complex Gaussian Fourier coefficients with amplitude

@@ -293,7 +293,7 @@ class _Grey:
 
 
 def _resolution_key(drawn) -> str:
-    """What decides a frame's resolution in its truth's ``drawn`` record (module docstring)."""
+    """Return what decides a frame's resolution in its truth's ``drawn`` record."""
     import json
 
     if not isinstance(drawn, dict):

@@ -125,7 +125,7 @@ def quat_to_matrix(q) -> np.ndarray:
 
 
 def quat_from_matrix(m) -> np.ndarray:
-    """Unit quaternion ``[w, x, y, z]`` (w >= 0) of a rotation matrix (Shepperd's method)."""
+    """Return the unit quaternion ``[w, x, y, z]`` (w >= 0) of a rotation matrix (Shepperd)."""
     m = np.asarray(m, dtype=np.float64)
     t = np.trace(m)
     if t > 0:

@@ -114,13 +114,13 @@ class Motion:
             self.velocity, self.angular_velocity, self.body_angular_velocity))
 
     def pose_at(self, pose: Pose, dt: float) -> Pose:
-        """The camera pose ``dt`` seconds after ``pose``."""
+        """Return the camera pose ``dt`` seconds after ``pose``."""
         p = np.asarray(pose.position) + np.asarray(self.velocity) * dt
         r = rotation_vector_matrix(np.asarray(self.angular_velocity) * dt) @ pose.rotation
         return Pose(tuple(p), tuple(quat_from_matrix(r)))
 
     def body_rotation_at(self, quaternion, dt: float) -> tuple:
-        """The body rotation R_WB ``dt`` seconds after ``quaternion``."""
+        """Return the body rotation R_WB ``dt`` seconds after ``quaternion``."""
         r = rotation_vector_matrix(np.asarray(self.body_angular_velocity) * dt) \
             @ quat_to_matrix(quaternion)
         return tuple(quat_from_matrix(r).tolist())
@@ -131,7 +131,7 @@ class Motion:
                     body_angular_velocity=list(self.body_angular_velocity))
 
     def image_speed(self, intrinsics, nearest_range: float, body_radius: float = 0.0) -> float:
-        """An upper estimate of how fast (pixels/s) an image point moves."""
+        """Return an upper estimate of how fast (pixels/s) an image point moves."""
         f = max(intrinsics.fx, intrinsics.fy)
         d = max(nearest_range, 1e-6)
         return f * (float(np.linalg.norm(self.angular_velocity))

@@ -182,7 +182,7 @@ class RunWriter:
         self._write_manifest()
 
     def done(self) -> set[int]:
-        """Indices of frames already written (for resuming)."""
+        """Return indices of frames already written (for resuming)."""
         return {int(f["index"]) for f in self.frames}
 
     def write_frame(self, truth: FrameTruth, image: np.ndarray, range_m: np.ndarray | None,

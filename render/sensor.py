@@ -195,7 +195,7 @@ class Sensor:
     # ------------------------------------------------------------------ records
     @classmethod
     def from_mapping(cls, mapping, *, seed: int = 0, base: Path | None = None) -> Sensor:
-        """A sensor from a ``[sensor]`` table; unknown keys are errors naming the nearest key.
+        """Build a sensor from a ``[sensor]`` table; unknown keys are errors naming the nearest.
 
         ``base``: folder that a relative ``psf_kernel`` path is relative to.
 
@@ -282,7 +282,7 @@ class Sensor:
 
     # ------------------------------------------------------------------ the chain
     def blur(self, image: np.ndarray) -> np.ndarray:
-        """The optical image through the point-spread function (float64)."""
+        """Return the optical image through the point-spread function (float64)."""
         import cv2
 
         x = np.asarray(image, dtype=np.float64)
@@ -333,7 +333,7 @@ class Sensor:
         return 1.0 / (1.0 + x * x + y * y) ** 2
 
     def digitise(self, electrons: np.ndarray, frame: int = 0) -> np.ndarray:
-        """Steps 3-8 of the chain on a mean-signal image in electrons."""
+        """Apply steps 3-8 of the chain on a mean-signal image in electrons."""
         e = np.asarray(electrons, dtype=np.float64)
         h, w = e.shape
         cols = np.arange(w)[None, :]

@@ -136,7 +136,7 @@ class CraterTable:
                              for n in ("x", "y", "diameter", "age", "uid", "size_class")))
 
     def composition_order(self) -> np.ndarray:
-        """Indices in processing order: larger size classes first, then oldest first.
+        """Return indices in processing order: larger size classes first, then oldest first.
 
         Ties in age are broken by uid, so the order of any two craters never depends on
         which other craters are present (a window and the full tile agree).

@@ -74,7 +74,7 @@ MIN_CHUNK = 16
 
 
 def open_reader(path, band: int = 1):
-    """A windowed reader of a DEM: a Zarr DEM or any raster GDAL reads.
+    """Return a windowed reader of a DEM: a Zarr DEM or any raster GDAL reads.
 
     Returns an object with ``shape``, ``transform``, ``crs``, ``nodata``, ``metadata``,
     ``resolution`` and ``read(window) -> (heights, valid)``.
@@ -98,7 +98,7 @@ def open_reader(path, band: int = 1):
 
 
 def _input_stamp(reader) -> dict:
-    """What identifies an input, so a resumed run refuses an input that has changed."""
+    """Return what identifies an input, so a resumed run refuses an input that has changed."""
     path = Path(reader.path)
     st = path.stat()
     return dict(path=str(path.resolve()), size=st.st_size, mtime_ns=st.st_mtime_ns,
@@ -799,7 +799,7 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None, progress=Non
 
 
 def _merge_catalogs(store: ZarrDEM, source) -> dict:
-    """The whole DEM's crater catalogue from the chunks' rows, in composition order."""
+    """Return the whole DEM's crater catalogue from the chunks' rows, in composition order."""
     parts = [store.chunk_catalog(i, j) for i in range(store.grid[0])
              for j in range(store.grid[1])]
     cols = {}

@@ -224,7 +224,7 @@ def ejecta_amplitude(diameter):
 
 
 def exterior_coefficients(rim_height, ejecta, beta):
-    """(a, b, c2, c3) of h3 and h4 from the constraints (see the module docstring).
+    """Return (a, b, c2, c3) of h3 and h4 from the constraints (see the module docstring).
 
     All arguments broadcast; returns four float64 arrays.
     """
@@ -468,7 +468,7 @@ def complex_interior(x, floor, rim, floor_x, cap_t, peak_height, peak_x, peak_ha
 
 @numba.njit(cache=True)
 def crater_interior(x, curvature, floor, rim, cplx):
-    """The interior of a simple (``cplx[0] <= -1``) or complex crater at x (relative to P).
+    """Return the interior of a simple (``cplx[0] <= -1``) or complex crater at x (relative to P).
 
     ``cplx`` holds the crater's :data:`COMPLEX_FIELDS`.
     """
@@ -613,7 +613,7 @@ def _profile_flat(x, curvature, floor, rim_height, rim_offset, ejecta, beta, a, 
 
 
 def profile(x, shape: CraterShape, rim_offset: float = 0.0) -> np.ndarray:
-    """The radial profile at normalised distances ``x`` (float64 array, metres).
+    """Return the radial profile at normalised distances ``x`` (float64 array, metres).
 
     Inside the rim (x <= 0) the value is relative to the fitted plane, outside it is the
     change added to the terrain; beyond x = 1 it is 0. ``rim_offset`` is ``Tr - Pr``.

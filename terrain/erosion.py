@@ -165,7 +165,7 @@ class ErosionModel:
 
     @classmethod
     def default(cls, **kwargs) -> ErosionModel:
-        """The shipped Ross-shaped profile (baseline D_b = 1 km, ages in Gyr)."""
+        """Return the shipped Ross-shaped profile (baseline D_b = 1 km, ages in Gyr)."""
         with resources.files("terrain").joinpath("data/ross_baseline.csv").open(
                 encoding="utf-8") as f:
             return cls.from_csv(f, **kwargs)

@@ -167,7 +167,7 @@ def _read_dem(path, band: int, exact: bool) -> tuple[DEMTile, np.ndarray | None]
 
 
 def _read_zarr_dem(path: Path) -> DEMTile:
-    """A whole Zarr DEM written by a chunked run (:mod:`terrain.zarrstore`) as a tile."""
+    """Return a whole Zarr DEM written by a chunked run (:mod:`terrain.zarrstore`) as a tile."""
     from terrain.zarrstore import ZarrDEM, is_zarr
 
     if not is_zarr(path):

@@ -208,7 +208,7 @@ def is_write_error(exc: BaseException) -> bool:
 
 
 def cannot_write(path, exc: BaseException) -> OutputPathError:
-    """The one message for every "cannot write here": ``cannot write 'PATH': REASON``."""
+    """Return the one message for every "cannot write here": ``cannot write 'PATH': REASON``."""
     reason = getattr(exc, "strerror", None)
     if not reason:
         text = str(exc).strip()

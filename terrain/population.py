@@ -178,7 +178,7 @@ class Population:
         return float(self.cumulative(d_lo) - self.cumulative(d_hi)) / 1e6
 
     def expected_count(self, area_km2: float) -> float:
-        """Expected craters in [dmin, dmax) over an area in km^2."""
+        """Return expected craters in [dmin, dmax) over an area in km^2."""
         return float(self.cumulative(self.dmin) - self.cumulative(self.dmax)) * area_km2
 
     def cell_size(self, d_lo: float, d_hi: float) -> float:

@@ -31,7 +31,7 @@ def synthesize_tile(size: int, *, resolution: float = 1.0, fractal_dimension: fl
                     relief: float = 30.0, seed: int = 0, craters=None,
                     model: CraterModel | None = None, window: Window | None = None,
                     progress=None, crs: str | None = None) -> CraterResult:
-    """A (size x size) RMD tile with optional craters, or a window of it.
+    """Return a (size x size) RMD tile with optional craters, or a window of it.
 
     Parameters
     ----------

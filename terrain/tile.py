@@ -226,7 +226,7 @@ class DEMTile:
                 (np.asarray(x, dtype=np.float64) - t.c) / t.a - 0.5)
 
     def window(self, window: Window) -> DEMTile:
-        """The sub-tile covered by ``window`` (georeferencing shifted accordingly)."""
+        """Return the sub-tile covered by ``window`` (georeferencing shifted accordingly)."""
         window.check_inside(*self.shape)
         rs, cs = window.slices
         transform = self.transform @ Affine.translation(window.col, window.row)

@@ -14,7 +14,7 @@ __all__ = ["merge_tables", "read_toml", "toml_text"]
 
 
 def read_toml(path, what: str) -> dict:
-    """The parsed TOML file at ``path``; a missing or malformed file is refused in one line.
+    """Return the parsed TOML file at ``path``; a missing or malformed file is refused in one line.
 
     ``what`` names the file in the message (``"scenario"``, ``"population file"``, ...).
 

@@ -236,7 +236,7 @@ class ZarrDEM:
                 os.unlink(tmp)
 
     def chunk_catalog(self, i: int, j: int) -> dict:
-        """The crater catalogue rows stored with chunk (i, j)'s marker."""
+        """Return the crater catalogue rows stored with chunk (i, j)'s marker."""
         with np.load(self._marker(i, j)) as f:
             return {k: f[k] for k in f.files}
 
