@@ -140,9 +140,9 @@ def quat_from_matrix(m) -> np.ndarray:
     else:
         s = math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2
         q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
-    q = np.array(q)
-    q /= np.linalg.norm(q)
-    return -q if q[0] < 0 else q
+    quat = np.array(q)
+    quat /= np.linalg.norm(quat)
+    return -quat if quat[0] < 0 else quat
 
 
 def slerp(q0, q1, t: float) -> np.ndarray:
@@ -241,7 +241,7 @@ def look_at(position, target, up=(0.0, 0.0, 1.0)) -> Pose:
     z /= np.linalg.norm(z)
     u = np.asarray(up, dtype=np.float64)
     x = np.cross(z, u)
-    if np.linalg.norm(x) < 1e-9 * max(1.0, np.linalg.norm(u)):
+    if np.linalg.norm(x) < 1e-9 * max(1.0, float(np.linalg.norm(u))):
         x = np.cross(z, (0.0, 1.0, 0.0))
         if np.linalg.norm(x) < 1e-9:
             x = np.cross(z, (1.0, 0.0, 0.0))

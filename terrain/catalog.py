@@ -132,8 +132,12 @@ class CraterTable:
         tables = [t for t in tables if len(t)]
         if not tables:
             return CraterTable.empty()
-        return CraterTable(*(np.concatenate([getattr(t, n) for t in tables])
-                             for n in ("x", "y", "diameter", "age", "uid", "size_class")))
+
+        def joined(name: str) -> np.ndarray:
+            return np.concatenate([getattr(t, name) for t in tables])
+
+        return CraterTable(joined("x"), joined("y"), joined("diameter"), joined("age"),
+                           joined("uid"), joined("size_class"))
 
     def composition_order(self) -> np.ndarray:
         """Return indices in processing order: larger size classes first, then oldest first.
@@ -196,7 +200,7 @@ def read_catalog(path) -> dict:
     with open(path, newline="", encoding="utf-8") as f:
         reader = csv.DictReader(f)
         names = reader.fieldnames or []
-        cols = {name: [] for name in names}
+        cols: dict[str, list[str]] = {name: [] for name in names}
         for row in reader:
             for name in names:
                 cols[name].append(row[name])

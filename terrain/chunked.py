@@ -47,6 +47,7 @@ import time
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Protocol, TypeVar
 
 import numpy as np
 from affine import Affine
@@ -61,6 +62,11 @@ from terrain.errors import (
 from terrain.tile import Window, default_transform
 from terrain.zarrstore import ZarrDEM, is_zarr
 
+if TYPE_CHECKING:
+    from terrain.cratering import CraterModel
+    from terrain.population import Population
+    from terrain.roughness import ExpansionParameters
+
 __all__ = ["DEFAULT_CHUNK", "CraterSource", "ExpandSource", "FillSource", "GapTooLargeError",
            "RunReport", "SynthSource", "dask_client", "estimate_parameters", "open_reader",
            "run"]
@@ -73,10 +79,35 @@ DEFAULT_CHUNK = 1024
 MIN_CHUNK = 16
 
 
-def open_reader(path, band: int = 1):
+class DEMReader(Protocol):
+    """What a chunked run needs of its input (:class:`~terrain.io.RasterReader`, :class:`ZarrDEM`).
+
+    ``read(window)`` returns (heights (h, w) float32 in metres, valid (h, w) bool) of a window
+    (the whole DEM when None); the other members describe the whole input.
+    """
+
+    @property
+    def path(self) -> str | os.PathLike: ...
+    @property
+    def shape(self) -> tuple[int, ...]: ...
+    @property
+    def transform(self) -> Affine: ...
+    @property
+    def crs(self) -> str | None: ...
+    @property
+    def nodata(self) -> float: ...
+    @property
+    def metadata(self) -> dict[str, str]: ...
+    @property
+    def resolution(self) -> float: ...
+
+    def read(self, window: Window | None = None) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+def open_reader(path, band: int = 1) -> DEMReader:
     """Return a windowed reader of a DEM: a Zarr DEM or any raster GDAL reads.
 
-    Returns an object with ``shape``, ``transform``, ``crs``, ``nodata``, ``metadata``,
+    Returns a :class:`DEMReader`: ``shape``, ``transform``, ``crs``, ``nodata``, ``metadata``,
     ``resolution`` and ``read(window) -> (heights, valid)``.
     """
     from terrain.io import RasterReader
@@ -95,6 +126,16 @@ def open_reader(path, band: int = 1):
             "chunks) could round; convert it first (gdal_translate -ot Float32) or run it in "
             "memory")
     return reader
+
+
+_T = TypeVar("_T")
+
+
+def _filled(value: _T | None) -> _T:
+    """Return a field that ``__post_init__`` filled in (None only before construction ends)."""
+    if value is None:  # pragma: no cover - every source's __post_init__ fills its defaults
+        raise AssertionError("a source's default was not filled in by __post_init__")
+    return value
 
 
 def _input_stamp(reader) -> dict:
@@ -132,8 +173,8 @@ class SynthSource:
     fractal_dimension: float = 2.2
     relief: float = 30.0
     seed: int = 0
-    craters: object = None
-    model: object = None
+    craters: Population | None = None
+    model: CraterModel | None = None
     crs: str | None = None  # WKT (terrain.io.synthetic_crs); heights do not depend on it
 
     def __post_init__(self):
@@ -179,7 +220,8 @@ class SynthSource:
         if self.craters is not None:
             meta["CRATERSCAPE_CRATERS"] = json.dumps(describe_craters(self.craters),
                                                      sort_keys=True)
-            meta["CRATERSCAPE_CRATER_MODEL"] = json.dumps(self.model.as_dict(), sort_keys=True)
+            meta["CRATERSCAPE_CRATER_MODEL"] = json.dumps(_filled(self.model).as_dict(),
+                                                         sort_keys=True)
         return meta
 
     def plan(self) -> dict:
@@ -205,10 +247,10 @@ class CraterSource:
     largest crater's footprint per size class), so memory per chunk grows with ``dmax``.
     """
 
-    reader: object
-    craters: object
+    reader: DEMReader
+    craters: Population
     seed: int = 0
-    model: object = None
+    model: CraterModel | None = None
 
     def __post_init__(self):
         from terrain.rng import check_seed
@@ -248,7 +290,8 @@ class CraterSource:
 
         meta = dict(self.reader.metadata)
         meta["CRATERSCAPE_SEED"] = str(self.seed)
-        meta["CRATERSCAPE_CRATER_MODEL"] = json.dumps(self.model.as_dict(), sort_keys=True)
+        meta["CRATERSCAPE_CRATER_MODEL"] = json.dumps(_filled(self.model).as_dict(),
+                                                         sort_keys=True)
         meta["CRATERSCAPE_CRATERS"] = json.dumps(describe_craters(self.craters), sort_keys=True)
         return meta
 
@@ -359,10 +402,10 @@ class ExpandSource:
     positions, so it equals the same pixels of ``expand(read_dem(input), times)``.
     """
 
-    reader: object
+    reader: DEMReader
     times: int
     seed: int = 0
-    params: object = None
+    params: ExpansionParameters | None = None
 
     def __post_init__(self):
         from terrain.rng import check_seed
@@ -407,7 +450,7 @@ class ExpandSource:
         """The output's metadata tags (the input's, with the expansion's seed and parameters)."""
         meta = dict(self.reader.metadata)
         meta["CRATERSCAPE_SEED"] = str(self.seed)
-        meta["CRATERSCAPE_EXPANSION"] = json.dumps(dict(self.params.as_dict(),
+        meta["CRATERSCAPE_EXPANSION"] = json.dumps(dict(_filled(self.params).as_dict(),
                                                         times=self.times), sort_keys=True)
         return meta
 
@@ -429,7 +472,7 @@ class ExpandSource:
             rows.insert(0, parent_region(*rows[0], full[k - 1][0]))
             cols.insert(0, parent_region(*cols[0], full[k - 1][1]))
         (r0, r1), (c0, c1) = rows[0], cols[0]
-        p = self.params
+        p = _filled(self.params)
         amp = None
         if p.uses_local_map:
             # The local map needs the box and one residual neighbour around the region; the
@@ -469,7 +512,7 @@ class FillSource:
     such tiny inputs.
     """
 
-    reader: object
+    reader: DEMReader
     halo: int = 256
     seed: int = 0
     roughness: float | None = None
@@ -853,7 +896,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None,
         with client:
             yield client
         return
-    if isinstance(workers, bool) or int(workers) < 1:
+    if workers is None or isinstance(workers, bool) or int(workers) < 1:  # None: scheduler
         raise InvalidParameterError(f"--workers must be a positive integer; got {workers!r}")
     env = {"OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
     quiet = logging.getLogger("distributed")

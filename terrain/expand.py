@@ -162,9 +162,9 @@ _NO_MAP = np.zeros((0, 0), dtype=np.float32)
 
 
 def expand_level(parent: np.ndarray, parent_origin: tuple[int, int], child_rows, child_cols,
-                 *, level: int, sigmas: tuple[float, float], weights, taps, seed: int,
-                 amplitude=None,
-                 amplitude_origin=(0, 0), amplitude_level: int = 0) -> np.ndarray:
+                 *, level: int, sigmas: tuple[float, float, float] | np.ndarray, weights,
+                 taps, seed: int, amplitude=None, amplitude_origin=(0, 0),
+                 amplitude_level: int = 0) -> np.ndarray:
     """One 2x expansion of a region, in global pixel coordinates.
 
     Parameters

@@ -353,7 +353,7 @@ def _pid_alive(pid: int) -> bool:
 def sweep_partials(folder, *, recursive: bool = False) -> list[Path]:
     """Remove temporaries (``.NAME.PID-XXXX.partial``) whose writing process is gone."""
     folder = Path(folder)
-    removed = []
+    removed: list[Path] = []
     if not folder.is_dir():
         return removed
     entries = folder.rglob(f"*{PARTIAL_SUFFIX}") if recursive \
@@ -565,11 +565,12 @@ def transaction(stale=(), folders=()) -> Iterator[Transaction]:
         sweep_partials(folder)
     txn = Transaction(stale)
     token = _ACTIVE.set(txn)
+    active = True
     ok = False
     try:
         yield txn
         _ACTIVE.reset(token)
-        token = None
+        active = False
         try:
             txn._commit()
         except OSError as exc:
@@ -578,7 +579,7 @@ def transaction(stale=(), folders=()) -> Iterator[Transaction]:
             raise
         ok = True
     finally:
-        if token is not None:
+        if active:
             _ACTIVE.reset(token)
         if not ok:
             txn._abort()

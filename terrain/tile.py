@@ -18,6 +18,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
+from typing import Any
 
 import numpy as np
 from affine import Affine
@@ -181,8 +182,9 @@ class DEMTile:
 
     def replace(self, **changes) -> DEMTile:
         """Copy with some fields changed (heights and valid are re-validated)."""
-        fields = dict(heights=self.heights, valid=self.valid, transform=self.transform,
-                      crs=self.crs, nodata=self.nodata, metadata=self.metadata)
+        fields: dict[str, Any] = dict(heights=self.heights, valid=self.valid,
+                                      transform=self.transform, crs=self.crs,
+                                      nodata=self.nodata, metadata=self.metadata)
         fields.update(changes)
         return DEMTile(**fields)
 
