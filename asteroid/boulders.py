@@ -152,8 +152,8 @@ def lod_tree(base_level: int, levels: int) -> BiResolutionNode:
     """Return the chain of bi-resolution nodes for ``levels`` levels starting at ``base_level``."""
     if levels < 2:
         raise InvalidParameterError(f"a bi-resolution tree needs >= 2 levels; got {levels}")
-    node: BiResolutionNode | int = base_level + levels - 1
-    for level in range(base_level + levels - 2, base_level - 1, -1):
+    node = BiResolutionNode(base_level + levels - 2, base_level + levels - 1)
+    for level in range(base_level + levels - 3, base_level - 1, -1):
         node = BiResolutionNode(level, node)
     return node
 

@@ -114,10 +114,10 @@ def build(recipe: Recipe, *, progress=None) -> BuildResult:
 
     meta = dict(craterscape_version=_version(), seed=recipe.seed, recipe=recipe.as_dict())
     if recipe.base == "perlin":
-        radius = recipe.radius
+        radius = recipe.base_radius
         radii = recipe.perlin.radii(mesh, radius, seed=recipe.seed, stretch=recipe.stretch)
     elif recipe.base == "faulting":
-        radius = recipe.radius
+        radius = recipe.base_radius
         radii = recipe.faulting.radii(mesh, radius, seed=recipe.seed, stretch=recipe.stretch,
                                       progress=stage_progress("base"))
     else:

@@ -194,7 +194,7 @@ class PatchTree:
                 f"radii must be ({mesh.n_vertices},); got {radii.shape}")
         m = mesh.magnitude
         vertices = mesh.directions() * radii[:, None]
-        nodes = []  # [b0, b1, lo, hi, depth, parent]
+        nodes: list[tuple[int, ...]] = []  # [b0, b1, lo, hi, depth, parent]
         children = []
         stack = [(0, 2 * m, 0, 1, 0, -1)]
         leaf_flags = []

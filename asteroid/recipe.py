@@ -89,8 +89,10 @@ from __future__ import annotations
 
 import copy
 import math
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
+from typing import Any
 
 from asteroid.body import Stretch
 from asteroid.boulders import BoulderSettings
@@ -325,7 +327,7 @@ class Recipe:
     faulting: Faulting = field(default_factory=Faulting)
     shape_file: str | None = None
     shape_units: str = "km"
-    shape_centre: object = "centroid"
+    shape_centre: str | Sequence[float] = "centroid"
     stretch: Stretch = field(default_factory=Stretch)
     craters: CraterSpec | None = None
     boulders: BoulderSpec | None = None
@@ -441,10 +443,20 @@ class Recipe:
                 data[key] = value
         return cls.from_dict(data)
 
+    @property
+    def base_radius(self) -> float:
+        """The reference radius R in metres of a Perlin or faulting base (which need one)."""
+        if self.radius is None:
+            raise InvalidParameterError(
+                f"a {self.base} base needs --radius (metres); only a shape model has a size of "
+                "its own")
+        return self.radius
+
     def as_dict(self) -> dict:
         """JSON-friendly record of the recipe (provenance)."""
-        out = dict(magnitude=self.magnitude, radius=self.radius, seed=self.seed, base=self.base,
-                   stretch=self.stretch.as_list(), preset=self.preset)
+        out: dict[str, Any] = dict(magnitude=self.magnitude, radius=self.radius, seed=self.seed,
+                                   base=self.base, stretch=self.stretch.as_list(),
+                                   preset=self.preset)
         if self.base == "perlin":
             out["perlin"] = self.perlin.as_dict()
         elif self.base == "faulting":

@@ -391,7 +391,7 @@ def coarsen(vertices, faces, target_faces: int) -> tuple[np.ndarray, np.ndarray]
     # a closed surface has about twice as many triangles as vertices; a cluster cell of side
     # s holds about s^2 of surface
     step = math.sqrt(area / (0.5 * target_faces))
-    best = None
+    best: tuple[np.ndarray, np.ndarray] | None = None
     for _ in range(12):
         cv, cf = _cluster(v, f, step)
         if best is None or abs(len(cf) - target_faces) < abs(len(best[1]) - target_faces):
@@ -400,6 +400,7 @@ def coarsen(vertices, faces, target_faces: int) -> tuple[np.ndarray, np.ndarray]
         if 0.8 <= ratio <= 1.25 and len(cf) >= 4:
             break
         step *= math.sqrt(max(ratio, 0.05))
+    assert best is not None  # the loop above runs at least once
     cv, cf = best
     if len(cf) < 4:
         raise InvalidParameterError(

@@ -131,7 +131,7 @@ def descent_layers(run, stack) -> list[dict]:
     return rows
 
 
-def site_section(hazards, hazard_png, *, layer: int, resolution: float, rocks=None,
+def site_section(hazards, hazard_png, *, layer: int | None, resolution: float, rocks=None,
                  rock_model=None, rock_extent=None, descent=None, frames=()) -> Section:
     """Return the report section on the landing site at lander scale.
 
@@ -141,7 +141,8 @@ def site_section(hazards, hazard_png, *, layer: int, resolution: float, rocks=No
     ----------
     hazards : terrain.hazards.HazardMap
     hazard_png : path of the hazard picture
-    layer, resolution : the layer the hazards were computed on and its pixel size (m)
+    layer, resolution : the layer the hazards were computed on (None: a single DEM) and its
+        pixel size (m)
     rocks : dict, optional
         The stack's rock catalogue; with ``rock_model`` and ``rock_extent`` (a layer's extent
         and the smallest diameter complete there) its size-frequency is drawn against the model.

@@ -396,7 +396,7 @@ class MeshSlopes:
         out = dict(label=self.label, vertices=int(self.vertex_area.size),
                    radius_deg=self.radius_deg, info=self.info,
                    radial=self.summary("radial"))
-        if self.gravitational_deg is not None:
+        if self.gravitational_deg is not None and self.gravity is not None:  # set together
             out["gravitational"] = self.summary("gravitational")
             g = np.linalg.norm(self.gravity, axis=1)
             out["effective_gravity_m_s2"] = dict(min=float(g.min()), max=float(g.max()),

@@ -395,11 +395,13 @@ def track(run, settings: TrackerSettings | None = None, *, progress=None) -> Tra
                 f"frame {k} is {image.shape[1]}x{image.shape[0]}; frame 0 is {w}x{h}")
         if live:
             p0 = np.array([tracks[t][1][-1] for t in live], dtype=np.float32).reshape(-1, 1, 2)
-            p1, st1, _ = cv2.calcOpticalFlowPyrLK(prev, image, p0, None, **lk)
+            # OpenCV's stubs make nextPts required; its documentation (and these calls) pass
+            # None for 'start from prevPts'.
+            p1, st1, _ = cv2.calcOpticalFlowPyrLK(prev, image, p0, None, **lk)  # type: ignore[call-overload]
             source, start = prev, p0
             if s.prewarp:
                 source, start, p1, st1 = _prewarped(prev, image, p0, p1, st1, lk)
-            p0b, st2, _ = cv2.calcOpticalFlowPyrLK(image, source, p1, None, **lk)
+            p0b, st2, _ = cv2.calcOpticalFlowPyrLK(image, source, p1, None, **lk)  # type: ignore[call-overload]
             fb = np.linalg.norm((p0b - start).reshape(-1, 2), axis=1)
             q = p1.reshape(-1, 2)
             inside = ((q[:, 0] >= s.border) & (q[:, 0] <= w - 1 - s.border)
@@ -942,7 +944,7 @@ def save_tracks(scored: ScoredTracks, run, folder, *, inputs=()) -> dict:
         for k in range(tracks.start[i], tracks.stop[i] + 1):
             u, v = tracks.positions[i, k]
             row = [i, k, f"{u:.3f}", f"{v:.3f}"]
-            if scored.predicted is not None:
+            if scored.predicted is not None and scored.errors is not None:  # scored together
                 tu, tv = scored.predicted[i, k]
                 e = scored.errors[i, k]
                 row += [f"{tu:.3f}" if math.isfinite(tu) else "",

@@ -226,6 +226,11 @@ class Sensor:
         return self.exposure == 0
 
     @property
+    def kernel(self) -> np.ndarray | None:
+        """The point-spread kernel read from ``psf_kernel`` when built, or None without one."""
+        return self.__dict__.get("_kernel")
+
+    @property
     def full_scale(self) -> int:
         """The largest digital number the sensor can output (2^bits - 1)."""
         return 2**self.bits - 1
@@ -296,8 +301,8 @@ class Sensor:
                                                          borderType=cv2.BORDER_REFLECT)
                 out += (w / total) * part
             return out
-        if self.psf_kernel is not None:
-            k = self._kernel
+        if self.kernel is not None:  # present exactly when psf_kernel is
+            k = self.kernel
             # filter2D correlates; flipping the kernel makes it a convolution
             return cv2.filter2D(x, -1, k[::-1, ::-1].copy(), borderType=cv2.BORDER_REFLECT)
         return x

@@ -609,9 +609,10 @@ def write_cog(source, path, *, inputs: Iterable = (), description: str = "height
         f *= 2
     step = max(int(source.chunk), COG_BLOCK)
     step = -(-step // COG_BLOCK) * COG_BLOCK
-    fd, scratch = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".scratch.tif", dir=parent)
+    fd, scratch_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".scratch.tif",
+                                        dir=parent)
     os.close(fd)
-    scratch = Path(scratch)
+    scratch = Path(scratch_name)
     try:
         with atomic_path(path, inputs) as tmp:
             try:
