@@ -175,7 +175,7 @@ class _Connection:
             srv.forget(self)
 
     def answer(self, msg_type: int, rid: int, body: bytes):
-        """The reply (type, body) to one message, or None when the server stopped."""
+        """Return the reply (type, body) to one message, or None when the server stopped."""
         srv = self.server
         if not self.authorized:
             if msg_type != MsgType.HELLO or not srv.check_token(body):
@@ -285,8 +285,10 @@ class RenderServer:
 
     # ------------------------------------------------------------------ set-up
     def load(self) -> None:
-        """Load the scene and render the scenario's first frame (uploads the geometry,
-        compiles the programs and prepares the shadow maps)."""
+        """Load the scene and render the scenario's first frame.
+
+        This uploads the geometry, compiles the programs and prepares the shadow maps.
+        """
         self.renderer = Renderer()
         self.scene = load_scene(self.scenario)
         samples = self.scenario.samples(self.scene)
@@ -307,14 +309,17 @@ class RenderServer:
 
     @property
     def address(self) -> tuple[str, int]:
+        """The (host, port) the server listens on."""
         return self._listener.getsockname()[:2]
 
     def check_token(self, body: bytes) -> bool:
+        """Return whether a HELLO body carries the server's token (always, without one)."""
         if self.token is None:
             return True
         return hmac.compare_digest(body, self.token.encode("utf-8"))
 
     def forget(self, conn: _Connection) -> None:
+        """Drop a closed connection (its pending frame is dropped by the render thread)."""
         with self._lock:
             self._clients.discard(conn)
         self.work.put((conn, None, b""))  # the render thread drops its frame
@@ -601,8 +606,10 @@ class RenderServer:
 
     # ------------------------------------------------------------------ surface queries
     def cast(self, origin, direction, t: float, lighting: Lighting) -> tuple:
-        """(range, point x, y, z, normal x, y, z) where a ray first meets the surface; NaN
-        when it meets nothing. Rendered as one pixel at the finest level of detail."""
+        """Return (range, point x, y, z, normal x, y, z) where a ray first meets the surface.
+
+        NaN when it meets nothing. Rendered as one pixel at the finest level of detail.
+        """
         o = np.asarray(origin, dtype=np.float64)
         d = np.asarray(_scaled(direction, "ray direction"))
         n = float(np.linalg.norm(d))
@@ -658,9 +665,12 @@ def _finite(what: str, values) -> None:
 
 
 def _scaled(values, what: str) -> tuple:
-    """A direction whose norm can neither overflow nor vanish: divided by its largest
-    magnitude when that lies outside [1e-100, 1e100] (kept as sent otherwise, so a pose sent
-    back from a truth file gives the same bytes); a zero vector is refused."""
+    """Return a direction whose norm can neither overflow nor vanish.
+
+    It is divided by its largest magnitude when that lies outside [1e-100, 1e100] (kept as sent
+    otherwise, so a pose sent back from a truth file gives the same bytes); a zero vector is
+    refused.
+    """
     v = np.asarray(values, dtype=np.float64)
     m = float(np.max(np.abs(v)))
     if not m > 0:

@@ -171,8 +171,10 @@ def approach(frames: int, *, start_distance: float, end_distance: float, duratio
 
 def spin_rotation(t: float, spin_axis=(0.0, 0.0, 1.0), spin_period: float = 0.0,
                   spin_phase_deg: float = 0.0) -> np.ndarray:
-    """Body rotation R_WB (quaternion [w, x, y, z]) at time ``t`` (s) of a body spinning about
-    ``spin_axis`` with ``spin_period`` (s; 0: no spin) from ``spin_phase_deg`` at t = 0.
+    """Return the body rotation R_WB (quaternion [w, x, y, z]) at time ``t`` (s).
+
+    The body spins about ``spin_axis`` with ``spin_period`` (s; 0: no spin) from
+    ``spin_phase_deg`` at t = 0.
 
     >>> spin_rotation(25.0, spin_period=100.0).round(6).tolist()
     [0.707107, 0.0, 0.0, 0.707107]

@@ -43,6 +43,7 @@ import contextlib
 import json
 import logging
 import math
+import os
 import time
 import uuid
 from dataclasses import dataclass, field
