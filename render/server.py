@@ -35,6 +35,7 @@ import signal
 import socket
 import threading
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -100,7 +101,7 @@ def is_loopback(host: str) -> bool:
         infos = socket.getaddrinfo(host, None)
     except socket.gaierror as exc:
         raise InvalidParameterError(f"cannot resolve host '{host}': {exc}") from None
-    return all(ipaddress.ip_address(info[4][0].split("%")[0]).is_loopback for info in infos)
+    return all(ipaddress.ip_address(str(info[4][0]).split("%")[0]).is_loopback for info in infos)
 
 
 def _noiseless(sensor):
@@ -280,7 +281,9 @@ class RenderServer:
         self._listener: socket.socket | None = None
         self._cached: dict[int, _State] = {}   # insertion order = render order
         self.renderer: Renderer | None = None
-        self.scene = None
+        # The loaded scene (render.sequence.load_scene): a terrain or an asteroid scene, told
+        # apart by its ``kind``.
+        self.scene: Any = None
         self.requests = 0
 
     # ------------------------------------------------------------------ set-up
@@ -309,8 +312,17 @@ class RenderServer:
 
     @property
     def address(self) -> tuple[str, int]:
-        """The (host, port) the server listens on."""
+        """The (host, port) the server listens on (after :meth:`bind`)."""
+        if self._listener is None:
+            raise InvalidParameterError("the server is not listening yet; call bind() first")
         return self._listener.getsockname()[:2]
+
+    @property
+    def _gpu(self) -> Renderer:
+        """The renderer :meth:`load` made (every frame request comes after it)."""
+        if self.renderer is None:
+            raise InvalidParameterError("the server has not loaded its scene; call load() first")
+        return self.renderer
 
     def check_token(self, body: bytes) -> bool:
         """Return whether a HELLO body carries the server's token (always, without one)."""
@@ -579,7 +591,7 @@ class RenderServer:
             # velocities the client set, where the sensor integrates over time (blur or a
             # rolling shutter); otherwise the scenario's [motion] (see frame_motion)
             moving = st.motion if st.scenario.motion.get("blur") else None
-            st.frame = render_sample(self.renderer, self.scene, sc, sample, st.index,
+            st.frame = render_sample(self._gpu, self.scene, sc, sample, st.index,
                                      motion=moving)
             self._remember(st)
         return st.frame
@@ -619,7 +631,7 @@ class RenderServer:
             self.scene.set_body_rotation(self.body_rotation(t))
         view = View(pose, Intrinsics(1, 1, RAY_FOCAL, RAY_FOCAL, 0.0, 0.0), t)
         options = dataclasses.replace(self.scenario.options, shadows=False)
-        frame = self.renderer.render(self.scene, view, lighting, options)
+        frame = self._gpu.render(self.scene, view, lighting, options)
         r = float(frame.range[0, 0])
         if not math.isfinite(r):
             return (math.nan,) * 7
