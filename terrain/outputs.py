@@ -437,7 +437,7 @@ def settle(folder) -> bool:
 class Transaction:
     """Files staged by :func:`atomic_path` inside ``with transaction():`` (see module doc)."""
 
-    def __init__(self, stale=()):
+    def __init__(self, stale=()) -> None:
         self.staged: list[tuple[Path, Path]] = []
         self.stale: list[Path] = [Path(p) for p in stale]
         self.created: list[Path] = []
