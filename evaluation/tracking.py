@@ -237,7 +237,7 @@ class Tracks:
         return out
 
     def summary(self) -> dict:
-        """Return counts of alive tracks per frame and their survival, as plain data."""
+        """Return track counts and lengths, and survival (also at layer changes), as plain data."""
         alive = self.alive()
         per_frame = alive.sum(axis=0)
         surv = self.survival()
