@@ -70,6 +70,7 @@ def test_prewarping_removes_the_drift_of_a_shift_only_window(planar_run, scored)
     assert tw["tracks_per_frame_mean"] >= 0.95 * tp["tracks_per_frame_mean"]
 
 
+@pytest.mark.slow
 def test_ideal_tracker_tells_the_trackers_share_from_the_images(scored, planar_run,
                                                                 tmp_path):
     """On exact frames the same tracker errs a few thousandths of a pixel on truth-warped

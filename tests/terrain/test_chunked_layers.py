@@ -98,6 +98,7 @@ class Interrupt(Exception):
     pass
 
 
+@pytest.mark.slow
 def test_an_interrupted_build_resumes_without_computing_a_finished_chunk(in_memory, base_path,
                                                                          client, tmp_path):
     out = tmp_path / "resumed"
