@@ -279,7 +279,7 @@ THUMBNAIL_SIDE = 384
 
 
 def read_png(path) -> np.ndarray:
-    """A PNG as an array: ``(h, w)`` grey or ``(h, w, 3)`` RGB, uint8 or uint16.
+    """Return a PNG as an array: ``(h, w)`` grey or ``(h, w, 3)`` RGB, uint8 or uint16.
 
     Parameters
     ----------

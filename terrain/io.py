@@ -704,7 +704,7 @@ def orthographic_crs(radius: float, lon: float, lat: float, *, false_easting: fl
 
 def reproject_polar(src: DEMTile, *, radius: float, half_width_m: float,
                     pole: str = "south", limit_lat: float = 60.0) -> DEMTile:
-    """A global DEM reprojected onto a polar stereographic grid around one pole.
+    """Return a global DEM reprojected onto a polar stereographic grid around one pole.
 
     A simple-cylindrical product's pixels are far from square near a pole, so slopes are
     only comparable after reprojection: bilinear, onto square pixels of the product's own
@@ -777,7 +777,7 @@ def synthetic_crs(body: str | None, projection: str | None, centre: tuple[float,
     from terrain.bodies import BODY_RADII, check_projection
 
     kind = check_projection(body, projection)
-    if kind is None:
+    if kind is None or body is None:  # check_projection gives None exactly without a body
         return None
     radius = BODY_RADII[body]
     if kind[0] == "stere":
