@@ -12,7 +12,7 @@ DEMO_OUT ?= demo-output
 # and GDAL's command-line tools as an independent reference in tests.
 APT_PACKAGES := libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri gdal-bin
 
-.PHONY: all setup apt venv demo test lint bench clean distclean
+.PHONY: all setup apt venv demo test test-fast lint typecheck bench clean distclean
 
 all: test
 
@@ -49,12 +49,22 @@ venv: $(VENV)/.installed
 demo: setup
 	$(PY) examples/demo.py --out $(DEMO_OUT) $(DEMO_ARGS)
 
+# ruff: style, numpydoc docstrings, no print, no legacy np.random; import-linter: the layers.
 lint: setup
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/lint-imports
 
-test: lint
+# mypy on the four packages (configured in pyproject.toml).
+typecheck: setup
+	$(VENV)/bin/mypy
+
+# What CI runs: every test, the slow ones included.
+test: lint typecheck
 	$(PY) -m pytest -q
+
+# Everything but the tests marked slow, for a quick check while working.
+test-fast: lint typecheck
+	$(PY) -m pytest -q -m "not slow"
 
 bench: setup
 	$(PY) benchmarks/run.py

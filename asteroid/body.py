@@ -102,10 +102,12 @@ class Stretch:
 
     @property
     def factors(self) -> np.ndarray:
+        """The stretch factors (x, y, z) as a (3,) float64 array."""
         return np.array([self.x, self.y, self.z])
 
     @property
     def is_identity(self) -> bool:
+        """Whether the stretch leaves every point where it is (all factors 1)."""
         return self.x == self.y == self.z == 1.0
 
     def source(self, directions) -> tuple[np.ndarray, np.ndarray]:
@@ -118,6 +120,7 @@ class Stretch:
         return v / length[..., None], 1.0 / length
 
     def as_list(self) -> list[float]:
+        """Return the factors as a list [x, y, z] (for TOML and JSON)."""
         return [self.x, self.y, self.z]
 
 
@@ -206,11 +209,12 @@ class Body:
 
     @classmethod
     def sphere(cls, mesh: SphereMesh, radius: float, **metadata) -> Body:
-        """A perfect sphere of ``radius`` metres."""
+        """Return a perfect sphere of ``radius`` metres."""
         return cls(mesh, radius, np.full(mesh.n_vertices, float(radius)), metadata)
 
     @property
     def magnitude(self) -> int:
+        """The mesh magnitude M (6 M^2 + 2 vertices)."""
         return self.mesh.magnitude
 
     @property
@@ -219,7 +223,7 @@ class Body:
         return self.radii - self.radius
 
     def replace(self, radii=None, **metadata) -> Body:
-        """A new body with other radii and/or extra metadata keys."""
+        """Return a new body with other radii and/or extra metadata keys."""
         meta = dict(self.metadata)
         meta.update(metadata)
         return Body(self.mesh, self.radius, self.radii if radii is None else radii, meta)

@@ -149,11 +149,11 @@ class BiResolutionNode:
 
 
 def lod_tree(base_level: int, levels: int) -> BiResolutionNode:
-    """The chain of bi-resolution nodes for ``levels`` levels starting at ``base_level``."""
+    """Return the chain of bi-resolution nodes for ``levels`` levels starting at ``base_level``."""
     if levels < 2:
         raise InvalidParameterError(f"a bi-resolution tree needs >= 2 levels; got {levels}")
-    node: BiResolutionNode | int = base_level + levels - 1
-    for level in range(base_level + levels - 2, base_level - 1, -1):
+    node = BiResolutionNode(base_level + levels - 2, base_level + levels - 1)
+    for level in range(base_level + levels - 3, base_level - 1, -1):
         node = BiResolutionNode(level, node)
     return node
 
@@ -271,6 +271,7 @@ class BoulderSettings:
             object.__setattr__(self, name, float(getattr(self, name)))
 
     def as_dict(self) -> dict:
+        """Return the settings as plain data for the model's metadata (tuples as lists)."""
         d = asdict(self)
         d["flattening"] = list(self.flattening)
         d["elongation"] = list(self.elongation)

@@ -114,10 +114,10 @@ def build(recipe: Recipe, *, progress=None) -> BuildResult:
 
     meta = dict(craterscape_version=_version(), seed=recipe.seed, recipe=recipe.as_dict())
     if recipe.base == "perlin":
-        radius = recipe.radius
+        radius = recipe.base_radius
         radii = recipe.perlin.radii(mesh, radius, seed=recipe.seed, stretch=recipe.stretch)
     elif recipe.base == "faulting":
-        radius = recipe.radius
+        radius = recipe.base_radius
         radii = recipe.faulting.radii(mesh, radius, seed=recipe.seed, stretch=recipe.stretch,
                                       progress=stage_progress("base"))
     else:
@@ -185,12 +185,13 @@ class OutputPaths:
     stale: tuple = ()
 
     def all(self) -> list[Path]:
+        """Return every path of the set that is written (the optional ones only when present)."""
         return [p for p in (self.mesh, self.native, self.craters, self.boulders)
                 if p is not None]
 
 
 def output_paths(output, *, craters: bool, boulders: bool, inputs=()) -> OutputPaths:
-    """The files ``-o output`` names, checked before any work (folder exists, no input)."""
+    """Return the files ``-o output`` names, checked before any work (folder exists, no input)."""
     output = Path(output)
     if output.suffix.lower() == ".npz":
         mesh = None
@@ -253,7 +254,7 @@ def _write_all(result: BuildResult, paths: OutputPaths, inputs) -> list[Path]:
 
 
 def boulders_of(native) -> Boulders | None:
-    """The boulders stored in a native model (regenerated from catalogue and settings)."""
+    """Return the boulders stored in a native model (regenerated from catalogue and settings)."""
     table = native.tables.get("boulders")
     info = native.body.metadata.get("boulders")
     if table is None or info is None:

@@ -213,6 +213,7 @@ class CraterSettings:
         object.__setattr__(self, "max_extent_deg", v)
 
     def as_dict(self) -> dict:
+        """Return the settings as plain data for the model's metadata."""
         return dict(model=self.model.as_dict(), max_extent_deg=self.max_extent_deg,
                     slope=asdict(self.slope))
 
@@ -240,7 +241,7 @@ def _check_extent(diameters, radius, settings: CraterSettings) -> None:
 
 def sample_craters(population: Population, body: Body, *, seed: int,
                    settings: CraterSettings | None = None) -> Placement:
-    """The crater list of a population over the body's surface area (section V.B).
+    """Return the crater list of a population over the body's surface area (section V.B).
 
     Refuses a population whose dmax exceeds the maximum extent.
     """
@@ -325,7 +326,9 @@ def _gather(m, cx, cy, cz, ex, ey, ez, nx, ny, nz, rc, angle, limit):
 
 @numba.njit(cache=True)
 def _local_dem(radii, idx, dist, theta, rc, spacing, half):
-    """The crater's grid of heights r - R_c, holes filled from eight directions (NaN if none).
+    """Return the crater's grid of heights r - R_c, holes filled from eight directions.
+
+    A hole with no neighbour in any direction stays NaN.
 
     Cell (i, j) is centred at east (j - half) * spacing, north (half - i) * spacing.
     """

@@ -86,7 +86,7 @@ _FAULT_BATCH = 1 << 16
 
 
 def fault_table(seed: int, phase: int, count: int, max_size: float, start: int = 0):
-    """Normals (n, 3) and heights (n,) of faults ``start .. start + count - 1`` of a phase."""
+    """Return normals (n, 3) and heights (n,) of a phase's faults ``start .. start + count - 1``."""
     j = np.arange(start, start + count, dtype=np.int64)
     u = uniform(seed, STREAM_FAULT, phase, j[:, None], np.arange(3)[None, :])
     z = 1.0 - 2.0 * u[:, 0]
@@ -108,7 +108,7 @@ def _gaussians(p):
 
 @numba.njit(cache=True, inline="always")
 def _side(h, x, y, z, a, b, c):
-    """h where (x, y, z) lies on the positive side of the great circle with normal (a, b, c)."""
+    """H where (x, y, z) lies on the positive side of the great circle with normal (a, b, c)."""
     return h if x * a + y * b + z * c > 0.0 else 0.0
 
 
@@ -237,6 +237,7 @@ class Faulting:
             object.__setattr__(self, name, v)
 
     def as_dict(self) -> dict:
+        """Return the parameters as plain data (metres and counts) for recipes and metadata."""
         return asdict(self)
 
     def radii(self, mesh: SphereMesh, radius: float, *, seed: int,

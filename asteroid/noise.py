@@ -269,6 +269,7 @@ class PerlinNoise:
         return a
 
     def as_dict(self) -> dict:
+        """Return the parameters as plain data (bands as a list of tables) for metadata."""
         d = asdict(self)
         d["bands"] = [asdict(b) for b in self.bands]
         return d

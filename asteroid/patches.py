@@ -126,7 +126,7 @@ def _leaf_sphere(m, b0, b1, lo, hi, depth, vertices, out):
 
 
 def _enclose(spheres: np.ndarray) -> np.ndarray:
-    """A sphere enclosing spheres (rows x, y, z, r): bounding-box centre, farthest reach."""
+    """Return a sphere enclosing spheres (rows x, y, z, r): bounding-box centre, farthest reach."""
     lo = (spheres[:, :3] - spheres[:, 3:]).min(axis=0)
     hi = (spheres[:, :3] + spheres[:, 3:]).max(axis=0)
     centre = 0.5 * (lo + hi)
@@ -194,7 +194,7 @@ class PatchTree:
                 f"radii must be ({mesh.n_vertices},); got {radii.shape}")
         m = mesh.magnitude
         vertices = mesh.directions() * radii[:, None]
-        nodes = []  # [b0, b1, lo, hi, depth, parent]
+        nodes: list[tuple[int, ...]] = []  # [b0, b1, lo, hi, depth, parent]
         children = []
         stack = [(0, 2 * m, 0, 1, 0, -1)]
         leaf_flags = []
@@ -255,10 +255,11 @@ class PatchTree:
 
     @property
     def n_nodes(self) -> int:
+        """The number of nodes in the tree (all levels)."""
         return int(self.band_start.size)
 
     def leaves(self) -> np.ndarray:
-        """Indices of the leaf nodes (the patches), in depth-first order."""
+        """Return indices of the leaf nodes (the patches), in depth-first order."""
         return np.flatnonzero((self.children < 0).all(axis=1))
 
     def _pieces(self, node: int):

@@ -59,7 +59,7 @@ _BYTES_PER_FEATURE = 256
 
 
 def uniform_directions(u1, u2) -> np.ndarray:
-    """Unit vectors uniform on the sphere from two uniforms in (0, 1) (Archimedes).
+    """Return unit vectors uniform on the sphere from two uniforms in (0, 1) (Archimedes).
 
     >>> uniform_directions(np.array([0.5]), np.array([0.25])).round(12).tolist()
     [[0.0, 1.0, 0.0]]
@@ -107,13 +107,14 @@ class Placement:
         return np.mod(np.arctan2(self.directions[:, 1], self.directions[:, 0]), 2 * np.pi)
 
     def take(self, order) -> Placement:
+        """Return the placements in the given order (an index array or boolean mask)."""
         return Placement(self.directions[order], self.diameters[order], self.ages[order],
                          self.uid[order], self.size_class[order], self.index[order],
                          self.extra[order])
 
 
 def expected_counts(population: Population, area_m2: float) -> np.ndarray:
-    """Expected features per octave bin over ``area_m2`` square metres (eq. 5)."""
+    """Return expected features per octave bin over ``area_m2`` square metres (eq. 5)."""
     bins = population.bins()
     return np.array([population.bin_density(lo, hi) * area_m2 for lo, hi in bins])
 

@@ -89,8 +89,10 @@ from __future__ import annotations
 
 import copy
 import math
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
+from typing import Any
 
 from asteroid.body import Stretch
 from asteroid.boulders import BoulderSettings
@@ -189,6 +191,7 @@ class CraterSpec:
         self.settings()  # validates the settings now, not at build time
 
     def settings(self) -> CraterSettings:
+        """Return the crater settings this spec describes, with the paper's defaults filled in."""
         kwargs = {} if self.erosion_exponent is None else {"exponent": self.erosion_exponent}
         ring = max(DEFAULT_PEAK_RING_DIAMETER, 2.0 * float(self.transition_diameter))
         model = CraterModel(erosion=ErosionModel.default(**kwargs),
@@ -201,7 +204,7 @@ class CraterSpec:
                                            self.slope_erosion))
 
     def population(self, radius: float, spacing: float) -> Population:
-        """The population on a body of reference ``radius`` and mean vertex ``spacing`` (m)."""
+        """Return the population on a body of ``radius`` and mean vertex ``spacing`` (metres)."""
         dmin = CRATER_DMIN_SPACINGS * spacing if self.dmin is None else float(self.dmin)
         dmax = max_diameter(radius, self.max_extent_deg) if self.dmax is None \
             else float(self.dmax)
@@ -229,6 +232,7 @@ class BoulderSpec:
         _density("boulders", self.c, self.density, -3.0, 1.0)
 
     def population(self, spacing: float) -> Population:
+        """Return the boulder population for a mesh of this mean vertex spacing (metres)."""
         dmin = BOULDER_DMIN_SPACINGS * spacing if self.dmin is None else float(self.dmin)
         dmax = BOULDER_RANGE * dmin if self.dmax is None else float(self.dmax)
         density = _density("boulders", self.c, self.density, self.k, dmin)
@@ -323,7 +327,7 @@ class Recipe:
     faulting: Faulting = field(default_factory=Faulting)
     shape_file: str | None = None
     shape_units: str = "km"
-    shape_centre: object = "centroid"
+    shape_centre: str | Sequence[float] = "centroid"
     stretch: Stretch = field(default_factory=Stretch)
     craters: CraterSpec | None = None
     boulders: BoulderSpec | None = None
@@ -362,7 +366,7 @@ class Recipe:
 
     @classmethod
     def from_dict(cls, data: dict) -> Recipe:
-        """A recipe from the TOML layout (a preset named in it is applied underneath)."""
+        """Build a recipe from the TOML layout (a preset named in it is applied underneath)."""
         unknown = set(data) - _TOP_KEYS - _TABLES
         if unknown:
             raise InvalidParameterError(
@@ -439,10 +443,20 @@ class Recipe:
                 data[key] = value
         return cls.from_dict(data)
 
+    @property
+    def base_radius(self) -> float:
+        """The reference radius R in metres of a Perlin or faulting base (which need one)."""
+        if self.radius is None:
+            raise InvalidParameterError(
+                f"a {self.base} base needs --radius (metres); only a shape model has a size of "
+                "its own")
+        return self.radius
+
     def as_dict(self) -> dict:
         """JSON-friendly record of the recipe (provenance)."""
-        out = dict(magnitude=self.magnitude, radius=self.radius, seed=self.seed, base=self.base,
-                   stretch=self.stretch.as_list(), preset=self.preset)
+        out: dict[str, Any] = dict(magnitude=self.magnitude, radius=self.radius, seed=self.seed,
+                                   base=self.base, stretch=self.stretch.as_list(),
+                                   preset=self.preset)
         if self.base == "perlin":
             out["perlin"] = self.perlin.as_dict()
         elif self.base == "faulting":

@@ -318,14 +318,14 @@ class ShapeModel:
         return (3.0 * self.volume / (4.0 * math.pi)) ** (1.0 / 3.0)
 
     def scaled(self, factor: float) -> ShapeModel:
-        """The model scaled about its centre."""
+        """Return the model scaled about its centre."""
         factor = float(factor)
         if not (factor > 0 and math.isfinite(factor)):
             raise InvalidParameterError(f"scale factor must be positive; got {factor}")
         return ShapeModel(self.vertices * factor, self.faces, self.source, self.centre)
 
     def stretched(self, stretch: Stretch) -> ShapeModel:
-        """The model stretched along the axes about its centre."""
+        """Return the model stretched along the axes about its centre."""
         return ShapeModel(self.vertices * stretch.factors, self.faces, self.source, self.centre)
 
     def project(self, mesh: SphereMesh) -> Projection:

@@ -138,8 +138,10 @@ def _across_ring(m, values, g, j, out):
 
 @numba.njit(cache=True, parallel=True)
 def _across(m, values, rings, j, out):
-    """Stage 2 on every marked ring (rings in parallel; a window over a pole continues on
-    the far side, longitude + pi)."""
+    """Run stage 2 on every marked ring (rings in parallel).
+
+    A window over a pole continues on the far side, longitude + pi.
+    """
     for g in numba.prange(2 * m + 1):
         if rings[g]:
             _across_ring(m, values, np.int64(g), j, out)

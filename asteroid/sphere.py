@@ -215,7 +215,7 @@ def _ring_of(m, idx, rings, positions):
 
 @numba.njit(cache=True)
 def triangle_vertices(m, t_global):
-    """The three flat vertex indices of canonical triangle ``t_global``, wound outwards."""
+    """Return the three flat vertex indices of canonical triangle ``t_global``, wound outwards."""
     # find the band by bisection on band offsets
     lo, hi = 0, 2 * m - 1
     while lo < hi:
@@ -255,8 +255,10 @@ def band_triangle(m, b, t):
 
 @numba.njit(cache=True)
 def ring_unit(m, g, p):
-    """Unit vector of position p (0 <= p < n_g) on global ring g: the one formula every
-    direction of the mesh comes from, so all of them agree bitwise."""
+    """Return the unit vector of position p (0 <= p < n_g) on global ring g.
+
+    The one formula every direction of the mesh comes from, so all of them agree bitwise.
+    """
     if g == 0:
         return 0.0, 0.0, 1.0
     if g == 2 * m:
@@ -436,7 +438,7 @@ def cap_vertices(m, cx, cy, cz, angle):
 
 @numba.njit(cache=True)
 def unit_vertex(m, i):
-    """Unit vector of flat vertex index i."""
+    """Return the unit vector of flat vertex index i."""
     g = _ring_of_scalar(m, i)
     return ring_unit(m, g, i - ring_offset(m, g))
 
@@ -454,8 +456,11 @@ def _cone(ax, ay, az, bx, by, bz, cx, cy, cz, ux, uy, uz):
 
 @numba.njit(cache=True)
 def cone_coordinates(m, tri, ux, uy, uz):
-    """(alpha, beta, gamma) with u = alpha A + beta B + gamma C for triangle ``tri``'s unit
-    vertex directions A, B, C (Cramer's rule); all >= 0 when u lies in the triangle's cone."""
+    """Return the cone coordinates (alpha, beta, gamma) of u in triangle ``tri``.
+
+    u = alpha A + beta B + gamma C for the triangle's unit vertex directions A, B, C
+    (Cramer's rule); all >= 0 when u lies in the triangle's cone.
+    """
     i0, i1, i2 = triangle_vertices(m, tri)
     ax, ay, az = unit_vertex(m, i0)
     bx, by, bz = unit_vertex(m, i1)
@@ -697,8 +702,11 @@ class SphereMesh:
         return self.index_of(rings, pos + np.asarray(steps, dtype=np.int64))
 
     def across(self, index, rings=1) -> np.ndarray:
-        """Vertex of the ring ``rings`` further south (negative: north) nearest in longitude;
-        a path over a pole continues on the far side (longitude + pi)."""
+        """Return the vertex of the ring ``rings`` further south nearest in longitude.
+
+        Negative ``rings`` go north; a path over a pole continues on the far side
+        (longitude + pi).
+        """
         idx = _as_index(index, self.n_vertices)
         dg = np.broadcast_to(np.asarray(rings, dtype=np.int64), idx.shape)
         if dg.size and np.abs(dg).max() > 2 * self.magnitude:
@@ -711,22 +719,24 @@ class SphereMesh:
         return out
 
     def neighbours(self, index: int) -> np.ndarray:
-        """The vertices sharing an edge with vertex ``index`` (4 or 6 of them), sorted."""
+        """Return the vertices sharing an edge with vertex ``index`` (4 or 6 of them), sorted."""
         i = int(_as_index(index, self.n_vertices))
         out = np.empty(8, np.int64)
         count = _neighbours_scalar(self.magnitude, i, out)
         return np.unique(out[:count])
 
     def cap(self, direction, angle: float) -> np.ndarray:
-        """Flat indices of vertices within ``angle`` radians of ``direction`` (conservative
-        by 1e-9 rad), ring by ring from the north."""
+        """Return flat indices of vertices within ``angle`` radians of ``direction``.
+
+        Conservative by 1e-9 rad; ring by ring from the north.
+        """
         u = _unit_vectors(direction)[0]
         return cap_vertices(self.magnitude, u[0], u[1], u[2], float(angle))
 
     # --- arrays ----------------------------------------------------------------------------
 
     def directions(self, index=None) -> np.ndarray:
-        """Unit vectors of the vertices, (n, 3) float64 (all N vertices when index is None).
+        """Return unit vectors of the vertices, (n, 3) float64 (all N when index is None).
 
         The full array is computed once and cached; rows are read-only.
         """
@@ -758,8 +768,11 @@ class SphereMesh:
         return out
 
     def locate(self, directions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Triangle holding each direction: (triangle (n,) int64, its vertices (n, 3) int64,
-        cone coordinates (n, 3) float64 with ``u = sum_k w_k A_k`` for unit vertex vectors)."""
+        """Return the triangle holding each direction.
+
+        Returns (triangle (n,) int64, its vertices (n, 3) int64, cone coordinates (n, 3) float64
+        with ``u = sum_k w_k A_k`` for unit vertex vectors).
+        """
         u = _unit_vectors(directions)
         tri = np.empty(len(u), np.int64)
         idx = np.empty((len(u), 3), np.int64)
@@ -768,8 +781,11 @@ class SphereMesh:
         return tri, idx, w
 
     def surface_radius(self, radii, directions) -> np.ndarray:
-        """Distance from the centre to the mesh surface (flat triangles through the vertices
-        at ``radii``) along each direction, (n,) float64 in the units of ``radii``."""
+        """Return the distance from the centre to the mesh surface along each direction.
+
+        The surface is made of flat triangles through the vertices at ``radii``; (n,) float64
+        in the units of ``radii``.
+        """
         radii = np.ascontiguousarray(radii, dtype=np.float64)
         if radii.shape != (self.n_vertices,):
             raise InvalidParameterError(

@@ -62,8 +62,10 @@ _EVAL_KEYS = {"shared_data", "ldem", "sfs", "eros", "eros_density", "eros_period
 
 
 def _options(table, where: str, command) -> Mapping:
-    """CLI options of a stage, checked against the click command's own long options
-    (``--fractal-dimension`` is ``fractal_dimension``)."""
+    """Return the CLI options of a stage, checked against the click command's own.
+
+    Long options are matched by name (``--fractal-dimension`` is ``fractal_dimension``).
+    """
     names = {o[2:].replace("-", "_") for p in command.params for o in getattr(p, "opts", ())
              if o.startswith("--")}
     return MappingProxyType(check_keys(table, names, where))
@@ -112,7 +114,7 @@ class RunSpec:
                                                     low_open=True, high=90.0, where=where))
 
     def overrides(self) -> dict:
-        """The scenario tables this run overrides (frames and image size)."""
+        """Return the scenario tables this run overrides (frames and image size)."""
         out: dict = {}
         if self.frames is not None:
             out["trajectory"] = {"frames": self.frames}
@@ -216,7 +218,7 @@ class Campaign:
             body["config"] = str(folder / body["config"])
         evaluation = check_keys(data.get("evaluation", {}), _EVAL_KEYS, "campaign [evaluation]")
         evaluation.setdefault("shared_data", "shared-data")
-        loop = None
+        loop: Mapping | None = None
         if "closed_loop" in lunar:
             loop = check_keys(lunar["closed_loop"], _LOOP_KEYS, "campaign [lunar.closed_loop]")
             if not isinstance(loop.get("script"), str):
@@ -281,8 +283,9 @@ def load_campaign(path, *, quick: bool = False) -> Campaign:
 
 
 def cli_args(options: Mapping) -> list:
-    """Command-line arguments of a mapping of option names (``fractal_dimension = 2.3`` ->
-    ``--fractal-dimension 2.3``; ``true`` -> the bare flag).
+    """Return the command-line arguments of a mapping of option names.
+
+    ``fractal_dimension = 2.3`` -> ``--fractal-dimension 2.3``; ``true`` -> the bare flag.
 
     Parameters
     ----------
@@ -342,8 +345,11 @@ class Stage:
             return False
 
     def begin(self) -> None:
-        """Make the stage's folder ready: kept when it holds a partial run of these same
-        parameters (so rendering resumes), emptied otherwise."""
+        """Make the stage's folder ready.
+
+        It is kept when it holds a partial run of these same parameters (so rendering resumes),
+        emptied otherwise.
+        """
         stamp = self.dir / ".stage-key"
         if not (stamp.exists() and stamp.read_text() == self.key):
             shutil.rmtree(self.dir, ignore_errors=True)
@@ -378,8 +384,10 @@ def run_cli(*args) -> None:
 
 
 def write_scenario(template: Path, target: Path, overrides: dict):
-    """The scenario ``template`` with ``overrides`` merged into its tables, checked by the
-    scenario parser and written to ``target`` (the scenario as run).
+    """Return the scenario ``template`` with ``overrides`` merged into its tables.
+
+    The result is checked by the scenario parser and written to ``target`` (the scenario as
+    run).
 
     Parameters
     ----------
@@ -418,7 +426,7 @@ def _render(stage: Stage, scenario_file: Path, run_dir: Path) -> dict:
 
 
 def lunar(c: Campaign, out: Path, say: Callable[[str], None]) -> dict:
-    """Base, layer stack and descent (stages 1 to 3).
+    """Build the base, the layer stack and the descent (stages 1 to 3).
 
     Parameters
     ----------
@@ -486,7 +494,7 @@ def lunar(c: Campaign, out: Path, say: Callable[[str], None]) -> dict:
 
 
 def closed_loop(c: Campaign, out: Path, say: Callable[[str], None]) -> dict | None:
-    """A landing flown through the render server on the descent's scenario (stage 3b).
+    """Fly a landing through the render server on the descent's scenario (stage 3b).
 
     The campaign's ``[lunar.closed_loop]`` script is loaded from its file and its
     ``main(argv)`` called with the descent scenario as run, ``--out``, ``--size`` and
@@ -533,7 +541,7 @@ def closed_loop(c: Campaign, out: Path, say: Callable[[str], None]) -> dict | No
 
 
 def asteroid(c: Campaign, out: Path, say: Callable[[str], None]) -> dict:
-    """The body and the approach (stages 4 and 5); see :func:`lunar` for the parameters.
+    """Build the body and the approach (stages 4 and 5); see :func:`lunar` for the parameters.
 
     Returns
     -------

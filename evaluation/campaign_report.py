@@ -59,8 +59,9 @@ DEM_NOTE = (
 
 
 def polar_ldem(ldem: Path, target: Path) -> Path:
-    """LOLA's LDEM_4 around the south pole on a polar stereographic grid, written to
-    ``target`` (see :func:`terrain.io.reproject_polar`).
+    """Reproject LOLA's LDEM_4 around the south pole onto a polar stereographic grid.
+
+    Written to ``target`` (see :func:`terrain.io.reproject_polar`).
 
     Parameters
     ----------
@@ -142,7 +143,8 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     stage.begin()
     t0 = time.perf_counter()
     limits = json.loads(json.dumps(DEFAULT_THRESHOLDS))
-    sections, facts = [], {}
+    sections: list = []
+    facts: dict = {}
 
     # -- feature tracking against truth, both runs
     tracked = {}
@@ -332,7 +334,9 @@ def consistency_report(run, scored, tracking_sec, folder: Path, limits, key, fac
 
 
 def site(c: Campaign, folder: Path, stack_dir: Path, run, facts: dict, say):
-    """Hazard map of the site (``craterscape terrain hazards``), the rocks against their
+    """Return the site section: hazards, rocks and the layers drawn under the descent.
+
+    The hazard map of the site (``craterscape terrain hazards``), the rocks against their
     model and the finest layer drawn under each descent frame's centre.
 
     Parameters
@@ -380,7 +384,7 @@ def site(c: Campaign, folder: Path, stack_dir: Path, run, facts: dict, say):
 
 def campaign_section(c: Campaign, out, folder, lunar_facts, asteroid_facts, tracked,
                      summary_name: str = "campaign.json"):
-    """The report's first section: what was made, how long it took, pictures, links.
+    """Return the report's first section: what was made, how long it took, pictures, links.
 
     Parameters
     ----------
@@ -471,7 +475,7 @@ def campaign_section(c: Campaign, out, folder, lunar_facts, asteroid_facts, trac
 
 
 def closed_loop_section(folder: Path, report_dir: Path):
-    """The closed-loop landing: where it went, what navigation believed, how wrong it was.
+    """Return the closed-loop landing: where it went, what navigation believed, how wrong it was.
 
     Parameters
     ----------

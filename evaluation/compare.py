@@ -143,11 +143,13 @@ class Comparison:
 
     @property
     def log10_ratio_max(self) -> float | None:
+        """The largest ``|log10|`` of the spectral power ratio, or None without a ratio."""
         if self.ratio.size == 0:
             return None
         return float(np.max(np.abs(np.log10(self.ratio))))
 
     def as_dict(self) -> dict:
+        """Return the comparison as plain data for the report's JSON."""
         return dict(
             label=self.label, reference_label=self.reference_label,
             resolution_m=self.resolution_m, resampled=self.resampled,
@@ -247,6 +249,7 @@ class SlopeMapAgreement:
     correlation: float
 
     def as_dict(self) -> dict:
+        """Return the agreement statistics (degrees) as plain data for the report's JSON."""
         return dict(pixels=self.pixels, bias_deg=self.bias_deg,
                     median_abs_deg=self.median_abs_deg, p99_abs_deg=self.p99_abs_deg,
                     max_abs_deg=self.max_abs_deg, correlation=self.correlation)

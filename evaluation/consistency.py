@@ -250,8 +250,8 @@ def pair_residual(image0, image1, range0, range1, truth0, truth1, *, normals0=No
     mask &= ~(dark0 & dark1)
     sun_body0 = rot0.T @ sun
     sun_body1 = rot1.T @ sun1
-    turn = math.acos(min(1.0, float(np.dot(sun_body0, sun_body1))
-                         / (np.linalg.norm(sun_body0) * np.linalg.norm(sun_body1))))
+    turn = math.acos(min(1.0, float(float(np.dot(sun_body0, sun_body1))
+                                    / (np.linalg.norm(sun_body0) * np.linalg.norm(sun_body1)))))
     if turn > SUN_STILL_RAD:  # shadows move on the surface: drop their edges
         mask &= ~_dilate(dark0 | dark1, edge_px)
     residual = np.where(mask, i0 - warped, np.nan).astype(np.float32)
@@ -271,7 +271,7 @@ def pair_residual(image0, image1, range0, range1, truth0, truth1, *, normals0=No
 
 
 def _worst_tile(residual: np.ndarray, mask: np.ndarray) -> float | None:
-    """The largest rms (DN) over TILE x TILE pixel tiles at least half counted."""
+    """Return the largest rms (DN) over TILE x TILE pixel tiles at least half counted."""
     h, w = residual.shape
     ny, nx = h // TILE, w // TILE
     if ny == 0 or nx == 0:
@@ -355,6 +355,7 @@ class Consistency:
                          for f in self.frames], dtype=np.float64)
 
     def summary(self) -> dict:
+        """Return the residuals' median, largest and spikes, and noise, as plain data."""
         rms = self.rms()
         ok = np.isfinite(rms)
         median = float(np.median(rms[ok])) if ok.any() else None
@@ -369,7 +370,7 @@ class Consistency:
         return dict(
             pairs=len(self.frames),
             rms_dn_median=median, rms_dn_max=largest,
-            spike_ratio=(largest / median) if median else None,
+            spike_ratio=(largest / median) if median and largest is not None else None,
             spike_bound=SPIKE_BOUND,
             spikes=spikes,
             noise_dn_median=float(np.median(noise)) if noise else None,
@@ -386,6 +387,7 @@ class Consistency:
                                      if self.frames else None))
 
     def as_dict(self) -> dict:
+        """Return the whole check (settings, summary, frames) as plain data for JSON."""
         return dict(format="craterscape-consistency", version=1, run_dir=self.run_dir,
                     settings=self.settings, summary=self.summary(), frames=self.frames,
                     notes=list(self.notes))

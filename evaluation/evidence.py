@@ -54,7 +54,7 @@ class DEMEvidence:
 
 
 def at_baseline(tile, baseline: float | None, label: str):
-    """The tile averaged onto ``baseline`` metres per pixel where it is finer; else itself.
+    """Return the tile averaged onto ``baseline`` metres per pixel where it is finer; else itself.
 
     Parameters
     ----------
@@ -110,7 +110,12 @@ def dem_evidence(dems: Sequence, *, reference: str | None = None, ref_tile=None,
     from evaluation.spectrum import fit_hurst, radial_spectrum
     from terrain.io import read_dem
 
-    distributions, spectra, fits, comparisons, agreements = [], [], [], [], []
+    distributions: list = []
+    spectra: list = []
+    fits: list = []  # HurstFit, or None where no exponent could be fitted
+    comparisons: list = []
+    agreements: list = []
+    ref_name = Path(reference).stem if reference is not None else "reference"
     for label, tile in dems:
         measured = at_baseline(tile, baseline, label)
         distributions.append(slope_distribution(measured, label=label, edges=edges))
@@ -127,7 +132,7 @@ def dem_evidence(dems: Sequence, *, reference: str | None = None, ref_tile=None,
         if ref_tile is not None:
             try:
                 comparisons.append(compare_dems(tile, ref_tile, label=label,
-                                                reference_label=Path(reference).stem,
+                                                reference_label=ref_name,
                                                 edges=edges))
             except (InvalidDEMError, InvalidParameterError) as exc:
                 if STACK_LAYER not in tile.metadata:
@@ -148,7 +153,7 @@ def dem_evidence(dems: Sequence, *, reference: str | None = None, ref_tile=None,
                                compare_slope_maps(horn_slope(tile, edges=edges),
                                                   theirs.heights)))
     if ref_tile is not None:
-        ref_label = f"reference {Path(reference).stem}"
+        ref_label = f"reference {ref_name}"
         distributions.append(slope_distribution(ref_tile, label=ref_label, edges=edges))
     return DEMEvidence(tuple(distributions), tuple(spectra), tuple(fits), tuple(comparisons),
                        tuple(agreements))

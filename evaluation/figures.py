@@ -38,7 +38,7 @@ def _figure(figsize=FIGSIZE):
 
 
 def png_bytes(fig) -> bytes:
-    """The figure as PNG bytes (Agg renderer)."""
+    """Return the figure as PNG bytes (Agg renderer)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
     FigureCanvasAgg(fig)
@@ -55,7 +55,7 @@ def save_png(fig, path, *, inputs=()) -> None:
 
 
 def _legend(fig, ax) -> None:
-    """A legend inside the axes, or beside them (a wider figure) when it has many entries."""
+    """Place a legend inside the axes, or beside them (a wider figure) for many entries."""
     n = len(ax.get_legend_handles_labels()[0])
     if n <= 6:
         ax.legend(fontsize="small")
@@ -279,7 +279,7 @@ THUMBNAIL_SIDE = 384
 
 
 def read_png(path) -> np.ndarray:
-    """A PNG as an array: ``(h, w)`` grey or ``(h, w, 3)`` RGB, uint8 or uint16.
+    """Return a PNG as an array: ``(h, w)`` grey or ``(h, w, 3)`` RGB, uint8 or uint16.
 
     Parameters
     ----------

@@ -113,7 +113,7 @@ def volume_centroid(vertices, faces) -> np.ndarray:
 
 
 def closed_chain(faces) -> bool:
-    """True when every edge is traversed as often in one direction as in the other.
+    """Return True when every edge is traversed as often in one direction as in the other.
 
     That is the condition for the divergence theorem, hence for :func:`polyhedron_field`; a
     manifold closed surface is the special case of once each way.
@@ -200,7 +200,7 @@ class Polyhedron:
 
     @property
     def mass(self) -> float:
-        """kg."""
+        """Kg."""
         return self.density * self.volume
 
     def field(self, points, *, progress=None) -> tuple[np.ndarray, np.ndarray]:
@@ -360,7 +360,7 @@ def centrifugal(points, *, rate: float, axis=(0.0, 0.0, 1.0), centre=(0.0, 0.0, 
 
 
 def coarsen(vertices, faces, target_faces: int) -> tuple[np.ndarray, np.ndarray]:
-    """A closed surface with about ``target_faces`` triangles, by vertex clustering.
+    """Return a closed surface with about ``target_faces`` triangles, by vertex clustering.
 
     See the module docstring. The grid step is searched so that the result lands within
     about 25 % of the target; a surface already at or below the target is returned as is.
@@ -391,7 +391,7 @@ def coarsen(vertices, faces, target_faces: int) -> tuple[np.ndarray, np.ndarray]
     # a closed surface has about twice as many triangles as vertices; a cluster cell of side
     # s holds about s^2 of surface
     step = math.sqrt(area / (0.5 * target_faces))
-    best = None
+    best: tuple[np.ndarray, np.ndarray] | None = None
     for _ in range(12):
         cv, cf = _cluster(v, f, step)
         if best is None or abs(len(cf) - target_faces) < abs(len(best[1]) - target_faces):
@@ -400,6 +400,7 @@ def coarsen(vertices, faces, target_faces: int) -> tuple[np.ndarray, np.ndarray]
         if 0.8 <= ratio <= 1.25 and len(cf) >= 4:
             break
         step *= math.sqrt(max(ratio, 0.05))
+    assert best is not None  # the loop above runs at least once
     cv, cf = best
     if len(cf) < 4:
         raise InvalidParameterError(

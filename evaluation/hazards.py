@@ -1,5 +1,7 @@
-"""The landing site at lander scale: hazard map, rock size-frequency against the model, and
-which layer a descent's frames were drawn from.
+"""The landing site at lander scale.
+
+The hazard map, the rock size-frequency against the model, and which layer a descent's
+frames were drawn from.
 
 :func:`rock_sfd` measures, from a rock catalogue, what the model promises: the cumulative
 fractional area F(>=D) (Golombek and Rapp 1997) and the cumulative number N(>=D) per m^2,
@@ -129,15 +131,18 @@ def descent_layers(run, stack) -> list[dict]:
     return rows
 
 
-def site_section(hazards, hazard_png, *, layer: int, resolution: float, rocks=None,
+def site_section(hazards, hazard_png, *, layer: int | None, resolution: float, rocks=None,
                  rock_model=None, rock_extent=None, descent=None, frames=()) -> Section:
-    """The landing site at lander scale (hazard truth, rocks, descent layers).
+    """Return the report section on the landing site at lander scale.
+
+    It holds the hazard truth, the rocks and the descent's layers.
 
     Parameters
     ----------
     hazards : terrain.hazards.HazardMap
     hazard_png : path of the hazard picture
-    layer, resolution : the layer the hazards were computed on and its pixel size (m)
+    layer, resolution : the layer the hazards were computed on (None: a single DEM) and its
+        pixel size (m)
     rocks : dict, optional
         The stack's rock catalogue; with ``rock_model`` and ``rock_extent`` (a layer's extent
         and the smallest diameter complete there) its size-frequency is drawn against the model.

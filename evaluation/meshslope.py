@@ -119,7 +119,7 @@ class Spin:
 
 
 def load_body(path, *, units: str = "m"):
-    """A closed body from a mesh file or a native asteroid model, centred on its centroid.
+    """Return a closed body from a mesh file or a native asteroid model, centred on its centroid.
 
     Parameters
     ----------
@@ -313,9 +313,11 @@ class SlopeAreaHistogram:
 
     @property
     def centres_deg(self) -> np.ndarray:
+        """The bin centres in degrees, (n,) float64."""
         return 0.5 * (self.edges_deg[1:] + self.edges_deg[:-1])
 
     def as_dict(self) -> dict:
+        """Return the histogram as plain data for the report's JSON."""
         return dict(label=self.label, kind=self.kind, edges_deg=self.edges_deg.tolist(),
                     area_percent=self.area_percent.tolist(),
                     percent_steeper=self.percent_steeper.tolist())
@@ -390,10 +392,11 @@ class MeshSlopes:
         return q
 
     def as_dict(self) -> dict:
+        """Return the summaries (not the per-vertex arrays) as plain data for the report's JSON."""
         out = dict(label=self.label, vertices=int(self.vertex_area.size),
                    radius_deg=self.radius_deg, info=self.info,
                    radial=self.summary("radial"))
-        if self.gravitational_deg is not None:
+        if self.gravitational_deg is not None and self.gravity is not None:  # set together
             out["gravitational"] = self.summary("gravitational")
             g = np.linalg.norm(self.gravity, axis=1)
             out["effective_gravity_m_s2"] = dict(min=float(g.min()), max=float(g.max()),

@@ -107,7 +107,7 @@ def _check_tile(tile) -> DEMTile:
 
 
 def _windows(tile: DEMTile, edges: str) -> list[np.ndarray]:
-    """The nine (ny, nx) float32 views a..i of every pixel's 3x3 window (row-major)."""
+    """Return the nine (ny, nx) float32 views a..i of every pixel's 3x3 window (row-major)."""
     if edges not in EDGE_MODES:
         raise InvalidParameterError(f"edges must be one of {EDGE_MODES}; got {edges!r}")
     z = tile.heights  # float32, NaN where invalid
@@ -206,7 +206,7 @@ def horn_aspect(tile: DEMTile, *, edges: str = "mask") -> np.ndarray:
 
 
 def slope_tile(tile: DEMTile, *, edges: str = "mask") -> DEMTile:
-    """The slope map as a tile with the DEM's georeferencing (values in degrees, not metres).
+    """Return the slope map as a tile with the DEM's georeferencing (values in degrees, not metres).
 
     The quantity is recorded in the metadata (``CRATERSCAPE_QUANTITY``), since a DEMTile's
     values are heights by default.
@@ -330,6 +330,7 @@ class SlopeDistribution:
     source: str = ""
 
     def as_dict(self) -> dict:
+        """Return the distribution as plain data for the report's JSON."""
         return dict(label=self.label, resolution_m=self.resolution_m, pixels=self.pixels,
                     source=self.source, quantiles=self.quantiles,
                     angles_deg=self.angles_deg.tolist(),
@@ -460,7 +461,7 @@ def resample(tile: DEMTile, resolution: float) -> DEMTile:
 
 
 def matched_baseline(a: DEMTile, b: DEMTile) -> tuple[DEMTile, DEMTile]:
-    """Both DEMs at the coarser one's spacing (the finer one is :func:`resample`\\ d).
+    r"""Return both DEMs at the coarser one's spacing (the finer one is :func:`resample`\ d).
 
     >>> fine = DEMTile.from_array(np.zeros((8, 8)), resolution=1.0)
     >>> coarse = DEMTile.from_array(np.zeros((4, 4)), resolution=2.0)

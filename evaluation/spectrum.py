@@ -111,6 +111,7 @@ class RadialSpectrum:
         return 0.5 / self.resolution_m
 
     def as_dict(self) -> dict:
+        """Return the spectrum as plain data (frequencies per metre, power in m^4)."""
         return dict(label=self.label, resolution_m=self.resolution_m, shape=list(self.shape),
                     detrend=self.detrend, window=self.window,
                     frequency_per_m=self.frequency.tolist(), power_m4=self.power.tolist(),
@@ -135,6 +136,7 @@ class HurstFit:
         return 3.0 - self.hurst
 
     def as_dict(self) -> dict:
+        """Return the fit as plain data for the report's JSON."""
         return dict(hurst=self.hurst, beta=self.beta, intercept=self.intercept,
                     f_low_per_m=self.f_low, f_high_per_m=self.f_high, bins=self.bins,
                     r_squared=self.r_squared, fractal_dimension=self.fractal_dimension)
@@ -289,7 +291,7 @@ def fit_hurst(spectrum: RadialSpectrum, *, f_low: float | None = None,
 
 def fractional_brownian_surface(size: int, hurst: float, *, resolution: float = 1.0,
                                 rms: float = 1.0, seed: int = 0) -> DEMTile:
-    """A non-periodic fractional Brownian surface of known Hurst exponent (for validation).
+    """Return a non-periodic fractional Brownian surface of known Hurst exponent (for validation).
 
     Spectral synthesis (Saupe 1988, in *The Science of Fractal Images*, algorithm
     SpectralSynthesisFM2D): complex Gaussian Fourier coefficients with amplitude

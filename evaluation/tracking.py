@@ -172,6 +172,7 @@ class TrackerSettings:
                 f"{self.min_distance}, {self.fb_threshold}, {self.harris_k}")
 
     def as_dict(self) -> dict:
+        """Return the settings as plain data for the report's JSON."""
         return dict(max_corners=self.max_corners, quality=self.quality,
                     min_distance=self.min_distance, block_size=self.block_size,
                     harris_k=self.harris_k, win_size=self.win_size, levels=self.levels,
@@ -208,10 +209,12 @@ class Tracks:
 
     @property
     def n_frames(self) -> int:
+        """The number of frames of the sequence."""
         return self.positions.shape[1]
 
     @property
     def n_tracks(self) -> int:
+        """The number of tracks (features ever detected)."""
         return self.positions.shape[0]
 
     @property
@@ -234,6 +237,7 @@ class Tracks:
         return out
 
     def summary(self) -> dict:
+        """Return track counts and lengths, and survival (also at layer changes), as plain data."""
         alive = self.alive()
         per_frame = alive.sum(axis=0)
         surv = self.survival()
@@ -289,7 +293,7 @@ class _Grey:
 
 
 def _resolution_key(drawn) -> str:
-    """What decides a frame's resolution in its truth's ``drawn`` record (module docstring)."""
+    """Return what decides a frame's resolution in its truth's ``drawn`` record."""
     import json
 
     if not isinstance(drawn, dict):
@@ -391,12 +395,14 @@ def track(run, settings: TrackerSettings | None = None, *, progress=None) -> Tra
                 f"frame {k} is {image.shape[1]}x{image.shape[0]}; frame 0 is {w}x{h}")
         if live:
             p0 = np.array([tracks[t][1][-1] for t in live], dtype=np.float32).reshape(-1, 1, 2)
-            p1, st1, _ = cv2.calcOpticalFlowPyrLK(prev, image, p0, None, **lk)
-            source, start = prev, p0
+            # OpenCV's stubs make nextPts required; its documentation (and these calls) pass
+            # None for 'start from prevPts'.
+            p1, st1, _ = cv2.calcOpticalFlowPyrLK(prev, image, p0, None, **lk)  # type: ignore[call-overload]
+            source, start_pts = prev, p0
             if s.prewarp:
-                source, start, p1, st1 = _prewarped(prev, image, p0, p1, st1, lk)
-            p0b, st2, _ = cv2.calcOpticalFlowPyrLK(image, source, p1, None, **lk)
-            fb = np.linalg.norm((p0b - start).reshape(-1, 2), axis=1)
+                source, start_pts, p1, st1 = _prewarped(prev, image, p0, p1, st1, lk)
+            p0b, st2, _ = cv2.calcOpticalFlowPyrLK(image, source, p1, None, **lk)  # type: ignore[call-overload]
+            fb = np.linalg.norm((p0b - start_pts).reshape(-1, 2), axis=1)
             q = p1.reshape(-1, 2)
             inside = ((q[:, 0] >= s.border) & (q[:, 0] <= w - 1 - s.border)
                       & (q[:, 1] >= s.border) & (q[:, 1] <= h - 1 - s.border))
@@ -432,8 +438,11 @@ PREWARP_RANSAC_PX = 2.0
 
 
 def _prewarped(prev, image, p0, p1, st1, lk):
-    """(source, start, p1, status): the previous frame warped by the step's homography, the
-    points' positions in it, and Lucas-Kanade's answer from there (see ``prewarp``)."""
+    """Return (source, start, p1, status) of a step tracked from a pre-warped frame.
+
+    The previous frame warped by the step's homography, the points' positions in it, and
+    Lucas-Kanade's answer from there (see ``prewarp``).
+    """
     import cv2
 
     ok = (st1.reshape(-1) == 1) & np.isfinite(p1.reshape(-1, 2)).all(axis=1)
@@ -590,6 +599,7 @@ class ScoredTracks:
 
     @property
     def has_errors(self) -> bool:
+        """Whether the tracks were scored against ground truth."""
         return self.errors is not None
 
     def error_values(self) -> np.ndarray:
@@ -649,6 +659,7 @@ class ScoredTracks:
         return out
 
     def summary(self) -> dict:
+        """Return the tracking and error summaries and the notes, as plain data."""
         return dict(tracking=self.tracks.summary(), errors=self.error_summary(),
                     notes=list(self.notes))
 
@@ -751,8 +762,10 @@ def score(tracks: Tracks, run, *, outlier_px: float = 2.0,
 
 def _carry(run, k0: int, k1: int, uv: np.ndarray, rng0: np.ndarray, rng1: np.ndarray,
            tolerance: float) -> np.ndarray:
-    """Where the truth puts pixels ``uv`` of frame k0 in frame k1 (NaN: unliftable, hidden
-    or outside)."""
+    """Return where the truth puts pixels ``uv`` of frame k0 in frame k1.
+
+    NaN where a pixel is unliftable, hidden or outside.
+    """
     a, b = run.truth[k0], run.truth[k1]
     h, w = rng1.shape
     out = np.full((len(uv), 2), np.nan)
@@ -778,7 +791,7 @@ def _one_step_errors(tracks: Tracks, run, tolerance: float) -> np.ndarray:
     n = tracks.n_frames
     alive = tracks.alive()
     out = np.full((tracks.n_tracks, n), np.nan)
-    prev = run.range(0) if n else None
+    prev = run.range(0) if n else np.empty((0, 0))  # no frames: the loop does not run
     for k in range(1, n):
         rng = run.range(k)
         sel = np.flatnonzero(alive[:, k] & alive[:, k - 1])
@@ -828,8 +841,11 @@ STREAM_IDEAL_NOISE = "ideal-tracker-noise"
 
 
 def _fresh_noise(image: np.ndarray, sensor: dict, seed: int, frame: int) -> np.ndarray:
-    """``image`` with new shot and read noise of the run's sensor (keyed by seed, frame,
-    column and row), rounded and clipped as the sensor does."""
+    """Return ``image`` with new shot and read noise of the run's sensor.
+
+    The noise is keyed by seed, frame, column and row, and rounded and clipped as the sensor
+    does.
+    """
     from terrain.rng import normal, stream_id
 
     gain = float(sensor.get("gain", 0.0))
@@ -895,7 +911,8 @@ def ideal_one_step(scored: ScoredTracks, run, *, sensor_noise: bool = False,
                 ideal = _fresh_noise(ideal, sensor, seed, k)
             p0 = tracks.positions[sel, k - 1].astype(np.float32).reshape(-1, 1, 2)
             a, b = grey(prev_img), grey(ideal)
-            p1, st, _ = cv2.calcOpticalFlowPyrLK(a, b, p0, None, **lk)
+            # nextPts None: see track() on OpenCV's stubs
+            p1, st, _ = cv2.calcOpticalFlowPyrLK(a, b, p0, None, **lk)  # type: ignore[call-overload]
             if s.prewarp:  # the same tracker: its homography from these tracks
                 _, _, p1, st = _prewarped(a, b, p0, p1, st, lk)
             p0_64 = p0.reshape(-1, 2).astype(np.float64)
@@ -936,7 +953,7 @@ def save_tracks(scored: ScoredTracks, run, folder, *, inputs=()) -> dict:
         for k in range(tracks.start[i], tracks.stop[i] + 1):
             u, v = tracks.positions[i, k]
             row = [i, k, f"{u:.3f}", f"{v:.3f}"]
-            if scored.predicted is not None:
+            if scored.predicted is not None and scored.errors is not None:  # scored together
                 tu, tv = scored.predicted[i, k]
                 e = scored.errors[i, k]
                 row += [f"{tu:.3f}" if math.isfinite(tu) else "",

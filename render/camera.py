@@ -92,6 +92,7 @@ class Intrinsics:
 
     @property
     def fov_y(self) -> float:
+        """The vertical field of view in degrees (through the pixel edges)."""
         top = (self.cy + 0.5) / self.fy
         bottom = (self.height - 0.5 - self.cy) / self.fy
         return math.degrees(math.atan(top) + math.atan(bottom))
@@ -104,6 +105,7 @@ class Intrinsics:
         return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
     def as_dict(self) -> dict:
+        """Return the intrinsics as plain data (pixels) for truth files."""
         return dict(width=self.width, height=self.height, fx=self.fx, fy=self.fy, cx=self.cx,
                     cy=self.cy)
 
@@ -123,7 +125,7 @@ def quat_to_matrix(q) -> np.ndarray:
 
 
 def quat_from_matrix(m) -> np.ndarray:
-    """Unit quaternion ``[w, x, y, z]`` (w >= 0) of a rotation matrix (Shepperd's method)."""
+    """Return the unit quaternion ``[w, x, y, z]`` (w >= 0) of a rotation matrix (Shepperd)."""
     m = np.asarray(m, dtype=np.float64)
     t = np.trace(m)
     if t > 0:
@@ -138,9 +140,9 @@ def quat_from_matrix(m) -> np.ndarray:
     else:
         s = math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2
         q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
-    q = np.array(q)
-    q /= np.linalg.norm(q)
-    return -q if q[0] < 0 else q
+    quat = np.array(q)
+    quat /= np.linalg.norm(quat)
+    return -quat if quat[0] < 0 else quat
 
 
 def slerp(q0, q1, t: float) -> np.ndarray:
@@ -218,6 +220,7 @@ class Pose:
         return np.asarray(self.position) + (d * np.asarray(ranges)[:, None]) @ self.rotation.T
 
     def as_dict(self) -> dict:
+        """Return the pose as plain data (metres; attitude quaternion) for truth files."""
         return dict(position=list(self.position), attitude=list(self.attitude))
 
 
@@ -238,7 +241,7 @@ def look_at(position, target, up=(0.0, 0.0, 1.0)) -> Pose:
     z /= np.linalg.norm(z)
     u = np.asarray(up, dtype=np.float64)
     x = np.cross(z, u)
-    if np.linalg.norm(x) < 1e-9 * max(1.0, np.linalg.norm(u)):
+    if np.linalg.norm(x) < 1e-9 * max(1.0, float(np.linalg.norm(u))):
         x = np.cross(z, (0.0, 1.0, 0.0))
         if np.linalg.norm(x) < 1e-9:
             x = np.cross(z, (1.0, 0.0, 0.0))

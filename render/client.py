@@ -48,8 +48,11 @@ __all__ = ["Client", "RayHit"]
 
 @dataclass(frozen=True)
 class RayHit:
-    """Where a ray first meets the surface: ``range`` (m), ``point`` (3,) and unit ``normal``
-    (3,) in the world frame; all NaN when it meets nothing."""
+    """Where a ray first meets the surface.
+
+    ``range`` (m), ``point`` (3,) and unit ``normal`` (3,) in the world frame; all NaN when it
+    meets nothing.
+    """
 
     range: float
     point: np.ndarray
@@ -57,6 +60,7 @@ class RayHit:
 
     @property
     def hit(self) -> bool:
+        """Whether the ray met the surface."""
         return bool(np.isfinite(self.range))
 
 
@@ -88,6 +92,7 @@ class Client:
         self.close()
 
     def close(self) -> None:
+        """Close the connection."""
         self._sock.close()
 
     # ------------------------------------------------------------------ transport
@@ -112,10 +117,11 @@ class Client:
         self.request(MsgType.HELLO, str(token).encode("utf-8"))
 
     def ping(self) -> None:
+        """Check that the server answers (raises if it does not)."""
         self.request(MsgType.PING)
 
     def info(self) -> dict:
-        """The scene, the site, its bounds, the sun and the sensor (see docs/protocol.md)."""
+        """Return the scene, the site, its bounds, the sun and the sensor (docs/protocol.md)."""
         return json.loads(self.request(MsgType.INFO))
 
     def set_pose(self, position, attitude, time: float = 0.0, frame: int = 0) -> None:
@@ -164,13 +170,15 @@ class Client:
         self.request(MsgType.SET_MOTION, MOTION.pack(*values))
 
     def set_sensor(self, **settings) -> dict:
-        """Change sensor settings (any [sensor] key, ``width``, ``height``, ``noise``); returns
-        the settings in force."""
+        """Change sensor settings and return the settings in force.
+
+        Any ``[sensor]`` key, ``width``, ``height`` and ``noise`` may be changed.
+        """
         return json.loads(self.request(MsgType.SET_SENSOR,
                                        json.dumps(settings).encode("utf-8")))
 
     def get_image(self, bits: int = 0) -> np.ndarray:
-        """The camera image of the current pose.
+        """Return the camera image of the current pose.
 
         Parameters
         ----------
@@ -189,7 +197,7 @@ class Client:
             np.uint8 if b <= 8 else np.uint16)
 
     def get_range(self) -> np.ndarray:
-        """The LIDAR range image of the current pose.
+        """Return the LIDAR range image of the current pose.
 
         Returns
         -------
@@ -201,7 +209,7 @@ class Client:
         return _array(body[ARRAY_HEAD.size:], np.dtype("<f4"), (h, w)).astype(np.float32)
 
     def get_normals(self) -> np.ndarray:
-        """The surface normals seen from the current pose.
+        """Return the surface normals seen from the current pose.
 
         Returns
         -------
@@ -213,7 +221,7 @@ class Client:
         return _array(body[ARRAY_HEAD.size:], np.dtype("<f4"), (h, w, 3)).astype(np.float32)
 
     def get_truth(self) -> dict:
-        """The frame's ground truth (a run's truth.json entry, without file names)."""
+        """Return the frame's ground truth (a run's truth.json entry, without file names)."""
         return json.loads(self.request(MsgType.GET_TRUTH))
 
     def height_at(self, x: float, y: float) -> tuple[float, np.ndarray]:
@@ -235,7 +243,7 @@ class Client:
         return h, np.array(n)
 
     def pixel_ray(self, u: float, v: float) -> RayHit:
-        """The 3-D point seen through pixel (u, v) of the current pose."""
+        """Return the 3-D point seen through pixel (u, v) of the current pose."""
         return _hit(self.request(MsgType.PIXEL_RAY, XY.pack(u, v)))
 
     def ray(self, origin, direction) -> RayHit:

@@ -26,7 +26,7 @@ REQUIRED_VERSION = 330
 
 @functools.lru_cache(maxsize=1)
 def create_context():
-    """A standalone moderngl context on EGL (one per process, reused)."""
+    """Return a standalone moderngl context on EGL (one per process, reused)."""
     try:
         import moderngl
     except ImportError as exc:  # pragma: no cover - a broken install
@@ -49,7 +49,7 @@ def create_context():
 
 
 def describe() -> dict:
-    """Renderer and version of the context (for run manifests and benchmark reports)."""
+    """Return the renderer and version of the context (for run manifests and benchmark reports)."""
     ctx = create_context()
     return {"renderer": ctx.info.get("GL_RENDERER"), "version": ctx.info.get("GL_VERSION"),
             "vendor": ctx.info.get("GL_VENDOR")}

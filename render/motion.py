@@ -101,33 +101,37 @@ class Motion:
 
     @classmethod
     def from_mapping(cls, mapping) -> Motion:
-        """Motion from a table (a scenario's ``[motion]`` less its ``blur`` switch, or a
-        request); unknown keys are errors naming the nearest valid key."""
+        """Build the motion from a table (a scenario's ``[motion]`` less ``blur``, or a request).
+
+        Unknown keys are errors naming the nearest valid key.
+        """
         return cls(**check_keys(mapping, set(cls.__dataclass_fields__), "motion"))
 
     @property
     def still(self) -> bool:
+        """Whether nothing moves during the exposure (no velocity, no rotation)."""
         return not any(np.any(np.asarray(v)) for v in (
             self.velocity, self.angular_velocity, self.body_angular_velocity))
 
     def pose_at(self, pose: Pose, dt: float) -> Pose:
-        """The camera pose ``dt`` seconds after ``pose``."""
+        """Return the camera pose ``dt`` seconds after ``pose``."""
         p = np.asarray(pose.position) + np.asarray(self.velocity) * dt
         r = rotation_vector_matrix(np.asarray(self.angular_velocity) * dt) @ pose.rotation
         return Pose(tuple(p), tuple(quat_from_matrix(r)))
 
     def body_rotation_at(self, quaternion, dt: float) -> tuple:
-        """The body rotation R_WB ``dt`` seconds after ``quaternion``."""
+        """Return the body rotation R_WB ``dt`` seconds after ``quaternion``."""
         r = rotation_vector_matrix(np.asarray(self.body_angular_velocity) * dt) \
             @ quat_to_matrix(quaternion)
         return tuple(quat_from_matrix(r).tolist())
 
     def as_dict(self) -> dict:
+        """Return the motion as plain data (m/s and rad/s) for truth files."""
         return dict(velocity=list(self.velocity), angular_velocity=list(self.angular_velocity),
                     body_angular_velocity=list(self.body_angular_velocity))
 
     def image_speed(self, intrinsics, nearest_range: float, body_radius: float = 0.0) -> float:
-        """An upper estimate of how fast (pixels/s) an image point moves."""
+        """Return an upper estimate of how fast (pixels/s) an image point moves."""
         f = max(intrinsics.fx, intrinsics.fy)
         d = max(nearest_range, 1e-6)
         return f * (float(np.linalg.norm(self.angular_velocity))
@@ -141,8 +145,11 @@ def row_time(row, exposure_time: float, line_time: float):
 
 
 def trajectory_velocities(samples, index: int) -> Motion:
-    """Velocities at frame ``index`` of a trajectory by central differences between its
-    neighbouring frames (one-sided at the ends; zero for a single frame)."""
+    """Return the velocities at frame ``index`` of a trajectory.
+
+    Central differences between its neighbouring frames (one-sided at the ends; zero for a
+    single frame).
+    """
     n = len(samples)
     if n < 2:
         return Motion()

@@ -112,7 +112,7 @@ REQUEST_SIZES = {MsgType.HELLO: None, MsgType.INFO: 0, MsgType.PING: 0,
 
 
 def pack_header(msg_type: int, request_id: int, length: int) -> bytes:
-    """The 16-byte header of a message."""
+    """Return the 16-byte header of a message."""
     return HEADER.pack(MAGIC, VERSION, int(msg_type), int(request_id) & 0xFFFFFFFF, int(length))
 
 

@@ -18,7 +18,7 @@ __all__ = ["check_keys", "number"]
 
 
 def check_keys(mapping, allowed, where: str) -> dict:
-    """``mapping`` as a dict, or an error naming the first unknown key and its nearest match.
+    """Return ``mapping`` as a dict, or refuse its first unknown key naming the nearest match.
 
     >>> check_keys({"gain": 2.0}, {"gain", "bias"}, "[sensor]")
     {'gain': 2.0}

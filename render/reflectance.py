@@ -109,6 +109,7 @@ class Hapke:
         return -math.log(1.0 - x) / x
 
     def as_dict(self) -> dict:
+        """Return the photometric parameters as plain data for run manifests."""
         return asdict(self)
 
 

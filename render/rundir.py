@@ -70,6 +70,7 @@ class FrameTruth:
     radiance: str | None = None
 
     def as_dict(self) -> dict:
+        """Return the frame's truth as plain data for the run's truth file."""
         d = dict(index=self.index, time=self.time, image=self.image, range=self.range,
                  normals=self.normals, camera=self.pose.as_dict(),
                  intrinsics=self.intrinsics.as_dict(), sun={"direction": list(self.sun)},
@@ -101,6 +102,7 @@ class FrameTruth:
 
     @classmethod
     def from_dict(cls, d: dict) -> FrameTruth:
+        """Build the frame's truth from what :meth:`as_dict` wrote."""
         return cls(int(d["index"]), float(d.get("time", 0.0)),
                    Pose(tuple(d["camera"]["position"]), tuple(d["camera"]["attitude"])),
                    Intrinsics(**d["intrinsics"]), tuple(d["sun"]["direction"]),
@@ -180,11 +182,12 @@ class RunWriter:
         self._write_manifest()
 
     def done(self) -> set[int]:
-        """Indices of frames already written (for resuming)."""
+        """Return indices of frames already written (for resuming)."""
         return {int(f["index"]) for f in self.frames}
 
     def write_frame(self, truth: FrameTruth, image: np.ndarray, range_m: np.ndarray | None,
                     normals: np.ndarray | None, radiance: np.ndarray | None = None) -> None:
+        """Write one frame's image and truth rasters and record the frame in ``truth.json``."""
         i = truth.index
         names = dict(image=f"frames/frame_{i:06d}.png")
         write_png(image, self.dir / names["image"])
@@ -210,6 +213,7 @@ class RunWriter:
             tmp.write_text(json.dumps(self.frames, indent=1), encoding="utf-8")
 
     def finish(self, **facts) -> None:
+        """Record the run's final facts in the manifest and write it."""
         self.manifest.update(facts, frames_written=len(self.frames))
         self._write_manifest()
 
@@ -244,12 +248,14 @@ class RunReader:
 
     @property
     def has_truth(self) -> bool:
+        """Whether the run has ground truth for its frames."""
         return bool(self.truth)
 
     def __len__(self) -> int:
         return len(self.images)
 
     def image(self, k: int) -> np.ndarray:
+        """Return frame ``k``'s image as stored (uint8 or uint16)."""
         import cv2
 
         img = cv2.imread(str(self.images[k]), cv2.IMREAD_UNCHANGED)
@@ -258,11 +264,13 @@ class RunReader:
         return img
 
     def range(self, k: int) -> np.ndarray | None:
+        """Return frame ``k``'s range in metres, (h, w), or None without truth."""
         if not self.truth or not self.truth[k].range:
             return None
         return read_float_tiff(self.dir / self.truth[k].range)
 
     def normals(self, k: int) -> np.ndarray | None:
+        """Return frame ``k``'s world-frame surface normals, (h, w, 3), or None without truth."""
         if not self.truth or not self.truth[k].normals:
             return None
         return read_float_tiff(self.dir / self.truth[k].normals)

@@ -195,7 +195,7 @@ class Sensor:
     # ------------------------------------------------------------------ records
     @classmethod
     def from_mapping(cls, mapping, *, seed: int = 0, base: Path | None = None) -> Sensor:
-        """A sensor from a ``[sensor]`` table; unknown keys are errors naming the nearest key.
+        """Build a sensor from a ``[sensor]`` table; unknown keys are errors naming the nearest.
 
         ``base``: folder that a relative ``psf_kernel`` path is relative to.
 
@@ -214,6 +214,7 @@ class Sensor:
         return cls(seed=seed, **m)
 
     def as_dict(self) -> dict:
+        """Return the sensor model as plain data for run manifests."""
         d = asdict(self)
         d["psf"] = [list(t) for t in self.psf]
         return d
@@ -225,11 +226,18 @@ class Sensor:
         return self.exposure == 0
 
     @property
+    def kernel(self) -> np.ndarray | None:
+        """The point-spread kernel read from ``psf_kernel`` when built, or None without one."""
+        return self.__dict__.get("_kernel")
+
+    @property
     def full_scale(self) -> int:
+        """The largest digital number the sensor can output (2^bits - 1)."""
         return 2**self.bits - 1
 
     @property
     def rolling(self) -> bool:
+        """Whether rows are exposed one after another (rolling shutter)."""
         return self.line_time > 0
 
     @property
@@ -279,7 +287,7 @@ class Sensor:
 
     # ------------------------------------------------------------------ the chain
     def blur(self, image: np.ndarray) -> np.ndarray:
-        """The optical image through the point-spread function (float64)."""
+        """Return the optical image through the point-spread function (float64)."""
         import cv2
 
         x = np.asarray(image, dtype=np.float64)
@@ -293,8 +301,8 @@ class Sensor:
                                                          borderType=cv2.BORDER_REFLECT)
                 out += (w / total) * part
             return out
-        if self.psf_kernel is not None:
-            k = self._kernel
+        if self.kernel is not None:  # present exactly when psf_kernel is
+            k = self.kernel
             # filter2D correlates; flipping the kernel makes it a convolution
             return cv2.filter2D(x, -1, k[::-1, ::-1].copy(), borderType=cv2.BORDER_REFLECT)
         return x
@@ -330,7 +338,7 @@ class Sensor:
         return 1.0 / (1.0 + x * x + y * y) ** 2
 
     def digitise(self, electrons: np.ndarray, frame: int = 0) -> np.ndarray:
-        """Steps 3-8 of the chain on a mean-signal image in electrons."""
+        """Apply steps 3-8 of the chain on a mean-signal image in electrons."""
         e = np.asarray(electrons, dtype=np.float64)
         h, w = e.shape
         cols = np.arange(w)[None, :]
@@ -354,8 +362,11 @@ class Sensor:
         return out.astype(np.uint8 if self.bits <= 8 else np.uint16)
 
     def _shot(self, e, frame, cols, rows):
-        """Poisson electrons of mean ``e``: exact below :data:`POISSON_EXACT_BELOW`, else
-        Gaussian; one keyed uniform per pixel either way."""
+        """Draw Poisson electrons of mean ``e``.
+
+        Exact below :data:`POISSON_EXACT_BELOW`, else Gaussian; one keyed uniform per pixel
+        either way.
+        """
         from scipy.special import ndtri
 
         u = uniform(self.seed, STREAM_SHOT, frame, cols, rows)
@@ -367,8 +378,11 @@ class Sensor:
 
 
 def _poisson_inverse(u: np.ndarray, lam: np.ndarray) -> np.ndarray:
-    """Smallest k with P(K <= k) >= u for Poisson means ``lam`` < 30 (inverse transform,
-    summing the probability mass term by term; exact up to float64 rounding)."""
+    """Return the smallest k with P(K <= k) >= u for Poisson means ``lam`` < 30.
+
+    Inverse transform, summing the probability mass term by term; exact up to float64
+    rounding.
+    """
     p = np.exp(-lam)
     cdf = p.copy()
     k = np.zeros_like(lam)

@@ -35,6 +35,7 @@ import signal
 import socket
 import threading
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -100,7 +101,7 @@ def is_loopback(host: str) -> bool:
         infos = socket.getaddrinfo(host, None)
     except socket.gaierror as exc:
         raise InvalidParameterError(f"cannot resolve host '{host}': {exc}") from None
-    return all(ipaddress.ip_address(info[4][0].split("%")[0]).is_loopback for info in infos)
+    return all(ipaddress.ip_address(str(info[4][0]).split("%")[0]).is_loopback for info in infos)
 
 
 def _noiseless(sensor):
@@ -175,7 +176,7 @@ class _Connection:
             srv.forget(self)
 
     def answer(self, msg_type: int, rid: int, body: bytes):
-        """The reply (type, body) to one message, or None when the server stopped."""
+        """Return the reply (type, body) to one message, or None when the server stopped."""
         srv = self.server
         if not self.authorized:
             if msg_type != MsgType.HELLO or not srv.check_token(body):
@@ -280,13 +281,17 @@ class RenderServer:
         self._listener: socket.socket | None = None
         self._cached: dict[int, _State] = {}   # insertion order = render order
         self.renderer: Renderer | None = None
-        self.scene = None
+        # The loaded scene (render.sequence.load_scene): a terrain or an asteroid scene, told
+        # apart by its ``kind``.
+        self.scene: Any = None
         self.requests = 0
 
     # ------------------------------------------------------------------ set-up
     def load(self) -> None:
-        """Load the scene and render the scenario's first frame (uploads the geometry,
-        compiles the programs and prepares the shadow maps)."""
+        """Load the scene and render the scenario's first frame.
+
+        This uploads the geometry, compiles the programs and prepares the shadow maps.
+        """
         self.renderer = Renderer()
         self.scene = load_scene(self.scenario)
         samples = self.scenario.samples(self.scene)
@@ -307,14 +312,26 @@ class RenderServer:
 
     @property
     def address(self) -> tuple[str, int]:
+        """The (host, port) the server listens on (after :meth:`bind`)."""
+        if self._listener is None:
+            raise InvalidParameterError("the server is not listening yet; call bind() first")
         return self._listener.getsockname()[:2]
 
+    @property
+    def _gpu(self) -> Renderer:
+        """The renderer :meth:`load` made (every frame request comes after it)."""
+        if self.renderer is None:
+            raise InvalidParameterError("the server has not loaded its scene; call load() first")
+        return self.renderer
+
     def check_token(self, body: bytes) -> bool:
+        """Return whether a HELLO body carries the server's token (always, without one)."""
         if self.token is None:
             return True
         return hmac.compare_digest(body, self.token.encode("utf-8"))
 
     def forget(self, conn: _Connection) -> None:
+        """Drop a closed connection (its pending frame is dropped by the render thread)."""
         with self._lock:
             self._clients.discard(conn)
         self.work.put((conn, None, b""))  # the render thread drops its frame
@@ -574,7 +591,7 @@ class RenderServer:
             # velocities the client set, where the sensor integrates over time (blur or a
             # rolling shutter); otherwise the scenario's [motion] (see frame_motion)
             moving = st.motion if st.scenario.motion.get("blur") else None
-            st.frame = render_sample(self.renderer, self.scene, sc, sample, st.index,
+            st.frame = render_sample(self._gpu, self.scene, sc, sample, st.index,
                                      motion=moving)
             self._remember(st)
         return st.frame
@@ -601,8 +618,10 @@ class RenderServer:
 
     # ------------------------------------------------------------------ surface queries
     def cast(self, origin, direction, t: float, lighting: Lighting) -> tuple:
-        """(range, point x, y, z, normal x, y, z) where a ray first meets the surface; NaN
-        when it meets nothing. Rendered as one pixel at the finest level of detail."""
+        """Return (range, point x, y, z, normal x, y, z) where a ray first meets the surface.
+
+        NaN when it meets nothing. Rendered as one pixel at the finest level of detail.
+        """
         o = np.asarray(origin, dtype=np.float64)
         d = np.asarray(_scaled(direction, "ray direction"))
         n = float(np.linalg.norm(d))
@@ -612,7 +631,7 @@ class RenderServer:
             self.scene.set_body_rotation(self.body_rotation(t))
         view = View(pose, Intrinsics(1, 1, RAY_FOCAL, RAY_FOCAL, 0.0, 0.0), t)
         options = dataclasses.replace(self.scenario.options, shadows=False)
-        frame = self.renderer.render(self.scene, view, lighting, options)
+        frame = self._gpu.render(self.scene, view, lighting, options)
         r = float(frame.range[0, 0])
         if not math.isfinite(r):
             return (math.nan,) * 7
@@ -658,9 +677,12 @@ def _finite(what: str, values) -> None:
 
 
 def _scaled(values, what: str) -> tuple:
-    """A direction whose norm can neither overflow nor vanish: divided by its largest
-    magnitude when that lies outside [1e-100, 1e100] (kept as sent otherwise, so a pose sent
-    back from a truth file gives the same bytes); a zero vector is refused."""
+    """Return a direction whose norm can neither overflow nor vanish.
+
+    It is divided by its largest magnitude when that lies outside [1e-100, 1e100] (kept as sent
+    otherwise, so a pose sent back from a truth file gives the same bytes); a zero vector is
+    refused.
+    """
     v = np.asarray(values, dtype=np.float64)
     m = float(np.max(np.abs(v)))
     if not m > 0:

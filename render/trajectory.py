@@ -74,7 +74,7 @@ def _catmull_rom(times, points, t):
 
 
 def keyframes(frames: int, keys: list[dict], up=(0.0, 0.0, 1.0)) -> list[Sample]:
-    """Samples interpolated between keyframes (dicts: time, position, attitude | look_at)."""
+    """Return samples interpolated between keyframes (dicts: time, position, attitude | look_at)."""
     if len(keys) < 1:
         raise InvalidParameterError("a keyframe trajectory needs at least one keyframe")
     keys = sorted(keys, key=lambda k: float(k["time"]))
@@ -111,7 +111,7 @@ def keyframes(frames: int, keys: list[dict], up=(0.0, 0.0, 1.0)) -> list[Sample]
 def descent(frames: int, site, *, start_altitude: float, end_altitude: float,
             duration: float, ground_track=(0.0, 0.0), look: str = "site",
             height_at=None) -> list[Sample]:
-    """A descent onto ``site`` (x, y, ground height z) (see the module docstring).
+    """Return a descent onto ``site`` (x, y, ground height z) (see the module docstring).
 
     ``ground_track``: horizontal offset (m) of the start from the site, shrinking in proportion
     to the altitude. ``look``: "site" (look at the site) or "nadir" (straight down, north up).
@@ -146,7 +146,7 @@ def descent(frames: int, site, *, start_altitude: float, end_altitude: float,
 def approach(frames: int, *, start_distance: float, end_distance: float, duration: float,
              direction=(1.0, 0.0, 0.0), spin_axis=(0.0, 0.0, 1.0), spin_period: float = 0.0,
              spin_phase_deg: float = 0.0, up=(0.0, 0.0, 1.0)) -> list[Sample]:
-    """An approach to a spinning body centred at the world origin.
+    """Return an approach to a spinning body centred at the world origin.
 
     ``spin_period`` in seconds (0: no spin); the body rotation at time t is
     ``axis_angle(spin_axis, spin_phase + 2 pi t / spin_period)``.
@@ -171,8 +171,10 @@ def approach(frames: int, *, start_distance: float, end_distance: float, duratio
 
 def spin_rotation(t: float, spin_axis=(0.0, 0.0, 1.0), spin_period: float = 0.0,
                   spin_phase_deg: float = 0.0) -> np.ndarray:
-    """Body rotation R_WB (quaternion [w, x, y, z]) at time ``t`` (s) of a body spinning about
-    ``spin_axis`` with ``spin_period`` (s; 0: no spin) from ``spin_phase_deg`` at t = 0.
+    """Return the body rotation R_WB (quaternion [w, x, y, z]) at time ``t`` (s).
+
+    The body spins about ``spin_axis`` with ``spin_period`` (s; 0: no spin) from
+    ``spin_phase_deg`` at t = 0.
 
     >>> spin_rotation(25.0, spin_period=100.0).round(6).tolist()
     [0.707107, 0.0, 0.0, 0.707107]

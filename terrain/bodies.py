@@ -22,8 +22,8 @@ BODY_RADII = {"moon": 1_737_400.0, "mars": 3_389_500.0, "mercury": 2_439_400.0}
 PROJECTIONS = ("south-polar", "north-polar", "ortho:LON,LAT")
 
 
-def check_projection(body: str | None, projection: str | None) -> tuple[str, ...] | None:
-    """The projection of a synthetic DEM, checked: ``(kind, *numbers)`` or None.
+def check_projection(body: str | None, projection: str | None) -> tuple | None:
+    """Return the projection of a synthetic DEM, checked: ``(kind, *numbers)`` or None.
 
     Parameters
     ----------

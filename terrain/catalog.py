@@ -105,6 +105,7 @@ class CraterTable:
 
     @classmethod
     def empty(cls) -> CraterTable:
+        """Return a table without craters."""
         z = np.zeros(0)
         return cls(z, z, z, z, z.astype(np.uint64), z.astype(np.int64))
 
@@ -121,19 +122,25 @@ class CraterTable:
                    np.floor(np.log2(d)).astype(np.int64))
 
     def take(self, index) -> CraterTable:
+        """Return the craters selected by ``index`` (an index array or boolean mask)."""
         return CraterTable(self.x[index], self.y[index], self.diameter[index], self.age[index],
                            self.uid[index], self.size_class[index], dict(self.meta))
 
     @staticmethod
     def concatenate(tables) -> CraterTable:
+        """Return one table of the craters of ``tables``, in order."""
         tables = [t for t in tables if len(t)]
         if not tables:
             return CraterTable.empty()
-        return CraterTable(*(np.concatenate([getattr(t, n) for t in tables])
-                             for n in ("x", "y", "diameter", "age", "uid", "size_class")))
+
+        def joined(name: str) -> np.ndarray:
+            return np.concatenate([getattr(t, name) for t in tables])
+
+        return CraterTable(joined("x"), joined("y"), joined("diameter"), joined("age"),
+                           joined("uid"), joined("size_class"))
 
     def composition_order(self) -> np.ndarray:
-        """Indices in processing order: larger size classes first, then oldest first.
+        """Return indices in processing order: larger size classes first, then oldest first.
 
         Ties in age are broken by uid, so the order of any two craters never depends on
         which other craters are present (a window and the full tile agree).
@@ -155,8 +162,11 @@ CATALOG_COLUMNS = (
 
 @contextlib.contextmanager
 def csv_sink(path_or_file):
-    """Yield a text file for a CSV writer: ``path_or_file`` itself if it has ``write``, else
-    that path opened for writing (and closed afterwards)."""
+    """Yield a text file for a CSV writer.
+
+    ``path_or_file`` itself if it has ``write``, else that path opened for writing (and
+    closed afterwards).
+    """
     if hasattr(path_or_file, "write"):
         yield path_or_file
         return
@@ -190,7 +200,7 @@ def read_catalog(path) -> dict:
     with open(path, newline="", encoding="utf-8") as f:
         reader = csv.DictReader(f)
         names = reader.fieldnames or []
-        cols = {name: [] for name in names}
+        cols: dict[str, list[str]] = {name: [] for name in names}
         for row in reader:
             for name in names:
                 cols[name].append(row[name])

@@ -43,10 +43,12 @@ import contextlib
 import json
 import logging
 import math
+import os
 import time
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Protocol, TypeVar
 
 import numpy as np
 from affine import Affine
@@ -61,6 +63,11 @@ from terrain.errors import (
 from terrain.tile import Window, default_transform
 from terrain.zarrstore import ZarrDEM, is_zarr
 
+if TYPE_CHECKING:
+    from terrain.cratering import CraterModel
+    from terrain.population import Population
+    from terrain.roughness import ExpansionParameters
+
 __all__ = ["DEFAULT_CHUNK", "CraterSource", "ExpandSource", "FillSource", "GapTooLargeError",
            "RunReport", "SynthSource", "dask_client", "estimate_parameters", "open_reader",
            "run"]
@@ -73,10 +80,35 @@ DEFAULT_CHUNK = 1024
 MIN_CHUNK = 16
 
 
-def open_reader(path, band: int = 1):
-    """A windowed reader of a DEM: a Zarr DEM or any raster GDAL reads.
+class DEMReader(Protocol):
+    """What a chunked run needs of its input (:class:`~terrain.io.RasterReader`, :class:`ZarrDEM`).
 
-    Returns an object with ``shape``, ``transform``, ``crs``, ``nodata``, ``metadata``,
+    ``read(window)`` returns (heights (h, w) float32 in metres, valid (h, w) bool) of a window
+    (the whole DEM when None); the other members describe the whole input.
+    """
+
+    @property
+    def path(self) -> str | os.PathLike: ...
+    @property
+    def shape(self) -> tuple[int, ...]: ...
+    @property
+    def transform(self) -> Affine: ...
+    @property
+    def crs(self) -> str | None: ...
+    @property
+    def nodata(self) -> float: ...
+    @property
+    def metadata(self) -> dict[str, str]: ...
+    @property
+    def resolution(self) -> float: ...
+
+    def read(self, window: Window | None = None) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+def open_reader(path, band: int = 1) -> DEMReader:
+    """Return a windowed reader of a DEM: a Zarr DEM or any raster GDAL reads.
+
+    Returns a :class:`DEMReader`: ``shape``, ``transform``, ``crs``, ``nodata``, ``metadata``,
     ``resolution`` and ``read(window) -> (heights, valid)``.
     """
     from terrain.io import RasterReader
@@ -97,8 +129,18 @@ def open_reader(path, band: int = 1):
     return reader
 
 
+_T = TypeVar("_T")
+
+
+def _filled(value: _T | None) -> _T:
+    """Return a field that ``__post_init__`` filled in (None only before construction ends)."""
+    if value is None:  # pragma: no cover - every source's __post_init__ fills its defaults
+        raise AssertionError("a source's default was not filled in by __post_init__")
+    return value
+
+
 def _input_stamp(reader) -> dict:
-    """What identifies an input, so a resumed run refuses an input that has changed."""
+    """Return what identifies an input, so a resumed run refuses an input that has changed."""
     path = Path(reader.path)
     st = path.stat()
     return dict(path=str(path.resolve()), size=st.st_size, mtime_ns=st.st_mtime_ns,
@@ -132,8 +174,8 @@ class SynthSource:
     fractal_dimension: float = 2.2
     relief: float = 30.0
     seed: int = 0
-    craters: object = None
-    model: object = None
+    craters: Population | None = None
+    model: CraterModel | None = None
     crs: str | None = None  # WKT (terrain.io.synthetic_crs); heights do not depend on it
 
     def __post_init__(self):
@@ -152,20 +194,24 @@ class SynthSource:
 
     @property
     def shape(self):
+        """The output's (rows, cols)."""
         return (self.size, self.size)
 
     @property
     def transform(self) -> Affine:
+        """The output's affine transform (metres)."""
         return default_transform(float(self.resolution), self.size)
 
     nodata = float("nan")
 
     @property
     def has_catalog(self) -> bool:
+        """Whether the run writes a crater catalogue."""
         return self.craters is not None
 
     @property
     def metadata(self) -> dict:
+        """The output's metadata tags (seed and parameters)."""
         from terrain.cratering import describe_craters
 
         params = dict(size=self.size, resolution=float(self.resolution),
@@ -175,13 +221,16 @@ class SynthSource:
         if self.craters is not None:
             meta["CRATERSCAPE_CRATERS"] = json.dumps(describe_craters(self.craters),
                                                      sort_keys=True)
-            meta["CRATERSCAPE_CRATER_MODEL"] = json.dumps(self.model.as_dict(), sort_keys=True)
+            meta["CRATERSCAPE_CRATER_MODEL"] = json.dumps(_filled(self.model).as_dict(),
+                                                         sort_keys=True)
         return meta
 
     def plan(self) -> dict:
+        """Return what decides the output's bytes, to match a resumed run."""
         return dict(kind="synth", metadata=self.metadata)
 
     def compute(self, window: Window):
+        """Compute the heights of one window, equal to the same window of a whole run."""
         from terrain.synthetic import synthesize_tile
 
         result = synthesize_tile(self.size, resolution=self.resolution,
@@ -199,10 +248,10 @@ class CraterSource:
     largest crater's footprint per size class), so memory per chunk grows with ``dmax``.
     """
 
-    reader: object
-    craters: object
+    reader: DEMReader
+    craters: Population
     seed: int = 0
-    model: object = None
+    model: CraterModel | None = None
 
     def __post_init__(self):
         from terrain.rng import check_seed
@@ -215,36 +264,44 @@ class CraterSource:
 
     @property
     def shape(self):
+        """The output's (rows, cols), those of the input."""
         return self.reader.shape
 
     @property
     def transform(self):
+        """The output's affine transform, that of the input."""
         return self.reader.transform
 
     @property
     def crs(self):
+        """The output's CRS, that of the input."""
         return self.reader.crs
 
     @property
     def nodata(self):
+        """The input's nodata value."""
         return self.reader.nodata
 
     has_catalog = True
 
     @property
     def metadata(self) -> dict:
+        """The output's metadata tags (the input's, with the craters' seed and parameters)."""
         from terrain.cratering import describe_craters
 
         meta = dict(self.reader.metadata)
         meta["CRATERSCAPE_SEED"] = str(self.seed)
-        meta["CRATERSCAPE_CRATER_MODEL"] = json.dumps(self.model.as_dict(), sort_keys=True)
+        meta["CRATERSCAPE_CRATER_MODEL"] = json.dumps(_filled(self.model).as_dict(),
+                                                         sort_keys=True)
         meta["CRATERSCAPE_CRATERS"] = json.dumps(describe_craters(self.craters), sort_keys=True)
         return meta
 
     def plan(self) -> dict:
+        """Return what decides the output's bytes, to match a resumed run."""
         return dict(kind="craters", input=_input_stamp(self.reader), metadata=self.metadata)
 
     def compute(self, window: Window):
+        """Compute the cratered heights of one window, equal to the same window of a whole run."""
         from terrain.cratering import crater_heights
 
         z, catalog = crater_heights(_read_base(self.reader), self.shape, self.transform,
@@ -346,10 +403,10 @@ class ExpandSource:
     positions, so it equals the same pixels of ``expand(read_dem(input), times)``.
     """
 
-    reader: object
+    reader: DEMReader
     times: int
     seed: int = 0
-    params: object = None
+    params: ExpansionParameters | None = None
 
     def __post_init__(self):
         from terrain.rng import check_seed
@@ -365,38 +422,45 @@ class ExpandSource:
 
     @property
     def shape(self):
+        """The expanded output's (rows, cols)."""
         from terrain.expand import expanded_shape
 
         return expanded_shape(self.reader.shape, self.times)
 
     @property
     def transform(self):
+        """The expanded output's affine transform (finer spacing, same origin)."""
         from terrain.expand import expanded_transform
 
         return expanded_transform(self.reader.transform, self.times)
 
     @property
     def crs(self):
+        """The output's CRS, that of the input."""
         return self.reader.crs
 
     @property
     def nodata(self):
+        """The input's nodata value."""
         return self.reader.nodata
 
     has_catalog = False
 
     @property
     def metadata(self) -> dict:
+        """The output's metadata tags (the input's, with the expansion's seed and parameters)."""
         meta = dict(self.reader.metadata)
         meta["CRATERSCAPE_SEED"] = str(self.seed)
-        meta["CRATERSCAPE_EXPANSION"] = json.dumps(dict(self.params.as_dict(),
+        meta["CRATERSCAPE_EXPANSION"] = json.dumps(dict(_filled(self.params).as_dict(),
                                                         times=self.times), sort_keys=True)
         return meta
 
     def plan(self) -> dict:
+        """Return what decides the output's bytes, to match a resumed run."""
         return dict(kind="expand", input=_input_stamp(self.reader), metadata=self.metadata)
 
     def compute(self, window: Window):
+        """Compute the expanded heights of one window, equal to the same window of a whole run."""
         from terrain.expand import expand_level, expanded_shape, parent_region
         from terrain.roughness import local_amplitude
 
@@ -409,7 +473,7 @@ class ExpandSource:
             rows.insert(0, parent_region(*rows[0], full[k - 1][0]))
             cols.insert(0, parent_region(*cols[0], full[k - 1][1]))
         (r0, r1), (c0, c1) = rows[0], cols[0]
-        p = self.params
+        p = _filled(self.params)
         amp = None
         if p.uses_local_map:
             # The local map needs the box and one residual neighbour around the region; the
@@ -449,7 +513,7 @@ class FillSource:
     such tiny inputs.
     """
 
-    reader: object
+    reader: DEMReader
     halo: int = 256
     seed: int = 0
     roughness: float | None = None
@@ -467,32 +531,40 @@ class FillSource:
 
     @property
     def shape(self):
+        """The output's (rows, cols), those of the input."""
         return self.reader.shape
 
     @property
     def transform(self):
+        """The output's affine transform, that of the input."""
         return self.reader.transform
 
     @property
     def crs(self):
+        """The output's CRS, that of the input."""
         return self.reader.crs
 
     @property
     def nodata(self):
+        """The input's nodata value."""
         return self.reader.nodata
 
     has_catalog = False
 
     @property
     def margin(self) -> int:
-        """Pixels a cluster of gaps (each grown by its roughness ring) needs around it: a
-        ring more, so a gap whose ring meets the cluster's is in sight, and the Horn stencil."""
+        """Return the pixels a cluster of gaps needs around it.
+
+        Each gap is grown by its roughness ring; a ring more, so a gap whose ring meets the
+        cluster's is in sight, and the Horn stencil.
+        """
         from terrain.gapfill import RING
 
         return RING + 2
 
     @property
     def metadata(self) -> dict:
+        """The output's metadata tags (the input's, with the fill's seed and parameters)."""
         meta = dict(self.reader.metadata)
         meta["CRATERSCAPE_SEED"] = str(self.seed)
         meta["CRATERSCAPE_FILL"] = json.dumps(dict(chunked=True, halo=self.halo,
@@ -500,6 +572,7 @@ class FillSource:
         return meta
 
     def plan(self) -> dict:
+        """Return what decides the output's bytes, to match a resumed run."""
         return dict(kind="fill", input=_input_stamp(self.reader), metadata=self.metadata)
 
     def _grown(self, window: Window) -> Window:
@@ -510,9 +583,11 @@ class FillSource:
         return Window(c0, r0, c1 - c0, r1 - r0)
 
     def gaps_touching(self, window: Window):
-        """The gap touching ``window`` that needs the largest halo, if it needs more than
-        ``halo``: ``(span, needed halo, (col, row), truncated)``, else None. ``truncated``:
-        the gap runs past the grown window, so its span and need are lower bounds."""
+        """Return the gap touching ``window`` that needs the largest halo, if above ``halo``.
+
+        ``(span, needed halo, (col, row), truncated)``, else None. ``truncated``: the gap runs
+        past the grown window, so its span and need are lower bounds.
+        """
         from scipy import ndimage
 
         big = self._grown(window)
@@ -557,8 +632,11 @@ class FillSource:
         return worst
 
     def check(self, chunk: int) -> None:
-        """Raise :class:`GapTooLargeError` naming the gap that needs the largest halo, if
-        any gap does not fit (reads the input once, chunk by chunk)."""
+        """Raise :class:`GapTooLargeError` if any gap does not fit the halo.
+
+        The error names the gap that needs the largest halo; the input is read once, chunk by
+        chunk.
+        """
         ny, nx = self.shape
         worst = None
         for r0 in range(0, ny, chunk):
@@ -571,6 +649,7 @@ class FillSource:
             raise GapTooLargeError(_gap_message(worst, self.halo))
 
     def compute(self, window: Window):
+        """Compute the filled heights of one window from the window grown by the halo."""
         from terrain.gapfill import fill_gaps
         from terrain.tile import DEMTile
 
@@ -644,6 +723,7 @@ class RunReport:
 
     @property
     def pixels_per_second(self) -> float:
+        """Throughput of the run (NaN when it took no measurable time)."""
         return self.pixels / self.seconds if self.seconds > 0 else float("nan")
 
 
@@ -763,7 +843,7 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None, progress=Non
 
 
 def _merge_catalogs(store: ZarrDEM, source) -> dict:
-    """The whole DEM's crater catalogue from the chunks' rows, in composition order."""
+    """Return the whole DEM's crater catalogue from the chunks' rows, in composition order."""
     parts = [store.chunk_catalog(i, j) for i in range(store.grid[0])
              for j in range(store.grid[1])]
     cols = {}
@@ -787,8 +867,9 @@ def _merge_catalogs(store: ZarrDEM, source) -> dict:
 @contextlib.contextmanager
 def dask_client(workers: int | None = None, scheduler: str | None = None,
                 processes: bool = True, memory_limit="auto"):
-    """A Dask client: on the cluster at ``scheduler``, on a local pool of ``workers``, or
-    None (this process) when neither is given.
+    """Yield a Dask client, or None (this process) when neither argument is given.
+
+    The client runs on the cluster at ``scheduler`` or on a local pool of ``workers``.
 
     Parameters
     ----------
@@ -816,7 +897,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None,
         with client:
             yield client
         return
-    if isinstance(workers, bool) or int(workers) < 1:
+    if workers is None or isinstance(workers, bool) or int(workers) < 1:  # None: scheduler
         raise InvalidParameterError(f"--workers must be a positive integer; got {workers!r}")
     env = {"OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
     quiet = logging.getLogger("distributed")

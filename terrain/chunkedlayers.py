@@ -37,14 +37,24 @@ import math
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
 
 from terrain import memory
+from terrain.chunked import _filled
 from terrain.errors import InvalidDEMError, InvalidParameterError
 from terrain.layers import WORK
 from terrain.tile import Window
+
+if TYPE_CHECKING:
+    from affine import Affine
+
+    from terrain.catalog import CraterTable
+    from terrain.chunked import DEMReader
+    from terrain.rocks import RockModel
+    from terrain.roughness import ExpansionParameters
 
 __all__ = ["WORK", "AgreeSource", "RockSource", "StackExpandSource", "build_stack_chunked",
            "stack_fits_in_memory"]
@@ -55,8 +65,11 @@ _PLAN = "plan.json"
 
 
 def stack_fits_in_memory(base_shape, shapes) -> bool:
-    """Whether :func:`terrain.layers.build_stack` may hold a stack of layers of ``shapes``
-    on a base of ``base_shape`` (its own memory estimate, and the input read once)."""
+    """Return whether :func:`terrain.layers.build_stack` may hold a stack in memory.
+
+    The stack's layers are of ``shapes`` on a base of ``base_shape`` (its own memory estimate,
+    and the input read once).
+    """
     pixels = sum(h * w for h, w in shapes)
     need = pixels * (4 + 1) * 2 + base_shape[0] * base_shape[1] * (8 * 3 + 12)
     return need <= memory.available_bytes()
@@ -82,37 +95,42 @@ class StackExpandSource:
     with global positions, so it equals the same pixels of the in-memory layer.
     """
 
-    parent: object  # reader of the cratered layer level - 1
+    parent: DEMReader  # reader of the cratered layer level - 1
     parent_origin: tuple  # global (row, col) of the parent's pixel (0, 0)
     origin: tuple  # global (row, col) of this layer's pixel (0, 0)
     size: int  # pixels per side of this layer
-    transform: object
+    transform: Affine
     level: int
-    params: object
+    params: ExpansionParameters
     seed: int
-    base: object = None  # reader of the filled base (local roughness map)
+    base: DEMReader | None = None  # reader of the filled base (local roughness map)
 
     @property
     def shape(self):
+        """The layer's (rows, cols)."""
         return (self.size, self.size)
 
     @property
     def crs(self):
+        """The layer's CRS, that of the parent layer."""
         return self.parent.crs
 
     @property
     def nodata(self):
+        """The parent layer's nodata value."""
         return self.parent.nodata
 
     has_catalog = False
     metadata: dict = field(default_factory=dict)
 
     def plan(self) -> dict:
+        """Return what decides the layer's bytes, to match a resumed build."""
         return dict(kind="stack-expand", input=_stamp(self.parent), level=self.level,
                     origin=list(self.origin), parent_origin=list(self.parent_origin),
                     params=self.params.as_dict(), seed=self.seed)
 
     def compute(self, window: Window):
+        """Compute the layer's heights in one window, equal to the in-memory layer's."""
         from terrain.expand import expand_level, parent_region
         from terrain.roughness import local_amplitude
 
@@ -126,7 +144,8 @@ class StackExpandSource:
         p = self.params
         amp, amp_origin = None, (0, 0)
         if p.uses_local_map:
-            ny, nx = self.base.shape
+            base = _filled(self.base)  # given whenever the roughness map is local
+            ny, nx = base.shape
             scale = 0.5 ** self.level
             a0 = max(0, math.floor(r0 * scale) - 1)
             a1 = min(ny - 1, math.ceil(r1 * scale) + 1)
@@ -135,7 +154,7 @@ class StackExpandSource:
             halo = p.local_box // 2 + 1
             g0, g1 = max(0, a0 - halo), min(ny - 1, a1 + halo)
             h0, h1 = max(0, b0 - halo), min(nx - 1, b1 + halo)
-            sub, _ = self.base.read(Window(h0, g0, h1 - h0 + 1, g1 - g0 + 1))
+            sub, _ = base.read(Window(h0, g0, h1 - h0 + 1, g1 - g0 + 1))
             amp = local_amplitude(sub, p.base_sigma, p.local_box, (a0 - g0, a1 - g0),
                                   (b0 - h0, b1 - h0))
             amp_origin = (a0, b0)
@@ -148,8 +167,11 @@ class StackExpandSource:
 
 @numba.njit(cache=True)
 def _bilinear_at(T, tr0, tc0, ny, nx, x0, y0, res, x, y):
-    """:func:`terrain.rocks._bilinear` of the whole layer (``ny`` x ``nx``, map origin
-    ``x0, y0``), read from ``T``, the part of it starting at pixel (tr0, tc0)."""
+    """Return :func:`terrain.rocks._bilinear` of the whole layer at (x, y).
+
+    The layer is ``ny`` x ``nx`` with map origin ``x0, y0``, read from ``T``, the part of it
+    starting at pixel (tr0, tc0).
+    """
     c = (x - x0) / res - 0.5
     r = (y0 - y) / res - 0.5
     c = min(max(c, 0.0), nx - 1.0)
@@ -184,36 +206,43 @@ class RockSource:
     layer's rock catalogue rows).
     """
 
-    reader: object  # the cratered layer
-    rocks: object  # terrain.rocks.RockModel
+    reader: DEMReader  # the cratered layer
+    rocks: RockModel
     seed: int
-    craters: object = None  # CraterTable raising the rock density, or None
+    craters: CraterTable | None = None  # craters raising the rock density, or None
 
     @property
     def shape(self):
+        """The layer's (rows, cols)."""
         return self.reader.shape
 
     @property
     def transform(self):
+        """The layer's affine transform."""
         return self.reader.transform
 
     @property
     def crs(self):
+        """The layer's CRS."""
         return self.reader.crs
 
     @property
     def nodata(self):
+        """The layer's nodata value."""
         return self.reader.nodata
 
     has_catalog = False
     metadata: dict = field(default_factory=dict)
 
     def plan(self) -> dict:
+        """Return what decides the layer's bytes, to match a resumed build."""
         return dict(kind="stack-rocks", input=_stamp(self.reader), rocks=self.rocks.as_dict(),
                     seed=self.seed, craters=None if self.craters is None
-                    else hashlib.sha256(np.ascontiguousarray(self.craters.uid)).hexdigest())
+                    else hashlib.sha256(
+                        np.ascontiguousarray(self.craters.uid).tobytes()).hexdigest())
 
     def compute(self, window: Window):
+        """Stand the rocks that touch one window on the layer; keep those centred in it."""
         from terrain.rocks import MIN_ROCK_PIXELS, _rasterise
 
         t = self.transform
@@ -257,43 +286,52 @@ class RockSource:
 
 @dataclass(frozen=True)
 class AgreeSource:
-    """The agreement step: pixels of a layer inside the next finer layer take its co-located
-    pixels (its even rows and columns), as :func:`terrain.layers.build_stack` does."""
+    """The agreement step of a layer.
 
-    reader: object  # this layer (after craters and rocks)
-    finer: object = None  # the next finer layer's final store, or None
-    window_in_self: tuple = None  # (col, row, size, size) of the finer layer in this one
+    Pixels of a layer inside the next finer layer take its co-located pixels (its even rows
+    and columns), as :func:`terrain.layers.build_stack` does.
+    """
+
+    reader: DEMReader  # this layer (after craters and rocks)
+    finer: DEMReader | None = None  # the next finer layer's final store, or None
+    window_in_self: tuple | None = None  # (col, row, size, size) of the finer layer in this one
     metadata: dict = field(default_factory=dict)
 
     @property
     def shape(self):
+        """The layer's (rows, cols)."""
         return self.reader.shape
 
     @property
     def transform(self):
+        """The layer's affine transform."""
         return self.reader.transform
 
     @property
     def crs(self):
+        """The layer's CRS."""
         return self.reader.crs
 
     @property
     def nodata(self):
+        """The layer's nodata value."""
         return self.reader.nodata
 
     has_catalog = False
 
     def plan(self) -> dict:
+        """Return what decides the layer's bytes, to match a resumed build."""
         return dict(kind="stack-agree", input=_stamp(self.reader),
                     finer=None if self.finer is None else _stamp(self.finer),
                     window=None if self.window_in_self is None else list(self.window_in_self),
                     metadata=self.metadata)
 
     def compute(self, window: Window):
+        """Compute one window of the layer with the finer layer's pixels where it lies."""
         heights, _ = self.reader.read(window)
         if self.finer is None:
             return heights, None
-        col, row, size, _ = self.window_in_self
+        col, row, size, _ = _filled(self.window_in_self)  # given with ``finer``
         a0, a1 = max(window.row, row), min(window.row + window.height, row + size)
         b0, b1 = max(window.col, col), min(window.col + window.width, col + size)
         if a0 < a1 and b0 < b1:
@@ -310,15 +348,17 @@ class _Layer:
     """What :func:`terrain.layers._manifest` reads of a layer that is not in memory."""
 
     shape: tuple
-    transform: object
+    transform: Affine
     crs: object
 
     @property
     def resolution(self) -> float:
+        """The pixel spacing in metres."""
         return float(self.transform.a)
 
     @property
     def bounds(self):
+        """The layer's (left, bottom, right, top) in map metres."""
         from terrain.layers import _bounds
 
         return _bounds(self.shape, self.transform)
@@ -349,7 +389,7 @@ def _stage(name, source, work: Path, *, chunk, client, progress, reports, metada
 
 
 def _work_folder(outdir: Path, plan: dict) -> Path:
-    """The work folder of this build: kept when it holds the same build, else started anew."""
+    """Return the work folder of this build: kept when it holds the same build, else anew."""
     work = outdir / WORK
     text = json.dumps(plan, sort_keys=True, default=str)
     if work.exists():
@@ -464,7 +504,9 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
         e = _stage("e0", fill, work, **common) if fill is not None else reader
         base = e
         params = params or estimate_parameters(base, **(estimate or {}))
-        cratered, catalogs, tables = [], [], []
+        cratered: list = []
+        catalogs: list = []
+        tables: list = []
         factor = model.footprint_factor
         for k in range(levels + 1):
             if k > 0:
@@ -487,7 +529,7 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
             log.info("layer %d: %d craters", k, 0 if table is None else len(table))
             cratered.append(e)
 
-        rock_rows = {}
+        rock_rows: dict = {}
         rock_layers = []
         if rocks is not None:
             from terrain.rocks import MIN_ROCK_PIXELS
@@ -514,7 +556,7 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
                 cratered[k] = store
                 log.info("layer %d: rocks", k)
 
-        finals = [None] * (levels + 1)
+        finals: list = [None] * (levels + 1)  # one store per layer, finest first
         for k in range(levels, -1, -1):
             meta = _layer_metadata(reader, k, tables[k], seed, model)
             source = AgreeSource(cratered[k], finals[k + 1] if k < levels else None,
@@ -608,8 +650,10 @@ def _stored_catalog(store) -> dict:
 
 
 def _layer_metadata(reader, k: int, table, seed: int, model) -> dict:
-    """The tags the in-memory build gives layer ``k`` (the input's on the base, the
-    craters' where the layer has craters)."""
+    """Return the tags the in-memory build gives layer ``k``.
+
+    The input's on the base, the craters' where the layer has craters.
+    """
     from terrain.cratering import describe_craters
 
     meta = {str(a): str(b) for a, b in reader.metadata.items()} if k == 0 else {}
@@ -621,7 +665,7 @@ def _layer_metadata(reader, k: int, table, seed: int, model) -> dict:
 
 
 def _rock_catalog(rows: dict) -> dict:
-    """The stack's rock catalogue, as :func:`terrain.layers._add_layer_rocks` makes it."""
+    """Return the stack's rock catalogue, as :func:`terrain.layers._add_layer_rocks` does."""
     from terrain.rocks import _OUT, RockTable, rock_catalog
 
     if not rows:

@@ -224,7 +224,7 @@ def ejecta_amplitude(diameter):
 
 
 def exterior_coefficients(rim_height, ejecta, beta):
-    """(a, b, c2, c3) of h3 and h4 from the constraints (see the module docstring).
+    """Return (a, b, c2, c3) of h3 and h4 from the constraints (see the module docstring).
 
     All arguments broadcast; returns four float64 arrays.
     """
@@ -268,7 +268,7 @@ def interior_height(x, bowl_curvature, floor, rim):
 
 @numba.njit(cache=True)
 def interior_alpha(bowl_curvature, floor, rim):
-    """alpha (eq. 6, with the clamps of interior_height)."""
+    """Alpha (eq. 6, with the clamps of interior_height)."""
     c = min(floor, rim)
     d = rim - c
     a = max(bowl_curvature, d)
@@ -356,6 +356,7 @@ class Morphology:
         return d > self.transition_diameter
 
     def as_dict(self) -> dict:
+        """Return the morphology as plain data for metadata."""
         return dict(transition_diameter=self.transition_diameter,
                     peak_ring_diameter=self.peak_ring_diameter, terraces=self.terraces,
                     enabled=self.enabled)
@@ -467,7 +468,7 @@ def complex_interior(x, floor, rim, floor_x, cap_t, peak_height, peak_x, peak_ha
 
 @numba.njit(cache=True)
 def crater_interior(x, curvature, floor, rim, cplx):
-    """The interior of a simple (``cplx[0] <= -1``) or complex crater at x (relative to P).
+    """Return the interior of a simple (``cplx[0] <= -1``) or complex crater at x (relative to P).
 
     ``cplx`` holds the crater's :data:`COMPLEX_FIELDS`.
     """
@@ -536,6 +537,7 @@ class CraterShape:
 
     @property
     def is_complex(self) -> bool:
+        """Whether the crater is complex (it has a flat floor)."""
         return self.floor_x > -1.0
 
     @property
@@ -611,7 +613,7 @@ def _profile_flat(x, curvature, floor, rim_height, rim_offset, ejecta, beta, a, 
 
 
 def profile(x, shape: CraterShape, rim_offset: float = 0.0) -> np.ndarray:
-    """The radial profile at normalised distances ``x`` (float64 array, metres).
+    """Return the radial profile at normalised distances ``x`` (float64 array, metres).
 
     Inside the rim (x <= 0) the value is relative to the fitted plane, outside it is the
     change added to the terrain; beyond x = 1 it is 0. ``rim_offset`` is ``Tr - Pr``.

@@ -165,7 +165,7 @@ class ErosionModel:
 
     @classmethod
     def default(cls, **kwargs) -> ErosionModel:
-        """The shipped Ross-shaped profile (baseline D_b = 1 km, ages in Gyr)."""
+        """Return the shipped Ross-shaped profile (baseline D_b = 1 km, ages in Gyr)."""
         with resources.files("terrain").joinpath("data/ross_baseline.csv").open(
                 encoding="utf-8") as f:
             return cls.from_csv(f, **kwargs)
@@ -182,6 +182,7 @@ class ErosionModel:
         return (np.interp(tb, self.ages, self.depth), np.interp(tb, self.ages, self.rim))
 
     def as_dict(self) -> dict:
+        """Return the model as plain data (Gyr, metres, fractions) for metadata."""
         return dict(baseline_diameter=self.baseline_diameter, exponent=self.exponent,
                     density_ratio=self.density_ratio, ages=list(self.ages),
                     depth=list(self.depth), rim=list(self.rim))
@@ -253,4 +254,5 @@ class SlopeDegradation:
             return np.where(age > 0.0, age * m, 0.0)
 
     def as_dict(self) -> dict:
+        """Return the settings as plain data for metadata."""
         return dict(enabled=self.enabled, critical_slope_deg=self.critical_slope_deg)

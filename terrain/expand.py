@@ -61,8 +61,11 @@ STREAM_EXPAND = stream_id("expand")
 
 @numba.njit(cache=True)
 def _amplitude_row(amp, ar0, scale, r, buf):
-    """The local roughness map bilinearly interpolated to child row r, at the map's column
-    spacing, into buf (then :func:`_amplitude_col` along the row); nothing without a map."""
+    """Interpolate the local roughness map bilinearly to child row r.
+
+    At the map's column spacing, into buf (then :func:`_amplitude_col` along the row);
+    nothing without a map.
+    """
     if amp.shape[0] == 0:
         return
     fr = min(max(r * scale - ar0, 0.0), amp.shape[0] - 1.0)
@@ -159,9 +162,9 @@ _NO_MAP = np.zeros((0, 0), dtype=np.float32)
 
 
 def expand_level(parent: np.ndarray, parent_origin: tuple[int, int], child_rows, child_cols,
-                 *, level: int, sigmas: tuple[float, float], weights, taps, seed: int,
-                 amplitude=None,
-                 amplitude_origin=(0, 0), amplitude_level: int = 0) -> np.ndarray:
+                 *, level: int, sigmas: tuple[float, float, float] | np.ndarray, weights,
+                 taps, seed: int, amplitude=None, amplitude_origin=(0, 0),
+                 amplitude_level: int = 0) -> np.ndarray:
     """One 2x expansion of a region, in global pixel coordinates.
 
     Parameters

@@ -71,6 +71,7 @@ class HazardMap:
 
     @property
     def known_fraction(self) -> float:
+        """The fraction of pixels whose safety is known (finite)."""
         return float(np.isfinite(self.safe).mean())
 
     @property
@@ -80,6 +81,7 @@ class HazardMap:
         return float(self.safe[known].mean()) if known.any() else float("nan")
 
     def tags(self) -> dict:
+        """Return the map's summary as GeoTIFF metadata tags."""
         return dict(CRATERSCAPE_SAFE_FRACTION=f"{self.safe_fraction:.6f}",
                     CRATERSCAPE_KNOWN_FRACTION=f"{self.known_fraction:.6f}",
                     CRATERSCAPE_LANDER_DIAMETER_M=repr(self.lander_diameter),
@@ -210,8 +212,11 @@ def _steps(z, full, offsets, c0, c1, c2, res, out):
 
 
 def pick_layer(resolutions, lander_diameter: float) -> int:
-    """Index of the finest layer with at most :data:`MAX_FOOTPRINT_PIXELS` pixels across the
-    footprint (the coarsest layer if none qualifies)."""
+    """Return the index of the finest layer fine enough across the footprint.
+
+    At most :data:`MAX_FOOTPRINT_PIXELS` pixels across the footprint (the coarsest layer if
+    none qualifies).
+    """
     best = 0
     for k, res in enumerate(resolutions):
         if lander_diameter / res <= MAX_FOOTPRINT_PIXELS:
@@ -220,8 +225,11 @@ def pick_layer(resolutions, lander_diameter: float) -> int:
 
 
 def hazard_image(hazards: HazardMap, shade: np.ndarray | None = None) -> np.ndarray:
-    """(ny, nx, 3) uint8 BGR picture: green safe, red unsafe, dark grey unknown, modulated by
-    a shaded relief (uint8, 0-255) when given."""
+    """Draw the hazard map as a (ny, nx, 3) uint8 BGR picture.
+
+    Green safe, red unsafe, dark grey unknown, modulated by a shaded relief (uint8, 0-255)
+    when given.
+    """
     ny, nx = hazards.safe.shape
     img = np.zeros((ny, nx, 3), np.float64)
     safe = hazards.safe == 1

@@ -167,7 +167,7 @@ def _read_dem(path, band: int, exact: bool) -> tuple[DEMTile, np.ndarray | None]
 
 
 def _read_zarr_dem(path: Path) -> DEMTile:
-    """A whole Zarr DEM written by a chunked run (:mod:`terrain.zarrstore`) as a tile."""
+    """Return a whole Zarr DEM written by a chunked run (:mod:`terrain.zarrstore`) as a tile."""
     from terrain.zarrstore import ZarrDEM, is_zarr
 
     if not is_zarr(path):
@@ -265,8 +265,11 @@ def _replay(captured: list) -> None:
 
 
 def same_crs(a: str | None, b: str | None) -> bool:
-    """Whether two CRS definitions (WKT) describe the same CRS (GDAL's own equality, so
-    equivalent CRSs written differently compare equal); None equals only None."""
+    """Return whether two CRS definitions (WKT) describe the same CRS.
+
+    GDAL's own equality, so equivalent CRSs written differently compare equal; None equals
+    only None.
+    """
     if a is None or b is None:
         return a is None and b is None
     try:
@@ -508,6 +511,7 @@ class RasterReader:
 
     @property
     def resolution(self) -> float:
+        """The pixel spacing in metres (square pixels)."""
         return float(self.transform.a)
 
     def read(self, window=None) -> tuple[np.ndarray, np.ndarray]:
@@ -605,9 +609,10 @@ def write_cog(source, path, *, inputs: Iterable = (), description: str = "height
         f *= 2
     step = max(int(source.chunk), COG_BLOCK)
     step = -(-step // COG_BLOCK) * COG_BLOCK
-    fd, scratch = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".scratch.tif", dir=parent)
+    fd, scratch_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".scratch.tif",
+                                        dir=parent)
     os.close(fd)
-    scratch = Path(scratch)
+    scratch = Path(scratch_name)
     try:
         with atomic_path(path, inputs) as tmp:
             try:
@@ -699,7 +704,7 @@ def orthographic_crs(radius: float, lon: float, lat: float, *, false_easting: fl
 
 def reproject_polar(src: DEMTile, *, radius: float, half_width_m: float,
                     pole: str = "south", limit_lat: float = 60.0) -> DEMTile:
-    """A global DEM reprojected onto a polar stereographic grid around one pole.
+    """Return a global DEM reprojected onto a polar stereographic grid around one pole.
 
     A simple-cylindrical product's pixels are far from square near a pole, so slopes are
     only comparable after reprojection: bilinear, onto square pixels of the product's own
@@ -772,7 +777,7 @@ def synthetic_crs(body: str | None, projection: str | None, centre: tuple[float,
     from terrain.bodies import BODY_RADII, check_projection
 
     kind = check_projection(body, projection)
-    if kind is None:
+    if kind is None or body is None:  # check_projection gives None exactly without a body
         return None
     radius = BODY_RADII[body]
     if kind[0] == "stere":

@@ -127,7 +127,8 @@ class LayerStack:
 # ---------------------------------------------------------------------------- building
 
 
-def _site_window(tile: DEMTile, x: float, y: float, width: int) -> tuple[int, int, int]:
+def _site_window(tile: DEMTile | _Shape, x: float, y: float,
+                 width: int) -> tuple[int, int, int]:
     """Window (col, row, size) of ``width`` pixels in ``tile`` centred on (x, y), clamped."""
     ny, nx = tile.shape
     size = min(width, ny, nx)
@@ -169,7 +170,7 @@ def _layer_craters(population, seed, plan, k, factor, min_pixels):
     return table.take(np.flatnonzero(keep))
 
 
-def _plan(base: DEMTile, site, levels, layer_size):
+def _plan(base: DEMTile | _Shape, site, levels, layer_size):
     """Geometry of every layer: windows, origins, shapes and transforms, before any work."""
     if layer_size < 3 or layer_size % 2 == 0:
         raise InvalidParameterError(

@@ -108,8 +108,11 @@ def _address_space_headroom() -> int | None:
 
 
 def available_bytes() -> int:
-    """Memory this process may plan to use: MemAvailable, capped by the process's
-    address-space limit, its cgroup's limit and ``CRATERSCAPE_MEMORY_LIMIT``."""
+    """Return the memory this process may plan to use, in bytes.
+
+    MemAvailable, capped by the process's address-space limit, its cgroup's limit and
+    ``CRATERSCAPE_MEMORY_LIMIT``.
+    """
     avail = None
     try:
         with open("/proc/meminfo", encoding="ascii") as f:

@@ -1,5 +1,7 @@
-"""Guarding and committing outputs: nothing a command reads is overwritten, nothing half-written
-is ever seen, and files that belong together appear together.
+"""Guarding and committing outputs.
+
+Nothing a command reads is overwritten, nothing half-written is ever seen, and files that
+belong together appear together.
 
 Every craterscape writer goes through :func:`atomic_path`; three mechanisms sit behind it.
 
@@ -206,7 +208,7 @@ def is_write_error(exc: BaseException) -> bool:
 
 
 def cannot_write(path, exc: BaseException) -> OutputPathError:
-    """The one message for every "cannot write here": ``cannot write 'PATH': REASON``."""
+    """Return the one message for every "cannot write here": ``cannot write 'PATH': REASON``."""
     reason = getattr(exc, "strerror", None)
     if not reason:
         text = str(exc).strip()
@@ -247,8 +249,11 @@ def _forget(tmp: Path) -> None:
 
 
 def remove_temporaries() -> list[Path]:
-    """Remove every temporary this process still holds (the command line calls it when
-    interrupted; a temporary a committed set's journal names is never among them)."""
+    """Remove every temporary this process still holds.
+
+    The command line calls it when interrupted; a temporary a committed set's journal names
+    is never among them.
+    """
     removed = []
     for tmp in list(_LIVE):
         with contextlib.suppress(OSError):
@@ -348,7 +353,7 @@ def _pid_alive(pid: int) -> bool:
 def sweep_partials(folder, *, recursive: bool = False) -> list[Path]:
     """Remove temporaries (``.NAME.PID-XXXX.partial``) whose writing process is gone."""
     folder = Path(folder)
-    removed = []
+    removed: list[Path] = []
     if not folder.is_dir():
         return removed
     entries = folder.rglob(f"*{PARTIAL_SUFFIX}") if recursive \
@@ -370,7 +375,7 @@ def sweep_partials(folder, *, recursive: bool = False) -> list[Path]:
 
 @contextlib.contextmanager
 def _folder_lock(folder: Path, shared: bool = False) -> Iterator[None]:
-    """flock on the folder itself: commits (and roll-forwards) in a folder never interleave."""
+    """Flock on the folder itself: commits (and roll-forwards) in a folder never interleave."""
     try:
         fd = os.open(folder, os.O_RDONLY)
     except OSError:  # unreadable folder: nothing to lock against
@@ -432,7 +437,7 @@ def settle(folder) -> bool:
 class Transaction:
     """Files staged by :func:`atomic_path` inside ``with transaction():`` (see module doc)."""
 
-    def __init__(self, stale=()):
+    def __init__(self, stale=()) -> None:
         self.staged: list[tuple[Path, Path]] = []
         self.stale: list[Path] = [Path(p) for p in stale]
         self.created: list[Path] = []
@@ -517,15 +522,21 @@ class Transaction:
 
 
 def discard(*paths) -> None:
-    """Stale companions of the outputs being written: removed when the current
-    :func:`transaction` commits (at once outside one). Absent paths are ignored."""
+    """Mark stale companions of the outputs being written for removal.
+
+    They are removed when the current :func:`transaction` commits (at once outside one).
+    Absent paths are ignored.
+    """
     with transaction(stale=paths):
         pass
 
 
 def make_output_folder(folder, inputs: Iterable = ()) -> Path:
-    """Check (:func:`check_output_folder`) and create an output folder; inside a
-    :func:`transaction` a folder it creates is removed again if the transaction fails."""
+    """Check (:func:`check_output_folder`) and create an output folder.
+
+    Inside a :func:`transaction` a folder it creates is removed again if the transaction
+    fails.
+    """
     folder = check_output_folder(folder, inputs)
     txn = _ACTIVE.get()
     if txn is not None:
@@ -554,11 +565,12 @@ def transaction(stale=(), folders=()) -> Iterator[Transaction]:
         sweep_partials(folder)
     txn = Transaction(stale)
     token = _ACTIVE.set(txn)
+    active = True
     ok = False
     try:
         yield txn
         _ACTIVE.reset(token)
-        token = None
+        active = False
         try:
             txn._commit()
         except OSError as exc:
@@ -567,7 +579,7 @@ def transaction(stale=(), folders=()) -> Iterator[Transaction]:
             raise
         ok = True
     finally:
-        if token is not None:
+        if active:
             _ACTIVE.reset(token)
         if not ok:
             txn._abort()

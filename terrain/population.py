@@ -153,11 +153,12 @@ class Population:
         return cls(**values)
 
     def as_dict(self) -> dict:
+        """Return the population as plain data for metadata."""
         return asdict(self)
 
     @property
     def sfd_constant(self) -> float:
-        """c of N_cum = c D^k (per km^2, D in metres)."""
+        """C of N_cum = c D^k (per km^2, D in metres)."""
         return self.density * self.dmin ** (-self.sfd_exponent)
 
     def cumulative(self, diameter):
@@ -177,7 +178,7 @@ class Population:
         return float(self.cumulative(d_lo) - self.cumulative(d_hi)) / 1e6
 
     def expected_count(self, area_km2: float) -> float:
-        """Expected craters in [dmin, dmax) over an area in km^2."""
+        """Return expected craters in [dmin, dmax) over an area in km^2."""
         return float(self.cumulative(self.dmin) - self.cumulative(self.dmax)) * area_km2
 
     def cell_size(self, d_lo: float, d_hi: float) -> float:

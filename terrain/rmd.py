@@ -210,8 +210,10 @@ def line_sigmas(hurst: float, unit_variance: float, weights=DD_WEIGHTS) -> np.nd
 
 
 def _error_terms(offset, across, axis_points=PREDICTORS[CUBIC]):
-    """Points and coefficients of the four-point error ``z(q) - sum w_i z(q + p_i)`` at
-    q = (offset, across), the predictor running along x."""
+    """Return points and coefficients of the four-point error at q = (offset, across).
+
+    The error is ``z(q) - sum w_i z(q + p_i)``, the predictor running along x.
+    """
     pts, w = axis_points
     pos = [(offset, across)] + [(offset + p, across) for p in pts]
     return np.array(pos, dtype=float), np.r_[1.0, -np.asarray(w, dtype=float)]
@@ -260,8 +262,11 @@ NO_ROW = -(2**62)
 
 @numba.njit(cache=True)
 def _noise_row(key, r, c_first, step, b_row, g, out):
-    """Along-row sums ``g(c) + b_row (g(c - step) + g(c + step))`` of the Gaussians keyed at
-    row r, columns ``c_first + m step`` (m = 0 .. out.size - 1); ``g`` is scratch."""
+    """Sum along the row the Gaussians keyed at row r into ``out``.
+
+    ``g(c) + b_row (g(c - step) + g(c + step))`` at columns ``c_first + m step``
+    (m = 0 .. out.size - 1); ``g`` is scratch.
+    """
     n = out.size
     for m in range(n + 2):
         g[m] = normal_at(key, c_first + (m - 1) * step, r)
@@ -289,9 +294,11 @@ def noise_rows(key, r, dr, c_first, step, b_row, g, rows, held):
 
 @numba.njit(cache=True)
 def correlated_value(rows, m, b_col, norm):
-    """Unit-variance correlated Gaussian at column index m of the rows of :func:`noise_rows`:
+    """Return the unit-variance correlated Gaussian at column index m of :func:`noise_rows`.
+
     ``(rows[1, m] + b_col (rows[0, m] + rows[2, m])) norm``, a function of global position
-    only (so windows stay exact)."""
+    only (so windows stay exact).
+    """
     return (rows[1, m] + b_col * (rows[0, m] + rows[2, m])) * norm
 
 
@@ -319,7 +326,7 @@ def predict(m3, m1, p1, p3, w):
 
 @numba.njit(cache=True)
 def _at(prev, pr0, pc0, sr, sc, r, c, w_r, w_c):
-    """prev at global (r, c) on its grid, NaN outside the tile [0, w_r] x [0, w_c]."""
+    """Prev at global (r, c) on its grid, NaN outside the tile [0, w_r] x [0, w_c]."""
     if r < 0 or c < 0 or r > w_r or c > w_c:
         return math.nan
     return prev[(r - pr0) // sr, (c - pc0) // sc]
@@ -382,8 +389,11 @@ def _pass(prev, pr0, pc0, sr, sc, out, or0, oc0, tr, tc, axis, w_r, w_c, sig, ta
 
 
 def _needed_ranges(lo: int, hi: int, w: int) -> list[tuple[int, int]]:
-    """Index range (inclusive) needed at every spacing 1, 2, 4, ..., w (three half-spacings
-    of the finer level either side, on the coarser grid, clipped to the tile)."""
+    """Return the index range (inclusive) needed at every spacing 1, 2, 4, ..., w.
+
+    Three half-spacings of the finer level either side, on the coarser grid, clipped to the
+    tile.
+    """
     ranges = [(lo, hi)]
     h = 1
     while h < w:

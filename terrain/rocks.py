@@ -272,47 +272,70 @@ class RockModel:
         return cls.from_mapping(data, defaults=defaults)
 
     def as_dict(self) -> dict:
+        """Return the model's set parameters as plain data for metadata."""
         return {k: v for k, v in asdict(self).items() if v is not None}
 
     # ------------------------------------------------------------------ statistics
+    # The parameters a validated model always has for its kind (``__post_init__`` refuses a
+    # model without them and fills in dmax), as floats for the statistics below.
+    @property
+    def _k(self) -> float:
+        return _given(self.k, "k")
+
+    @property
+    def _a(self) -> float:
+        return _given(self.a, "a")
+
+    @property
+    def _b(self) -> float:
+        return _given(self.b, "b")
+
+    @property
+    def _dmin(self) -> float:
+        return _given(self.dmin, "dmin")
+
+    @property
+    def _dmax(self) -> float:
+        return _given(self.dmax, "dmax")
+
     @property
     def q(self) -> float:
         """q(k) = 1.79 + 0.152 / k (Golombek and Rapp 1997, eq. 3), per metre."""
-        return Q0 + Q1 / self.k
+        return Q0 + Q1 / self._k
 
     def _default_dmax(self) -> float:
         if self.model == "golombek":
             d = -math.log(1e-6) / self.q  # F_k(d) = 1e-6 k
         else:
-            d = self.dmin * 1e-6 ** (1.0 / self.b)
-        return float(min(max(d, 2.0 * self.dmin), 30.0))
+            d = self._dmin * 1e-6 ** (1.0 / self._b)
+        return float(min(max(d, 2.0 * self._dmin), 30.0))
 
     def fractional_area(self, diameter):
         """Cumulative fractional area of rocks >= D (untruncated model), dimensionless."""
         d = np.asarray(diameter, dtype=float)
         if self.model == "golombek":
-            return self.k * np.exp(-self.q * d)  # Golombek and Rapp 1997, eq. 2
+            return self._k * np.exp(-self.q * d)  # Golombek and Rapp 1997, eq. 2
         # power law: F(>=D) = int_D^inf (pi x^2 / 4) (-a b x^(b-1)) dx, finite for b < -2
-        if self.b >= -2:
+        if self._b >= -2:
             return np.full(d.shape, np.inf)
-        return math.pi / 4 * self.a * (-self.b) / (-self.b - 2) * d ** (self.b + 2)
+        return math.pi / 4 * self._a * (-self._b) / (-self._b - 2) * d ** (self._b + 2)
 
     def cumulative(self, diameter):
         """N(>=D), rocks per m^2 (untruncated model)."""
         d = np.asarray(diameter, dtype=float)
         if self.model == "power":
-            return self.a * d ** self.b
+            return self._a * d ** self._b
         from scipy.special import exp1
 
         q = self.q
-        return 4 * q * self.k / math.pi * (np.exp(-q * d) / d - q * exp1(q * d))
+        return 4 * q * self._k / math.pi * (np.exp(-q * d) / d - q * exp1(q * d))
 
     def bins(self) -> np.ndarray:
         """(n, 2) octave diameter bins from dmin, the last truncated at dmax."""
-        edges = [self.dmin]
-        while edges[-1] * 2 < self.dmax * (1 - 1e-12):
+        edges = [self._dmin]
+        while edges[-1] * 2 < self._dmax * (1 - 1e-12):
             edges.append(edges[-1] * 2)
-        edges.append(self.dmax)
+        edges.append(self._dmax)
         return np.column_stack([edges[:-1], edges[1:]])
 
     def bin_density(self, d_lo: float, d_hi: float) -> float:
@@ -321,10 +344,10 @@ class RockModel:
 
     def expected_count(self, area_m2: float, min_diameter: float = 0.0) -> float:
         """Background rocks in [max(dmin, min_diameter), dmax) over an area (m^2)."""
-        lo = max(self.dmin, min_diameter)
-        if lo >= self.dmax:
+        lo = max(self._dmin, min_diameter)
+        if lo >= self._dmax:
             return 0.0
-        return self.bin_density(lo, self.dmax) * float(area_m2)
+        return self.bin_density(lo, self._dmax) * float(area_m2)
 
     def _table(self, d_lo, d_hi):
         """(log D, log N(>=D)) table of one bin for inverse-transform sampling."""
@@ -396,9 +419,18 @@ class RockModel:
         return RockTable(out, uid)
 
 
+def _given(value: float | None, name: str) -> float:
+    """Return a model parameter ``__post_init__`` has checked is present for the model."""
+    if value is None:  # pragma: no cover - __post_init__ refuses such a model
+        raise InvalidParameterError(f"rock {name} is needed by this rock model")
+    return value
+
+
 def _half_length(d: float) -> float:
-    """Largest half-length of a rock of diameter d: a = d / sqrt(b/a) with b/a >= 0.4, and
-    the outline perturbation."""
+    """Return the largest half-length of a rock of diameter d.
+
+    a = d / sqrt(b/a) with b/a >= 0.4, and the outline perturbation.
+    """
     return 0.5 * d / math.sqrt(0.4) * (1 + 3 * SHAPE_PERTURBATION)
 
 
@@ -572,6 +604,7 @@ class RockTable:
         return self.rows[:, _C] * (1.0 - self.rows[:, _BETA])
 
     def take(self, index) -> RockTable:
+        """Return the rocks selected by ``index`` (an index array or boolean mask)."""
         return RockTable(self.rows[index], self.uid[index])
 
     def inside(self, extent) -> RockTable:
@@ -681,7 +714,7 @@ def rock_heights(tile, rocks: RockTable, *, window=None, min_pixels: float = MIN
     _base_levels(base, t.c, t.f, res, rows, zz)
     z0[drawn] = zz
     if window is None:
-        r0, c0, h, w = 0, 0, *tile.shape
+        (r0, c0), (h, w) = (0, 0), tile.shape
     else:
         window.check_inside(*tile.shape)
         r0, c0, h, w = window.row, window.col, window.height, window.width
@@ -738,8 +771,11 @@ def rock_catalog(rocks: RockTable, z0, layer) -> dict:
 
 
 def write_rock_catalog(path_or_file, catalog: dict) -> None:
-    """Write a rock catalogue CSV: ``id`` as 16 hex digits, lengths in metres,
-    ``orientation_deg`` the long axis's angle from map east towards north, in [0, 180)."""
+    """Write a rock catalogue CSV.
+
+    ``id`` as 16 hex digits, lengths in metres, ``orientation_deg`` the long axis's angle
+    from map east towards north, in [0, 180).
+    """
     from terrain.catalog import write_catalog
 
     write_catalog(path_or_file, catalog, columns=ROCK_COLUMNS)

@@ -198,6 +198,7 @@ class FractalFit:
 
     @property
     def fractal_dimension(self) -> float:
+        """The fractal dimension D = 3 - H of the fitted surface."""
         return 3.0 - self.hurst
 
 
@@ -338,10 +339,12 @@ class ExpansionParameters:
 
     @property
     def uses_local_map(self) -> bool:
+        """Whether the roughness follows a local amplitude map."""
         return self.local_box > 1 and self.base_sigma > 0
 
     @property
     def hurst(self) -> float:
+        """The Hurst exponent H = 3 - D."""
         return 3.0 - self.fractal_dimension
 
     @property
@@ -439,4 +442,5 @@ class ExpansionParameters:
         return noise_taps(self.hurst)
 
     def as_dict(self) -> dict:
+        """Return the parameters as plain data for metadata."""
         return asdict(self)

@@ -28,7 +28,7 @@ REGIONAL_SIGMA_PX = 10.0
 
 
 def landing_site(tile: DEMTile, slope_deg: np.ndarray, *, box: int = 9) -> tuple[float, float]:
-    """The flattest spot of a DEM's central half: where a mission would choose to land.
+    """Return the flattest spot of a DEM's central half: where a mission would choose to land.
 
     The score of a pixel is the mean tangent of the slope over a ``box`` x ``box`` pixel
     window; the site is the centre of the best-scoring pixel of the central half (the

@@ -31,7 +31,7 @@ def synthesize_tile(size: int, *, resolution: float = 1.0, fractal_dimension: fl
                     relief: float = 30.0, seed: int = 0, craters=None,
                     model: CraterModel | None = None, window: Window | None = None,
                     progress=None, crs: str | None = None) -> CraterResult:
-    """A (size x size) RMD tile with optional craters, or a window of it.
+    """Return a (size x size) RMD tile with optional craters, or a window of it.
 
     Parameters
     ----------
@@ -88,7 +88,7 @@ def synthesize_tile(size: int, *, resolution: float = 1.0, fractal_dimension: fl
     meta = {"CRATERSCAPE_SEED": str(seed), "CRATERSCAPE_RMD": json.dumps(params, sort_keys=True)}
     if window.width != size or window.height != size:
         meta["CRATERSCAPE_WINDOW"] = f"{window.col},{window.row},{window.width},{window.height}"
-    if craters is not None:
+    if craters is not None and model is not None:  # model is set whenever craters are
         meta["CRATERSCAPE_CRATERS"] = json.dumps(describe_craters(craters), sort_keys=True)
         meta["CRATERSCAPE_CRATER_MODEL"] = json.dumps(model.as_dict(), sort_keys=True)
     return CraterResult(tile.replace(metadata=meta), catalog)

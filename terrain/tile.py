@@ -18,6 +18,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
+from typing import Any
 
 import numpy as np
 from affine import Affine
@@ -78,6 +79,7 @@ class Window:
 
     @property
     def slices(self) -> tuple[slice, slice]:
+        """The (rows, cols) slices that cut this window out of an array."""
         return (slice(self.row, self.row + self.height), slice(self.col, self.col + self.width))
 
 
@@ -180,8 +182,9 @@ class DEMTile:
 
     def replace(self, **changes) -> DEMTile:
         """Copy with some fields changed (heights and valid are re-validated)."""
-        fields = dict(heights=self.heights, valid=self.valid, transform=self.transform,
-                      crs=self.crs, nodata=self.nodata, metadata=self.metadata)
+        fields: dict[str, Any] = dict(heights=self.heights, valid=self.valid,
+                                      transform=self.transform, crs=self.crs,
+                                      nodata=self.nodata, metadata=self.metadata)
         fields.update(changes)
         return DEMTile(**fields)
 
@@ -195,6 +198,7 @@ class DEMTile:
     # --- geometry ---------------------------------------------------------------------
     @property
     def shape(self) -> tuple[int, int]:
+        """The (rows, cols) of the heights."""
         return self.heights.shape
 
     @property
@@ -224,7 +228,7 @@ class DEMTile:
                 (np.asarray(x, dtype=np.float64) - t.c) / t.a - 0.5)
 
     def window(self, window: Window) -> DEMTile:
-        """The sub-tile covered by ``window`` (georeferencing shifted accordingly)."""
+        """Return the sub-tile covered by ``window`` (georeferencing shifted accordingly)."""
         window.check_inside(*self.shape)
         rs, cs = window.slices
         transform = self.transform @ Affine.translation(window.col, window.row)
@@ -233,4 +237,5 @@ class DEMTile:
 
     @property
     def valid_fraction(self) -> float:
+        """The fraction of valid pixels."""
         return float(self.valid.mean())

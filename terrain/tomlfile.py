@@ -1,5 +1,8 @@
-"""Reading the TOML files users write (populations, recipes, scenarios, thresholds), and
-writing the ones a run records (a scenario as run)."""
+"""Reading the TOML files users write, and writing the ones a run records.
+
+Users write populations, recipes, scenarios and thresholds; a run records a scenario as
+run.
+"""
 
 from __future__ import annotations
 
@@ -14,7 +17,7 @@ __all__ = ["merge_tables", "read_toml", "toml_text"]
 
 
 def read_toml(path, what: str) -> dict:
-    """The parsed TOML file at ``path``; a missing or malformed file is refused in one line.
+    """Return the parsed TOML file at ``path``; a missing or malformed file is refused in one line.
 
     ``what`` names the file in the message (``"scenario"``, ``"population file"``, ...).
 
@@ -33,8 +36,9 @@ def read_toml(path, what: str) -> dict:
 
 
 def merge_tables(data: dict, overrides: dict) -> dict:
-    """A copy of ``data`` with ``overrides`` merged in, table by table (nested dicts merge,
-    anything else replaces).
+    """Return a copy of ``data`` with ``overrides`` merged in, table by table.
+
+    Nested dicts merge, anything else replaces.
 
     Parameters
     ----------

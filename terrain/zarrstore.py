@@ -73,8 +73,10 @@ _ARRAYS: dict = {}
 
 
 def _array(path: Path, mode: str):
-    """The store's height array, opened once per process and mode (opening costs a few
-    milliseconds of metadata reads, as much as writing a small chunk)."""
+    """Return the store's height array, opened once per process and mode.
+
+    Opening costs a few milliseconds of metadata reads, as much as writing a small chunk.
+    """
     key = (str(path), mode)
     array = _ARRAYS.get(key)
     if array is None:
@@ -188,6 +190,7 @@ class ZarrDEM:
 
     @property
     def resolution(self) -> float:
+        """The pixel spacing in metres (square pixels)."""
         return float(self.transform.a)
 
     # --- chunks -------------------------------------------------------------------------
@@ -233,7 +236,7 @@ class ZarrDEM:
                 os.unlink(tmp)
 
     def chunk_catalog(self, i: int, j: int) -> dict:
-        """The crater catalogue rows stored with chunk (i, j)'s marker."""
+        """Return the crater catalogue rows stored with chunk (i, j)'s marker."""
         with np.load(self._marker(i, j)) as f:
             return {k: f[k] for k in f.files}
 
@@ -259,4 +262,5 @@ class ZarrDEM:
                 f"{ny * nx} chunks written); rerun the command that made it to resume")
 
     def describe_plan(self) -> str:
+        """Return the plan as canonical JSON (to compare with a resumed run's)."""
         return json.dumps(self.plan, sort_keys=True)

@@ -20,6 +20,9 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "examples" / "demo.py"
 
+# The whole campaign runs once for this module (about 3 minutes on 2 cores).
+pytestmark = pytest.mark.slow
+
 
 def run_demo(out: Path, env=None) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, str(DEMO), "--quick", "--out", str(out)],
@@ -142,7 +145,6 @@ def test_a_second_run_reuses_finished_stages_and_absent_data_is_said(demo, tmp_p
     assert any("not compared with real Eros" in n for n in notes)
 
 
-@pytest.mark.slow
 def test_demo_base_matches_lolas_south_pole_slopes(tmp_path, shared_file):
     """Stage 1's base (complex craters to 150 km) against LDEM_4 at its 7.58 km pixels."""
     from evaluation.campaign import cli_args, load_campaign

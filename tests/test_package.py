@@ -16,14 +16,28 @@ def test_packages_resolve_to_this_repository(name):
     assert Path(module.__file__).resolve().parent == REPO / name
 
 
-def test_console_script_lists_the_terrain_group():
-    from click.testing import CliRunner
+def test_the_console_script_reaches_each_packages_own_group():
+    """`craterscape` is terrain's root command, and it reaches every package's group through
+    the ``craterscape.groups`` entry points (so the lowest layer never imports a higher one):
+    each name resolves to the very group object its own package defines, and every package
+    registers exactly one."""
+    from importlib.metadata import entry_points
+
+    import click
 
     from terrain.cli import main
 
-    result = CliRunner().invoke(main, ["--help"])
-    assert result.exit_code == 0
-    assert "terrain" in result.output
+    (script,) = entry_points(group="console_scripts", name="craterscape")
+    assert script.load() is main
+    groups = {ep.name: ep for ep in entry_points(group="craterscape.groups")}
+    assert set(groups) == {"terrain", "asteroid", "render", "evaluation"}
+    ctx = click.Context(main)
+    assert sorted(main.list_commands(ctx)) == sorted(groups)
+    for name, ep in groups.items():
+        group = ep.load()
+        assert isinstance(group, click.Group) and group.commands, name
+        assert main.get_command(ctx, name) is group
+        assert ep.value.split(".")[0] == name, ep.value
 
 
 def test_lower_layers_do_not_import_higher_ones():

@@ -43,7 +43,7 @@ _EXPORT_BYTES_PER_VERTEX = {"ply": 120, "obj": 400, "stl": 250, "glb": 120}
 
 
 def mesh_format(path) -> str:
-    """The trimesh file type for an output path, from its suffix.
+    """Return the trimesh file type for an output path, from its suffix.
 
     >>> mesh_format("eros.glb")
     'glb'

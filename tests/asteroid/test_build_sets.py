@@ -8,6 +8,7 @@ import signal
 import time
 
 import numpy as np
+import pytest
 import trimesh
 
 from asteroid.body import load_native
@@ -45,6 +46,7 @@ def _check_set(folder):
     return native.body.metadata["seed"]
 
 
+@pytest.mark.slow
 def test_rebuild_without_features_removes_the_old_catalogues(tmp_path):
     out = tmp_path / "a.ply"
     assert run(*_args(out, 1, features=True)).exit_code == 0
@@ -55,6 +57,7 @@ def test_rebuild_without_features_removes_the_old_catalogues(tmp_path):
     assert _check_set(tmp_path) == 2
 
 
+@pytest.mark.slow
 def test_killed_builds_leave_one_consistent_set(tmp_path):
     out = tmp_path / "a.ply"
     t0 = time.perf_counter()

@@ -6,6 +6,8 @@ import json
 import numpy as np
 import pytest
 import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from asteroid.body import load_native
 from asteroid.meshio import write_mesh
@@ -21,11 +23,25 @@ def ball(tmp_path):
     return path
 
 
-def test_root_command_lists_the_asteroid_group():
-    r = run("--help")
-    assert r.exit_code == 0 and "asteroid" in r.output
-    r = run("asteroid", "--help")
-    assert r.exit_code == 0 and "build" in r.output and "export" in r.output
+@settings(max_examples=4, deadline=None)
+@given(magnitude=st.integers(2, 10), radius=st.floats(10.0, 5000.0), seed=st.integers(0, 2**31))
+def test_build_command_writes_a_closed_body_of_the_asked_size(tmp_path_factory, magnitude,
+                                                                radius, seed):
+    """What `craterscape asteroid build` promises whatever the flags: a closed, consistently
+    wound mesh of 6 M^2 + 2 vertices and 12 M^2 triangles with a positive volume, its mean
+    radius within a few per cent of --radius, and the same bytes for the same seed."""
+    out = tmp_path_factory.mktemp("build")
+    args = ["asteroid", "build", "--magnitude", magnitude, "--radius", radius, "--base",
+            "perlin", "--seed", seed, "--craters", "none"]
+    r = run(*args, "-o", out / "a.ply")
+    assert r.exit_code == 0, r.output
+    mesh = trimesh.load(out / "a.ply", process=False)
+    assert len(mesh.vertices) == 6 * magnitude**2 + 2 and len(mesh.faces) == 12 * magnitude**2
+    assert mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0
+    mean_radius = np.linalg.norm(mesh.vertices, axis=1).mean()
+    assert mean_radius == pytest.approx(radius, rel=0.05)
+    assert run(*args, "-o", out / "b.ply").exit_code == 0
+    assert (out / "a.ply").read_bytes() == (out / "b.ply").read_bytes()
 
 
 def test_build_perlin_with_craters_and_boulders_is_reproducible(tmp_path):
@@ -51,6 +67,7 @@ def test_build_perlin_with_craters_and_boulders_is_reproducible(tmp_path):
     assert len(loaded.faces) == 12 * 16**2 + n_boulders * 1280
 
 
+@pytest.mark.slow
 def test_build_faulting_preset_and_native_only(tmp_path):
     r = run("asteroid", "build", "-o", tmp_path / "f.npz", "--preset", "fig9-faulting",
             "--magnitude", 10, "--craters", "none", "--seed", 2)

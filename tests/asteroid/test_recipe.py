@@ -8,17 +8,20 @@ from asteroid.recipe import PRESETS, CraterSpec, Recipe, parse_spec
 from terrain.errors import InvalidParameterError, MissingInputError
 
 
-def test_presets_hold_the_papers_parameters():
-    assert set(PRESETS) == {"fig5-smooth", "fig5-lumpy", "fig5-rugged", "fig9-faulting"}
-    f = Recipe.from_sources(preset="fig9-faulting")
-    assert (f.faulting.faults, f.faulting.max_fault, f.faulting.passes,
-            f.faulting.filter_width, f.faulting.fine_faults, f.faulting.fine_max_fault) == \
-        (1000, 5.0, 3, 20.0, 20000, 0.03)
-    assert f.stretch.as_list() == [2.0, 1.0, 1.0] and f.magnitude == 400
-    assert f.craters.c == 0.5 and f.craters.k == -2.0
-    for name in ("fig5-smooth", "fig5-lumpy", "fig5-rugged"):
-        r = Recipe.from_sources(preset=name)
-        assert r.base == "perlin" and r.perlin.octaves == 10 and r.craters.c == 0.5
+@pytest.mark.parametrize("seed", [0, 4, 10])
+def test_fig9_preset_builds_a_body_twice_as_long_as_it_is_wide(seed):
+    """Fig. 9's faulted asteroid is stretched 2:1:1: for seeds of low and high relief the
+    built body's extent along x is twice its extent along z and y matches z (within 20 %:
+    the faults' own relief reaches a few tens of per cent of the radius), and the mesh has
+    the 6 M^2 + 2 vertices of magnitude M."""
+    recipe = Recipe.from_sources(preset="fig9-faulting", magnitude=12, seed=seed,
+                                 craters="none")
+    body = build(recipe).body
+    v = body.vertices()
+    extent = v.max(axis=0) - v.min(axis=0)
+    assert extent[0] / extent[2] == pytest.approx(2.0, rel=0.20)
+    assert extent[1] / extent[2] == pytest.approx(1.0, rel=0.20)
+    assert len(v) == 6 * 12**2 + 2
 
 
 @pytest.mark.parametrize("name", sorted(PRESETS))

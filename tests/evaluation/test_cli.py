@@ -51,6 +51,7 @@ def test_slopes_writes_georeferenced_slope_maps_and_distributions(dems, tmp_path
         assert (out / name).stat().st_size > 0
 
 
+@pytest.mark.slow
 def test_slopes_of_a_layer_stack_one_distribution_per_layer(tmp_path):
     from terrain.layers import build_stack, write_stack
     from terrain.synthetic import synthesize_tile
@@ -131,6 +132,7 @@ def test_memory_busting_requests_are_refused_before_work(dems, tmp_path):
     assert not (tmp_path / "out" / "fine_slope.tif").exists()
 
 
+@pytest.mark.slow
 def test_asteroid_slopes_command(tmp_path):
     s = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
     body = trimesh.Trimesh(np.asarray(s.vertices) * [3.0, 1.2, 1.0], s.faces)
@@ -184,6 +186,7 @@ def test_track_command_with_and_without_truth(planar_run, run_without_truth, tmp
                    "does not exist")
 
 
+@pytest.mark.slow
 def test_report_command_and_thresholds(planar_run, dems, tmp_path):
     fine, coarse = dems
     thresholds = tmp_path / "t.toml"

@@ -19,6 +19,7 @@ def test_rock_sfd_counts_area_and_number_of_rocks_at_least_d():
                                np.pi / 4 * np.array([0.84, 0.8, 0.64]))
 
 
+@pytest.mark.slow
 def test_rock_sfd_of_a_generated_field_follows_its_model():
     model = RockModel.from_spec("golombek:k=0.1,dmin=0.1")
     rocks = model.generate(8, (0.0, 0.0, 100.0, 100.0), margin=False)

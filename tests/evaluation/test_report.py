@@ -51,6 +51,7 @@ def eros_like_body(tmp_path):
     return path
 
 
+@pytest.mark.slow
 def test_report_with_tracking_and_the_real_eros_beside_a_synthetic_one(planar_run, tmp_path,
                                                                        shared_file):
     eros_path = shared_file("asteroids", "eros_gaskell_q64.obj")

@@ -70,6 +70,7 @@ def test_prewarping_removes_the_drift_of_a_shift_only_window(planar_run, scored)
     assert tw["tracks_per_frame_mean"] >= 0.95 * tp["tracks_per_frame_mean"]
 
 
+@pytest.mark.slow
 def test_ideal_tracker_tells_the_trackers_share_from_the_images(scored, planar_run,
                                                                 tmp_path):
     """On exact frames the same tracker errs a few thousandths of a pixel on truth-warped
@@ -253,6 +254,7 @@ def test_bad_input_is_refused(planar_run, tmp_path):
         score(short, planar_run, outlier_px=0.0)
 
 
+@pytest.mark.slow
 def test_tracking_a_sequence_from_the_gl_renderer(tmp_path):
     """End to end with `craterscape render sequence` (skipped without headless OpenGL).
 

@@ -458,6 +458,7 @@ def _drain(c):
     return error_of(rtype, data[16:])
 
 
+@pytest.mark.slow
 def test_a_stalled_client_does_not_stall_the_others_and_times_out(server, reference):
     from render.client import Client
 
@@ -533,6 +534,7 @@ def test_a_port_in_use_is_a_one_line_error(server, scenario):
     one_line_error(run("render", "serve", scenario, "--port", server[1]), "cannot listen")
 
 
+@pytest.mark.slow
 def test_a_token_server_refuses_clients_without_it(scenario):
     from render.client import Client
     from render.errors import ServerError
@@ -548,6 +550,7 @@ def test_a_token_server_refuses_clients_without_it(scenario):
             assert c.info()["scene"] == "terrain"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_a_signal_finishes_the_request_in_hand_and_exits_cleanly(scenario, sig):
     from render.client import Client
@@ -612,6 +615,7 @@ direction = [1.0, -0.5, 0.2]
     return path
 
 
+@pytest.mark.slow
 def test_asteroid_time_turns_the_body_as_render_frame_does(asteroid_scenario, tmp_path):
     import cv2
 
@@ -667,6 +671,7 @@ def test_last_frames_beyond_the_cache_budget_are_dropped_oldest_first(monkeypatc
     assert c.frame is None and b.frame is not None and d.frame is not None
 
 
+@pytest.mark.slow
 def test_motion_blur_as_render_frame_with_the_velocities_the_client_sends(stack_dir, tmp_path):
     """A data-sheet camera blurring over its exposure: the client sends the velocities the
     trajectory gave `render frame` (its truth lists them) and gets the same bytes."""

@@ -68,6 +68,7 @@ def stored(path):
     return heights
 
 
+@pytest.mark.slow
 def test_synth_on_two_workers_equals_the_single_run(client, tmp_path):
     report = run(SynthSource(129, resolution=2.0, seed=5, craters=POP), tmp_path / "s.zarr",
                  chunk=48, client=client)

@@ -69,6 +69,7 @@ def assert_same_stack(a, b):
         assert np.array_equal(b.rocks[name], column, equal_nan=True), name
 
 
+@pytest.mark.slow
 def test_chunked_stack_on_two_workers_equals_the_in_memory_stack(in_memory, base_path, client,
                                                                   tmp_path):
     # the stack has what the comparison must cover: craters and rocks on several layers
@@ -97,6 +98,7 @@ class Interrupt(Exception):
     pass
 
 
+@pytest.mark.slow
 def test_an_interrupted_build_resumes_without_computing_a_finished_chunk(in_memory, base_path,
                                                                          client, tmp_path):
     out = tmp_path / "resumed"
@@ -127,6 +129,7 @@ def test_an_interrupted_build_resumes_without_computing_a_finished_chunk(in_memo
     assert_same_stack(in_memory, read_stack(out))
 
 
+@pytest.mark.slow
 def test_enhance_cli_runs_chunked_on_request_and_equals_the_in_memory_stack(base_path,
                                                                             tmp_path):
     common = ["--site", "130,130", "--levels", 2, "--layer-size", 33, "--seed", 3,

@@ -216,6 +216,7 @@ def test_expand_command_and_window(coarse, tmp_path):
     assert r.exit_code == 0 and "F=2.300" in r.output
 
 
+@pytest.mark.slow
 def test_enhance_command_writes_a_layer_stack(coarse, tmp_path):
     out = tmp_path / "stack"
     r = run("terrain", "enhance", coarse, "-o", out, "--site", "16000,16000", "--levels", 3,

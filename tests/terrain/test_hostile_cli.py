@@ -280,6 +280,7 @@ def test_output_format_matches_the_extension(tmp_path, dem):
 # ------------------------------------------------------ 14. SIGTERM cleans up like Ctrl-C
 
 
+@pytest.mark.slow
 def test_sigterm_during_expand_leaves_no_partial_file(tmp_path, dem):
     big = tmp_path / "big.tif"
     write_dem(synthesize_tile(513, resolution=2.0, relief=20.0, seed=1).tile, big)

@@ -5,6 +5,8 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from terrain.io import read_dem
 from tests.cli_helpers import one_line_error, run
@@ -40,12 +42,29 @@ def test_rocks_writes_heights_and_catalogue_and_a_window_matches(dem, tmp_path):
     np.testing.assert_array_equal(read_dem(win).heights, full.heights[40:100, 30:80])
 
 
-def test_power_law_rocks(dem, tmp_path):
-    out = tmp_path / "p.tif"
-    r = run("terrain", "rocks", dem, "-o", out, "--model", "power", "--a", 0.05, "--b",
-            -2.482, "--seed", 1)
+@settings(max_examples=3, deadline=None)
+@given(seed=st.integers(0, 2**31), b=st.sampled_from([-2.482, -2.0, -3.0]))
+def test_power_law_rocks_follow_their_cumulative_law(tmp_path_factory, seed, b):
+    """A power-law field N(>=D) = a D^b per m^2, as a field geologist would count it from the
+    catalogue: the number of rocks of at least D over the tile's area is a D^b at the smallest
+    size (within 5 Poisson standard deviations), the count falls by 2^b per doubling of D, and
+    rocks only ever add height to the ground."""
+    tmp = tmp_path_factory.mktemp("rocks")
+    dem = tmp / "in.tif"
+    assert run("terrain", "synth", "-o", dem, "--size", 129, "--resolution", 0.05, "--relief",
+               0.3, "--seed", 1).exit_code == 0
+    out, cat, a, dmin = tmp / "p.tif", tmp / "p.csv", 0.05, 0.1
+    r = run("terrain", "rocks", dem, "-o", out, "--model", "power", "--a", a, "--b", b,
+            "--dmin", dmin, "--seed", seed, "--catalog", cat)
     assert r.exit_code == 0, r.output
-    assert "rocks)" in r.output
+    ground, rocky = read_dem(dem), read_dem(out)
+    diameters = np.array([float(row["diameter_m"]) for row in csv.DictReader(cat.open())])
+    area = ground.shape[0] * ground.shape[1] * 0.05**2
+    expected = a * dmin**b * area
+    assert abs(len(diameters) - expected) < 5 * np.sqrt(expected), (len(diameters), expected)
+    n1, n2 = (diameters >= dmin).sum(), (diameters >= 2 * dmin).sum()
+    assert n2 / n1 == pytest.approx(2.0**b, abs=5 * np.sqrt(2.0**b / n1))
+    assert np.all(rocky.heights >= ground.heights) and np.any(rocky.heights > ground.heights)
 
 
 @pytest.mark.parametrize("args, fragment", [

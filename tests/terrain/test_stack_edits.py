@@ -72,6 +72,7 @@ def _fork(target):
     return pid
 
 
+@pytest.mark.slow
 def test_killed_edits_leave_a_consistent_stack_and_are_swept(stack_folder):
     base_rows = len(read_stack(stack_folder).catalog["id"])
     t0 = time.perf_counter()
