@@ -28,7 +28,8 @@ from pathlib import Path
 
 import click
 
-from evaluation.evidence import STACK_LAYER, write_csv
+from evaluation.evidence import write_csv
+from terrain import metakeys as mk
 from terrain.errors import InvalidParameterError, MissingInputError
 
 __all__ = ["evaluation"]
@@ -128,7 +129,7 @@ def _dem_inputs(paths, band: int) -> list:
                                         "DEM files or layer-stack folders")
             stack = read_stack(folder)
             items += [(f"{folder.name}_layer_{k:02d}",
-                       t.replace(metadata={**t.metadata, STACK_LAYER: str(k)}))
+                       t.replace(metadata={**t.metadata, mk.STACK_LAYER: str(k)}))
                       for k, t in enumerate(stack.tiles)]
         else:
             items.append((path.stem, read_dem(path, band=band)))
@@ -204,7 +205,7 @@ def slopes(inputs, output, band, reference, reference_band, slope_band, baseline
     ref_tile = _reference(dems, reference, reference_band)
     # everything is measured before anything is written
     slope_maps = [(label, slope_tile(tile, edges=edges).with_metadata(
-        CRATERSCAPE_COMMAND="evaluation slopes", CRATERSCAPE_VERSION=_version()))
+        **{mk.COMMAND: "evaluation slopes", mk.VERSION: _version()}))
         for label, tile in dems]
     evidence = dem_evidence(dems, reference=reference, ref_tile=ref_tile,
                             slope_band=slope_band, baseline=baseline, edges=edges)

@@ -85,6 +85,7 @@ from render.scene import (
     light_basis,
     ortho_light,
 )
+from terrain import metakeys as mk
 from terrain.errors import InvalidParameterError
 
 __all__ = ["BLOCK", "FADE_PARENT_PIXELS", "MOON_RADIUS", "MORPH_BAND", "SKIRT_PIXELS",
@@ -176,7 +177,7 @@ class TerrainScene:
         self.curvature = bool(curvature)
         if radius is None:
             meta = stack.tiles[0].metadata
-            radius = float(meta.get("CRATERSCAPE_DATUM_RADIUS", MOON_RADIUS))
+            radius = float(meta.get(mk.DATUM_RADIUS, MOON_RADIUS))
         if not radius > 0:
             raise InvalidParameterError(f"body radius must be positive; got {radius}")
         self.radius = float(radius)

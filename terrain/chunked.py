@@ -53,6 +53,7 @@ from typing import TYPE_CHECKING, Protocol, TypeVar
 import numpy as np
 from affine import Affine
 
+from terrain import metakeys as mk
 from terrain.catalog import CATALOG_COLUMNS
 from terrain.errors import (
     GapTooLargeError,
@@ -216,12 +217,12 @@ class SynthSource:
 
         params = dict(size=self.size, resolution=float(self.resolution),
                       fractal_dimension=float(self.fractal_dimension), relief=float(self.relief))
-        meta = {"CRATERSCAPE_SEED": str(self.seed),
-                "CRATERSCAPE_RMD": json.dumps(params, sort_keys=True)}
+        meta = {mk.SEED: str(self.seed),
+                mk.RMD: json.dumps(params, sort_keys=True)}
         if self.craters is not None:
-            meta["CRATERSCAPE_CRATERS"] = json.dumps(describe_craters(self.craters),
+            meta[mk.CRATERS] = json.dumps(describe_craters(self.craters),
                                                      sort_keys=True)
-            meta["CRATERSCAPE_CRATER_MODEL"] = json.dumps(_filled(self.model).as_dict(),
+            meta[mk.CRATER_MODEL] = json.dumps(_filled(self.model).as_dict(),
                                                          sort_keys=True)
         return meta
 
@@ -290,10 +291,10 @@ class CraterSource:
         from terrain.cratering import describe_craters
 
         meta = dict(self.reader.metadata)
-        meta["CRATERSCAPE_SEED"] = str(self.seed)
-        meta["CRATERSCAPE_CRATER_MODEL"] = json.dumps(_filled(self.model).as_dict(),
+        meta[mk.SEED] = str(self.seed)
+        meta[mk.CRATER_MODEL] = json.dumps(_filled(self.model).as_dict(),
                                                          sort_keys=True)
-        meta["CRATERSCAPE_CRATERS"] = json.dumps(describe_craters(self.craters), sort_keys=True)
+        meta[mk.CRATERS] = json.dumps(describe_craters(self.craters), sort_keys=True)
         return meta
 
     def plan(self) -> dict:
@@ -450,8 +451,8 @@ class ExpandSource:
     def metadata(self) -> dict:
         """The output's metadata tags (the input's, with the expansion's seed and parameters)."""
         meta = dict(self.reader.metadata)
-        meta["CRATERSCAPE_SEED"] = str(self.seed)
-        meta["CRATERSCAPE_EXPANSION"] = json.dumps(dict(_filled(self.params).as_dict(),
+        meta[mk.SEED] = str(self.seed)
+        meta[mk.EXPANSION] = json.dumps(dict(_filled(self.params).as_dict(),
                                                         times=self.times), sort_keys=True)
         return meta
 
@@ -566,8 +567,8 @@ class FillSource:
     def metadata(self) -> dict:
         """The output's metadata tags (the input's, with the fill's seed and parameters)."""
         meta = dict(self.reader.metadata)
-        meta["CRATERSCAPE_SEED"] = str(self.seed)
-        meta["CRATERSCAPE_FILL"] = json.dumps(dict(chunked=True, halo=self.halo,
+        meta[mk.SEED] = str(self.seed)
+        meta[mk.FILL] = json.dumps(dict(chunked=True, halo=self.halo,
                                                    roughness=self.roughness), sort_keys=True)
         return meta
 

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import click
 
+from terrain import metakeys as mk
 from terrain.errors import CraterscapeError, InvalidParameterError
 from terrain.outputs import (
     cannot_write,
@@ -374,9 +375,9 @@ def _write_outputs(result, output, catalog, inputs, command, params):
     from terrain.catalog import write_catalog
     from terrain.io import atomic_path, write_dem
 
-    tile = result.tile.with_metadata(CRATERSCAPE_COMMAND=command,
-                                     CRATERSCAPE_PARAMETERS=params,
-                                     CRATERSCAPE_VERSION=_version())
+    tile = result.tile.with_metadata(**{mk.COMMAND: command,
+                                     mk.PARAMETERS: params,
+                                     mk.VERSION: _version()})
     with transaction(folders={Path(output).parent}):
         write_dem(tile, output, inputs=inputs)
         if catalog is not None:
@@ -483,8 +484,8 @@ def _run_chunked(source, output, *, workers, threads, scheduler, chunk, cog, lab
     try:
         with dask_client(workers, scheduler, processes=not threads) as client:
             report = run(source, output, chunk=chunk or DEFAULT_CHUNK, client=client,
-                         progress=update, metadata=dict(CRATERSCAPE_COMMAND=f"terrain {label}",
-                                                        CRATERSCAPE_VERSION=_version()))
+                         progress=update, metadata={mk.COMMAND: f"terrain {label}",
+                                                        mk.VERSION: _version()})
     finally:
         close()
     rate = report.pixels_per_second
@@ -856,9 +857,9 @@ def expand(input_dem, output, times, seed, fractal_dimension, height_scale, unif
                          progress=(lambda k, n: bar(k, n)) if bar else None)
     finally:
         close()
-    out = out.with_metadata(CRATERSCAPE_COMMAND="terrain expand", CRATERSCAPE_VERSION=_version(),
-                            CRATERSCAPE_PARAMETERS=dict(input=str(input_dem), times=times,
-                                                        seed=seed, **params.as_dict()))
+    out = out.with_metadata(**{mk.COMMAND: "terrain expand", mk.VERSION: _version(),
+                            mk.PARAMETERS: dict(input=str(input_dem), times=times,
+                                                        seed=seed, **params.as_dict())})
     with transaction():
         write_dem(out, output, inputs=[input_dem])
     click.echo(f"wrote {output} ({out.shape[1]}x{out.shape[0]} at {out.resolution:.6g} m; "
@@ -1165,10 +1166,10 @@ def fill(input_dem, output, roughness, craters_at, despike, denoise, seed, band,
     else:
         result = fill_gaps(tile, seed=seed, roughness=roughness)
     out = result.tile.with_metadata(
-        CRATERSCAPE_COMMAND="terrain fill", CRATERSCAPE_VERSION=_version(),
-        CRATERSCAPE_PARAMETERS=dict(input=str(input_dem), roughness=roughness, seed=seed,
+        **{mk.COMMAND: "terrain fill", mk.VERSION: _version(),
+        mk.PARAMETERS: dict(input=str(input_dem), roughness=roughness, seed=seed,
                                     despike=despike, denoise=denoise,
-                                    craters_at=str(craters_at) if craters_at else None))
+                                    craters_at=str(craters_at) if craters_at else None)})
     known = None if exact is None else np.where(result.filled, np.nan, exact)
     with transaction():  # known heights a float32 tile rounds go back bitwise (float64 file)
         write_dem(out, output, inputs=[input_dem], known=known)
@@ -1244,8 +1245,8 @@ def rocks(input_dem, output, model, k, a, b, dmin, dmax, craters_csv, no_crater_
                   craters=str(craters_csv) if craters_csv else None,
                   window=None if window is None else
                   [window.col, window.row, window.width, window.height])
-    out = out.with_metadata(CRATERSCAPE_COMMAND="terrain rocks", CRATERSCAPE_PARAMETERS=params,
-                            CRATERSCAPE_VERSION=_version())
+    out = out.with_metadata(**{mk.COMMAND: "terrain rocks", mk.PARAMETERS: params,
+                            mk.VERSION: _version()})
     with transaction(folders=[Path(output).parent]):  # the DEM and its catalogue as one set
         write_dem(out, output, inputs=[input_dem])
         if catalog is not None:
@@ -1330,9 +1331,9 @@ def hazards(source, output, lander_diameter, max_slope, max_step, layer, png, ba
                         max_step=max_step)
     params = dict(source=str(source), layer=layer, lander_diameter=lander_diameter,
                   max_slope=max_slope, max_step=max_step)
-    tags = dict(result.tags(), CRATERSCAPE_COMMAND="terrain hazards",
-                CRATERSCAPE_PARAMETERS=json.dumps(params, sort_keys=True),
-                CRATERSCAPE_VERSION=_version())
+    tags = dict(result.tags(), **{mk.COMMAND: "terrain hazards",
+                mk.PARAMETERS: json.dumps(params, sort_keys=True),
+                mk.VERSION: _version()})
     shade = hillshade(tile, azimuth=315.0, altitude=30.0)
     with transaction(folders=[Path(output).parent]):  # the GeoTIFF and its PNG as one set
         write_bands([result.slope, result.step, result.safe], tile.replace(metadata={}),

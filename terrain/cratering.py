@@ -54,6 +54,7 @@ import numba
 import numpy as np
 
 from terrain import memory
+from terrain import metakeys as mk
 from terrain.catalog import CATALOG_COLUMNS, CraterTable
 from terrain.crater import Morphology, crater_interior, exterior_height, shape_arrays
 from terrain.erosion import ErosionModel, SlopeDegradation
@@ -598,9 +599,9 @@ def add_craters(tile: DEMTile, craters, *, seed: int, model: CraterModel | None 
                                 model=model, window=window, progress=progress)
     sub = tile.window(window) if window is not None else tile
     out = sub.replace(heights=z.astype(np.float32), valid=sub.valid)
-    out = out.with_metadata(CRATERSCAPE_SEED=str(seed),
-                            CRATERSCAPE_CRATER_MODEL=model.as_dict(),
-                            CRATERSCAPE_CRATERS=describe_craters(craters))
+    out = out.with_metadata(**{mk.SEED: str(seed),
+                            mk.CRATER_MODEL: model.as_dict(),
+                            mk.CRATERS: describe_craters(craters)})
     return CraterResult(out, catalog)
 
 

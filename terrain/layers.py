@@ -56,6 +56,7 @@ import numpy as np
 from affine import Affine
 
 from terrain import memory
+from terrain import metakeys as mk
 from terrain.catalog import CATALOG_COLUMNS, Crater, CraterTable, read_catalog, write_catalog
 from terrain.cratering import CraterModel, add_craters, empty_catalog
 from terrain.errors import InvalidDEMError, InvalidParameterError, MissingInputError
@@ -520,7 +521,7 @@ def _write_files(stack: LayerStack, outdir: Path, files: list[str], only=None,
         if only is not None and k not in only:
             continue
         meta = dict(tile.metadata)
-        meta["CRATERSCAPE_LAYER"] = str(k)
+        meta[mk.LAYER] = str(k)
         write_dem(tile.replace(metadata=meta), outdir / files[k])
     with atomic_path(outdir / catalog) as tmp:
         write_catalog(tmp, stack.catalog, CATALOG_LAYER_COLUMNS)
