@@ -38,8 +38,6 @@ ENTRY_POINT_GROUP = "craterscape.groups"
 EXIT_BAD_INPUT = 2
 #: Exit code after SIGTERM (128 + 15, as a shell reports it).
 EXIT_TERMINATED = 143
-#: Most 2x expansions of a layer stack (1 km to below a millimetre).
-MAX_LEVELS = 30
 #: Largest tile relief (m): ten times Olympus Mons, far inside float32 heights.
 MAX_RELIEF = 2.0e5
 #: Largest crater add-crater takes, in DEM diagonals (its rim still reaches the DEM).
@@ -778,13 +776,6 @@ def _out_of_core(input_dem, band, times) -> bool:
     return need > memory.available_bytes()
 
 
-def _expansion_params(tile, fractal_dimension, height_scale, uniform_roughness):
-    from terrain.roughness import LOCAL_BOX, ExpansionParameters
-
-    return ExpansionParameters.for_tile(tile, fractal_dimension, height_scale,
-                                        local_box=0 if uniform_roughness else LOCAL_BOX)
-
-
 _roughness_options = [
     click.option("--fractal-dimension", type=float, default=None,
                  help="F in [2, 3); measured from the input by default."),
@@ -846,11 +837,13 @@ def expand(input_dem, output, times, seed, fractal_dimension, height_scale, unif
                          inputs=[input_dem])
         return
 
+    from terrain.roughness import RoughnessChoice
+
     check_output_path(output, [input_dem])
     tile = read_dem(input_dem, band=band, exact=True)
     if window is not None:
         window.check_inside(*tile.shape)
-    params = _expansion_params(tile, fractal_dimension, height_scale, uniform_roughness)
+    params = RoughnessChoice(fractal_dimension, height_scale, uniform_roughness).for_tile(tile)
     bar, close = _progress("expand")
     try:
         out = run_expand(tile, times, seed=seed, params=params, window=window,
@@ -888,7 +881,7 @@ _stack_dask_options = [
 @click.option("--site", type=PAIR, default=None, help="Landing site X,Y in map coordinates.")
 @click.option("--site-lonlat", type=PAIR, default=None,
               help="Landing site as LON,LAT (degrees) on the DEM's body.")
-@click.option("--levels", type=click.IntRange(0, MAX_LEVELS), default=None,
+@click.option("--levels", type=click.IntRange(0, None), default=None,
               help="Number of 2x expansions (layers = levels + 1).")
 @click.option("--finest-resolution", type=float, default=None,
               help="Expand until the finest layer is at most this many metres per pixel.")
@@ -919,11 +912,10 @@ def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, lay
     for memory are written as Zarr DEMs, the others as GeoTIFFs. Rerun an interrupted
     chunked build with the same command to resume it.
     """
-    import math
-
     from terrain.gapfill import despike as run_despike
     from terrain.io import lonlat_to_xy, read_dem
-    from terrain.layers import build_stack, write_stack
+    from terrain.layers import build_stack, levels_for_resolution, write_stack
+    from terrain.roughness import RoughnessChoice
 
     if (site is None) == (site_lonlat is None):
         raise InvalidParameterError("give exactly one of --site X,Y and --site-lonlat LON,LAT")
@@ -944,14 +936,7 @@ def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, lay
     if site_lonlat is not None:
         site = lonlat_to_xy(tile.crs, *site_lonlat)
     if finest_resolution is not None:
-        if not finest_resolution > 0:
-            raise InvalidParameterError(
-                f"finest resolution must be positive; got {finest_resolution}")
-        levels = max(0, math.ceil(math.log2(tile.resolution / finest_resolution) - 1e-9))
-        if levels > MAX_LEVELS:
-            raise InvalidParameterError(
-                f"--finest-resolution {finest_resolution:g} m needs {levels} expansions of the "
-                f"{tile.resolution:.4g} m base; at most {MAX_LEVELS} are possible")
+        levels = levels_for_resolution(tile.resolution, finest_resolution)
     if despike is not None:
         tile, _ = run_despike(tile, despike)
     finest = tile.resolution / 2**levels
@@ -965,14 +950,7 @@ def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, lay
                       extent=min(tile.shape) * tile.resolution, required=False,
                       warn_small=False)
     model = _model(erosion_profile, erosion_exponent, no_roughness)
-    params = None
-    if tile.valid.all():
-        params = _expansion_params(tile, fractal_dimension, height_scale, uniform_roughness)
-    elif fractal_dimension is not None or height_scale is not None or uniform_roughness:
-        from terrain.gapfill import fill_gaps
-
-        params = _expansion_params(fill_gaps(tile, seed=seed).tile, fractal_dimension,
-                                   height_scale, uniform_roughness)
+    params = RoughnessChoice(fractal_dimension, height_scale, uniform_roughness)
     bar, close = _progress("enhance")
     try:
         stack = build_stack(tile, site, levels=levels, layer_size=layer_size, seed=seed,
@@ -995,24 +973,15 @@ def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, lay
 
 def _stack_geometry(input_dem, band, site, site_lonlat, levels, finest_resolution, layer_size):
     """(reader, site, levels, layer shapes) of a stack, from the input's header only."""
-    import math
-
     from terrain.chunked import open_reader
     from terrain.io import lonlat_to_xy
-    from terrain.layers import _plan, _Shape
+    from terrain.layers import _plan, _Shape, levels_for_resolution
 
     reader = open_reader(input_dem, band)
     if site_lonlat is not None:
         site = lonlat_to_xy(reader.crs, *site_lonlat)
     if finest_resolution is not None:
-        if not finest_resolution > 0:
-            raise InvalidParameterError(
-                f"finest resolution must be positive; got {finest_resolution}")
-        levels = max(0, math.ceil(math.log2(reader.resolution / finest_resolution) - 1e-9))
-        if levels > MAX_LEVELS:
-            raise InvalidParameterError(
-                f"--finest-resolution {finest_resolution:g} m needs {levels} expansions of the "
-                f"{reader.resolution:.4g} m base; at most {MAX_LEVELS} are possible")
+        levels = levels_for_resolution(reader.resolution, finest_resolution)
     _, _, shapes, _ = _plan(_Shape(tuple(reader.shape), reader.transform),
                             tuple(float(v) for v in site), levels, layer_size)
     return reader, site, levels, shapes

@@ -64,11 +64,12 @@ from terrain.expand import expand_level, expanded_transform
 from terrain.gapfill import fill_gaps
 from terrain.population import Population
 from terrain.rng import check_seed
-from terrain.roughness import ExpansionParameters, local_amplitude
+from terrain.roughness import ExpansionParameters, RoughnessChoice, local_amplitude
 from terrain.tile import DEMTile
 
-__all__ = ["MANIFEST", "MIN_CRATER_PIXELS", "LayerStack", "build_stack", "prepare_folder",
-           "read_stack", "replace_crater", "stack_lock", "write_stack"]
+__all__ = ["MANIFEST", "MAX_LEVELS", "MIN_CRATER_PIXELS", "LayerStack", "build_stack",
+           "levels_for_resolution", "prepare_folder", "read_stack", "replace_crater",
+           "stack_lock", "write_stack"]
 
 log = logging.getLogger(__name__)
 
@@ -79,6 +80,8 @@ CATALOG = "craters.csv"
 #: Smallest crater a layer takes, in its pixels ("craters smaller than a few pixels ... are
 #: rejected").
 MIN_CRATER_PIXELS = 4.0
+#: Most 2x expansions of a layer stack (1 km to below a millimetre).
+MAX_LEVELS = 30
 #: Rock catalogue in a layer-stack folder (when the stack has rocks).
 ROCK_CATALOG = "rocks.csv"
 #: Lock file guarding edits of a layer-stack folder.
@@ -209,9 +212,46 @@ class _Shape:
         return (y - t.f) / t.e - 0.5, (x - t.c) / t.a - 0.5
 
 
+def levels_for_resolution(base_resolution: float, finest_resolution: float) -> int:
+    """Fewest 2x expansions that take a base to a given pixel size or finer.
+
+    Parameters
+    ----------
+    base_resolution : float
+        The base DEM's pixel size, metres.
+    finest_resolution : float
+        The pixel size wanted of the finest layer, metres (> 0).
+
+    Returns
+    -------
+    int
+        Levels in ``[0, MAX_LEVELS]``: ``base_resolution / 2**levels <= finest_resolution``.
+
+    Raises
+    ------
+    InvalidParameterError
+        If ``finest_resolution`` is not positive or needs more than :data:`MAX_LEVELS`.
+
+    Examples
+    --------
+    >>> levels_for_resolution(1000.0, 0.5), levels_for_resolution(1.0, 2.0)
+    (11, 0)
+    """
+    if not finest_resolution > 0:
+        raise InvalidParameterError(
+            f"finest resolution must be positive; got {finest_resolution}")
+    levels = max(0, math.ceil(math.log2(base_resolution / finest_resolution) - 1e-9))
+    if levels > MAX_LEVELS:
+        raise InvalidParameterError(
+            f"--finest-resolution {finest_resolution:g} m needs {levels} expansions of the "
+            f"{base_resolution:.4g} m base; at most {MAX_LEVELS} are possible")
+    return levels
+
+
 def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_size: int = 1025,
                 seed: int = 0, population: Population | None = None,
-                model: CraterModel | None = None, params: ExpansionParameters | None = None,
+                model: CraterModel | None = None,
+                params: ExpansionParameters | RoughnessChoice | None = None,
                 min_crater_pixels: float = MIN_CRATER_PIXELS, progress=None,
                 rocks=None) -> LayerStack:
     """Build a nested layer stack around ``site`` (map coordinates of ``base``).
@@ -231,8 +271,9 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
     population : Population, optional
         Craters for the whole area, sorted into the layers.
     model : CraterModel, optional
-    params : ExpansionParameters, optional
-        Expansion roughness; measured from the (filled) base by default.
+    params : ExpansionParameters or RoughnessChoice, optional
+        Expansion roughness, given; or measured from the (filled) base under the user's
+        choices (a :class:`~terrain.roughness.RoughnessChoice`); measured by default.
     min_crater_pixels : float
         Smallest crater a layer takes, in its pixels.
     progress : callable, optional
@@ -247,6 +288,8 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
     seed = check_seed(seed)
     if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 0:
         raise InvalidParameterError(f"levels must be a non-negative integer; got {levels!r}")
+    if levels > MAX_LEVELS:
+        raise InvalidParameterError(f"levels must be at most {MAX_LEVELS}; got {levels}")
     if not min_crater_pixels > 0:
         raise InvalidParameterError(
             f"min crater pixels must be positive; got {min_crater_pixels}")
@@ -278,7 +321,8 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
         info["base_fill_roughness"] = filled.roughness
         base = filled.tile
     tick("fill")
-    params = params or ExpansionParameters.for_tile(base)
+    if not isinstance(params, ExpansionParameters):
+        params = (params or RoughnessChoice()).for_tile(base)
     amp = (local_amplitude(base.heights, params.base_sigma, params.local_box)
            if params.uses_local_map else None)
 

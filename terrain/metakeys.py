@@ -17,7 +17,7 @@ Examples
 
 from __future__ import annotations
 
-__all__ = ["DESCRIPTIONS", "PREFIX", "is_key"]
+__all__ = ["KEYS", "PREFIX", "is_key"]
 
 #: Every craterscape tag starts with this; :func:`terrain.io.read_dem` keeps only these tags.
 PREFIX = "CRATERSCAPE_"
@@ -88,8 +88,8 @@ HURST = "CRATERSCAPE_HURST"
 #: Name of the generator of a reference surface.
 GENERATOR = "CRATERSCAPE_GENERATOR"
 
-#: Every registered key, by its constant's name.
-DESCRIPTIONS: dict[str, str] = {
+#: Every registered key: constant name -> tag name.
+KEYS: dict[str, str] = {
     name: value for name, value in dict(globals()).items()
     if isinstance(value, str) and value.startswith(PREFIX) and name.isupper() and name != "PREFIX"
 }

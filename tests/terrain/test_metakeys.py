@@ -39,9 +39,9 @@ def test_no_module_spells_a_metadata_key_outside_the_registry():
 
 
 def test_registry_values_are_unique_prefixed_and_match_their_names():
-    values = list(mk.DESCRIPTIONS.values())
+    values = list(mk.KEYS.values())
     assert len(values) == len(set(values))
-    for name, value in mk.DESCRIPTIONS.items():
+    for name, value in mk.KEYS.items():
         assert value == mk.PREFIX + name
         assert mk.is_key(value)
     assert not mk.is_key("AREA_OR_POINT")
