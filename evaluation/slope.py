@@ -351,7 +351,7 @@ def slope_distribution(tile: DEMTile, *, label: str = "", edges: str = "mask", a
     valid = np.isfinite(slopes)
     n = int(valid.sum())
     if n == 0:
-        raise InvalidDEMError(f"DEM {label or tile.metadata.get('CRATERSCAPE_SOURCE', '')!s} "
+        raise InvalidDEMError(f"DEM {label or tile.metadata.get(mk.SOURCE, '')!s} "
                               "has no pixel whose whole 3x3 window is valid; no slope to "
                               "measure")
     values = slopes[valid]

@@ -19,6 +19,7 @@ from render.renderer import Renderer, View
 from render.rundir import FrameTruth, RunWriter
 from render.scenario import Scenario
 from terrain.errors import InvalidParameterError
+from terrain.progress import Progress
 
 __all__ = ["check_frame_memory", "frame_motion", "load_scene", "render_sample", "run_sequence"]
 
@@ -104,7 +105,8 @@ def render_sample(renderer: Renderer, scene, scenario: Scenario, sample, index: 
     return image, frame, truth
 
 
-def run_sequence(scenario: Scenario, run_dir, *, resume: bool = False, progress=None) -> dict:
+def run_sequence(scenario: Scenario, run_dir, *, resume: bool = False,
+                 progress: Progress | None = None) -> dict:
     """Render every frame of ``scenario`` into ``run_dir`` (see :mod:`render.rundir`)."""
     run_dir = Path(run_dir)
     check_frame_memory(scenario)
@@ -140,7 +142,8 @@ def run_sequence(scenario: Scenario, run_dir, *, resume: bool = False, progress=
                            if scenario.outputs.get("radiance") else None)
         rendered += 1
         if progress is not None:
-            progress(i + 1, len(samples), rendered / max(time.perf_counter() - t0, 1e-9))
+            progress(i + 1, len(samples),
+                     f"{rendered / max(time.perf_counter() - t0, 1e-9):.2f} frame/s")
     elapsed = time.perf_counter() - t0
     writer.finish(render_seconds=elapsed, frames_rendered_this_run=rendered)
     log.info("rendered %d frames in %.1f s", rendered, elapsed)

@@ -61,6 +61,7 @@ from terrain.errors import (
     InvalidParameterError,
     OutputPathError,
 )
+from terrain.progress import Progress
 from terrain.tile import Window, default_transform
 from terrain.zarrstore import ZarrDEM, is_zarr
 
@@ -762,7 +763,14 @@ def _open_store(source, path: Path, chunk: int, metadata=None) -> ZarrDEM:
                           metadata=dict(source.metadata, **(metadata or {})), plan=plan)
 
 
-def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None, progress=None,
+def _rate(pixels: int, t0: float) -> str:
+    """Throughput since ``t0`` (a :func:`time.perf_counter` reading), as progress text."""
+    seconds = time.perf_counter() - t0
+    return f"{pixels / seconds / 1e6:.3g} Mpixel/s" if seconds > 0 else ""
+
+
+def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None,
+        progress: Progress | None = None,
         metadata=None) -> RunReport:
     """Compute ``source`` chunk by chunk into the Zarr store ``output``, or resume it.
 
@@ -777,7 +785,8 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None, progress=Non
     client : dask.distributed.Client, optional
         Cluster to run on; without one, chunks run one after another in this process.
     progress : callable, optional
-        ``progress(done, total, pixels, seconds)`` after every chunk.
+        ``progress(done, total, rate)`` after every chunk (:class:`terrain.progress.Progress`;
+        the rate in Mpixel/s as text).
     metadata : dict, optional
         Provenance tags added to the source's (command, version).
 
@@ -809,7 +818,7 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None, progress=Non
     done = len(done_before)
     total = ny * nx
     if progress is not None:
-        progress(done, total, 0, 0.0)
+        progress(done, total, "")
     if client is None:
         for i, j in todo:
             (value,) = dask.compute(delayed[i, j], scheduler="synchronous")
@@ -817,7 +826,7 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None, progress=Non
             busy += float(value[0, 1])
             done += 1
             if progress is not None:
-                progress(done, total, pixels, time.perf_counter() - t0)
+                progress(done, total, _rate(pixels, t0))
     else:
         from dask.distributed import as_completed
 
@@ -829,7 +838,7 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None, progress=Non
                 busy += float(value[0, 1])
                 done += 1
                 if progress is not None:
-                    progress(done, total, pixels, time.perf_counter() - t0)
+                    progress(done, total, _rate(pixels, t0))
         finally:
             pending = [f for f in futures if not f.done()]
             if pending:

@@ -21,6 +21,7 @@ from pathlib import Path
 import click
 
 from terrain import metakeys as mk
+from terrain.clitools import FINITE, PAIR, WINDOW, progress_bar, version, version_option
 from terrain.errors import CraterscapeError, InvalidParameterError
 from terrain.outputs import (
     cannot_write,
@@ -57,26 +58,6 @@ class Terminated(BaseException):
 
 def _on_sigterm(signum, frame):
     raise Terminated()
-
-
-class _FiniteFloat(click.ParamType):
-    """A float that is a number: NaN and infinity are refused with the option's name."""
-
-    name = "float"
-
-    def convert(self, value, param, ctx):
-        if isinstance(value, float) and math.isfinite(value):
-            return value
-        try:
-            number = float(value)
-        except (TypeError, ValueError):
-            self.fail(f"{value!r} is not a number", param, ctx)
-        if not math.isfinite(number):
-            self.fail(f"must be a finite number; got {value!r}", param, ctx)
-        return number
-
-
-FINITE = _FiniteFloat()
 
 
 def _harden(command):
@@ -193,7 +174,7 @@ def _fail(ctx, exc, code):
 @click.group(cls=_Root, context_settings={"help_option_names": ["-h", "--help"]})
 @click.option("-v", "--verbose", count=True, help="More log output; tracebacks on errors.")
 @click.option("-q", "--quiet", count=True, help="Less log output.")
-@click.version_option(package_name="craterscape")
+@version_option
 @click.pass_context
 def main(ctx, verbose, quiet):
     """craterscape: virtual planets for testing spacecraft landers."""
@@ -207,41 +188,6 @@ def main(ctx, verbose, quiet):
 # --------------------------------------------------------------------------------------
 # shared option helpers
 
-
-class _WindowType(click.ParamType):
-    name = "COL,ROW,WIDTH,HEIGHT"
-
-    def convert(self, value, param, ctx):
-        from terrain.tile import Window
-
-        if value is None or isinstance(value, Window):
-            return value
-        try:
-            return Window.parse(value)
-        except InvalidParameterError as exc:
-            self.fail(str(exc), param, ctx)
-
-
-class _PairType(click.ParamType):
-    name = "X,Y"
-
-    def convert(self, value, param, ctx):
-        if isinstance(value, tuple):
-            return value
-        parts = str(value).split(",")
-        try:
-            if len(parts) != 2:
-                raise ValueError
-            pair = float(parts[0]), float(parts[1])
-        except ValueError:
-            self.fail(f"expected two numbers X,Y; got {value!r}", param, ctx)
-        if not all(math.isfinite(v) for v in pair):
-            self.fail(f"expected two finite numbers X,Y; got {value!r}", param, ctx)
-        return pair
-
-
-WINDOW = _WindowType()
-PAIR = _PairType()
 
 _output_option = click.option(
     "-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
@@ -352,22 +298,6 @@ def _population(population_file, *, dmin, dmax, density, sfd_exponent, max_age, 
     return pop
 
 
-def _progress(label):
-    """A tqdm bar on a terminal, nothing in pipes and tests."""
-    from tqdm import tqdm
-
-    if not sys.stderr.isatty():
-        return None, lambda: None
-    bar = tqdm(total=None, desc=label, unit="class", leave=False)
-
-    def update(done, total):
-        bar.total = total
-        bar.n = done
-        bar.refresh()
-
-    return update, bar.close
-
-
 def _write_outputs(result, output, catalog, inputs, command, params):
     """The DEM and its catalogue, committed together (:func:`terrain.outputs.transaction`)."""
     from terrain.catalog import write_catalog
@@ -375,7 +305,7 @@ def _write_outputs(result, output, catalog, inputs, command, params):
 
     tile = result.tile.with_metadata(**{mk.COMMAND: command,
                                      mk.PARAMETERS: params,
-                                     mk.VERSION: _version()})
+                                     mk.VERSION: version()})
     with transaction(folders={Path(output).parent}):
         write_dem(tile, output, inputs=inputs)
         if catalog is not None:
@@ -386,15 +316,6 @@ def _write_outputs(result, output, catalog, inputs, command, params):
                    err=True)
     else:
         click.echo(f"wrote {output}", err=True)
-
-
-def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("craterscape")
-    except PackageNotFoundError:  # pragma: no cover - running from a bare checkout
-        return "unknown"
 
 
 def _check_outputs(output, catalog, inputs):
@@ -446,24 +367,6 @@ def _chunked_requested(output, workers, scheduler, chunk, cog, window=None) -> b
     return True
 
 
-def _chunk_progress(label):
-    """A tqdm bar of chunks done out of total and throughput, on a terminal only."""
-    from tqdm import tqdm
-
-    if not sys.stderr.isatty():
-        return None, lambda: None
-    bar = tqdm(total=None, desc=label, unit="chunk", leave=False)
-
-    def update(done, total, pixels, seconds):
-        bar.total = total
-        bar.n = done
-        if seconds > 0:
-            bar.set_postfix_str(f"{pixels / seconds / 1e6:.3g} Mpixel/s", refresh=False)
-        bar.refresh()
-
-    return update, bar.close
-
-
 def _run_chunked(source, output, *, workers, threads, scheduler, chunk, cog, label,
                  catalog=None, inputs=()):
     from terrain.catalog import write_catalog
@@ -478,14 +381,11 @@ def _run_chunked(source, output, *, workers, threads, scheduler, chunk, cog, lab
         check_output_path(cog, [*inputs, output])
     if catalog is not None:
         check_output_path(catalog, [*inputs, output])
-    update, close = _chunk_progress(label)
-    try:
+    with progress_bar(label, "chunk") as update:
         with dask_client(workers, scheduler, processes=not threads) as client:
             report = run(source, output, chunk=chunk or DEFAULT_CHUNK, client=client,
                          progress=update, metadata={mk.COMMAND: f"terrain {label}",
-                                                        mk.VERSION: _version()})
-    finally:
-        close()
+                                                        mk.VERSION: version()})
     rate = report.pixels_per_second
     click.echo(f"wrote {output} ({source.shape[1]}x{source.shape[0]}; {report.computed} of "
                f"{report.total} chunks computed, {report.skipped} already written"
@@ -575,14 +475,11 @@ def synth(output, size, resolution, fractal_dimension, relief, body, projection,
         _run_out_of_core(source, output, workers=workers, threads=threads, scheduler=scheduler,
                          chunk=chunk, label="synth", catalog=catalog)
         return
-    update, close = _progress("craters")
-    try:
+    with progress_bar("craters", "class") as update:
         result = synthesize_tile(size, resolution=resolution,
                                  fractal_dimension=fractal_dimension, relief=relief, seed=seed,
                                  craters=pop, model=model, window=window, progress=update,
                                  crs=crs)
-    finally:
-        close()
     params = dict(size=size, resolution=resolution, fractal_dimension=fractal_dimension,
                   relief=relief, seed=seed, population=pop.as_dict() if pop else None,
                   **({"body": body, "crs": projection or "south-polar"} if body else {}),
@@ -642,11 +539,8 @@ def craters(input_dem, output, seed, window, band, dmin, dmax, density, sfd_expo
                       sfd_exponent=sfd_exponent, max_age=max_age, resolution=tile.resolution,
                       extent=extent, required=True)
     model = _model(erosion_profile, erosion_exponent, no_roughness)
-    update, close = _progress("craters")
-    try:
+    with progress_bar("craters", "class") as update:
         result = add_craters(tile, pop, seed=seed, model=model, window=window, progress=update)
-    finally:
-        close()
     params = dict(input=str(input_dem), band=band, seed=seed, population=pop.as_dict(),
                   window=None if window is None else
                   [window.col, window.row, window.width, window.height])
@@ -844,13 +738,10 @@ def expand(input_dem, output, times, seed, fractal_dimension, height_scale, unif
     if window is not None:
         window.check_inside(*tile.shape)
     params = RoughnessChoice(fractal_dimension, height_scale, uniform_roughness).for_tile(tile)
-    bar, close = _progress("expand")
-    try:
+    with progress_bar("expand", "level") as bar:
         out = run_expand(tile, times, seed=seed, params=params, window=window,
-                         progress=(lambda k, n: bar(k, n)) if bar else None)
-    finally:
-        close()
-    out = out.with_metadata(**{mk.COMMAND: "terrain expand", mk.VERSION: _version(),
+                         progress=bar)
+    out = out.with_metadata(**{mk.COMMAND: "terrain expand", mk.VERSION: version(),
                             mk.PARAMETERS: dict(input=str(input_dem), times=times,
                                                         seed=seed, **params.as_dict())})
     with transaction():
@@ -951,17 +842,14 @@ def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, lay
                       warn_small=False)
     model = _model(erosion_profile, erosion_exponent, no_roughness)
     params = RoughnessChoice(fractal_dimension, height_scale, uniform_roughness)
-    bar, close = _progress("enhance")
-    try:
+    with progress_bar("enhance", "step") as bar:
         stack = build_stack(tile, site, levels=levels, layer_size=layer_size, seed=seed,
                             population=pop, model=model, params=params,
                             min_crater_pixels=min_crater_pixels,
-                            progress=(lambda s, n, label: bar(s, n)) if bar else None,
+                            progress=bar,
                             rocks=rocks)
-    finally:
-        close()
-    stack.info.update(source=str(input_dem), command="terrain enhance",
-                      craterscape_version=_version())
+    stack = stack.with_info(source=str(input_dem), command="terrain enhance",
+                            craterscape_version=version())
     write_stack(stack, output, inputs=[input_dem])
     n_rocks = "" if stack.rocks is None else f", {len(stack.rocks['id'])} rocks"
     click.echo(f"wrote {len(stack.tiles)} layers to {output} (finest "
@@ -1135,7 +1023,7 @@ def fill(input_dem, output, roughness, craters_at, despike, denoise, seed, band,
     else:
         result = fill_gaps(tile, seed=seed, roughness=roughness)
     out = result.tile.with_metadata(
-        **{mk.COMMAND: "terrain fill", mk.VERSION: _version(),
+        **{mk.COMMAND: "terrain fill", mk.VERSION: version(),
         mk.PARAMETERS: dict(input=str(input_dem), roughness=roughness, seed=seed,
                                     despike=despike, denoise=denoise,
                                     craters_at=str(craters_at) if craters_at else None)})
@@ -1215,7 +1103,7 @@ def rocks(input_dem, output, model, k, a, b, dmin, dmax, craters_csv, no_crater_
                   window=None if window is None else
                   [window.col, window.row, window.width, window.height])
     out = out.with_metadata(**{mk.COMMAND: "terrain rocks", mk.PARAMETERS: params,
-                            mk.VERSION: _version()})
+                            mk.VERSION: version()})
     with transaction(folders=[Path(output).parent]):  # the DEM and its catalogue as one set
         write_dem(out, output, inputs=[input_dem])
         if catalog is not None:
@@ -1302,7 +1190,7 @@ def hazards(source, output, lander_diameter, max_slope, max_step, layer, png, ba
                   max_slope=max_slope, max_step=max_step)
     tags = dict(result.tags(), **{mk.COMMAND: "terrain hazards",
                 mk.PARAMETERS: json.dumps(params, sort_keys=True),
-                mk.VERSION: _version()})
+                mk.VERSION: version()})
     shade = hillshade(tile, azimuth=315.0, altitude=30.0)
     with transaction(folders=[Path(output).parent]):  # the GeoTIFF and its PNG as one set
         write_bands([result.slope, result.step, result.safe], tile.replace(metadata={}),
