@@ -45,7 +45,7 @@ def sequence(scenario_file, output, frames, resolution, resume):
     from render.sequence import run_sequence
 
     scenario = load_scenario(scenario_file).with_overrides(frames, resolution)
-    with progress_bar("render", "frame", total=scenario.trajectory["frames"]) as progress:
+    with progress_bar("render", "frame", total=scenario.trajectory.frames) as progress:
         manifest = run_sequence(scenario, output, resume=resume, progress=progress)
     click.echo(f"wrote {manifest['frames_written']} frames to {output} "
                f"({manifest['render_seconds']:.1f} s)", err=True)

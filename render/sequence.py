@@ -43,20 +43,16 @@ def check_frame_memory(scenario: Scenario) -> None:
 def load_scene(scenario: Scenario):
     """The scene a scenario names (a terrain layer stack or an asteroid body)."""
     spec = scenario.scene
-    if spec["type"] == "terrain":
+    albedo = None if spec.albedo_map is None else scenario.resolve(spec.albedo_map)
+    if spec.type == "terrain":
         from render.terrain_scene import TerrainScene
 
-        stack = scenario.resolve(spec["stack"])
-        albedo = spec.get("albedo_map")
-        return TerrainScene(stack, curvature=bool(spec.get("curvature", True)),
-                            radius=spec.get("radius"),
-                            albedo_map=None if albedo is None else scenario.resolve(albedo))
+        return TerrainScene(scenario.resolve(spec.stack), curvature=spec.curvature,
+                            radius=spec.radius, albedo_map=albedo)
     from render.asteroid_scene import AsteroidScene
 
-    albedo = spec.get("albedo_map")
-    return AsteroidScene(scenario.resolve(spec["body"]), boulders=bool(spec.get("boulders", True)),
-                         imposter_pixels=float(spec.get("imposter_pixels", 24.0)),
-                         albedo=None if albedo is None else scenario.resolve(albedo))
+    return AsteroidScene(scenario.resolve(spec.body), boulders=spec.boulders,
+                         imposter_pixels=spec.imposter_pixels, albedo=albedo)
 
 
 def frame_motion(scenario: Scenario, samples, index: int):
@@ -116,7 +112,7 @@ def run_sequence(scenario: Scenario, run_dir, *, resume: bool = False,
     samples = scenario.samples(scene)
     if not samples:
         raise InvalidParameterError("the scenario's trajectory has no frames")
-    manifest = dict(scenario=scenario.name, scene=scenario.scene["type"], frames=len(samples),
+    manifest = dict(scenario=scenario.name, scene=scenario.scene.type, frames=len(samples),
                     resolution=[scenario.intrinsics.width, scenario.intrinsics.height],
                     seed=scenario.seed, sensor=scenario.sensor.as_dict(),
                     lighting=dict(sun=list(scenario.lighting.sun),
