@@ -122,12 +122,16 @@ class RenderOptions:
     triangles a frame may draw; the target is relaxed until the frame fits.
     ``geomorph``: levels of detail change continuously (vertices morph toward the coarser
     level over a band of distance, see :mod:`render.terrain_scene`); off, they switch.
+
+    These defaults are the only ones: a scenario's ``[render]`` table falls back to them
+    (they are the values scenarios have always used; the 3.0 / 1,000,000 this class once
+    had applied only to direct library calls).
     """
 
     shadows: bool = True
     shadow_size: int = 2048
-    lod_pixels: float = 3.0
-    triangle_budget: int = 1_000_000
+    lod_pixels: float = 1.5
+    triangle_budget: int = 3_000_000
     geomorph: bool = True
 
     def __post_init__(self):

@@ -528,13 +528,15 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
               "motion": Motion.from_mapping(mot)}
     ren = _section(data, "render", {"shadows", "shadow_size", "lod_pixels", "triangle_budget",
                                     "geomorph"})
-    options = RenderOptions(shadows=_bool(ren, "shadows", True, "render"),
-                            shadow_size=_int(ren, "shadow_size", 2048, "render", 1,
-                                             MAX_IMAGE_SIDE),
-                            lod_pixels=_number(ren, "lod_pixels", 1.5, "render", True),
-                            triangle_budget=_int(ren, "triangle_budget", 3_000_000, "render",
-                                                 1),
-                            geomorph=_bool(ren, "geomorph", True, "render"))
+    defaults = RenderOptions()  # the one place render defaults live
+    options = RenderOptions(shadows=_bool(ren, "shadows", defaults.shadows, "render"),
+                            shadow_size=_int(ren, "shadow_size", defaults.shadow_size, "render",
+                                             1, MAX_IMAGE_SIDE),
+                            lod_pixels=_number(ren, "lod_pixels", defaults.lod_pixels, "render",
+                                               True),
+                            triangle_budget=_int(ren, "triangle_budget",
+                                                 defaults.triangle_budget, "render", 1),
+                            geomorph=_bool(ren, "geomorph", defaults.geomorph, "render"))
     out = _section(data, "output", {"range", "normals", "radiance"})
     outputs = {"range": _bool(out, "range", True, "output"),
                "normals": _bool(out, "normals", True, "output"),
