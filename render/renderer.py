@@ -33,6 +33,7 @@ import numpy as np
 from render.camera import Intrinsics, Pose
 from render.context import create_context
 from render.reflectance import BRDF_CODES, MCEWEN_MOON, SATO_643NM, Hapke, check_brdf
+from render.scene import Scene
 from terrain.errors import InvalidParameterError
 
 __all__ = ["Frame", "Lighting", "RenderOptions", "Renderer", "View", "clip_from_camera"]
@@ -254,7 +255,7 @@ class Renderer:
         return vao, dvao
 
     # ------------------------------------------------------------------ passes
-    def render(self, scene, view: View, lighting: Lighting,
+    def render(self, scene: Scene, view: View, lighting: Lighting,
                options: RenderOptions | None = None, *, rows=None) -> Frame:
         """Render one frame of ``scene`` (see :mod:`render.scene`).
 
@@ -270,7 +271,7 @@ class Renderer:
         ctx = self.ctx
         state = scene.frame_state(view, lighting, options, self)
         far = max(state.far, 1.0)
-        origin = np.asarray(getattr(scene, "origin", np.zeros(3)), dtype=np.float64)
+        origin = np.asarray(scene.origin, dtype=np.float64)
         cam = np.asarray(view.pose.position, dtype=np.float64) - origin  # scene-local
         r_cw = view.pose.rotation.T
         cam_rel = np.eye(4)

@@ -11,11 +11,46 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import numpy as np
 
-__all__ = ["DrawBatch", "FrameState", "Morph", "ShadowMap", "frustum_visible", "light_basis",
-           "ortho_light"]
+__all__ = ["DrawBatch", "FrameState", "Morph", "Scene", "ShadowMap", "frustum_visible",
+           "light_basis", "ortho_light"]
+
+
+class Scene(Protocol):
+    """What the renderer and the frame loop need from a scene.
+
+    A new kind of scene is a new class with these members, not a new ``hasattr`` branch in
+    the renderer or :mod:`render.sequence` (:class:`render.terrain_scene.TerrainScene`,
+    :class:`render.asteroid_scene.AsteroidScene`, :class:`render.mesh_scene.MeshScene`).
+
+    Attributes
+    ----------
+    kind : str
+        ``"terrain"``, ``"asteroid"`` or ``"mesh"``.
+    origin : (3,) float64, metres
+        World point subtracted before anything reaches the GPU.
+    """
+
+    kind: str
+    origin: np.ndarray
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """World-frame bounding box (lo, hi), each ``(3,) float64, metres``."""
+        ...
+
+    def set_body_rotation(self, quaternion: Any) -> None:
+        """The body's rotation R_WB (quaternion [w, x, y, z]) for the next frame.
+
+        Scenes that do not rotate (a terrain map) ignore it.
+        """
+        ...
+
+    def frame_state(self, view: Any, lighting: Any, options: Any, renderer: Any) -> FrameState:
+        """What to draw for one frame: batches, shadow maps and per-frame facts."""
+        ...
 
 
 @dataclass(eq=False)

@@ -84,8 +84,7 @@ def render_sample(renderer: Renderer, scene, scenario: Scenario, sample, index: 
     sensor, lighting = scenario.sensor, scenario.lighting
     moving = None
     if motion is None and not sensor.rolling:
-        if hasattr(scene, "set_body_rotation"):
-            scene.set_body_rotation(sample.body_rotation)
+        scene.set_body_rotation(sample.body_rotation)
         frame = renderer.render(scene, view, lighting, scenario.options)
     else:
         motion = motion or Motion()

@@ -233,6 +233,15 @@ class TerrainScene:
                 return float(self.to_world([[x, y, z]])[0, 2])
         raise InvalidParameterError(f"point {x:.6g},{y:.6g} lies outside the terrain")
 
+    def set_body_rotation(self, quaternion) -> None:
+        """Ignored: a terrain map is drawn in the world frame and does not rotate.
+
+        Parameters
+        ----------
+        quaternion : (4,) float
+            R_WB as [w, x, y, z] (the :class:`render.scene.Scene` interface).
+        """
+
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """World-frame bounding box of the whole scene."""
         lo = np.array([math.inf] * 3)
