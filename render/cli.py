@@ -14,9 +14,8 @@ from terrain.errors import InvalidParameterError
 __all__ = ["render"]
 
 
-
-
 def _largest_image_side() -> int:
+    """The largest image side a scenario may ask for (imported when an option is read)."""
     from render.scenario import MAX_IMAGE_SIDE
 
     return MAX_IMAGE_SIDE
