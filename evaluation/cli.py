@@ -405,12 +405,9 @@ def consistency_cmd(run_dir, output, edge_px, occlusion_tolerance):
 
     if output.resolve() == run_dir.resolve():
         raise InvalidParameterError("the output folder must differ from the run directory")
-    update, close = _progress("consistency")
-    try:
+    with progress_bar("consistency") as update:
         result = consistency(run_dir, edge_px=edge_px, occlusion_tolerance=occlusion_tolerance,
                              progress=update)
-    finally:
-        close()
     s = save_consistency(result, _outdir(output),
                          inputs=[run_dir / "truth.json", run_dir / "manifest.json"])
     msg = f"wrote the consistency of {s['pairs']} frame pairs to {output}"

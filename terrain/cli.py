@@ -930,14 +930,10 @@ def _enhance_chunked(*, input_dem, output, site, site_lonlat, levels, finest_res
     (log.warning if auto else log.info)(
         "enhance: building %d layers (%.3g Mpixel) chunk by chunk in %s%s", levels + 1,
         pixels / 1e6, output, " (the stack does not fit in memory)" if auto else "")
-    bars = []
+    with contextlib.ExitStack() as bars:
+        def progress(stage):
+            return bars.enter_context(progress_bar(f"enhance {stage}", "chunk"))
 
-    def progress(stage):
-        update, close = _chunk_progress(f"enhance {stage}")
-        bars.append(close)
-        return update
-
-    try:
         with dask_client(workers, scheduler, processes=not threads) as client:
             result = build_stack_chunked(
                 reader, output, site, levels=levels, layer_size=layer_size, seed=seed,
@@ -946,10 +942,7 @@ def _enhance_chunked(*, input_dem, output, site, site_lonlat, levels, finest_res
                 chunk=chunk or DEFAULT_CHUNK, client=client, progress=progress,
                 halo=256 if halo is None else halo, inputs=[input_dem],
                 info=dict(source=str(input_dem), command="terrain enhance",
-                          craterscape_version=_version()))
-    finally:
-        for close in bars:
-            close()
+                          craterscape_version=version()))
     computed = sum(s["computed"] for s in result["stages"].values())
     total = sum(s["total"] for s in result["stages"].values())
     n_rocks = "" if result["rocks"] is None else f", {result['rocks']} rocks"

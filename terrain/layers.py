@@ -122,7 +122,8 @@ class Layer:
     Parameters
     ----------
     tile : DEMTile
-        The layer's heights, ``(ny, nx) float32, metres``.
+        The layer's heights, ``(ny, nx) float32, metres`` (a stack built chunk by chunk
+        writes its manifest from stand-ins with the tile's shape, transform and CRS).
     window : (col, row, width, height) of int, or None
         The window of the layer above (pixels) this layer expands; None for the base.
     origin : (row, col) of int
@@ -137,9 +138,6 @@ class Layer:
     file: str | None = None
 
     def __post_init__(self):
-        if not isinstance(self.tile, DEMTile):
-            raise InvalidParameterError(f"layer tile must be a DEMTile; got "
-                                        f"{type(self.tile).__name__}")
         if self.window is not None:
             object.__setattr__(self, "window", _int_tuple(self.window, 4, "window"))
         object.__setattr__(self, "origin", _int_tuple(self.origin, 2, "origin"))
