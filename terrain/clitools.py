@@ -31,7 +31,7 @@ class _FiniteFloat(click.ParamType):
 
     def convert(self, value: Any, param: click.Parameter | None,
                 ctx: click.Context | None) -> float:
-        """The finite float ``value`` names, or a usage error (exit 2)."""
+        """Return the finite float ``value`` names, or fail with a usage error (exit 2)."""
         if isinstance(value, float) and math.isfinite(value):
             return value
         try:
@@ -50,7 +50,7 @@ class _WindowType(click.ParamType):
 
     def convert(self, value: Any, param: click.Parameter | None,
                 ctx: click.Context | None) -> Any:
-        """The :class:`~terrain.tile.Window` ``value`` names, or a usage error (exit 2)."""
+        """Return the :class:`~terrain.tile.Window` ``value`` names, or fail (exit 2)."""
         from terrain.tile import Window
 
         if value is None or isinstance(value, Window):
@@ -70,7 +70,7 @@ class _NumbersType(click.ParamType):
 
     def convert(self, value: Any, param: click.Parameter | None,
                 ctx: click.Context | None) -> tuple[float, ...]:
-        """The tuple of floats ``value`` names, or a usage error (exit 2)."""
+        """Return the tuple of floats ``value`` names, or fail with a usage error (exit 2)."""
         if isinstance(value, tuple):
             return value
         n = len(self.names)
@@ -107,7 +107,7 @@ class ImageSizeType(click.ParamType):
 
     def convert(self, value: Any, param: click.Parameter | None,
                 ctx: click.Context | None) -> tuple[int, int]:
-        """The ``(width, height)`` ``value`` names, or a usage error (exit 2)."""
+        """Return the ``(width, height)`` ``value`` names, or fail with a usage error."""
         if isinstance(value, tuple):
             return value
         try:
@@ -134,7 +134,7 @@ TRIPLE = _NumbersType(("X", "Y", "Z"))
 
 
 def version() -> str:
-    """The installed craterscape version, recorded in every output.
+    """Return the installed craterscape version, recorded in every output.
 
     Returns
     -------
@@ -157,7 +157,7 @@ version_option = click.version_option(package_name="craterscape")
 @contextlib.contextmanager
 def progress_bar(label: str, unit: str = "it", total: int | None = None
                  ) -> Iterator[Progress | None]:
-    """A tqdm bar on a terminal, nothing in pipes and tests.
+    """Show a tqdm bar on a terminal; stay silent in pipes and tests.
 
     Parameters
     ----------

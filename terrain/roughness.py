@@ -470,7 +470,7 @@ class RoughnessChoice:
     uniform: bool = False
 
     def for_tile(self, tile: DEMTile) -> ExpansionParameters:
-        """The expansion parameters of ``tile`` under these choices.
+        """Return the expansion parameters of ``tile`` under these choices.
 
         Parameters
         ----------
