@@ -425,12 +425,16 @@ class Scenario:
                 raise InvalidParameterError("a descent trajectory needs a terrain scene")
             site = t.site if t.site is not None else scene.site
             ground = scene.height_at(float(site[0]), float(site[1]))
+            # required of a descent by TrajectorySpec.from_mapping
+            assert t.start_altitude is not None and t.end_altitude is not None
             return descent(frames, (float(site[0]), float(site[1]), ground),
                            start_altitude=float(t.start_altitude),
                            end_altitude=float(t.end_altitude), duration=duration,
                            ground_track=t.ground_track, look=t.look, height_at=scene.height_at)
         if kind == "approach":
             s = self.scene
+            # required of an approach by TrajectorySpec.from_mapping
+            assert t.start_distance is not None and t.end_distance is not None
             reach = getattr(scene, "radius", None)
             closest = min(float(t.start_distance), float(t.end_distance))
             if reach is not None and closest <= reach:

@@ -225,7 +225,7 @@ class FrameState:
     batches: list
     far: float
     drawn: dict = field(default_factory=dict)
-    post: object = None
+    post: Callable[..., None] | None = None
     albedo: tuple | None = None
 
 
