@@ -30,7 +30,6 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 from asteroid.body import Body, load_native, save_native
@@ -42,8 +41,10 @@ from asteroid.recipe import Recipe
 from asteroid.shape import ShapeModel
 from asteroid.sphere import SphereMesh
 from terrain import memory
+from terrain.clitools import version
 from terrain.errors import InvalidParameterError
 from terrain.io import check_output_path
+from terrain.progress import Progress
 
 __all__ = ["BuildResult", "OutputPaths", "build", "export_model", "output_paths",
            "write_outputs"]
@@ -53,13 +54,6 @@ log = logging.getLogger(__name__)
 #: Peak bytes per mesh vertex of a build and its export (directions, radii and working
 #: copies, the face array, the exporter's copies).
 BUILD_BYTES_PER_VERTEX = 260
-
-
-def _version() -> str:
-    try:
-        return version("craterscape")
-    except PackageNotFoundError:  # pragma: no cover - running from a bare checkout
-        return "unknown"
 
 
 @dataclass(frozen=True, eq=False)
@@ -91,14 +85,15 @@ class BuildResult:
         return out
 
 
-def build(recipe: Recipe, *, progress=None) -> BuildResult:
+def build(recipe: Recipe, *, progress: Progress | None = None) -> BuildResult:
     """Build the asteroid a recipe describes.
 
     Parameters
     ----------
     recipe : Recipe
     progress : callable, optional
-        ``progress(stage, done, total)`` with stage "base", "craters" or "boulders".
+        ``progress(done, total, stage)`` with stage "base", "craters" or "boulders"
+        (:class:`terrain.progress.Progress`).
     """
     mesh = SphereMesh(recipe.magnitude)
     memory.require(mesh.n_vertices * float(BUILD_BYTES_PER_VERTEX),
@@ -110,9 +105,9 @@ def build(recipe: Recipe, *, progress=None) -> BuildResult:
     def stage_progress(stage):
         if progress is None:
             return None
-        return lambda done, total: progress(stage, done, total)
+        return lambda done, total: progress(done, total, stage)
 
-    meta = dict(craterscape_version=_version(), seed=recipe.seed, recipe=recipe.as_dict())
+    meta = dict(craterscape_version=version(), seed=recipe.seed, recipe=recipe.as_dict())
     if recipe.base == "perlin":
         radius = recipe.base_radius
         radii = recipe.perlin.radii(mesh, radius, seed=recipe.seed, stretch=recipe.stretch)

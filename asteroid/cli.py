@@ -19,39 +19,16 @@ from __future__ import annotations
 import json
 import logging
 import math
-import sys
 from pathlib import Path
 
 import click
 
+from terrain.clitools import progress_bar
 from terrain.errors import InvalidParameterError
 
 __all__ = ["asteroid"]
 
 log = logging.getLogger(__name__)
-
-
-def _progress():
-    """(callback, close): a tqdm bar per stage on a terminal, nothing in pipes and tests."""
-    if not sys.stderr.isatty():
-        return None, lambda: None
-    from tqdm import tqdm
-
-    bars: dict = {}
-
-    def update(stage, done, total):
-        bar = bars.get(stage)
-        if bar is None:
-            bar = bars[stage] = tqdm(total=total, desc=stage, leave=False)
-        bar.total = total
-        bar.n = done
-        bar.refresh()
-
-    def close():
-        for bar in bars.values():
-            bar.close()
-
-    return update, close
 
 
 @click.group()
@@ -121,11 +98,8 @@ def build(output, magnitude, radius, base, seed, stretch, craters, boulders, con
     inputs = [p for p in (config, recipe.shape_file) if p is not None]
     paths = output_paths(output, craters=recipe.craters is not None,
                          boulders=recipe.boulders is not None, inputs=inputs)
-    update, close = _progress()
-    try:
+    with progress_bar("asteroid", "step") as update:
         result = run_build(recipe, progress=update)
-    finally:
-        close()
     written = write_outputs(result, paths, inputs=inputs)
     r = result.report
     extra = []

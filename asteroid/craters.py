@@ -96,6 +96,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import asdict, dataclass, field
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -111,7 +112,7 @@ from asteroid.sphere import (
     unit_vertex,
 )
 from terrain import memory
-from terrain.crater import crater_interior, exterior_height, shape_arrays
+from terrain.crater import Profile, crater_interior, exterior_height, shape_arrays
 from terrain.cratering import (
     RIM_TERRAIN_MIN,
     RIM_TERRAIN_SAMPLES,
@@ -374,11 +375,73 @@ def _local_dem(radii, idx, dist, theta, rc, spacing, half):
     return dem
 
 
+class RimTables(NamedTuple):
+    """A crater's rim, as one numba argument of :func:`_impact`.
+
+    Attributes
+    ----------
+    irregular : bool
+        Whether the rim radius varies with azimuth.
+    table : (m,) float64
+        Rim radius offsets per azimuth, in diameters (:func:`terrain.overlay.rim_table`).
+    terrain : (n,) float64, metres
+        The terrain's height above the plane at the rim, per azimuth
+        (:func:`terrain.cratering.rim_terrain`).
+    """
+
+    irregular: bool
+    table: np.ndarray
+    terrain: np.ndarray
+
+
+class OverlayPatch(NamedTuple):
+    """A crater's roughness overlay, as one numba argument of :func:`_impact`.
+
+    Attributes
+    ----------
+    rough : bool
+        Whether the overlay is on (otherwise the patch is ignored).
+    patch : (k, k) float64, metres
+        The overlay heights (:func:`terrain.overlay.overlay_patch`).
+    spacing : float, metres
+        Patch sample spacing.
+    half_extent : float, metres
+        Half the patch's side.
+    """
+
+    rough: bool
+    patch: np.ndarray
+    spacing: float
+    half_extent: float
+
+
 @numba.njit(cache=True)
-def _impact(radii, idx, dist, theta, rc, diameter, irregular, table, terrain_table, rough, patch,
-            spacing, half_extent, p0, px, py, curvature, floor, hr, ejecta, beta, ca, cb, c2,
-            c3, cplx):
-    """Rescale each vertex radius by the crater's new height (see the module docstring)."""
+def _impact(radii, idx, dist, theta, rc, diameter, rim: RimTables, overlay: OverlayPatch,
+            plane: tuple[float, float, float], profile: Profile):
+    """Rescale each vertex radius by the crater's new height (see the module docstring).
+
+    ``rim`` holds the crater's rim tables (:class:`RimTables`), ``overlay`` its roughness
+    patch (:class:`OverlayPatch`), ``plane`` the fitted plane (p0, px, py) and ``profile``
+    its profile coefficients (:class:`terrain.crater.Profile`).
+    """
+    irregular = rim.irregular
+    table = rim.table
+    terrain_table = rim.terrain
+    rough = overlay.rough
+    patch = overlay.patch
+    spacing = overlay.spacing
+    half_extent = overlay.half_extent
+    p0, px, py = plane
+    curvature = profile.curvature
+    floor = profile.floor
+    hr = profile.rim_height
+    ejecta = profile.ejecta
+    beta = profile.beta
+    ca = profile.a
+    cb = profile.b
+    c2 = profile.c2
+    c3 = profile.c3
+    cplx = profile.complex
     radius = 0.5 * diameter
     for k in range(idx.size):
         th = theta[k]
@@ -541,10 +604,11 @@ def add_craters(body: Body, craters: Placement, *, seed: int,
         hr = float(s["rim_height"][0])
         curvature = float(s["fresh_rim_height"][0]) - hr + float(s["depth"][0])
         floor = hr - float(s["depth"][0])
-        _impact(radii, idx, dist, theta, rc, d, irregular, table, terrain_table, rough, patch,
-                spacing, half_extent, p0, px, py, curvature, floor, hr, float(s["ejecta"][0]),
-                float(s["beta"][0]), float(s["a"][0]), float(s["b"][0]), float(s["c2"][0]),
-                float(s["c3"][0]), s["complex"][0])
+        profile = Profile(curvature, floor, hr, float(s["ejecta"][0]), float(s["beta"][0]),
+                          float(s["a"][0]), float(s["b"][0]), float(s["c2"][0]),
+                          float(s["c3"][0]), s["complex"][0])
+        _impact(radii, idx, dist, theta, rc, d, RimTables(irregular, table, terrain_table),
+                OverlayPatch(rough, patch, spacing, half_extent), (p0, px, py), profile)
         cols["applied"][k] = 1
     if progress is not None:
         progress(n, n)

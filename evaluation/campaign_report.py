@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 from evaluation.campaign import STAGES, Campaign, Stage, run_cli
+from terrain import metakeys as mk
 
 __all__ = ["evaluate"]
 
@@ -78,7 +79,7 @@ def polar_ldem(ldem: Path, target: Path) -> Path:
     from terrain.io import read_dem, reproject_polar, write_dem
 
     tile = reproject_polar(read_dem(ldem), radius=MOON_RADIUS, half_width_m=LDEM_HALF_WIDTH_M)
-    write_dem(tile.replace(metadata={"CRATERSCAPE_SOURCE": str(ldem)}), target, inputs=[ldem])
+    write_dem(tile.replace(metadata={mk.SOURCE: str(ldem)}), target, inputs=[ldem])
     return target
 
 

@@ -22,55 +22,18 @@ from __future__ import annotations
 
 import json
 import logging
-import math
-import sys
 from pathlib import Path
 
 import click
 
-from evaluation.evidence import STACK_LAYER, write_csv
+from evaluation.evidence import write_csv
+from terrain import metakeys as mk
+from terrain.clitools import TRIPLE, progress_bar, version
 from terrain.errors import InvalidParameterError, MissingInputError
 
 __all__ = ["evaluation"]
 
 log = logging.getLogger(__name__)
-
-
-def _progress(label: str):
-    """(callback, close): a tqdm bar on a terminal, nothing in pipes and tests."""
-    if not sys.stderr.isatty():
-        return None, lambda: None
-    from tqdm import tqdm
-
-    bar = tqdm(total=None, desc=label, leave=False)
-
-    def update(done, total):
-        bar.total = total
-        bar.n = done
-        bar.refresh()
-
-    return update, bar.close
-
-
-class _TripleType(click.ParamType):
-    name = "X,Y,Z"
-
-    def convert(self, value, param, ctx):
-        if isinstance(value, tuple):
-            return value
-        parts = str(value).split(",")
-        try:
-            if len(parts) != 3:
-                raise ValueError
-            triple = tuple(float(p) for p in parts)
-            if not all(math.isfinite(v) for v in triple):
-                raise ValueError
-            return triple
-        except ValueError:
-            self.fail(f"expected three finite numbers X,Y,Z; got {value!r}", param, ctx)
-
-
-TRIPLE = _TripleType()
 
 
 def _outdir(path: Path, inputs=()) -> Path:
@@ -101,15 +64,6 @@ def _unique(names):
     return out
 
 
-def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("craterscape")
-    except PackageNotFoundError:  # pragma: no cover - running from a bare checkout
-        return "unknown"
-
-
 # ------------------------------------------------------------------------------ inputs
 
 
@@ -128,7 +82,7 @@ def _dem_inputs(paths, band: int) -> list:
                                         "DEM files or layer-stack folders")
             stack = read_stack(folder)
             items += [(f"{folder.name}_layer_{k:02d}",
-                       t.replace(metadata={**t.metadata, STACK_LAYER: str(k)}))
+                       t.replace(metadata={**t.metadata, mk.STACK_LAYER: str(k)}))
                       for k, t in enumerate(stack.tiles)]
         else:
             items.append((path.stem, read_dem(path, band=band)))
@@ -204,7 +158,7 @@ def slopes(inputs, output, band, reference, reference_band, slope_band, baseline
     ref_tile = _reference(dems, reference, reference_band)
     # everything is measured before anything is written
     slope_maps = [(label, slope_tile(tile, edges=edges).with_metadata(
-        CRATERSCAPE_COMMAND="evaluation slopes", CRATERSCAPE_VERSION=_version()))
+        **{mk.COMMAND: "evaluation slopes", mk.VERSION: version()}))
         for label, tile in dems]
     evidence = dem_evidence(dems, reference=reference, ref_tile=ref_tile,
                             slope_band=slope_band, baseline=baseline, edges=edges)
@@ -277,15 +231,12 @@ def _body_slopes(path, *, units, density, mass, period_hours, spin_axis, radius_
     from evaluation.meshslope import DEFAULT_COARSE_FACES, Spin, load_body, mesh_slopes
 
     shape = load_body(path, units=units)
-    update, close = _progress(f"gravity {Path(path).name}")
-    try:
+    with progress_bar(f"gravity {Path(path).name}") as update:
         return mesh_slopes(shape.vertices, shape.faces, label=Path(path).stem,
                            radius_deg=radius_deg, gravity=not no_gravity, density=density,
                            mass=mass, spin=Spin(period_hours, spin_axis),
                            coarse_faces=coarse_faces or DEFAULT_COARSE_FACES,
                            progress=update)
-    finally:
-        close()
 
 
 @evaluation.command("asteroid-slopes")
@@ -401,11 +352,8 @@ def _run_tracking(run_dir, max_corners, quality, min_distance, win_size, levels,
                                min_distance=min_distance, win_size=win_size, levels=levels,
                                fb_threshold=fb_threshold, prewarp=prewarp)
     run = load_run(run_dir)
-    update, close = _progress("tracking")
-    try:
+    with progress_bar("tracking") as update:
         tracks = track(run, settings, progress=update)
-    finally:
-        close()
     return run, score(tracks, run, outlier_px=outlier_px)
 
 
@@ -457,12 +405,9 @@ def consistency_cmd(run_dir, output, edge_px, occlusion_tolerance):
 
     if output.resolve() == run_dir.resolve():
         raise InvalidParameterError("the output folder must differ from the run directory")
-    update, close = _progress("consistency")
-    try:
+    with progress_bar("consistency") as update:
         result = consistency(run_dir, edge_px=edge_px, occlusion_tolerance=occlusion_tolerance,
                              progress=update)
-    finally:
-        close()
     s = save_consistency(result, _outdir(output),
                          inputs=[run_dir / "truth.json", run_dir / "manifest.json"])
     msg = f"wrote the consistency of {s['pairs']} frame pairs to {output}"

@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from terrain import metakeys as mk
 from terrain.errors import InvalidDEMError, InvalidParameterError
 
 __all__ = ["STACK_LAYER", "DEMEvidence", "at_baseline", "dem_evidence", "write_csv",
@@ -23,7 +24,7 @@ __all__ = ["STACK_LAYER", "DEMEvidence", "at_baseline", "dem_evidence", "write_c
 log = logging.getLogger(__name__)
 
 #: Metadata key marking a tile as a layer of a stack (its index).
-STACK_LAYER = "CRATERSCAPE_STACK_LAYER"
+STACK_LAYER = mk.STACK_LAYER
 #: Slope quantiles written per DEM in ``slope_summary.csv``.
 SUMMARY_KEYS = ("p10", "p25", "p50", "p75", "p90", "p95", "p99", "mean", "max")
 
@@ -141,7 +142,7 @@ def dem_evidence(dems: Sequence, *, reference: str | None = None, ref_tile=None,
                 # than the reference (or far finer and smaller) cannot be compared with it
                 log.warning("%s not compared with the reference: %s", label, exc)
         if slope_band is not None:
-            source = tile.metadata.get("CRATERSCAPE_SOURCE")
+            source = tile.metadata.get(mk.SOURCE)
             if not source:
                 raise InvalidParameterError(f"--slope-band needs a DEM file; {label} is a "
                                             "layer of a stack")

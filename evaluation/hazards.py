@@ -20,6 +20,7 @@ import math
 import numpy as np
 
 from evaluation.report import Check, Section, _figure, _fmt, _jsonable, image_figure
+from terrain import metakeys as mk
 
 __all__ = ["descent_layers", "hazards_file_section", "rock_sfd", "rock_sfd_figure",
            "site_section"]
@@ -223,7 +224,7 @@ def hazards_file_section(path, *, run=None, frames=()) -> Section:
     bands = [read_dem(path, band=b) for b in (1, 2, 3)]
     meta = bands[0].metadata
     try:
-        params = json.loads(meta["CRATERSCAPE_PARAMETERS"])
+        params = json.loads(meta[mk.PARAMETERS])
         hazards = HazardMap(bands[0].heights, bands[1].heights, bands[2].heights,
                             float(params["lander_diameter"]), float(params["max_slope"]),
                             float(params["max_step"]))

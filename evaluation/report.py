@@ -293,12 +293,9 @@ class Report:
         return "pass"
 
     def as_dict(self) -> dict:
-        from importlib.metadata import PackageNotFoundError, version
+        from terrain.clitools import version
 
-        try:
-            ver = version("craterscape")
-        except PackageNotFoundError:  # pragma: no cover - running from a bare checkout
-            ver = "unknown"
+        ver = version()
         return dict(
             format=REPORT_FORMAT, version=1, title=self.title, created=self.created,
             craterscape_version=ver, verdict=self.verdict, inputs=self.inputs,

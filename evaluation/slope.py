@@ -70,6 +70,7 @@ from affine import Affine
 from scipy import sparse
 
 from terrain import memory
+from terrain import metakeys as mk
 from terrain.errors import InvalidDEMError, InvalidParameterError
 from terrain.tile import DEMTile
 
@@ -213,7 +214,7 @@ def slope_tile(tile: DEMTile, *, edges: str = "mask") -> DEMTile:
     """
     slope = horn_slope(tile, edges=edges)
     meta = dict(tile.metadata)
-    meta.update(CRATERSCAPE_QUANTITY="Horn slope (degrees)", CRATERSCAPE_SLOPE_EDGES=edges)
+    meta.update(**{mk.QUANTITY: "Horn slope (degrees)", mk.SLOPE_EDGES: edges})
     return DEMTile(slope, np.isfinite(slope), tile.transform, tile.crs, float("nan"), meta)
 
 
@@ -350,14 +351,14 @@ def slope_distribution(tile: DEMTile, *, label: str = "", edges: str = "mask", a
     valid = np.isfinite(slopes)
     n = int(valid.sum())
     if n == 0:
-        raise InvalidDEMError(f"DEM {label or tile.metadata.get('CRATERSCAPE_SOURCE', '')!s} "
+        raise InvalidDEMError(f"DEM {label or tile.metadata.get(mk.SOURCE, '')!s} "
                               "has no pixel whose whole 3x3 window is valid; no slope to "
                               "measure")
     values = slopes[valid]
     return SlopeDistribution(label, tile.resolution, angles,
                              cumulative_distribution(values, angles),
                              n, weighted_quantiles(values),
-                             tile.metadata.get("CRATERSCAPE_SOURCE", ""))
+                             tile.metadata.get(mk.SOURCE, ""))
 
 
 def stack_distributions(stack_dir, *, edges: str = "mask", angles=None,
@@ -456,7 +457,7 @@ def resample(tile: DEMTile, resolution: float) -> DEMTile:
     t = tile.transform
     transform = Affine(resolution, 0.0, t.c, 0.0, -resolution, t.f)
     meta = dict(tile.metadata)
-    meta["CRATERSCAPE_RESAMPLED_FROM_M"] = repr(tile.resolution)
+    meta[mk.RESAMPLED_FROM_M] = repr(tile.resolution)
     return DEMTile(heights, ok, transform, tile.crs, tile.nodata, meta)
 
 

@@ -44,6 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from terrain import memory
+from terrain import metakeys as mk
 from terrain.errors import InvalidDEMError, InvalidParameterError
 from terrain.tile import DEMTile
 
@@ -318,7 +319,7 @@ def fractional_brownian_surface(size: int, hurst: float, *, resolution: float = 
     Examples
     --------
     >>> t = fractional_brownian_surface(64, 0.7, seed=1)
-    >>> t.shape, round(float(np.std(t.heights)), 3), t.metadata["CRATERSCAPE_SEED"]
+    >>> t.shape, round(float(np.std(t.heights)), 3), t.metadata[mk.SEED]
     ((64, 64), 1.0, '1')
     """
     if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 8:
@@ -341,7 +342,7 @@ def fractional_brownian_surface(size: int, hurst: float, *, resolution: float = 
     start = n // 4
     z = z[start:start + size, start:start + size]
     z = (z - z.mean()) * (rms / z.std())
-    meta = dict(CRATERSCAPE_SEED=str(int(seed)), CRATERSCAPE_HURST=repr(hurst),
-                CRATERSCAPE_GENERATOR="fractional_brownian_surface")
+    meta = {mk.SEED: str(int(seed)), mk.HURST: repr(hurst),
+                mk.GENERATOR: "fractional_brownian_surface"}
     return DEMTile.from_array(z, resolution=resolution, metadata=meta)
 

@@ -62,7 +62,15 @@ from pathlib import Path
 import numpy as np
 
 from render.camera import Intrinsics, look_at, quat_to_matrix
-from render.scene import DrawBatch, FrameState, Morph, ShadowMap, ortho_light
+from render.scene import (
+    MIN_LOD_DISTANCE_M,
+    DrawBatch,
+    FrameState,
+    Morph,
+    ShadowMap,
+    body_shadow_map,
+    far_plane,
+)
 from terrain.errors import InvalidParameterError
 
 __all__ = ["IMPOSTER_FADE", "MIN_BOULDER_PIXELS", "MIN_MAGNITUDE", "MORPH_BAND", "AsteroidScene"]
@@ -295,7 +303,7 @@ class AsteroidScene:
         cam = np.asarray(view.pose.position, dtype=np.float64)
         dist = float(np.linalg.norm(cam))
         focal = max(k.fx, k.fy)
-        far = (dist + self.radius) * 1.01 + 1.0
+        far = far_plane(dist + self.radius)
         span = 2.0 * focal * math.tan(math.asin(min(self.radius / max(dist, 1e-9), 1.0)))
         if dist > self.radius * 1.01 and span < self.imposter_pixels:
             return self._imposter_state(view, lighting, options, renderer, far, span)
@@ -307,7 +315,7 @@ class AsteroidScene:
                 (IMPOSTER_FADE - 1.0) * self.imposter_pixels)
             fade = (self._imposter_state(view, lighting, options, renderer, far, span),
                     weight)
-        near = max(dist - self.radius, 1e-3)
+        near = max(dist - self.radius, MIN_LOD_DISTANCE_M)
         body = lods[0]
         chosen = 0
         for i, lod in enumerate(lods):
@@ -354,7 +362,7 @@ class AsteroidScene:
         radius = self._boulder_radii()
         cam = np.asarray(view.pose.position)
         rel = (centres - cam) @ view.pose.rotation
-        dist = np.maximum(np.linalg.norm(centres - cam, axis=1) - radius, 1e-3)
+        dist = np.maximum(np.linalg.norm(centres - cam, axis=1) - radius, MIN_LOD_DISTANCE_M)
         px = 2 * radius * focal / dist
         vis = _sphere_visible(rel, radius, k) & (px >= MIN_BOULDER_PIXELS)
         n_levels = self.boulders.settings.levels
@@ -417,39 +425,28 @@ class AsteroidScene:
 
     def _shadow_map(self, renderer, lighting, options, lods, levels) -> ShadowMap:
         size = options.shadow_size
-        if self._shadow is None or self._shadow.size != size:
-            if self._shadow is not None:
-                self._shadow.release()
-            tex, fbo = renderer.shadow_target(size)
-            self._shadow = ShadowMap(tex, size, np.eye(4), 0.0, 0.0, 0.0, framebuffer=fbo)
-        r = self.radius
-        pts = np.array([[sx * r, sy * r, sz * r] for sx in (-1, 1) for sy in (-1, 1)
-                        for sz in (-1, 1)])
-        clip, light, extent, depth, _ = ortho_light(lighting.sun, pts, pts, margin=0.01 * r)
-        # casters at the coarsest level the map's texels resolve: fixed by the map, not by
-        # where the camera is (module docstring)
-        body_lod = lods[0]
-        for lod in lods:
-            if lod.spacing <= SHADOW_CELL_TEXELS * extent / size:
-                body_lod = lod
-        _, dvao = self._vaos(renderer, body_lod)
-        casters = [DrawBatch(None, dvao, [(0, body_lod.triangles * 3)],
-                             world_from_model=self.rotation)]
-        if levels:
-            lv = levels[min(1, len(levels) - 1)]
-            _, bdvao = self._vaos(renderer, lv)
-            casters.append(DrawBatch(None, bdvao, [(0, lv.faces_per * 3 * len(self.boulders))],
-                                     world_from_model=self.rotation))
-        renderer.render_depth(self._shadow.framebuffer, size, clip, casters)
-        texel = extent / size
-        m = self._shadow
-        m.light_from_world = light
-        m.normal_offset = 1.0 * texel
-        m.bias = 1.5 * texel / depth
-        m.slope_bias = 1.0 * texel / depth
-        m.texel_m = texel
-        m.depth_range_m = depth
-        return m
+
+        def casters(extent):
+            # casters at the coarsest level the map's texels resolve: fixed by the map, not
+            # by where the camera is (module docstring)
+            body_lod = lods[0]
+            for lod in lods:
+                if lod.spacing <= SHADOW_CELL_TEXELS * extent / size:
+                    body_lod = lod
+            _, dvao = self._vaos(renderer, body_lod)
+            batches = [DrawBatch(None, dvao, [(0, body_lod.triangles * 3)],
+                                 world_from_model=self.rotation)]
+            if levels:
+                lv = levels[min(1, len(levels) - 1)]
+                _, bdvao = self._vaos(renderer, lv)
+                batches.append(DrawBatch(None, bdvao,
+                                         [(0, lv.faces_per * 3 * len(self.boulders))],
+                                         world_from_model=self.rotation))
+            return batches
+
+        self._shadow = body_shadow_map(renderer, self._shadow, size, lighting.sun, self.radius,
+                                       casters)
+        return self._shadow
 
     # ------------------------------------------------------------------ imposter
     def _imposter_state(self, view, lighting, options, renderer, far, span) -> FrameState:

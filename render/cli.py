@@ -8,32 +8,20 @@ from pathlib import Path
 
 import click
 
+from terrain.clitools import ImageSizeType, progress_bar
 from terrain.errors import InvalidParameterError
 
 __all__ = ["render"]
 
 
-class _Resolution(click.ParamType):
-    name = "WxH"
+def _largest_image_side() -> int:
+    """The largest image side a scenario may ask for (imported when an option is read)."""
+    from render.scenario import MAX_IMAGE_SIDE
 
-    def convert(self, value, param, ctx):
-        if isinstance(value, tuple):
-            return value
-        from render.scenario import MAX_IMAGE_SIDE
-
-        try:
-            w, h = (int(v) for v in str(value).lower().split("x"))
-            if w < 1 or h < 1:
-                raise ValueError
-        except ValueError:
-            self.fail(f"expected WIDTHxHEIGHT such as 1024x1024; got {value!r}", param, ctx)
-        if max(w, h) > MAX_IMAGE_SIDE:
-            self.fail(f"{w}x{h} is larger than the largest image side, {MAX_IMAGE_SIDE} pixels",
-                      param, ctx)
-        return w, h
+    return MAX_IMAGE_SIDE
 
 
-RESOLUTION = _Resolution()
+RESOLUTION = ImageSizeType(_largest_image_side)
 
 
 @click.group()
@@ -56,23 +44,8 @@ def sequence(scenario_file, output, frames, resolution, resume):
     from render.sequence import run_sequence
 
     scenario = load_scenario(scenario_file).with_overrides(frames, resolution)
-    bar = None
-    if sys.stderr.isatty():
-        from tqdm import tqdm
-
-        bar = tqdm(total=int(scenario.trajectory["frames"]), desc="render", unit="frame")
-
-    def progress(done, total, fps):
-        if bar is not None:
-            bar.n = done
-            bar.set_postfix(fps=f"{fps:.2f}")
-            bar.refresh()
-
-    try:
+    with progress_bar("render", "frame", total=scenario.trajectory.frames) as progress:
         manifest = run_sequence(scenario, output, resume=resume, progress=progress)
-    finally:
-        if bar is not None:
-            bar.close()
     click.echo(f"wrote {manifest['frames_written']} frames to {output} "
                f"({manifest['render_seconds']:.1f} s)", err=True)
 

@@ -22,7 +22,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from render.camera import quat_to_matrix
-from render.scene import DrawBatch, FrameState, ShadowMap, ortho_light
+from render.scene import (
+    MIN_LOD_DISTANCE_M,
+    DrawBatch,
+    FrameState,
+    ShadowMap,
+    body_shadow_map,
+    far_plane,
+)
 from terrain.errors import InvalidParameterError
 
 __all__ = ["CHUNK", "MeshScene", "vertex_normals"]
@@ -164,7 +171,7 @@ class MeshScene:
         lods = self._upload(renderer.ctx)
         k = view.intrinsics
         cam = np.asarray(view.pose.position) - self.origin      # world, relative to centre
-        dist = max(np.linalg.norm(cam) - self.radius, 1e-3)
+        dist = max(np.linalg.norm(cam) - self.radius, MIN_LOD_DISTANCE_M)
         focal = max(k.fx, k.fy)
         chosen = lods[0]
         for lod in lods:  # finest first: take the coarsest that is still fine enough
@@ -190,32 +197,15 @@ class MeshScene:
         batch = DrawBatch(vao, dvao, ranges, world_from_model=self.rotation,
                           model_offset=np.zeros(3), shadow=shadow, triangles=tris,
                           vertex_albedo=chosen.abo is not None)
-        far = float(np.linalg.norm(cam) + self.radius) * 1.01 + 1.0
+        far = far_plane(float(np.linalg.norm(cam) + self.radius))
         drawn = {"triangles": tris, "chunks": int(chunks.size), "lod_edge_m": chosen.edge,
                  "lod_triangles": chosen.triangles}
         return FrameState([batch], far, drawn)
 
     def _shadow_map(self, renderer, lighting, options, lod) -> ShadowMap:
-        size = options.shadow_size
-        if self._shadow is None or self._shadow.size != size:
-            if self._shadow is not None:
-                self._shadow.release()
-            tex, fbo = renderer.shadow_target(size)
-            self._shadow = ShadowMap(tex, size, np.eye(4), 0.0, 0.0, 0.0, framebuffer=fbo)
-        r = self.radius
-        pts = np.array([[sx * r, sy * r, sz * r] for sx in (-1, 1) for sy in (-1, 1)
-                        for sz in (-1, 1)])
-        clip, light, extent, depth, _ = ortho_light(lighting.sun, pts, pts, margin=0.01 * r)
         _, dvao = self._vaos(renderer, lod)
         batch = DrawBatch(None, dvao, [(0, lod.triangles * 3)], world_from_model=self.rotation,
                           model_offset=np.zeros(3))
-        renderer.render_depth(self._shadow.framebuffer, size, clip, [batch])
-        texel = extent / size
-        m = self._shadow
-        m.light_from_world = light
-        m.normal_offset = 1.0 * texel
-        m.bias = 1.5 * texel / depth
-        m.slope_bias = 1.0 * texel / depth
-        m.texel_m = texel
-        m.depth_range_m = depth
-        return m
+        self._shadow = body_shadow_map(renderer, self._shadow, options.shadow_size,
+                                       lighting.sun, self.radius, lambda extent: [batch])
+        return self._shadow

@@ -196,8 +196,7 @@ def render_exposure(renderer, scene, view, lighting, options, sensor, motion: Mo
     line = sensor.line_time
     k = view.intrinsics
     span = (k.height - 1) * line + t_exp
-    if hasattr(scene, "set_body_rotation"):
-        scene.set_body_rotation(body_rotation)
+    scene.set_body_rotation(body_rotation)
     first = renderer.render(scene, view, lighting, options)
     if span <= 0 or (motion.still and line == 0):
         return first.radiance, first, {"samples": 1, "times": [0.0]}
@@ -223,8 +222,7 @@ def render_exposure(renderer, scene, view, lighting, options, sensor, motion: Mo
     for j, t in enumerate(times):
         if not np.any(weights[:, j]):
             continue
-        if hasattr(scene, "set_body_rotation"):
-            scene.set_body_rotation(motion.body_rotation_at(body_rotation, float(t)))
+        scene.set_body_rotation(motion.body_rotation_at(body_rotation, float(t)))
         used = np.flatnonzero(weights[:, j])
         rows = (int(used[0]), int(used[-1]) + 1) if line > 0 else None
         sub = renderer.render(scene, View(motion.pose_at(view.pose, float(t)), k,
@@ -234,6 +232,5 @@ def render_exposure(renderer, scene, view, lighting, options, sensor, motion: Mo
         else:
             out[rows[0]:rows[1]] += weights[rows[0]:rows[1], j:j + 1] \
                 * sub.radiance[rows[0]:rows[1]]
-    if hasattr(scene, "set_body_rotation"):
-        scene.set_body_rotation(body_rotation)
+    scene.set_body_rotation(body_rotation)
     return out.astype(np.float32), first, {"samples": n, "times": times.tolist()}

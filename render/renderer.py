@@ -33,6 +33,7 @@ import numpy as np
 from render.camera import Intrinsics, Pose
 from render.context import create_context
 from render.reflectance import BRDF_CODES, MCEWEN_MOON, SATO_643NM, Hapke, check_brdf
+from render.scene import Scene
 from terrain.errors import InvalidParameterError
 
 __all__ = ["Frame", "Lighting", "RenderOptions", "Renderer", "View", "clip_from_camera"]
@@ -122,12 +123,16 @@ class RenderOptions:
     triangles a frame may draw; the target is relaxed until the frame fits.
     ``geomorph``: levels of detail change continuously (vertices morph toward the coarser
     level over a band of distance, see :mod:`render.terrain_scene`); off, they switch.
+
+    These defaults are the only ones: a scenario's ``[render]`` table falls back to them
+    (they are the values scenarios have always used; the 3.0 / 1,000,000 this class once
+    had applied only to direct library calls).
     """
 
     shadows: bool = True
     shadow_size: int = 2048
-    lod_pixels: float = 3.0
-    triangle_budget: int = 1_000_000
+    lod_pixels: float = 1.5
+    triangle_budget: int = 3_000_000
     geomorph: bool = True
 
     def __post_init__(self):
@@ -250,7 +255,7 @@ class Renderer:
         return vao, dvao
 
     # ------------------------------------------------------------------ passes
-    def render(self, scene, view: View, lighting: Lighting,
+    def render(self, scene: Scene, view: View, lighting: Lighting,
                options: RenderOptions | None = None, *, rows=None) -> Frame:
         """Render one frame of ``scene`` (see :mod:`render.scene`).
 
@@ -266,7 +271,7 @@ class Renderer:
         ctx = self.ctx
         state = scene.frame_state(view, lighting, options, self)
         far = max(state.far, 1.0)
-        origin = np.asarray(getattr(scene, "origin", np.zeros(3)), dtype=np.float64)
+        origin = np.asarray(scene.origin, dtype=np.float64)
         cam = np.asarray(view.pose.position, dtype=np.float64) - origin  # scene-local
         r_cw = view.pose.rotation.T
         cam_rel = np.eye(4)

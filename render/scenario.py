@@ -93,7 +93,7 @@ from terrain.errors import InvalidParameterError
 from terrain.rng import check_seed
 from terrain.tomlfile import read_toml
 
-__all__ = ["Scenario", "load_scenario"]
+__all__ = ["SceneSpec", "Scenario", "TrajectorySpec", "load_scenario"]
 
 _SECTIONS = {"name", "seed", "scene", "sun", "surface", "camera", "sensor", "render", "output",
              "trajectory", "description", "motion"}
@@ -165,6 +165,213 @@ def _number(table, key, default, where, positive=False):
     return v
 
 
+#: Bodies an asteroid scene is drawn as an imposter below, in pixels across.
+DEFAULT_IMPOSTER_PIXELS = 24.0
+#: Keys of a scenario's [scene] table.
+SCENE_KEYS = frozenset({"type", "stack", "curvature", "radius", "body", "boulders", "spin_axis",
+                        "spin_period", "spin_phase", "imposter_pixels"})
+#: Keys of a scenario's [trajectory] table.
+TRAJECTORY_KEYS = frozenset({"type", "frames", "duration", "start_altitude", "end_altitude",
+                             "ground_track", "look", "site", "keyframe", "start_distance",
+                             "end_distance", "direction"})
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """A scenario's ``[scene]``: what to load, validated, with its defaults in one place.
+
+    Parameters
+    ----------
+    type : {"terrain", "asteroid"}
+    stack : str, optional
+        Layer-stack folder (terrain), relative to the scenario file.
+    body : str, optional
+        Asteroid ``.npz`` (asteroid), relative to the scenario file.
+    curvature : bool
+        Terrain: bend the map onto the body's sphere.
+    radius : float, optional
+        Terrain: the body's radius (m); the stack's datum (or the Moon's) when None.
+    boulders : bool
+        Asteroid: draw the body's boulders.
+    spin_axis : (3,) float
+        Asteroid: spin axis, body frame.
+    spin_period : float
+        Asteroid: spin period (s); 0 for no spin.
+    spin_phase : float
+        Asteroid: spin phase at t = 0 (degrees).
+    imposter_pixels : float
+        Asteroid: below this apparent size (pixels) the body is drawn as an imposter.
+    albedo_map : str, optional
+        Albedo factors (``[surface] albedo_map``), relative to the scenario file.
+    """
+
+    type: str
+    stack: str | None = None
+    body: str | None = None
+    curvature: bool = True
+    radius: float | None = None
+    boulders: bool = True
+    spin_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    spin_period: float = 0.0
+    spin_phase: float = 0.0
+    imposter_pixels: float = DEFAULT_IMPOSTER_PIXELS
+    albedo_map: str | None = None
+
+    @classmethod
+    def from_mapping(cls, table: dict) -> SceneSpec:
+        """The record of a ``[scene]`` table; unknown keys are errors naming the nearest.
+
+        Parameters
+        ----------
+        table : dict
+            The TOML table (``albedo_map`` comes from ``[surface]``, set by the parser).
+
+        Returns
+        -------
+        SceneSpec
+        """
+        scene = _section({"scene": table}, "scene", set(SCENE_KEYS))
+        kind = scene.get("type")
+        if kind not in ("terrain", "asteroid"):
+            raise InvalidParameterError(
+                f"scenario [scene] type must be 'terrain' or 'asteroid'; got {kind!r}")
+        if kind == "terrain" and "stack" not in scene:
+            raise InvalidParameterError("scenario [scene] needs 'stack' (a layer-stack folder)")
+        if kind == "asteroid" and "body" not in scene:
+            raise InvalidParameterError("scenario [scene] needs 'body' (an asteroid .npz)")
+        values: dict = {"type": kind}
+        for key in ("stack", "body"):
+            if key in scene:
+                values[key] = _text(scene, key, "", "scene")
+        for key in ("curvature", "boulders"):
+            if key in scene:
+                values[key] = _bool(scene, key, True, "scene")
+        for key in ("spin_period", "spin_phase"):
+            if key in scene:
+                values[key] = _number(scene, key, 0.0, "scene")
+        if "radius" in scene:
+            values["radius"] = _number(scene, "radius", 1.0, "scene", positive=True)
+        if "imposter_pixels" in scene:
+            values["imposter_pixels"] = _number(scene, "imposter_pixels",
+                                                DEFAULT_IMPOSTER_PIXELS, "scene", positive=True)
+        if "spin_axis" in scene:
+            values["spin_axis"] = _vector(scene, "spin_axis", 3, "scene")
+        return cls(**values)
+
+    def inputs(self) -> tuple[str, ...]:
+        """The files and folders the scene reads (relative to the scenario file).
+
+        Returns
+        -------
+        tuple of str
+        """
+        return tuple(v for v in (self.stack, self.body) if v is not None)
+
+
+@dataclass(frozen=True)
+class TrajectorySpec:
+    """A scenario's ``[trajectory]``, validated, with its defaults in one place.
+
+    Parameters
+    ----------
+    type : {"descent", "keyframes", "approach"}
+    frames : int
+        Frames to render (>= 1).
+    duration : float, optional
+        Seconds from the first frame to the last; ``frames - 1`` when None.
+    start_altitude, end_altitude : float, optional
+        Descent: metres above the site (required for a descent).
+    ground_track : (2,) float
+        Descent: start offset from the site (m).
+    look : {"site", "nadir"}
+        Descent: where the camera looks.
+    site : (2,) float, optional
+        Descent: the site (map x, y); the stack's when None.
+    keyframe : tuple of dict
+        Keyframes: ``time``, ``position`` and ``attitude`` or ``look_at`` of each.
+    start_distance, end_distance : float, optional
+        Approach: metres from the body's centre (required for an approach).
+    direction : (3,) float
+        Approach: direction from the body to the camera, body frame.
+    """
+
+    type: str
+    frames: int = 1
+    duration: float | None = None
+    start_altitude: float | None = None
+    end_altitude: float | None = None
+    ground_track: tuple[float, float] = (0.0, 0.0)
+    look: str = "site"
+    site: tuple[float, float] | None = None
+    keyframe: tuple[dict, ...] = ()
+    start_distance: float | None = None
+    end_distance: float | None = None
+    direction: tuple[float, float, float] = (1.0, 0.0, 0.0)
+
+    @classmethod
+    def from_mapping(cls, table: dict) -> TrajectorySpec:
+        """The record of a ``[trajectory]`` table; unknown keys are errors naming the nearest.
+
+        Parameters
+        ----------
+        table : dict
+            The TOML table.
+
+        Returns
+        -------
+        TrajectorySpec
+        """
+        traj = _section({"trajectory": table}, "trajectory", set(TRAJECTORY_KEYS))
+        kind = traj.get("type")
+        if kind not in ("descent", "keyframes", "approach"):
+            raise InvalidParameterError(
+                f"scenario [trajectory] type must be 'descent', 'keyframes' or 'approach'; "
+                f"got {kind!r}")
+        frames = traj.get("frames", 1)
+        if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
+            raise InvalidParameterError(
+                f"scenario [trajectory] frames must be a positive integer; got {frames!r}")
+        values: dict = {"type": kind, "frames": frames}
+        if "duration" in traj:
+            values["duration"] = _number(traj, "duration", 0.0, "trajectory")
+        if "look" in traj:
+            look = _text(traj, "look", "site", "trajectory")
+            if look not in ("site", "nadir"):
+                raise InvalidParameterError(
+                    f"scenario trajectory.look must be 'site' or 'nadir'; got {look!r}")
+            values["look"] = look
+        if "site" in traj:
+            values["site"] = _vector(traj, "site", 2, "trajectory")
+        if "direction" in traj:
+            values["direction"] = _vector(traj, "direction", 3, "trajectory")
+        if kind == "descent":
+            for key in ("start_altitude", "end_altitude"):
+                values[key] = _number(traj, key, None, "trajectory", positive=True)
+        if kind == "approach":
+            for key in ("start_distance", "end_distance"):
+                values[key] = _number(traj, key, None, "trajectory", positive=True)
+        if "keyframe" in traj and (not isinstance(traj["keyframe"], list) or not all(
+                isinstance(k, dict) for k in traj["keyframe"])):
+            raise InvalidParameterError("scenario trajectory.keyframe must be "
+                                        "[[trajectory.keyframe]] tables")
+        for n, key in enumerate(traj.get("keyframe", []), start=1):
+            where = f"trajectory.keyframe #{n}"
+            _section({"keyframe": key}, "keyframe", {"time", "position", "attitude", "look_at"})
+            _number(key, "time", None, where)
+            _vector(key, "position", 3, where)
+            if "attitude" in key:
+                _vector(key, "attitude", 4, where)
+            if "look_at" in key:
+                _vector(key, "look_at", 3, where)
+        if kind == "keyframes" and not traj.get("keyframe"):
+            raise InvalidParameterError(
+                "scenario keyframe trajectory needs [[trajectory.keyframe]]")
+        values["keyframe"] = tuple(dict(k) for k in traj.get("keyframe", []))
+        if "ground_track" in traj:
+            values["ground_track"] = _vector(traj, "ground_track", 2, "trajectory")
+        return cls(**values)
+
+
 @dataclass(frozen=True)
 class Scenario:
     """A parsed scenario (see the module docstring)."""
@@ -172,13 +379,13 @@ class Scenario:
     name: str
     path: Path | None
     seed: int
-    scene: dict
+    scene: SceneSpec
     lighting: Lighting
     intrinsics: Intrinsics
     sensor: Sensor
     options: RenderOptions
     outputs: dict
-    trajectory: dict
+    trajectory: TrajectorySpec
     raw: dict = field(default_factory=dict)
     # {"blur": bool, "given": the velocity keys set in [motion], "motion": Motion}
     motion: dict = field(default_factory=dict)
@@ -192,11 +399,11 @@ class Scenario:
 
     def with_overrides(self, frames=None, resolution=None) -> Scenario:
         """Copy with the frame count and/or the image size changed (field of view kept)."""
-        traj = dict(self.trajectory)
+        traj = self.trajectory
         if frames is not None:
             if frames < 1:
                 raise InvalidParameterError(f"frames must be positive; got {frames}")
-            traj["frames"] = int(frames)
+            traj = replace(traj, frames=int(frames))
         k = self.intrinsics
         if resolution is not None:
             w, h = resolution
@@ -208,35 +415,37 @@ class Scenario:
     def samples(self, scene) -> list[Sample]:
         """The trajectory's frames for a loaded scene."""
         t = self.trajectory
-        kind = t["type"]
-        frames = int(t["frames"])
-        duration = float(t.get("duration", max(frames - 1, 0)))
+        kind = t.type
+        frames = int(t.frames)
+        duration = float(t.duration if t.duration is not None else max(frames - 1, 0))
         if kind == "keyframes":
-            return keyframes(frames, t["keyframe"])
+            return keyframes(frames, list(t.keyframe))
         if kind == "descent":
             if scene.kind != "terrain":
                 raise InvalidParameterError("a descent trajectory needs a terrain scene")
-            site = t.get("site", scene.site)
+            site = t.site if t.site is not None else scene.site
             ground = scene.height_at(float(site[0]), float(site[1]))
+            # required of a descent by TrajectorySpec.from_mapping
+            assert t.start_altitude is not None and t.end_altitude is not None
             return descent(frames, (float(site[0]), float(site[1]), ground),
-                           start_altitude=float(t["start_altitude"]),
-                           end_altitude=float(t["end_altitude"]), duration=duration,
-                           ground_track=t.get("ground_track", (0.0, 0.0)),
-                           look=t.get("look", "site"), height_at=scene.height_at)
+                           start_altitude=float(t.start_altitude),
+                           end_altitude=float(t.end_altitude), duration=duration,
+                           ground_track=t.ground_track, look=t.look, height_at=scene.height_at)
         if kind == "approach":
             s = self.scene
+            # required of an approach by TrajectorySpec.from_mapping
+            assert t.start_distance is not None and t.end_distance is not None
             reach = getattr(scene, "radius", None)
-            closest = min(float(t["start_distance"]), float(t["end_distance"]))
+            closest = min(float(t.start_distance), float(t.end_distance))
             if reach is not None and closest <= reach:
                 raise InvalidParameterError(
                     f"the approach comes to {closest:g} m from the body's centre, inside the "
                     f"body (it reaches {reach:.6g} m); end the approach further out")
-            return approach(frames, start_distance=float(t["start_distance"]),
-                            end_distance=float(t["end_distance"]), duration=duration,
-                            direction=t.get("direction", (1.0, 0.0, 0.0)),
-                            spin_axis=s.get("spin_axis", (0.0, 0.0, 1.0)),
-                            spin_period=float(s.get("spin_period", 0.0)),
-                            spin_phase_deg=float(s.get("spin_phase", 0.0)))
+            return approach(frames, start_distance=float(t.start_distance),
+                            end_distance=float(t.end_distance), duration=duration,
+                            direction=t.direction, spin_axis=s.spin_axis,
+                            spin_period=float(s.spin_period),
+                            spin_phase_deg=float(s.spin_phase))
         raise InvalidParameterError(f"unknown trajectory type {kind!r}")
 
 
@@ -246,9 +455,8 @@ def load_scenario(path) -> Scenario:
 
     path = Path(path)
     scenario = parse_scenario(read_toml(path, "scenario"), path)
-    for key in ("stack", "body"):  # what the scenario reads is an input of the command too
-        if key in scenario.scene:
-            protect(scenario.resolve(scenario.scene[key]))
+    for item in scenario.scene.inputs():  # what the scenario reads is an input too
+        protect(scenario.resolve(item))
     return scenario
 
 
@@ -270,32 +478,7 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
         seed = check_seed(data.get("seed", 0))
     except ValueError as exc:
         raise InvalidParameterError(f"scenario seed: {exc}") from None
-    scene = _section(data, "scene", {"type", "stack", "curvature", "radius", "body",
-                                     "boulders", "spin_axis", "spin_period", "spin_phase",
-                                     "imposter_pixels"})
-    if scene.get("type") not in ("terrain", "asteroid"):
-        raise InvalidParameterError(
-            f"scenario [scene] type must be 'terrain' or 'asteroid'; got {scene.get('type')!r}")
-    if scene["type"] == "terrain" and "stack" not in scene:
-        raise InvalidParameterError("scenario [scene] needs 'stack' (a layer-stack folder)")
-    if scene["type"] == "asteroid" and "body" not in scene:
-        raise InvalidParameterError("scenario [scene] needs 'body' (an asteroid .npz)")
-    for key in ("stack", "body"):
-        if key in scene:
-            _text(scene, key, "", "scene")
-    for key in ("curvature", "boulders"):
-        if key in scene:
-            _bool(scene, key, True, "scene")
-    for key in ("spin_period", "spin_phase"):
-        if key in scene:
-            _number(scene, key, 0.0, "scene")
-    if "radius" in scene:
-        _number(scene, "radius", 1.0, "scene", positive=True)
-    if "imposter_pixels" in scene:
-        _number(scene, "imposter_pixels", 24.0, "scene", positive=True)
-    if "spin_axis" in scene:
-        _vector(scene, "spin_axis", 3, "scene")
-
+    scene = SceneSpec.from_mapping(data.get("scene", {}))
     sun = _section(data, "sun", {"azimuth", "elevation", "direction", "distance", "irradiance"})
     surface = _section(data, "surface", {"albedo", "reflectance", "mcewen", "albedo_map"}
                        | _HAPKE_KEYS)
@@ -314,7 +497,7 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
         if key in sun:
             extra[key] = _number(sun, key, None, "sun", positive=True)
     if "albedo_map" in surface:
-        scene = dict(scene, albedo_map=_text(surface, "albedo_map", "", "surface"))
+        scene = replace(scene, albedo_map=_text(surface, "albedo_map", "", "surface"))
     if "direction" in sun:
         lighting = Lighting(_vector(sun, "direction", 3, "sun"), albedo, brdf, **extra)
     else:
@@ -349,62 +532,20 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
               "motion": Motion.from_mapping(mot)}
     ren = _section(data, "render", {"shadows", "shadow_size", "lod_pixels", "triangle_budget",
                                     "geomorph"})
-    options = RenderOptions(shadows=_bool(ren, "shadows", True, "render"),
-                            shadow_size=_int(ren, "shadow_size", 2048, "render", 1,
-                                             MAX_IMAGE_SIDE),
-                            lod_pixels=_number(ren, "lod_pixels", 1.5, "render", True),
-                            triangle_budget=_int(ren, "triangle_budget", 3_000_000, "render",
-                                                 1),
-                            geomorph=_bool(ren, "geomorph", True, "render"))
+    defaults = RenderOptions()  # the one place render defaults live
+    options = RenderOptions(shadows=_bool(ren, "shadows", defaults.shadows, "render"),
+                            shadow_size=_int(ren, "shadow_size", defaults.shadow_size, "render",
+                                             1, MAX_IMAGE_SIDE),
+                            lod_pixels=_number(ren, "lod_pixels", defaults.lod_pixels, "render",
+                                               True),
+                            triangle_budget=_int(ren, "triangle_budget",
+                                                 defaults.triangle_budget, "render", 1),
+                            geomorph=_bool(ren, "geomorph", defaults.geomorph, "render"))
     out = _section(data, "output", {"range", "normals", "radiance"})
     outputs = {"range": _bool(out, "range", True, "output"),
                "normals": _bool(out, "normals", True, "output"),
                "radiance": _bool(out, "radiance", False, "output")}
 
-    traj = _section(data, "trajectory", {"type", "frames", "duration", "start_altitude",
-                                         "end_altitude", "ground_track", "look", "site",
-                                         "keyframe", "start_distance", "end_distance",
-                                         "direction"})
-    kind = traj.get("type")
-    if kind not in ("descent", "keyframes", "approach"):
-        raise InvalidParameterError(
-            f"scenario [trajectory] type must be 'descent', 'keyframes' or 'approach'; got "
-            f"{kind!r}")
-    frames = traj.get("frames", 1)
-    if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
-        raise InvalidParameterError(
-            f"scenario [trajectory] frames must be a positive integer; got {frames!r}")
-    if "duration" in traj:
-        _number(traj, "duration", 0.0, "trajectory")
-    if "look" in traj and _text(traj, "look", "site", "trajectory") not in ("site", "nadir"):
-        raise InvalidParameterError(
-            f"scenario trajectory.look must be 'site' or 'nadir'; got {traj['look']!r}")
-    if "site" in traj:
-        _vector(traj, "site", 2, "trajectory")
-    if "direction" in traj:
-        _vector(traj, "direction", 3, "trajectory")
-    if kind == "descent":
-        for key in ("start_altitude", "end_altitude"):
-            _number(traj, key, None, "trajectory", positive=True)
-    if kind == "approach":
-        for key in ("start_distance", "end_distance"):
-            _number(traj, key, None, "trajectory", positive=True)
-    if "keyframe" in traj and (not isinstance(traj["keyframe"], list) or not all(
-            isinstance(k, dict) for k in traj["keyframe"])):
-        raise InvalidParameterError("scenario trajectory.keyframe must be [[trajectory.keyframe]] "
-                                    "tables")
-    for n, key in enumerate(traj.get("keyframe", []), start=1):
-        where = f"trajectory.keyframe #{n}"
-        _section({"keyframe": key}, "keyframe", {"time", "position", "attitude", "look_at"})
-        _number(key, "time", None, where)
-        _vector(key, "position", 3, where)
-        if "attitude" in key:
-            _vector(key, "attitude", 4, where)
-        if "look_at" in key:
-            _vector(key, "look_at", 3, where)
-    if kind == "keyframes" and not traj.get("keyframe"):
-        raise InvalidParameterError("scenario keyframe trajectory needs [[trajectory.keyframe]]")
-    if "ground_track" in traj:
-        _vector(traj, "ground_track", 2, "trajectory")
+    trajectory = TrajectorySpec.from_mapping(data.get("trajectory", {}))
     return Scenario(name, path, seed, scene, lighting, intrinsics, sensor, options, outputs,
-                    dict(traj), data, motion)
+                    trajectory, data, motion)

@@ -10,12 +10,136 @@ millimetres across hundreds of kilometres.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import numpy as np
 
-__all__ = ["DrawBatch", "FrameState", "Morph", "ShadowMap", "frustum_visible", "light_basis",
-           "ortho_light"]
+__all__ = ["DrawBatch", "FrameState", "Morph", "Scene", "ShadowMap", "body_shadow_map",
+           "far_plane", "frustum_visible", "light_basis", "ortho_light"]
+
+
+#: Shadow-map biases, in texels of the map (``texel`` = map extent / map size, metres). A
+#: receiver is looked up ``NORMAL_OFFSET_TEXELS`` texels along its normal, so a surface
+#: lit at a grazing sun does not shadow itself through the map's stair steps ("acne"); the
+#: depth comparison then allows a constant ``BIAS_TEXELS`` (one texel's depth
+#: quantisation and rasterisation difference, plus margin) and ``SLOPE_BIAS_TEXELS`` times
+#: the tangent of the sun's incidence (a sloped receiver's depth changes across a texel).
+#: Bodies (asteroids, meshes) are drawn into the map with the same mesh as the camera sees.
+NORMAL_OFFSET_TEXELS = 1.0
+BODY_BIAS_TEXELS = 1.5
+BODY_SLOPE_BIAS_TEXELS = 1.0
+#: Terrain biases are wider: its shadow map is drawn from coarser levels of detail than
+#: the camera's view, so the map's surface can lie up to a coarse cell above the fine one.
+TERRAIN_BIAS_TEXELS = 2.0
+TERRAIN_SLOPE_BIAS_TEXELS = 1.5
+#: A body's shadow map covers its bounding cube grown by this fraction of its radius, so
+#: the limb's texels are not clamped at the map's edge.
+BODY_SHADOW_MARGIN = 0.01
+#: Far clip plane: the farthest point of the scene times ``FAR_FACTOR`` plus ``FAR_SLACK_M``
+#: metres, so the farthest geometry is never clipped by rounding of the log depth.
+FAR_FACTOR = 1.01
+FAR_SLACK_M = 1.0
+#: Smallest distance (m) a level-of-detail choice divides by: the camera touching a bounding
+#: box still gives a finite on-screen size.
+MIN_LOD_DISTANCE_M = 1e-3
+
+
+def far_plane(farthest: float) -> float:
+    """The far clip distance for a scene whose farthest point is ``farthest`` metres away.
+
+    Parameters
+    ----------
+    farthest : float
+        Distance of the farthest point, metres.
+
+    Returns
+    -------
+    float
+        ``farthest * FAR_FACTOR + FAR_SLACK_M``.
+    """
+    return farthest * FAR_FACTOR + FAR_SLACK_M
+
+
+def body_shadow_map(renderer: Any, current: ShadowMap | None, size: int, sun: Any,
+                    radius: float, casters: Callable[[float], list]) -> ShadowMap:
+    """Render a body's shadow map from the sun (the one setup asteroid and mesh scenes share).
+
+    Parameters
+    ----------
+    renderer : render.renderer.Renderer
+        Gives the depth target and runs the depth pass.
+    current : ShadowMap or None
+        The scene's map of an earlier frame: reused when its size matches, released when not.
+    size : int
+        Map side, texels.
+    sun : (3,) float
+        Unit vector towards the sun, world frame.
+    radius : float
+        Bounding radius of the body (m): the map covers its bounding cube.
+    casters : callable
+        ``casters(extent)``: what casts shadows (a list of :class:`DrawBatch` with depth
+        vertex arrays), given the map's extent in metres (a scene may pick the level of
+        detail the map's texels resolve).
+
+    Returns
+    -------
+    ShadowMap
+        ``current`` updated in place, or a new map.
+    """
+    if current is None or current.size != size:
+        if current is not None:
+            current.release()
+        tex, fbo = renderer.shadow_target(size)
+        current = ShadowMap(tex, size, np.eye(4), 0.0, 0.0, 0.0, framebuffer=fbo)
+    r = radius
+    pts = np.array([[sx * r, sy * r, sz * r] for sx in (-1, 1) for sy in (-1, 1)
+                    for sz in (-1, 1)])
+    clip, light, extent, depth, _ = ortho_light(sun, pts, pts, margin=BODY_SHADOW_MARGIN * r)
+    renderer.render_depth(current.framebuffer, size, clip, casters(extent))
+    texel = extent / size
+    current.light_from_world = light
+    current.normal_offset = NORMAL_OFFSET_TEXELS * texel
+    current.bias = BODY_BIAS_TEXELS * texel / depth
+    current.slope_bias = BODY_SLOPE_BIAS_TEXELS * texel / depth
+    current.texel_m = texel
+    current.depth_range_m = depth
+    return current
+
+
+class Scene(Protocol):
+    """What the renderer and the frame loop need from a scene.
+
+    A new kind of scene is a new class with these members, not a new ``hasattr`` branch in
+    the renderer or :mod:`render.sequence` (:class:`render.terrain_scene.TerrainScene`,
+    :class:`render.asteroid_scene.AsteroidScene`, :class:`render.mesh_scene.MeshScene`).
+
+    Attributes
+    ----------
+    kind : str
+        ``"terrain"``, ``"asteroid"`` or ``"mesh"``.
+    origin : (3,) float64, metres
+        World point subtracted before anything reaches the GPU.
+    """
+
+    kind: str
+    origin: np.ndarray
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """World-frame bounding box (lo, hi), each ``(3,) float64, metres``."""
+        ...
+
+    def set_body_rotation(self, quaternion: Any) -> None:
+        """The body's rotation R_WB (quaternion [w, x, y, z]) for the next frame.
+
+        Scenes that do not rotate (a terrain map) ignore it.
+        """
+        ...
+
+    def frame_state(self, view: Any, lighting: Any, options: Any, renderer: Any) -> FrameState:
+        """What to draw for one frame: batches, shadow maps and per-frame facts."""
+        ...
 
 
 @dataclass(eq=False)
@@ -101,7 +225,7 @@ class FrameState:
     batches: list
     far: float
     drawn: dict = field(default_factory=dict)
-    post: object = None
+    post: Callable[..., None] | None = None
     albedo: tuple | None = None
 
 

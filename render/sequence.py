@@ -19,6 +19,7 @@ from render.renderer import Renderer, View
 from render.rundir import FrameTruth, RunWriter
 from render.scenario import Scenario
 from terrain.errors import InvalidParameterError
+from terrain.progress import Progress
 
 __all__ = ["check_frame_memory", "frame_motion", "load_scene", "render_sample", "run_sequence"]
 
@@ -42,20 +43,16 @@ def check_frame_memory(scenario: Scenario) -> None:
 def load_scene(scenario: Scenario):
     """The scene a scenario names (a terrain layer stack or an asteroid body)."""
     spec = scenario.scene
-    if spec["type"] == "terrain":
+    albedo = None if spec.albedo_map is None else scenario.resolve(spec.albedo_map)
+    if spec.type == "terrain":
         from render.terrain_scene import TerrainScene
 
-        stack = scenario.resolve(spec["stack"])
-        albedo = spec.get("albedo_map")
-        return TerrainScene(stack, curvature=bool(spec.get("curvature", True)),
-                            radius=spec.get("radius"),
-                            albedo_map=None if albedo is None else scenario.resolve(albedo))
+        return TerrainScene(scenario.resolve(spec.stack), curvature=spec.curvature,
+                            radius=spec.radius, albedo_map=albedo)
     from render.asteroid_scene import AsteroidScene
 
-    albedo = spec.get("albedo_map")
-    return AsteroidScene(scenario.resolve(spec["body"]), boulders=bool(spec.get("boulders", True)),
-                         imposter_pixels=float(spec.get("imposter_pixels", 24.0)),
-                         albedo=None if albedo is None else scenario.resolve(albedo))
+    return AsteroidScene(scenario.resolve(spec.body), boulders=spec.boulders,
+                         imposter_pixels=spec.imposter_pixels, albedo=albedo)
 
 
 def frame_motion(scenario: Scenario, samples, index: int):
@@ -87,8 +84,7 @@ def render_sample(renderer: Renderer, scene, scenario: Scenario, sample, index: 
     sensor, lighting = scenario.sensor, scenario.lighting
     moving = None
     if motion is None and not sensor.rolling:
-        if hasattr(scene, "set_body_rotation"):
-            scene.set_body_rotation(sample.body_rotation)
+        scene.set_body_rotation(sample.body_rotation)
         frame = renderer.render(scene, view, lighting, scenario.options)
     else:
         motion = motion or Motion()
@@ -104,7 +100,8 @@ def render_sample(renderer: Renderer, scene, scenario: Scenario, sample, index: 
     return image, frame, truth
 
 
-def run_sequence(scenario: Scenario, run_dir, *, resume: bool = False, progress=None) -> dict:
+def run_sequence(scenario: Scenario, run_dir, *, resume: bool = False,
+                 progress: Progress | None = None) -> dict:
     """Render every frame of ``scenario`` into ``run_dir`` (see :mod:`render.rundir`)."""
     run_dir = Path(run_dir)
     check_frame_memory(scenario)
@@ -114,7 +111,7 @@ def run_sequence(scenario: Scenario, run_dir, *, resume: bool = False, progress=
     samples = scenario.samples(scene)
     if not samples:
         raise InvalidParameterError("the scenario's trajectory has no frames")
-    manifest = dict(scenario=scenario.name, scene=scenario.scene["type"], frames=len(samples),
+    manifest = dict(scenario=scenario.name, scene=scenario.scene.type, frames=len(samples),
                     resolution=[scenario.intrinsics.width, scenario.intrinsics.height],
                     seed=scenario.seed, sensor=scenario.sensor.as_dict(),
                     lighting=dict(sun=list(scenario.lighting.sun),
@@ -140,7 +137,8 @@ def run_sequence(scenario: Scenario, run_dir, *, resume: bool = False, progress=
                            if scenario.outputs.get("radiance") else None)
         rendered += 1
         if progress is not None:
-            progress(i + 1, len(samples), rendered / max(time.perf_counter() - t0, 1e-9))
+            progress(i + 1, len(samples),
+                     f"{rendered / max(time.perf_counter() - t0, 1e-9):.2f} frame/s")
     elapsed = time.perf_counter() - t0
     writer.finish(render_seconds=elapsed, frames_rendered_this_run=rendered)
     log.info("rendered %d frames in %.1f s", rendered, elapsed)

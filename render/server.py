@@ -613,8 +613,7 @@ class RenderServer:
         s = self.scenario.scene
         if self.scene.kind != "asteroid":
             return np.array([1.0, 0.0, 0.0, 0.0])
-        return spin_rotation(t, s.get("spin_axis", (0.0, 0.0, 1.0)),
-                             float(s.get("spin_period", 0.0)), float(s.get("spin_phase", 0.0)))
+        return spin_rotation(t, s.spin_axis, float(s.spin_period), float(s.spin_phase))
 
     # ------------------------------------------------------------------ surface queries
     def cast(self, origin, direction, t: float, lighting: Lighting) -> tuple:

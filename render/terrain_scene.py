@@ -75,16 +75,22 @@ from pathlib import Path
 import numpy as np
 
 from render.scene import (
+    MIN_LOD_DISTANCE_M,
+    NORMAL_OFFSET_TEXELS,
+    TERRAIN_BIAS_TEXELS,
+    TERRAIN_SLOPE_BIAS_TEXELS,
     DrawBatch,
     FrameState,
     Morph,
     ShadowMap,
     box_corners,
     box_distance,
+    far_plane,
     frustum_visible,
     light_basis,
     ortho_light,
 )
+from terrain import metakeys as mk
 from terrain.errors import InvalidParameterError
 
 __all__ = ["BLOCK", "FADE_PARENT_PIXELS", "MOON_RADIUS", "MORPH_BAND", "SKIRT_PIXELS",
@@ -176,7 +182,7 @@ class TerrainScene:
         self.curvature = bool(curvature)
         if radius is None:
             meta = stack.tiles[0].metadata
-            radius = float(meta.get("CRATERSCAPE_DATUM_RADIUS", MOON_RADIUS))
+            radius = float(meta.get(mk.DATUM_RADIUS, MOON_RADIUS))
         if not radius > 0:
             raise InvalidParameterError(f"body radius must be positive; got {radius}")
         self.radius = float(radius)
@@ -231,6 +237,15 @@ class TerrainScene:
                      + (h[i1, j0] * (1 - tj) + h[i1, j1] * tj) * ti)
                 return float(self.to_world([[x, y, z]])[0, 2])
         raise InvalidParameterError(f"point {x:.6g},{y:.6g} lies outside the terrain")
+
+    def set_body_rotation(self, quaternion) -> None:
+        """Ignored: a terrain map is drawn in the world frame and does not rotate.
+
+        Parameters
+        ----------
+        quaternion : (4,) float
+            R_WB as [w, x, y, z] (the :class:`render.scene.Scene` interface).
+        """
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """World-frame bounding box of the whole scene."""
@@ -427,7 +442,7 @@ class TerrainScene:
             corners = box_corners(layer.lo, layer.hi)
             vis = frustum_visible(corners, rot, cam, k) & ~layer.covered
             visible.append(vis)
-            dist.append(np.maximum(box_distance(layer.lo, layer.hi, cam), 1e-3))
+            dist.append(np.maximum(box_distance(layer.lo, layer.hi, cam), MIN_LOD_DISTANCE_M))
         plan, total = self._plan(visible, dist, focal, target)
         if total > options.triangle_budget:
             # the smallest target that fits the budget (module docstring): bracket, bisect
@@ -484,8 +499,8 @@ class TerrainScene:
                                  "blocks": int(blocks.size), "triangles": tris,
                                  "lod": sorted({int(s) for s in lods})})
         lo, hi = self.bounds()
-        far = float(np.max(np.linalg.norm(box_corners(lo - self.origin, hi - self.origin)[0]
-                                          - cam, axis=1))) * 1.01 + 1.0
+        far = far_plane(float(np.max(np.linalg.norm(
+            box_corners(lo - self.origin, hi - self.origin)[0] - cam, axis=1))))
         drawn = {"layers": drawn_layers, "triangles": sum(d["triangles"] for d in drawn_layers),
                  "lod_pixels": target, "geomorph": bool(options.geomorph)}
         return FrameState(batches, far, drawn, albedo=self._albedo(renderer.ctx))
@@ -547,8 +562,9 @@ class TerrainScene:
             tex, fbo = renderer.shadow_target(size)
             batches = self._depth_batches(renderer, texel, basis, window)
             renderer.render_depth(fbo, size, clip, batches)
-            maps.append(ShadowMap(tex, size, light, normal_offset=1.0 * texel,
-                                  bias=2.0 * texel / depth, slope_bias=1.5 * texel / depth,
+            maps.append(ShadowMap(tex, size, light, normal_offset=NORMAL_OFFSET_TEXELS * texel,
+                                  bias=TERRAIN_BIAS_TEXELS * texel / depth,
+                                  slope_bias=TERRAIN_SLOPE_BIAS_TEXELS * texel / depth,
                                   texel_m=texel, depth_range_m=depth, framebuffer=fbo))
         self._shadow_cache[key] = maps
         return maps

@@ -53,6 +53,7 @@ from typing import TYPE_CHECKING, Protocol, TypeVar
 import numpy as np
 from affine import Affine
 
+from terrain import metakeys as mk
 from terrain.catalog import CATALOG_COLUMNS
 from terrain.errors import (
     GapTooLargeError,
@@ -60,6 +61,7 @@ from terrain.errors import (
     InvalidParameterError,
     OutputPathError,
 )
+from terrain.progress import Progress
 from terrain.tile import Window, default_transform
 from terrain.zarrstore import ZarrDEM, is_zarr
 
@@ -216,12 +218,12 @@ class SynthSource:
 
         params = dict(size=self.size, resolution=float(self.resolution),
                       fractal_dimension=float(self.fractal_dimension), relief=float(self.relief))
-        meta = {"CRATERSCAPE_SEED": str(self.seed),
-                "CRATERSCAPE_RMD": json.dumps(params, sort_keys=True)}
+        meta = {mk.SEED: str(self.seed),
+                mk.RMD: json.dumps(params, sort_keys=True)}
         if self.craters is not None:
-            meta["CRATERSCAPE_CRATERS"] = json.dumps(describe_craters(self.craters),
+            meta[mk.CRATERS] = json.dumps(describe_craters(self.craters),
                                                      sort_keys=True)
-            meta["CRATERSCAPE_CRATER_MODEL"] = json.dumps(_filled(self.model).as_dict(),
+            meta[mk.CRATER_MODEL] = json.dumps(_filled(self.model).as_dict(),
                                                          sort_keys=True)
         return meta
 
@@ -290,10 +292,10 @@ class CraterSource:
         from terrain.cratering import describe_craters
 
         meta = dict(self.reader.metadata)
-        meta["CRATERSCAPE_SEED"] = str(self.seed)
-        meta["CRATERSCAPE_CRATER_MODEL"] = json.dumps(_filled(self.model).as_dict(),
+        meta[mk.SEED] = str(self.seed)
+        meta[mk.CRATER_MODEL] = json.dumps(_filled(self.model).as_dict(),
                                                          sort_keys=True)
-        meta["CRATERSCAPE_CRATERS"] = json.dumps(describe_craters(self.craters), sort_keys=True)
+        meta[mk.CRATERS] = json.dumps(describe_craters(self.craters), sort_keys=True)
         return meta
 
     def plan(self) -> dict:
@@ -450,8 +452,8 @@ class ExpandSource:
     def metadata(self) -> dict:
         """The output's metadata tags (the input's, with the expansion's seed and parameters)."""
         meta = dict(self.reader.metadata)
-        meta["CRATERSCAPE_SEED"] = str(self.seed)
-        meta["CRATERSCAPE_EXPANSION"] = json.dumps(dict(_filled(self.params).as_dict(),
+        meta[mk.SEED] = str(self.seed)
+        meta[mk.EXPANSION] = json.dumps(dict(_filled(self.params).as_dict(),
                                                         times=self.times), sort_keys=True)
         return meta
 
@@ -566,8 +568,8 @@ class FillSource:
     def metadata(self) -> dict:
         """The output's metadata tags (the input's, with the fill's seed and parameters)."""
         meta = dict(self.reader.metadata)
-        meta["CRATERSCAPE_SEED"] = str(self.seed)
-        meta["CRATERSCAPE_FILL"] = json.dumps(dict(chunked=True, halo=self.halo,
+        meta[mk.SEED] = str(self.seed)
+        meta[mk.FILL] = json.dumps(dict(chunked=True, halo=self.halo,
                                                    roughness=self.roughness), sort_keys=True)
         return meta
 
@@ -761,7 +763,14 @@ def _open_store(source, path: Path, chunk: int, metadata=None) -> ZarrDEM:
                           metadata=dict(source.metadata, **(metadata or {})), plan=plan)
 
 
-def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None, progress=None,
+def _rate(pixels: int, t0: float) -> str:
+    """Throughput since ``t0`` (a :func:`time.perf_counter` reading), as progress text."""
+    seconds = time.perf_counter() - t0
+    return f"{pixels / seconds / 1e6:.3g} Mpixel/s" if seconds > 0 else ""
+
+
+def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None,
+        progress: Progress | None = None,
         metadata=None) -> RunReport:
     """Compute ``source`` chunk by chunk into the Zarr store ``output``, or resume it.
 
@@ -776,7 +785,8 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None, progress=Non
     client : dask.distributed.Client, optional
         Cluster to run on; without one, chunks run one after another in this process.
     progress : callable, optional
-        ``progress(done, total, pixels, seconds)`` after every chunk.
+        ``progress(done, total, rate)`` after every chunk (:class:`terrain.progress.Progress`;
+        the rate in Mpixel/s as text).
     metadata : dict, optional
         Provenance tags added to the source's (command, version).
 
@@ -808,7 +818,7 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None, progress=Non
     done = len(done_before)
     total = ny * nx
     if progress is not None:
-        progress(done, total, 0, 0.0)
+        progress(done, total, "")
     if client is None:
         for i, j in todo:
             (value,) = dask.compute(delayed[i, j], scheduler="synchronous")
@@ -816,7 +826,7 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None, progress=Non
             busy += float(value[0, 1])
             done += 1
             if progress is not None:
-                progress(done, total, pixels, time.perf_counter() - t0)
+                progress(done, total, _rate(pixels, t0))
     else:
         from dask.distributed import as_completed
 
@@ -828,7 +838,7 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None, progress=Non
                 busy += float(value[0, 1])
                 done += 1
                 if progress is not None:
-                    progress(done, total, pixels, time.perf_counter() - t0)
+                    progress(done, total, _rate(pixels, t0))
         finally:
             pending = [f for f in futures if not f.done()]
             if pending:

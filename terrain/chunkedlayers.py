@@ -43,6 +43,7 @@ import numba
 import numpy as np
 
 from terrain import memory
+from terrain import metakeys as mk
 from terrain.chunked import _filled
 from terrain.errors import InvalidDEMError, InvalidParameterError
 from terrain.layers import WORK
@@ -425,7 +426,7 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
     client : dask.distributed.Client, optional
         Cluster to run on; None runs the chunks in this process.
     progress : callable, optional
-        ``progress(stage)`` returns the ``progress(done, total, pixels, seconds)`` of
+        ``progress(stage)`` returns the ``progress(done, total, rate)`` of
         :func:`terrain.chunked.run` for one stage (e.g. ``"e1"``, ``"c1"``).
     halo : int
         Halo of the base's gap filling (:class:`terrain.chunked.FillSource`).
@@ -562,7 +563,7 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
             source = AgreeSource(cratered[k], finals[k + 1] if k < levels else None,
                                  windows[k + 1] if k < levels else None, meta)
             finals[k] = _stage(f"f{k}", source, work, **common,
-                               metadata=dict(meta, CRATERSCAPE_LAYER=str(k)))
+                               metadata={**meta, mk.LAYER: str(k)})
 
         # commit: layer files, catalogues, then the manifest
         from terrain.layers import (
@@ -572,6 +573,7 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
             READERS_LOCK,
             ROCK_CATALOG,
             LayerStack,
+            _layers,
             _manifest,
             _merge_catalogs,
         )
@@ -585,7 +587,7 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
                 name = f"layer_{k:02d}.tif"
                 tile = read_dem(store.path)
                 meta = dict(tile.metadata)
-                meta.pop("CRATERSCAPE_SOURCE", None)
+                meta.pop(mk.SOURCE, None)
                 write_dem(tile.replace(metadata=meta), outdir / name)
             else:
                 name = f"layer_{k:02d}.zarr"
@@ -608,7 +610,7 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
                     population=population.as_dict() if population else None,
                     crater_model=model.as_dict(), chunked=dict(chunk=chunk, halo=halo))
         layers = [_Layer(sh, tr, reader.crs) for sh, tr in zip(shapes, transforms, strict=True)]
-        stack = LayerStack(layers, windows, origins, catalog, info, rock_catalog)
+        stack = LayerStack(_layers(layers, windows, origins), catalog, info, rock_catalog)
         from terrain.catalog import write_catalog
 
         with atomic_path(outdir / CATALOG) as tmp:
@@ -658,9 +660,9 @@ def _layer_metadata(reader, k: int, table, seed: int, model) -> dict:
 
     meta = {str(a): str(b) for a, b in reader.metadata.items()} if k == 0 else {}
     if table is not None:
-        meta.update(CRATERSCAPE_SEED=str(seed),
-                    CRATERSCAPE_CRATER_MODEL=json.dumps(model.as_dict(), sort_keys=True),
-                    CRATERSCAPE_CRATERS=json.dumps(describe_craters(table), sort_keys=True))
+        meta.update({mk.SEED: str(seed),
+                     mk.CRATER_MODEL: json.dumps(model.as_dict(), sort_keys=True),
+                     mk.CRATERS: json.dumps(describe_craters(table), sort_keys=True)})
     return meta
 
 

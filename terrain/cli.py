@@ -20,6 +20,8 @@ from pathlib import Path
 
 import click
 
+from terrain import metakeys as mk
+from terrain.clitools import FINITE, PAIR, WINDOW, progress_bar, version, version_option
 from terrain.errors import CraterscapeError, InvalidParameterError
 from terrain.outputs import (
     cannot_write,
@@ -37,8 +39,6 @@ ENTRY_POINT_GROUP = "craterscape.groups"
 EXIT_BAD_INPUT = 2
 #: Exit code after SIGTERM (128 + 15, as a shell reports it).
 EXIT_TERMINATED = 143
-#: Most 2x expansions of a layer stack (1 km to below a millimetre).
-MAX_LEVELS = 30
 #: Largest tile relief (m): ten times Olympus Mons, far inside float32 heights.
 MAX_RELIEF = 2.0e5
 #: Largest crater add-crater takes, in DEM diagonals (its rim still reaches the DEM).
@@ -58,26 +58,6 @@ class Terminated(BaseException):
 
 def _on_sigterm(signum, frame):
     raise Terminated()
-
-
-class _FiniteFloat(click.ParamType):
-    """A float that is a number: NaN and infinity are refused with the option's name."""
-
-    name = "float"
-
-    def convert(self, value, param, ctx):
-        if isinstance(value, float) and math.isfinite(value):
-            return value
-        try:
-            number = float(value)
-        except (TypeError, ValueError):
-            self.fail(f"{value!r} is not a number", param, ctx)
-        if not math.isfinite(number):
-            self.fail(f"must be a finite number; got {value!r}", param, ctx)
-        return number
-
-
-FINITE = _FiniteFloat()
 
 
 def _harden(command):
@@ -194,7 +174,7 @@ def _fail(ctx, exc, code):
 @click.group(cls=_Root, context_settings={"help_option_names": ["-h", "--help"]})
 @click.option("-v", "--verbose", count=True, help="More log output; tracebacks on errors.")
 @click.option("-q", "--quiet", count=True, help="Less log output.")
-@click.version_option(package_name="craterscape")
+@version_option
 @click.pass_context
 def main(ctx, verbose, quiet):
     """craterscape: virtual planets for testing spacecraft landers."""
@@ -208,41 +188,6 @@ def main(ctx, verbose, quiet):
 # --------------------------------------------------------------------------------------
 # shared option helpers
 
-
-class _WindowType(click.ParamType):
-    name = "COL,ROW,WIDTH,HEIGHT"
-
-    def convert(self, value, param, ctx):
-        from terrain.tile import Window
-
-        if value is None or isinstance(value, Window):
-            return value
-        try:
-            return Window.parse(value)
-        except InvalidParameterError as exc:
-            self.fail(str(exc), param, ctx)
-
-
-class _PairType(click.ParamType):
-    name = "X,Y"
-
-    def convert(self, value, param, ctx):
-        if isinstance(value, tuple):
-            return value
-        parts = str(value).split(",")
-        try:
-            if len(parts) != 2:
-                raise ValueError
-            pair = float(parts[0]), float(parts[1])
-        except ValueError:
-            self.fail(f"expected two numbers X,Y; got {value!r}", param, ctx)
-        if not all(math.isfinite(v) for v in pair):
-            self.fail(f"expected two finite numbers X,Y; got {value!r}", param, ctx)
-        return pair
-
-
-WINDOW = _WindowType()
-PAIR = _PairType()
 
 _output_option = click.option(
     "-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
@@ -353,30 +298,14 @@ def _population(population_file, *, dmin, dmax, density, sfd_exponent, max_age, 
     return pop
 
 
-def _progress(label):
-    """A tqdm bar on a terminal, nothing in pipes and tests."""
-    from tqdm import tqdm
-
-    if not sys.stderr.isatty():
-        return None, lambda: None
-    bar = tqdm(total=None, desc=label, unit="class", leave=False)
-
-    def update(done, total):
-        bar.total = total
-        bar.n = done
-        bar.refresh()
-
-    return update, bar.close
-
-
 def _write_outputs(result, output, catalog, inputs, command, params):
     """The DEM and its catalogue, committed together (:func:`terrain.outputs.transaction`)."""
     from terrain.catalog import write_catalog
     from terrain.io import atomic_path, write_dem
 
-    tile = result.tile.with_metadata(CRATERSCAPE_COMMAND=command,
-                                     CRATERSCAPE_PARAMETERS=params,
-                                     CRATERSCAPE_VERSION=_version())
+    tile = result.tile.with_metadata(**{mk.COMMAND: command,
+                                     mk.PARAMETERS: params,
+                                     mk.VERSION: version()})
     with transaction(folders={Path(output).parent}):
         write_dem(tile, output, inputs=inputs)
         if catalog is not None:
@@ -387,15 +316,6 @@ def _write_outputs(result, output, catalog, inputs, command, params):
                    err=True)
     else:
         click.echo(f"wrote {output}", err=True)
-
-
-def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("craterscape")
-    except PackageNotFoundError:  # pragma: no cover - running from a bare checkout
-        return "unknown"
 
 
 def _check_outputs(output, catalog, inputs):
@@ -447,24 +367,6 @@ def _chunked_requested(output, workers, scheduler, chunk, cog, window=None) -> b
     return True
 
 
-def _chunk_progress(label):
-    """A tqdm bar of chunks done out of total and throughput, on a terminal only."""
-    from tqdm import tqdm
-
-    if not sys.stderr.isatty():
-        return None, lambda: None
-    bar = tqdm(total=None, desc=label, unit="chunk", leave=False)
-
-    def update(done, total, pixels, seconds):
-        bar.total = total
-        bar.n = done
-        if seconds > 0:
-            bar.set_postfix_str(f"{pixels / seconds / 1e6:.3g} Mpixel/s", refresh=False)
-        bar.refresh()
-
-    return update, bar.close
-
-
 def _run_chunked(source, output, *, workers, threads, scheduler, chunk, cog, label,
                  catalog=None, inputs=()):
     from terrain.catalog import write_catalog
@@ -479,14 +381,11 @@ def _run_chunked(source, output, *, workers, threads, scheduler, chunk, cog, lab
         check_output_path(cog, [*inputs, output])
     if catalog is not None:
         check_output_path(catalog, [*inputs, output])
-    update, close = _chunk_progress(label)
-    try:
+    with progress_bar(label, "chunk") as update:
         with dask_client(workers, scheduler, processes=not threads) as client:
             report = run(source, output, chunk=chunk or DEFAULT_CHUNK, client=client,
-                         progress=update, metadata=dict(CRATERSCAPE_COMMAND=f"terrain {label}",
-                                                        CRATERSCAPE_VERSION=_version()))
-    finally:
-        close()
+                         progress=update, metadata={mk.COMMAND: f"terrain {label}",
+                                                        mk.VERSION: version()})
     rate = report.pixels_per_second
     click.echo(f"wrote {output} ({source.shape[1]}x{source.shape[0]}; {report.computed} of "
                f"{report.total} chunks computed, {report.skipped} already written"
@@ -576,14 +475,11 @@ def synth(output, size, resolution, fractal_dimension, relief, body, projection,
         _run_out_of_core(source, output, workers=workers, threads=threads, scheduler=scheduler,
                          chunk=chunk, label="synth", catalog=catalog)
         return
-    update, close = _progress("craters")
-    try:
+    with progress_bar("craters", "class") as update:
         result = synthesize_tile(size, resolution=resolution,
                                  fractal_dimension=fractal_dimension, relief=relief, seed=seed,
                                  craters=pop, model=model, window=window, progress=update,
                                  crs=crs)
-    finally:
-        close()
     params = dict(size=size, resolution=resolution, fractal_dimension=fractal_dimension,
                   relief=relief, seed=seed, population=pop.as_dict() if pop else None,
                   **({"body": body, "crs": projection or "south-polar"} if body else {}),
@@ -643,11 +539,8 @@ def craters(input_dem, output, seed, window, band, dmin, dmax, density, sfd_expo
                       sfd_exponent=sfd_exponent, max_age=max_age, resolution=tile.resolution,
                       extent=extent, required=True)
     model = _model(erosion_profile, erosion_exponent, no_roughness)
-    update, close = _progress("craters")
-    try:
+    with progress_bar("craters", "class") as update:
         result = add_craters(tile, pop, seed=seed, model=model, window=window, progress=update)
-    finally:
-        close()
     params = dict(input=str(input_dem), band=band, seed=seed, population=pop.as_dict(),
                   window=None if window is None else
                   [window.col, window.row, window.width, window.height])
@@ -777,13 +670,6 @@ def _out_of_core(input_dem, band, times) -> bool:
     return need > memory.available_bytes()
 
 
-def _expansion_params(tile, fractal_dimension, height_scale, uniform_roughness):
-    from terrain.roughness import LOCAL_BOX, ExpansionParameters
-
-    return ExpansionParameters.for_tile(tile, fractal_dimension, height_scale,
-                                        local_box=0 if uniform_roughness else LOCAL_BOX)
-
-
 _roughness_options = [
     click.option("--fractal-dimension", type=float, default=None,
                  help="F in [2, 3); measured from the input by default."),
@@ -845,20 +731,19 @@ def expand(input_dem, output, times, seed, fractal_dimension, height_scale, unif
                          inputs=[input_dem])
         return
 
+    from terrain.roughness import RoughnessChoice
+
     check_output_path(output, [input_dem])
     tile = read_dem(input_dem, band=band, exact=True)
     if window is not None:
         window.check_inside(*tile.shape)
-    params = _expansion_params(tile, fractal_dimension, height_scale, uniform_roughness)
-    bar, close = _progress("expand")
-    try:
+    params = RoughnessChoice(fractal_dimension, height_scale, uniform_roughness).for_tile(tile)
+    with progress_bar("expand", "level") as bar:
         out = run_expand(tile, times, seed=seed, params=params, window=window,
-                         progress=(lambda k, n: bar(k, n)) if bar else None)
-    finally:
-        close()
-    out = out.with_metadata(CRATERSCAPE_COMMAND="terrain expand", CRATERSCAPE_VERSION=_version(),
-                            CRATERSCAPE_PARAMETERS=dict(input=str(input_dem), times=times,
-                                                        seed=seed, **params.as_dict()))
+                         progress=bar)
+    out = out.with_metadata(**{mk.COMMAND: "terrain expand", mk.VERSION: version(),
+                            mk.PARAMETERS: dict(input=str(input_dem), times=times,
+                                                        seed=seed, **params.as_dict())})
     with transaction():
         write_dem(out, output, inputs=[input_dem])
     click.echo(f"wrote {output} ({out.shape[1]}x{out.shape[0]} at {out.resolution:.6g} m; "
@@ -887,7 +772,7 @@ _stack_dask_options = [
 @click.option("--site", type=PAIR, default=None, help="Landing site X,Y in map coordinates.")
 @click.option("--site-lonlat", type=PAIR, default=None,
               help="Landing site as LON,LAT (degrees) on the DEM's body.")
-@click.option("--levels", type=click.IntRange(0, MAX_LEVELS), default=None,
+@click.option("--levels", type=click.IntRange(0, None), default=None,
               help="Number of 2x expansions (layers = levels + 1).")
 @click.option("--finest-resolution", type=float, default=None,
               help="Expand until the finest layer is at most this many metres per pixel.")
@@ -918,11 +803,10 @@ def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, lay
     for memory are written as Zarr DEMs, the others as GeoTIFFs. Rerun an interrupted
     chunked build with the same command to resume it.
     """
-    import math
-
     from terrain.gapfill import despike as run_despike
     from terrain.io import lonlat_to_xy, read_dem
-    from terrain.layers import build_stack, write_stack
+    from terrain.layers import build_stack, levels_for_resolution, write_stack
+    from terrain.roughness import RoughnessChoice
 
     if (site is None) == (site_lonlat is None):
         raise InvalidParameterError("give exactly one of --site X,Y and --site-lonlat LON,LAT")
@@ -943,14 +827,7 @@ def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, lay
     if site_lonlat is not None:
         site = lonlat_to_xy(tile.crs, *site_lonlat)
     if finest_resolution is not None:
-        if not finest_resolution > 0:
-            raise InvalidParameterError(
-                f"finest resolution must be positive; got {finest_resolution}")
-        levels = max(0, math.ceil(math.log2(tile.resolution / finest_resolution) - 1e-9))
-        if levels > MAX_LEVELS:
-            raise InvalidParameterError(
-                f"--finest-resolution {finest_resolution:g} m needs {levels} expansions of the "
-                f"{tile.resolution:.4g} m base; at most {MAX_LEVELS} are possible")
+        levels = levels_for_resolution(tile.resolution, finest_resolution)
     if despike is not None:
         tile, _ = run_despike(tile, despike)
     finest = tile.resolution / 2**levels
@@ -964,25 +841,15 @@ def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, lay
                       extent=min(tile.shape) * tile.resolution, required=False,
                       warn_small=False)
     model = _model(erosion_profile, erosion_exponent, no_roughness)
-    params = None
-    if tile.valid.all():
-        params = _expansion_params(tile, fractal_dimension, height_scale, uniform_roughness)
-    elif fractal_dimension is not None or height_scale is not None or uniform_roughness:
-        from terrain.gapfill import fill_gaps
-
-        params = _expansion_params(fill_gaps(tile, seed=seed).tile, fractal_dimension,
-                                   height_scale, uniform_roughness)
-    bar, close = _progress("enhance")
-    try:
+    params = RoughnessChoice(fractal_dimension, height_scale, uniform_roughness)
+    with progress_bar("enhance", "step") as bar:
         stack = build_stack(tile, site, levels=levels, layer_size=layer_size, seed=seed,
                             population=pop, model=model, params=params,
                             min_crater_pixels=min_crater_pixels,
-                            progress=(lambda s, n, label: bar(s, n)) if bar else None,
+                            progress=bar,
                             rocks=rocks)
-    finally:
-        close()
-    stack.info.update(source=str(input_dem), command="terrain enhance",
-                      craterscape_version=_version())
+    stack = stack.with_info(source=str(input_dem), command="terrain enhance",
+                            craterscape_version=version())
     write_stack(stack, output, inputs=[input_dem])
     n_rocks = "" if stack.rocks is None else f", {len(stack.rocks['id'])} rocks"
     click.echo(f"wrote {len(stack.tiles)} layers to {output} (finest "
@@ -994,24 +861,15 @@ def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, lay
 
 def _stack_geometry(input_dem, band, site, site_lonlat, levels, finest_resolution, layer_size):
     """(reader, site, levels, layer shapes) of a stack, from the input's header only."""
-    import math
-
     from terrain.chunked import open_reader
     from terrain.io import lonlat_to_xy
-    from terrain.layers import _plan, _Shape
+    from terrain.layers import _plan, _Shape, levels_for_resolution
 
     reader = open_reader(input_dem, band)
     if site_lonlat is not None:
         site = lonlat_to_xy(reader.crs, *site_lonlat)
     if finest_resolution is not None:
-        if not finest_resolution > 0:
-            raise InvalidParameterError(
-                f"finest resolution must be positive; got {finest_resolution}")
-        levels = max(0, math.ceil(math.log2(reader.resolution / finest_resolution) - 1e-9))
-        if levels > MAX_LEVELS:
-            raise InvalidParameterError(
-                f"--finest-resolution {finest_resolution:g} m needs {levels} expansions of the "
-                f"{reader.resolution:.4g} m base; at most {MAX_LEVELS} are possible")
+        levels = levels_for_resolution(reader.resolution, finest_resolution)
     _, _, shapes, _ = _plan(_Shape(tuple(reader.shape), reader.transform),
                             tuple(float(v) for v in site), levels, layer_size)
     return reader, site, levels, shapes
@@ -1072,14 +930,10 @@ def _enhance_chunked(*, input_dem, output, site, site_lonlat, levels, finest_res
     (log.warning if auto else log.info)(
         "enhance: building %d layers (%.3g Mpixel) chunk by chunk in %s%s", levels + 1,
         pixels / 1e6, output, " (the stack does not fit in memory)" if auto else "")
-    bars = []
+    with contextlib.ExitStack() as bars:
+        def progress(stage):
+            return bars.enter_context(progress_bar(f"enhance {stage}", "chunk"))
 
-    def progress(stage):
-        update, close = _chunk_progress(f"enhance {stage}")
-        bars.append(close)
-        return update
-
-    try:
         with dask_client(workers, scheduler, processes=not threads) as client:
             result = build_stack_chunked(
                 reader, output, site, levels=levels, layer_size=layer_size, seed=seed,
@@ -1088,10 +942,7 @@ def _enhance_chunked(*, input_dem, output, site, site_lonlat, levels, finest_res
                 chunk=chunk or DEFAULT_CHUNK, client=client, progress=progress,
                 halo=256 if halo is None else halo, inputs=[input_dem],
                 info=dict(source=str(input_dem), command="terrain enhance",
-                          craterscape_version=_version()))
-    finally:
-        for close in bars:
-            close()
+                          craterscape_version=version()))
     computed = sum(s["computed"] for s in result["stages"].values())
     total = sum(s["total"] for s in result["stages"].values())
     n_rocks = "" if result["rocks"] is None else f", {result['rocks']} rocks"
@@ -1165,10 +1016,10 @@ def fill(input_dem, output, roughness, craters_at, despike, denoise, seed, band,
     else:
         result = fill_gaps(tile, seed=seed, roughness=roughness)
     out = result.tile.with_metadata(
-        CRATERSCAPE_COMMAND="terrain fill", CRATERSCAPE_VERSION=_version(),
-        CRATERSCAPE_PARAMETERS=dict(input=str(input_dem), roughness=roughness, seed=seed,
+        **{mk.COMMAND: "terrain fill", mk.VERSION: version(),
+        mk.PARAMETERS: dict(input=str(input_dem), roughness=roughness, seed=seed,
                                     despike=despike, denoise=denoise,
-                                    craters_at=str(craters_at) if craters_at else None))
+                                    craters_at=str(craters_at) if craters_at else None)})
     known = None if exact is None else np.where(result.filled, np.nan, exact)
     with transaction():  # known heights a float32 tile rounds go back bitwise (float64 file)
         write_dem(out, output, inputs=[input_dem], known=known)
@@ -1244,8 +1095,8 @@ def rocks(input_dem, output, model, k, a, b, dmin, dmax, craters_csv, no_crater_
                   craters=str(craters_csv) if craters_csv else None,
                   window=None if window is None else
                   [window.col, window.row, window.width, window.height])
-    out = out.with_metadata(CRATERSCAPE_COMMAND="terrain rocks", CRATERSCAPE_PARAMETERS=params,
-                            CRATERSCAPE_VERSION=_version())
+    out = out.with_metadata(**{mk.COMMAND: "terrain rocks", mk.PARAMETERS: params,
+                            mk.VERSION: version()})
     with transaction(folders=[Path(output).parent]):  # the DEM and its catalogue as one set
         write_dem(out, output, inputs=[input_dem])
         if catalog is not None:
@@ -1330,9 +1181,9 @@ def hazards(source, output, lander_diameter, max_slope, max_step, layer, png, ba
                         max_step=max_step)
     params = dict(source=str(source), layer=layer, lander_diameter=lander_diameter,
                   max_slope=max_slope, max_step=max_step)
-    tags = dict(result.tags(), CRATERSCAPE_COMMAND="terrain hazards",
-                CRATERSCAPE_PARAMETERS=json.dumps(params, sort_keys=True),
-                CRATERSCAPE_VERSION=_version())
+    tags = dict(result.tags(), **{mk.COMMAND: "terrain hazards",
+                mk.PARAMETERS: json.dumps(params, sort_keys=True),
+                mk.VERSION: version()})
     shade = hillshade(tile, azimuth=315.0, altitude=30.0)
     with transaction(folders=[Path(output).parent]):  # the GeoTIFF and its PNG as one set
         write_bands([result.slope, result.step, result.safe], tile.replace(metadata={}),

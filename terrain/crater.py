@@ -118,6 +118,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -125,6 +126,7 @@ import numpy as np
 from terrain.errors import InvalidParameterError
 
 __all__ = [
+    "Profile",
     "BETA_FROM_ALPHA",
     "COMPLEX_FIELDS",
     "Morphology",
@@ -599,15 +601,47 @@ def shape_arrays(diameter, depth_fraction, rim_fraction,
                 a=a, b=b, c2=c2, c3=c3, complex=cplx)
 
 
+class Profile(NamedTuple):
+    """The coefficients of one crater's radial profile, as one numba argument.
+
+    A namedtuple (numba passes it to a kernel as one value) of what
+    :func:`crater_interior` and :func:`exterior_height` need.
+
+    Attributes
+    ----------
+    curvature : float, metres
+        Bowl curvature term (fresh rim height - rim height + depth).
+    floor : float, metres
+        Floor height relative to the fitted plane (rim height - depth).
+    rim_height : float, metres
+    ejecta, beta, a, b, c2, c3 : float
+        Exterior profile coefficients (:class:`CraterShape`).
+    complex : (7,) float64
+        The :data:`COMPLEX_FIELDS` row (``floor_x`` = -2 for a simple crater).
+    """
+
+    curvature: float
+    floor: float
+    rim_height: float
+    ejecta: float
+    beta: float
+    a: float
+    b: float
+    c2: float
+    c3: float
+    complex: np.ndarray
+
+
 @numba.njit(cache=True)
-def _profile_flat(x, curvature, floor, rim_height, rim_offset, ejecta, beta, a, b, c2, c3,
-                  cplx, out):
+def _profile_flat(x, shape, rim_offset, out):
     for i in range(x.size):
         xi = x[i]
         if xi <= 0.0:
-            out[i] = crater_interior(xi, curvature, floor, rim_height + rim_offset, cplx)
+            out[i] = crater_interior(xi, shape.curvature, shape.floor,
+                                     shape.rim_height + rim_offset, shape.complex)
         elif xi <= 1.0:
-            out[i] = exterior_height(xi, rim_height, ejecta, beta, a, b, c2, c3)
+            out[i] = exterior_height(xi, shape.rim_height, shape.ejecta, shape.beta, shape.a,
+                                     shape.b, shape.c2, shape.c3)
         else:
             out[i] = 0.0
 
@@ -620,7 +654,8 @@ def profile(x, shape: CraterShape, rim_offset: float = 0.0) -> np.ndarray:
     """
     x = np.asarray(x, dtype=float)
     out = np.empty(x.shape)
-    _profile_flat(np.ascontiguousarray(x).ravel(), shape.bowl_curvature, shape.floor,
-                  shape.rim_height, float(rim_offset), shape.ejecta, shape.beta, shape.a,
-                  shape.b, shape.c2, shape.c3, shape.complex_row, out.reshape(-1))
+    coefficients = Profile(shape.bowl_curvature, shape.floor, shape.rim_height, shape.ejecta,
+                           shape.beta, shape.a, shape.b, shape.c2, shape.c3, shape.complex_row)
+    _profile_flat(np.ascontiguousarray(x).ravel(), coefficients, float(rim_offset),
+                  out.reshape(-1))
     return out

@@ -49,11 +49,13 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import asdict, dataclass, field, replace
+from typing import NamedTuple
 
 import numba
 import numpy as np
 
 from terrain import memory
+from terrain import metakeys as mk
 from terrain.catalog import CATALOG_COLUMNS, CraterTable
 from terrain.crater import Morphology, crater_interior, exterior_height, shape_arrays
 from terrain.erosion import ErosionModel, SlopeDegradation
@@ -307,18 +309,108 @@ def class_planes(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, diam):
     return out
 
 
+class ClassCraters(NamedTuple):
+    """The craters of one size class as named arrays, in composition (age) order.
+
+    A namedtuple of arrays, which numba passes to :func:`_apply_class` as one argument
+    (fields read as ``craters.x[n]``). All arrays have the class's length n.
+
+    Attributes
+    ----------
+    x, y : (n,) float64, metres
+        Centres, map coordinates.
+    diameter : (n,) float64, metres
+    depth, rim_height, fresh_rim_height : (n,) float64, metres
+        Degraded depth and rim height, and the fresh rim height (:func:`shape_arrays`).
+    ejecta, beta, a, b, c2, c3, alpha : (n,) float64
+        Exterior and wall profile coefficients (:class:`terrain.crater.CraterShape`).
+    depth_fraction : (n,) float64
+        Degraded depth over fresh depth (erosion).
+    uid : (n,) uint64
+        Each crater's key of its random draws.
+    planes : (n, 6) float64
+        :func:`class_planes` results (p0, px, py, samples, RMS, pixel roughness).
+    complex : (n, 7) float64
+        :data:`terrain.crater.COMPLEX_FIELDS` of each crater.
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    diameter: np.ndarray
+    depth: np.ndarray
+    rim_height: np.ndarray
+    fresh_rim_height: np.ndarray
+    ejecta: np.ndarray
+    beta: np.ndarray
+    a: np.ndarray
+    b: np.ndarray
+    c2: np.ndarray
+    c3: np.ndarray
+    alpha: np.ndarray
+    depth_fraction: np.ndarray
+    uid: np.ndarray
+    planes: np.ndarray
+    complex: np.ndarray
+
+
+class ClassSettings(NamedTuple):
+    """What every crater of a run shares, as one numba argument of :func:`_apply_class`.
+
+    Attributes
+    ----------
+    seed : int
+        Key of every random draw.
+    rim_amplitude, rim_hurst : float
+        Rim irregularity (:class:`RimIrregularity`); amplitude 0 for circular rims.
+    rough : bool
+        Whether the roughness overlay is on.
+    rough_params : (k,) float64
+        The overlay's parameters (:meth:`CraterRoughness.as_array`).
+    footprint_factor : float
+        Reach of a crater's change in diameters.
+    """
+
+    seed: int
+    rim_amplitude: float
+    rim_hurst: float
+    rough: bool
+    rough_params: np.ndarray
+    footprint_factor: float
+
+
 @numba.njit(cache=True)
 def _apply_class(T, tr0, tc0, out, or0, oc0, nrows, ncols, x0, y0, res,
-                 cx, cy, diam, depth, rim_h, rim_h0, ejecta, beta, ca, cb, c2, c3, alpha,
-                 depth_fraction, uid, seed, irr_amp, irr_hurst, rough, rough_params,
-                 footprint_factor, planes, cplx):
+                 craters: ClassCraters, settings: ClassSettings):
     """Compose one size class of craters (already in age order) onto ``out``.
 
     ``T`` is the terrain before this class (origin tr0, tc0 in DEM pixels); ``out`` starts as
-    a copy of T over the class's region (origin or0, oc0) and is updated in place. ``planes``
-    holds each crater's :func:`fit_plane` result (:func:`class_planes`), ``cplx`` its
-    :data:`terrain.crater.COMPLEX_FIELDS`.
+    a copy of T over the class's region (origin or0, oc0) and is updated in place.
+    ``craters`` holds the class's craters (:class:`ClassCraters`), ``settings`` what they
+    share (:class:`ClassSettings`).
     """
+    cx = craters.x
+    cy = craters.y
+    diam = craters.diameter
+    depth = craters.depth
+    rim_h = craters.rim_height
+    rim_h0 = craters.fresh_rim_height
+    ejecta = craters.ejecta
+    beta = craters.beta
+    ca = craters.a
+    cb = craters.b
+    c2 = craters.c2
+    c3 = craters.c3
+    alpha = craters.alpha
+    depth_fraction = craters.depth_fraction
+    uid = craters.uid
+    planes = craters.planes
+    cplx = craters.complex
+    seed = settings.seed
+    irr_amp = settings.rim_amplitude
+    irr_hurst = settings.rim_hurst
+    rough = settings.rough
+    rough_params = settings.rough_params
+    footprint_factor = settings.footprint_factor
     table = np.zeros(RIM_SAMPLES)
     rim_terrain_buffer = np.zeros(RIM_TERRAIN_SAMPLES)
     params = np.zeros(7)
@@ -491,8 +583,8 @@ def crater_heights(base, shape, transform, craters, *, seed, model=None, window=
 
     terrain = np.ascontiguousarray(base(r0, r1, c0, c1), dtype=np.float64)
     origin = (r0, c0)
-    rough = model.roughness.enabled
-    rough_params = model.roughness.as_array()
+    settings = ClassSettings(seed, model.rim.effective_amplitude, model.rim.hurst,
+                             model.roughness.enabled, model.roughness.as_array(), factor)
     placed = []
     total = len(classes.classes)
     for done, ((cls, d_max), region) in enumerate(
@@ -508,12 +600,12 @@ def crater_heights(base, shape, transform, craters, *, seed, model=None, window=
             slope = np.arctan(np.hypot(planes[:, 1], planes[:, 2]))
             depth_f, rim_f = model.factors(table.age, table.diameter, slope)
             s = shape_arrays(table.diameter, depth_f, rim_f, model.morphology)
+            craters = ClassCraters(
+                table.x, table.y, table.diameter, s["depth"], s["rim_height"],
+                s["fresh_rim_height"], s["ejecta"], s["beta"], s["a"], s["b"], s["c2"],
+                s["c3"], s["alpha"], depth_f, table.uid, planes, s["complex"])
             _apply_class(terrain, origin[0], origin[1], out, q0, p0, nrows, ncols, x0, y0, res,
-                         table.x, table.y, table.diameter, s["depth"], s["rim_height"],
-                         s["fresh_rim_height"], s["ejecta"], s["beta"], s["a"], s["b"],
-                         s["c2"], s["c3"], s["alpha"], depth_f, table.uid, seed,
-                         model.rim.effective_amplitude, model.rim.hurst, rough, rough_params,
-                         factor, planes, s["complex"])
+                         craters, settings)
             placed.append((table, depth_f, rim_f, s, planes))
             log.debug("size class %d (D <= %.3g m): %d craters", cls, d_max, len(table))
         terrain, origin = out, (q0, p0)
@@ -598,9 +690,9 @@ def add_craters(tile: DEMTile, craters, *, seed: int, model: CraterModel | None 
                                 model=model, window=window, progress=progress)
     sub = tile.window(window) if window is not None else tile
     out = sub.replace(heights=z.astype(np.float32), valid=sub.valid)
-    out = out.with_metadata(CRATERSCAPE_SEED=str(seed),
-                            CRATERSCAPE_CRATER_MODEL=model.as_dict(),
-                            CRATERSCAPE_CRATERS=describe_craters(craters))
+    out = out.with_metadata(**{mk.SEED: str(seed),
+                            mk.CRATER_MODEL: model.as_dict(),
+                            mk.CRATERS: describe_craters(craters)})
     return CraterResult(out, catalog)
 
 

@@ -46,6 +46,7 @@ import numpy as np
 from affine import Affine
 
 from terrain import memory
+from terrain import metakeys as mk
 from terrain.errors import InvalidParameterError
 from terrain.rmd import NO_ROW, correlated_value, noise_rows, predict
 from terrain.rng import check_seed, key_prefix, stream_id
@@ -327,8 +328,8 @@ def expand(tile: DEMTile, times: int = 1, *, seed: int = 0,
     heights = grid
     heights.flags.writeable = False  # hand the array to the tile without a copy
     meta = dict(tile.metadata)
-    meta["CRATERSCAPE_SEED"] = str(seed)
-    meta["CRATERSCAPE_EXPANSION"] = json.dumps(dict(params.as_dict(), times=times),
+    meta[mk.SEED] = str(seed)
+    meta[mk.EXPANSION] = json.dumps(dict(params.as_dict(), times=times),
                                                sort_keys=True)
     return DEMTile(heights, np.isfinite(heights),
                    expanded_transform(tile.transform, times, window.row, window.col),

@@ -46,6 +46,7 @@ from numba.typed import List
 from scipy import ndimage
 
 from terrain import memory
+from terrain import metakeys as mk
 from terrain.errors import InvalidDEMError, InvalidParameterError
 from terrain.hillshade import horn_gradient
 from terrain.rng import check_seed, key_prefix, normal_at, stream_id
@@ -319,8 +320,8 @@ def fill_gaps(tile: DEMTile, *, seed: int = 0, roughness: float | None = None,
     out[tile.valid] = tile.heights[tile.valid]
     filled = known & ~tile.valid
     meta = dict(tile.metadata)
-    meta["CRATERSCAPE_SEED"] = str(seed)
-    meta["CRATERSCAPE_FILL"] = json.dumps(dict(rough_info, filled=int(filled.sum()),
+    meta[mk.SEED] = str(seed)
+    meta[mk.FILL] = json.dumps(dict(rough_info, filled=int(filled.sum()),
                                                max_ray=int(max_ray)), sort_keys=True)
     result = tile.replace(heights=out, valid=known, metadata=meta)
     return FillResult(result, filled, rough_info)
@@ -403,7 +404,7 @@ def fill_crater_gaps(tile: DEMTile, craters, *, seed: int = 0, roughness: float 
     rest = fill_gaps(stage, seed=seed, roughness=roughness)
     filled = rest.tile.valid & ~tile.valid
     meta = dict(rest.tile.metadata)
-    meta["CRATERSCAPE_CRATER_GAPS"] = json.dumps(
+    meta[mk.CRATER_GAPS] = json.dumps(
         {"craters": len(craters), "pixels": int(ti.size)}, sort_keys=True)
     return FillResult(rest.tile.replace(metadata=meta), filled,
                       dict(rest.roughness, crater_pixels=int(ti.size)))
@@ -439,7 +440,7 @@ def despike(tile: DEMTile, threshold: float = 5.0, size: int = 5) -> tuple[DEMTi
     removed = tile.valid & (np.abs(resid) > threshold * scale)
     log.info("despike: %d pixels removed", int(removed.sum()))
     meta = dict(tile.metadata)
-    meta["CRATERSCAPE_DESPIKE"] = json.dumps(
+    meta[mk.DESPIKE] = json.dumps(
         {"threshold": threshold, "size": size, "removed": int(removed.sum())})
     return tile.replace(valid=tile.valid & ~removed, metadata=meta), removed
 
@@ -465,5 +466,5 @@ def denoise(tile: DEMTile, sigma: float) -> DEMTile:
     with np.errstate(invalid="ignore", divide="ignore"):
         smooth = np.where(tile.valid & (den > 0), num / den, np.nan)
     meta = dict(tile.metadata)
-    meta["CRATERSCAPE_DENOISE"] = json.dumps({"sigma_px": sigma})
+    meta[mk.DENOISE] = json.dumps({"sigma_px": sigma})
     return tile.replace(heights=smooth.astype(np.float32), metadata=meta)

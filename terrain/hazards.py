@@ -38,6 +38,7 @@ import numba
 import numpy as np
 
 from terrain import memory
+from terrain import metakeys as mk
 from terrain.errors import InvalidParameterError
 
 __all__ = ["MAX_FOOTPRINT_PIXELS", "HazardMap", "footprint_offsets", "hazard_map",
@@ -82,11 +83,11 @@ class HazardMap:
 
     def tags(self) -> dict:
         """Return the map's summary as GeoTIFF metadata tags."""
-        return dict(CRATERSCAPE_SAFE_FRACTION=f"{self.safe_fraction:.6f}",
-                    CRATERSCAPE_KNOWN_FRACTION=f"{self.known_fraction:.6f}",
-                    CRATERSCAPE_LANDER_DIAMETER_M=repr(self.lander_diameter),
-                    CRATERSCAPE_MAX_SLOPE_DEG=repr(self.max_slope),
-                    CRATERSCAPE_MAX_STEP_M=repr(self.max_step))
+        return {mk.SAFE_FRACTION: f"{self.safe_fraction:.6f}",
+                mk.KNOWN_FRACTION: f"{self.known_fraction:.6f}",
+                mk.LANDER_DIAMETER_M: repr(self.lander_diameter),
+                mk.MAX_SLOPE_DEG: repr(self.max_slope),
+                mk.MAX_STEP_M: repr(self.max_step)}
 
 
 def footprint_offsets(lander_diameter: float, resolution: float) -> np.ndarray:

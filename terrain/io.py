@@ -29,6 +29,7 @@ from rasterio.crs import CRS
 from rasterio.errors import NotGeoreferencedWarning, RasterioError, RasterioIOError
 
 from terrain import memory
+from terrain import metakeys as mk
 from terrain.errors import InvalidDEMError, MissingInputError, OutputPathError
 from terrain.outputs import atomic_path, check_output_path
 from terrain.tile import DEMTile
@@ -135,12 +136,12 @@ def _read_dem(path, band: int, exact: bool) -> tuple[DEMTile, np.ndarray | None]
     data = np.ma.getdata(raw).astype(np.float64)
     valid = ~np.ma.getmaskarray(raw) & np.isfinite(data)
     stored = str(np.ma.getdata(raw).dtype)
-    metadata = {k: v for k, v in tags.items() if k.startswith("CRATERSCAPE_")}
-    metadata["CRATERSCAPE_SOURCE"] = str(path)
+    metadata = {k: v for k, v in tags.items() if mk.is_key(k)}
+    metadata[mk.SOURCE] = str(path)
     scale = 1.0 if scale is None else float(scale)
     offset = 0.0 if offset is None else float(offset)
     if offset != 0.0 and crs is not None and _is_reference_radius(crs, offset):
-        metadata["CRATERSCAPE_DATUM_RADIUS"] = repr(offset)
+        metadata[mk.DATUM_RADIUS] = repr(offset)
         offset = 0.0
     if scale != 1.0 or offset != 0.0:
         data = data * scale + offset
@@ -152,7 +153,7 @@ def _read_dem(path, band: int, exact: bool) -> tuple[DEMTile, np.ndarray | None]
         moved = float(np.max(np.abs(known.astype(np.float32).astype(np.float64) - known)))
         if moved > 0:
             exact_heights = np.where(valid, data, np.nan)
-            metadata["CRATERSCAPE_SOURCE_DTYPE"] = stored
+            metadata[mk.SOURCE_DTYPE] = stored
             (log.warning if exact else log.info)(
                 "DEM '%s' stores %s heights; float32 moves them by up to %.3g m%s", path,
                 stored, moved, " (outputs that keep every known height are written in "
@@ -178,7 +179,7 @@ def _read_zarr_dem(path: Path) -> DEMTile:
     heights, valid = store.read()
     if not valid.any():
         raise InvalidDEMError(f"DEM '{path}' has no valid pixels (all nodata)")
-    metadata = dict(store.metadata, CRATERSCAPE_SOURCE=str(path))
+    metadata = dict(store.metadata, **{mk.SOURCE: str(path)})
     return DEMTile(heights, valid, store.transform, store.crs, store.nodata, metadata)
 
 
@@ -495,12 +496,12 @@ class RasterReader:
         self.stored = stored
         #: Whether float32 may not hold the stored values exactly (see read_dem_exact).
         self.wide = stored in _WIDE_TYPES
-        self.metadata = {k: v for k, v in tags.items() if k.startswith("CRATERSCAPE_")}
-        self.metadata["CRATERSCAPE_SOURCE"] = str(path)
+        self.metadata = {k: v for k, v in tags.items() if mk.is_key(k)}
+        self.metadata[mk.SOURCE] = str(path)
         self.scale = 1.0 if scale is None else float(scale)
         self.offset = 0.0 if offset is None else float(offset)
         if self.offset != 0.0 and crs is not None and _is_reference_radius(crs, self.offset):
-            self.metadata["CRATERSCAPE_DATUM_RADIUS"] = repr(self.offset)
+            self.metadata[mk.DATUM_RADIUS] = repr(self.offset)
             self.offset = 0.0
         self.nodata = float("nan")
         if (nodata is not None and np.isfinite(nodata) and self.scale == 1.0

@@ -49,25 +49,28 @@ import logging
 import math
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 from affine import Affine
 
 from terrain import memory
+from terrain import metakeys as mk
 from terrain.catalog import CATALOG_COLUMNS, Crater, CraterTable, read_catalog, write_catalog
 from terrain.cratering import CraterModel, add_craters, empty_catalog
 from terrain.errors import InvalidDEMError, InvalidParameterError, MissingInputError
 from terrain.expand import expand_level, expanded_transform
 from terrain.gapfill import fill_gaps
 from terrain.population import Population
+from terrain.progress import Progress
 from terrain.rng import check_seed
-from terrain.roughness import ExpansionParameters, local_amplitude
+from terrain.roughness import ExpansionParameters, RoughnessChoice, local_amplitude
 from terrain.tile import DEMTile
 
-__all__ = ["MANIFEST", "MIN_CRATER_PIXELS", "LayerStack", "build_stack", "prepare_folder",
-           "read_stack", "replace_crater", "stack_lock", "write_stack"]
+__all__ = ["MANIFEST", "MAX_LEVELS", "MIN_CRATER_PIXELS", "Layer", "LayerStack", "build_stack",
+           "levels_for_resolution", "prepare_folder", "read_stack", "replace_crater",
+           "stack_lock", "write_stack"]
 
 log = logging.getLogger(__name__)
 
@@ -78,6 +81,8 @@ CATALOG = "craters.csv"
 #: Smallest crater a layer takes, in its pixels ("craters smaller than a few pixels ... are
 #: rejected").
 MIN_CRATER_PIXELS = 4.0
+#: Most 2x expansions of a layer stack (1 km to below a millimetre).
+MAX_LEVELS = 30
 #: Rock catalogue in a layer-stack folder (when the stack has rocks).
 ROCK_CATALOG = "rocks.csv"
 #: Lock file guarding edits of a layer-stack folder.
@@ -99,29 +104,144 @@ FORMAT = "craterscape-layer-stack"
 CATALOG_LAYER_COLUMNS = (*CATALOG_COLUMNS, "layer")
 
 
-@dataclass(eq=False)
-class LayerStack:
-    """Layers (coarse to fine), their geometry, the crater catalogue and provenance."""
+def _int_tuple(value, n: int, what: str) -> tuple[int, ...]:
+    """``value`` as a tuple of ``n`` ints, or an error naming the field."""
+    try:
+        items = tuple(value)
+        if len(items) != n or not all(float(v) == int(v) for v in items):
+            raise ValueError
+        return tuple(int(v) for v in items)
+    except (TypeError, ValueError):
+        raise InvalidParameterError(f"layer {what} must be {n} integers; got {value!r}") from None
 
-    tiles: list
-    windows: list  # window of layer k in layer k-1: (col, row, width, height); None for 0
-    origins: list  # global (row, col) of each layer's pixel (0, 0) at its level
+
+@dataclass(frozen=True, eq=False)
+class Layer:
+    """One layer of a stack: its heights and where it lies in the layer above.
+
+    Parameters
+    ----------
+    tile : DEMTile
+        The layer's heights, ``(ny, nx) float32, metres`` (a stack built chunk by chunk
+        writes its manifest from stand-ins with the tile's shape, transform and CRS).
+    window : (col, row, width, height) of int, or None
+        The window of the layer above (pixels) this layer expands; None for the base.
+    origin : (row, col) of int
+        Global index of this layer's pixel (0, 0) at its level (the expansion's key).
+    file : str, optional
+        Name of the layer's file in its stack folder, once written or read.
+    """
+
+    tile: DEMTile
+    window: tuple[int, int, int, int] | None
+    origin: tuple[int, int]
+    file: str | None = None
+
+    def __post_init__(self):
+        if self.window is not None:
+            object.__setattr__(self, "window", _int_tuple(self.window, 4, "window"))
+        object.__setattr__(self, "origin", _int_tuple(self.origin, 2, "origin"))
+
+
+@dataclass(frozen=True, eq=False)
+class LayerStack:
+    """Layers (coarse to fine), the crater catalogue and provenance, as one frozen record.
+
+    Parameters
+    ----------
+    layers : sequence of Layer
+        Layer 0 (the base, no window) first, each further layer a 2x expansion of a window
+        of the one before.
+    catalog : dict of column arrays
+        The crater catalogue (:data:`CATALOG_LAYER_COLUMNS`: each crater once, with the
+        ``layer`` it was added to).
+    info : mapping
+        Provenance recorded in the manifest (seed, site, parameters, edits).
+    rocks : dict of column arrays, optional
+        The rock catalogue (:data:`terrain.rocks.ROCK_COLUMNS`), when rocks were added.
+    catalog_file : str
+        Name of the catalogue file in the stack folder.
+    """
+
+    layers: tuple[Layer, ...]
     catalog: dict
     info: dict = field(default_factory=dict)
-    rocks: dict | None = None  # rock catalogue (terrain.rocks.ROCK_COLUMNS), if rocks were added
+    rocks: dict | None = None
+    catalog_file: str = CATALOG
+
+    def __post_init__(self):
+        layers = tuple(self.layers)
+        if not layers or not all(isinstance(layer, Layer) for layer in layers):
+            raise InvalidParameterError("a layer stack needs one or more Layer records")
+        if layers[0].window is not None:
+            raise InvalidParameterError("the base layer (0) has no window in a parent")
+        for k, layer in enumerate(layers[1:], 1):
+            if layer.window is None:
+                raise InvalidParameterError(f"layer {k} needs its window in layer {k - 1}")
+        object.__setattr__(self, "layers", layers)
+        object.__setattr__(self, "info", dict(self.info))
+
+    @property
+    def tiles(self) -> tuple[DEMTile, ...]:
+        """Every layer's tile, coarse to fine."""
+        return tuple(layer.tile for layer in self.layers)
+
+    @property
+    def windows(self) -> tuple[tuple[int, int, int, int] | None, ...]:
+        """Every layer's window in the layer above; None for the base."""
+        return tuple(layer.window for layer in self.layers)
+
+    @property
+    def origins(self) -> tuple[tuple[int, int], ...]:
+        """Every layer's global (row, col) origin at its level."""
+        return tuple(layer.origin for layer in self.layers)
 
     @property
     def levels(self) -> int:
-        return len(self.tiles) - 1
+        """Number of 2x expansions (layers less one)."""
+        return len(self.layers) - 1
+
+    def with_info(self, **items) -> LayerStack:
+        """A copy with ``items`` added to the provenance.
+
+        Parameters
+        ----------
+        **items
+            JSON-able values recorded in the manifest.
+
+        Returns
+        -------
+        LayerStack
+        """
+        return replace(self, info={**self.info, **items})
 
     def layer_of(self, x: float, y: float, reach: float) -> int:
-        """Finest layer whose extent holds a disc of radius ``reach`` m at (x, y), or -1."""
-        for k in range(len(self.tiles) - 1, -1, -1):
-            left, bottom, right, top = self.tiles[k].bounds
+        """Finest layer whose extent holds a disc of radius ``reach`` m at (x, y), or -1.
+
+        Parameters
+        ----------
+        x, y : float
+            Centre, map coordinates (m).
+        reach : float
+            Radius (m).
+
+        Returns
+        -------
+        int
+        """
+        for k in range(len(self.layers) - 1, -1, -1):
+            left, bottom, right, top = self.layers[k].tile.bounds
             if (x - reach >= left and x + reach <= right and y - reach >= bottom
                     and y + reach <= top):
                 return k
         return -1
+
+
+def _layers(tiles, windows, origins, files=None) -> tuple[Layer, ...]:
+    """Layer records of parallel lists (as the builders and editors keep them)."""
+    files = files or [None] * len(tiles)
+    return tuple(Layer(t, w, o, f) for t, w, o, f in zip(tiles, windows, origins, files,
+                                                          strict=True))
 
 
 # ---------------------------------------------------------------------------- building
@@ -208,10 +328,48 @@ class _Shape:
         return (y - t.f) / t.e - 0.5, (x - t.c) / t.a - 0.5
 
 
+def levels_for_resolution(base_resolution: float, finest_resolution: float) -> int:
+    """Fewest 2x expansions that take a base to a given pixel size or finer.
+
+    Parameters
+    ----------
+    base_resolution : float
+        The base DEM's pixel size, metres.
+    finest_resolution : float
+        The pixel size wanted of the finest layer, metres (> 0).
+
+    Returns
+    -------
+    int
+        Levels in ``[0, MAX_LEVELS]``: ``base_resolution / 2**levels <= finest_resolution``.
+
+    Raises
+    ------
+    InvalidParameterError
+        If ``finest_resolution`` is not positive or needs more than :data:`MAX_LEVELS`.
+
+    Examples
+    --------
+    >>> levels_for_resolution(1000.0, 0.5), levels_for_resolution(1.0, 2.0)
+    (11, 0)
+    """
+    if not finest_resolution > 0:
+        raise InvalidParameterError(
+            f"finest resolution must be positive; got {finest_resolution}")
+    levels = max(0, math.ceil(math.log2(base_resolution / finest_resolution) - 1e-9))
+    if levels > MAX_LEVELS:
+        raise InvalidParameterError(
+            f"--finest-resolution {finest_resolution:g} m needs {levels} expansions of the "
+            f"{base_resolution:.4g} m base; at most {MAX_LEVELS} are possible")
+    return levels
+
+
 def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_size: int = 1025,
                 seed: int = 0, population: Population | None = None,
-                model: CraterModel | None = None, params: ExpansionParameters | None = None,
-                min_crater_pixels: float = MIN_CRATER_PIXELS, progress=None,
+                model: CraterModel | None = None,
+                params: ExpansionParameters | RoughnessChoice | None = None,
+                min_crater_pixels: float = MIN_CRATER_PIXELS,
+                progress: Progress | None = None,
                 rocks=None) -> LayerStack:
     """Build a nested layer stack around ``site`` (map coordinates of ``base``).
 
@@ -230,12 +388,13 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
     population : Population, optional
         Craters for the whole area, sorted into the layers.
     model : CraterModel, optional
-    params : ExpansionParameters, optional
-        Expansion roughness; measured from the (filled) base by default.
+    params : ExpansionParameters or RoughnessChoice, optional
+        Expansion roughness, given; or measured from the (filled) base under the user's
+        choices (a :class:`~terrain.roughness.RoughnessChoice`); measured by default.
     min_crater_pixels : float
         Smallest crater a layer takes, in its pixels.
     progress : callable, optional
-        ``progress(step, total, label)``.
+        ``progress(step, total, label)`` (:class:`terrain.progress.Progress`).
     rocks : terrain.rocks.RockModel, optional
         Rocks on every layer that resolves them (:func:`_add_layer_rocks`).
 
@@ -246,6 +405,8 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
     seed = check_seed(seed)
     if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 0:
         raise InvalidParameterError(f"levels must be a non-negative integer; got {levels!r}")
+    if levels > MAX_LEVELS:
+        raise InvalidParameterError(f"levels must be at most {MAX_LEVELS}; got {levels}")
     if not min_crater_pixels > 0:
         raise InvalidParameterError(
             f"min crater pixels must be positive; got {min_crater_pixels}")
@@ -277,7 +438,8 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
         info["base_fill_roughness"] = filled.roughness
         base = filled.tile
     tick("fill")
-    params = params or ExpansionParameters.for_tile(base)
+    if not isinstance(params, ExpansionParameters):
+        params = (params or RoughnessChoice()).for_tile(base)
     amp = (local_amplitude(base.heights, params.base_sigma, params.local_box)
            if params.uses_local_map else None)
 
@@ -331,7 +493,7 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
                 expansion=params.as_dict(), min_crater_pixels=min_crater_pixels,
                 population=population.as_dict() if population else None,
                 crater_model=model.as_dict())
-    return LayerStack(tiles, windows, origins, catalog, info, rock_catalog)
+    return LayerStack(_layers(tiles, windows, origins), catalog, info, rock_catalog)
 
 
 def _add_layer_rocks(tiles: list, rocks, seed: int, population) -> dict:
@@ -520,7 +682,7 @@ def _write_files(stack: LayerStack, outdir: Path, files: list[str], only=None,
         if only is not None and k not in only:
             continue
         meta = dict(tile.metadata)
-        meta["CRATERSCAPE_LAYER"] = str(k)
+        meta[mk.LAYER] = str(k)
         write_dem(tile.replace(metadata=meta), outdir / files[k])
     with atomic_path(outdir / catalog) as tmp:
         write_catalog(tmp, stack.catalog, CATALOG_LAYER_COLUMNS)
@@ -667,10 +829,8 @@ def _read_stack(outdir: Path) -> LayerStack:
             if k not in ("layers", "format", "version", "crs", "catalog", "crater_counts")}
     rock_path = outdir / ROCK_CATALOG
     rocks = read_catalog(rock_path) if "rock_catalog" in info and rock_path.exists() else None
-    stack = LayerStack(tiles, windows, origins, catalog, info, rocks)
-    stack.info["_files"] = files
-    stack.info["_catalog"] = cat_name
-    return stack
+    return LayerStack(_layers(tiles, windows, origins, files), catalog, info, rocks,
+                      catalog_file=cat_name)
 
 
 # ---------------------------------------------------------------------------- editing
@@ -710,18 +870,22 @@ def replace_crater(outdir, x: float, y: float, diameter: float, *, age: float = 
         crater = Crater(x, y, diameter, age, _crater_uid(x, y, diameter))
         result = add_craters(filled, CraterTable.from_craters([crater]), seed=seed,
                              model=model)
-        stack.tiles[k] = result.tile
+        tiles = list(stack.tiles)
+        tiles[k] = result.tile
         changed = {k}
-        _propagate_up(stack, k, changed)
-        _propagate_down(stack, k, old, changed)
+        _propagate_up(tiles, stack.windows, k, changed)
+        _propagate_down(tiles, stack.windows, k, old, changed)
         cat = dict(result.catalog)
         cat["layer"] = np.full(len(cat["id"]), k, dtype=np.int64)
-        stack.catalog = _merge_catalogs([stack.catalog, cat]) if len(stack.catalog["id"]) \
-            else cat
+        catalog = _merge_catalogs([stack.catalog, cat]) if len(stack.catalog["id"]) else cat
         edit = dict(replace_crater=dict(x=x, y=y, diameter=diameter, age=age, layer=k,
                                         seed=seed, changed_layers=sorted(changed)))
-        stack.info.setdefault("edits", []).append(edit)
-        _commit(stack, outdir, changed)
+        edited = replace(
+            stack, catalog=catalog, info={**stack.info,
+                                          "edits": [*stack.info.get("edits", []), edit]},
+            layers=tuple(replace(layer, tile=tile)
+                         for layer, tile in zip(stack.layers, tiles, strict=True)))
+        _commit(edited, outdir, changed)
     return edit["replace_crater"]
 
 
@@ -732,20 +896,21 @@ def _crater_uid(x, y, d) -> int:
                       int(round(y * 1000)), int(round(d * 1000))))
 
 
-def _propagate_up(stack: LayerStack, k: int, changed: set) -> None:
+def _propagate_up(tiles: list, windows, k: int, changed: set) -> None:
+    """Set every coarser layer's pixels inside layer ``k`` to the co-located fine pixels."""
     for j in range(k, 0, -1):
-        col, row, size, _ = stack.windows[j]
-        coarse = stack.tiles[j - 1].heights.copy()
-        coarse[row:row + size, col:col + size] = stack.tiles[j].heights[::2, ::2]
-        stack.tiles[j - 1] = stack.tiles[j - 1].replace(heights=coarse,
-                                                        valid=np.isfinite(coarse))
+        col, row, size, _ = windows[j]
+        coarse = tiles[j - 1].heights.copy()
+        coarse[row:row + size, col:col + size] = tiles[j].heights[::2, ::2]
+        tiles[j - 1] = tiles[j - 1].replace(heights=coarse, valid=np.isfinite(coarse))
         changed.add(j - 1)
 
 
-def _propagate_down(stack: LayerStack, k: int, old_k: np.ndarray, changed: set) -> None:
-    delta = stack.tiles[k].heights.astype(np.float64) - old_k
-    for j in range(k + 1, len(stack.tiles)):
-        col, row, size, _ = stack.windows[j]
+def _propagate_down(tiles: list, windows, k: int, old_k: np.ndarray, changed: set) -> None:
+    """Carry layer ``k``'s change into the finer layers that overlap it (interpolated)."""
+    delta = tiles[k].heights.astype(np.float64) - old_k
+    for j in range(k + 1, len(tiles)):
+        col, row, size, _ = windows[j]
         parent_delta = delta[row:row + size, col:col + size]
         if not np.any(parent_delta):
             break
@@ -757,10 +922,10 @@ def _propagate_down(stack: LayerStack, k: int, old_k: np.ndarray, changed: set) 
         up[::2, 1::2] = 0.5 * (parent_delta[:, :-1] + parent_delta[:, 1:])
         up[1::2, 1::2] = 0.25 * (parent_delta[:-1, :-1] + parent_delta[1:, :-1]
                                  + parent_delta[:-1, 1:] + parent_delta[1:, 1:])
-        old_j = stack.tiles[j].heights.astype(np.float64)
+        old_j = tiles[j].heights.astype(np.float64)
         new = (old_j + up).astype(np.float32)
-        new[::2, ::2] = stack.tiles[j - 1].heights[row:row + size, col:col + size]
-        stack.tiles[j] = stack.tiles[j].replace(heights=new, valid=np.isfinite(new))
+        new[::2, ::2] = tiles[j - 1].heights[row:row + size, col:col + size]
+        tiles[j] = tiles[j].replace(heights=new, valid=np.isfinite(new))
         delta = new.astype(np.float64) - old_j
         changed.add(j)
 
@@ -768,16 +933,14 @@ def _propagate_down(stack: LayerStack, k: int, old_k: np.ndarray, changed: set) 
 def _commit(stack: LayerStack, outdir: Path, changed: set) -> None:
     """Write new versions of the changed layers and of the catalogue, swap the manifest in
     (the commit point), then delete the old versions once no reader holds them."""
-    files = list(stack.info.pop("_files"))
+    files = [layer.file for layer in stack.layers]
     old_files = list(files)
-    old_catalog = stack.info.pop("_catalog", CATALOG)
+    old_catalog = stack.catalog_file
     stamp = f"{time.time_ns():x}"
     for k in changed:
         files[k] = f"layer_{k:02d}.{stamp}.tif"
     catalog = f"craters.{stamp}.csv"
     _write_files(stack, outdir, files, only=changed, catalog=catalog)
-    stack.info["_files"] = files
-    stack.info["_catalog"] = catalog
     old = [name for k, name in enumerate(old_files) if name != files[k]] + [old_catalog]
     with _readers_lock(outdir, exclusive=True) as held:
         if not held:

@@ -90,6 +90,7 @@ import numba
 import numpy as np
 
 from terrain import memory
+from terrain import metakeys as mk
 from terrain.errors import InvalidParameterError
 from terrain.rng import check_seed, gaussian, hash64, stream_id, uniform_scalar
 
@@ -742,7 +743,7 @@ def add_rocks(tile, model: RockModel, *, seed: int, craters=None, window=None):
     rocks = model.generate(seed, sub.bounds, min_diameter=dmin, craters=craters)
     heights, z0, drawn = rock_heights(tile, rocks, window=window)
     out = sub.replace(heights=heights, valid=sub.valid).with_metadata(
-        CRATERSCAPE_SEED=str(seed), CRATERSCAPE_ROCKS=model.as_dict())
+        **{mk.SEED: str(seed), mk.ROCKS: model.as_dict()})
     inside = _centre_inside(rocks, sub.bounds) & drawn
     catalog = rock_catalog(rocks.take(np.flatnonzero(inside)), z0[inside],
                            np.zeros(int(inside.sum()), np.int64))

@@ -56,7 +56,8 @@ from terrain.rmd import (
 )
 from terrain.tile import DEMTile
 
-__all__ = ["DEFAULT_SPACINGS", "LOCAL_BOX", "ExpansionParameters", "FractalFit", "estimate",
+__all__ = ["DEFAULT_SPACINGS", "LOCAL_BOX", "ExpansionParameters", "FractalFit",
+           "RoughnessChoice", "estimate",
            "local_amplitude", "square_residual"]
 
 #: Square-phase spacings (pixels) of the fit.
@@ -444,3 +445,41 @@ class ExpansionParameters:
     def as_dict(self) -> dict:
         """Return the parameters as plain data for metadata."""
         return asdict(self)
+
+
+@dataclass(frozen=True)
+class RoughnessChoice:
+    """What a user chose of a DEM's expansion roughness; the rest is measured from the DEM.
+
+    A layer stack measures its roughness from its base after filling the base's gaps
+    (:func:`terrain.layers.build_stack`); this record carries the user's choices there, so no
+    caller fills gaps or measures roughness itself.
+
+    Parameters
+    ----------
+    fractal_dimension : float, optional
+        F in [2, 3); measured from the DEM when None.
+    height_scale : float, optional
+        H of eq. 15; measured from the DEM when None.
+    uniform : bool
+        One roughness everywhere instead of the DEM's local roughness map.
+    """
+
+    fractal_dimension: float | None = None
+    height_scale: float | None = None
+    uniform: bool = False
+
+    def for_tile(self, tile: DEMTile) -> ExpansionParameters:
+        """Return the expansion parameters of ``tile`` under these choices.
+
+        Parameters
+        ----------
+        tile : DEMTile
+            The DEM to measure (gap-free).
+
+        Returns
+        -------
+        ExpansionParameters
+        """
+        return ExpansionParameters.for_tile(tile, self.fractal_dimension, self.height_scale,
+                                            local_box=0 if self.uniform else LOCAL_BOX)

@@ -13,6 +13,7 @@ import json
 import numpy as np
 from affine import Affine
 
+from terrain import metakeys as mk
 from terrain.cratering import (
     CraterModel,
     CraterResult,
@@ -60,7 +61,7 @@ def synthesize_tile(size: int, *, resolution: float = 1.0, fractal_dimension: fl
     Examples
     --------
     >>> r = synthesize_tile(33, resolution=2.0, seed=1)
-    >>> r.tile.shape, r.tile.resolution, r.tile.metadata["CRATERSCAPE_SEED"]
+    >>> r.tile.shape, r.tile.resolution, r.tile.metadata[mk.SEED]
     ((33, 33), 2.0, '1')
     """
     check_tile_size(size)
@@ -85,10 +86,10 @@ def synthesize_tile(size: int, *, resolution: float = 1.0, fractal_dimension: fl
                                     model=model, window=window, progress=progress)
     sub_transform = transform @ Affine.translation(window.col, window.row)
     tile = DEMTile.from_array(z.astype(np.float32), transform=sub_transform, crs=crs)
-    meta = {"CRATERSCAPE_SEED": str(seed), "CRATERSCAPE_RMD": json.dumps(params, sort_keys=True)}
+    meta = {mk.SEED: str(seed), mk.RMD: json.dumps(params, sort_keys=True)}
     if window.width != size or window.height != size:
-        meta["CRATERSCAPE_WINDOW"] = f"{window.col},{window.row},{window.width},{window.height}"
+        meta[mk.WINDOW] = f"{window.col},{window.row},{window.width},{window.height}"
     if craters is not None and model is not None:  # model is set whenever craters are
-        meta["CRATERSCAPE_CRATERS"] = json.dumps(describe_craters(craters), sort_keys=True)
-        meta["CRATERSCAPE_CRATER_MODEL"] = json.dumps(model.as_dict(), sort_keys=True)
+        meta[mk.CRATERS] = json.dumps(describe_craters(craters), sort_keys=True)
+        meta[mk.CRATER_MODEL] = json.dumps(model.as_dict(), sort_keys=True)
     return CraterResult(tile.replace(metadata=meta), catalog)

@@ -63,7 +63,7 @@ def test_scenario_overrides_go_through_the_parser(tmp_path):
     scenario = write_scenario(template, tmp_path / "run.toml",
                               {"sun": {"azimuth": 210.0}, "trajectory": {"frames": 3},
                                "scene": {"stack": str(tmp_path / "stack")}})
-    assert scenario.trajectory["frames"] == 3
+    assert scenario.trajectory.frames == 3
     written = tomllib.loads((tmp_path / "run.toml").read_text(encoding="utf-8"))
     original = tomllib.loads(template.read_text(encoding="utf-8"))
     assert written["sun"] == dict(original["sun"], azimuth=210.0)

@@ -12,7 +12,7 @@ from render.reflectance import SATO_643NM, hapke
 from render.renderer import Lighting, RenderOptions, View
 from render.terrain_scene import TerrainScene
 from terrain.errors import InvalidParameterError
-from terrain.layers import LayerStack
+from terrain.layers import Layer, LayerStack
 from terrain.tile import DEMTile
 
 LIGHT = Lighting((0.3, -0.5, 0.8), albedo=0.2, brdf="lommel-seeliger")
@@ -68,7 +68,7 @@ def test_terrain_albedo_map_scales_hapkes_w(renderer):
     tile = DEMTile.from_array(np.zeros((65, 65)), resolution=1.0)
     cat = {"layer": np.zeros(0, np.int64), "id": np.zeros(0, np.uint64)}
     amap = DEMTile.from_array(np.full((65, 65), 1.5), resolution=1.0)
-    scene = TerrainScene(LayerStack([tile], [None], [(0, 0)], cat, {"site": [32.5, 32.5]}),
+    scene = TerrainScene(LayerStack((Layer(tile, None, (0, 0)),), cat, {"site": [32.5, 32.5]}),
                          curvature=False, albedo_map=amap)
     light = Lighting.from_angles(90.0, 50.0, brdf="hapke")
     pose = look_at((20.0, 32.5, 60.0), (32.5, 32.5, 0.0))

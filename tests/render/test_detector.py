@@ -10,7 +10,7 @@ from render.renderer import Lighting, RenderOptions, View
 from render.sensor import PLANCK, SPEED_OF_LIGHT, Sensor
 from render.terrain_scene import TerrainScene
 from terrain.errors import InvalidParameterError, MissingInputError
-from terrain.layers import LayerStack
+from terrain.layers import Layer, LayerStack
 from terrain.tile import DEMTile
 
 K = Intrinsics.from_fov(128, 128, 20.0)
@@ -23,7 +23,7 @@ def flat_field(gl):
 
     tile = DEMTile.from_array(np.zeros((129, 129)), resolution=1.0)
     cat = {"layer": np.zeros(0, np.int64), "id": np.zeros(0, np.uint64)}
-    scene = TerrainScene(LayerStack([tile], [None], [(0, 0)], cat, {"site": [64.5, 64.5]}),
+    scene = TerrainScene(LayerStack((Layer(tile, None, (0, 0)),), cat, {"site": [64.5, 64.5]}),
                          curvature=False)
     light = Lighting.from_angles(90.0, 60.0, albedo=0.2, brdf="lambert")
     fr = Renderer(gl).render(scene, View(look_at((64.5, 64.5, 100.0), (64.5, 64.6, 0.0)), K),

@@ -6,7 +6,7 @@ from render.camera import Intrinsics, look_at
 from render.mesh_scene import MeshScene
 from render.renderer import Lighting, RenderOptions, View
 from render.terrain_scene import TerrainScene
-from terrain.layers import LayerStack
+from terrain.layers import Layer, LayerStack
 from terrain.tile import DEMTile
 
 LIGHT = Lighting.from_angles(135.0, 40.0, albedo=0.2, brdf="lambert")
@@ -17,7 +17,7 @@ def single_layer(heights, resolution=1.0, site=None):
     left, bottom, right, top = tile.bounds
     site = site or ((left + right) / 2, (bottom + top) / 2)
     cat = {"layer": np.zeros(0, np.int64), "id": np.zeros(0, np.uint64)}
-    return LayerStack([tile], [None], [(0, 0)], cat, {"site": list(site)})
+    return LayerStack((Layer(tile, None, (0, 0)),), cat, {"site": list(site)})
 
 
 def test_range_and_normals_of_a_tilted_plane_are_exact(renderer):

@@ -210,7 +210,7 @@ def test_the_normal_texture_lies_where_its_pixels_are(renderer):
     """An asymmetric terrain (a hill in the north-east quarter only) shaded from the normal
     texture looks as it does shaded from the vertices: the texture is not flipped or
     shifted."""
-    from terrain.layers import LayerStack
+    from terrain.layers import Layer, LayerStack
     from terrain.tile import DEMTile
 
     n = 65
@@ -219,7 +219,7 @@ def test_the_normal_texture_lies_where_its_pixels_are(renderer):
     tile = DEMTile.from_array(z, resolution=1.0)
     left, bottom, right, top = tile.bounds
     cat = {"layer": np.zeros(0, np.int64), "id": np.zeros(0, np.uint64)}
-    stack = LayerStack([tile], [None], [(0, 0)], cat,
+    stack = LayerStack((Layer(tile, None, (0, 0)),), cat,
                        {"site": [(left + right) / 2, (bottom + top) / 2]})
     scene = TerrainScene(stack, curvature=False)
     k = Intrinsics.from_fov(96, 96, 50.0)

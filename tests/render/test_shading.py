@@ -12,7 +12,7 @@ from render.renderer import Lighting, RenderOptions, View
 from render.terrain_scene import TerrainScene
 from terrain.catalog import Crater, CraterTable
 from terrain.cratering import CraterModel, add_craters
-from terrain.layers import LayerStack
+from terrain.layers import Layer, LayerStack
 from terrain.tile import DEMTile
 
 GOLDEN = Path(__file__).with_name("golden")
@@ -22,7 +22,7 @@ UPDATE = os.environ.get("CRATERSCAPE_UPDATE_GOLDEN") == "1"
 def _stack(tile):
     left, bottom, right, top = tile.bounds
     cat = {"layer": np.zeros(0, np.int64), "id": np.zeros(0, np.uint64)}
-    return LayerStack([tile], [None], [(0, 0)], cat,
+    return LayerStack((Layer(tile, None, (0, 0)),), cat,
                       {"site": [(left + right) / 2, (bottom + top) / 2]})
 
 

@@ -273,10 +273,11 @@ def test_a_request_larger_than_memory_runs_out_of_core_instead_of_being_refused(
 
 def test_progress_counts_chunks_and_pixels(tmp_path):
     seen = []
-    run(SynthSource(65, seed=1), tmp_path / "p.zarr", chunk=32,
-        progress=lambda done, total, pixels, seconds: seen.append((done, total, pixels)))
+    report = run(SynthSource(65, seed=1), tmp_path / "p.zarr", chunk=32,
+                 progress=lambda done, total, rate: seen.append((done, total, rate)))
     assert [s[0] for s in seen] == list(range(10)) and {s[1] for s in seen} == {9}
-    assert seen[-1][2] == 65 * 65
+    assert all(rate.endswith(" Mpixel/s") for _, _, rate in seen[1:])
+    assert report.pixels == 65 * 65
 
 
 @pytest.mark.slow

@@ -104,7 +104,7 @@ def test_an_interrupted_build_resumes_without_computing_a_finished_chunk(in_memo
     out = tmp_path / "resumed"
 
     def stop_in_stage(name):
-        def update(done, total, pixels, seconds):
+        def update(done, total, rate):
             if name == "e2" and done == 3:
                 raise Interrupt  # stopped part way through the expansion of layer 2
         return update

@@ -1,16 +1,21 @@
 """Nested multi-resolution layer stacks: agreement between layers, crater sorting, edits."""
 
 import json
+import math
 import multiprocessing
 import os
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from terrain.cratering import CraterModel
 from terrain.errors import InvalidDEMError, InvalidParameterError, MemoryRequestError
 from terrain.layers import (
     MIN_CRATER_PIXELS,
+    Layer,
+    LayerStack,
     build_stack,
     read_stack,
     replace_crater,
@@ -104,8 +109,29 @@ def test_write_read_roundtrip_and_manifest(stack, tmp_path):
         assert np.array_equal(a.heights, b.heights)
         assert a.transform == b.transform
     assert np.array_equal(again.catalog["layer"], stack.catalog["layer"])
+    assert again.windows == stack.windows and again.origins == stack.origins
+    assert [layer.file for layer in again.layers] == [e["file"] for e in manifest["layers"]]
+    assert all((out / layer.file).is_file() for layer in again.layers)
     with pytest.raises(InvalidParameterError, match="not empty"):
         write_stack(stack, out)
+
+
+def test_a_stack_is_frozen_and_checks_its_layers(stack):
+    import dataclasses
+
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        stack.catalog = {}
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        stack.layers[0].tile = stack.tiles[1]
+    base_layer, fine = stack.layers[0], stack.layers[1]
+    with pytest.raises(InvalidParameterError, match="window"):
+        LayerStack((base_layer, Layer(fine.tile, None, fine.origin)), stack.catalog)
+    with pytest.raises(InvalidParameterError, match="base layer"):
+        LayerStack((fine,), stack.catalog)
+    with pytest.raises(InvalidParameterError, match="window must be 4 integers"):
+        Layer(fine.tile, (1, 2, 3), fine.origin)
+    edited = stack.with_info(note="x")
+    assert edited.info["note"] == "x" and "note" not in stack.info
 
 
 def test_same_seed_same_stack():
@@ -184,3 +210,16 @@ def test_more_levels_than_memory_allows_is_refused(monkeypatch):
     with pytest.raises(MemoryRequestError, match="needs about"):
         build_stack(base(), SITE, levels=12, layer_size=2049)
     assert os.environ["CRATERSCAPE_MEMORY_LIMIT"] == "50M"
+
+
+@given(st.floats(1e-3, 1e4), st.floats(1e-3, 1e4))
+def test_levels_for_resolution_is_the_fewest_that_reach_the_finest(base, finest):
+    from terrain.layers import MAX_LEVELS, levels_for_resolution
+
+    try:
+        levels = levels_for_resolution(base, finest)
+    except InvalidParameterError:
+        assert math.log2(base / finest) > MAX_LEVELS - 1
+        return
+    assert base / 2**levels <= finest * (1 + 1e-9)
+    assert levels == 0 or base / 2 ** (levels - 1) > finest * (1 - 1e-9)
