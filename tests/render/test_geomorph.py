@@ -90,6 +90,11 @@ def test_a_sequence_across_a_layer_change_stays_consistent_and_a_pop_is_caught(r
     assert change_marks([f[3].drawn for f in frames])[1][popped]
 
 
+#: Level of detail at which this 128 x 128 descent switches blocks between frames (the
+#: renderer's defaults before they were unified at the scenario's finer 1.5 px / 3M).
+SWITCHING_LOD = dict(lod_pixels=3.0, triangle_budget=1_000_000)
+
+
 def test_geomorphing_removes_the_jump_at_level_switches(renderer, scene):
     """A descent where blocks switch levels: switching shows at the switch, morphing not."""
     from render.trajectory import descent
@@ -102,7 +107,8 @@ def test_geomorphing_removes_the_jump_at_level_switches(renderer, scene):
     ratios = {}
     for morph in (True, False):
         frames = _render(renderer, scene, poses, k,
-                         lambda i, m=morph: RenderOptions(shadow_size=1024, geomorph=m))
+                         lambda i, m=morph: RenderOptions(shadow_size=1024, geomorph=m,
+                                                          **SWITCHING_LOD))
         _, lod = change_marks([f[3].drawn for f in frames])
         rms = _rms(frames)
         at_switch = rms[lod[1:]]
