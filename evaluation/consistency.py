@@ -300,7 +300,7 @@ def change_marks(drawn_records) -> tuple[np.ndarray, np.ndarray]:
         detail changed (a terrain layer's set of block levels, the target on-screen cell
         size, a body magnitude or the boulder levels drawn).
     """
-    from evaluation.tracking import _resolution_key
+    from evaluation.tracking import resolution_key
 
     n = len(drawn_records)
     layer = np.zeros(n, dtype=bool)
@@ -316,7 +316,7 @@ def change_marks(drawn_records) -> tuple[np.ndarray, np.ndarray]:
                            sorted((d.get("boulders") or {}).keys()), d.get("lod_edge_m")],
                           default=str)
 
-    keys = [_resolution_key(d) for d in drawn_records]
+    keys = [resolution_key(d) for d in drawn_records]
     lods = [lod_key(d) for d in drawn_records]
     for k in range(1, n):
         layer[k] = keys[k] != keys[k - 1]

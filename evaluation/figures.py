@@ -31,7 +31,19 @@ DPI = 110
 PERCENT_FLOOR = 1e-3
 
 
-def _figure(figsize=FIGSIZE):
+def new_figure(figsize=FIGSIZE):
+    """Return an empty matplotlib figure in the reports' size, resolution and layout.
+
+    Parameters
+    ----------
+    figsize : (2,) float, inches
+        Width and height.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        A figure with no pyplot state behind it (safe in threads and servers).
+    """
     from matplotlib.figure import Figure
 
     return Figure(figsize=figsize, dpi=DPI, layout="constrained")
@@ -73,7 +85,7 @@ def slope_distribution_figure(distributions: Sequence, *, title: str = "") -> ob
     ----------
     distributions : sequence of evaluation.slope.SlopeDistribution
     """
-    fig = _figure()
+    fig = new_figure()
     ax = fig.add_subplot()
     top = 10.0
     for d in distributions:
@@ -102,7 +114,7 @@ def spectrum_figure(spectra: Sequence, fits: Sequence | None = None, *,
     fits : sequence of evaluation.spectrum.HurstFit or None, optional
         One per spectrum; drawn as dashed lines over their fitted band.
     """
-    fig = _figure()
+    fig = new_figure()
     ax = fig.add_subplot()
     fits = list(fits) if fits is not None else [None] * len(spectra)
     for s, fit in zip(spectra, fits, strict=True):
@@ -130,7 +142,7 @@ def slope_area_figure(histograms: Sequence, *, title: str = "") -> object:
     ----------
     histograms : sequence of evaluation.meshslope.SlopeAreaHistogram
     """
-    fig = _figure()
+    fig = new_figure()
     ax = fig.add_subplot()
     top = 30.0
     for h in histograms:
@@ -161,7 +173,7 @@ def tracks_figure(image: np.ndarray, scored, *, title: str = "") -> object:
 
     tracks = scored.tracks
     h, w = tracks.shape
-    fig = _figure(figsize=(7.0, 7.0 * h / w + 0.6))
+    fig = new_figure(figsize=(7.0, 7.0 * h / w + 0.6))
     ax = fig.add_subplot()
     img = np.asarray(image)
     if img.ndim == 3:
@@ -204,7 +216,7 @@ def tracks_figure(image: np.ndarray, scored, *, title: str = "") -> object:
 
 def error_figure(scored, *, title: str = "") -> object:
     """Tracking-error distribution and its growth with track age (needs truth)."""
-    fig = _figure(figsize=(9.0, 4.0))
+    fig = new_figure(figsize=(9.0, 4.0))
     ax1, ax2 = fig.subplots(1, 2)
     e = scored.error_values()
     if e.size:
@@ -239,7 +251,7 @@ def consistency_figure(result, *, title: str = "") -> object:
 
     ``result`` is an :class:`evaluation.consistency.Consistency`.
     """
-    fig = _figure(figsize=(9.0, 4.0))
+    fig = new_figure(figsize=(9.0, 4.0))
     ax = fig.subplots()
     frames = result.frames
     x = np.array([f["next"] for f in frames], dtype=np.float64)

@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-from evaluation.report import Check, Section, _figure, _fmt, _jsonable, image_figure
+from evaluation.report import Check, Section, figure_record, fmt, image_figure, jsonable
 from terrain import metakeys as mk
 
 __all__ = ["descent_layers", "hazards_file_section", "rock_sfd", "rock_sfd_figure",
@@ -60,7 +60,7 @@ def rock_sfd(catalog: dict, extent, min_diameter: float, *, points: int = 24) ->
 
 def rock_sfd_figure(measured: dict, model):
     """Measured F(>=D) and N(>=D) (points) against the model drawn from (lines)."""
-    from evaluation.figures import _figure as new_figure
+    from evaluation.figures import new_figure
 
     fig = new_figure()
     ax1, ax2 = fig.subplots(1, 2)
@@ -164,20 +164,20 @@ def site_section(hazards, hazard_png, *, layer: int | None, resolution: float, r
                                         hazard_png))
     known = np.isfinite(hazards.safe)
     sec.tables.append(("Hazard truth", ["measure", "value"], [
-        ["safe fraction (of known pixels)", _fmt(hazards.safe_fraction)],
-        ["known fraction", _fmt(hazards.known_fraction)],
-        ["median slope (deg)", _fmt(float(np.nanmedian(hazards.slope)) if known.any()
+        ["safe fraction (of known pixels)", fmt(hazards.safe_fraction)],
+        ["known fraction", fmt(hazards.known_fraction)],
+        ["median slope (deg)", fmt(float(np.nanmedian(hazards.slope)) if known.any()
                                     else None)],
-        ["pixels unsafe by slope", _fmt(int(np.sum(hazards.slope[known]
+        ["pixels unsafe by slope", fmt(int(np.sum(hazards.slope[known]
                                                    > hazards.max_slope)))],
-        ["pixels unsafe by step", _fmt(int(np.sum(hazards.step[known] > hazards.max_step)))],
+        ["pixels unsafe by step", fmt(int(np.sum(hazards.step[known] > hazards.max_step)))],
     ]))
     data = dict(safe_fraction=hazards.safe_fraction, known_fraction=hazards.known_fraction,
                 layer=layer, resolution_m=resolution)
     if rocks is not None and rock_model is not None and rock_extent is not None:
         extent, dmin = rock_extent
         measured = rock_sfd(rocks, extent, dmin)
-        sec.figures.append(_figure(
+        sec.figures.append(figure_record(
             "rock_sfd", "Rock size-frequency: catalogue against the model",
             rock_sfd_figure(measured, rock_model),
             dict(measured=measured, model=rock_model.as_dict())))
@@ -193,15 +193,15 @@ def site_section(hazards, hazard_png, *, layer: int | None, resolution: float, r
             "Descent: finest layer drawn under the image centre", [
                 "frame", "altitude (m)", "GSD at centre (m)", "layer", "layer pixel (m)",
                 "layer pixel / GSD", "level-of-detail step", "drawn cell (m, at most)"],
-            [[r["frame"], _fmt(r["altitude_m"]), _fmt(r["gsd_m"], 3), r["layer"],
-              _fmt(r["layer_resolution_m"], 3), _fmt(r["ratio"], 3), r["lod_step"],
-              _fmt(r["cell_m"], 3)] for r in picked]))
+            [[r["frame"], fmt(r["altitude_m"]), fmt(r["gsd_m"], 3), r["layer"],
+              fmt(r["layer_resolution_m"], 3), fmt(r["ratio"], 3), r["lod_step"],
+              fmt(r["cell_m"], 3)] for r in picked]))
         coarse = sum(1 for r in descent if not r["ratio"] <= 2.0)
         sec.checks.append(Check(
             "site", "frames whose finest drawn layer is coarser than 2x their GSD", coarse,
             0, "<=", "frames"))
         data["descent"] = descent
-    sec.data = _jsonable(data)
+    sec.data = jsonable(data)
     return sec
 
 

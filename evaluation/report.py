@@ -328,20 +328,21 @@ def image_figure(fig_id, title, path, caption="") -> Figure:
     return Figure(fig_id, title, path.read_bytes(), dict(file=str(path)), caption)
 
 
-def _figure(fig_id, title, fig, data, caption="") -> Figure:
+def figure_record(fig_id, title, fig, data, caption="") -> Figure:
+    """Return a report figure: the drawing as PNG bytes and its numbers made JSON-safe."""
     from evaluation.figures import png_bytes
 
-    return Figure(fig_id, title, png_bytes(fig), _jsonable(data), caption)
+    return Figure(fig_id, title, png_bytes(fig), jsonable(data), caption)
 
 
-def _jsonable(obj):
+def jsonable(obj):
     """Plain JSON types (NaN and infinities become null)."""
     if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
+        return {str(k): jsonable(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
+        return [jsonable(v) for v in obj]
     if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
+        return jsonable(obj.tolist())
     if isinstance(obj, (np.floating, float)):
         v = float(obj)
         return v if math.isfinite(v) else None
@@ -352,7 +353,8 @@ def _jsonable(obj):
     return obj
 
 
-def _fmt(value, digits=4) -> str:
+def fmt(value, digits=4) -> str:
+    """Return a number as report text: ``digits`` significant digits, "n/a" for None."""
     if value is None:
         return "n/a"
     if isinstance(value, (bool, np.bool_)):
@@ -403,40 +405,40 @@ def tracking_section(scored, last_image, thresholds: dict | None = None, *,
         "projected into every later frame with that frame's truth; the error is the distance "
         "between the tracked and the true position.")
     sec.notes.extend(summary["notes"])
-    rows = [["tracks", _fmt(tr["tracks"])],
+    rows = [["tracks", fmt(tr["tracks"])],
             ["live tracks per frame (mean / min)",
-             f"{_fmt(tr['tracks_per_frame_mean'])} / {_fmt(tr['tracks_per_frame_min'])}"],
+             f"{fmt(tr['tracks_per_frame_mean'])} / {fmt(tr['tracks_per_frame_min'])}"],
             ["track length, frames (mean / median / max)",
-             f"{_fmt(tr['track_length_mean'])} / {_fmt(tr['track_length_median'])} / "
-             f"{_fmt(tr['track_length_max'])}"],
-            ["tracks spanning the whole sequence", _fmt(tr["tracks_spanning_sequence"])],
-            ["survival per step (ordinary)", _fmt(tr["survival_mean"])],
+             f"{fmt(tr['track_length_mean'])} / {fmt(tr['track_length_median'])} / "
+             f"{fmt(tr['track_length_max'])}"],
+            ["tracks spanning the whole sequence", fmt(tr["tracks_spanning_sequence"])],
+            ["survival per step (ordinary)", fmt(tr["survival_mean"])],
             [f"survival across layer changes ({tr['layer_changes']})",
-             _fmt(tr["survival_at_layer_change"])]]
+             fmt(tr["survival_at_layer_change"])]]
     if err is not None:
-        rows += [["scored observations", _fmt(err["observations"])],
+        rows += [["scored observations", fmt(err["observations"])],
                  ["error median / mean / p95 / max (px)",
-                  f"{_fmt(err['median_px'])} / {_fmt(err['mean_px'])} / "
-                  f"{_fmt(err.get('p95_px'))} / {_fmt(err['max_px'])}"],
+                  f"{fmt(err['median_px'])} / {fmt(err['mean_px'])} / "
+                  f"{fmt(err.get('p95_px'))} / {fmt(err['max_px'])}"],
                  [f"outlier fraction (> {err['outlier_px']:g} px)",
-                  _fmt(err["outlier_fraction"])]]
+                  fmt(err["outlier_fraction"])]]
         one = err.get("one_step")
         if one is not None:
             rows += [["one-step error median / mean / p90 (px)",
-                      f"{_fmt(one['median_px'])} / {_fmt(one['mean_px'])} / "
-                      f"{_fmt(one['p90_px'])}"]]
+                      f"{fmt(one['median_px'])} / {fmt(one['mean_px'])} / "
+                      f"{fmt(one['p90_px'])}"]]
         rows += [["not scored: hidden / outside / unliftable tracks",
                   f"{err['hidden']} / {err['outside']} / {err['unlifted_tracks']}"]]
         surface = err.get("surface_tracks")
         if surface is not None:
             rows += [[f"tracks starting on a silhouette (of {tr['tracks']})",
-                      _fmt(err["silhouette_tracks"])],
+                      fmt(err["silhouette_tracks"])],
                      ["without them: error median (px) / outlier fraction",
-                      f"{_fmt(surface['median_px'])} / {_fmt(surface['outlier_fraction'])}"]]
+                      f"{fmt(surface['median_px'])} / {fmt(surface['outlier_fraction'])}"]]
     sec.tables.append(("Tracking", ["measure", "value"], rows))
-    sec.data = _jsonable(summary)
+    sec.data = jsonable(summary)
     tracks = scored.tracks
-    sec.figures.append(_figure(
+    sec.figures.append(figure_record(
         "tracks", "Tracks over the last frame", tracks_figure(last_image, scored),
         dict(positions=tracks.positions, start=tracks.start, stop=tracks.stop,
              final_error_px=(scored.errors[:, -1] if scored.errors is not None else None)),
@@ -459,7 +461,7 @@ def tracking_section(scored, last_image, thresholds: dict | None = None, *,
                                 tr["survival_at_layer_change"],
                                 t["min_survival_at_layer_change"], ">="))
     if err is not None and err["observations"]:
-        sec.figures.append(_figure(
+        sec.figures.append(figure_record(
             "tracking_error", "Tracking error", error_figure(scored),
             dict(errors_px=scored.error_values(),
                  median_px_by_track_age=err["median_px_by_track_age"],
@@ -498,21 +500,21 @@ def consistency_section(result, thresholds: dict | None = None, *, run_label: st
         "masked). A renderer whose levels of detail or layers switch between frames shows a "
         "spike at the switch; the sensor's own noise sets the floor.")
     sec.notes.extend(result.notes)
-    rows = [["frame pairs", _fmt(s["pairs"])],
+    rows = [["frame pairs", fmt(s["pairs"])],
             ["residual rms, median / largest (DN)",
-             f"{_fmt(s['rms_dn_median'])} / {_fmt(s['rms_dn_max'])}"],
-            ["largest over median", _fmt(s["spike_ratio"])],
-            ["sensor noise of a pair, median (DN)", _fmt(s["noise_floor_dn_median"])],
+             f"{fmt(s['rms_dn_median'])} / {fmt(s['rms_dn_max'])}"],
+            ["largest over median", fmt(s["spike_ratio"])],
+            ["sensor noise of a pair, median (DN)", fmt(s["noise_floor_dn_median"])],
             ["residual beyond the noise, median / largest (DN)",
-             f"{_fmt(s['excess_dn_median'])} / {_fmt(s['excess_dn_max'])}"],
+             f"{fmt(s['excess_dn_median'])} / {fmt(s['excess_dn_max'])}"],
             ["worst 32 px tile, median / largest (DN)",
-             f"{_fmt(s['worst_tile_dn_median'])} / {_fmt(s['worst_tile_dn_max'])}"],
+             f"{fmt(s['worst_tile_dn_median'])} / {fmt(s['worst_tile_dn_max'])}"],
             [f"median at layer or level changes ({s['lod_changes']}) / elsewhere (DN)",
-             f"{_fmt(s['rms_dn_median_at_changes'])} / {_fmt(s['rms_dn_median_elsewhere'])}"],
-            ["pixels counted (median fraction)", _fmt(s["counted_fraction_median"])]]
+             f"{fmt(s['rms_dn_median_at_changes'])} / {fmt(s['rms_dn_median_elsewhere'])}"],
+            ["pixels counted (median fraction)", fmt(s["counted_fraction_median"])]]
     sec.tables.append(("Consistency", ["measure", "value"], rows))
-    sec.data = _jsonable(result.as_dict())
-    sec.figures.append(_figure(
+    sec.data = jsonable(result.as_dict())
+    sec.figures.append(figure_record(
         "consistency", "Consistency residual per frame", consistency_figure(result),
         dict(frames=result.frames),
         "Residual rms of each frame warped into the previous one, with the sensor noise of a "
@@ -548,39 +550,39 @@ def dem_section(distributions, spectra=(), fits=(), comparisons=(), thresholds=N
         "Horn slopes computed as gdaldem computes them; distributions give the percentage of "
         "terrain steeper than each angle (Martin et al. 2014, Fig. 11). DEMs of different "
         "resolution are compared at the coarser one's pixel spacing.")
-    rows = [[d.label, _fmt(d.resolution_m), _fmt(d.pixels)]
-            + [_fmt(d.quantiles[k]) for k in ("p50", "p90", "p99", "mean", "max")]
+    rows = [[d.label, fmt(d.resolution_m), fmt(d.pixels)]
+            + [fmt(d.quantiles[k]) for k in ("p50", "p90", "p99", "mean", "max")]
             for d in distributions]
     sec.tables.append(("Slope quantiles (degrees)",
                        ["DEM", "pixel (m)", "slopes", "median", "p90", "p99", "mean", "max"],
                        rows))
     if distributions:
-        sec.figures.append(_figure(
+        sec.figures.append(figure_record(
             "slope_distributions", "Cumulative slope-frequency distributions",
             slope_distribution_figure(distributions),
             dict(distributions=[d.as_dict() for d in distributions])))
     if spectra:
         fits = list(fits) if fits else [None] * len(spectra)
-        sec.figures.append(_figure(
+        sec.figures.append(figure_record(
             "spectra", "Radially averaged power spectra", spectrum_figure(spectra, fits),
             dict(spectra=[s.as_dict() for s in spectra],
                  fits=[f.as_dict() if f else None for f in fits])))
         sec.tables.append(("Hurst exponents", ["DEM", "H", "beta", "band (cycles/m)", "R^2"],
-                           [[s.label, _fmt(f.hurst, 3), _fmt(f.beta, 3),
-                             f"{f.f_low:.3g} - {f.f_high:.3g}", _fmt(f.r_squared, 3)]
+                           [[s.label, fmt(f.hurst, 3), fmt(f.beta, 3),
+                             f"{f.f_low:.3g} - {f.f_high:.3g}", fmt(f.r_squared, 3)]
                             if f else [s.label, "n/a", "n/a", "n/a", "n/a"]
                             for s, f in zip(spectra, fits, strict=True)]))
     for c in comparisons:
         sec.tables.append((
             f"{c.label} against {c.reference_label} at {c.resolution_m:.4g} m",
             ["measure", c.label, c.reference_label],
-            [["median slope (deg)", _fmt(c.distribution.quantiles["p50"]),
-              _fmt(c.reference_distribution.quantiles["p50"])],
-             ["p90 slope (deg)", _fmt(c.distribution.quantiles["p90"]),
-              _fmt(c.reference_distribution.quantiles["p90"])],
-             ["Hurst exponent", _fmt(c.hurst, 3), _fmt(c.reference_hurst, 3)],
-             ["KS distance", _fmt(c.ks_distance), ""],
-             ["spectrum median |log10 ratio|", _fmt(c.log10_ratio_median), ""]]))
+            [["median slope (deg)", fmt(c.distribution.quantiles["p50"]),
+              fmt(c.reference_distribution.quantiles["p50"])],
+             ["p90 slope (deg)", fmt(c.distribution.quantiles["p90"]),
+              fmt(c.reference_distribution.quantiles["p90"])],
+             ["Hurst exponent", fmt(c.hurst, 3), fmt(c.reference_hurst, 3)],
+             ["KS distance", fmt(c.ks_distance), ""],
+             ["spectrum median |log10 ratio|", fmt(c.log10_ratio_median), ""]]))
         sec.checks.append(Check("dem", f"KS distance {c.label} vs {c.reference_label}",
                                 c.ks_distance, t["max_ks_distance"], "<="))
         sec.checks.append(Check(
@@ -593,7 +595,7 @@ def dem_section(distributions, spectra=(), fits=(), comparisons=(), thresholds=N
                                 dh, t["max_hurst_difference"], "<=", "",
                                 "" if dh is not None else "DEM too small for a Hurst fit"))
     if comparisons:
-        sec.figures.append(_figure(
+        sec.figures.append(figure_record(
             "comparison_distributions", "Slope distributions at matched baselines",
             slope_distribution_figure([d for c in comparisons
                                        for d in (c.distribution, c.reference_distribution)]),
@@ -603,14 +605,14 @@ def dem_section(distributions, spectra=(), fits=(), comparisons=(), thresholds=N
             "Agreement with independent slope maps (degrees)",
             ["map", "pixels", "bias", "median |diff|", "p99 |diff|", "max |diff|",
              "correlation"],
-            [[label, _fmt(a.pixels), _fmt(a.bias_deg), _fmt(a.median_abs_deg),
-              _fmt(a.p99_abs_deg), _fmt(a.max_abs_deg), _fmt(a.correlation, 6)]
+            [[label, fmt(a.pixels), fmt(a.bias_deg), fmt(a.median_abs_deg),
+              fmt(a.p99_abs_deg), fmt(a.max_abs_deg), fmt(a.correlation, 6)]
              for label, a in slope_agreements]))
     if not comparisons and distributions:
         sec.notes.append("no reference DEM given: the DEM checks were not run")
         sec.checks.append(Check("dem", "slope distributions vs a reference", None,
                                 t["max_ks_distance"], "<=", "", "no reference DEM given"))
-    sec.data = _jsonable(dict(
+    sec.data = jsonable(dict(
         distributions=[d.as_dict() for d in distributions],
         comparisons=[c.as_dict() for c in comparisons],
         slope_agreements=[dict(label=label, **a.as_dict()) for label, a in slope_agreements]))
@@ -645,10 +647,10 @@ def asteroid_section(bodies, reference=None, thresholds=None) -> Section:
         rad = b.summary("radial")
         grav = b.summary("gravitational") if b.gravitational_deg is not None else None
         rows.append([b.label + (" (reference)" if b is reference else ""),
-                     _fmt(b.info.get("vertices")), _fmt(rad["p50"]),
-                     _fmt(grav["p50"]) if grav else "n/a",
-                     _fmt(grav["area_fraction_below_35deg"]) if grav else "n/a",
-                     _fmt(b.info.get("density_kg_m3")), _fmt(b.info.get("spin_period_h"))])
+                     fmt(b.info.get("vertices")), fmt(rad["p50"]),
+                     fmt(grav["p50"]) if grav else "n/a",
+                     fmt(grav["area_fraction_below_35deg"]) if grav else "n/a",
+                     fmt(b.info.get("density_kg_m3")), fmt(b.info.get("spin_period_h"))])
     sec.tables.append(("Slope medians (area-weighted, degrees)",
                        ["body", "vertices", "radial median", "gravitational median",
                         "area below 35 deg (grav.)", "density (kg/m^3)", "spin period (h)"],
@@ -660,12 +662,12 @@ def asteroid_section(bodies, reference=None, thresholds=None) -> Section:
                 continue
             histograms.append(b.histogram(k))
     chosen = [h for h in histograms if h.kind == kind] or histograms
-    sec.figures.append(_figure(
+    sec.figures.append(figure_record(
         "slope_area", f"Slope-area histograms ({kind} slopes)", slope_area_figure(chosen),
         dict(histograms=[h.as_dict() for h in chosen])))
     other = [h for h in histograms if h not in chosen]
     if other:
-        sec.figures.append(_figure(
+        sec.figures.append(figure_record(
             "slope_area_other", f"Slope-area histograms ({other[0].kind} slopes)",
             slope_area_figure(other), dict(histograms=[h.as_dict() for h in other])))
     for b in everyone:
@@ -693,7 +695,7 @@ def asteroid_section(bodies, reference=None, thresholds=None) -> Section:
                 d, note = None, str(exc)
             sec.checks.append(Check("asteroid", f"KS distance {b.label} vs {reference.label} "
                                     f"({kind})", d, t["max_ks_distance"], "<=", "", note))
-    sec.data = _jsonable(dict(bodies=[b.as_dict() for b in everyone],
+    sec.data = jsonable(dict(bodies=[b.as_dict() for b in everyone],
                               reference=reference.label if reference is not None else None))
     return sec
 
@@ -752,9 +754,9 @@ def render_html(report: Report) -> str:
         for c, state in rows:
             cls = {"pass": "pass", "fail": "fail"}.get(state, "na")
             body.append(
-                f"<tr><td>{e(c.section)}</td><td>{e(c.name)}</td><td>{e(_fmt(c.value))}"
+                f"<tr><td>{e(c.section)}</td><td>{e(c.name)}</td><td>{e(fmt(c.value))}"
                 f"{(' ' + e(c.unit)) if c.unit else ''}</td><td>{e(c.relation)} "
-                f"{e(_fmt(c.limit))}</td><td class=\"{cls}\">{e(state)}</td>"
+                f"{e(fmt(c.limit))}</td><td class=\"{cls}\">{e(state)}</td>"
                 f"<td>{e(c.note)}</td></tr>")
         parts.append(f"<table><caption>Checks</caption><tr>{head}</tr>{''.join(body)}"
                      "</table>")
@@ -793,7 +795,7 @@ def write_report(report: Report, path, *, inputs=()) -> tuple[Path, Path]:
     if not report.created:
         report.created = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
     text = render_html(report)
-    doc = json.dumps(_jsonable(report.as_dict()), indent=1, allow_nan=False)
+    doc = json.dumps(jsonable(report.as_dict()), indent=1, allow_nan=False)
     with atomic_path(json_path, inputs) as tmp:
         tmp.write_text(doc, encoding="utf-8")
     with atomic_path(path, inputs) as tmp:

@@ -292,7 +292,7 @@ class _Grey:
         return np.clip(img.astype(np.float32) * self.scale, 0, 255).astype(np.uint8)
 
 
-def _resolution_key(drawn) -> str:
+def resolution_key(drawn) -> str:
     """Return what decides a frame's resolution in its truth's ``drawn`` record."""
     import json
 
@@ -354,7 +354,7 @@ def track(run, settings: TrackerSettings | None = None, *, progress=None) -> Tra
                    f"tracking {w}x{h} frames with {s.max_corners} corners")
     layer_change = np.zeros(n, dtype=bool)
     if run.has_truth:
-        keys = [_resolution_key(t.drawn) for t in run.truth]
+        keys = [resolution_key(t.drawn) for t in run.truth]
         layer_change[1:] = [keys[k] != keys[k - 1] for k in range(1, n)]
     lk = dict(winSize=(s.win_size, s.win_size), maxLevel=s.levels,
               criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))

@@ -224,7 +224,7 @@ def test_silhouette_features_are_told_apart(scored):
 
 
 def test_resolution_changes_are_read_from_each_scene_kind():
-    from evaluation.tracking import _resolution_key as key
+    from evaluation.tracking import resolution_key as key
 
     terrain = {"layers": [{"level": 0, "triangles": 5, "lod": [1]}], "triangles": 5}
     finer = {"layers": [{"level": 0, "triangles": 9, "lod": [2]}], "triangles": 9}
