@@ -134,14 +134,14 @@ def open_reader(path, band: int = 1) -> DEMReader:
 _T = TypeVar("_T")
 
 
-def _filled(value: _T | None) -> _T:
+def filled_field(value: _T | None) -> _T:
     """Return a field that ``__post_init__`` filled in (None only before construction ends)."""
     if value is None:  # pragma: no cover - every source's __post_init__ fills its defaults
         raise AssertionError("a source's default was not filled in by __post_init__")
     return value
 
 
-def _input_stamp(reader) -> dict:
+def input_stamp(reader) -> dict:
     """Return what identifies an input, so a resumed run refuses an input that has changed."""
     path = Path(reader.path)
     st = path.stat()
@@ -223,7 +223,7 @@ class SynthSource:
         if self.craters is not None:
             meta[mk.CRATERS] = json.dumps(describe_craters(self.craters),
                                                      sort_keys=True)
-            meta[mk.CRATER_MODEL] = json.dumps(_filled(self.model).as_dict(),
+            meta[mk.CRATER_MODEL] = json.dumps(filled_field(self.model).as_dict(),
                                                          sort_keys=True)
         return meta
 
@@ -293,14 +293,14 @@ class CraterSource:
 
         meta = dict(self.reader.metadata)
         meta[mk.SEED] = str(self.seed)
-        meta[mk.CRATER_MODEL] = json.dumps(_filled(self.model).as_dict(),
+        meta[mk.CRATER_MODEL] = json.dumps(filled_field(self.model).as_dict(),
                                                          sort_keys=True)
         meta[mk.CRATERS] = json.dumps(describe_craters(self.craters), sort_keys=True)
         return meta
 
     def plan(self) -> dict:
         """Return what decides the output's bytes, to match a resumed run."""
-        return dict(kind="craters", input=_input_stamp(self.reader), metadata=self.metadata)
+        return dict(kind="craters", input=input_stamp(self.reader), metadata=self.metadata)
 
     def compute(self, window: Window):
         """Compute the cratered heights of one window, equal to the same window of a whole run."""
@@ -453,13 +453,13 @@ class ExpandSource:
         """The output's metadata tags (the input's, with the expansion's seed and parameters)."""
         meta = dict(self.reader.metadata)
         meta[mk.SEED] = str(self.seed)
-        meta[mk.EXPANSION] = json.dumps(dict(_filled(self.params).as_dict(),
+        meta[mk.EXPANSION] = json.dumps(dict(filled_field(self.params).as_dict(),
                                                         times=self.times), sort_keys=True)
         return meta
 
     def plan(self) -> dict:
         """Return what decides the output's bytes, to match a resumed run."""
-        return dict(kind="expand", input=_input_stamp(self.reader), metadata=self.metadata)
+        return dict(kind="expand", input=input_stamp(self.reader), metadata=self.metadata)
 
     def compute(self, window: Window):
         """Compute the expanded heights of one window, equal to the same window of a whole run."""
@@ -475,7 +475,7 @@ class ExpandSource:
             rows.insert(0, parent_region(*rows[0], full[k - 1][0]))
             cols.insert(0, parent_region(*cols[0], full[k - 1][1]))
         (r0, r1), (c0, c1) = rows[0], cols[0]
-        p = _filled(self.params)
+        p = filled_field(self.params)
         amp = None
         if p.uses_local_map:
             # The local map needs the box and one residual neighbour around the region; the
@@ -575,7 +575,7 @@ class FillSource:
 
     def plan(self) -> dict:
         """Return what decides the output's bytes, to match a resumed run."""
-        return dict(kind="fill", input=_input_stamp(self.reader), metadata=self.metadata)
+        return dict(kind="fill", input=input_stamp(self.reader), metadata=self.metadata)
 
     def _grown(self, window: Window) -> Window:
         ny, nx = self.shape
@@ -844,7 +844,7 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None,
             if pending:
                 client.cancel(pending)
     seconds = time.perf_counter() - t0
-    catalog = _merge_catalogs(store, source) if source.has_catalog else None
+    catalog = merge_chunk_catalogs(store, source) if source.has_catalog else None
     store.mark_complete()
     log.info("%s: %d chunks computed, %d reused, %.3g Mpixel/s", path, len(todo),
              len(done_before), pixels / max(seconds, 1e-9) / 1e6)
@@ -852,7 +852,7 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None,
                      busy)
 
 
-def _merge_catalogs(store: ZarrDEM, source) -> dict:
+def merge_chunk_catalogs(store: ZarrDEM, source) -> dict:
     """Return the whole DEM's crater catalogue from the chunks' rows, in composition order."""
     parts = [store.chunk_catalog(i, j) for i in range(store.grid[0])
              for j in range(store.grid[1])]

@@ -44,7 +44,7 @@ import numpy as np
 
 from terrain import memory
 from terrain import metakeys as mk
-from terrain.chunked import _filled
+from terrain.chunked import filled_field
 from terrain.errors import InvalidDEMError, InvalidParameterError
 from terrain.layers import WORK
 from terrain.tile import Window
@@ -81,9 +81,9 @@ def stack_fits_in_memory(base_shape, shapes) -> bool:
 
 
 def _stamp(reader) -> dict:
-    from terrain.chunked import _input_stamp
+    from terrain.chunked import input_stamp
 
-    return _input_stamp(reader)
+    return input_stamp(reader)
 
 
 @dataclass(frozen=True)
@@ -145,7 +145,7 @@ class StackExpandSource:
         p = self.params
         amp, amp_origin = None, (0, 0)
         if p.uses_local_map:
-            base = _filled(self.base)  # given whenever the roughness map is local
+            base = filled_field(self.base)  # given whenever the roughness map is local
             ny, nx = base.shape
             scale = 0.5 ** self.level
             a0 = max(0, math.floor(r0 * scale) - 1)
@@ -244,7 +244,7 @@ class RockSource:
 
     def compute(self, window: Window):
         """Stand the rocks that touch one window on the layer; keep those centred in it."""
-        from terrain.rocks import MIN_ROCK_PIXELS, _rasterise
+        from terrain.rocks import MIN_ROCK_PIXELS, rasterise_rocks
 
         t = self.transform
         res = float(t.a)
@@ -272,7 +272,7 @@ class RockSource:
                             float(t.f), res, xs, ys, z0)
         heights, valid = self.reader.read(window)
         z = heights.astype(np.float64)
-        _rasterise(z, window.row, window.col, float(t.c), float(t.f), res, rows, z0)
+        rasterise_rocks(z, window.row, window.col, float(t.c), float(t.f), res, rows, z0)
         out = z.astype(np.float32)
         out[~valid] = np.nan
         # catalogue rows: rocks centred in this chunk (the layer's edges closed)
@@ -332,7 +332,7 @@ class AgreeSource:
         heights, _ = self.reader.read(window)
         if self.finer is None:
             return heights, None
-        col, row, size, _ = _filled(self.window_in_self)  # given with ``finer``
+        col, row, size, _ = filled_field(self.window_in_self)  # given with ``finer``
         a0, a1 = max(window.row, row), min(window.row + window.height, row + size)
         b0, b1 = max(window.col, col), min(window.col + window.width, col + size)
         if a0 < a1 and b0 < b1:
@@ -360,9 +360,9 @@ class _Layer:
     @property
     def bounds(self):
         """The layer's (left, bottom, right, top) in map metres."""
-        from terrain.layers import _bounds
+        from terrain.layers import layer_bounds
 
-        return _bounds(self.shape, self.transform)
+        return layer_bounds(self.shape, self.transform)
 
 
 # --------------------------------------------------------------------------------------
@@ -447,9 +447,9 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
     from terrain.layers import (
         INCOMPLETE,
         MIN_CRATER_PIXELS,
+        GridShape,
         _layer_craters,
-        _plan,
-        _Shape,
+        layer_plan,
         prepare_folder,
         stack_lock,
     )
@@ -465,17 +465,17 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
     model = model or CraterModel()
     outdir = Path(outdir)
     x, y = (float(v) for v in site)
-    base_shape = _Shape(tuple(reader.shape), reader.transform)
+    base_shape = GridShape(tuple(reader.shape), reader.transform)
     left, top = reader.transform @ (0, 0)
     right, bottom = reader.transform @ (reader.shape[1], reader.shape[0])
     if not (left <= x <= right and bottom <= y <= top):
         raise InvalidParameterError(
             f"site {x:.6g},{y:.6g} lies outside the DEM (x {left:.6g}..{right:.6g}, "
             f"y {bottom:.6g}..{top:.6g})")
-    windows, origins, shapes, transforms = _plan(base_shape, (x, y), levels, layer_size)
-    from terrain.layers import _bounds
+    windows, origins, shapes, transforms = layer_plan(base_shape, (x, y), levels, layer_size)
+    from terrain.layers import layer_bounds
 
-    plan = [(_bounds(sh, tr), tr.a) for sh, tr in zip(shapes, transforms, strict=True)]
+    plan = [(layer_bounds(sh, tr), tr.a) for sh, tr in zip(shapes, transforms, strict=True)]
     if geotiff_pixels is None:
         geotiff_pixels = int(memory.available_bytes() / 4 / 12)
 
@@ -575,7 +575,7 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
             LayerStack,
             _layers,
             _manifest,
-            _merge_catalogs,
+            merge_catalogs,
         )
         from terrain.outputs import atomic_path
 
@@ -596,7 +596,7 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
                     shutil.rmtree(target)
                 store.path.rename(target)
             files.append(name)
-        catalog = _merge_catalogs(catalogs)
+        catalog = merge_catalogs(catalogs)
         info = dict(info or {})
         info.update(base_filled_pixels=int(missing))
         rock_catalog = None
@@ -646,9 +646,9 @@ def _count_unknown(reader, chunk: int) -> int:
 
 
 def _stored_catalog(store) -> dict:
-    from terrain.chunked import _merge_catalogs
+    from terrain.chunked import merge_chunk_catalogs
 
-    return _merge_catalogs(store, None)
+    return merge_chunk_catalogs(store, None)
 
 
 def _layer_metadata(reader, k: int, table, seed: int, model) -> dict:

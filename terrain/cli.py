@@ -863,14 +863,14 @@ def _stack_geometry(input_dem, band, site, site_lonlat, levels, finest_resolutio
     """(reader, site, levels, layer shapes) of a stack, from the input's header only."""
     from terrain.chunked import open_reader
     from terrain.io import lonlat_to_xy
-    from terrain.layers import _plan, _Shape, levels_for_resolution
+    from terrain.layers import GridShape, layer_plan, levels_for_resolution
 
     reader = open_reader(input_dem, band)
     if site_lonlat is not None:
         site = lonlat_to_xy(reader.crs, *site_lonlat)
     if finest_resolution is not None:
         levels = levels_for_resolution(reader.resolution, finest_resolution)
-    _, _, shapes, _ = _plan(_Shape(tuple(reader.shape), reader.transform),
+    _, _, shapes, _ = layer_plan(GridShape(tuple(reader.shape), reader.transform),
                             tuple(float(v) for v in site), levels, layer_size)
     return reader, site, levels, shapes
 

@@ -247,7 +247,7 @@ def _layers(tiles, windows, origins, files=None) -> tuple[Layer, ...]:
 # ---------------------------------------------------------------------------- building
 
 
-def _site_window(tile: DEMTile | _Shape, x: float, y: float,
+def _site_window(tile: DEMTile | GridShape, x: float, y: float,
                  width: int) -> tuple[int, int, int]:
     """Window (col, row, size) of ``width`` pixels in ``tile`` centred on (x, y), clamped."""
     ny, nx = tile.shape
@@ -260,7 +260,8 @@ def _site_window(tile: DEMTile | _Shape, x: float, y: float,
     return col, row, size
 
 
-def _bounds(shape, transform):
+def layer_bounds(shape, transform):
+    """Return (left, bottom, right, top) of a grid of ``shape`` placed by ``transform``."""
     ny, nx = shape
     left, top = transform @ (0, 0)
     right, bottom = transform @ (nx, ny)
@@ -290,7 +291,7 @@ def _layer_craters(population, seed, plan, k, factor, min_pixels):
     return table.take(np.flatnonzero(keep))
 
 
-def _plan(base: DEMTile | _Shape, site, levels, layer_size):
+def layer_plan(base: DEMTile | GridShape, site, levels, layer_size):
     """Geometry of every layer: windows, origins, shapes and transforms, before any work."""
     if layer_size < 3 or layer_size % 2 == 0:
         raise InvalidParameterError(
@@ -312,11 +313,11 @@ def _plan(base: DEMTile | _Shape, site, levels, layer_size):
         transform = expanded_transform(transforms[-1], 1, row, col)
         transforms.append(transform)
         shapes.append((2 * size - 1, 2 * size - 1))
-        proxy = _Shape(shapes[-1], transform)
+        proxy = GridShape(shapes[-1], transform)
     return windows, origins, shapes, transforms
 
 
-class _Shape:
+class GridShape:
     """Just enough of a tile for :func:`_site_window` (shape and rowcol)."""
 
     def __init__(self, shape, transform):
@@ -417,8 +418,8 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
         raise InvalidParameterError(
             f"site {x:.6g},{y:.6g} lies outside the DEM (x {left:.6g}..{right:.6g}, "
             f"y {bottom:.6g}..{top:.6g})")
-    windows, origins, shapes, transforms = _plan(base, (x, y), levels, layer_size)
-    plan = [(_bounds(sh, tr), tr.a) for sh, tr in zip(shapes, transforms, strict=True)]
+    windows, origins, shapes, transforms = layer_plan(base, (x, y), levels, layer_size)
+    plan = [(layer_bounds(sh, tr), tr.a) for sh, tr in zip(shapes, transforms, strict=True)]
     pixels = sum(h * w for h, w in shapes)
     memory.require(pixels * (4 + 1) * 2 + base.heights.size * 8 * 3,
                    f"a {levels}-level stack of {layer_size}x{layer_size} layers")
@@ -488,7 +489,7 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
         coarse[row:row + size, col:col + size] = tiles[k].heights[::2, ::2]
         tiles[k - 1] = tiles[k - 1].replace(heights=coarse, valid=np.isfinite(coarse))
 
-    catalog = _merge_catalogs(catalogs)
+    catalog = merge_catalogs(catalogs)
     info.update(seed=seed, site=[x, y], levels=levels, layer_size=layer_size,
                 expansion=params.as_dict(), min_crater_pixels=min_crater_pixels,
                 population=population.as_dict() if population else None,
@@ -542,7 +543,8 @@ def _add_layer_rocks(tiles: list, rocks, seed: int, population) -> dict:
     return rock_catalog(table, z0, first)
 
 
-def _merge_catalogs(catalogs) -> dict:
+def merge_catalogs(catalogs) -> dict:
+    """Return one crater catalogue from the per-layer ones, in composition order."""
     if not catalogs:
         cat = empty_catalog()
         cat["layer"] = np.zeros(0, dtype=np.int64)
@@ -824,7 +826,7 @@ def _read_stack(outdir: Path) -> LayerStack:
         raise InvalidDEMError(f"manifest '{mpath}' names a catalogue outside the stack: "
                               f"{cat_name!r}")
     cat_path = outdir / cat_name
-    catalog = read_catalog(cat_path) if cat_path.exists() else _merge_catalogs([])
+    catalog = read_catalog(cat_path) if cat_path.exists() else merge_catalogs([])
     info = {k: v for k, v in manifest.items()
             if k not in ("layers", "format", "version", "crs", "catalog", "crater_counts")}
     rock_path = outdir / ROCK_CATALOG
@@ -877,7 +879,7 @@ def replace_crater(outdir, x: float, y: float, diameter: float, *, age: float = 
         _propagate_down(tiles, stack.windows, k, old, changed)
         cat = dict(result.catalog)
         cat["layer"] = np.full(len(cat["id"]), k, dtype=np.int64)
-        catalog = _merge_catalogs([stack.catalog, cat]) if len(stack.catalog["id"]) else cat
+        catalog = merge_catalogs([stack.catalog, cat]) if len(stack.catalog["id"]) else cat
         edit = dict(replace_crater=dict(x=x, y=y, diameter=diameter, age=age, layer=k,
                                         seed=seed, changed_layers=sorted(changed)))
         edited = replace(

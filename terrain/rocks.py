@@ -642,7 +642,7 @@ def _base_levels(T, x0, y0, res, rows, out):
 
 
 @numba.njit(cache=True)
-def _rasterise(z, r0, c0, x0, y0, res, rows, z0):
+def rasterise_rocks(z, r0, c0, x0, y0, res, rows, z0):
     """Raise z (a window starting at global pixel r0, c0) to every rock's top."""
     ny, nx = z.shape
     for i in range(rows.shape[0]):
@@ -720,7 +720,7 @@ def rock_heights(tile, rocks: RockTable, *, window=None, min_pixels: float = MIN
         window.check_inside(*tile.shape)
         r0, c0, h, w = window.row, window.col, window.height, window.width
     z = tile.heights[r0:r0 + h, c0:c0 + w].astype(np.float64)
-    _rasterise(z, r0, c0, t.c, t.f, res, rows, zz)
+    rasterise_rocks(z, r0, c0, t.c, t.f, res, rows, zz)
     out = z.astype(np.float32)
     out[~tile.valid[r0:r0 + h, c0:c0 + w]] = np.nan
     return out, z0, drawn
