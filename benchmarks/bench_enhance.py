@@ -113,7 +113,7 @@ def child_enhance(spec):
             builds.append(time.perf_counter() - t0)
             write_stack(stack, Path(tmp) / "stack")
             totals.append(time.perf_counter() - t0)
-        n = len(stack.catalog["id"])
+        n = len(stack.catalog)
         finest = stack.tiles[-1].resolution
         del stack
         log(f"  enhance run {i + 1}: build {builds[-1]:.2f} s, with writing {totals[-1]:.2f} s, "

@@ -2,23 +2,40 @@
 
 A :class:`Crater` is one impact as a user names it (position, diameter, age); a
 :class:`CraterTable` is many of them as columns, the form the generator produces and the
-cratering kernel consumes. The catalogue CSV written after cratering adds what the model made
-of each crater (erosion state, depth, rim height, the fitted pre-impact level): ground truth
-for crater-detection navigation.
+cratering kernel consumes. A :class:`CraterCatalog` is what the model made of each crater
+(erosion state, depth, rim height, the fitted pre-impact level), the ground truth for
+crater-detection navigation: a frozen table of typed columns, written and read as the
+catalogue CSV (:meth:`CraterCatalog.to_csv`, :meth:`CraterCatalog.from_csv`).
+
+Migrating from the dict of columns
+----------------------------------
+Until version 0.1 the catalogue (``CraterResult.catalog``, ``LayerStack.catalog``,
+``RunReport.catalog``) was a dict of column arrays. It is now a :class:`CraterCatalog` whose
+attributes are the CSV's column names: ``catalog["id"]`` becomes ``catalog.id``,
+``len(catalog["id"])`` becomes ``len(catalog)``, ``catalog.items()`` becomes
+``catalog.as_dict().items()``, ``write_catalog(path, catalog)`` becomes
+``catalog.to_csv(path)`` and ``read_catalog(path)`` becomes ``CraterCatalog.from_csv(path)``.
+``catalog["id"]`` still works for now and warns (:class:`DeprecationWarning`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import csv
+import difflib
 import math
+import os
+import warnings
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import IO
 
 import numpy as np
 
 from terrain.errors import InvalidParameterError
 
-__all__ = ["CATALOG_COLUMNS", "Crater", "CraterTable", "csv_sink", "write_catalog"]
+__all__ = ["CATALOG_COLUMNS", "CATALOG_LAYER_COLUMNS", "Crater", "CraterCatalog", "CraterTable",
+           "csv_sink", "read_circles", "read_columns", "write_columns"]
 
 
 @dataclass(frozen=True)
@@ -152,31 +169,326 @@ class CraterTable:
             yield Crater(self.x[i], self.y[i], self.diameter[i], self.age[i], int(self.uid[i]))
 
 
-#: Columns of the catalogue CSV, with units.
+#: Columns of the catalogue CSV, in order; the attributes of :class:`CraterCatalog`.
 CATALOG_COLUMNS = (
     "id", "x_m", "y_m", "row", "col", "diameter_m", "age_gyr", "size_class",
     "depth_fraction", "rim_fraction", "depth_m", "rim_height_m", "alpha", "beta",
     "reference_elevation_m",
 )
 
+#: The columns of a layer stack's catalogue: :data:`CATALOG_COLUMNS` and the layer.
+CATALOG_LAYER_COLUMNS = (*CATALOG_COLUMNS, "layer")
+
+#: Column dtypes of :class:`CraterCatalog`; every other column is float64.
+_INTEGER_COLUMNS = {"id": np.uint64, "size_class": np.int64, "layer": np.int64}
+
+_DEPRECATED_ITEM = ("crater catalogue columns by name (catalog[{name!r}]) are deprecated; "
+                    "use the attribute catalog.{name}")
+
+
+@dataclass(frozen=True, eq=False)
+class CraterCatalog:
+    """The catalogue of placed craters: one row per crater, columns as the CSV names them.
+
+    Rows are in composition order (larger size classes first, then oldest first). Every
+    column is a read-only (n,) array; the table checks its columns' lengths, dtypes and
+    values when built.
+
+    Parameters
+    ----------
+    id : (n,) uint64
+        The crater's identity (written as 16 hex digits).
+    x_m, y_m : (n,) float64, map metres
+        Centre.
+    row, col : (n,) float64, pixels
+        Centre in the pixel grid of the DEM (or window) the catalogue describes; pixel
+        centres are whole numbers.
+    diameter_m : (n,) float64, metres
+        Rim-to-rim diameter (> 0).
+    age_gyr : (n,) float64, Gyr
+        Age (>= 0).
+    size_class : (n,) int64
+        Octave bin the crater was composed in.
+    depth_fraction, rim_fraction : (n,) float64
+        Depth and rim height left by erosion, as fractions of the fresh crater's.
+    depth_m, rim_height_m : (n,) float64, metres
+        Depth and rim height as made.
+    alpha, beta : (n,) float64
+        The profile's rim exponent and ejecta exponent (:class:`terrain.crater.Profile`).
+    reference_elevation_m : (n,) float64, metres
+        The fitted pre-impact level at the centre.
+    layer : (n,) int64, optional
+        The layer of a layer stack the crater was added to; None outside a stack.
+
+    Examples
+    --------
+    >>> cat = CraterCatalog.empty(layered=True)
+    >>> len(cat), cat.columns[-1]
+    (0, 'layer')
+    >>> cat.layer.dtype
+    dtype('int64')
+    """
+
+    id: np.ndarray
+    x_m: np.ndarray
+    y_m: np.ndarray
+    row: np.ndarray
+    col: np.ndarray
+    diameter_m: np.ndarray
+    age_gyr: np.ndarray
+    size_class: np.ndarray
+    depth_fraction: np.ndarray
+    rim_fraction: np.ndarray
+    depth_m: np.ndarray
+    rim_height_m: np.ndarray
+    alpha: np.ndarray
+    beta: np.ndarray
+    reference_elevation_m: np.ndarray
+    layer: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        n = None
+        for name in self.columns:
+            value = getattr(self, name)
+            dtype = _INTEGER_COLUMNS.get(name, np.float64)
+            try:
+                a = np.array(value, dtype=dtype, copy=True)
+            except (TypeError, ValueError, OverflowError) as exc:
+                raise InvalidParameterError(
+                    f"crater catalogue column {name} must be {np.dtype(dtype).name}: {exc}"
+                ) from None
+            if a.ndim != 1:
+                raise InvalidParameterError(
+                    f"crater catalogue column {name} must be one-dimensional; got shape "
+                    f"{a.shape}")
+            if n is None:
+                n = a.size
+            elif a.size != n:
+                raise InvalidParameterError(
+                    f"crater catalogue column {name} has {a.size} rows; expected {n}")
+            a.flags.writeable = False
+            object.__setattr__(self, name, a)
+        if not (np.all(np.isfinite(self.x_m)) and np.all(np.isfinite(self.y_m))):
+            raise InvalidParameterError("crater catalogue positions x_m, y_m must be finite")
+        if not np.all(self.diameter_m > 0):
+            raise InvalidParameterError("crater catalogue diameters diameter_m must be positive")
+        if not np.all(self.age_gyr >= 0):
+            raise InvalidParameterError("crater catalogue ages age_gyr must be >= 0 Gyr")
+        if self.layer is not None and not np.all(self.layer >= 0):
+            raise InvalidParameterError("crater catalogue layers must be >= 0")
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        """The column names, in CSV order (with ``layer`` last in a stack's catalogue)."""
+        return CATALOG_COLUMNS if self.layer is None else CATALOG_LAYER_COLUMNS
+
+    def __len__(self) -> int:
+        return int(self.id.size)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        warnings.warn(_DEPRECATED_ITEM.format(name=name), DeprecationWarning, stacklevel=2)
+        if name not in self.columns:
+            raise KeyError(name)
+        return getattr(self, name)
+
+    @classmethod
+    def empty(cls, *, layered: bool = False) -> CraterCatalog:
+        """Return a catalogue without rows.
+
+        Parameters
+        ----------
+        layered : bool
+            Give it the ``layer`` column of a layer stack's catalogue.
+
+        Returns
+        -------
+        CraterCatalog
+        """
+        names = CATALOG_LAYER_COLUMNS if layered else CATALOG_COLUMNS
+        return cls(**{name: np.zeros(0, _INTEGER_COLUMNS.get(name, np.float64))
+                      for name in names})
+
+    @classmethod
+    def from_columns(cls, columns: Mapping[str, object]) -> CraterCatalog:
+        """Return the catalogue of a mapping of column arrays (the old dict form).
+
+        Parameters
+        ----------
+        columns : mapping of str to (n,) array_like
+            Every name of :data:`CATALOG_COLUMNS`, and optionally ``layer``.
+
+        Returns
+        -------
+        CraterCatalog
+
+        Raises
+        ------
+        InvalidParameterError
+            A column is missing, unknown (named, with the nearest valid name) or invalid.
+        """
+        unknown = sorted(set(columns) - set(CATALOG_LAYER_COLUMNS))
+        if unknown:
+            near = difflib.get_close_matches(unknown[0], CATALOG_LAYER_COLUMNS, n=1)
+            raise InvalidParameterError(
+                f"unknown crater catalogue column {unknown[0]!r}"
+                + (f" (did you mean {near[0]!r}?)" if near else ""))
+        missing = [name for name in CATALOG_COLUMNS if name not in columns]
+        if missing:
+            raise InvalidParameterError(f"crater catalogue is missing columns {missing}")
+        return cls(**{name: np.asarray(value) for name, value in columns.items()})
+
+    def as_dict(self) -> dict[str, np.ndarray]:
+        """Return the columns as a dict of read-only arrays, in CSV order."""
+        return {name: getattr(self, name) for name in self.columns}
+
+    def take(self, index: np.ndarray | slice) -> CraterCatalog:
+        """Return the rows selected by ``index``.
+
+        Parameters
+        ----------
+        index : (m,) int array, (n,) bool mask or slice
+            The rows, in the order wanted.
+
+        Returns
+        -------
+        CraterCatalog
+        """
+        return CraterCatalog(**{name: getattr(self, name)[index] for name in self.columns})
+
+    def with_layer(self, layer: int) -> CraterCatalog:
+        """Return the catalogue with every row's ``layer`` set to ``layer``.
+
+        Parameters
+        ----------
+        layer : int
+            The layer of a layer stack the craters were added to.
+
+        Returns
+        -------
+        CraterCatalog
+        """
+        columns = {name: getattr(self, name) for name in CATALOG_COLUMNS}
+        return CraterCatalog(**columns, layer=np.full(len(self), layer, dtype=np.int64))
+
+    def with_columns(self, **columns: np.ndarray) -> CraterCatalog:
+        """Return the catalogue with some columns replaced (checked as on construction).
+
+        Parameters
+        ----------
+        **columns : (n,) array_like
+            New values of columns named by :attr:`columns`.
+
+        Returns
+        -------
+        CraterCatalog
+        """
+        return CraterCatalog.from_columns({**self.as_dict(), **columns})
+
+    @staticmethod
+    def concatenate(catalogs: Iterable[CraterCatalog], *,
+                    layered: bool = False) -> CraterCatalog:
+        """Return one catalogue of the rows of ``catalogs``, in order.
+
+        Parameters
+        ----------
+        catalogs : iterable of CraterCatalog
+            All with a ``layer`` column or all without.
+        layered : bool
+            Whether an empty result has the ``layer`` column (with catalogues, theirs decide).
+
+        Returns
+        -------
+        CraterCatalog
+
+        Raises
+        ------
+        InvalidParameterError
+            Some catalogues have a ``layer`` column and some not.
+        """
+        catalogs = list(catalogs)
+        if not catalogs:
+            return CraterCatalog.empty(layered=layered)
+        names = catalogs[0].columns
+        if any(c.columns != names for c in catalogs):
+            raise InvalidParameterError(
+                "cannot join crater catalogues with and without a layer column")
+        return CraterCatalog(**{name: np.concatenate([getattr(c, name) for c in catalogs])
+                                for name in names})
+
+    def to_csv(self, path_or_file: str | os.PathLike | IO[str]) -> None:
+        """Write the catalogue CSV (the header :attr:`columns`, one line per crater).
+
+        Parameters
+        ----------
+        path_or_file : path or text file
+            Where to write (a path is opened and closed here; write through
+            :func:`terrain.outputs.atomic_path` to commit it atomically).
+        """
+        write_columns(path_or_file, self.as_dict(), self.columns)
+
+    @classmethod
+    def from_csv(cls, path: str | os.PathLike) -> CraterCatalog:
+        """Read a catalogue CSV written by :meth:`to_csv`.
+
+        Parameters
+        ----------
+        path : path
+            The CSV.
+
+        Returns
+        -------
+        CraterCatalog
+
+        Raises
+        ------
+        InvalidParameterError
+            The file's columns or values are not a crater catalogue's (the message names
+            the file).
+        """
+        try:
+            return cls.from_columns(read_columns(path))
+        except ValueError as exc:
+            raise InvalidParameterError(f"crater catalogue '{path}': {exc}") from None
+
 
 @contextlib.contextmanager
-def csv_sink(path_or_file):
+def csv_sink(path_or_file: str | os.PathLike | IO[str]) -> Iterator[IO[str]]:
     """Yield a text file for a CSV writer.
 
-    ``path_or_file`` itself if it has ``write``, else that path opened for writing (and
-    closed afterwards).
+    Parameters
+    ----------
+    path_or_file : path or text file
+        A file (anything with ``write``) is yielded itself; a path is opened for writing
+        and closed afterwards.
+
+    Yields
+    ------
+    text file
     """
-    if hasattr(path_or_file, "write"):
+    if not isinstance(path_or_file, (str, os.PathLike)):
         yield path_or_file
         return
     with open(path_or_file, "w", newline="", encoding="utf-8") as f:
         yield f
 
 
-def write_catalog(path_or_file, rows: dict, columns=CATALOG_COLUMNS) -> None:
-    """Write catalogue columns (dict of equal-length arrays keyed by ``columns``)."""
-    n = len(rows["id"]) if rows else 0
+def write_columns(path_or_file: str | os.PathLike | IO[str],
+                  rows: Mapping[str, np.ndarray], columns: Sequence[str]) -> None:
+    """Write a table of equal-length columns as CSV, the way every craterscape catalogue is.
+
+    ``id`` is written as 16 hex digits, ``row`` and ``col`` with three decimals, integers
+    as integers, other numbers at full precision (``repr``) and non-finite numbers empty.
+
+    Parameters
+    ----------
+    path_or_file : path or text file
+        Where to write.
+    rows : mapping of str to (n,) array
+        The columns (at least those named by ``columns``).
+    columns : sequence of str
+        The header, in order.
+    """
+    n = len(rows[columns[0]]) if rows else 0
     with csv_sink(path_or_file) as f:
         writer = csv.writer(f)
         writer.writerow(columns)
@@ -195,8 +507,25 @@ def write_catalog(path_or_file, rows: dict, columns=CATALOG_COLUMNS) -> None:
             writer.writerow(out)
 
 
-def read_catalog(path) -> dict:
-    """Read a catalogue CSV written by :func:`write_catalog` into column arrays."""
+def read_columns(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Read a CSV written by :func:`write_columns` into column arrays.
+
+    Parameters
+    ----------
+    path : path
+        The CSV.
+
+    Returns
+    -------
+    dict of str to (n,) array
+        ``id`` uint64 (from hex), ``size_class`` and ``layer`` int64, every other column
+        float64 (NaN where empty).
+
+    Raises
+    ------
+    ValueError
+        A value is not a number.
+    """
     with open(path, newline="", encoding="utf-8") as f:
         reader = csv.DictReader(f)
         names = reader.fieldnames or []

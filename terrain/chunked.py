@@ -54,7 +54,7 @@ import numpy as np
 from affine import Affine
 
 from terrain import metakeys as mk
-from terrain.catalog import CATALOG_COLUMNS
+from terrain.catalog import CraterCatalog
 from terrain.errors import (
     GapTooLargeError,
     InvalidDEMError,
@@ -71,8 +71,8 @@ if TYPE_CHECKING:
     from terrain.roughness import ExpansionParameters
 
 __all__ = ["DEFAULT_CHUNK", "CraterSource", "ExpandSource", "FillSource", "GapTooLargeError",
-           "RunReport", "SynthSource", "dask_client", "estimate_parameters", "open_reader",
-           "run"]
+           "OnReaderGrid", "RunReport", "SynthSource", "dask_client", "estimate_parameters",
+           "open_reader", "run"]
 
 log = logging.getLogger(__name__)
 
@@ -163,6 +163,36 @@ def _read_base(reader):
 # sources: what a chunk computes
 
 
+class OnReaderGrid:
+    """Mixin of a chunked source whose output lies on its input's grid.
+
+    ``shape``, ``transform``, ``crs`` and ``nodata`` are those of the input reader
+    (``self.reader``, a :class:`DEMReader`).
+    """
+
+    reader: DEMReader
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        """The output's (rows, cols), those of the input."""
+        return self.reader.shape
+
+    @property
+    def transform(self) -> Affine:
+        """The output's affine transform, that of the input."""
+        return self.reader.transform
+
+    @property
+    def crs(self) -> str | None:
+        """The output's CRS, that of the input."""
+        return self.reader.crs
+
+    @property
+    def nodata(self) -> float:
+        """The output's nodata value, that of the input."""
+        return self.reader.nodata
+
+
 @dataclass(frozen=True)
 class SynthSource:
     """An RMD tile, optionally cratered (:func:`terrain.synthetic.synthesize_tile`).
@@ -239,11 +269,12 @@ class SynthSource:
                                  fractal_dimension=self.fractal_dimension, relief=self.relief,
                                  seed=self.seed, craters=self.craters, model=self.model,
                                  window=window)
-        return np.asarray(result.tile.heights), (result.catalog if self.has_catalog else None)
+        rows = result.catalog.as_dict() if self.has_catalog else None
+        return np.asarray(result.tile.heights), rows
 
 
 @dataclass(frozen=True)
-class CraterSource:
+class CraterSource(OnReaderGrid):
     """A crater population added to an input DEM (:func:`terrain.cratering.add_craters`).
 
     Each chunk reads the input over its window grown by the crater halo (about 1.5 times the
@@ -263,26 +294,6 @@ class CraterSource:
             from terrain.cratering import CraterModel
 
             object.__setattr__(self, "model", CraterModel())
-
-    @property
-    def shape(self):
-        """The output's (rows, cols), those of the input."""
-        return self.reader.shape
-
-    @property
-    def transform(self):
-        """The output's affine transform, that of the input."""
-        return self.reader.transform
-
-    @property
-    def crs(self):
-        """The output's CRS, that of the input."""
-        return self.reader.crs
-
-    @property
-    def nodata(self):
-        """The input's nodata value."""
-        return self.reader.nodata
 
     has_catalog = True
 
@@ -312,7 +323,7 @@ class CraterSource:
         _, valid = self.reader.read(window)
         out = z.astype(np.float32)
         out[~(valid & np.isfinite(out))] = np.nan
-        return out, catalog
+        return out, catalog.as_dict()
 
 
 class _StridedHeights:
@@ -501,7 +512,7 @@ class ExpandSource:
 
 
 @dataclass(frozen=True)
-class FillSource:
+class FillSource(OnReaderGrid):
     """Gap filling chunk by chunk (:func:`terrain.gapfill.fill_gaps`), with a halo.
 
     A chunk fills its window grown by ``halo`` pixels; that equals the same pixels of
@@ -530,26 +541,6 @@ class FillSource:
                                                and math.isfinite(self.roughness)):
             raise InvalidParameterError(
                 f"roughness must be a non-negative number; got {self.roughness}")
-
-    @property
-    def shape(self):
-        """The output's (rows, cols), those of the input."""
-        return self.reader.shape
-
-    @property
-    def transform(self):
-        """The output's affine transform, that of the input."""
-        return self.reader.transform
-
-    @property
-    def crs(self):
-        """The output's CRS, that of the input."""
-        return self.reader.crs
-
-    @property
-    def nodata(self):
-        """The input's nodata value."""
-        return self.reader.nodata
 
     has_catalog = False
 
@@ -701,8 +692,8 @@ class RunReport:
         Pixels computed by this run.
     seconds : float
         Wall time of the chunk phase.
-    catalog : dict or None
-        The crater catalogue of the whole DEM (craters sources).
+    catalog : CraterCatalog or None
+        The crater catalogue of the whole DEM (sources with craters).
     computed_chunks : list of (row, col)
     busy_seconds : float
         Time the tasks spent computing and writing their chunks, summed over workers.
@@ -714,7 +705,7 @@ class RunReport:
     skipped: int
     pixels: int
     seconds: float
-    catalog: dict | None = None
+    catalog: CraterCatalog | None = None
     computed_chunks: list = field(default_factory=list)
     busy_seconds: float = 0.0
 
@@ -844,7 +835,7 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None,
             if pending:
                 client.cancel(pending)
     seconds = time.perf_counter() - t0
-    catalog = merge_chunk_catalogs(store, source) if source.has_catalog else None
+    catalog = merge_chunk_catalogs(store) if source.has_catalog else None
     store.mark_complete()
     log.info("%s: %d chunks computed, %d reused, %.3g Mpixel/s", path, len(todo),
              len(done_before), pixels / max(seconds, 1e-9) / 1e6)
@@ -852,26 +843,30 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None,
                      busy)
 
 
-def merge_chunk_catalogs(store: ZarrDEM, source) -> dict:
-    """Return the whole DEM's crater catalogue from the chunks' rows, in composition order."""
+def merge_chunk_catalogs(store: ZarrDEM) -> CraterCatalog:
+    """Return the whole DEM's crater catalogue from the chunks' rows, in composition order.
+
+    Parameters
+    ----------
+    store : ZarrDEM
+        A store whose chunk markers hold catalogue rows (chunks without rows add none).
+
+    Returns
+    -------
+    CraterCatalog
+        Each crater once (a crater touching several chunks is in each one's rows), ``row``
+        and ``col`` in the whole DEM's pixel grid.
+    """
     parts = [store.chunk_catalog(i, j) for i in range(store.grid[0])
              for j in range(store.grid[1])]
-    cols = {}
-    for k in CATALOG_COLUMNS:
-        arrays = [p[k] for p in parts if k in p]
-        cols[k] = np.concatenate(arrays) if arrays else np.zeros(0)
-    if not len(cols["id"]):
-        from terrain.cratering import empty_catalog
-
-        return empty_catalog()
-    _, first = np.unique(cols["id"], return_index=True)
-    cols = {k: v[first] for k, v in cols.items()}
-    order = np.lexsort((cols["id"], -cols["age_gyr"], -cols["size_class"]))
-    cols = {k: v[order] for k, v in cols.items()}
+    cat = CraterCatalog.concatenate(CraterCatalog.from_columns(p) for p in parts if p)
+    if not len(cat):
+        return cat
+    _, first = np.unique(cat.id, return_index=True)
+    cat = cat.take(first)
+    cat = cat.take(np.lexsort((cat.id, -cat.age_gyr, -cat.size_class)))
     t = store.transform
-    cols["row"] = (t.f - cols["y_m"]) / t.a - 0.5
-    cols["col"] = (cols["x_m"] - t.c) / t.a - 0.5
-    return cols
+    return cat.with_columns(row=(t.f - cat.y_m) / t.a - 0.5, col=(cat.x_m - t.c) / t.a - 0.5)
 
 
 @contextlib.contextmanager

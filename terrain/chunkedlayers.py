@@ -44,7 +44,7 @@ import numpy as np
 
 from terrain import memory
 from terrain import metakeys as mk
-from terrain.chunked import filled_field
+from terrain.chunked import OnReaderGrid, filled_field, merge_chunk_catalogs
 from terrain.errors import InvalidDEMError, InvalidParameterError
 from terrain.layers import WORK
 from terrain.tile import Window
@@ -198,7 +198,7 @@ def _base_levels_at(T, tr0, tc0, ny, nx, x0, y0, res, xs, ys, out):
 
 
 @dataclass(frozen=True)
-class RockSource:
+class RockSource(OnReaderGrid):
     """The rocks a layer resolves, stood on it chunk by chunk (:func:`terrain.rocks.rock_heights`).
 
     A chunk enumerates the rocks that may touch it (position-keyed, so the same rocks as the
@@ -211,26 +211,6 @@ class RockSource:
     rocks: RockModel
     seed: int
     craters: CraterTable | None = None  # craters raising the rock density, or None
-
-    @property
-    def shape(self):
-        """The layer's (rows, cols)."""
-        return self.reader.shape
-
-    @property
-    def transform(self):
-        """The layer's affine transform."""
-        return self.reader.transform
-
-    @property
-    def crs(self):
-        """The layer's CRS."""
-        return self.reader.crs
-
-    @property
-    def nodata(self):
-        """The layer's nodata value."""
-        return self.reader.nodata
 
     has_catalog = False
     metadata: dict = field(default_factory=dict)
@@ -286,7 +266,7 @@ class RockSource:
 
 
 @dataclass(frozen=True)
-class AgreeSource:
+class AgreeSource(OnReaderGrid):
     """The agreement step of a layer.
 
     Pixels of a layer inside the next finer layer take its co-located pixels (its even rows
@@ -297,26 +277,6 @@ class AgreeSource:
     finer: DEMReader | None = None  # the next finer layer's final store, or None
     window_in_self: tuple | None = None  # (col, row, size, size) of the finer layer in this one
     metadata: dict = field(default_factory=dict)
-
-    @property
-    def shape(self):
-        """The layer's (rows, cols)."""
-        return self.reader.shape
-
-    @property
-    def transform(self):
-        """The layer's affine transform."""
-        return self.reader.transform
-
-    @property
-    def crs(self):
-        """The layer's CRS."""
-        return self.reader.crs
-
-    @property
-    def nodata(self):
-        """The layer's nodata value."""
-        return self.reader.nodata
 
     has_catalog = False
 
@@ -522,9 +482,7 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
                     table = None
             if table is not None:
                 store = _stage(f"c{k}", CraterSource(e, table, seed, model), work, **common)
-                cat = _stored_catalog(store)
-                cat["layer"] = np.full(len(cat["id"]), k, dtype=np.int64)
-                catalogs.append(cat)
+                catalogs.append(merge_chunk_catalogs(store).with_layer(k))
                 e = store
             tables.append(table)
             log.info("layer %d: %d craters", k, 0 if table is None else len(table))
@@ -568,7 +526,6 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
         # commit: layer files, catalogues, then the manifest
         from terrain.layers import (
             CATALOG,
-            CATALOG_LAYER_COLUMNS,
             MANIFEST,
             READERS_LOCK,
             ROCK_CATALOG,
@@ -611,10 +568,8 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
                     crater_model=model.as_dict(), chunked=dict(chunk=chunk, halo=halo))
         layers = [_Layer(sh, tr, reader.crs) for sh, tr in zip(shapes, transforms, strict=True)]
         stack = LayerStack(_layers(layers, windows, origins), catalog, info, rock_catalog)
-        from terrain.catalog import write_catalog
-
         with atomic_path(outdir / CATALOG) as tmp:
-            write_catalog(tmp, catalog, CATALOG_LAYER_COLUMNS)
+            catalog.to_csv(tmp)
         if rock_catalog is not None:
             from terrain.rocks import write_rock_catalog
 
@@ -629,7 +584,7 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
         shutil.rmtree(work, ignore_errors=True)
     stages = {name: {k: v for k, v in r.items() if k != "report"}
               for name, r in reports.items()}
-    return dict(files=files, craters=len(catalog["id"]),
+    return dict(files=files, craters=len(catalog),
                 rocks=None if rock_catalog is None else len(rock_catalog["id"]),
                 stages=stages, finest_resolution=float(plan[-1][1]))
 
@@ -643,12 +598,6 @@ def _count_unknown(reader, chunk: int) -> int:
             _, valid = reader.read(Window(c0, r0, min(chunk, nx - c0), min(chunk, ny - r0)))
             n += int(valid.size - np.count_nonzero(valid))
     return n
-
-
-def _stored_catalog(store) -> dict:
-    from terrain.chunked import merge_chunk_catalogs
-
-    return merge_chunk_catalogs(store, None)
 
 
 def _layer_metadata(reader, k: int, table, seed: int, model) -> dict:

@@ -300,7 +300,6 @@ def _population(population_file, *, dmin, dmax, density, sfd_exponent, max_age, 
 
 def _write_outputs(result, output, catalog, inputs, command, params):
     """The DEM and its catalogue, committed together (:func:`terrain.outputs.transaction`)."""
-    from terrain.catalog import write_catalog
     from terrain.io import atomic_path, write_dem
 
     tile = result.tile.with_metadata(**{mk.COMMAND: command,
@@ -310,9 +309,9 @@ def _write_outputs(result, output, catalog, inputs, command, params):
         write_dem(tile, output, inputs=inputs)
         if catalog is not None:
             with atomic_path(catalog, [*inputs, output]) as tmp:
-                write_catalog(tmp, result.catalog)
+                result.catalog.to_csv(tmp)
     if catalog is not None:
-        click.echo(f"wrote {output} and {catalog} ({len(result.catalog['id'])} craters)",
+        click.echo(f"wrote {output} and {catalog} ({len(result.catalog)} craters)",
                    err=True)
     else:
         click.echo(f"wrote {output}", err=True)
@@ -369,7 +368,6 @@ def _chunked_requested(output, workers, scheduler, chunk, cog, window=None) -> b
 
 def _run_chunked(source, output, *, workers, threads, scheduler, chunk, cog, label,
                  catalog=None, inputs=()):
-    from terrain.catalog import write_catalog
     from terrain.chunked import DEFAULT_CHUNK, dask_client, run
     from terrain.io import atomic_path, check_output_path, write_cog
     from terrain.zarrstore import ZarrDEM
@@ -392,8 +390,8 @@ def _run_chunked(source, output, *, workers, threads, scheduler, chunk, cog, lab
                + (f"; {rate / 1e6:.3g} Mpixel/s" if report.computed else "") + ")", err=True)
     if catalog is not None and report.catalog is not None:
         with atomic_path(catalog, [*inputs, output]) as tmp:
-            write_catalog(tmp, report.catalog)
-        click.echo(f"wrote {catalog} ({len(report.catalog['id'])} craters)", err=True)
+            report.catalog.to_csv(tmp)
+        click.echo(f"wrote {catalog} ({len(report.catalog)} craters)", err=True)
     if cog is not None:
         write_cog(ZarrDEM(output), cog, inputs=[*inputs, output])
         click.echo(f"wrote {cog} (Cloud Optimized GeoTIFF)", err=True)
@@ -853,7 +851,7 @@ def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, lay
     write_stack(stack, output, inputs=[input_dem])
     n_rocks = "" if stack.rocks is None else f", {len(stack.rocks['id'])} rocks"
     click.echo(f"wrote {len(stack.tiles)} layers to {output} (finest "
-               f"{stack.tiles[-1].resolution:.4g} m/pixel, {len(stack.catalog['id'])} craters"
+               f"{stack.tiles[-1].resolution:.4g} m/pixel, {len(stack.catalog)} craters"
                f"{n_rocks})", err=True)
 
 
@@ -1113,7 +1111,7 @@ def _read_crater_list(path):
 
     import numpy as np
 
-    from terrain.catalog import CraterTable, read_catalog, read_circles
+    from terrain.catalog import CraterTable, read_circles, read_columns
     from terrain.errors import MissingInputError
 
     if not Path(path).exists():
@@ -1123,7 +1121,7 @@ def _read_crater_list(path):
     if not {"x_m", "y_m", "diameter_m", "age_gyr"} <= set(header):
         return read_circles(path)
     try:
-        cat = read_catalog(path)
+        cat = read_columns(path)
     except ValueError as exc:
         raise InvalidParameterError(f"crater catalogue '{path}' is malformed: {exc}") from None
     n = len(cat["x_m"])

@@ -56,7 +56,7 @@ import numpy as np
 
 from terrain import memory
 from terrain import metakeys as mk
-from terrain.catalog import CATALOG_COLUMNS, CraterTable
+from terrain.catalog import CraterCatalog, CraterTable
 from terrain.crater import Morphology, crater_interior, exterior_height, shape_arrays
 from terrain.erosion import ErosionModel, SlopeDegradation
 from terrain.errors import InvalidParameterError
@@ -77,7 +77,7 @@ from terrain.rng import check_seed
 from terrain.tile import DEMTile, Window
 
 __all__ = ["OBLITERATION_BLEND", "CraterModel", "CraterResult", "add_craters",
-           "class_planes", "crater_heights", "describe_craters", "empty_catalog", "fit_plane",
+           "class_planes", "crater_heights", "describe_craters", "fit_plane",
            "obliteration", "rim_terrain"]
 
 log = logging.getLogger(__name__)
@@ -143,7 +143,7 @@ class CraterResult:
     """A cratered tile and the catalogue of every crater that touches it."""
 
     tile: DEMTile
-    catalog: dict
+    catalog: CraterCatalog
 
 
 # ----------------------------------------------------------------------------------------
@@ -558,7 +558,8 @@ def crater_heights(base, shape, transform, craters, *, seed, model=None, window=
     Returns
     -------
     heights : (height, width) float64, metres
-    catalog : dict of column arrays (see :data:`terrain.catalog.CATALOG_COLUMNS`)
+    catalog : CraterCatalog
+        Every crater whose footprint touches the window, in composition order.
     """
     seed = check_seed(seed)
     model = model or CraterModel()
@@ -615,44 +616,32 @@ def crater_heights(base, shape, transform, craters, *, seed, model=None, window=
     return terrain, catalog
 
 
-def empty_catalog() -> dict:
-    """A catalogue with no rows."""
-    return _catalog([], Window(0, 0, 1, 1), 0.0, 0.0, 1.0, 1.0)
-
-
-def _catalog(placed, window, x0, y0, res, factor) -> dict:
-    """Rows of every placed crater whose footprint touches the window."""
-    cols = {k: [] for k in CATALOG_COLUMNS}
+def _catalog(placed, window: Window, x0: float, y0: float, res: float,
+             factor: float) -> CraterCatalog:
+    """Rows of every placed crater whose footprint touches the window, in composition order."""
+    if not placed:
+        return CraterCatalog.empty()
     wx0 = x0 + window.col * res
     wx1 = x0 + (window.col + window.width) * res
     wy1 = y0 - window.row * res
     wy0 = y0 - (window.row + window.height) * res
+    parts = []
     for table, depth_f, rim_f, s, planes in placed:
         gx = np.clip(table.x, wx0, wx1) - table.x
         gy = np.clip(table.y, wy0, wy1) - table.y
         touch = np.hypot(gx, gy) <= table.diameter * factor
         touch &= np.isfinite(planes[:, 0])
         idx = np.flatnonzero(touch)
-        cols["id"].append(table.uid[idx])
-        cols["x_m"].append(table.x[idx])
-        cols["y_m"].append(table.y[idx])
-        cols["row"].append((y0 - table.y[idx]) / res - 0.5 - window.row)
-        cols["col"].append((table.x[idx] - x0) / res - 0.5 - window.col)
-        cols["diameter_m"].append(table.diameter[idx])
-        cols["age_gyr"].append(table.age[idx])
-        cols["size_class"].append(table.size_class[idx])
-        cols["depth_fraction"].append(depth_f[idx])
-        cols["rim_fraction"].append(rim_f[idx])
-        cols["depth_m"].append(s["depth"][idx])
-        cols["rim_height_m"].append(s["rim_height"][idx])
-        cols["alpha"].append(s["alpha"][idx])
-        cols["beta"].append(s["beta"][idx])
-        cols["reference_elevation_m"].append(planes[idx, 0])
-    out = {}
-    for k, parts in cols.items():
-        dtype = np.uint64 if k == "id" else (np.int64 if k == "size_class" else np.float64)
-        out[k] = np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
-    return out  # rows in composition order: largest class first, oldest first
+        parts.append(CraterCatalog(
+            id=table.uid[idx], x_m=table.x[idx], y_m=table.y[idx],
+            row=(y0 - table.y[idx]) / res - 0.5 - window.row,
+            col=(table.x[idx] - x0) / res - 0.5 - window.col,
+            diameter_m=table.diameter[idx], age_gyr=table.age[idx],
+            size_class=table.size_class[idx], depth_fraction=depth_f[idx],
+            rim_fraction=rim_f[idx], depth_m=s["depth"][idx],
+            rim_height_m=s["rim_height"][idx], alpha=s["alpha"][idx], beta=s["beta"][idx],
+            reference_elevation_m=planes[idx, 0]))
+    return CraterCatalog.concatenate(parts)  # largest class first, oldest first
 
 
 def add_craters(tile: DEMTile, craters, *, seed: int, model: CraterModel | None = None,

@@ -49,6 +49,7 @@ import logging
 import math
 import os
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -57,8 +58,8 @@ from affine import Affine
 
 from terrain import memory
 from terrain import metakeys as mk
-from terrain.catalog import CATALOG_COLUMNS, Crater, CraterTable, read_catalog, write_catalog
-from terrain.cratering import CraterModel, add_craters, empty_catalog
+from terrain.catalog import Crater, CraterCatalog, CraterTable, read_columns
+from terrain.cratering import CraterModel, add_craters
 from terrain.errors import InvalidDEMError, InvalidParameterError, MissingInputError
 from terrain.expand import expand_level, expanded_transform
 from terrain.gapfill import fill_gaps
@@ -101,7 +102,6 @@ _LOCKS = (LOCK, READERS_LOCK, INCOMPLETE)
 #: Seconds an edit waits for another edit of the same stack before giving up.
 LOCK_TIMEOUT = 600.0
 FORMAT = "craterscape-layer-stack"
-CATALOG_LAYER_COLUMNS = (*CATALOG_COLUMNS, "layer")
 
 
 def _int_tuple(value, n: int, what: str) -> tuple[int, ...]:
@@ -152,9 +152,8 @@ class LayerStack:
     layers : sequence of Layer
         Layer 0 (the base, no window) first, each further layer a 2x expansion of a window
         of the one before.
-    catalog : dict of column arrays
-        The crater catalogue (:data:`CATALOG_LAYER_COLUMNS`: each crater once, with the
-        ``layer`` it was added to).
+    catalog : CraterCatalog
+        The crater catalogue (each crater once, with the ``layer`` it was added to).
     info : mapping
         Provenance recorded in the manifest (seed, site, parameters, edits).
     rocks : dict of column arrays, optional
@@ -164,7 +163,7 @@ class LayerStack:
     """
 
     layers: tuple[Layer, ...]
-    catalog: dict
+    catalog: CraterCatalog
     info: dict = field(default_factory=dict)
     rocks: dict | None = None
     catalog_file: str = CATALOG
@@ -179,6 +178,10 @@ class LayerStack:
             if layer.window is None:
                 raise InvalidParameterError(f"layer {k} needs its window in layer {k - 1}")
         object.__setattr__(self, "layers", layers)
+        if not isinstance(self.catalog, CraterCatalog) or self.catalog.layer is None:
+            raise InvalidParameterError(
+                "a layer stack's catalog must be a CraterCatalog with a layer column; got "
+                f"{type(self.catalog).__name__}")
         object.__setattr__(self, "info", dict(self.info))
 
     @property
@@ -469,9 +472,7 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
             if len(table):
                 result = add_craters(tiles[k], table, seed=seed, model=model)
                 tiles[k] = result.tile
-                cat = dict(result.catalog)
-                cat["layer"] = np.full(len(cat["id"]), k, dtype=np.int64)
-                catalogs.append(cat)
+                catalogs.append(result.catalog.with_layer(k))
             log.info("layer %d: %d craters", k, len(table))
         tick(f"craters {k}")
 
@@ -543,13 +544,20 @@ def _add_layer_rocks(tiles: list, rocks, seed: int, population) -> dict:
     return rock_catalog(table, z0, first)
 
 
-def merge_catalogs(catalogs) -> dict:
-    """Return one crater catalogue from the per-layer ones, in composition order."""
-    if not catalogs:
-        cat = empty_catalog()
-        cat["layer"] = np.zeros(0, dtype=np.int64)
-        return cat
-    return {k: np.concatenate([c[k] for c in catalogs]) for k in catalogs[0]}
+def merge_catalogs(catalogs: Iterable[CraterCatalog]) -> CraterCatalog:
+    """Return a stack's crater catalogue from the per-layer ones, in composition order.
+
+    Parameters
+    ----------
+    catalogs : iterable of CraterCatalog
+        The layers' catalogues, each with its ``layer`` column, coarse to fine.
+
+    Returns
+    -------
+    CraterCatalog
+        Their rows in order (with a ``layer`` column even when there are none).
+    """
+    return CraterCatalog.concatenate(catalogs, layered=True)
 
 
 # ---------------------------------------------------------------------------- files
@@ -565,8 +573,9 @@ def _manifest(stack: LayerStack, files: list[str]) -> dict:
             parent=None if k == 0 else k - 1,
             window_in_parent=None if window is None else list(window),
             origin=list(stack.origins[k])))
-    counts = np.bincount(stack.catalog["layer"], minlength=len(stack.tiles)).tolist() \
-        if len(stack.catalog["layer"]) else [0] * len(stack.tiles)
+    layer = stack.catalog.layer
+    counts = np.bincount(layer, minlength=len(stack.tiles)).tolist() \
+        if layer is not None and len(layer) else [0] * len(stack.tiles)
     return dict(format=FORMAT, version=1, crs=stack.tiles[0].crs, layers=layers,
                 catalog=CATALOG, crater_counts=counts, **stack.info)
 
@@ -687,7 +696,7 @@ def _write_files(stack: LayerStack, outdir: Path, files: list[str], only=None,
         meta[mk.LAYER] = str(k)
         write_dem(tile.replace(metadata=meta), outdir / files[k])
     with atomic_path(outdir / catalog) as tmp:
-        write_catalog(tmp, stack.catalog, CATALOG_LAYER_COLUMNS)
+        stack.catalog.to_csv(tmp)
     if stack.rocks is not None and only is None:  # edits leave the rocks as they are
         from terrain.rocks import write_rock_catalog
 
@@ -826,11 +835,11 @@ def _read_stack(outdir: Path) -> LayerStack:
         raise InvalidDEMError(f"manifest '{mpath}' names a catalogue outside the stack: "
                               f"{cat_name!r}")
     cat_path = outdir / cat_name
-    catalog = read_catalog(cat_path) if cat_path.exists() else merge_catalogs([])
+    catalog = CraterCatalog.from_csv(cat_path) if cat_path.exists() else merge_catalogs([])
     info = {k: v for k, v in manifest.items()
             if k not in ("layers", "format", "version", "crs", "catalog", "crater_counts")}
     rock_path = outdir / ROCK_CATALOG
-    rocks = read_catalog(rock_path) if "rock_catalog" in info and rock_path.exists() else None
+    rocks = read_columns(rock_path) if "rock_catalog" in info and rock_path.exists() else None
     return LayerStack(_layers(tiles, windows, origins, files), catalog, info, rocks,
                       catalog_file=cat_name)
 
@@ -877,9 +886,7 @@ def replace_crater(outdir, x: float, y: float, diameter: float, *, age: float = 
         changed = {k}
         _propagate_up(tiles, stack.windows, k, changed)
         _propagate_down(tiles, stack.windows, k, old, changed)
-        cat = dict(result.catalog)
-        cat["layer"] = np.full(len(cat["id"]), k, dtype=np.int64)
-        catalog = merge_catalogs([stack.catalog, cat]) if len(stack.catalog["id"]) else cat
+        catalog = merge_catalogs([stack.catalog, result.catalog.with_layer(k)])
         edit = dict(replace_crater=dict(x=x, y=y, diameter=diameter, age=age, layer=k,
                                         seed=seed, changed_layers=sorted(changed)))
         edited = replace(

@@ -38,7 +38,7 @@ import numpy as np
 from terrain import memory
 from terrain.catalog import CraterTable
 from terrain.errors import InvalidParameterError
-from terrain.rng import check_seed, hash64, stream_id, uniform_scalar
+from terrain.rng import check_seed, hash64, poisson, stream_id, uniform_scalar
 from terrain.tomlfile import read_toml
 
 __all__ = ["CELL_EXPECTATION", "Population"]
@@ -242,20 +242,6 @@ class Population:
 
 
 @numba.njit(cache=True)
-def _poisson(u, lam):
-    """Inverse CDF of Poisson(lam) at u (sequential search; lam is about 8 here)."""
-    p = math.exp(-lam)
-    cdf = p
-    k = 0
-    limit = int(lam + 40.0 * math.sqrt(lam) + 100.0)
-    while u > cdf and k < limit:
-        k += 1
-        p *= lam / k
-        cdf += p
-    return k
-
-
-@numba.njit(cache=True)
 def _generate(seed, b, cell, lam, d_lo, d_hi, k, max_age, ix0, ix1, iy0, iy1,
               lo_x, hi_x, lo_y, hi_y, out, uid, count_only):
     n = 0
@@ -264,7 +250,7 @@ def _generate(seed, b, cell, lam, d_lo, d_hi, k, max_age, ix0, ix1, iy0, iy1,
     inv_k = 1.0 / k
     for iy in range(iy0, iy1 + 1):
         for ix in range(ix0, ix1 + 1):
-            count = _poisson(uniform_scalar(seed, STREAM_COUNT, b, ix, iy, 0), lam)
+            count = poisson(uniform_scalar(seed, STREAM_COUNT, b, ix, iy, 0), lam)
             for j in range(count):
                 x = (ix + uniform_scalar(seed, STREAM_CRATER, b, ix, iy, 4 * j)) * cell
                 y = (iy + uniform_scalar(seed, STREAM_CRATER, b, ix, iy, 4 * j + 1)) * cell

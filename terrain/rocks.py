@@ -92,7 +92,7 @@ import numpy as np
 from terrain import memory
 from terrain import metakeys as mk
 from terrain.errors import InvalidParameterError
-from terrain.rng import check_seed, gaussian, hash64, stream_id, uniform_scalar
+from terrain.rng import check_seed, gaussian, hash64, poisson, stream_id, uniform_scalar
 
 __all__ = ["CELL_EXPECTATION", "MIN_ROCK_PIXELS", "ROCK_COLUMNS", "RockModel", "RockTable",
            "add_rocks", "rock_heights", "write_rock_catalog"]
@@ -484,23 +484,6 @@ def _boost_box(src, x0, y0, x1, y1, reach):
 
 
 @numba.njit(cache=True)
-def _poisson(u, lam):
-    """Inverse CDF of Poisson(lam) at u; a normal approximation above lam = 500."""
-    if lam > 500.0:
-        from_normal = lam + math.sqrt(lam) * gaussian(u) + 0.5
-        return max(int(from_normal), 0)
-    p = math.exp(-lam)
-    cdf = p
-    k = 0
-    limit = int(lam + 40.0 * math.sqrt(lam) + 100.0)
-    while u > cdf and k < limit:
-        k += 1
-        p *= lam / k
-        cdf += p
-    return k
-
-
-@numba.njit(cache=True)
 def _interp(x, xs, ys):
     """Linear interpolation of decreasing ys (log N) at x, xs increasing (log D)."""
     n = xs.size
@@ -532,7 +515,7 @@ def _place(seed, b, cell, lam, logd, logn, ix0, ix1, iy0, iy1, lo_x, lo_y, hi_x,
             if src.shape[0] > 0:
                 mult = 1.0 + factor * _boost_box(src, ix * cell, iy * cell, (ix + 1) * cell,
                                                  (iy + 1) * cell, reach)
-            count = _poisson(uniform_scalar(seed, STREAM_COUNT, b, ix, iy, 0), lam * mult)
+            count = poisson(uniform_scalar(seed, STREAM_COUNT, b, ix, iy, 0), lam * mult)
             for j in range(count):
                 k0 = _NPAR * j
                 x = (ix + uniform_scalar(seed, STREAM_ROCK, b, ix, iy, k0)) * cell
@@ -777,6 +760,6 @@ def write_rock_catalog(path_or_file, catalog: dict) -> None:
     ``id`` as 16 hex digits, lengths in metres, ``orientation_deg`` the long axis's angle
     from map east towards north, in [0, 180).
     """
-    from terrain.catalog import write_catalog
+    from terrain.catalog import write_columns
 
-    write_catalog(path_or_file, catalog, columns=ROCK_COLUMNS)
+    write_columns(path_or_file, catalog, ROCK_COLUMNS)

@@ -14,13 +14,8 @@ import numpy as np
 from affine import Affine
 
 from terrain import metakeys as mk
-from terrain.cratering import (
-    CraterModel,
-    CraterResult,
-    crater_heights,
-    describe_craters,
-    empty_catalog,
-)
+from terrain.catalog import CraterCatalog
+from terrain.cratering import CraterModel, CraterResult, crater_heights, describe_craters
 from terrain.rmd import check_fractal_dimension, check_tile_size, synthesize
 from terrain.rng import check_seed
 from terrain.tile import DEMTile, Window, default_transform
@@ -79,7 +74,7 @@ def synthesize_tile(size: int, *, resolution: float = 1.0, fractal_dimension: fl
                   fractal_dimension=float(fractal_dimension), relief=float(relief))
     if craters is None:
         z = base(window.row, window.row + window.height, window.col, window.col + window.width)
-        catalog = empty_catalog()
+        catalog = CraterCatalog.empty()
     else:
         model = model or CraterModel()
         z, catalog = crater_heights(base, (size, size), transform, craters, seed=seed,

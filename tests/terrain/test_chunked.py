@@ -75,9 +75,9 @@ def test_synth_on_two_workers_equals_the_single_run(client, tmp_path):
     single = synthesize_tile(129, resolution=2.0, seed=5, craters=POP)
     assert report.computed == report.total == 9
     assert np.array_equal(stored(tmp_path / "s.zarr"), single.tile.heights)  # bitwise
-    assert len(single.catalog["id"]) > 10
-    for name, column in single.catalog.items():  # the same craters, in the same order
-        assert np.array_equal(report.catalog[name], column), name
+    assert len(single.catalog.id) > 10
+    for name, column in single.catalog.as_dict().items():  # the same craters, in the same order
+        assert np.array_equal(getattr(report.catalog, name), column), name
 
 
 def test_craters_on_two_workers_equal_the_single_run(client, dem, tmp_path):
@@ -85,7 +85,7 @@ def test_craters_on_two_workers_equal_the_single_run(client, dem, tmp_path):
                  client=client)
     single = add_craters(read_dem(dem), POP, seed=9)
     assert np.array_equal(stored(tmp_path / "c.zarr"), single.tile.heights, equal_nan=True)
-    assert np.array_equal(report.catalog["id"], single.catalog["id"])
+    assert np.array_equal(report.catalog.id, single.catalog.id)
 
 
 def test_two_level_expansion_on_two_workers_equals_the_single_run(client, dem, tmp_path):
@@ -158,7 +158,7 @@ def test_an_interrupted_run_resumes_without_recomputing_finished_chunks(tmp_path
         assert p.stat().st_mtime_ns == t, p
     single = synthesize_tile(129, seed=3, craters=POP)
     assert np.array_equal(stored(out), single.tile.heights)
-    assert np.array_equal(report.catalog["id"], single.catalog["id"])
+    assert np.array_equal(report.catalog.id, single.catalog.id)
 
 
 def test_resuming_with_other_parameters_is_refused(tmp_path):

@@ -63,8 +63,8 @@ def assert_same_stack(a, b):
         assert np.array_equal(ta.heights, tb.heights), k  # bitwise, NaN-free layers
         assert ta.transform == tb.transform and ta.crs == tb.crs, k
     assert a.windows == b.windows and a.origins == b.origins
-    for name, column in a.catalog.items():
-        assert np.array_equal(b.catalog[name], column), name
+    for name, column in a.catalog.as_dict().items():
+        assert np.array_equal(getattr(b.catalog, name), column), name
     for name, column in a.rocks.items():
         assert np.array_equal(b.rocks[name], column, equal_nan=True), name
 
@@ -73,7 +73,7 @@ def assert_same_stack(a, b):
 def test_chunked_stack_on_two_workers_equals_the_in_memory_stack(in_memory, base_path, client,
                                                                   tmp_path):
     # the stack has what the comparison must cover: craters and rocks on several layers
-    assert len(set(in_memory.catalog["layer"].tolist())) >= 3
+    assert len(set(in_memory.catalog.layer.tolist())) >= 3
     assert len(set(in_memory.rocks["layer"].tolist())) >= 2
     assert in_memory.info["base_filled_pixels"] == 20
     out = tmp_path / "chunked"

@@ -203,10 +203,10 @@ def test_crater_on_flat_and_tilted_planes_matches_the_profile(age, tilt):
     assert np.array_equal(out.tile.heights[~inside], tile.heights[~inside])
     # the catalogue reports what was built
     cat = out.catalog
-    assert len(cat["id"]) == 1
-    assert cat["depth_m"][0] == pytest.approx(s.depth)
-    assert cat["rim_height_m"][0] == pytest.approx(s.rim_height)
-    assert cat["reference_elevation_m"][0] == pytest.approx(100 + tilt[0] * cx + tilt[1] * cy,
+    assert len(cat.id) == 1
+    assert cat.depth_m[0] == pytest.approx(s.depth)
+    assert cat.rim_height_m[0] == pytest.approx(s.rim_height)
+    assert cat.reference_elevation_m[0] == pytest.approx(100 + tilt[0] * cx + tilt[1] * cy,
                                                            abs=1e-6)
 
 
@@ -236,9 +236,9 @@ def test_craters_sit_on_other_craters():
     both = add_craters(tile, CraterTable.from_craters([big, small]), seed=3,
                        model=CraterModel().smooth())
     cat = both.catalog
-    row_small = int(np.flatnonzero(cat["diameter_m"] == 20.0)[0])
+    row_small = int(np.flatnonzero(cat.diameter_m == 20.0)[0])
     # the small crater's pre-impact level is the big crater's wall there, well below 0
-    assert cat["reference_elevation_m"][row_small] < -10.0
+    assert cat.reference_elevation_m[row_small] < -10.0
     heights = both.tile.heights
     big_only = add_craters(tile, CraterTable.from_craters([big]), seed=3,
                            model=CraterModel().smooth()).tile.heights
@@ -310,8 +310,8 @@ def test_a_40_km_crater_on_a_flat_dem_has_pikes_complex_shape():
     # central peak of the documented height at the centre
     assert change[r < 150].max() - floor == pytest.approx(peak, rel=0.10)
     # the catalogue reports Pike's values
-    assert cat["depth_m"][0] == pytest.approx(depth_pike, rel=1e-3)
-    assert cat["rim_height_m"][0] == pytest.approx(rim_pike, rel=1e-3)
+    assert cat.depth_m[0] == pytest.approx(depth_pike, rel=1e-3)
+    assert cat.rim_height_m[0] == pytest.approx(rim_pike, rel=1e-3)
 
 
 def _complex_joins(s):
@@ -400,6 +400,6 @@ def test_steep_ground_degrades_craters_faster():
     steep = add_craters(tile, crater, seed=1, model=model).catalog
     off = add_craters(tile, crater, seed=1,
                       model=model.smooth(slope=SlopeDegradation(enabled=False))).catalog
-    assert steep["depth_m"][0] < 0.9 * cat_flat["depth_m"][0]
-    assert off["depth_m"][0] == pytest.approx(cat_flat["depth_m"][0])
-    assert steep["rim_height_m"][0] <= off["rim_height_m"][0]
+    assert steep.depth_m[0] < 0.9 * cat_flat.depth_m[0]
+    assert off.depth_m[0] == pytest.approx(cat_flat.depth_m[0])
+    assert steep.rim_height_m[0] <= off.rim_height_m[0]

@@ -20,8 +20,8 @@ def full():
 def test_same_seed_same_bytes(full):
     again = synthesize_tile(257, resolution=1.0, relief=6.0, seed=17, craters=POP)
     assert again.tile.heights.tobytes() == full.tile.heights.tobytes()
-    for key in full.catalog:
-        assert np.array_equal(again.catalog[key], full.catalog[key])
+    for key in full.catalog.columns:
+        assert np.array_equal(getattr(again.catalog, key), getattr(full.catalog, key))
     other = synthesize_tile(257, resolution=1.0, relief=6.0, seed=18, craters=POP)
     assert not np.array_equal(other.tile.heights, full.tile.heights)
 
@@ -36,14 +36,14 @@ def test_any_window_equals_the_same_window_of_the_full_tile(full, window):
     # georeferencing of the window matches
     assert part.tile.xy(0, 0) == full.tile.xy(window.row, window.col)
     # the window's catalogue holds every crater touching it, centred inside or not
-    ids = set(part.catalog["id"].tolist())
-    assert ids <= set(full.catalog["id"].tolist())
-    x, y = full.catalog["x_m"], full.catalog["y_m"]
+    ids = set(part.catalog.id.tolist())
+    assert ids <= set(full.catalog.id.tolist())
+    x, y = full.catalog.x_m, full.catalog.y_m
     left, bottom, right, top = part.tile.bounds
     gx = np.clip(x, left, right) - x
     gy = np.clip(y, bottom, top) - y
-    touching = np.hypot(gx, gy) <= full.catalog["diameter_m"] * CraterModel().footprint_factor
-    assert ids == set(full.catalog["id"][touching].tolist())
+    touching = np.hypot(gx, gy) <= full.catalog.diameter_m * CraterModel().footprint_factor
+    assert ids == set(full.catalog.id[touching].tolist())
     outside = (x < left) | (x > right) | (y < bottom) | (y > top)
     if window == Window(100, 120, 37, 20):
         assert np.any(touching & outside), "craters centred outside the window touch it"
@@ -115,26 +115,26 @@ def test_smaller_classes_are_added_onto_larger_ones():
                         model=CraterModel().smooth()).tile.heights
     assert heights[100, 100] < large[100, 100]
     cat = out.catalog
-    assert cat["diameter_m"].tolist() == [120.0, 10.0]  # composition order
+    assert cat.diameter_m.tolist() == [120.0, 10.0]  # composition order
 
 
 def test_catalogue_columns_are_consistent(full):
     cat = full.catalog
-    n = len(cat["id"])
+    n = len(cat.id)
     assert n > 100
-    assert len(np.unique(cat["id"])) == n
-    assert np.all((cat["diameter_m"] >= POP.dmin) & (cat["diameter_m"] < POP.dmax))
-    assert np.all((cat["age_gyr"] >= 0) & (cat["age_gyr"] <= POP.max_age))
-    assert np.all(cat["rim_fraction"] <= cat["depth_fraction"])
-    assert np.allclose(cat["depth_m"] / cat["depth_fraction"],
-                       0.196 * (cat["diameter_m"] / 1000) ** 1.01 * 1000)
+    assert len(np.unique(cat.id)) == n
+    assert np.all((cat.diameter_m >= POP.dmin) & (cat.diameter_m < POP.dmax))
+    assert np.all((cat.age_gyr >= 0) & (cat.age_gyr <= POP.max_age))
+    assert np.all(cat.rim_fraction <= cat.depth_fraction)
+    assert np.allclose(cat.depth_m / cat.depth_fraction,
+                       0.196 * (cat.diameter_m / 1000) ** 1.01 * 1000)
 
 
 def test_windows_with_complex_craters_are_exact():
     """Lunar-scale craters (complex above 15 km, with slope-dependent degradation) at 1 km."""
     pop = Population(dmin=4000.0, dmax=60000.0, density=0.004, max_age=3.5)
     full = synthesize_tile(129, resolution=1000.0, relief=3000.0, seed=9, craters=pop)
-    assert (full.catalog["diameter_m"] > 15000.0).any()
+    assert (full.catalog.diameter_m > 15000.0).any()
     for w in (Window(40, 30, 50, 40), Window(0, 90, 129, 39)):
         part = synthesize_tile(129, resolution=1000.0, relief=3000.0, seed=9, craters=pop,
                                window=w)

@@ -74,8 +74,8 @@ def test_known_base_heights_survive_where_no_crater_or_finer_layer_reaches(stack
     x, y = original.xy(rows, cols)
     cat = stack.catalog
     factor = CraterModel().footprint_factor
-    for cx, cy, d in zip(cat["x_m"][cat["layer"] == 0], cat["y_m"][cat["layer"] == 0],
-                         cat["diameter_m"][cat["layer"] == 0], strict=True):
+    for cx, cy, d in zip(cat.x_m[cat.layer == 0], cat.y_m[cat.layer == 0],
+                         cat.diameter_m[cat.layer == 0], strict=True):
         untouched &= np.hypot(x - cx, y - cy) > d * factor + 1000.0
     assert untouched.sum() > 100
     assert np.array_equal(stack.tiles[0].heights[untouched], original.heights[untouched])
@@ -83,10 +83,10 @@ def test_known_base_heights_survive_where_no_crater_or_finer_layer_reaches(stack
 
 def test_each_crater_sits_in_the_finest_layer_that_holds_it(stack):
     cat = stack.catalog
-    assert len(cat["id"]) > 100
-    assert len(np.unique(cat["id"])) == len(cat["id"])
+    assert len(cat.id) > 100
+    assert len(np.unique(cat.id)) == len(cat.id)
     factor = CraterModel().footprint_factor
-    for x, y, d, k in zip(cat["x_m"], cat["y_m"], cat["diameter_m"], cat["layer"],
+    for x, y, d, k in zip(cat.x_m, cat.y_m, cat.diameter_m, cat.layer,
                           strict=True):
         tile = stack.tiles[k]
         assert d >= MIN_CRATER_PIXELS * tile.resolution
@@ -103,12 +103,12 @@ def test_write_read_roundtrip_and_manifest(stack, tmp_path):
     assert [entry["level"] for entry in manifest["layers"]] == list(range(6))
     assert manifest["layers"][3]["parent"] == 2
     assert manifest["layers"][0]["resolution"] == 1000.0
-    assert sum(manifest["crater_counts"]) == len(stack.catalog["id"])
+    assert sum(manifest["crater_counts"]) == len(stack.catalog.id)
     again = read_stack(out)
     for a, b in zip(again.tiles, stack.tiles, strict=True):
         assert np.array_equal(a.heights, b.heights)
         assert a.transform == b.transform
-    assert np.array_equal(again.catalog["layer"], stack.catalog["layer"])
+    assert np.array_equal(again.catalog.layer, stack.catalog.layer)
     assert again.windows == stack.windows and again.origins == stack.origins
     assert [layer.file for layer in again.layers] == [e["file"] for e in manifest["layers"]]
     assert all((out / layer.file).is_file() for layer in again.layers)
@@ -160,7 +160,7 @@ def test_replace_crater_edits_in_place_and_layers_still_match(stack, tmp_path):
     # a sharp bowl at the site
     r, c = after.tiles[k].rowcol(x, y)
     assert after.tiles[k].heights[int(r), int(c)] < before.tiles[k].heights[int(r), int(c)] - 50
-    assert diameter in set(after.catalog["diameter_m"].tolist())
+    assert diameter in set(after.catalog.diameter_m.tolist())
     files = sorted(p.name for p in out.iterdir() if p.suffix == ".tif")
     assert len(files) == 6, "old versions of edited layers are removed"
 

@@ -46,7 +46,7 @@ def _check_consistent(folder, base_rows):
     stack = read_stack(folder)
     manifest = json.loads((folder / MANIFEST).read_text())
     edits = manifest.get("edits", [])
-    assert len(stack.catalog["id"]) == base_rows + len(edits)  # no phantom, none lost
+    assert len(stack.catalog.id) == base_rows + len(edits)  # no phantom, none lost
     for k in range(1, len(stack.tiles)):
         col, row, size, _ = stack.windows[k]
         np.testing.assert_array_equal(
@@ -74,7 +74,7 @@ def _fork(target):
 
 @pytest.mark.slow
 def test_killed_edits_leave_a_consistent_stack_and_are_swept(stack_folder):
-    base_rows = len(read_stack(stack_folder).catalog["id"])
+    base_rows = len(read_stack(stack_folder).catalog.id)
     t0 = time.perf_counter()
     _edit(stack_folder, 0)  # warm the kernels before forking, and time one edit
     duration = time.perf_counter() - t0
