@@ -58,6 +58,7 @@ from pathlib import Path
 
 import numpy as np
 
+from evaluation.silhouette import SILHOUETTE_JUMP, dilate, near_contours
 from render.camera import quat_to_matrix
 from render.rundir import RunReader
 from terrain.errors import InvalidParameterError
@@ -69,9 +70,6 @@ log = logging.getLogger(__name__)
 
 #: A pixel at most this many noise levels (read and rounding noise) above black is dark.
 DARK_SIGMAS = 4.0
-#: Relative range jump between neighbouring pixels that marks an occluding contour (as in
-#: :data:`evaluation.tracking.SILHOUETTE_JUMP`).
-SILHOUETTE_JUMP = 0.05
 #: The issue's bound: the largest per-frame rms at most this many times the median.
 SPIKE_BOUND = 1.5
 #: Sun directions (in the body frame) closer than this (radians) count as the same sun.
@@ -112,32 +110,6 @@ class PairResidual:
     fraction: float
     noise_floor_dn: float | None = None
     worst_tile_dn: float | None = None
-
-
-def _edges(rng: np.ndarray) -> np.ndarray:
-    """(h, w) bool: pixels without return, or beside a relative range jump."""
-    edge = ~np.isfinite(rng)
-    with np.errstate(invalid="ignore"):
-        for axis in (0, 1):
-            a = rng[:-1] if axis == 0 else rng[:, :-1]
-            b = rng[1:] if axis == 0 else rng[:, 1:]
-            jump = np.abs(a - b) > SILHOUETTE_JUMP * np.minimum(a, b)
-            if axis == 0:
-                edge[:-1] |= jump
-                edge[1:] |= jump
-            else:
-                edge[:, :-1] |= jump
-                edge[:, 1:] |= jump
-    return edge
-
-
-def _dilate(mask: np.ndarray, px: int) -> np.ndarray:
-    import cv2
-
-    if px <= 0:
-        return mask
-    size = 2 * px + 1
-    return cv2.dilate(mask.astype(np.uint8), np.ones((size, size), np.uint8)) > 0
 
 
 def _grey(image: np.ndarray) -> np.ndarray:
@@ -231,9 +203,9 @@ def pair_residual(image0, image1, range0, range1, truth0, truth1, *, normals0=No
                       cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0)
     with np.errstate(invalid="ignore"):
         visible = inside & (r1_at > 0) & (np.abs(r1_at - seen) <= occlusion_tolerance * seen)
-    edges1 = cv2.remap(_dilate(_edges(range1), edge_px).astype(np.uint8), map_u, map_v,
+    edges1 = cv2.remap(near_contours(range1, edge_px).astype(np.uint8), map_u, map_v,
                        cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=1) > 0
-    mask = visible & ~_dilate(_edges(range0), edge_px) & ~edges1
+    mask = visible & ~near_contours(range0, edge_px) & ~edges1
     warped = cv2.remap(i1, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     # lit in both
     sun = np.asarray(truth0.sun, dtype=np.float64)
@@ -253,7 +225,7 @@ def pair_residual(image0, image1, range0, range1, truth0, truth1, *, normals0=No
     turn = math.acos(min(1.0, float(float(np.dot(sun_body0, sun_body1))
                                     / (np.linalg.norm(sun_body0) * np.linalg.norm(sun_body1)))))
     if turn > SUN_STILL_RAD:  # shadows move on the surface: drop their edges
-        mask &= ~_dilate(dark0 | dark1, edge_px)
+        mask &= ~dilate(dark0 | dark1, edge_px)
     residual = np.where(mask, i0 - warped, np.nan).astype(np.float32)
     vals = residual[mask].astype(np.float64)
     rms = float(np.sqrt(np.mean(vals * vals))) if vals.size else float("nan")

@@ -81,6 +81,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from evaluation.silhouette import SILHOUETTE_JUMP, near_contours
 from render.camera import quat_to_matrix
 from render.rundir import RunReader
 from terrain import memory
@@ -96,8 +97,6 @@ ERROR_QUANTILES = (0.5, 0.9, 0.95, 0.99)
 #: A feature closer than this (pixels) to a silhouette at its first frame is a silhouette
 #: feature: about a third of the default Lucas-Kanade window.
 SILHOUETTE_PX = 6
-#: Relative range jump between neighbouring pixels that marks an occluding contour.
-SILHOUETTE_JUMP = 0.05
 #: Bytes per (track, frame) cell of the dense track arrays (positions float32 x 2; scoring
 #: adds errors float64 and true positions float64 x 2, and temporaries).
 TRACK_BYTES_PER_OBSERVATION = 48
@@ -541,23 +540,8 @@ def truth_round_trip(run, *, step: int = 1, spacing: int = 8) -> float:
 
 def _near_silhouette(rng: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """(n,) bool: pixels within SILHOUETTE_PX of no return or of an occluding contour."""
-    import cv2
-
     h, w = rng.shape
-    edge = ~np.isfinite(rng)
-    with np.errstate(invalid="ignore"):
-        for axis in (0, 1):
-            a = rng[:-1] if axis == 0 else rng[:, :-1]
-            b = rng[1:] if axis == 0 else rng[:, 1:]
-            jump = np.abs(a - b) > SILHOUETTE_JUMP * np.minimum(a, b)
-            if axis == 0:
-                edge[:-1] |= jump
-                edge[1:] |= jump
-            else:
-                edge[:, :-1] |= jump
-                edge[:, 1:] |= jump
-    size = 2 * SILHOUETTE_PX + 1
-    near = cv2.dilate(edge.astype(np.uint8), np.ones((size, size), np.uint8)) > 0
+    near = near_contours(rng, SILHOUETTE_PX, SILHOUETTE_JUMP)
     cols = np.clip(np.rint(uv[:, 0]).astype(np.int64), 0, w - 1)
     rows = np.clip(np.rint(uv[:, 1]).astype(np.int64), 0, h - 1)
     return near[rows, cols]

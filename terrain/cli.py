@@ -828,17 +828,7 @@ def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, lay
         levels = levels_for_resolution(tile.resolution, finest_resolution)
     if despike is not None:
         tile, _ = run_despike(tile, despike)
-    finest = tile.resolution / 2**levels
-    rocks = None
-    if rocks_spec is not None:
-        from terrain.rocks import MIN_ROCK_PIXELS, RockModel
-
-        rocks = RockModel.from_spec(rocks_spec, defaults=dict(dmin=MIN_ROCK_PIXELS * finest))
-    pop = _population(population, dmin=dmin, dmax=dmax, density=density,
-                      sfd_exponent=sfd_exponent, max_age=max_age, resolution=finest,
-                      extent=min(tile.shape) * tile.resolution, required=False,
-                      warn_small=False)
-    model = _model(erosion_profile, erosion_exponent, no_roughness)
+    rocks, pop, model = _stack_content(tile.resolution, tuple(tile.shape), **locals())
     params = RoughnessChoice(fractal_dimension, height_scale, uniform_roughness)
     with progress_bar("enhance", "step") as bar:
         stack = build_stack(tile, site, levels=levels, layer_size=layer_size, seed=seed,
@@ -855,6 +845,45 @@ def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, lay
                f"{n_rocks})", err=True)
 
 
+
+
+def _stack_content(resolution, shape, *, levels, rocks_spec, population, dmin, dmax, density,
+                   sfd_exponent, max_age, erosion_profile, erosion_exponent, no_roughness,
+                   **_):
+    """Return the rocks, crater population and crater model `terrain enhance` adds.
+
+    Parameters
+    ----------
+    resolution : float, metres per pixel
+        The base DEM's.
+    shape : (rows, cols)
+        The base DEM's.
+    levels : int
+        Layers above the base; the finest layer's pixel sets the rocks' default smallest
+        diameter (:data:`terrain.rocks.MIN_ROCK_PIXELS` pixels) and the craters' resolution.
+    rocks_spec, population, dmin, dmax, density, sfd_exponent, max_age : option values
+        The command's rock and crater options.
+    erosion_profile, erosion_exponent, no_roughness : option values
+        The command's crater-model options.
+    **_
+        The command's other options, ignored.
+
+    Returns
+    -------
+    rocks : RockModel or None
+    population : Population or None
+    model : CraterModel
+    """
+    finest = resolution / 2**levels
+    rocks = None
+    if rocks_spec is not None:
+        from terrain.rocks import MIN_ROCK_PIXELS, RockModel
+
+        rocks = RockModel.from_spec(rocks_spec, defaults=dict(dmin=MIN_ROCK_PIXELS * finest))
+    pop = _population(population, dmin=dmin, dmax=dmax, density=density,
+                      sfd_exponent=sfd_exponent, max_age=max_age, resolution=finest,
+                      extent=min(shape) * resolution, required=False, warn_small=False)
+    return rocks, pop, _model(erosion_profile, erosion_exponent, no_roughness)
 
 
 def _stack_geometry(input_dem, band, site, site_lonlat, levels, finest_resolution, layer_size):
@@ -911,17 +940,7 @@ def _enhance_chunked(*, input_dem, output, site, site_lonlat, levels, finest_res
     prepare_folder(output, inputs=[input_dem], keep=(".craterscape.work",))
     reader, site, levels, shapes = _stack_geometry(input_dem, band, site, site_lonlat, levels,
                                                    finest_resolution, layer_size)
-    finest = reader.resolution / 2**levels
-    rocks = None
-    if rocks_spec is not None:
-        from terrain.rocks import MIN_ROCK_PIXELS, RockModel
-
-        rocks = RockModel.from_spec(rocks_spec, defaults=dict(dmin=MIN_ROCK_PIXELS * finest))
-    pop = _population(population, dmin=dmin, dmax=dmax, density=density,
-                      sfd_exponent=sfd_exponent, max_age=max_age, resolution=finest,
-                      extent=min(reader.shape) * reader.resolution, required=False,
-                      warn_small=False)
-    model = _model(erosion_profile, erosion_exponent, no_roughness)
+    rocks, pop, model = _stack_content(reader.resolution, tuple(reader.shape), **locals())
     estimate = dict(fractal_dimension=fractal_dimension, height_scale=height_scale,
                     local_box=0 if uniform_roughness else LOCAL_BOX)
     pixels = sum(h * w for h, w in shapes)

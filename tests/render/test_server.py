@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from tests.cli_helpers import one_line_error, run
+from tests.render.scenes import cratered_stack, descent_scenario
 from tests.render.server_helpers import CRATERSCAPE, rss_bytes, served
 
 # ---------------------------------------------------------------- the spec, restated by hand
@@ -91,47 +92,13 @@ def pose_body(position, attitude, t=0.0, frame=0):
 # ---------------------------------------------------------------- fixtures
 @pytest.fixture(scope="module")
 def stack_dir(tmp_path_factory, gl):
-    from terrain.layers import build_stack, write_stack
-    from terrain.population import Population
-    from terrain.synthetic import synthesize_tile
-
-    base = synthesize_tile(65, resolution=100.0, relief=500.0, seed=3).tile
-    stack = build_stack(base, (3250.0, 3250.0), levels=2, layer_size=33, seed=4,
-                        population=Population(dmin=1.0, dmax=3000.0, density=5e4))
-    return write_stack(stack, tmp_path_factory.mktemp("stack") / "stack")
+    return cratered_stack(tmp_path_factory.mktemp("stack") / "stack")
 
 
 @pytest.fixture(scope="module")
 def scenario(tmp_path_factory, stack_dir):
     path = tmp_path_factory.mktemp("scenario") / "serve.toml"
-    path.write_text(f"""
-name = "serve-test"
-seed = 5
-[scene]
-type = "terrain"
-stack = "{stack_dir}"
-[sun]
-azimuth = 100.0
-elevation = 15.0
-[camera]
-width = 64
-height = 48
-fov = 50.0
-[sensor]
-bits = 16
-exposure = 4.0
-gain = 10.0
-read_noise = 2.0
-[render]
-shadow_size = 512
-[trajectory]
-type = "descent"
-frames = 3
-duration = 4.0
-start_altitude = 1500.0
-end_altitude = 100.0
-ground_track = [300.0, 100.0]
-""")
+    path.write_text(descent_scenario(stack_dir, "serve-test"))
     return path
 
 
