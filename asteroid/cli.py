@@ -1,10 +1,12 @@
-"""The ``craterscape asteroid`` commands (registered through the ``craterscape.groups`` entry
-point, so the root command in :mod:`terrain.cli` never imports this package).
+r"""The ``craterscape asteroid`` commands.
+
+They are registered through the ``craterscape.groups`` entry point, so the root command in
+:mod:`terrain.cli` never imports this package.
 
 ::
 
-    craterscape asteroid build -o BODY.ply --magnitude M --radius R \\
-        --base perlin|faulting|shape:FILE --seed S [--stretch A,B,C] \\
+    craterscape asteroid build -o BODY.ply --magnitude M --radius R \
+        --base perlin|faulting|shape:FILE --seed S [--stretch A,B,C] \
         [--craters SPEC] [--boulders SPEC] [--config FILE.toml] [--preset NAME]
     craterscape asteroid export BODY.npz -o BODY.glb [--level L] [--no-boulders]
     craterscape asteroid info BODY.npz

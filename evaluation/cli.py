@@ -1,5 +1,7 @@
-"""The ``craterscape evaluation`` commands (registered through the ``craterscape.groups`` entry
-point, so the root command in :mod:`terrain.cli` never imports this package).
+"""The ``craterscape evaluation`` commands.
+
+They are registered through the ``craterscape.groups`` entry point, so the root command in
+:mod:`terrain.cli` never imports this package.
 
 ::
 
@@ -37,7 +39,7 @@ log = logging.getLogger(__name__)
 
 
 def _outdir(path: Path, inputs=()) -> Path:
-    """The output folder, checked (never an input or inside one) and created.
+    """Return the output folder, checked (never an input or inside one) and created.
 
     Commands call it after their checks and computations, inside the transaction that
     writes their files, so a command that fails leaves no folder and no file behind.
@@ -91,15 +93,17 @@ def _dem_inputs(paths, band: int) -> list:
 
 
 def _with_stack_folders(paths) -> list:
-    """The inputs, plus the folder of every layer stack named by its manifest.json: nothing
-    is ever written into an input stack."""
+    """Return the inputs, plus the folder of every layer stack named by its manifest.json.
+
+    Nothing is ever written into an input stack.
+    """
     out = list(paths)
     out += [Path(p).parent for p in paths if Path(p).name == "manifest.json"]
     return out
 
 
 def _reference(dems, reference, reference_band):
-    """The reference DEM, after checking every input shares its CRS (before any work)."""
+    """Return the reference DEM, after checking every input shares its CRS (before any work)."""
     from evaluation.compare import check_same_crs
     from terrain.io import read_dem
 

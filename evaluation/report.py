@@ -55,6 +55,7 @@ import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -71,8 +72,9 @@ log = logging.getLogger(__name__)
 
 #: Identifier of the JSON report format.
 REPORT_FORMAT = "craterscape-evaluation-report"
-#: Thresholds used where the TOML file is silent (see the module docstring).
-DEFAULT_THRESHOLDS = {
+#: Thresholds used where the TOML file is silent (see the module docstring): table -> key ->
+#: value, a float except ``asteroid.slope_kind`` (a str).
+DEFAULT_THRESHOLDS: dict[str, dict[str, Any]] = {
     "tracking": {
         "max_median_error_px": 0.5,
         "outlier_px": 2.0,
@@ -122,7 +124,7 @@ _UPPER_BOUNDS = {
 
 
 def thresholds_toml(thresholds: dict | None = None) -> str:
-    """The thresholds as a commented TOML document (defaults when none given).
+    """Return the thresholds as a commented TOML document (defaults when none given).
 
     >>> import tomllib
     >>> text = thresholds_toml()
@@ -202,11 +204,13 @@ class Check:
 
     @property
     def passed(self) -> bool | None:
+        """Whether the value keeps to the limit; None when it was not measured."""
         if self.value is None or not math.isfinite(self.value):
             return None
         return self.value <= self.limit if self.relation == "<=" else self.value >= self.limit
 
     def as_dict(self) -> dict:
+        """Return the check as plain data for the report's JSON (with ``passed``)."""
         return dict(section=self.section, name=self.name, value=self.value, limit=self.limit,
                     relation=self.relation, unit=self.unit, passed=self.passed,
                     note=self.note)
@@ -238,7 +242,7 @@ class Section:
     links: list = field(default_factory=list)  # (label, href): files beside the report
 
     def table(self, caption: str) -> list:
-        """The rows of the table with this caption (a list to read or extend).
+        """Return the rows of the table with this caption (a list to read or extend).
 
         Parameters
         ----------
@@ -280,11 +284,17 @@ class Report:
     created: str = ""
 
     @property
-    def checks(self) -> list:
+    def checks(self) -> list[Check]:
+        """Every section's checks, in order."""
         return [c for s in self.sections for c in s.checks]
 
     @property
     def verdict(self) -> str:
+        """The report's verdict: ``"fail"``, ``"incomplete"`` or ``"pass"``.
+
+        ``"fail"`` if a check failed, else ``"incomplete"`` if one was not measured (or there
+        are none), else ``"pass"``.
+        """
         results = [c.passed for c in self.checks]
         if any(r is False for r in results):
             return "fail"
@@ -293,6 +303,7 @@ class Report:
         return "pass"
 
     def as_dict(self) -> dict:
+        """Return the report as plain data: the document ``report.json`` holds."""
         from terrain.clitools import version
 
         ver = version()
@@ -320,7 +331,7 @@ def _keyed(sec: Section, key: str) -> Section:
 
 
 def image_figure(fig_id, title, path, caption="") -> Figure:
-    """A figure made of an existing PNG file (a rendered frame, a hillshade), embedded as is.
+    """Return a figure made of an existing PNG file (a frame, a hillshade), embedded as is.
 
     Its JSON data names the file it came from.
     """
@@ -730,7 +741,7 @@ def _table(caption, header, rows) -> str:
 
 
 def render_html(report: Report) -> str:
-    """The report as one self-contained HTML document (figures as data URIs)."""
+    """Return the report as one self-contained HTML document (figures as data URIs)."""
     e = html.escape
     verdict = report.verdict
     parts = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',

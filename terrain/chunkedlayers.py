@@ -471,7 +471,9 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
         factor = model.footprint_factor
         for k in range(levels + 1):
             if k > 0:
-                col, row, size, _ = windows[k]
+                window = windows[k]
+                assert window is not None  # every layer above the base has one
+                col, row, size, _ = window
                 e = _stage(f"e{k}", StackExpandSource(
                     cratered[k - 1], origins[k - 1], origins[k], shapes[k][0], transforms[k],
                     k, params, seed, base), work, **common)

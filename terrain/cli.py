@@ -61,9 +61,12 @@ def _on_sigterm(signum, frame):
 
 
 def _harden(command):
-    """Make every float option of a command (and its subcommands) refuse NaN and infinity,
-    and register its input paths with :func:`terrain.outputs.protect` when it runs. Applied
-    to every command the root loads, so new commands get it without doing anything."""
+    """Make a command's float options refuse NaN and infinity, and protect its inputs.
+
+    Every float option of the command (and its subcommands) refuses NaN and infinity, and its
+    input paths are registered with :func:`terrain.outputs.protect` when it runs. Applied to
+    every command the root loads, so new commands get it without doing anything.
+    """
     if getattr(command, "_craterscape_hardened", False):
         return command
     command._craterscape_hardened = True
@@ -299,7 +302,7 @@ def _population(population_file, *, dmin, dmax, density, sfd_exponent, max_age, 
 
 
 def _write_outputs(result, output, catalog, inputs, command, params):
-    """The DEM and its catalogue, committed together (:func:`terrain.outputs.transaction`)."""
+    """Write the DEM and its catalogue, committed together (:func:`terrain.outputs.transaction`)."""
     from terrain.io import atomic_path, write_dem
 
     tile = result.tile.with_metadata(**{mk.COMMAND: command,
@@ -1124,8 +1127,11 @@ def rocks(input_dem, output, model, k, a, b, dmin, dmax, craters_csv, no_crater_
 
 
 def _read_crater_list(path):
-    """Craters from a catalogue written by craterscape (x_m, y_m, diameter_m, age_gyr) or a
-    plain list (x, y, diameter[, age])."""
+    """Return the craters of a CSV: a craterscape catalogue or a plain list.
+
+    A catalogue has (at least) the columns x_m, y_m, diameter_m, age_gyr; a plain list x, y,
+    diameter and optionally age (:func:`terrain.catalog.read_circles`).
+    """
     import csv
 
     import numpy as np
@@ -1214,8 +1220,11 @@ def hazards(source, output, lander_diameter, max_slope, max_step, layer, png, ba
 
 def _run_out_of_core(source, output, *, workers, threads, scheduler, chunk, label,
                      catalog=None, inputs=()):
-    """Run a request larger than memory chunk by chunk through a scratch Zarr store beside
-    the output, and write the output GeoTIFF as a COG from it (instead of refusing)."""
+    """Run a request larger than memory chunk by chunk, instead of refusing it.
+
+    The chunks go to a scratch Zarr store beside the output; the output GeoTIFF is written
+    from it as a COG.
+    """
     import shutil
     import tempfile
 

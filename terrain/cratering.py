@@ -112,17 +112,35 @@ class CraterModel:
     slope: SlopeDegradation = field(default_factory=SlopeDegradation)
 
     def smooth(self, **changes) -> CraterModel:
-        """The same model with the fractal overlay and the irregular rim switched off.
+        """Return the same model with the fractal overlay and the irregular rim switched off.
 
-        ``changes`` replace further fields (``model.smooth(slope=SlopeDegradation(False))``).
+        Parameters
+        ----------
+        **changes
+            Further fields to replace (``model.smooth(slope=SlopeDegradation(False))``).
+
+        Returns
+        -------
+        CraterModel
         """
         return replace(self, roughness=Roughness(enabled=False),
                        rim=RimIrregularity(enabled=False), **changes)
 
     def factors(self, age, diameter, slope) -> tuple[np.ndarray, np.ndarray]:
-        """Depth and rim fractions at age(s) (Gyr), diameter(s) (m) and ground slope(s) (rad).
+        """Return the depth and rim fractions erosion leaves.
 
-        A crater whose plane could not be fitted (NaN slope) is aged as on flat ground.
+        Parameters
+        ----------
+        age : float or (n,) float, Gyr
+        diameter : float or (n,) float, metres
+        slope : float or (n,) float, radians
+            Slope of the ground under each crater; a crater whose plane could not be fitted
+            (NaN) is aged as on flat ground.
+
+        Returns
+        -------
+        depth_fraction, rim_fraction : (n,) float64
+            Of the fresh crater's depth and rim height.
         """
         slope = np.nan_to_num(np.asarray(slope, dtype=float), nan=0.0)
         return self.erosion.factors(self.slope.effective_age(age, slope), diameter)
@@ -133,6 +151,7 @@ class CraterModel:
         return 1.0 + 2.0 * self.rim.effective_amplitude
 
     def as_dict(self) -> dict:
+        """Return the model as plain data for metadata (``CRATERSCAPE_CRATER_MODEL``)."""
         return dict(erosion=self.erosion.as_dict(), roughness=asdict(self.roughness),
                     rim=asdict(self.rim), morphology=self.morphology.as_dict(),
                     slope_degradation=self.slope.as_dict())

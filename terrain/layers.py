@@ -52,6 +52,7 @@ import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from affine import Affine
@@ -205,7 +206,7 @@ class LayerStack:
         return len(self.layers) - 1
 
     def with_info(self, **items) -> LayerStack:
-        """A copy with ``items`` added to the provenance.
+        """Return a copy with ``items`` added to the provenance.
 
         Parameters
         ----------
@@ -294,16 +295,40 @@ def _layer_craters(population, seed, plan, k, factor, min_pixels):
     return table.take(np.flatnonzero(keep))
 
 
-def layer_plan(base: DEMTile | GridShape, site, levels, layer_size):
-    """Geometry of every layer: windows, origins, shapes and transforms, before any work."""
+def layer_plan(base: DEMTile | GridShape, site: tuple[float, float], levels: int,
+               layer_size: int) -> tuple[list[tuple[int, int, int, int] | None],
+                                         list[tuple[int, int]], list[tuple[int, ...]],
+                                         list[Affine]]:
+    """Return the geometry of every layer, before any work.
+
+    Parameters
+    ----------
+    base : DEMTile or GridShape
+        The base layer (its shape and transform).
+    site : (x, y), map metres
+        Centre of the layers.
+    levels : int
+        Layers above the base.
+    layer_size : int, pixels
+        Side of the window of each layer that the next expands (odd, >= 3).
+
+    Returns
+    -------
+    windows : list of (col, row, size, size) or None
+        Each layer's window in the layer above (None for the base).
+    origins : list of (row, col)
+        Each layer's global pixel origin at its level.
+    shapes : list of (rows, cols)
+    transforms : list of affine.Affine
+    """
     if layer_size < 3 or layer_size % 2 == 0:
         raise InvalidParameterError(
             f"layer size must be odd and >= 3 (a window of n pixels expands to 2n - 1); "
             f"got {layer_size}")
-    shapes = [base.shape]
-    transforms = [base.transform]
-    windows = [None]
-    origins = [(0, 0)]
+    shapes: list[tuple[int, ...]] = [tuple(base.shape)]
+    transforms: list[Affine] = [base.transform]
+    windows: list[tuple[int, int, int, int] | None] = [None]
+    origins: list[tuple[int, int]] = [(0, 0)]
     half = (layer_size + 1) // 2
     proxy = base
     for _ in range(levels):
@@ -435,7 +460,7 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
         if progress is not None:
             progress(step, total, label)
 
-    info = {"base_filled_pixels": 0}
+    info: dict[str, Any] = {"base_filled_pixels": 0}
     if not base.valid.all():
         filled = fill_gaps(base, seed=seed)
         info["base_filled_pixels"] = int(filled.filled.sum())
@@ -452,7 +477,9 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
     factor = model.footprint_factor
     for k in range(levels + 1):
         if k > 0:
-            col, row, size, _ = windows[k]
+            window = windows[k]
+            assert window is not None  # every layer above the base has one
+            col, row, size, _ = window
             parent = tiles[k - 1]
             pr, pc = origins[k - 1]
             r0, c0 = origins[k]
@@ -485,7 +512,9 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
 
     # Coarse pixels inside a finer layer take the co-located fine pixel, finest first.
     for k in range(levels, 0, -1):
-        col, row, size, _ = windows[k]
+        window = windows[k]
+        assert window is not None  # every layer above the base has one
+        col, row, size, _ = window
         coarse = tiles[k - 1].heights.copy()
         coarse[row:row + size, col:col + size] = tiles[k].heights[::2, ::2]
         tiles[k - 1] = tiles[k - 1].replace(heights=coarse, valid=np.isfinite(coarse))
@@ -940,9 +969,14 @@ def _propagate_down(tiles: list, windows, k: int, old_k: np.ndarray, changed: se
 
 
 def _commit(stack: LayerStack, outdir: Path, changed: set) -> None:
-    """Write new versions of the changed layers and of the catalogue, swap the manifest in
-    (the commit point), then delete the old versions once no reader holds them."""
-    files = [layer.file for layer in stack.layers]
+    """Write the changed layers and the catalogue under new names, then swap the manifest in.
+
+    The manifest's swap is the commit point; the old versions are deleted once no reader
+    holds them.
+    """
+    if any(layer.file is None for layer in stack.layers):
+        raise InvalidParameterError("only a stack read from its folder can be edited in place")
+    files = [str(layer.file) for layer in stack.layers]
     old_files = list(files)
     old_catalog = stack.catalog_file
     stamp = f"{time.time_ns():x}"
@@ -986,5 +1020,5 @@ def _sweep(outdir: Path) -> None:
 
 
 def stack_transform(entry: dict) -> Affine:
-    """The Affine of a manifest layer entry."""
+    """Return the Affine transform of a manifest layer entry."""
     return Affine(*entry["transform"])

@@ -107,6 +107,7 @@ class Roughness:
                          self.blend, self.terrain_match], dtype=np.float64)
 
     def as_dict(self) -> dict:
+        """Return the parameters as plain data for metadata."""
         return asdict(self)
 
 
@@ -130,9 +131,11 @@ class RimIrregularity:
 
     @property
     def effective_amplitude(self) -> float:
+        """The largest rim-radius deviation over D as applied: 0 when switched off."""
         return self.amplitude if self.enabled else 0.0
 
     def as_dict(self) -> dict:
+        """Return the parameters as plain data for metadata."""
         return asdict(self)
 
 
@@ -199,7 +202,7 @@ def periodic_sample(table, theta):
 
 @numba.njit(cache=True)
 def smooth_periodic(values, passes):
-    """``passes`` rounds of the circular binomial filter [1 2 1] / 4, in place."""
+    """Apply ``passes`` rounds of the circular binomial filter [1 2 1] / 4, in place."""
     n = values.size
     tmp = np.empty(n)
     for _ in range(passes):
@@ -258,7 +261,7 @@ def _patch_sigma(i, j, centre, spacing, radius, alpha, blend, s_floor, s_wall, s
 
 @numba.njit(cache=True)
 def _step_scale(amplitude, dimension, step_index):
-    """amplitude * S_f^(step_index + 1) with S_f = 2^(-(3 - F) / 2) (eq. 14)."""
+    """Return amplitude * S_f^(step_index + 1) with S_f = 2^(-(3 - F) / 2) (eq. 14)."""
     return amplitude * math.exp(-(step_index + 1) * (3.0 - dimension) * _HALF_LN2)
 
 
