@@ -126,6 +126,18 @@ _UPPER_BOUNDS = {
 def thresholds_toml(thresholds: dict | None = None) -> str:
     """Return the thresholds as a commented TOML document (defaults when none given).
 
+    Parameters
+    ----------
+    thresholds : dict, optional
+        Table -> key -> value, as :func:`load_thresholds` returns.
+
+    Returns
+    -------
+    str
+        One commented line per threshold, readable by :func:`load_thresholds`.
+
+    Examples
+    --------
     >>> import tomllib
     >>> text = thresholds_toml()
     >>> tomllib.loads(text) == DEFAULT_THRESHOLDS
@@ -143,10 +155,25 @@ def thresholds_toml(thresholds: dict | None = None) -> str:
 
 
 def load_thresholds(path=None) -> dict:
-    """Thresholds from a TOML file merged over :data:`DEFAULT_THRESHOLDS`.
+    """Return the thresholds of a TOML file merged over :data:`DEFAULT_THRESHOLDS`.
 
     Unknown tables or keys, and values of the wrong type, are refused with the name of the
     offending key (a misspelt threshold must not silently fall back to its default).
+
+    Parameters
+    ----------
+    path : path, optional
+        The TOML file; None gives the defaults.
+
+    Returns
+    -------
+    dict
+        Table -> key -> value (floats; ``asteroid.slope_kind`` a str).
+
+    Raises
+    ------
+    InvalidParameterError
+        An unknown table or key, or a value of the wrong type or out of range.
     """
     out = copy.deepcopy(DEFAULT_THRESHOLDS)
     if path is None:
@@ -333,21 +360,63 @@ def _keyed(sec: Section, key: str) -> Section:
 def image_figure(fig_id, title, path, caption="") -> Figure:
     """Return a figure made of an existing PNG file (a frame, a hillshade), embedded as is.
 
-    Its JSON data names the file it came from.
+    Parameters
+    ----------
+    fig_id, title : str
+        The figure's anchor and heading.
+    path : path
+        The PNG; the figure's JSON data names it.
+    caption : str
+
+    Returns
+    -------
+    Figure
     """
     path = Path(path)
     return Figure(fig_id, title, path.read_bytes(), dict(file=str(path)), caption)
 
 
 def figure_record(fig_id, title, fig, data, caption="") -> Figure:
-    """Return a report figure: the drawing as PNG bytes and its numbers made JSON-safe."""
+    """Return a report figure: the drawing as PNG bytes and its numbers made JSON-safe.
+
+    Parameters
+    ----------
+    fig_id, title : str
+        The figure's anchor and heading.
+    fig : matplotlib.figure.Figure
+        The drawing (closed once rendered).
+    data : dict
+        The plotted numbers, written to the report's JSON (:func:`jsonable`).
+    caption : str
+
+    Returns
+    -------
+    Figure
+    """
     from evaluation.figures import png_bytes
 
     return Figure(fig_id, title, png_bytes(fig), jsonable(data), caption)
 
 
 def jsonable(obj):
-    """Plain JSON types (NaN and infinities become null)."""
+    """Return ``obj`` in plain JSON types.
+
+    Parameters
+    ----------
+    obj : object
+        Dicts, lists, tuples, NumPy arrays and scalars, nested.
+
+    Returns
+    -------
+    object
+        Dicts with str keys, lists, float, int, bool, str and None; NaN and infinities
+        become None.
+
+    Examples
+    --------
+    >>> jsonable({1: np.array([0.5, np.nan]), "n": np.int64(3)})
+    {'1': [0.5, None], 'n': 3}
+    """
     if isinstance(obj, dict):
         return {str(k): jsonable(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
@@ -365,7 +434,25 @@ def jsonable(obj):
 
 
 def fmt(value, digits=4) -> str:
-    """Return a number as report text: ``digits`` significant digits, "n/a" for None."""
+    """Return a number as report text.
+
+    Parameters
+    ----------
+    value : number, bool or None
+    digits : int
+        Significant digits of a float.
+
+    Returns
+    -------
+    str
+        Integers with thousands separators, floats to ``digits`` significant digits,
+        ``"n/a"`` for None and non-finite values.
+
+    Examples
+    --------
+    >>> fmt(1234567), fmt(0.123456), fmt(float("nan"))
+    ('1,234,567', '0.1235', 'n/a')
+    """
     if value is None:
         return "n/a"
     if isinstance(value, (bool, np.bool_)):
@@ -741,7 +828,16 @@ def _table(caption, header, rows) -> str:
 
 
 def render_html(report: Report) -> str:
-    """Return the report as one self-contained HTML document (figures as data URIs)."""
+    """Return the report as one self-contained HTML document (figures as data URIs).
+
+    Parameters
+    ----------
+    report : Report
+
+    Returns
+    -------
+    str
+    """
     e = html.escape
     verdict = report.verdict
     parts = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
@@ -795,9 +891,18 @@ def render_html(report: Report) -> str:
 def write_report(report: Report, path, *, inputs=()) -> tuple[Path, Path]:
     """Write ``path`` (HTML) and the JSON twin beside it (same name, ``.json``), atomically.
 
+    Parameters
+    ----------
+    report : Report
+        Its ``created`` time is set now if empty.
+    path : path
+        The HTML file (not ending in ``.json``).
+    inputs : iterable of path
+        Files the report was made from (never written over).
+
     Returns
     -------
-    (html_path, json_path)
+    (html_path, json_path) : Path
     """
     path = Path(path)
     json_path = path.with_suffix(".json")

@@ -214,7 +214,9 @@ class CraterCatalog:
     depth_m, rim_height_m : (n,) float64, metres
         Depth and rim height as made.
     alpha, beta : (n,) float64
-        The profile's rim exponent and ejecta exponent (:class:`terrain.crater.Profile`).
+        The profile's joins in normalised radius x = r / R - 1 (:mod:`terrain.crater`):
+        alpha (<= 0) where the bowl meets the rim cap, beta (>= 0) where the rim's outer
+        flank meets the ejecta.
     reference_elevation_m : (n,) float64, metres
         The fitted pre-impact level at the centre.
     layer : (n,) int64, optional

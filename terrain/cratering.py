@@ -213,6 +213,35 @@ def fit_plane(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, radius):
     how the pixel grid falls. Heights are accumulated relative to the first valid sample, so
     that absolute heights of kilometres do not swamp the residual. The pixel roughness is the
     RMS of (pixel - mean of its four neighbours) at the pixels nearest the samples.
+
+    Parameters
+    ----------
+    T : (h, w) float64, metres
+        Terrain heights of a part of the DEM (NaN unknown).
+    tr0, tc0 : int
+        The DEM pixel (row, col) of ``T[0, 0]``.
+    nrows, ncols : int
+        Size of the whole DEM.
+    x0, y0 : float, map metres
+        The whole DEM's upper-left corner.
+    res : float, metres
+        Pixel size.
+    cx, cy : float, map metres
+        Centre of the pattern.
+    radius : float, metres
+        Radius of the pattern (the bowl's, D / 2).
+
+    Returns
+    -------
+    p0 : float, metres
+        The plane's height at the centre (NaN without valid samples).
+    px, py : float
+        Its slopes along x and y (metres per metre).
+    samples : float
+        Valid samples used.
+    rms : float, metres
+        RMS residual of the samples about the plane.
+    pixel_roughness : float, metres
     """
     rings = min(PLANE_RINGS_MAX, max(2, int(math.ceil(radius / res))))
     n = 0.0
@@ -274,6 +303,31 @@ def rim_terrain(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, radius, d, p0, p
     scale of the crater, not pixel noise, which would otherwise streak the inner wall
     radially; the table is then low-passed (RIM_TERRAIN_SMOOTHING binomial passes) and read
     with cubic interpolation. Unknown terrain counts as on the plane.
+
+    Parameters
+    ----------
+    T : (h, w) float64, metres
+        Terrain heights of a part of the DEM (NaN unknown).
+    tr0, tc0 : int
+        The DEM pixel (row, col) of ``T[0, 0]``.
+    nrows, ncols : int
+        Size of the whole DEM.
+    x0, y0 : float, map metres
+        The whole DEM's upper-left corner.
+    res : float, metres
+        Pixel size.
+    cx, cy : float, map metres
+        Crater centre.
+    radius, d : float, metres
+        Rim radius and diameter.
+    p0, px, py : float
+        The crater's plane (:func:`fit_plane`).
+    irregular : bool
+        Whether the rim radius varies with azimuth (by ``rim``, in units of D).
+    rim : (m,) float64
+        The irregular rim's radius table (:func:`terrain.overlay.rim_table`).
+    out : (n,) float64, metres
+        Filled with the table.
     """
     n = out.size
     taps = RIM_TERRAIN_TAPS
@@ -301,7 +355,20 @@ def rim_terrain(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, radius, d, p0, p
 
 @numba.njit(cache=True)
 def obliteration(x):
-    """1 on the floor and inner wall, smoothstep down to 0 at the rim (x = 0)."""
+    """Return how much older relief a crater erases: 1 inside, smoothstep down to 0 at the rim.
+
+    Parameters
+    ----------
+    x : float
+        Radial position relative to the rim (0 at the rim, negative inside; in units of the
+        rim radius, as :data:`OBLITERATION_BLEND`).
+
+    Returns
+    -------
+    float
+        1 for ``x <= -OBLITERATION_BLEND``, 0 at the rim, smooth in between (defined for
+        ``x <= 0``, the crater's inside).
+    """
     if x <= -OBLITERATION_BLEND:
         return 1.0
     t = (x + OBLITERATION_BLEND) / OBLITERATION_BLEND
@@ -310,10 +377,32 @@ def obliteration(x):
 
 @numba.njit(cache=True)
 def class_planes(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, diam):
-    """(n, 6) :func:`fit_plane` results (p0, px, py, samples, RMS, pixel roughness) of a class.
+    """Return the :func:`fit_plane` results of the craters of one size class.
 
     Each crater's plane is fitted over its bowl on the terrain ``T`` before its class, so the
     planes (and the slope-dependent degradation they decide) need only that terrain.
+
+    Parameters
+    ----------
+    T : (h, w) float64, metres
+        Terrain heights of a part of the DEM (NaN unknown).
+    tr0, tc0 : int
+        The DEM pixel (row, col) of ``T[0, 0]``.
+    nrows, ncols : int
+        Size of the whole DEM.
+    x0, y0 : float, map metres
+        The whole DEM's upper-left corner.
+    res : float, metres
+        Pixel size.
+    cx, cy : (n,) float64, map metres
+        Crater centres.
+    diam : (n,) float64, metres
+        Crater diameters.
+
+    Returns
+    -------
+    (n, 6) float64
+        Per crater: p0, px, py, samples, RMS, pixel roughness.
     """
     out = np.empty((cx.size, 6))
     for n in range(cx.size):
@@ -705,7 +794,17 @@ def add_craters(tile: DEMTile, craters, *, seed: int, model: CraterModel | None 
 
 
 def describe_craters(craters) -> dict:
-    """Provenance record of a crater source."""
+    """Return the provenance record of a crater source (for the DEM's metadata).
+
+    Parameters
+    ----------
+    craters : Population or CraterTable
+
+    Returns
+    -------
+    dict
+        ``{"population": ...}`` (its parameters) or ``{"explicit_craters": n}``.
+    """
     if isinstance(craters, Population):
         return {"population": craters.as_dict()}
     return {"explicit_craters": len(craters)}

@@ -264,8 +264,20 @@ def _site_window(tile: DEMTile | GridShape, x: float, y: float,
     return col, row, size
 
 
-def layer_bounds(shape, transform):
-    """Return (left, bottom, right, top) of a grid of ``shape`` placed by ``transform``."""
+def layer_bounds(shape: tuple[int, ...], transform: Affine) -> tuple[float, float, float, float]:
+    """Return the map extent of a grid.
+
+    Parameters
+    ----------
+    shape : (rows, cols)
+    transform : affine.Affine
+        North-up pixel-to-map transform (metres).
+
+    Returns
+    -------
+    (left, bottom, right, top) : float, map metres
+        The outer edges of the grid's corner pixels.
+    """
     ny, nx = shape
     left, top = transform @ (0, 0)
     right, bottom = transform @ (nx, ny)
@@ -616,6 +628,25 @@ def prepare_folder(outdir, *, inputs=(), keep=()) -> Path:
     ``.craterscape.incomplete`` marker and no manifest), whose files are removed here,
     except those named in ``keep`` (a chunked build keeps its work folder to resume it).
     Anything else is refused.
+
+    Parameters
+    ----------
+    outdir : path
+        The stack's folder.
+    inputs : iterable of path
+        The build's inputs: the folder may neither be one nor hold one.
+    keep : iterable of str
+        Names in a killed build's folder to leave in place.
+
+    Returns
+    -------
+    Path
+        ``outdir``.
+
+    Raises
+    ------
+    InvalidParameterError, OutputPathError
+        The folder holds anything else, is an input or holds one.
     """
     from terrain.outputs import check_output_folder
 
@@ -672,6 +703,20 @@ def write_stack(stack: LayerStack, outdir, *, inputs=()) -> Path:
 
     The manifest is written last; if writing fails (full disk, interrupt) the files already
     written are removed again, and a killed build is cleared by the next one.
+
+    Parameters
+    ----------
+    stack : LayerStack
+    outdir : path
+        A missing, empty or killed build's folder.
+    inputs : iterable of path
+        Files the stack was made from (never written over, never inside ``outdir``).
+
+    Returns
+    -------
+    Path
+        ``outdir``: ``manifest.json``, ``layer_NN.tif`` and ``craters.csv`` (and
+        ``rocks.csv`` with rocks).
     """
     outdir = prepare_folder(outdir, inputs=inputs)
     if outdir.exists() and not outdir.is_dir():
@@ -739,7 +784,25 @@ def _write_files(stack: LayerStack, outdir: Path, files: list[str], only=None,
 
 @contextlib.contextmanager
 def stack_lock(outdir, timeout: float = LOCK_TIMEOUT):
-    """Exclusive lock on a layer-stack folder; waits up to ``timeout`` s for another edit."""
+    """Hold the exclusive edit lock of a layer-stack folder.
+
+    Parameters
+    ----------
+    outdir : path
+        The stack's folder.
+    timeout : float, seconds
+        How long to wait for another edit to finish.
+
+    Yields
+    ------
+    None
+        While the lock is held.
+
+    Raises
+    ------
+    InvalidParameterError
+        Another edit held the lock for ``timeout`` seconds.
+    """
     path = Path(outdir) / LOCK
     fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o644)
     try:
@@ -822,6 +885,22 @@ def read_stack(outdir) -> LayerStack:
 
     Holds the readers' lock while reading, so an edit running at the same time never
     deletes a file this read still needs (see the module docstring).
+
+    Parameters
+    ----------
+    outdir : path
+        The stack's folder.
+
+    Returns
+    -------
+    LayerStack
+        Its layers (each with its file name), crater catalogue, provenance and rocks.
+
+    Raises
+    ------
+    InvalidDEMError
+        The folder has no stack, its manifest is corrupt or names files outside the folder,
+        or a layer's size disagrees with the manifest.
     """
     outdir = Path(outdir)
     if not (outdir / MANIFEST).exists():
@@ -884,7 +963,30 @@ def replace_crater(outdir, x: float, y: float, diameter: float, *, age: float = 
     fractal terrain, the crater is added at the finest layer that holds it completely, and
     the change propagates to every coarser layer (co-located pixels) so the layers match
     exactly. Finer layers that overlap the crater take the change too, interpolated from the
-    layer above, with their co-located pixels set exactly. Returns what was done.
+    layer above, with their co-located pixels set exactly.
+
+    Parameters
+    ----------
+    outdir : path
+        The stack's folder (edited in place; concurrent edits wait for each other).
+    x, y : float, map metres
+        Crater centre.
+    diameter : float, metres
+    age : float, Gyr
+    seed : int, optional
+        Keys the fill and the crater's roughness (default: the stack's seed).
+    model : CraterModel, optional
+
+    Returns
+    -------
+    dict
+        What was done: ``x``, ``y``, ``diameter``, ``age``, ``layer`` (where the crater was
+        added), ``seed`` and ``changed_layers``; also recorded in the manifest's ``edits``.
+
+    Raises
+    ------
+    InvalidParameterError
+        The diameter is not positive, or the crater fits in no layer.
     """
     outdir = Path(outdir)
     if not (diameter > 0 and math.isfinite(diameter)):
@@ -1020,5 +1122,15 @@ def _sweep(outdir: Path) -> None:
 
 
 def stack_transform(entry: dict) -> Affine:
-    """Return the Affine transform of a manifest layer entry."""
+    """Return the Affine transform of a manifest layer entry.
+
+    Parameters
+    ----------
+    entry : dict
+        One of the manifest's ``layers`` (its ``transform``: the first six coefficients).
+
+    Returns
+    -------
+    affine.Affine
+    """
     return Affine(*entry["transform"])

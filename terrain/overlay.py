@@ -141,7 +141,21 @@ class RimIrregularity:
 
 @numba.njit(cache=True)
 def rim_table(seed, uid, amplitude, hurst, out):
-    """Fill ``out`` (RIM_SAMPLES,) with rho(theta) in units of D; theta_i = 2 pi i / n - pi."""
+    """Fill ``out`` with a crater's irregular rim, rho(theta) in units of D.
+
+    Parameters
+    ----------
+    seed : int
+        The run's seed.
+    uid : int
+        The crater's identity (keys its rim).
+    amplitude : float
+        Largest |rho| over D (:attr:`RimIrregularity.effective_amplitude`); 0 fills zeros.
+    hurst : float
+        Hurst exponent of the rim's fractal profile.
+    out : (RIM_SAMPLES,) float64
+        Filled; entry i belongs to azimuth theta_i = 2 pi i / n - pi.
+    """
     n = out.size
     if amplitude <= 0.0:
         out[:] = 0.0
@@ -186,6 +200,16 @@ def periodic_sample(table, theta):
     Entry i belongs to theta_i = 2 pi i / n - pi. Catmull-Rom cubic interpolation keeps the
     value and its azimuthal slope continuous, so table nodes never show as radial spokes in a
     shaded crater.
+
+    Parameters
+    ----------
+    table : (n,) float64
+        Values at the azimuths theta_i; n a power of two.
+    theta : float, radians
+
+    Returns
+    -------
+    float
     """
     n = table.size
     mask = n - 1
@@ -202,7 +226,14 @@ def periodic_sample(table, theta):
 
 @numba.njit(cache=True)
 def smooth_periodic(values, passes):
-    """Apply ``passes`` rounds of the circular binomial filter [1 2 1] / 4, in place."""
+    """Apply ``passes`` rounds of the circular binomial filter [1 2 1] / 4, in place.
+
+    Parameters
+    ----------
+    values : (n,) float64
+        A periodic table (changed in place).
+    passes : int
+    """
     n = values.size
     tmp = np.empty(n)
     for _ in range(passes):
@@ -225,6 +256,21 @@ def crater_params(packed, diameter, depth_fraction, terrain_rms, pixel_rms, leve
     as the obliterated terrain at the pixel scale; the result is capped at twice the
     terrain's residual RMS about the plane (``terrain_rms``) so that a rough-at-small-scale
     ground never produces crater-sized bumps.
+
+    Parameters
+    ----------
+    packed : (8,) float64
+        :meth:`Roughness.as_array`.
+    diameter : float, metres
+    depth_fraction : float
+        Depth left by erosion (the amplitudes scale with the crater's depth).
+    terrain_rms, pixel_rms : float, metres
+        The obliterated terrain's residual RMS about the crater's plane and its pixel
+        roughness (:func:`terrain.cratering.fit_plane`).
+    level : int
+        Diamond-square levels of the crater's patch.
+    out : (7,) float64
+        Filled as above.
     """
     scale = diameter * depth_fraction
     match = packed[7]
@@ -270,7 +316,24 @@ def overlay_patch(seed, uid, level, spacing, diameter, alpha, params, out):
     """Diamond-square patch of (2^level + 1)^2 points at ``spacing`` m, centred on the crater.
 
     ``params`` holds the absolute amplitudes (m) of floor, wall and ejecta, their fractal
-    dimensions and the blend width (see :meth:`Roughness.crater_params`); corners are 0.
+    dimensions and the blend width (see :func:`crater_params`); corners are 0.
+
+    Parameters
+    ----------
+    seed, uid : int
+        The run's seed and the crater's identity (key the patch).
+    level : int
+        The patch has (2^level + 1)^2 points.
+    spacing : float, metres
+        Between patch points.
+    diameter : float, metres
+    alpha : float
+        The profile's bowl join in normalised radius x = r / R - 1 (<= 0;
+        :mod:`terrain.crater`): the boundary of the floor and wall regions.
+    params : (7,) float64
+        :func:`crater_params`.
+    out : (2^level + 1, 2^level + 1) float64, metres
+        Filled with the patch.
     """
     n = 2**level
     centre = n // 2
@@ -324,6 +387,20 @@ def patch_value(patch, spacing, half_extent, dx, dy):
     """Bilinear sample of an overlay patch at offset (dx, dy) m from the crater centre.
 
     Patch row i lies at dy = (i - centre) * spacing, column j at dx = (j - centre) * spacing.
+
+    Parameters
+    ----------
+    patch : (n + 1, n + 1) float64, metres
+        :func:`overlay_patch`.
+    spacing : float, metres
+    half_extent : float, metres
+        Half the patch's side (n / 2 * spacing).
+    dx, dy : float, metres
+        Offset from the crater centre; clamped to the patch.
+
+    Returns
+    -------
+    float, metres
     """
     n = patch.shape[0] - 1
     fj = (dx + half_extent) / spacing
