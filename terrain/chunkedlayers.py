@@ -47,6 +47,7 @@ from terrain import metakeys as mk
 from terrain.chunked import OnReaderGrid, filled_field, merge_chunk_catalogs
 from terrain.errors import InvalidDEMError, InvalidParameterError
 from terrain.layers import WORK
+from terrain.rocks import bilinear_at
 from terrain.tile import Window
 
 if TYPE_CHECKING:
@@ -167,34 +168,9 @@ class StackExpandSource:
 
 
 @numba.njit(cache=True)
-def _bilinear_at(T, tr0, tc0, ny, nx, x0, y0, res, x, y):
-    """Return :func:`terrain.rocks._bilinear` of the whole layer at (x, y).
-
-    The layer is ``ny`` x ``nx`` with map origin ``x0, y0``, read from ``T``, the part of it
-    starting at pixel (tr0, tc0).
-    """
-    c = (x - x0) / res - 0.5
-    r = (y0 - y) / res - 0.5
-    c = min(max(c, 0.0), nx - 1.0)
-    r = min(max(r, 0.0), ny - 1.0)
-    i0 = min(int(r), ny - 2) if ny > 1 else 0
-    j0 = min(int(c), nx - 2) if nx > 1 else 0
-    i1 = min(i0 + 1, ny - 1)
-    j1 = min(j0 + 1, nx - 1)
-    ti = r - i0
-    tj = c - j0
-    i0 -= tr0
-    i1 -= tr0
-    j0 -= tc0
-    j1 -= tc0
-    return ((T[i0, j0] * (1 - tj) + T[i0, j1] * tj) * (1 - ti)
-            + (T[i1, j0] * (1 - tj) + T[i1, j1] * tj) * ti)
-
-
-@numba.njit(cache=True)
 def _base_levels_at(T, tr0, tc0, ny, nx, x0, y0, res, xs, ys, out):
     for i in range(xs.size):
-        out[i] = _bilinear_at(T, tr0, tc0, ny, nx, x0, y0, res, xs[i], ys[i])
+        out[i] = bilinear_at(T, tr0, tc0, ny, nx, x0, y0, res, xs[i], ys[i])
 
 
 @dataclass(frozen=True)

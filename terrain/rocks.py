@@ -602,8 +602,27 @@ class RockTable:
 
 
 @numba.njit(cache=True)
-def _bilinear(T, x0, y0, res, x, y):
-    ny, nx = T.shape
+def bilinear_at(T, tr0, tc0, ny, nx, x0, y0, res, x, y):
+    """Return the bilinear height of a layer at map (x, y), clamped to the layer's edges.
+
+    Parameters
+    ----------
+    T : (h, w) float array, metres
+        The part of the layer starting at its pixel (tr0, tc0) (the whole layer: 0, 0); it
+        must hold the pixels around (x, y).
+    tr0, tc0 : int
+    ny, nx : int
+        The whole layer's size.
+    x0, y0 : float, map metres
+        The whole layer's upper-left corner.
+    res : float, metres
+        Pixel size.
+    x, y : float, map metres
+
+    Returns
+    -------
+    float, metres
+    """
     c = (x - x0) / res - 0.5
     r = (y0 - y) / res - 0.5
     c = min(max(c, 0.0), nx - 1.0)
@@ -614,14 +633,19 @@ def _bilinear(T, x0, y0, res, x, y):
     j1 = min(j0 + 1, nx - 1)
     ti = r - i0
     tj = c - j0
+    i0 -= tr0
+    i1 -= tr0
+    j0 -= tc0
+    j1 -= tc0
     return ((T[i0, j0] * (1 - tj) + T[i0, j1] * tj) * (1 - ti)
             + (T[i1, j0] * (1 - tj) + T[i1, j1] * tj) * ti)
 
 
 @numba.njit(cache=True)
 def _base_levels(T, x0, y0, res, rows, out):
+    ny, nx = T.shape
     for i in range(rows.shape[0]):
-        out[i] = _bilinear(T, x0, y0, res, rows[i, _X], rows[i, _Y])
+        out[i] = bilinear_at(T, 0, 0, ny, nx, x0, y0, res, rows[i, _X], rows[i, _Y])
 
 
 @numba.njit(cache=True)
