@@ -306,16 +306,8 @@ def rim_terrain(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, radius, d, p0, p
 
     Parameters
     ----------
-    T : (h, w) float64, metres
-        Terrain heights of a part of the DEM (NaN unknown).
-    tr0, tc0 : int
-        The DEM pixel (row, col) of ``T[0, 0]``.
-    nrows, ncols : int
-        Size of the whole DEM.
-    x0, y0 : float, map metres
-        The whole DEM's upper-left corner.
-    res : float, metres
-        Pixel size.
+    T, tr0, tc0, nrows, ncols, x0, y0, res
+        The terrain and the DEM's grid, as for :func:`fit_plane`.
     cx, cy : float, map metres
         Crater centre.
     radius, d : float, metres
@@ -384,16 +376,8 @@ def class_planes(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, diam):
 
     Parameters
     ----------
-    T : (h, w) float64, metres
-        Terrain heights of a part of the DEM (NaN unknown).
-    tr0, tc0 : int
-        The DEM pixel (row, col) of ``T[0, 0]``.
-    nrows, ncols : int
-        Size of the whole DEM.
-    x0, y0 : float, map metres
-        The whole DEM's upper-left corner.
-    res : float, metres
-        Pixel size.
+    T, tr0, tc0, nrows, ncols, x0, y0, res
+        The terrain and the DEM's grid, as for :func:`fit_plane`.
     cx, cy : (n,) float64, map metres
         Crater centres.
     diam : (n,) float64, metres
