@@ -57,7 +57,7 @@ def child_place(spec: dict) -> dict:
         t0 = time.perf_counter()
         _, cat = add_rocks(tile, model, seed=SEED)
         times.append(time.perf_counter() - t0)
-        counts.append(len(cat["id"]))
+        counts.append(len(cat))
     gen = []
     for _ in range(spec["repeat"]):
         t0 = time.perf_counter()
@@ -154,7 +154,7 @@ def child_frame(spec: dict) -> dict:
             renderer.render(scene, View(s.pose, k), light, RenderOptions(shadows=True))
             times.append(time.perf_counter() - t0)
         out[key] = dict(summary(times), rocks=0 if stack.rocks is None
-                        else len(stack.rocks["id"]))
+                        else len(stack.rocks))
     out["ratio_with_to_without"] = out["with_rocks"]["median_s"] / out["without_rocks"]["median_s"]
     out["renderer"] = describe()
     out["peak_rss_bytes"] = peak_rss_bytes()

@@ -21,18 +21,18 @@ import numpy as np
 
 from evaluation.report import Check, Section, figure_record, fmt, image_figure, jsonable
 from terrain import metakeys as mk
+from terrain.catalog import RockCatalog
 
 __all__ = ["descent_layers", "hazards_file_section", "rock_sfd", "rock_sfd_figure",
            "site_section"]
 
 
-def rock_sfd(catalog: dict, extent, min_diameter: float, *, points: int = 24) -> dict:
+def rock_sfd(catalog: RockCatalog, extent, min_diameter: float, *, points: int = 24) -> dict:
     """Cumulative fractional area and number of the rocks centred in ``extent``.
 
     Parameters
     ----------
-    catalog : dict
-        Rock catalogue columns (``x_m``, ``y_m``, ``diameter_m``).
+    catalog : RockCatalog
     extent : (xmin, ymin, xmax, ymax), map metres
     min_diameter : float
         Smallest diameter complete in the catalogue over the extent (metres).
@@ -43,9 +43,7 @@ def rock_sfd(catalog: dict, extent, min_diameter: float, *, points: int = 24) ->
     (points,), ``rocks`` and ``area_m2``.
     """
     xmin, ymin, xmax, ymax = extent
-    d = np.asarray(catalog["diameter_m"], float)
-    x = np.asarray(catalog["x_m"], float)
-    y = np.asarray(catalog["y_m"], float)
+    d, x, y = catalog.diameter_m, catalog.x_m, catalog.y_m
     sel = (x >= xmin) & (x <= xmax) & (y >= ymin) & (y <= ymax) & (d >= min_diameter)
     d = np.sort(d[sel])[::-1]
     area = (xmax - xmin) * (ymax - ymin)
@@ -144,7 +142,7 @@ def site_section(hazards, hazard_png, *, layer: int | None, resolution: float, r
     hazard_png : path of the hazard picture
     layer, resolution : the layer the hazards were computed on (None: a single DEM) and its
         pixel size (m)
-    rocks : dict, optional
+    rocks : RockCatalog, optional
         The stack's rock catalogue; with ``rock_model`` and ``rock_extent`` (a layer's extent
         and the smallest diameter complete there) its size-frequency is drawn against the model.
     descent : list of dict, optional
@@ -186,7 +184,7 @@ def site_section(hazards, hazard_png, *, layer: int | None, resolution: float, r
             f"rocks of D >= {dmin:.3g} m centred in {measured['area_m2']:.4g} m^2. Fresh "
             "craters raise the density on their rims and ejecta above the background model, "
             "so a site near one lies above the line.")
-        data["rocks"] = dict(total=len(rocks["id"]), measured=measured)
+        data["rocks"] = dict(total=len(rocks), measured=measured)
     if descent:
         picked = [r for r in descent if r["frame"] in set(frames)] or descent[-1:]
         sec.tables.append((

@@ -4,17 +4,21 @@ A :class:`Crater` is one impact as a user names it (position, diameter, age); a
 :class:`CraterTable` is many of them as columns, the form the generator produces and the
 cratering kernel consumes. A :class:`CraterCatalog` is what the model made of each crater
 (erosion state, depth, rim height, the fitted pre-impact level), the ground truth for
-crater-detection navigation: a frozen table of typed columns, written and read as the
-catalogue CSV (:meth:`CraterCatalog.to_csv`, :meth:`CraterCatalog.from_csv`).
+crater-detection navigation; a :class:`RockCatalog` the same for rocks. Both are frozen
+tables of typed, read-only columns (:class:`ColumnTable`), written and read as the
+catalogue CSVs (``to_csv``, ``from_csv``), joined (``concatenate``) and selected (``take``).
 
-Migrating from the dict of columns
-----------------------------------
-Until version 0.1 the catalogue (``CraterResult.catalog``, ``LayerStack.catalog``,
-``RunReport.catalog``) was a dict of column arrays. It is now a :class:`CraterCatalog` whose
-attributes are the CSV's column names: ``catalog["id"]`` becomes ``catalog.id``,
-``len(catalog["id"])`` becomes ``len(catalog)``, ``catalog.items()`` becomes
-``catalog.as_dict().items()``, ``write_catalog(path, catalog)`` becomes
-``catalog.to_csv(path)`` and ``read_catalog(path)`` becomes ``CraterCatalog.from_csv(path)``.
+Migrating from the dicts of columns
+-----------------------------------
+Until version 0.1 the catalogues (``CraterResult.catalog``, ``LayerStack.catalog``,
+``RunReport.catalog``; ``LayerStack.rocks`` and the catalogue :func:`terrain.rocks.add_rocks`
+returns) were dicts of column arrays. They are now records whose attributes are the CSV's
+column names: ``catalog["id"]`` becomes ``catalog.id``, ``len(catalog["id"])`` becomes
+``len(catalog)``, ``catalog.items()`` becomes ``catalog.as_dict().items()``,
+``write_catalog(path, catalog)`` and ``write_rock_catalog(path, rocks)`` become
+``catalog.to_csv(path)`` and ``rocks.to_csv(path)``, ``read_catalog(path)`` becomes
+``CraterCatalog.from_csv(path)`` (or :func:`read_columns` for any such CSV as a dict), and a
+dict of columns becomes a record through ``CraterCatalog.from_columns(columns)``.
 ``catalog["id"]`` still works for now and warns (:class:`DeprecationWarning`).
 """
 
@@ -28,14 +32,15 @@ import os
 import warnings
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import IO
+from typing import IO, ClassVar, TypeVar
 
 import numpy as np
 
 from terrain.errors import InvalidParameterError
 
-__all__ = ["CATALOG_COLUMNS", "CATALOG_LAYER_COLUMNS", "Crater", "CraterCatalog", "CraterTable",
-           "csv_sink", "read_circles", "read_columns", "write_columns"]
+__all__ = ["CATALOG_COLUMNS", "CATALOG_LAYER_COLUMNS", "ROCK_COLUMNS", "ColumnTable", "Crater",
+           "CraterCatalog", "CraterTable", "RockCatalog", "csv_sink", "read_circles",
+           "read_columns", "write_columns"]
 
 
 @dataclass(frozen=True)
@@ -179,15 +184,223 @@ CATALOG_COLUMNS = (
 #: The columns of a layer stack's catalogue: :data:`CATALOG_COLUMNS` and the layer.
 CATALOG_LAYER_COLUMNS = (*CATALOG_COLUMNS, "layer")
 
-#: Column dtypes of :class:`CraterCatalog`; every other column is float64.
-_INTEGER_COLUMNS = {"id": np.uint64, "size_class": np.int64, "layer": np.int64}
+#: Columns of the rock catalogue CSV, in order; the attributes of :class:`RockCatalog`.
+ROCK_COLUMNS = ("id", "x_m", "y_m", "z_base_m", "diameter_m", "height_m", "burial_m",
+                "axis_a_m", "axis_b_m", "axis_c_m", "orientation_deg", "layer")
 
-_DEPRECATED_ITEM = ("crater catalogue columns by name (catalog[{name!r}]) are deprecated; "
-                    "use the attribute catalog.{name}")
+_DEPRECATED_ITEM = ("catalogue columns by name ({what}[{name!r}]) are deprecated; use the "
+                    "attribute {what}.{name}")
+
+TableT = TypeVar("TableT", bound="ColumnTable")
+
+
+class ColumnTable:
+    """What a catalogue record shares: equal-length, typed, read-only columns, and CSV.
+
+    A subclass is a frozen dataclass whose fields are its columns (named as in the CSV) and
+    says which they are in :attr:`COLUMNS` (required, in CSV order), :attr:`OPTIONAL`
+    (trailing columns a table may lack; None then) and :attr:`DTYPES` (the columns that are
+    not float64). Its ``__post_init__`` calls :meth:`_freeze_columns` and then checks values.
+    """
+
+    #: Required columns, in CSV order.
+    COLUMNS: ClassVar[tuple[str, ...]] = ()
+    #: Trailing columns a table may lack (None when absent).
+    OPTIONAL: ClassVar[tuple[str, ...]] = ()
+    #: Columns that are not float64, and their dtypes.
+    DTYPES: ClassVar[Mapping[str, type]] = {}
+    #: What the table is called in messages.
+    WHAT: ClassVar[str] = "table"
+
+    def _freeze_columns(self) -> None:
+        """Convert every present column to a read-only 1-D array of its dtype, equal lengths."""
+        n = None
+        for name in self.columns:
+            dtype = self.DTYPES.get(name, np.float64)
+            try:
+                a: np.ndarray = np.array(getattr(self, name), dtype=dtype, copy=True)
+            except (TypeError, ValueError, OverflowError) as exc:
+                raise InvalidParameterError(
+                    f"{self.WHAT} column {name} must be {np.dtype(dtype).name}: {exc}") from None
+            if a.ndim != 1:
+                raise InvalidParameterError(
+                    f"{self.WHAT} column {name} must be one-dimensional; got shape {a.shape}")
+            if n is None:
+                n = a.size
+            elif a.size != n:
+                raise InvalidParameterError(
+                    f"{self.WHAT} column {name} has {a.size} rows; expected {n}")
+            a.flags.writeable = False
+            object.__setattr__(self, name, a)
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        """The column names, in CSV order (optional ones only when present)."""
+        return self.COLUMNS + tuple(k for k in self.OPTIONAL if getattr(self, k) is not None)
+
+    def __len__(self) -> int:
+        return int(getattr(self, self.COLUMNS[0]).size)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        warnings.warn(_DEPRECATED_ITEM.format(what="catalog", name=name), DeprecationWarning,
+                      stacklevel=2)
+        if name not in self.columns:
+            raise KeyError(name)
+        return getattr(self, name)
+
+    @classmethod
+    def empty(cls: type[TableT], *, optional: Iterable[str] = ()) -> TableT:
+        """Return a table without rows.
+
+        Parameters
+        ----------
+        optional : iterable of str
+            The optional columns it has.
+
+        Returns
+        -------
+        ColumnTable
+            Of the class it is called on.
+        """
+        names = cls.COLUMNS + tuple(optional)
+        return cls(**{name: np.zeros(0, cls.DTYPES.get(name, np.float64)) for name in names})
+
+    @classmethod
+    def from_columns(cls: type[TableT], columns: Mapping[str, object]) -> TableT:
+        """Return the table of a mapping of column arrays (the old dict form).
+
+        Parameters
+        ----------
+        columns : mapping of str to (n,) array_like
+            Every column of :attr:`COLUMNS`, and optionally those of :attr:`OPTIONAL`.
+
+        Returns
+        -------
+        ColumnTable
+            Of the class it is called on.
+
+        Raises
+        ------
+        InvalidParameterError
+            A column is missing, unknown (named, with the nearest valid name) or invalid.
+        """
+        known = cls.COLUMNS + cls.OPTIONAL
+        unknown = sorted(set(columns) - set(known))
+        if unknown:
+            near = difflib.get_close_matches(unknown[0], known, n=1)
+            raise InvalidParameterError(
+                f"unknown {cls.WHAT} column {unknown[0]!r}"
+                + (f" (did you mean {near[0]!r}?)" if near else ""))
+        missing = [name for name in cls.COLUMNS if name not in columns]
+        if missing:
+            raise InvalidParameterError(f"{cls.WHAT} is missing columns {missing}")
+        return cls(**{name: np.asarray(value) for name, value in columns.items()})
+
+    def as_dict(self) -> dict[str, np.ndarray]:
+        """Return the columns as a dict of read-only arrays, in CSV order."""
+        return {name: getattr(self, name) for name in self.columns}
+
+    def take(self: TableT, index: np.ndarray | slice) -> TableT:
+        """Return the rows selected by ``index``.
+
+        Parameters
+        ----------
+        index : (m,) int array, (n,) bool mask or slice
+            The rows, in the order wanted.
+
+        Returns
+        -------
+        ColumnTable
+            Of the same class and columns.
+        """
+        return type(self)(**{name: getattr(self, name)[index] for name in self.columns})
+
+    def with_columns(self: TableT, **columns: np.ndarray) -> TableT:
+        """Return the table with some columns replaced or added (checked as when built).
+
+        Parameters
+        ----------
+        **columns : (n,) array_like
+            New values of columns, by name.
+
+        Returns
+        -------
+        ColumnTable
+            Of the same class.
+        """
+        return type(self).from_columns({**self.as_dict(), **columns})
+
+    @classmethod
+    def concatenate(cls: type[TableT], tables: Iterable[TableT], *,
+                    optional: Iterable[str] = ()) -> TableT:
+        """Return one table of the rows of ``tables``, in order.
+
+        Parameters
+        ----------
+        tables : iterable of ColumnTable
+            All with the same columns.
+        optional : iterable of str
+            The optional columns of an empty result (with tables, theirs decide).
+
+        Returns
+        -------
+        ColumnTable
+            Of the class it is called on.
+
+        Raises
+        ------
+        InvalidParameterError
+            The tables' columns differ.
+        """
+        tables = list(tables)
+        if not tables:
+            return cls.empty(optional=optional)
+        names = tables[0].columns
+        if any(t.columns != names for t in tables):
+            raise InvalidParameterError(
+                f"cannot join {cls.WHAT}s with different columns: "
+                f"{sorted({t.columns for t in tables})}")
+        return cls(**{name: np.concatenate([getattr(t, name) for t in tables])
+                      for name in names})
+
+    def to_csv(self, path_or_file: str | os.PathLike | IO[str]) -> None:
+        """Write the table as CSV (the header :attr:`columns`, one line per row).
+
+        Parameters
+        ----------
+        path_or_file : path or text file
+            Where to write (a path is opened and closed here; write through
+            :func:`terrain.outputs.atomic_path` to commit it atomically).
+        """
+        write_columns(path_or_file, self.as_dict(), self.columns)
+
+    @classmethod
+    def from_csv(cls: type[TableT], path: str | os.PathLike) -> TableT:
+        """Read a CSV written by :meth:`to_csv`.
+
+        Parameters
+        ----------
+        path : path
+            The CSV.
+
+        Returns
+        -------
+        ColumnTable
+            Of the class it is called on.
+
+        Raises
+        ------
+        InvalidParameterError
+            The file's columns or values are not the table's (the message names the file).
+        """
+        try:
+            return cls.from_columns(read_columns(path))
+        except ValueError as exc:
+            raise InvalidParameterError(f"{cls.WHAT} '{path}': {exc}") from None
 
 
 @dataclass(frozen=True, eq=False)
-class CraterCatalog:
+class CraterCatalog(ColumnTable):
     """The catalogue of placed craters: one row per crater, columns as the CSV names them.
 
     Rows are in composition order (larger size classes first, then oldest first). Every
@@ -231,6 +444,12 @@ class CraterCatalog:
     dtype('int64')
     """
 
+    COLUMNS: ClassVar[tuple[str, ...]] = CATALOG_COLUMNS
+    OPTIONAL: ClassVar[tuple[str, ...]] = ("layer",)
+    DTYPES: ClassVar[Mapping[str, type]] = {"id": np.uint64, "size_class": np.int64,
+                                            "layer": np.int64}
+    WHAT: ClassVar[str] = "crater catalogue"
+
     id: np.ndarray
     x_m: np.ndarray
     y_m: np.ndarray
@@ -249,27 +468,7 @@ class CraterCatalog:
     layer: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        n = None
-        for name in self.columns:
-            value = getattr(self, name)
-            dtype = _INTEGER_COLUMNS.get(name, np.float64)
-            try:
-                a = np.array(value, dtype=dtype, copy=True)
-            except (TypeError, ValueError, OverflowError) as exc:
-                raise InvalidParameterError(
-                    f"crater catalogue column {name} must be {np.dtype(dtype).name}: {exc}"
-                ) from None
-            if a.ndim != 1:
-                raise InvalidParameterError(
-                    f"crater catalogue column {name} must be one-dimensional; got shape "
-                    f"{a.shape}")
-            if n is None:
-                n = a.size
-            elif a.size != n:
-                raise InvalidParameterError(
-                    f"crater catalogue column {name} has {a.size} rows; expected {n}")
-            a.flags.writeable = False
-            object.__setattr__(self, name, a)
+        self._freeze_columns()
         if not (np.all(np.isfinite(self.x_m)) and np.all(np.isfinite(self.y_m))):
             raise InvalidParameterError("crater catalogue positions x_m, y_m must be finite")
         if not np.all(self.diameter_m > 0):
@@ -279,83 +478,22 @@ class CraterCatalog:
         if self.layer is not None and not np.all(self.layer >= 0):
             raise InvalidParameterError("crater catalogue layers must be >= 0")
 
-    @property
-    def columns(self) -> tuple[str, ...]:
-        """The column names, in CSV order (with ``layer`` last in a stack's catalogue)."""
-        return CATALOG_COLUMNS if self.layer is None else CATALOG_LAYER_COLUMNS
-
-    def __len__(self) -> int:
-        return int(self.id.size)
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        warnings.warn(_DEPRECATED_ITEM.format(name=name), DeprecationWarning, stacklevel=2)
-        if name not in self.columns:
-            raise KeyError(name)
-        return getattr(self, name)
-
     @classmethod
-    def empty(cls, *, layered: bool = False) -> CraterCatalog:
+    def empty(cls, *, optional: Iterable[str] = (), layered: bool = False) -> CraterCatalog:
         """Return a catalogue without rows.
 
         Parameters
         ----------
+        optional : iterable of str
+            Its optional columns (``("layer",)`` or none).
         layered : bool
-            Give it the ``layer`` column of a layer stack's catalogue.
+            Give it the ``layer`` column of a layer stack's catalogue (as ``optional``).
 
         Returns
         -------
         CraterCatalog
         """
-        names = CATALOG_LAYER_COLUMNS if layered else CATALOG_COLUMNS
-        return cls(**{name: np.zeros(0, _INTEGER_COLUMNS.get(name, np.float64))
-                      for name in names})
-
-    @classmethod
-    def from_columns(cls, columns: Mapping[str, object]) -> CraterCatalog:
-        """Return the catalogue of a mapping of column arrays (the old dict form).
-
-        Parameters
-        ----------
-        columns : mapping of str to (n,) array_like
-            Every name of :data:`CATALOG_COLUMNS`, and optionally ``layer``.
-
-        Returns
-        -------
-        CraterCatalog
-
-        Raises
-        ------
-        InvalidParameterError
-            A column is missing, unknown (named, with the nearest valid name) or invalid.
-        """
-        unknown = sorted(set(columns) - set(CATALOG_LAYER_COLUMNS))
-        if unknown:
-            near = difflib.get_close_matches(unknown[0], CATALOG_LAYER_COLUMNS, n=1)
-            raise InvalidParameterError(
-                f"unknown crater catalogue column {unknown[0]!r}"
-                + (f" (did you mean {near[0]!r}?)" if near else ""))
-        missing = [name for name in CATALOG_COLUMNS if name not in columns]
-        if missing:
-            raise InvalidParameterError(f"crater catalogue is missing columns {missing}")
-        return cls(**{name: np.asarray(value) for name, value in columns.items()})
-
-    def as_dict(self) -> dict[str, np.ndarray]:
-        """Return the columns as a dict of read-only arrays, in CSV order."""
-        return {name: getattr(self, name) for name in self.columns}
-
-    def take(self, index: np.ndarray | slice) -> CraterCatalog:
-        """Return the rows selected by ``index``.
-
-        Parameters
-        ----------
-        index : (m,) int array, (n,) bool mask or slice
-            The rows, in the order wanted.
-
-        Returns
-        -------
-        CraterCatalog
-        """
-        return CraterCatalog(**{name: getattr(self, name)[index] for name in self.columns})
+        return super().empty(optional=("layer",) if layered else optional)
 
     def with_layer(self, layer: int) -> CraterCatalog:
         """Return the catalogue with every row's ``layer`` set to ``layer``.
@@ -369,88 +507,58 @@ class CraterCatalog:
         -------
         CraterCatalog
         """
-        columns = {name: getattr(self, name) for name in CATALOG_COLUMNS}
-        return CraterCatalog(**columns, layer=np.full(len(self), layer, dtype=np.int64))
+        return self.with_columns(layer=np.full(len(self), layer, dtype=np.int64))
 
-    def with_columns(self, **columns: np.ndarray) -> CraterCatalog:
-        """Return the catalogue with some columns replaced (checked as on construction).
 
-        Parameters
-        ----------
-        **columns : (n,) array_like
-            New values of columns named by :attr:`columns`.
+@dataclass(frozen=True, eq=False)
+class RockCatalog(ColumnTable):
+    """The catalogue of rocks stood on a DEM or a layer stack: one row per rock.
 
-        Returns
-        -------
-        CraterCatalog
-        """
-        return CraterCatalog.from_columns({**self.as_dict(), **columns})
+    Parameters
+    ----------
+    id : (n,) uint64
+        The rock's identity (written as 16 hex digits).
+    x_m, y_m : (n,) float64, map metres
+        Centre.
+    z_base_m : (n,) float64, metres
+        Height of the ground under the rock's centre (the base it stands on).
+    diameter_m : (n,) float64, metres
+        The rock's diameter as the size-frequency model draws it (> 0).
+    height_m, burial_m : (n,) float64, metres
+        Height above the ground and depth buried (together the vertical semi-axis).
+    axis_a_m, axis_b_m, axis_c_m : (n,) float64, metres
+        The ellipsoid's semi-axes (long, intermediate, vertical).
+    orientation_deg : (n,) float64, degrees
+        The long axis's angle from map east towards north, in [0, 180).
+    layer : (n,) int64
+        The coarsest layer that holds the rock's centre and resolves it (0 outside a stack).
+    """
 
-    @staticmethod
-    def concatenate(catalogs: Iterable[CraterCatalog], *,
-                    layered: bool = False) -> CraterCatalog:
-        """Return one catalogue of the rows of ``catalogs``, in order.
+    COLUMNS: ClassVar[tuple[str, ...]] = ROCK_COLUMNS
+    DTYPES: ClassVar[Mapping[str, type]] = {"id": np.uint64, "layer": np.int64}
+    WHAT: ClassVar[str] = "rock catalogue"
 
-        Parameters
-        ----------
-        catalogs : iterable of CraterCatalog
-            All with a ``layer`` column or all without.
-        layered : bool
-            Whether an empty result has the ``layer`` column (with catalogues, theirs decide).
+    id: np.ndarray
+    x_m: np.ndarray
+    y_m: np.ndarray
+    z_base_m: np.ndarray
+    diameter_m: np.ndarray
+    height_m: np.ndarray
+    burial_m: np.ndarray
+    axis_a_m: np.ndarray
+    axis_b_m: np.ndarray
+    axis_c_m: np.ndarray
+    orientation_deg: np.ndarray
+    layer: np.ndarray
 
-        Returns
-        -------
-        CraterCatalog
-
-        Raises
-        ------
-        InvalidParameterError
-            Some catalogues have a ``layer`` column and some not.
-        """
-        catalogs = list(catalogs)
-        if not catalogs:
-            return CraterCatalog.empty(layered=layered)
-        names = catalogs[0].columns
-        if any(c.columns != names for c in catalogs):
-            raise InvalidParameterError(
-                "cannot join crater catalogues with and without a layer column")
-        return CraterCatalog(**{name: np.concatenate([getattr(c, name) for c in catalogs])
-                                for name in names})
-
-    def to_csv(self, path_or_file: str | os.PathLike | IO[str]) -> None:
-        """Write the catalogue CSV (the header :attr:`columns`, one line per crater).
-
-        Parameters
-        ----------
-        path_or_file : path or text file
-            Where to write (a path is opened and closed here; write through
-            :func:`terrain.outputs.atomic_path` to commit it atomically).
-        """
-        write_columns(path_or_file, self.as_dict(), self.columns)
-
-    @classmethod
-    def from_csv(cls, path: str | os.PathLike) -> CraterCatalog:
-        """Read a catalogue CSV written by :meth:`to_csv`.
-
-        Parameters
-        ----------
-        path : path
-            The CSV.
-
-        Returns
-        -------
-        CraterCatalog
-
-        Raises
-        ------
-        InvalidParameterError
-            The file's columns or values are not a crater catalogue's (the message names
-            the file).
-        """
-        try:
-            return cls.from_columns(read_columns(path))
-        except ValueError as exc:
-            raise InvalidParameterError(f"crater catalogue '{path}': {exc}") from None
+    def __post_init__(self) -> None:
+        self._freeze_columns()
+        if not (np.all(np.isfinite(self.x_m)) and np.all(np.isfinite(self.y_m))):
+            raise InvalidParameterError("rock catalogue positions x_m, y_m must be finite")
+        if not np.all(self.diameter_m > 0):
+            raise InvalidParameterError("rock catalogue diameters diameter_m must be positive")
+        if not np.all(self.layer >= 0):
+            raise InvalidParameterError("rock catalogue layers must be >= 0")
 
 
 @contextlib.contextmanager

@@ -53,7 +53,7 @@ from terrain.tile import Window
 if TYPE_CHECKING:
     from affine import Affine
 
-    from terrain.catalog import CraterTable
+    from terrain.catalog import CraterTable, RockCatalog
     from terrain.chunked import DEMReader
     from terrain.rocks import RockModel
     from terrain.roughness import ExpansionParameters
@@ -538,7 +538,7 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
         if rocks is not None:
             rock_catalog = _rock_catalog(rock_rows)
             info.update(rocks=rocks.as_dict(), rock_catalog=ROCK_CATALOG,
-                        rock_counts=np.bincount(rock_catalog["layer"],
+                        rock_counts=np.bincount(rock_catalog.layer,
                                                 minlength=levels + 1).tolist())
         info.update(seed=seed, site=[x, y], levels=levels, layer_size=layer_size,
                     expansion=params.as_dict(), min_crater_pixels=min_crater_pixels,
@@ -549,10 +549,8 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
         with atomic_path(outdir / CATALOG) as tmp:
             catalog.to_csv(tmp)
         if rock_catalog is not None:
-            from terrain.rocks import write_rock_catalog
-
             with atomic_path(outdir / ROCK_CATALOG) as tmp:
-                write_rock_catalog(tmp, rock_catalog)
+                rock_catalog.to_csv(tmp)
         (outdir / READERS_LOCK).touch()
         manifest = _manifest(stack, files)
         manifest["catalog"] = CATALOG
@@ -563,7 +561,7 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
     stages = {name: {k: v for k, v in r.items() if k != "report"}
               for name, r in reports.items()}
     return dict(files=files, craters=len(catalog),
-                rocks=None if rock_catalog is None else len(rock_catalog["id"]),
+                rocks=None if rock_catalog is None else len(rock_catalog),
                 stages=stages, finest_resolution=float(plan[-1][1]))
 
 
@@ -593,7 +591,7 @@ def _layer_metadata(reader, k: int, table, seed: int, model) -> dict:
     return meta
 
 
-def _rock_catalog(rows: dict) -> dict:
+def _rock_catalog(rows: dict) -> RockCatalog:
     """Return the stack's rock catalogue, as :func:`terrain.layers._add_layer_rocks` does."""
     from terrain.rocks import _OUT, RockTable, rock_catalog
 

@@ -842,7 +842,7 @@ def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, lay
     stack = stack.with_info(source=str(input_dem), command="terrain enhance",
                             craterscape_version=version())
     write_stack(stack, output, inputs=[input_dem])
-    n_rocks = "" if stack.rocks is None else f", {len(stack.rocks['id'])} rocks"
+    n_rocks = "" if stack.rocks is None else f", {len(stack.rocks)} rocks"
     click.echo(f"wrote {len(stack.tiles)} layers to {output} (finest "
                f"{stack.tiles[-1].resolution:.4g} m/pixel, {len(stack.catalog)} craters"
                f"{n_rocks})", err=True)
@@ -1092,7 +1092,7 @@ def rocks(input_dem, output, model, k, a, b, dmin, dmax, craters_csv, no_crater_
           window, catalog, band):
     """Stand a rock field (Golombek-Rapp or power law) on a DEM, keyed by position."""
     from terrain.io import atomic_path, read_dem, write_dem
-    from terrain.rocks import MIN_ROCK_PIXELS, RockModel, add_rocks, write_rock_catalog
+    from terrain.rocks import MIN_ROCK_PIXELS, RockModel, add_rocks
 
     _check_outputs(output, catalog, [input_dem, craters_csv])
     if craters_csv is not None and no_crater_rocks:
@@ -1121,9 +1121,9 @@ def rocks(input_dem, output, model, k, a, b, dmin, dmax, craters_csv, no_crater_
         write_dem(out, output, inputs=[input_dem])
         if catalog is not None:
             with atomic_path(catalog, [input_dem, output]) as tmp:
-                write_rock_catalog(tmp, cat)
+                cat.to_csv(tmp)
     click.echo(f"wrote {output}" + (f" and {catalog}" if catalog else "")
-               + f" ({len(cat['id'])} rocks)", err=True)
+               + f" ({len(cat)} rocks)", err=True)
 
 
 def _read_crater_list(path):

@@ -59,7 +59,7 @@ from affine import Affine
 
 from terrain import memory
 from terrain import metakeys as mk
-from terrain.catalog import Crater, CraterCatalog, CraterTable, read_columns
+from terrain.catalog import Crater, CraterCatalog, CraterTable, RockCatalog
 from terrain.cratering import CraterModel, add_craters
 from terrain.errors import InvalidDEMError, InvalidParameterError, MissingInputError
 from terrain.expand import expand_level, expanded_transform
@@ -158,7 +158,7 @@ class LayerStack:
     info : mapping
         Provenance recorded in the manifest (seed, site, parameters, edits).
     rocks : dict of column arrays, optional
-        The rock catalogue (:data:`terrain.rocks.ROCK_COLUMNS`), when rocks were added.
+        The rock catalogue, when rocks were added.
     catalog_file : str
         Name of the catalogue file in the stack folder.
     """
@@ -166,7 +166,7 @@ class LayerStack:
     layers: tuple[Layer, ...]
     catalog: CraterCatalog
     info: dict = field(default_factory=dict)
-    rocks: dict | None = None
+    rocks: RockCatalog | None = None
     catalog_file: str = CATALOG
 
     def __post_init__(self):
@@ -519,7 +519,7 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
     if rocks is not None:
         rock_catalog = _add_layer_rocks(tiles, rocks, seed, population)
         info.update(rocks=rocks.as_dict(), rock_catalog=ROCK_CATALOG,
-                    rock_counts=np.bincount(rock_catalog["layer"],
+                    rock_counts=np.bincount(rock_catalog.layer,
                                             minlength=len(tiles)).tolist())
 
     # Coarse pixels inside a finer layer take the co-located fine pixel, finest first.
@@ -539,7 +539,7 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
     return LayerStack(_layers(tiles, windows, origins), catalog, info, rock_catalog)
 
 
-def _add_layer_rocks(tiles: list, rocks, seed: int, population) -> dict:
+def _add_layer_rocks(tiles: list, rocks, seed: int, population) -> RockCatalog:
     """Stand the rocks each layer resolves on it (``tiles`` is changed in place).
 
     Every layer gets the rocks of at least :data:`terrain.rocks.MIN_ROCK_PIXELS` of its
@@ -598,7 +598,7 @@ def merge_catalogs(catalogs: Iterable[CraterCatalog]) -> CraterCatalog:
     CraterCatalog
         Their rows in order (with a ``layer`` column even when there are none).
     """
-    return CraterCatalog.concatenate(catalogs, layered=True)
+    return CraterCatalog.concatenate(catalogs, optional=("layer",))
 
 
 # ---------------------------------------------------------------------------- files
@@ -772,10 +772,8 @@ def _write_files(stack: LayerStack, outdir: Path, files: list[str], only=None,
     with atomic_path(outdir / catalog) as tmp:
         stack.catalog.to_csv(tmp)
     if stack.rocks is not None and only is None:  # edits leave the rocks as they are
-        from terrain.rocks import write_rock_catalog
-
         with atomic_path(outdir / ROCK_CATALOG) as tmp:
-            write_rock_catalog(tmp, stack.rocks)
+            stack.rocks.to_csv(tmp)
     manifest = _manifest(stack, files)
     manifest["catalog"] = catalog
     with atomic_path(outdir / MANIFEST) as tmp:
@@ -947,7 +945,8 @@ def _read_stack(outdir: Path) -> LayerStack:
     info = {k: v for k, v in manifest.items()
             if k not in ("layers", "format", "version", "crs", "catalog", "crater_counts")}
     rock_path = outdir / ROCK_CATALOG
-    rocks = read_columns(rock_path) if "rock_catalog" in info and rock_path.exists() else None
+    rocks = (RockCatalog.from_csv(rock_path) if "rock_catalog" in info and rock_path.exists()
+             else None)
     return LayerStack(_layers(tiles, windows, origins, files), catalog, info, rocks,
                       catalog_file=cat_name)
 

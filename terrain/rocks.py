@@ -91,11 +91,12 @@ import numpy as np
 
 from terrain import memory
 from terrain import metakeys as mk
+from terrain.catalog import ROCK_COLUMNS, RockCatalog
 from terrain.errors import InvalidParameterError
 from terrain.rng import check_seed, gaussian, hash64, poisson, stream_id, uniform_scalar
 
 __all__ = ["CELL_EXPECTATION", "MIN_ROCK_PIXELS", "ROCK_COLUMNS", "RockModel", "RockTable",
-           "add_rocks", "rock_heights", "write_rock_catalog"]
+           "add_rocks", "rock_catalog", "rock_heights"]
 
 log = logging.getLogger(__name__)
 
@@ -121,9 +122,6 @@ STREAM_UID = stream_id("rocks-uid")
 
 MODELS = ("golombek", "power")
 
-#: Columns of the rock catalogue CSV.
-ROCK_COLUMNS = ("id", "x_m", "y_m", "z_base_m", "diameter_m", "height_m", "burial_m",
-                "axis_a_m", "axis_b_m", "axis_c_m", "orientation_deg", "layer")
 
 
 @dataclass(frozen=True)
@@ -740,9 +738,8 @@ def add_rocks(tile, model: RockModel, *, seed: int, craters=None, window=None):
     -------
     tile : DEMTile
         The rocky tile (the window, if given), provenance in its metadata.
-    catalog : dict
-        Rock catalogue columns (:data:`ROCK_COLUMNS`) of the rocks whose centre lies in the
-        tile (or window).
+    catalog : RockCatalog
+        The rocks whose centre lies in the tile (or window), layer 0.
     """
     seed = check_seed(seed)
     dmin = MIN_ROCK_PIXELS * tile.resolution
@@ -764,26 +761,25 @@ def _centre_inside(rocks, extent):
     return (rocks.x >= xmin) & (rocks.x < xmax) & (rocks.y > ymin) & (rocks.y <= ymax)
 
 
-def rock_catalog(rocks: RockTable, z0, layer) -> dict:
-    """Catalogue columns (:data:`ROCK_COLUMNS`) of a rock table."""
+def rock_catalog(rocks: RockTable, z0, layer) -> RockCatalog:
+    """Return the catalogue of a rock table (written with :meth:`RockCatalog.to_csv`).
+
+    Parameters
+    ----------
+    rocks : RockTable
+    z0 : (n,) float, metres
+        Ground height under each rock's centre.
+    layer : (n,) int
+        Each rock's layer (0 outside a layer stack).
+
+    Returns
+    -------
+    RockCatalog
+    """
     c = rocks.rows[:, _C]
     beta = rocks.rows[:, _BETA]
-    return {
-        "id": rocks.uid.copy(), "x_m": rocks.x.copy(), "y_m": rocks.y.copy(),
-        "z_base_m": np.asarray(z0, float), "diameter_m": rocks.diameter.copy(),
-        "height_m": c * (1 - beta), "burial_m": c * beta,
-        "axis_a_m": rocks.rows[:, _A].copy(), "axis_b_m": rocks.rows[:, _B].copy(),
-        "axis_c_m": c.copy(), "orientation_deg": np.degrees(rocks.yaw),
-        "layer": np.asarray(layer, np.int64),
-    }
-
-
-def write_rock_catalog(path_or_file, catalog: dict) -> None:
-    """Write a rock catalogue CSV.
-
-    ``id`` as 16 hex digits, lengths in metres, ``orientation_deg`` the long axis's angle
-    from map east towards north, in [0, 180).
-    """
-    from terrain.catalog import write_columns
-
-    write_columns(path_or_file, catalog, ROCK_COLUMNS)
+    return RockCatalog(
+        id=rocks.uid, x_m=rocks.x, y_m=rocks.y, z_base_m=np.asarray(z0, float),
+        diameter_m=rocks.diameter, height_m=c * (1 - beta), burial_m=c * beta,
+        axis_a_m=rocks.rows[:, _A], axis_b_m=rocks.rows[:, _B], axis_c_m=c,
+        orientation_deg=np.degrees(rocks.yaw), layer=np.asarray(layer, np.int64))

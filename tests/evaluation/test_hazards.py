@@ -4,14 +4,23 @@ import numpy as np
 import pytest
 
 from evaluation.hazards import rock_sfd, site_section
+from terrain.catalog import RockCatalog
 from terrain.hazards import hazard_image, hazard_map
-from terrain.rocks import RockModel
+from terrain.rocks import RockModel, rock_catalog
 from terrain.tile import DEMTile
 
 
+def _rocks(x, y, d):
+    """A rock catalogue of rocks at (x, y) of diameter d (the other columns plausible)."""
+    d = np.asarray(d, float)
+    zero = np.zeros(d.size)
+    return RockCatalog(id=np.arange(d.size), x_m=x, y_m=y, z_base_m=zero, diameter_m=d,
+                       height_m=d / 4, burial_m=d / 4, axis_a_m=d / 2, axis_b_m=d / 2,
+                       axis_c_m=d / 2, orientation_deg=zero, layer=np.zeros(d.size, int))
+
+
 def test_rock_sfd_counts_area_and_number_of_rocks_at_least_d():
-    cat = {"x_m": np.array([1.0, 2.0, 3.0, 50.0]), "y_m": np.array([1.0, 2.0, 3.0, 3.0]),
-           "diameter_m": np.array([0.2, 0.4, 0.8, 5.0])}
+    cat = _rocks([1.0, 2.0, 3.0, 50.0], [1.0, 2.0, 3.0, 3.0], [0.2, 0.4, 0.8, 5.0])
     m = rock_sfd(cat, (0.0, 0.0, 10.0, 10.0), 0.2, points=3)  # the 5 m rock lies outside
     np.testing.assert_allclose(m["diameter_m"], [0.2, 0.4, 0.8])
     np.testing.assert_allclose(m["number_per_m2"], [3 / 100, 2 / 100, 1 / 100])
@@ -23,7 +32,7 @@ def test_rock_sfd_counts_area_and_number_of_rocks_at_least_d():
 def test_rock_sfd_of_a_generated_field_follows_its_model():
     model = RockModel.from_spec("golombek:k=0.1,dmin=0.1")
     rocks = model.generate(8, (0.0, 0.0, 100.0, 100.0), margin=False)
-    cat = {"x_m": rocks.x, "y_m": rocks.y, "diameter_m": rocks.diameter}
+    cat = rock_catalog(rocks, np.zeros(len(rocks)), np.zeros(len(rocks), int))
     m = rock_sfd(cat, (0.0, 0.0, 100.0, 100.0), 0.1, points=5)
     d = m["diameter_m"][:3]   # 0.1 .. 0.3 m, well sampled
     expected = model.fractional_area(d) - model.fractional_area(model.dmax)
@@ -39,7 +48,7 @@ def test_site_section_reports_the_hazard_map_and_the_rocks(tmp_path):
     png = write_png(hazard_image(h), tmp_path / "h.png")
     model = RockModel.from_spec("power:a=0.01,b=-2.5,dmin=0.1")
     rocks = model.generate(1, tile.bounds, margin=False)
-    cat = {"id": rocks.uid, "x_m": rocks.x, "y_m": rocks.y, "diameter_m": rocks.diameter}
+    cat = rock_catalog(rocks, np.zeros(len(rocks)), np.zeros(len(rocks), int))
     sec = site_section(h, png, layer=0, resolution=0.1, rocks=cat, rock_model=model,
                        rock_extent=(tile.bounds, 0.2),
                        descent=[dict(frame=0, altitude_m=20.0, range_m=22.0, gsd_m=0.025,

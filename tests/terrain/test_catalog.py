@@ -12,8 +12,10 @@ from hypothesis import strategies as st
 from terrain.catalog import (
     CATALOG_COLUMNS,
     CATALOG_LAYER_COLUMNS,
+    ROCK_COLUMNS,
     CraterCatalog,
     CraterTable,
+    RockCatalog,
 )
 from terrain.cratering import add_craters
 from terrain.errors import InvalidParameterError
@@ -146,8 +148,8 @@ def test_joins_and_selections_keep_rows_in_order():
     assert np.array_equal(both.take(both.layer == 2).id, b.id)
     assert both.take(np.array([4, 0])).diameter_m.tolist() == [5.0, 1.0]
     assert len(CraterCatalog.concatenate([])) == 0
-    assert CraterCatalog.concatenate([], layered=True).columns == CATALOG_LAYER_COLUMNS
-    with pytest.raises(InvalidParameterError, match="with and without a layer column"):
+    assert CraterCatalog.concatenate([], optional=["layer"]).columns == CATALOG_LAYER_COLUMNS
+    with pytest.raises(InvalidParameterError, match="with different columns"):
         CraterCatalog.concatenate([a, _catalog(1)])
     layered = _catalog(2).with_layer(4)
     assert layered.layer.tolist() == [4, 4] and layered.layer.dtype == np.int64
@@ -184,3 +186,48 @@ def test_explicit_craters_are_catalogued_where_they_were_put():
     one = add_craters(tile, CraterTable.from_craters([Crater(x, y, 8.0, 0.0, 7)]), seed=1)
     cat = one.catalog
     assert cat.id.tolist() == [7] and math.isclose(cat.row[0], 20) and math.isclose(cat.col[0], 40)
+
+
+# ------------------------------------------------------------------------- rock catalogue
+
+
+@pytest.fixture(scope="module")
+def rocky():
+    """A real rock field: 0.25 m pixels, Golombek-Rapp rocks from 0.5 m."""
+    from terrain.rocks import RockModel, add_rocks
+
+    tile = DEMTile.from_array(np.zeros((129, 129), np.float32),
+                              transform=default_transform(0.25, 129))
+    return add_rocks(tile, RockModel.from_spec("golombek:k=0.1,dmin=0.5"), seed=3)
+
+
+def test_a_rock_catalogue_survives_its_csv_and_describes_its_rocks(rocky, tmp_path):
+    tile, cat = rocky
+    assert len(cat) > 10 and cat.columns == ROCK_COLUMNS
+    assert isinstance(cat, RockCatalog) and not cat.diameter_m.flags.writeable
+    # the vertical semi-axis is split between the part above ground and the buried part
+    assert np.allclose(cat.height_m + cat.burial_m, cat.axis_c_m)
+    assert np.all((cat.orientation_deg >= 0) & (cat.orientation_deg < 180))
+    left, bottom, right, top = tile.bounds
+    assert np.all((cat.x_m >= left) & (cat.x_m <= right) & (cat.y_m >= bottom)
+                  & (cat.y_m <= top))
+    path = tmp_path / "rocks.csv"
+    cat.to_csv(path)
+    back = RockCatalog.from_csv(path)
+    for name in ROCK_COLUMNS:
+        assert np.array_equal(getattr(back, name), getattr(cat, name)), name
+    again = tmp_path / "again.csv"
+    back.to_csv(again)
+    assert again.read_bytes() == path.read_bytes()
+
+
+def test_a_rock_catalogue_refuses_bad_columns_by_name(rocky):
+    cols = rocky[1].as_dict()
+    with pytest.raises(InvalidParameterError, match="did you mean 'diameter_m'"):
+        RockCatalog.from_columns({**cols, "diametre_m": cols["diameter_m"]})
+    with pytest.raises(InvalidParameterError, match=r"missing columns \['layer'\]"):
+        RockCatalog.from_columns({k: v for k, v in cols.items() if k != "layer"})
+    with pytest.raises(InvalidParameterError, match="rock catalogue column z_base_m has"):
+        RockCatalog.from_columns({**cols, "z_base_m": cols["z_base_m"][:-1]})
+    with pytest.raises(InvalidParameterError, match="different columns"):
+        CraterCatalog.concatenate([_catalog(1), _catalog(1, layer=0)])

@@ -65,8 +65,8 @@ def assert_same_stack(a, b):
     assert a.windows == b.windows and a.origins == b.origins
     for name, column in a.catalog.as_dict().items():
         assert np.array_equal(getattr(b.catalog, name), column), name
-    for name, column in a.rocks.items():
-        assert np.array_equal(b.rocks[name], column, equal_nan=True), name
+    for name, column in a.rocks.as_dict().items():
+        assert np.array_equal(getattr(b.rocks, name), column, equal_nan=True), name
 
 
 @pytest.mark.slow
@@ -74,7 +74,7 @@ def test_chunked_stack_on_two_workers_equals_the_in_memory_stack(in_memory, base
                                                                   tmp_path):
     # the stack has what the comparison must cover: craters and rocks on several layers
     assert len(set(in_memory.catalog.layer.tolist())) >= 3
-    assert len(set(in_memory.rocks["layer"].tolist())) >= 2
+    assert len(set(in_memory.rocks.layer.tolist())) >= 2
     assert in_memory.info["base_filled_pixels"] == 20
     out = tmp_path / "chunked"
     result = build_stack_chunked(open_reader(base_path), out, SITE, population=POP,

@@ -74,11 +74,11 @@ def test_every_rock_rests_on_the_terrain_and_only_rocks_change_heights():
     tile = _tilted()
     model = RockModel.from_spec("golombek:k=0.1,dmin=0.1")
     rocky, cat = add_rocks(tile, model, seed=4)
-    assert len(cat["id"]) > 50
+    assert len(cat.id) > 50
     z = rocky.heights.astype(np.float64)
     ground = tile.heights.astype(np.float64)
     assert np.all(z >= ground)                      # rocks add, never dig
-    r, c = tile.rowcol(cat["x_m"], cat["y_m"])
+    r, c = tile.rowcol(cat.x_m, cat.y_m)
     i, j = np.rint(r).astype(int), np.rint(c).astype(int)
     n = tile.shape[0] - 1
     ok = (r >= 0) & (r <= n) & (c >= 0) & (c <= n)  # centre between pixel centres
@@ -87,19 +87,19 @@ def test_every_rock_rests_on_the_terrain_and_only_rocks_change_heights():
 
     every = model.generate(4, tile.bounds, min_diameter=2 * tile.resolution)
     dist, idx = cKDTree(np.column_stack([every.x, every.y])).query(
-        np.column_stack([cat["x_m"], cat["y_m"]]), k=2)
+        np.column_stack([cat.x_m, cat.y_m]), k=2)
     ok &= dist[:, 1] > 0.75 * every.axes[idx[:, 1], 0] + 2 * tile.resolution
     i, j = i[ok], j[ok]
     # the base level is the terrain under the centre: no gap below, none sunk out of sight
-    terrain_at_centre = (cat["x_m"][ok] - 0.5 * tile.resolution) * math.tan(
+    terrain_at_centre = (cat.x_m[ok] - 0.5 * tile.resolution) * math.tan(
         math.radians(10)) + 0.01 * (
-        (tile.bounds[3] - cat["y_m"][ok]) - 0.5 * tile.resolution)
-    assert np.allclose(cat["z_base_m"][ok], terrain_at_centre, atol=1e-4)
+        (tile.bounds[3] - cat.y_m[ok]) - 0.5 * tile.resolution)
+    assert np.allclose(cat.z_base_m[ok], terrain_at_centre, atol=1e-4)
     above = z[i, j] - ground[i, j]
     assert np.all(above > 0)
     # the rock's top near its centre is its exposed height above the base level
-    assert np.all(above <= cat["height_m"][ok] * 1.25 + 0.02)
-    assert np.median(above / cat["height_m"][ok]) > 0.8
+    assert np.all(above <= cat.height_m[ok] * 1.25 + 0.02)
+    assert np.median(above / cat.height_m[ok]) > 0.8
     # away from every rock the terrain is untouched, bitwise
     from scipy import ndimage
 
@@ -126,9 +126,9 @@ def test_window_equals_the_same_window_of_the_full_run_bitwise():
         np.testing.assert_array_equal(part.heights, full.heights[win.slices])
         # the window's catalogue is the full catalogue's rocks centred in the window
         left, bottom, right, top = part.bounds
-        sel = ((cat_full["x_m"] >= left) & (cat_full["x_m"] < right)
-               & (cat_full["y_m"] > bottom) & (cat_full["y_m"] <= top))
-        assert sorted(cat["id"].tolist()) == sorted(cat_full["id"][sel].tolist())
+        sel = ((cat_full.x_m >= left) & (cat_full.x_m < right)
+               & (cat_full.y_m > bottom) & (cat_full.y_m <= top))
+        assert sorted(cat.id.tolist()) == sorted(cat_full.id[sel].tolist())
 
 
 def test_rocks_gather_on_fresh_craters_and_fade_with_age():
@@ -189,7 +189,7 @@ def test_layer_stack_puts_each_rock_in_every_layer_that_resolves_it(tmp_path):
     plain = build_stack(base, site, levels=4, layer_size=65, seed=3)
     rocky = build_stack(base, site, levels=4, layer_size=65, seed=3, rocks=model)
     cat = rocky.rocks
-    assert len(cat["id"]) > 10 and len(set(cat["layer"].tolist())) >= 2
+    assert len(cat.id) > 10 and len(set(cat.layer.tolist())) >= 2
     for k in range(1, len(rocky.tiles)):  # the layers still agree exactly
         col, row, size, _ = rocky.windows[k]
         assert np.array_equal(rocky.tiles[k - 1].heights[row:row + size, col:col + size],
@@ -198,22 +198,22 @@ def test_layer_stack_puts_each_rock_in_every_layer_that_resolves_it(tmp_path):
     for k, (t0, t1) in enumerate(zip(plain.tiles, rocky.tiles, strict=True)):
         assert np.all(t1.heights >= t0.heights)  # rocks only add
         res = t1.resolution
-        mine = (cat["layer"] <= k) & (cat["diameter_m"] >= 2 * res)
+        mine = (cat.layer <= k) & (cat.diameter_m >= 2 * res)
         left, bottom, right, top = t1.bounds
-        mine &= (cat["x_m"] > left + res) & (cat["x_m"] < right - res) \
-            & (cat["y_m"] > bottom + res) & (cat["y_m"] < top - res)
-        r, c = t1.rowcol(cat["x_m"][mine], cat["y_m"][mine])
+        mine &= (cat.x_m > left + res) & (cat.x_m < right - res) \
+            & (cat.y_m > bottom + res) & (cat.y_m < top - res)
+        r, c = t1.rowcol(cat.x_m[mine], cat.y_m[mine])
         i, j = np.rint(r).astype(int), np.rint(c).astype(int)
         raised = t1.heights[i, j] > t0.heights[i, j]
         assert raised.all(), (k, raised.mean())   # the rock is in that layer
         checked += raised.size
-    assert checked >= len(cat["id"])
+    assert checked >= len(cat.id)
     # a rock appears first in the coarsest layer that resolves it
     res = np.array([t.resolution for t in rocky.tiles])
-    assert np.all(cat["diameter_m"] >= 2 * res[cat["layer"]])
+    assert np.all(cat.diameter_m >= 2 * res[cat.layer])
     out = write_stack(rocky, tmp_path / "s")
     again = read_stack(out)
-    assert again.rocks["id"].tolist() == cat["id"].tolist()
+    assert again.rocks.id.tolist() == cat.id.tolist()
     assert json.loads((out / "manifest.json").read_text())["rock_catalog"] == "rocks.csv"
 
 
