@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
@@ -84,3 +84,19 @@ def test_keys_separate_streams_levels_and_seeds():
 def test_bad_seeds_are_refused(bad):
     with pytest.raises(ValueError, match="seed"):
         rng.check_seed(bad)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(1e-6, 1 - 1e-6), st.sampled_from([0.5, 8.0, 16.0, 120.0, 499.0]))
+def test_poisson_is_the_inverse_cdf_scipy_gives(u, lam):
+    k = rng.poisson(u, lam)
+    # the smallest count whose CDF reaches u (allowing for rounding at the step)
+    assert stats.poisson.cdf(k, lam) >= u - 1e-9
+    assert k == 0 or stats.poisson.cdf(k - 1, lam) <= u + 1e-9
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.floats(0.01, 0.99), st.sampled_from([600.0, 5000.0]))
+def test_poisson_of_a_large_mean_is_close_to_the_exact_quantile(u, lam):
+    # the normal approximation's quantile error is about one count at these means
+    assert abs(rng.poisson(u, lam) - stats.poisson.ppf(u, lam)) <= 2
