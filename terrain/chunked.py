@@ -262,7 +262,11 @@ class SynthSource:
         return dict(kind="synth", metadata=self.metadata)
 
     def compute(self, window: Window):
-        """Compute the heights of one window, equal to the same window of a whole run."""
+        """Compute the heights of one window, equal to the same window of a whole run.
+
+        Returns the heights and, with craters, the catalogue rows of the craters touching the
+        window as column arrays (:meth:`CraterCatalog.as_dict`, kept with the chunk).
+        """
         from terrain.synthetic import synthesize_tile
 
         result = synthesize_tile(self.size, resolution=self.resolution,
@@ -314,7 +318,11 @@ class CraterSource(OnReaderGrid):
         return dict(kind="craters", input=input_stamp(self.reader), metadata=self.metadata)
 
     def compute(self, window: Window):
-        """Compute the cratered heights of one window, equal to the same window of a whole run."""
+        """Compute the cratered heights of one window, equal to the same window of a whole run.
+
+        Returns the heights and the catalogue rows of the craters touching the window as
+        column arrays (:meth:`CraterCatalog.as_dict`, kept with the chunk).
+        """
         from terrain.cratering import crater_heights
 
         z, catalog = crater_heights(_read_base(self.reader), self.shape, self.transform,
