@@ -11,6 +11,7 @@ from render.mesh_scene import MeshScene
 from render.reflectance import SATO_643NM, hapke
 from render.renderer import Lighting, RenderOptions, View
 from render.terrain_scene import TerrainScene
+from terrain.catalog import CraterCatalog
 from terrain.errors import InvalidParameterError
 from terrain.layers import Layer, LayerStack
 from terrain.tile import DEMTile
@@ -66,7 +67,7 @@ def test_per_vertex_albedo_on_a_mesh(renderer):
 
 def test_terrain_albedo_map_scales_hapkes_w(renderer):
     tile = DEMTile.from_array(np.zeros((65, 65)), resolution=1.0)
-    cat = {"layer": np.zeros(0, np.int64), "id": np.zeros(0, np.uint64)}
+    cat = CraterCatalog.empty(layered=True)
     amap = DEMTile.from_array(np.full((65, 65), 1.5), resolution=1.0)
     scene = TerrainScene(LayerStack((Layer(tile, None, (0, 0)),), cat, {"site": [32.5, 32.5]}),
                          curvature=False, albedo_map=amap)

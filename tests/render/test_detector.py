@@ -9,6 +9,7 @@ from render.camera import Intrinsics, look_at
 from render.renderer import Lighting, RenderOptions, View
 from render.sensor import PLANCK, SPEED_OF_LIGHT, Sensor
 from render.terrain_scene import TerrainScene
+from terrain.catalog import CraterCatalog
 from terrain.errors import InvalidParameterError, MissingInputError
 from terrain.layers import Layer, LayerStack
 from terrain.tile import DEMTile
@@ -22,7 +23,7 @@ def flat_field(gl):
     from render.renderer import Renderer
 
     tile = DEMTile.from_array(np.zeros((129, 129)), resolution=1.0)
-    cat = {"layer": np.zeros(0, np.int64), "id": np.zeros(0, np.uint64)}
+    cat = CraterCatalog.empty(layered=True)
     scene = TerrainScene(LayerStack((Layer(tile, None, (0, 0)),), cat, {"site": [64.5, 64.5]}),
                          curvature=False)
     light = Lighting.from_angles(90.0, 60.0, albedo=0.2, brdf="lambert")

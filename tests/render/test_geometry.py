@@ -6,6 +6,7 @@ from render.camera import Intrinsics, look_at
 from render.mesh_scene import MeshScene
 from render.renderer import Lighting, RenderOptions, View
 from render.terrain_scene import TerrainScene
+from terrain.catalog import CraterCatalog
 from terrain.layers import Layer, LayerStack
 from terrain.tile import DEMTile
 
@@ -16,7 +17,7 @@ def single_layer(heights, resolution=1.0, site=None):
     tile = DEMTile.from_array(heights, resolution=resolution)
     left, bottom, right, top = tile.bounds
     site = site or ((left + right) / 2, (bottom + top) / 2)
-    cat = {"layer": np.zeros(0, np.int64), "id": np.zeros(0, np.uint64)}
+    cat = CraterCatalog.empty(layered=True)
     return LayerStack((Layer(tile, None, (0, 0)),), cat, {"site": list(site)})
 
 

@@ -216,6 +216,7 @@ def test_the_normal_texture_lies_where_its_pixels_are(renderer):
     """An asymmetric terrain (a hill in the north-east quarter only) shaded from the normal
     texture looks as it does shaded from the vertices: the texture is not flipped or
     shifted."""
+    from terrain.catalog import CraterCatalog
     from terrain.layers import Layer, LayerStack
     from terrain.tile import DEMTile
 
@@ -224,7 +225,7 @@ def test_the_normal_texture_lies_where_its_pixels_are(renderer):
     z = 12.0 * np.exp(-((rows - 16.0) ** 2 + (cols - 46.0) ** 2) / 60.0)  # row 16: north
     tile = DEMTile.from_array(z, resolution=1.0)
     left, bottom, right, top = tile.bounds
-    cat = {"layer": np.zeros(0, np.int64), "id": np.zeros(0, np.uint64)}
+    cat = CraterCatalog.empty(layered=True)
     stack = LayerStack((Layer(tile, None, (0, 0)),), cat,
                        {"site": [(left + right) / 2, (bottom + top) / 2]})
     scene = TerrainScene(stack, curvature=False)

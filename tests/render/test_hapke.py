@@ -12,6 +12,7 @@ from render.camera import Intrinsics, look_at
 from render.reflectance import MCEWEN_MOON, SATO_643NM, Hapke, hapke
 from render.renderer import Lighting, RenderOptions, View
 from render.terrain_scene import TerrainScene
+from terrain.catalog import CraterCatalog
 from terrain.errors import InvalidParameterError
 from terrain.layers import Layer, LayerStack
 from terrain.tile import DEMTile
@@ -83,7 +84,7 @@ def hapke_from_the_papers(i, e, g, w, b, c, bs0, hs, bc0, hc, theta_deg, phi):
 @pytest.fixture(scope="module")
 def flat_patch():
     tile = DEMTile.from_array(np.zeros((65, 65)), resolution=1.0)
-    cat = {"layer": np.zeros(0, np.int64), "id": np.zeros(0, np.uint64)}
+    cat = CraterCatalog.empty(layered=True)
     stack = LayerStack((Layer(tile, None, (0, 0)),), cat, {"site": [32.5, 32.5]})
     return TerrainScene(stack, curvature=False)
 

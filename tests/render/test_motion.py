@@ -13,6 +13,7 @@ from render.sensor import Sensor
 from render.sequence import render_sample
 from render.terrain_scene import TerrainScene
 from render.trajectory import keyframes
+from terrain.catalog import CraterCatalog
 from terrain.errors import InvalidParameterError
 from terrain.layers import Layer, LayerStack
 from terrain.tile import DEMTile
@@ -33,7 +34,7 @@ def spotted():
     for r, c in SPOTS:
         albedo[r + 16, c + 16] = 1.0
     amap = DEMTile.from_array(albedo, resolution=1.0)
-    cat = {"layer": np.zeros(0, np.int64), "id": np.zeros(0, np.uint64)}
+    cat = CraterCatalog.empty(layered=True)
     scene = TerrainScene(LayerStack((Layer(tile, None, (0, 0)),), cat, {"site": [80.5, 80.5]}),
                          curvature=False, albedo_map=amap)
     points = [np.array([*(amap.transform @ (c + 16.5, r + 16.5)), 0.0]) for r, c in SPOTS]

@@ -10,7 +10,7 @@ from render.camera import Intrinsics, look_at
 from render.reflectance import reflectance
 from render.renderer import Lighting, RenderOptions, View
 from render.terrain_scene import TerrainScene
-from terrain.catalog import Crater, CraterTable
+from terrain.catalog import Crater, CraterCatalog, CraterTable
 from terrain.cratering import CraterModel, add_craters
 from terrain.layers import Layer, LayerStack
 from terrain.tile import DEMTile
@@ -21,7 +21,7 @@ UPDATE = os.environ.get("CRATERSCAPE_UPDATE_GOLDEN") == "1"
 
 def _stack(tile):
     left, bottom, right, top = tile.bounds
-    cat = {"layer": np.zeros(0, np.int64), "id": np.zeros(0, np.uint64)}
+    cat = CraterCatalog.empty(layered=True)
     return LayerStack((Layer(tile, None, (0, 0)),), cat,
                       {"site": [(left + right) / 2, (bottom + top) / 2]})
 
