@@ -53,11 +53,11 @@ says.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -66,12 +66,18 @@ from render.scene import (
     MIN_LOD_DISTANCE_M,
     DrawBatch,
     FrameState,
+    Gpu,
+    Imposter,
     Morph,
     ShadowMap,
     body_shadow_map,
     far_plane,
 )
 from terrain.errors import InvalidParameterError
+
+if TYPE_CHECKING:
+    from asteroid.boulders import Boulders
+    from render.renderer import Lighting, RenderOptions, View
 
 __all__ = ["IMPOSTER_FADE", "MIN_BOULDER_PIXELS", "MIN_MAGNITUDE", "MORPH_BAND", "AsteroidScene"]
 
@@ -83,8 +89,16 @@ MIN_MAGNITUDE = 8
 MIN_BOULDER_PIXELS = 0.5
 #: Patch size K of the culling patches.
 PATCH_K = 64
-#: The imposter texture has this many texels per pixel the body spans.
+#: The imposter texture has this many texels per pixel the body spans ...
 IMPOSTER_OVERSAMPLING = 3
+#: ... and at least this many a side.
+MIN_IMPOSTER_TEXELS = 8
+#: A body is an imposter only while the camera is farther from its centre than this many
+#: times its reach (closer, the body fills the view however few pixels the formula gives).
+IMPOSTER_MIN_DISTANCE = 1.01
+#: The imposter camera's half field of view is the body's angular radius times this, so the
+#: limb stays inside its image with a texel or two to spare.
+IMPOSTER_FOV_MARGIN = 1.02
 #: Boulder levels of detail kept on the GPU for every boulder; finer levels are built for the
 #: boulders that need them, frame by frame.
 COARSE_BOULDER_LEVELS = 2
@@ -126,6 +140,7 @@ class _BoulderLevel:
     faces_per: int
     vaos: dict
     morph: object = None
+    abo: object = None    # boulders carry no albedo factors (as _BodyLod.abo)
 
 
 class AsteroidScene:
@@ -165,11 +180,11 @@ class AsteroidScene:
         self.imposter_pixels = float(imposter_pixels)
         self.origin = np.zeros(3)
         self.rotation = np.eye(3)
-        self.radius = float(body.radii.max())
+        self.reach = float(body.radii.max())
         if self.boulders is not None and len(self.boulders):
             c = self.boulders.catalog
             centres = np.column_stack([c["x_m"], c["y_m"], c["z_m"]])
-            self.radius = max(self.radius, float(np.linalg.norm(centres, axis=1).max()
+            self.reach = max(self.reach, float(np.linalg.norm(centres, axis=1).max()
                                                  + c["diameter_m"].max()))
         self._gpu: dict = {}
         self._shadow: ShadowMap | None = None
@@ -205,7 +220,7 @@ class AsteroidScene:
         return np.atleast_2d(points) @ self.rotation.T
 
     def bounds(self):
-        return -np.full(3, self.radius), np.full(3, self.radius)
+        return -np.full(3, self.reach), np.full(3, self.reach)
 
     # ------------------------------------------------------------------ GPU
     def _upload(self, ctx):
@@ -276,26 +291,97 @@ class AsteroidScene:
         return lods, levels
 
     @staticmethod
-    def _vaos(renderer, item):
-        key = renderer.token
+    def _vaos(gpu, item):
+        key = gpu.token
         if key not in item.vaos:
-            item.vaos[key] = renderer.vertex_arrays(item.vbo, item.ibo,
-                                                    getattr(item, "abo", None),
-                                                    morph=getattr(item, "morph", None))
+            item.vaos[key] = gpu.vertex_arrays(item.vbo, item.ibo, item.abo, morph=item.morph)
         return item.vaos[key]
 
+    def _rocks(self) -> Boulders:
+        """The boulders (only called where there are some)."""
+        assert self.boulders is not None
+        return self.boulders
+
     def _boulder_centres(self) -> np.ndarray:
-        c = self.boulders.catalog
+        """(n, 3) float64 boulder centres (m, body frame)."""
+        c = self._rocks().catalog
         return np.column_stack([c["x_m"], c["y_m"], c["z_m"]])
 
     def _boulder_radii(self) -> np.ndarray:
         """(n,) bounding radius (m) the level-of-detail and visibility rules use."""
-        c = self.boulders.catalog
+        c = self._rocks().catalog
         return 0.5 * c["diameter_m"] * np.sqrt(np.maximum(c["elongation"], 1.0))
 
     # ------------------------------------------------------------------ per frame
-    def frame_state(self, view, lighting, options, renderer) -> FrameState:
-        lods, levels = self._upload(renderer.ctx)
+    def imposter(self, view: View, options: RenderOptions) -> Imposter | None:
+        """The imposter this view shows the body as, if any (see the module docstring).
+
+        Below ``imposter_pixels`` across the body is an imposter; with geomorphing on, between
+        that and :data:`IMPOSTER_FADE` times it the imposter's radiance fades in.
+
+        Parameters
+        ----------
+        view : render.renderer.View
+            The frame's camera.
+        options : render.renderer.RenderOptions
+            The frame's quality settings.
+
+        Returns
+        -------
+        render.scene.Imposter or None
+            The imposter's camera (the frame camera's centre, looking at the body's centre)
+            with ``blend`` None (the imposter replaces the body) or the fade's weight; None
+            when the body is drawn as geometry alone.
+        """
+        k = view.intrinsics
+        cam = np.asarray(view.pose.position, dtype=np.float64)
+        dist = float(np.linalg.norm(cam))
+        if not dist > self.reach * IMPOSTER_MIN_DISTANCE:
+            return None
+        focal = max(k.fx, k.fy)
+        span = 2.0 * focal * math.tan(math.asin(min(self.reach / max(dist, 1e-9), 1.0)))
+        blend: float | None = None
+        if span < self.imposter_pixels:
+            blend = None
+        elif options.geomorph and span < IMPOSTER_FADE * self.imposter_pixels:
+            # the imposter fades in (module docstring): weight 0 at IMPOSTER_FADE x, 1 at 1 x
+            blend = (IMPOSTER_FADE * self.imposter_pixels - span) / (
+                (IMPOSTER_FADE - 1.0) * self.imposter_pixels)
+        else:
+            return None
+        size = int(max(MIN_IMPOSTER_TEXELS, math.ceil(span) * IMPOSTER_OVERSAMPLING))
+        half = math.asin(min(self.reach / float(np.linalg.norm(cam)), 1.0)) * IMPOSTER_FOV_MARGIN
+        f = 0.5 * size / math.tan(half)
+        k_imp = Intrinsics(size, size, f, f, (size - 1) / 2, (size - 1) / 2)
+        # cells as large on screen as the geometry it stands for would draw: the imposter's
+        # texels are IMPOSTER_OVERSAMPLING times finer than the frame's pixels
+        lod = options.lod_pixels * f / max(k.fx, k.fy)
+        return Imposter(look_at(cam, (0.0, 0.0, 0.0)), k_imp, lod, blend)
+
+    def frame_state(self, view: View, lighting: Lighting, options: RenderOptions, gpu: Gpu,
+                    imposter: Imposter | None) -> FrameState:
+        """Plan one frame: visible patches and boulders at their levels, and the shadow map.
+
+        Parameters
+        ----------
+        view : render.renderer.View
+            The frame's camera.
+        lighting : render.renderer.Lighting
+            The sun (the shadow map follows it).
+        options : render.renderer.RenderOptions
+            Level of detail target, shadows, geomorphing.
+        gpu : render.scene.Gpu
+            Uploads, vertex arrays and the shadow map.
+        imposter : render.scene.Imposter or None
+            The frame's imposter (:meth:`imposter`): one that replaces the body leaves
+            nothing to draw; a fading one is recorded in ``drawn["imposter_fade"]``.
+
+        Returns
+        -------
+        render.scene.FrameState
+            The batches (body, then boulders by level) and what they draw.
+        """
+        lods, levels = self._upload(gpu.ctx)
         for old in self._fine:  # the previous frame's fine boulders
             old.release()
         self._fine = []
@@ -303,19 +389,11 @@ class AsteroidScene:
         cam = np.asarray(view.pose.position, dtype=np.float64)
         dist = float(np.linalg.norm(cam))
         focal = max(k.fx, k.fy)
-        far = far_plane(dist + self.radius)
-        span = 2.0 * focal * math.tan(math.asin(min(self.radius / max(dist, 1e-9), 1.0)))
-        if dist > self.radius * 1.01 and span < self.imposter_pixels:
-            return self._imposter_state(view, lighting, options, renderer, far, span)
-        fade = None
-        if (options.geomorph and dist > self.radius * 1.01
-                and span < IMPOSTER_FADE * self.imposter_pixels):
-            # the imposter fades in (module docstring): weight 0 at IMPOSTER_FADE x, 1 at 1 x
-            weight = (IMPOSTER_FADE * self.imposter_pixels - span) / (
-                (IMPOSTER_FADE - 1.0) * self.imposter_pixels)
-            fade = (self._imposter_state(view, lighting, options, renderer, far, span),
-                    weight)
-        near = max(dist - self.radius, MIN_LOD_DISTANCE_M)
+        far = far_plane(dist + self.reach)
+        if imposter is not None and imposter.blend is None:
+            return FrameState([], far, {"imposter": True,
+                                        "imposter_size": imposter.intrinsics.width})
+        near = max(dist - self.reach, MIN_LOD_DISTANCE_M)
         body = lods[0]
         chosen = 0
         for i, lod in enumerate(lods):
@@ -325,11 +403,11 @@ class AsteroidScene:
         c = (body.centres @ self.rotation.T - cam) @ rot
         vis = _sphere_visible(c, body.radii, k)
         patches = np.flatnonzero(vis)
-        vao, dvao = self._vaos(renderer, body)
+        vao, dvao = self._vaos(gpu, body)
         ranges = _merge(body.firsts[patches], body.counts[patches])
         shadow = None
         if options.shadows and lighting is not None:
-            shadow = self._shadow_map(renderer, lighting, options, lods, levels)
+            shadow = self._shadow_map(gpu, lighting, options, lods, levels)
         tris = int(body.counts[patches].sum()) // 3
         morph = None
         if options.geomorph and body.morph is not None:
@@ -342,18 +420,15 @@ class AsteroidScene:
                                                        else None))]
         drawn = {"body_magnitude": body.magnitude, "patches": int(patches.size),
                  "patches_total": int(len(body.radii)), "triangles": tris, "imposter": False}
-        b_tris, counts = self._boulder_batches(batches, levels, view, options, renderer,
+        b_tris, counts = self._boulder_batches(batches, levels, view, options, gpu,
                                                shadow)
         drawn["boulders"] = counts
         drawn["triangles"] += b_tris
-        post = None
-        if fade is not None:
-            state, weight = fade
-            post = _ImposterFade(state.post, weight)
-            drawn["imposter_fade"] = float(weight)
-        return FrameState(batches, far, drawn, post=post)
+        if imposter is not None and imposter.blend is not None:
+            drawn["imposter_fade"] = float(imposter.blend)
+        return FrameState(batches, far, drawn)
 
-    def _boulder_batches(self, batches, levels, view, options, renderer, shadow):
+    def _boulder_batches(self, batches, levels, view, options, gpu, shadow):
         if not levels:
             return 0, {}
         k = view.intrinsics
@@ -375,7 +450,7 @@ class AsteroidScene:
             sel = np.flatnonzero(vis & (level == lv.level))
             if not sel.size:
                 continue
-            vao, dvao = self._vaos(renderer, lv)
+            vao, dvao = self._vaos(gpu, lv)
             per = lv.faces_per * 3
             ranges = _merge(sel * per, np.full(sel.size, per))
             n = sel.size * lv.faces_per
@@ -388,42 +463,42 @@ class AsteroidScene:
             sel = np.flatnonzero(vis & (level == lv))
             if not sel.size:
                 continue
-            batch = self._fine_batch(renderer, lv, sel, shadow)
+            batch = self._fine_batch(gpu, lv, sel, shadow)
             batch.morph = _boulder_morph(lv, focal, options)
             tris += batch.triangles
             counts[str(lv)] = int(sel.size)
             batches.append(batch)
         return tris, counts
 
-    def _fine_batch(self, renderer, level: int, indices: np.ndarray, shadow) -> DrawBatch:
+    def _fine_batch(self, gpu, level: int, indices: np.ndarray, shadow) -> DrawBatch:
         """A throw-away vertex array of the given boulders at a fine level of detail."""
         from asteroid.boulders import subdivision
         from render.mesh_scene import vertex_normals
 
-        faces_all, _ = subdivision(self.boulders.settings.levels)
+        rocks = self._rocks()
+        faces_all, _ = subdivision(rocks.settings.levels)
         f = faces_all[level]
         nv = 10 * 4**level + 2
-        c = self.boulders.catalog
-        rot = self.boulders.rotations()[indices]
+        c = rocks.catalog
+        rot = rocks.rotations()[indices]
         centres = np.column_stack([c["x_m"], c["y_m"], c["z_m"]])[indices]
-        local = np.stack([self.boulders.local_shapes(slice(int(i), int(i) + 1))[0, :nv]
+        local = np.stack([rocks.local_shapes(slice(int(i), int(i) + 1))[0, :nv]
                           for i in indices])
         verts = (np.einsum("nij,nvj->nvi", rot, local) + centres[:, None, :]).reshape(-1, 3)
         faces = (f[None, :, :] + (np.arange(len(indices)) * nv)[:, None, None]).reshape(-1, 3)
         normals = vertex_normals(verts, faces)
-        ctx = renderer.ctx
+        ctx = gpu.ctx
         vbo = ctx.buffer(np.hstack([verts, normals]).astype(np.float32).tobytes())
         ibo = ctx.buffer(faces.astype(np.uint32).tobytes())
         targets = _boulder_targets(verts, normals, level, centres,
-                                   self._boulder_radii()[indices],
-                                   self.boulders.settings.levels)
+                                   self._boulder_radii()[indices], rocks.settings.levels)
         mbo = ctx.buffer(targets.astype(np.float32).tobytes())
-        vao, dvao = renderer.vertex_arrays(vbo, ibo, morph=mbo)
+        vao, dvao = gpu.vertex_arrays(vbo, ibo, morph=mbo)
         self._fine.extend([vao, dvao, vbo, ibo, mbo])
         return DrawBatch(vao, dvao, [(0, faces.size)], world_from_model=self.rotation,
                          shadow=shadow, triangles=len(faces))
 
-    def _shadow_map(self, renderer, lighting, options, lods, levels) -> ShadowMap:
+    def _shadow_map(self, gpu, lighting, options, lods, levels) -> ShadowMap:
         size = options.shadow_size
 
         def casters(extent):
@@ -433,104 +508,20 @@ class AsteroidScene:
             for lod in lods:
                 if lod.spacing <= SHADOW_CELL_TEXELS * extent / size:
                     body_lod = lod
-            _, dvao = self._vaos(renderer, body_lod)
+            _, dvao = self._vaos(gpu, body_lod)
             batches = [DrawBatch(None, dvao, [(0, body_lod.triangles * 3)],
                                  world_from_model=self.rotation)]
             if levels:
                 lv = levels[min(1, len(levels) - 1)]
-                _, bdvao = self._vaos(renderer, lv)
+                _, bdvao = self._vaos(gpu, lv)
                 batches.append(DrawBatch(None, bdvao,
                                          [(0, lv.faces_per * 3 * len(self.boulders))],
                                          world_from_model=self.rotation))
             return batches
 
-        self._shadow = body_shadow_map(renderer, self._shadow, size, lighting.sun, self.radius,
+        self._shadow = body_shadow_map(gpu, self._shadow, size, lighting.sun, self.reach,
                                        casters)
         return self._shadow
-
-    # ------------------------------------------------------------------ imposter
-    def _imposter_state(self, view, lighting, options, renderer, far, span) -> FrameState:
-        from render.renderer import View
-
-        size = int(max(8, math.ceil(span) * IMPOSTER_OVERSAMPLING))
-        cam = np.asarray(view.pose.position, dtype=np.float64)
-        half = math.asin(min(self.radius / np.linalg.norm(cam), 1.0)) * 1.02
-        f = 0.5 * size / math.tan(half)
-        k_imp = Intrinsics(size, size, f, f, (size - 1) / 2, (size - 1) / 2)
-        pose_imp = look_at(cam, (0.0, 0.0, 0.0))
-        saved = self.imposter_pixels
-        self.imposter_pixels = 0.0  # render the imposter itself as geometry
-        try:
-            # cells as large on screen as the geometry it stands for would draw: the
-            # imposter's texels are IMPOSTER_OVERSAMPLING times finer than the frame's pixels
-            sub_options = dataclasses.replace(
-                options, lod_pixels=options.lod_pixels * f / max(view.intrinsics.fx,
-                                                                  view.intrinsics.fy))
-            sub = renderer.render(self, View(pose_imp, k_imp, view.time), lighting,
-                                  sub_options)
-        finally:
-            self.imposter_pixels = saved
-        post = _ImposterComposite(sub, pose_imp, k_imp)
-        drawn = dict(sub.drawn, imposter=True, imposter_size=size)
-        return FrameState([], far, drawn, post=post)
-
-
-class _ImposterComposite:
-    """Draws an imposter image on a camera-facing quad, as a homography of the image plane."""
-
-    def __init__(self, frame, pose, intrinsics):
-        self.frame = frame
-        self.pose = pose
-        self.k = intrinsics
-
-    def __call__(self, view, radiance, rng, normals):
-        k = view.intrinsics
-        v, u = np.mgrid[0:k.height, 0:k.width].astype(np.float64)
-        rays = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u)], -1)
-        world = rays @ view.pose.rotation.T          # same centre: only directions matter
-        c = world @ self.pose.rotation                # into the imposter camera
-        ok = c[..., 2] > 0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            iu = self.k.fx * c[..., 0] / c[..., 2] + self.k.cx
-            iv = self.k.fy * c[..., 1] / c[..., 2] + self.k.cy
-        n = self.k.width
-        ok &= (iu > -0.5) & (iu < n - 0.5) & (iv > -0.5) & (iv < n - 0.5)
-        ju = np.clip(np.rint(iu[ok]).astype(int), 0, n - 1)
-        jv = np.clip(np.rint(iv[ok]).astype(int), 0, n - 1)
-        hit = np.isfinite(self.frame.range[jv, ju])
-        rows, cols = np.nonzero(ok)
-        rows, cols, ju, jv = rows[hit], cols[hit], ju[hit], jv[hit]
-        import cv2
-
-        # bilinear over the body's own texels only (weights renormalised), so the limb does
-        # not blend with the black sky of the imposter
-        mask = np.isfinite(self.frame.range).astype(np.float32)
-        mu, mv = iu.astype(np.float32), iv.astype(np.float32)
-        num = cv2.remap(np.nan_to_num(self.frame.radiance) * mask, mu, mv, cv2.INTER_LINEAR,
-                        borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        den = cv2.remap(mask, mu, mv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                        borderValue=0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            rad = np.where(den > 0, num / np.maximum(den, 1e-12), 0.0)
-        radiance[rows, cols] = rad[rows, cols]
-        rng[rows, cols] = self.frame.range[jv, ju]
-        normals[rows, cols] = self.frame.normals[jv, ju]
-
-
-class _ImposterFade:
-    """Blends an imposter's radiance into a geometry frame with a weight (module docstring)."""
-
-    def __init__(self, composite, weight: float):
-        self.composite = composite
-        self.weight = float(min(max(weight, 0.0), 1.0))
-
-    def __call__(self, view, radiance, rng, normals):
-        rad = np.zeros_like(radiance)
-        r = np.full_like(rng, np.nan)
-        n = np.full_like(normals, np.nan)
-        self.composite(view, rad, r, n)
-        both = np.isfinite(r) & np.isfinite(rng)
-        radiance[both] = (1.0 - self.weight) * radiance[both] + self.weight * rad[both]
 
 
 def _normal_cube(ctx, mesh, radii, normals):

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -26,11 +27,16 @@ from render.scene import (
     MIN_LOD_DISTANCE_M,
     DrawBatch,
     FrameState,
+    Gpu,
+    Imposter,
     ShadowMap,
     body_shadow_map,
     far_plane,
 )
 from terrain.errors import InvalidParameterError
+
+if TYPE_CHECKING:
+    from render.renderer import Lighting, RenderOptions, View
 
 __all__ = ["CHUNK", "MeshScene", "vertex_normals"]
 
@@ -119,7 +125,8 @@ class MeshScene:
         self._gpu.clear()
 
     @property
-    def radius(self) -> float:
+    def reach(self) -> float:
+        """Farthest distance (m) of the finest mesh's vertices from the body's centre."""
         return float(np.linalg.norm(self._meshes[0][0], axis=1).max())
 
     def set_body_rotation(self, quaternion) -> None:
@@ -131,7 +138,7 @@ class MeshScene:
         return np.atleast_2d(points) @ self.rotation.T + self.origin
 
     def bounds(self):
-        r = self.radius
+        r = self.reach
         return self.origin - r, self.origin + r
 
     # ------------------------------------------------------------------ GPU
@@ -160,18 +167,55 @@ class MeshScene:
         self._gpu[ctx] = lods
         return lods
 
-    def _vaos(self, renderer, lod: _Lod):
-        key = renderer.token
+    def _vaos(self, gpu, lod: _Lod):
+        key = gpu.token
         if key not in lod.vaos:
-            lod.vaos[key] = renderer.vertex_arrays(lod.vbo, lod.ibo, lod.abo)
+            lod.vaos[key] = gpu.vertex_arrays(lod.vbo, lod.ibo, lod.abo)
         return lod.vaos[key]
 
     # ------------------------------------------------------------------ per frame
-    def frame_state(self, view, lighting, options, renderer) -> FrameState:
-        lods = self._upload(renderer.ctx)
+    def imposter(self, view: View, options: RenderOptions) -> Imposter | None:
+        """Never: a mesh is always drawn as geometry.
+
+        Parameters
+        ----------
+        view : render.renderer.View
+            The frame's camera.
+        options : render.renderer.RenderOptions
+            The frame's quality settings.
+
+        Returns
+        -------
+        None
+        """
+        return None
+
+    def frame_state(self, view: View, lighting: Lighting, options: RenderOptions,
+                    gpu: Gpu, imposter: Imposter | None) -> FrameState:
+        """Plan one frame: the visible chunks of the chosen level, with the body's map.
+
+        Parameters
+        ----------
+        view : render.renderer.View
+            The frame's camera.
+        lighting : render.renderer.Lighting
+            The sun (the shadow map follows it).
+        options : render.renderer.RenderOptions
+            Level of detail target, shadows.
+        gpu : render.scene.Gpu
+            Uploads, vertex arrays and the shadow map.
+        imposter : render.scene.Imposter or None
+            Always None (:meth:`imposter`).
+
+        Returns
+        -------
+        render.scene.FrameState
+            One batch and what it draws.
+        """
+        lods = self._upload(gpu.ctx)
         k = view.intrinsics
         cam = np.asarray(view.pose.position) - self.origin      # world, relative to centre
-        dist = max(np.linalg.norm(cam) - self.radius, MIN_LOD_DISTANCE_M)
+        dist = max(np.linalg.norm(cam) - self.reach, MIN_LOD_DISTANCE_M)
         focal = max(k.fx, k.fy)
         chosen = lods[0]
         for lod in lods:  # finest first: take the coarsest that is still fine enough
@@ -189,23 +233,23 @@ class MeshScene:
             vis &= c @ plane > -r
         # back-facing chunks cannot be culled safely on a non-convex body: keep them
         chunks = np.flatnonzero(vis)
-        vao, dvao = self._vaos(renderer, chosen)
+        vao, dvao = self._vaos(gpu, chosen)
         ranges = [(int(chosen.firsts[i]), int(chosen.counts[i])) for i in chunks]
         tris = int(chosen.counts[chunks].sum()) // 3
-        shadow = self._shadow_map(renderer, lighting, options, chosen) \
+        shadow = self._shadow_map(gpu, lighting, options, chosen) \
             if options.shadows and lighting is not None else None
         batch = DrawBatch(vao, dvao, ranges, world_from_model=self.rotation,
                           model_offset=np.zeros(3), shadow=shadow, triangles=tris,
                           vertex_albedo=chosen.abo is not None)
-        far = far_plane(float(np.linalg.norm(cam) + self.radius))
+        far = far_plane(float(np.linalg.norm(cam) + self.reach))
         drawn = {"triangles": tris, "chunks": int(chunks.size), "lod_edge_m": chosen.edge,
                  "lod_triangles": chosen.triangles}
         return FrameState([batch], far, drawn)
 
-    def _shadow_map(self, renderer, lighting, options, lod) -> ShadowMap:
-        _, dvao = self._vaos(renderer, lod)
+    def _shadow_map(self, gpu, lighting, options, lod) -> ShadowMap:
+        _, dvao = self._vaos(gpu, lod)
         batch = DrawBatch(None, dvao, [(0, lod.triangles * 3)], world_from_model=self.rotation,
                           model_offset=np.zeros(3))
-        self._shadow = body_shadow_map(renderer, self._shadow, options.shadow_size,
-                                       lighting.sun, self.radius, lambda extent: [batch])
+        self._shadow = body_shadow_map(gpu, self._shadow, options.shadow_size,
+                                       lighting.sun, self.reach, lambda extent: [batch])
         return self._shadow

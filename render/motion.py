@@ -204,8 +204,7 @@ def render_exposure(renderer, scene, view, lighting, options, sensor, motion: Mo
     if n == 0:
         finite = first.range[np.isfinite(first.range)]
         nearest = float(finite.min()) if finite.size else 1.0
-        radius = float(getattr(scene, "radius", 0.0)) if scene.kind != "terrain" else 0.0
-        moved = motion.image_speed(k, nearest, radius) * span
+        moved = motion.image_speed(k, nearest, scene.reach) * span
         n = int(min(max(math.ceil(moved / MAX_STEP_PIXELS), 1), motion.max_samples))
         if moved / n > MAX_STEP_PIXELS:
             log.warning("motion blur: the image moves about %.1f px in the exposure; %d "

@@ -25,18 +25,22 @@ from __future__ import annotations
 import itertools
 import logging
 import math
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
 from importlib import resources
+from typing import Any
 
 import numpy as np
 
 from render.camera import Intrinsics, Pose
 from render.context import create_context
+from render.imposter import blend, composite
 from render.reflectance import BRDF_CODES, MCEWEN_MOON, SATO_643NM, Hapke, check_brdf
-from render.scene import Scene
+from render.scene import DrawBatch, Imposter, Scene
 from terrain.errors import InvalidParameterError
 
-__all__ = ["Frame", "Lighting", "RenderOptions", "Renderer", "View", "clip_from_camera"]
+__all__ = ["Frame", "Lighting", "RenderOptions", "Renderer", "SceneGpu", "View",
+           "clip_from_camera"]
 
 log = logging.getLogger(__name__)
 
@@ -183,18 +187,138 @@ def _shader(name: str) -> str:
     return resources.files("render").joinpath(f"shaders/{name}").read_text(encoding="utf-8")
 
 
+class SceneGpu:
+    """The handle to the GPU a renderer passes its scenes (:class:`render.scene.Gpu`).
+
+    Uploads go to :attr:`ctx`; vertex arrays bind the renderer's two programs; shadow maps
+    are allocated and their depth drawn here. Nothing else: camera passes are the
+    renderer's.
+
+    Parameters
+    ----------
+    ctx : moderngl.Context
+        The renderer's context.
+    scene_program, depth_program : moderngl.Program
+        The camera pass's and the shadow pass's programs.
+    """
+
+    def __init__(self, ctx: Any, scene_program: Any, depth_program: Any) -> None:
+        self.ctx = ctx
+        # Scenes cache vertex arrays per renderer (they bind this renderer's programs). A
+        # never-reused token, not id(self): a new renderer can get a dead one's id.
+        self.token = next(_TOKENS)
+        self._scene_program = scene_program
+        self._depth_program = depth_program
+
+    def vertex_arrays(self, vbo: Any, ibo: Any, albedo: Any = None,
+                      morph: Any = None) -> tuple[Any, Any]:
+        """Bind a mesh's buffers to the renderer's camera and depth programs.
+
+        ``vbo`` interleaves position and normal (3f 3f); the depth pass reads positions only.
+        Scenes cache the pair under :attr:`token`.
+
+        Parameters
+        ----------
+        vbo, ibo : moderngl.Buffer
+            Interleaved position and normal (3f 3f, scene-local metres) and uint32 indices.
+        albedo : moderngl.Buffer, optional
+            One float32 albedo factor per vertex (draw such a mesh with
+            ``DrawBatch.vertex_albedo`` set).
+        morph : moderngl.Buffer, optional
+            Per-vertex geomorphing targets (4f 3f: the coarser level's position, a key, the
+            coarser level's normal; see :class:`render.scene.Morph` and
+            ``shaders/scene.vert``).
+
+        Returns
+        -------
+        tuple of moderngl.VertexArray
+            ``(scene, depth)`` vertex arrays.
+        """
+        content: list[tuple[Any, ...]] = [(vbo, "3f 3f", "in_position", "in_normal")]
+        if albedo is not None:
+            content.append((albedo, "1f", "in_albedo"))
+        if morph is not None:
+            content.append((morph, "4f 3f", "in_morph", "in_morph_normal"))
+        vao = self.ctx.vertex_array(self._scene_program, content, ibo)
+        dvao = self.ctx.vertex_array(self._depth_program, [(vbo, "3f 12x", "in_position")],
+                                     ibo)
+        return vao, dvao
+
+    def shadow_target(self, size: int) -> tuple[Any, Any]:
+        """Allocate a depth texture and framebuffer for one shadow map (caller owns them).
+
+        Parameters
+        ----------
+        size : int
+            Side of the map, texels.
+
+        Returns
+        -------
+        tuple
+            ``(moderngl.Texture, moderngl.Framebuffer)``: a depth texture that compares
+            ``<=`` with 2x2 percentage-closer filtering, clamped at its edges.
+        """
+        import moderngl
+
+        tex = self.ctx.depth_texture((size, size))
+        tex.compare_func = "<="
+        tex.filter = (moderngl.LINEAR, moderngl.LINEAR)  # 2x2 percentage-closer filtering
+        tex.repeat_x = False
+        tex.repeat_y = False
+        fbo = self.ctx.framebuffer(depth_attachment=tex)
+        return tex, fbo
+
+    def draw_depth(self, framebuffer: Any, size: int, light_clip: np.ndarray,
+                   batches: Sequence[DrawBatch]) -> None:
+        """Draw the depth of ``batches`` into a shadow map with the orthographic ``light_clip``.
+
+        Parameters
+        ----------
+        framebuffer : moderngl.Framebuffer
+            The map's framebuffer (:meth:`shadow_target`).
+        size : int
+            Side of the map, texels.
+        light_clip : (4, 4) float64
+            Clip-from-scene-local matrix of the sun's orthographic view.
+        batches : sequence of DrawBatch
+            What casts shadows (their ``depth_vao``, ``ranges``, model transforms and
+            discard rectangles).
+        """
+        import moderngl
+
+        ctx = self.ctx
+        framebuffer.use()
+        ctx.viewport = (0, 0, size, size)
+        ctx.enable(moderngl.DEPTH_TEST)
+        ctx.disable(moderngl.CULL_FACE)
+        ctx.depth_func = "<"
+        framebuffer.clear(depth=1.0)
+        prog = self._depth_program
+        prog["u_clip_from_world"].write(light_clip.T.astype("f4").tobytes())
+        for batch in batches:
+            prog["u_world_from_model"].write(
+                np.asarray(batch.world_from_model, dtype="f4").T.tobytes())
+            prog["u_model_offset"].value = tuple(np.asarray(batch.model_offset).tolist())
+            if batch.discard is not None:
+                prog["u_use_discard"].value = 1
+                prog["u_discard"].value = tuple(batch.discard)
+            else:
+                prog["u_use_discard"].value = 0
+            for first, count in batch.ranges:
+                batch.depth_vao.render(moderngl.TRIANGLES, vertices=count, first=first)
+
+
 class Renderer:
     """Holds the GL programs and offscreen framebuffers; renders scenes frame by frame."""
 
     def __init__(self, ctx=None):
         self.ctx = ctx or create_context()
-        # Scenes cache vertex arrays per renderer (they bind this renderer's programs). A
-        # never-reused token, not id(self): a new renderer can get a dead one's id.
-        self.token = next(_TOKENS)
         self.scene_program = self.ctx.program(vertex_shader=_shader("scene.vert"),
                                               fragment_shader=_shader("scene.frag"))
         self.depth_program = self.ctx.program(vertex_shader=_shader("depth.vert"),
                                               fragment_shader=_shader("depth.frag"))
+        #: The handle scenes get: uploads, vertex arrays and shadow maps, no camera pass.
+        self.gpu = SceneGpu(self.ctx, self.scene_program, self.depth_program)
         self._fbos: dict = {}
         self._dummy_shadow = self.ctx.depth_texture((1, 1))
         self._dummy_shadow.compare_func = "<="
@@ -223,53 +347,65 @@ class Renderer:
                 color_attachments=color, depth_attachment=self.ctx.depth_renderbuffer(size))
         return self._fbos[size]
 
-    def shadow_target(self, size: int):
-        """A depth texture and framebuffer for one shadow map (caller owns them)."""
-        import moderngl
-
-        tex = self.ctx.depth_texture((size, size))
-        tex.compare_func = "<="
-        tex.filter = (moderngl.LINEAR, moderngl.LINEAR)  # 2x2 percentage-closer filtering
-        tex.repeat_x = False
-        tex.repeat_y = False
-        fbo = self.ctx.framebuffer(depth_attachment=tex)
-        return tex, fbo
-
-    def vertex_arrays(self, vbo, ibo, albedo=None, morph=None):
-        """(scene, depth) vertex arrays binding this renderer's programs to a mesh.
-
-        ``vbo`` interleaves position and normal (3f 3f); the depth pass reads positions only.
-        ``albedo``, if given, is a buffer of one float32 albedo factor per vertex (draw such a
-        mesh with ``DrawBatch.vertex_albedo`` set). ``morph``, if given, is a buffer of
-        per-vertex geomorphing targets (4f 3f: the coarser level's position, a key, the
-        coarser level's normal; see :class:`render.scene.Morph` and ``shaders/scene.vert``).
-        Scenes cache the pair under :attr:`token`.
-        """
-        content = [(vbo, "3f 3f", "in_position", "in_normal")]
-        if albedo is not None:
-            content.append((albedo, "1f", "in_albedo"))
-        if morph is not None:
-            content.append((morph, "4f 3f", "in_morph", "in_morph_normal"))
-        vao = self.ctx.vertex_array(self.scene_program, content, ibo)
-        dvao = self.ctx.vertex_array(self.depth_program, [(vbo, "3f 12x", "in_position")], ibo)
-        return vao, dvao
-
     # ------------------------------------------------------------------ passes
     def render(self, scene: Scene, view: View, lighting: Lighting,
-               options: RenderOptions | None = None, *, rows=None) -> Frame:
+               options: RenderOptions | None = None, *,
+               rows: tuple[int, int] | None = None) -> Frame:
         """Render one frame of ``scene`` (see :mod:`render.scene`).
 
         The pose is in the world frame; the scene's ``origin`` (world) is subtracted in float64
-        before anything reaches the GPU. ``rows=(top, bottom)`` shades only image rows
-        ``top <= row < bottom`` (a scissor; a rolling shutter's sub-frames need no more):
-        the rest of the images is left undefined.
+        before anything reaches the GPU. Imposter first: when the scene asks for an imposter
+        (:meth:`render.scene.Scene.imposter`), its small view is rendered as geometry, the
+        frame is planned with the request, and the imposter is composited into the read-back
+        images (:mod:`render.imposter`).
+
+        Parameters
+        ----------
+        scene : render.scene.Scene
+            What to draw.
+        view : View
+            The camera: world-frame pose, intrinsics and time.
+        lighting : Lighting
+            The sun and the surface's reflectance.
+        options : RenderOptions, optional
+            Quality settings (default: :class:`RenderOptions`' defaults).
+        rows : (int, int), optional
+            ``(top, bottom)``: shade only image rows ``top <= row < bottom`` (a scissor; a
+            rolling shutter's sub-frames need no more); the rest of the images is left
+            undefined.
+
+        Returns
+        -------
+        Frame
+            Radiance, range and normals, ``(height, width)`` images, top row first.
         """
+        options = options or RenderOptions()
+        imposter = scene.imposter(view, options)
+        if imposter is None:
+            return self._render(scene, view, lighting, options, None, rows)
+        sub_view = View(imposter.pose, imposter.intrinsics, view.time)
+        sub = self._render(scene, sub_view, lighting,
+                           replace(options, lod_pixels=imposter.lod_pixels), None,
+                           None)
+        frame = self._render(scene, view, lighting, options, imposter, rows)
+        if imposter.blend is None:
+            composite(view, frame.radiance, frame.range, frame.normals, sub, imposter.pose,
+                      imposter.intrinsics)
+            # the frame shows what the imposter drew, with the scene's own facts on top
+            frame.drawn = dict(sub.drawn, **frame.drawn)
+        else:
+            blend(view, frame.radiance, frame.range, frame.normals, sub, imposter.pose,
+                  imposter.intrinsics, imposter.blend)
+        return frame
+
+    def _render(self, scene: Scene, view: View, lighting: Lighting, options: RenderOptions,
+                imposter: Imposter | None, rows: tuple[int, int] | None) -> Frame:
+        """One camera pass of the scene's plan for ``view`` (see :meth:`render`)."""
         import moderngl
 
-        options = options or RenderOptions()
         k = view.intrinsics
         ctx = self.ctx
-        state = scene.frame_state(view, lighting, options, self)
+        state = scene.frame_state(view, lighting, options, self.gpu, imposter)
         far = max(state.far, 1.0)
         origin = np.asarray(scene.origin, dtype=np.float64)
         cam = np.asarray(view.pose.position, dtype=np.float64) - origin  # scene-local
@@ -324,8 +460,6 @@ class Renderer:
         hit = nrm[:, :, 3] > 0.5
         rng[~hit] = np.nan
         normals = np.where(hit[:, :, None], nrm[:, :, :3], np.nan).astype(np.float32)
-        if state.post is not None:
-            state.post(view, rad, rng, normals)
         return Frame(np.ascontiguousarray(rad), rng, normals, dict(state.drawn))
 
     def _set_albedo_map(self, prog, albedo):
@@ -389,31 +523,6 @@ class Renderer:
         else:
             prog["u_shadows"].value = 0
             self._dummy_shadow.use(location=0)
-
-    def render_depth(self, fbo, size: int, light_clip: np.ndarray, batches) -> None:
-        """Render ``batches`` into a shadow map with the orthographic ``light_clip``."""
-        import moderngl
-
-        ctx = self.ctx
-        fbo.use()
-        ctx.viewport = (0, 0, size, size)
-        ctx.enable(moderngl.DEPTH_TEST)
-        ctx.disable(moderngl.CULL_FACE)
-        ctx.depth_func = "<"
-        fbo.clear(depth=1.0)
-        prog = self.depth_program
-        prog["u_clip_from_world"].write(light_clip.T.astype("f4").tobytes())
-        for batch in batches:
-            prog["u_world_from_model"].write(
-                np.asarray(batch.world_from_model, dtype="f4").T.tobytes())
-            prog["u_model_offset"].value = tuple(np.asarray(batch.model_offset).tolist())
-            if batch.discard is not None:
-                prog["u_use_discard"].value = 1
-                prog["u_discard"].value = tuple(batch.discard)
-            else:
-                prog["u_use_discard"].value = 0
-            for first, count in batch.ranges:
-                batch.depth_vao.render(moderngl.TRIANGLES, vertices=count, first=first)
 
 
 def _translation(t) -> np.ndarray:

@@ -435,9 +435,9 @@ class Scenario:
             s = self.scene
             # required of an approach by TrajectorySpec.from_mapping
             assert t.start_distance is not None and t.end_distance is not None
-            reach = getattr(scene, "radius", None)
+            reach = scene.reach
             closest = min(float(t.start_distance), float(t.end_distance))
-            if reach is not None and closest <= reach:
+            if closest <= reach:
                 raise InvalidParameterError(
                     f"the approach comes to {closest:g} m from the body's centre, inside the "
                     f"body (it reaches {reach:.6g} m); end the approach further out")

@@ -10,14 +10,19 @@ millimetres across hundreds of kilometres.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-__all__ = ["DrawBatch", "FrameState", "Morph", "Scene", "ShadowMap", "body_shadow_map",
-           "far_plane", "frustum_visible", "light_basis", "ortho_light"]
+if TYPE_CHECKING:
+    from render.camera import Intrinsics, Pose
+    from render.renderer import Lighting, RenderOptions, View
+
+__all__ = ["BODY_SHADOW_BIAS", "TERRAIN_SHADOW_BIAS", "DrawBatch", "FrameState", "Gpu",
+           "Imposter", "Morph", "Scene", "ShadowBias", "ShadowMap", "body_shadow_map",
+           "far_plane", "frustum_visible", "light_basis", "ortho_light", "render_shadow_map"]
 
 
 #: Shadow-map biases, in texels of the map (``texel`` = map extent / map size, metres). A
@@ -62,14 +67,168 @@ def far_plane(farthest: float) -> float:
     return farthest * FAR_FACTOR + FAR_SLACK_M
 
 
-def body_shadow_map(renderer: Any, current: ShadowMap | None, size: int, sun: Any,
-                    radius: float, casters: Callable[[float], list]) -> ShadowMap:
-    """Render a body's shadow map from the sun (the one setup asteroid and mesh scenes share).
+@dataclass(frozen=True)
+class ShadowBias:
+    """How a shadow map is looked up, in texels of the map (see the constants above).
 
     Parameters
     ----------
-    renderer : render.renderer.Renderer
-        Gives the depth target and runs the depth pass.
+    normal_offset : float
+        Texels along the receiver's normal the lookup moves.
+    constant : float
+        Texels of depth the comparison allows.
+    slope : float
+        Texels of depth allowed per unit tangent of the sun's incidence.
+    """
+
+    normal_offset: float
+    constant: float
+    slope: float
+
+
+#: Biases of body maps (asteroids, meshes) and of terrain maps.
+BODY_SHADOW_BIAS = ShadowBias(NORMAL_OFFSET_TEXELS, BODY_BIAS_TEXELS, BODY_SLOPE_BIAS_TEXELS)
+TERRAIN_SHADOW_BIAS = ShadowBias(NORMAL_OFFSET_TEXELS, TERRAIN_BIAS_TEXELS,
+                                 TERRAIN_SLOPE_BIAS_TEXELS)
+
+
+class Gpu(Protocol):
+    """The narrow handle to the GPU a renderer passes its scenes.
+
+    A scene uploads and owns its buffers and textures (through :attr:`ctx`), binds them to
+    the renderer's programs (:meth:`vertex_arrays`) and draws its shadow maps
+    (:meth:`shadow_target`, :meth:`draw_depth`, through :func:`render_shadow_map`); it never
+    runs a camera pass: the renderer does (:class:`render.renderer.SceneGpu` is the handle).
+
+    Attributes
+    ----------
+    ctx : moderngl.Context
+        The context the scene's buffers and textures are uploaded to.
+    token : int
+        Never reused between renderers: scenes cache vertex arrays under it (they bind one
+        renderer's programs).
+    """
+
+    ctx: Any
+    token: int
+
+    def vertex_arrays(self, vbo: Any, ibo: Any, albedo: Any = None,
+                      morph: Any = None) -> tuple[Any, Any]:
+        """Bind a mesh's buffers to the camera and depth programs.
+
+        Parameters
+        ----------
+        vbo, ibo : moderngl.Buffer
+            Interleaved position and normal (3f 3f, scene-local metres) and uint32 indices.
+        albedo : moderngl.Buffer, optional
+            One float32 albedo factor per vertex.
+        morph : moderngl.Buffer, optional
+            Per-vertex geomorphing targets (4f 3f, see :class:`Morph`).
+
+        Returns
+        -------
+        tuple of moderngl.VertexArray
+            ``(scene, depth)`` vertex arrays.
+        """
+        ...
+
+    def shadow_target(self, size: int) -> tuple[Any, Any]:
+        """Allocate a ``size`` x ``size`` depth texture and its framebuffer (caller owns them).
+
+        Parameters
+        ----------
+        size : int
+            Side of the map, texels.
+
+        Returns
+        -------
+        tuple
+            ``(moderngl.Texture, moderngl.Framebuffer)``.
+        """
+        ...
+
+    def draw_depth(self, framebuffer: Any, size: int, light_clip: np.ndarray,
+                   batches: Sequence[DrawBatch]) -> None:
+        """Draw the depth of ``batches`` into a shadow map's framebuffer.
+
+        Parameters
+        ----------
+        framebuffer : moderngl.Framebuffer
+            From :meth:`shadow_target`.
+        size : int
+            Side of the map, texels.
+        light_clip : (4, 4) float64
+            Orthographic clip-from-scene-local matrix of the sun.
+        batches : sequence of DrawBatch
+            What casts shadows (their ``depth_vao``).
+        """
+        ...
+
+
+def render_shadow_map(gpu: Gpu, current: ShadowMap | None, size: int, sun: Any,
+                      receivers: np.ndarray, casters: np.ndarray, *, margin: float,
+                      bias: ShadowBias,
+                      draw: Callable[[float, tuple[float, float, float, float]],
+                                     Sequence[DrawBatch]]) -> ShadowMap:
+    """Fit a shadow map to the sun and draw it: the one setup every scene's maps go through.
+
+    The map is orthographic from the sun (:func:`ortho_light`): its footprint covers the
+    ``receivers``, its depth runs from the ``casters`` nearest the sun to the receiver
+    farthest from it. Its biases are ``bias`` times its texel (depth biases as fractions of
+    its depth range).
+
+    Parameters
+    ----------
+    gpu : Gpu
+        Allocates the map and draws its depth.
+    current : ShadowMap or None
+        A map to draw into again: reused when its size matches, released when not.
+    size : int
+        Map side, texels.
+    sun : (3,) float
+        Unit vector towards the sun, world frame.
+    receivers, casters : (n, 3) float64, metres, scene-local
+        Points the map must cover, and points whose shadows it must hold.
+    margin : float
+        Metres added around the receivers (and to the depth range).
+    bias : ShadowBias
+        The lookup's biases in texels.
+    draw : callable
+        ``draw(extent, window)``: what casts shadows (a sequence of :class:`DrawBatch` with
+        depth vertex arrays), given the map's extent (m) and its light-space window
+        ``(x0, y0, x1, y1)`` (m, see :func:`ortho_light`), so a scene may pick the level of
+        detail the map's texels resolve and cull what the map cannot see.
+
+    Returns
+    -------
+    ShadowMap
+        ``current`` updated in place, or a new map.
+    """
+    clip, light, extent, depth, window = ortho_light(sun, receivers, casters, margin=margin)
+    if current is None or current.size != size:
+        if current is not None:
+            current.release()
+        tex, fbo = gpu.shadow_target(size)
+        current = ShadowMap(tex, size, light, 0.0, 0.0, 0.0, framebuffer=fbo)
+    gpu.draw_depth(current.framebuffer, size, clip, draw(extent, window))
+    texel = extent / size
+    current.light_from_world = light
+    current.normal_offset = bias.normal_offset * texel
+    current.bias = bias.constant * texel / depth
+    current.slope_bias = bias.slope * texel / depth
+    current.texel_m = texel
+    current.depth_range_m = depth
+    return current
+
+
+def body_shadow_map(gpu: Gpu, current: ShadowMap | None, size: int, sun: Any,
+                    radius: float, casters: Callable[[float], Sequence[DrawBatch]]) -> ShadowMap:
+    """Render a body's shadow map from the sun, fitted to its bounding cube.
+
+    Parameters
+    ----------
+    gpu : Gpu
+        Allocates the map and draws its depth.
     current : ShadowMap or None
         The scene's map of an earlier frame: reused when its size matches, released when not.
     size : int
@@ -77,35 +236,21 @@ def body_shadow_map(renderer: Any, current: ShadowMap | None, size: int, sun: An
     sun : (3,) float
         Unit vector towards the sun, world frame.
     radius : float
-        Bounding radius of the body (m): the map covers its bounding cube.
+        Bounding radius of the body (m) about the scene origin: the map covers its cube,
+        grown by :data:`BODY_SHADOW_MARGIN` of it.
     casters : callable
-        ``casters(extent)``: what casts shadows (a list of :class:`DrawBatch` with depth
-        vertex arrays), given the map's extent in metres (a scene may pick the level of
-        detail the map's texels resolve).
+        ``casters(extent)``: what casts shadows, given the map's extent in metres.
 
     Returns
     -------
     ShadowMap
-        ``current`` updated in place, or a new map.
+        ``current`` updated in place, or a new map (:func:`render_shadow_map`).
     """
-    if current is None or current.size != size:
-        if current is not None:
-            current.release()
-        tex, fbo = renderer.shadow_target(size)
-        current = ShadowMap(tex, size, np.eye(4), 0.0, 0.0, 0.0, framebuffer=fbo)
     r = radius
     pts = np.array([[sx * r, sy * r, sz * r] for sx in (-1, 1) for sy in (-1, 1)
                     for sz in (-1, 1)])
-    clip, light, extent, depth, _ = ortho_light(sun, pts, pts, margin=BODY_SHADOW_MARGIN * r)
-    renderer.render_depth(current.framebuffer, size, clip, casters(extent))
-    texel = extent / size
-    current.light_from_world = light
-    current.normal_offset = NORMAL_OFFSET_TEXELS * texel
-    current.bias = BODY_BIAS_TEXELS * texel / depth
-    current.slope_bias = BODY_SLOPE_BIAS_TEXELS * texel / depth
-    current.texel_m = texel
-    current.depth_range_m = depth
-    return current
+    return render_shadow_map(gpu, current, size, sun, pts, pts, margin=BODY_SHADOW_MARGIN * r,
+                             bias=BODY_SHADOW_BIAS, draw=lambda extent, window: casters(extent))
 
 
 class Scene(Protocol):
@@ -114,6 +259,9 @@ class Scene(Protocol):
     A new kind of scene is a new class with these members, not a new ``hasattr`` branch in
     the renderer or :mod:`render.sequence` (:class:`render.terrain_scene.TerrainScene`,
     :class:`render.asteroid_scene.AsteroidScene`, :class:`render.mesh_scene.MeshScene`).
+    Scenes plan; the renderer runs every pass: a scene reaches the GPU only through the
+    :class:`Gpu` handle it is given, and asks for an imposter (:meth:`imposter`) instead of
+    rendering one itself.
 
     Attributes
     ----------
@@ -121,25 +269,114 @@ class Scene(Protocol):
         ``"terrain"``, ``"asteroid"`` or ``"mesh"``.
     origin : (3,) float64, metres
         World point subtracted before anything reaches the GPU.
+    reach : float, metres
+        How far the scene's geometry reaches from the centre a body rotation turns it
+        about (a body's bounding radius, boulders included): the lever arm of its spin in
+        motion blur and the sphere a trajectory must stay outside. 0 for a scene that does
+        not turn (a terrain map).
     """
 
     kind: str
     origin: np.ndarray
 
-    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """World-frame bounding box (lo, hi), each ``(3,) float64, metres``."""
+    @property
+    def reach(self) -> float:
+        """Reach of the scene's geometry from its centre of rotation (m; see above)."""
         ...
 
-    def set_body_rotation(self, quaternion: Any) -> None:
-        """The body's rotation R_WB (quaternion [w, x, y, z]) for the next frame.
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """World-frame bounding box of the scene.
 
-        Scenes that do not rotate (a terrain map) ignore it.
+        Returns
+        -------
+        lo, hi : (3,) float64, metres
+            Its smallest and largest corner.
         """
         ...
 
-    def frame_state(self, view: Any, lighting: Any, options: Any, renderer: Any) -> FrameState:
-        """What to draw for one frame: batches, shadow maps and per-frame facts."""
+    def set_body_rotation(self, quaternion: Any) -> None:
+        """Set the body's rotation for the next frame (scenes that do not rotate ignore it).
+
+        Parameters
+        ----------
+        quaternion : (4,) float
+            R_WB as [w, x, y, z], body to world.
+        """
         ...
+
+    def imposter(self, view: View, options: RenderOptions) -> Imposter | None:
+        """Whether the frame shows the scene (partly) as an imposter, and how to render it.
+
+        The renderer asks before :meth:`frame_state` ("imposter first"), renders the
+        imposter's view of the scene as geometry, then plans the frame with the request.
+
+        Parameters
+        ----------
+        view : render.renderer.View
+            The frame's camera.
+        options : render.renderer.RenderOptions
+            The frame's quality settings.
+
+        Returns
+        -------
+        Imposter or None
+            The imposter to render, or None: the frame is geometry only.
+        """
+        ...
+
+    def frame_state(self, view: View, lighting: Lighting, options: RenderOptions, gpu: Gpu,
+                    imposter: Imposter | None) -> FrameState:
+        """Plan one frame: batches in draw order, shadow maps and per-frame facts.
+
+        Parameters
+        ----------
+        view : render.renderer.View
+            The frame's camera.
+        lighting : render.renderer.Lighting
+            The sun and reflectance.
+        options : render.renderer.RenderOptions
+            The frame's quality settings.
+        gpu : Gpu
+            The handle to upload, bind and draw shadow maps with.
+        imposter : Imposter or None
+            What :meth:`imposter` asked for this view (None: draw geometry only): the
+            geometry an imposter replaces is left out.
+
+        Returns
+        -------
+        FrameState
+            The plan the renderer draws.
+        """
+        ...
+
+
+@dataclass(frozen=True)
+class Imposter:
+    """An imposter a scene asks the renderer for (the asteroid paper's distant body).
+
+    The renderer renders the scene from ``pose`` with ``intrinsics`` (a small image; the
+    camera shares the frame camera's centre), as geometry, with ``lod_pixels`` as the level
+    of detail target, and maps that image into the frame as a homography of the image plane
+    (:mod:`render.imposter`).
+
+    Parameters
+    ----------
+    pose : render.camera.Pose
+        The imposter's camera: the frame camera's centre, looking at the body.
+    intrinsics : render.camera.Intrinsics
+        Its square image.
+    lod_pixels : float
+        The level-of-detail target of its render, pixels of its image.
+    blend : float or None
+        None: the imposter replaces the geometry (radiance, range and normals). A weight in
+        [0, 1]: the frame is the geometry's, with the imposter's radiance blended in by this
+        weight where both see the body (the fade between the two).
+    """
+
+    pose: Pose
+    intrinsics: Intrinsics
+    lod_pixels: float
+    blend: float | None = None
 
 
 @dataclass(eq=False)
@@ -191,8 +428,8 @@ class Morph:
 class DrawBatch:
     """Index ranges of one vertex array to draw with one set of uniforms."""
 
-    vao: object
-    depth_vao: object
+    vao: Any
+    depth_vao: Any
     ranges: list
     world_from_model: np.ndarray = field(default_factory=lambda: np.eye(3))
     model_offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
@@ -215,17 +452,23 @@ class DrawBatch:
 class FrameState:
     """A scene's plan for one frame: batches in draw order, the far distance, what is drawn.
 
-    ``post``, if given, is called as ``post(view, radiance, range, normals)`` on the read-back
-    images (top row first) and may change them in place (imposters composite this way).
-    ``albedo``, if given, is ``(texture, (xmin, ymin, xmax, ymax))``: a float texture whose
-    value at scene-local (x, y) multiplies the albedo (or Hapke's w), the window spanning the
-    texture's outer edges.
+    Parameters
+    ----------
+    batches : list of DrawBatch
+        What to draw, in order.
+    far : float
+        Distance (m) of the farthest point the frame may show (:func:`far_plane`).
+    drawn : dict
+        Facts about what is drawn (levels, triangles, imposter state) for the frame's truth.
+    albedo : tuple, optional
+        ``(texture, (xmin, ymin, xmax, ymax))``: a float texture whose value at scene-local
+        (x, y) multiplies the albedo (or Hapke's w), the window (metres) spanning the
+        texture's outer edges.
     """
 
     batches: list
     far: float
     drawn: dict = field(default_factory=dict)
-    post: Callable[..., None] | None = None
     albedo: tuple | None = None
 
 

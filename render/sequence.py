@@ -18,6 +18,7 @@ from render.motion import Motion, render_exposure, trajectory_velocities
 from render.renderer import Renderer, View
 from render.rundir import FrameTruth, RunWriter
 from render.scenario import Scenario
+from render.scene import Scene
 from terrain.errors import InvalidParameterError
 from terrain.progress import Progress
 
@@ -40,7 +41,7 @@ def check_frame_memory(scenario: Scenario) -> None:
                    f"rendering {k.width}x{k.height} frames")
 
 
-def load_scene(scenario: Scenario):
+def load_scene(scenario: Scenario) -> Scene:
     """The scene a scenario names (a terrain layer stack or an asteroid body)."""
     spec = scenario.scene
     albedo = None if spec.albedo_map is None else scenario.resolve(spec.albedo_map)
@@ -69,7 +70,7 @@ def frame_motion(scenario: Scenario, samples, index: int):
     return replace(given, **fields)
 
 
-def render_sample(renderer: Renderer, scene, scenario: Scenario, sample, index: int,
+def render_sample(renderer: Renderer, scene: Scene, scenario: Scenario, sample, index: int,
                   samples=None, *, motion=None):
     """Render one trajectory sample: (digital image, Frame, FrameTruth).
 

@@ -543,7 +543,7 @@ class RenderServer:
             return
         r = float(np.linalg.norm(p))
         inside = r < float(self.scene.body.radii.min())
-        if not inside and r <= self.scene.radius:
+        if not inside and r <= self.scene.reach:
             rng, _, _, _, nx, ny, nz = self.cast(p, -p, t, self.scenario.lighting)
             # from outside the ray meets the near side (normal against the ray); from inside,
             # the far side's inner face (normal along it) or nothing

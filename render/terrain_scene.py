@@ -71,16 +71,17 @@ import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from render.scene import (
     MIN_LOD_DISTANCE_M,
-    NORMAL_OFFSET_TEXELS,
-    TERRAIN_BIAS_TEXELS,
-    TERRAIN_SLOPE_BIAS_TEXELS,
+    TERRAIN_SHADOW_BIAS,
     DrawBatch,
     FrameState,
+    Gpu,
+    Imposter,
     Morph,
     ShadowMap,
     box_corners,
@@ -88,10 +89,13 @@ from render.scene import (
     far_plane,
     frustum_visible,
     light_basis,
-    ortho_light,
+    render_shadow_map,
 )
 from terrain import metakeys as mk
 from terrain.errors import InvalidParameterError
+
+if TYPE_CHECKING:
+    from render.renderer import Lighting, RenderOptions, View
 
 __all__ = ["BLOCK", "FADE_PARENT_PIXELS", "MOON_RADIUS", "MORPH_BAND", "SKIRT_PIXELS",
            "TerrainScene"]
@@ -104,6 +108,14 @@ BLOCK = 64
 SKIRT_PIXELS = 8.0
 #: Caster cells in a shadow map may be this many texels wide.
 SHADOW_CELL_TEXELS = 2.0
+#: A layer's shadow map covers its extent and this many of its pixels around it, so the
+#: skirts and the receivers at its edge still find texels of their own.
+SHADOW_MARGIN_PIXELS = 2.0
+#: Extra shadow-map depth bias for coarse visible geometry, in pixels of the layer per unit
+#: of the drawn level s: a block drawn every s-th vertex (cells s pixels wide) is given a
+#: quarter of its cell, ``0.25 s`` pixels, for lying above the surface the map was drawn
+#: from (a margin found to remove the acne, not a bound).
+LOD_BIAS_PIXELS = 0.25
 #: Mean lunar radius (m), the default body radius for curvature (IAU/LOLA reference sphere).
 MOON_RADIUS = 1_737_400.0
 #: Octaves of distance over which a vertex morphs toward the next coarser level (half the
@@ -123,8 +135,7 @@ class _Layer:
     level: int
     resolution: float
     shape: tuple
-    vao: object
-    depth_vao: object
+    vbo: Any              # interleaved positions and normals of every vertex (3f 3f)
     ibos: dict            # lod -> buffer
     vaos: dict            # lod -> (vao, depth_vao)
     offsets: dict         # lod -> (n_blocks,) first index
@@ -165,6 +176,8 @@ class TerrainScene:
     """
 
     kind = "terrain"
+    #: A terrain map does not turn (:class:`render.scene.Scene`'s ``reach``).
+    reach = 0.0
 
     def __init__(self, stack, *, curvature: bool = True, radius: float | None = None,
                  albedo_map=None):
@@ -416,22 +429,57 @@ class TerrainScene:
                        & (lo[:, 1] >= discard[1]) & (hi[:, 1] <= discard[3]))
         else:
             covered = np.zeros(nby * nbx, dtype=bool)
-        layer = _Layer(k, res, (h, w), None, None, ibos, vaos, offsets, counts, lo, hi,
-                       discard, covered, (x0, y0, x1, y1), morph_vbo,
-                       (normal_tex, normal_rect))
-        layer.vbo = vbo
+        layer = _Layer(k, res, (h, w), vbo, ibos, vaos, offsets, counts, lo, hi, discard,
+                       covered, (x0, y0, x1, y1), morph_vbo, (normal_tex, normal_rect))
         return layer, surface
 
-    def _vaos(self, renderer, layer: _Layer, s: int):
-        key = (renderer.token, s)
+    def _vaos(self, gpu, layer: _Layer, s: int):
+        key = (gpu.token, s)
         if key not in layer.vaos:
-            layer.vaos[key] = renderer.vertex_arrays(layer.vbo, layer.ibos[s],
+            layer.vaos[key] = gpu.vertex_arrays(layer.vbo, layer.ibos[s],
                                                      morph=layer.morph_vbo)
         return layer.vaos[key]
 
     # ------------------------------------------------------------------ per frame
-    def frame_state(self, view, lighting, options, renderer) -> FrameState:
-        self.upload(renderer.ctx)
+    def imposter(self, view: View, options: RenderOptions) -> Imposter | None:
+        """Never: a terrain map is always drawn as geometry.
+
+        Parameters
+        ----------
+        view : render.renderer.View
+            The frame's camera.
+        options : render.renderer.RenderOptions
+            The frame's quality settings.
+
+        Returns
+        -------
+        None
+        """
+        return None
+
+    def frame_state(self, view: View, lighting: Lighting, options: RenderOptions,
+                    gpu: Gpu, imposter: Imposter | None) -> FrameState:
+        """Plan one frame: visible blocks at their levels of detail, with the layers' maps.
+
+        Parameters
+        ----------
+        view : render.renderer.View
+            The frame's camera.
+        lighting : render.renderer.Lighting
+            The sun (the shadow maps follow it).
+        options : render.renderer.RenderOptions
+            Level of detail target and triangle budget, shadows, geomorphing.
+        gpu : render.scene.Gpu
+            Uploads, vertex arrays and the shadow maps.
+        imposter : render.scene.Imposter or None
+            Always None (:meth:`imposter`).
+
+        Returns
+        -------
+        render.scene.FrameState
+            The batches (coarsest layer first) and what they draw.
+        """
+        self.upload(gpu.ctx)
         k = view.intrinsics
         cam = np.asarray(view.pose.position) - self.origin
         rot = view.pose.rotation
@@ -464,8 +512,9 @@ class TerrainScene:
             target = fits
         shadows = None
         if options.shadows and lighting is not None:
-            shadows = self._shadow_maps(renderer, lighting, options)
-        batches, drawn_layers = [], []
+            shadows = self._shadow_maps(gpu, lighting, options)
+        batches: list[DrawBatch] = []
+        drawn_layers: list[dict[str, Any]] = []
         for layer, (lods, blocks) in zip(self._layers, plan, strict=True):
             if not blocks.size:
                 continue
@@ -474,7 +523,7 @@ class TerrainScene:
             for b, s in zip(blocks, lods, strict=True):
                 by_lod.setdefault(int(s), []).append(int(b))
             for s, bl in sorted(by_lod.items()):
-                vao, dvao = self._vaos(renderer, layer, s)
+                vao, dvao = self._vaos(gpu, layer, s)
                 ranges = _merge_ranges(layer.offsets[s][bl], layer.counts[s][bl])
                 n = int(layer.counts[s][bl].sum()) // 3
                 tris += n
@@ -484,7 +533,7 @@ class TerrainScene:
                 if options.geomorph:
                     # coarser visible geometry than the shadow map saw: the shader widens
                     # the bias with the continuous level (module docstring)
-                    per_level = (0.25 * layer.resolution / shadow.depth_range_m
+                    per_level = (LOD_BIAS_PIXELS * layer.resolution / shadow.depth_range_m
                                  if shadow is not None else 0.0)
                     scale = target / (layer.resolution * focal)  # 2^lambda per metre
                     batch.morph = Morph(1, math.log2(2 * s / scale), MORPH_BAND, level=s,
@@ -493,7 +542,7 @@ class TerrainScene:
                     batch.normal_map = layer.normal_map
                 elif shadow is not None and s > 1:
                     # coarser visible geometry than the shadow map saw: widen the bias
-                    batch.shadow = _with_extra_bias(shadow, 0.25 * s * layer.resolution)
+                    batch.shadow = _with_extra_bias(shadow, LOD_BIAS_PIXELS * s * layer.resolution)
                 batches.append(batch)
             drawn_layers.append({"level": layer.level, "resolution": layer.resolution,
                                  "blocks": int(blocks.size), "triangles": tris,
@@ -503,7 +552,7 @@ class TerrainScene:
             box_corners(lo - self.origin, hi - self.origin)[0] - cam, axis=1))))
         drawn = {"layers": drawn_layers, "triangles": sum(d["triangles"] for d in drawn_layers),
                  "lod_pixels": target, "geomorph": bool(options.geomorph)}
-        return FrameState(batches, far, drawn, albedo=self._albedo(renderer.ctx))
+        return FrameState(batches, far, drawn, albedo=self._albedo(gpu.ctx))
 
     def _albedo(self, ctx):
         """(texture, scene-local window) of the albedo map, uploaded once per context."""
@@ -541,8 +590,8 @@ class TerrainScene:
                 total += int(layer.counts[int(lod)][sel].sum()) // 3
         return plan, total
 
-    def _shadow_maps(self, renderer, lighting, options):
-        key = (renderer.token, tuple(np.round(lighting.sun, 12)), options.shadow_size)
+    def _shadow_maps(self, gpu, lighting, options):
+        key = (gpu.token, tuple(np.round(lighting.sun, 12)), options.shadow_size)
         if key in self._shadow_cache:
             return self._shadow_cache[key]
         for maps in self._shadow_cache.values():
@@ -556,20 +605,17 @@ class TerrainScene:
         maps = []
         for layer in self._layers:
             receivers = box_corners(layer.lo.min(axis=0), layer.hi.max(axis=0))[0]
-            clip, light, extent, depth, window = ortho_light(lighting.sun, receivers, casters,
-                                                             margin=2 * layer.resolution)
-            texel = extent / size
-            tex, fbo = renderer.shadow_target(size)
-            batches = self._depth_batches(renderer, texel, basis, window)
-            renderer.render_depth(fbo, size, clip, batches)
-            maps.append(ShadowMap(tex, size, light, normal_offset=NORMAL_OFFSET_TEXELS * texel,
-                                  bias=TERRAIN_BIAS_TEXELS * texel / depth,
-                                  slope_bias=TERRAIN_SLOPE_BIAS_TEXELS * texel / depth,
-                                  texel_m=texel, depth_range_m=depth, framebuffer=fbo))
+
+            def draw(extent, window, size=size):
+                return self._depth_batches(gpu, extent / size, basis, window)
+
+            maps.append(render_shadow_map(gpu, None, size, lighting.sun, receivers, casters,
+                                          margin=SHADOW_MARGIN_PIXELS * layer.resolution,
+                                          bias=TERRAIN_SHADOW_BIAS, draw=draw))
         self._shadow_cache[key] = maps
         return maps
 
-    def _depth_batches(self, renderer, texel, basis, window):
+    def _depth_batches(self, gpu, texel, basis, window):
         """The blocks that can cast into a shadow map, at the detail its texel (m) resolves.
 
         An orthographic map sees a caster only where the caster's light-space x-y overlaps
@@ -589,7 +635,7 @@ class TerrainScene:
             blocks = np.flatnonzero(~layer.covered & overlap)
             if not blocks.size:
                 continue
-            vao, dvao = self._vaos(renderer, layer, s)
+            vao, dvao = self._vaos(gpu, layer, s)
             ranges = _merge_ranges(layer.offsets[s][blocks], layer.counts[s][blocks])
             batches.append(DrawBatch(vao, dvao, ranges, discard=layer.discard))
         return batches
