@@ -12,13 +12,12 @@ Boulders: every boulder exists at each refinement level of its icosahedron
 below ``lod_pixels`` at its distance, skips boulders smaller than :data:`MIN_BOULDER_PIXELS`
 and culls the rest against the frustum.
 
-Imposter: when the body spans fewer than ``imposter_pixels`` pixels, it is rendered once per
+Imposter: when the body spans fewer than ``imposter_pixels`` pixels, the scene asks the
+renderer for an imposter (:meth:`AsteroidScene.imposter`): the body is rendered once per
 frame into a small texture by a camera at the same position looking at its centre, and that
-texture is drawn on a camera-facing quad through the body's centre (the asteroid paper's
-imposter). Because both cameras share their centre, the quad's image is the imposter image
-mapped by a homography, which is how it is composited here; range and normals come from the
-imposter's nearest texel (range is measured from the same centre, so it stays the true
-range), radiance is interpolated.
+texture stands for a camera-facing quad through the body's centre (the asteroid paper's
+imposter), composited by the renderer (:mod:`render.imposter`: range and normals from the
+imposter's nearest texel, so range stays the true range; radiance interpolated).
 
 Seamless level of detail (the terrain's geomorphing, :mod:`render.terrain_scene`, carried
 over): every body level but the coarsest carries, per vertex, the next coarser level's
@@ -57,9 +56,10 @@ import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
 
 from render.camera import Intrinsics, look_at, quat_to_matrix
 from render.scene import (
@@ -76,6 +76,7 @@ from render.scene import (
 from terrain.errors import InvalidParameterError
 
 if TYPE_CHECKING:
+    from asteroid.body import Body, NativeModel
     from asteroid.boulders import Boulders
     from render.renderer import Lighting, RenderOptions, View
 
@@ -113,6 +114,9 @@ NORMAL_CUBE_SIZE = 512
 #: Shadow casters are drawn at the coarsest body level whose vertex spacing stays below this
 #: many shadow-map texels.
 SHADOW_CELL_TEXELS = 2.0
+#: An icosahedron of radius r refined l times has edges of about this times ``r / 2^l`` (the
+#: unrefined edge is ``r / sin(2 pi / 5)`` = 1.0515 r): boulder levels are chosen by it.
+ICOSAHEDRON_EDGE = 1.05
 
 
 @dataclass(eq=False)
@@ -148,17 +152,26 @@ class AsteroidScene:
 
     Parameters
     ----------
-    body : path of a native ``.npz``, an :class:`asteroid.body.NativeModel` or a Body
+    body : str, pathlib.Path, asteroid.body.NativeModel or asteroid.body.Body
+        A native ``.npz`` (with its boulders), a loaded one, or a bare body.
     boulders : bool
         Draw the boulders stored with the body.
     imposter_pixels : float
-        Below this on-screen diameter the body is drawn as an imposter.
+        Below this on-screen diameter (pixels) the body is drawn as an imposter.
+    albedo : (n,) float or path of a ``.npy``, optional
+        Albedo factor per body vertex (multiplies the albedo, or Hapke's w).
+
+    Attributes
+    ----------
+    reach : float, metres
+        Bounding radius about the centre, boulders included.
     """
 
     kind = "asteroid"
 
-    def __init__(self, body, *, boulders: bool = True, imposter_pixels: float = 24.0,
-                 albedo=None):
+    def __init__(self, body: str | Path | NativeModel | Body, *, boulders: bool = True,
+                 imposter_pixels: float = 24.0,
+                 albedo: np.ndarray | str | Path | None = None) -> None:
         from asteroid.body import Body, NativeModel, load_native
         from asteroid.build import boulders_of
 
@@ -185,11 +198,11 @@ class AsteroidScene:
             c = self.boulders.catalog
             centres = np.column_stack([c["x_m"], c["y_m"], c["z_m"]])
             self.reach = max(self.reach, float(np.linalg.norm(centres, axis=1).max()
-                                                 + c["diameter_m"].max()))
+                                               + c["diameter_m"].max()))
         self._gpu: dict = {}
         self._shadow: ShadowMap | None = None
         self._fine: list = []
-        self.albedo = None
+        self.albedo: np.ndarray | None = None
         if albedo is not None:
             if isinstance(albedo, (str, Path)):
                 albedo = np.load(Path(albedo))
@@ -201,8 +214,10 @@ class AsteroidScene:
             self.albedo = a
 
     def _albedo_on(self, mesh):
-        """The body's per-vertex albedo factors carried to another level's vertices
-        (interpolated inside the fine triangle holding each direction), or None."""
+        """Carry the body's albedo factors to another level's vertices (or None).
+
+        Each is interpolated inside the fine triangle holding its direction.
+        """
         if self.albedo is None:
             return None
         if mesh.magnitude == self.body.magnitude:
@@ -211,15 +226,39 @@ class AsteroidScene:
         return ((self.albedo[idx] * w).sum(axis=1) / w.sum(axis=1)).astype(np.float32)
 
     # ------------------------------------------------------------------ geometry
-    def set_body_rotation(self, quaternion) -> None:
-        """Rotation R_WB (quaternion [w, x, y, z]) for the next frame."""
+    def set_body_rotation(self, quaternion: Any) -> None:
+        """Set the body's rotation for the next frame.
+
+        Parameters
+        ----------
+        quaternion : (4,) float
+            R_WB as [w, x, y, z], body to world.
+        """
         self.rotation = quat_to_matrix(quaternion)
 
-    def to_world(self, points) -> np.ndarray:
-        """Body-frame points (n, 3) to the world frame with the current rotation."""
+    def to_world(self, points: npt.ArrayLike) -> np.ndarray:
+        """Map body-frame points to the world frame with the current rotation.
+
+        Parameters
+        ----------
+        points : (n, 3) float, metres
+            Body-frame points.
+
+        Returns
+        -------
+        (n, 3) float64, metres
+            World-frame points.
+        """
         return np.atleast_2d(points) @ self.rotation.T
 
-    def bounds(self):
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """World-frame bounding box: the cube of the body's reach about its centre.
+
+        Returns
+        -------
+        lo, hi : (3,) float64, metres
+            Its smallest and largest corner.
+        """
         return -np.full(3, self.reach), np.full(3, self.reach)
 
     # ------------------------------------------------------------------ GPU
@@ -298,7 +337,7 @@ class AsteroidScene:
         return item.vaos[key]
 
     def _rocks(self) -> Boulders:
-        """The boulders (only called where there are some)."""
+        """Return the boulders (only called where there are some)."""
         assert self.boulders is not None
         return self.boulders
 
@@ -314,7 +353,7 @@ class AsteroidScene:
 
     # ------------------------------------------------------------------ per frame
     def imposter(self, view: View, options: RenderOptions) -> Imposter | None:
-        """The imposter this view shows the body as, if any (see the module docstring).
+        """Tell whether this view shows the body as an imposter (see the module docstring).
 
         Below ``imposter_pixels`` across the body is an imposter; with geomorphing on, between
         that and :data:`IMPOSTER_FADE` times it the imposter's radiance fades in.
@@ -339,7 +378,7 @@ class AsteroidScene:
         if not dist > self.reach * IMPOSTER_MIN_DISTANCE:
             return None
         focal = max(k.fx, k.fy)
-        span = 2.0 * focal * math.tan(math.asin(min(self.reach / max(dist, 1e-9), 1.0)))
+        span = 2.0 * focal * math.tan(math.asin(min(self.reach / dist, 1.0)))
         blend: float | None = None
         if span < self.imposter_pixels:
             blend = None
@@ -441,8 +480,7 @@ class AsteroidScene:
         px = 2 * radius * focal / dist
         vis = _sphere_visible(rel, radius, k) & (px >= MIN_BOULDER_PIXELS)
         n_levels = self.boulders.settings.levels
-        # an icosahedron refined l times has edges of about 1.05 r / 2^l
-        wanted = np.ceil(np.log2(np.maximum(1.05 * radius * focal / dist
+        wanted = np.ceil(np.log2(np.maximum(ICOSAHEDRON_EDGE * radius * focal / dist
                                             / options.lod_pixels, 1.0)))
         level = np.clip(wanted, 0, n_levels - 1).astype(int)
         counts, tris = {}, 0
@@ -471,7 +509,7 @@ class AsteroidScene:
         return tris, counts
 
     def _fine_batch(self, gpu, level: int, indices: np.ndarray, shadow) -> DrawBatch:
-        """A throw-away vertex array of the given boulders at a fine level of detail."""
+        """Build a throw-away vertex array of the given boulders at a fine level of detail."""
         from asteroid.boulders import subdivision
         from render.mesh_scene import vertex_normals
 
@@ -525,8 +563,11 @@ class AsteroidScene:
 
 
 def _normal_cube(ctx, mesh, radii, normals):
-    """A cube map of the finest level's normals by body-frame direction (module docstring):
-    each texel holds the normal interpolated on the triangle its direction meets."""
+    """Build a cube map of the finest level's normals by body-frame direction.
+
+    Each texel holds the normal interpolated on the triangle its direction meets (module
+    docstring).
+    """
     import moderngl
 
     n = NORMAL_CUBE_SIZE
@@ -546,8 +587,10 @@ def _normal_cube(ctx, mesh, radii, normals):
 
 
 def _coarser_surface(directions, coarse, c_radii, c_normals) -> np.ndarray:
-    """(n, 7) morph targets of a body level: the coarser level's surface along each vertex's
-    direction (the flat triangle the ray meets), key 1, and the interpolated normal.
+    """Give the (n, 7) morph targets of a body level's vertices.
+
+    The coarser level's surface along each vertex's direction (the flat triangle the ray
+    meets), key 1, and the interpolated normal.
 
     In the coarser triangle whose cone holds u, ``u = a A + b B + c C``; the ray meets the
     plane through the radii at ``t = 1 / (a / r_A + b / r_B + c / r_C)`` with barycentric
@@ -589,15 +632,18 @@ def _boulder_targets(verts, normals, level: int, centres, radii, levels: int) ->
         old = 10 * 4 ** (level - 1) + 2
         out[:, old:, :3] = 0.5 * (v[:, par[:, 0]] + v[:, par[:, 1]])
         out[:, old:, 4:] = 0.5 * (nn[:, par[:, 0]] + nn[:, par[:, 1]])
-        out[..., 3] = (np.log2(1.05 * radii) - (level - 1))[:, None]
+        out[..., 3] = (np.log2(ICOSAHEDRON_EDGE * radii) - (level - 1))[:, None]
     return out.reshape(-1, 7)
 
 
 def _boulder_morph(level: int, focal: float, options) -> Morph | None:
-    """The morph of a boulder batch: a boulder of radius r is drawn at level l while
-    ``1.05 r focal / (d lod_pixels)`` exceeds ``2^(l - 1)``, and not at all once
-    ``2 r focal / d`` drops below :data:`MIN_BOULDER_PIXELS`; each vertex's key adds its
-    boulder's part of the threshold distance (``log2`` metres)."""
+    """Give the morph of a boulder batch drawn at ``level``.
+
+    A boulder of radius r is drawn at level l while ``1.05 r focal / (d lod_pixels)``
+    exceeds ``2^(l - 1)`` (:data:`ICOSAHEDRON_EDGE`), and not at all once ``2 r focal / d``
+    drops below :data:`MIN_BOULDER_PIXELS`; each vertex's key adds its boulder's part of the
+    threshold distance (``log2`` metres).
+    """
     if not options.geomorph:
         return None
     if level == 0:

@@ -15,7 +15,7 @@ __all__ = ["render"]
 
 
 def _largest_image_side() -> int:
-    """The largest image side a scenario may ask for (imported when an option is read)."""
+    """Return the largest image side a scenario may ask for (imported when an option is read)."""
     from render.scenario import MAX_IMAGE_SIDE
 
     return MAX_IMAGE_SIDE
@@ -57,8 +57,11 @@ def sequence(scenario_file, output, frames, resolution, resume):
 @click.option("--index", type=int, default=None, help="Trajectory frame to render (default 0).")
 @click.option("--resolution", type=RESOLUTION, default=None, help="Override the image size.")
 def frame(scenario_file, output, index, resolution):
-    """Render one view of a scenario: OUT.png, OUT_range.tif, OUT_normals.tif, OUT_truth.json
-    (and OUT_radiance.tif where [output] radiance is on)."""
+    """Render one view of a scenario.
+
+    Writes OUT.png, OUT_range.tif, OUT_normals.tif, OUT_truth.json (and OUT_radiance.tif
+    where [output] radiance is on).
+    """
     from render.renderer import Renderer
     from render.scenario import load_scenario
     from render.sequence import check_frame_memory, load_scene, render_sample

@@ -18,9 +18,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
 
 from render.camera import quat_to_matrix
 from render.scene import (
@@ -45,7 +46,20 @@ CHUNK = 4096
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted vertex normals (n, 3) float64 of a triangle mesh."""
+    """Give the area-weighted vertex normals of a triangle mesh.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float, metres
+        Vertex positions.
+    faces : (m, 3) int
+        Vertex indices of each triangle, outward-wound.
+
+    Returns
+    -------
+    (n, 3) float64
+        Unit normals (zero for a vertex no face uses).
+    """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
@@ -86,9 +100,12 @@ class MeshScene:
 
     Parameters
     ----------
-    vertices : (n, 3) float, metres, body frame
-    faces : (m, 3) int, outward-wound (counter-clockwise seen from outside)
-    centre : (3,) world position of the body's origin (default: the world origin)
+    vertices : (n, 3) float, metres
+        Vertex positions, body frame.
+    faces : (m, 3) int
+        Vertex indices of each triangle, outward-wound (counter-clockwise seen from outside).
+    centre : (3,) float, metres
+        World position of the body's origin (default: the world origin).
     albedo : (n,) float, optional
         Albedo factor per vertex (multiplies the albedo, or Hapke's w; interpolated across
         faces).
@@ -96,17 +113,29 @@ class MeshScene:
 
     kind = "mesh"
 
-    def __init__(self, vertices, faces, *, centre=(0.0, 0.0, 0.0), albedo=None):
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, *,
+                 centre: tuple[float, float, float] | np.ndarray = (0.0, 0.0, 0.0),
+                 albedo: np.ndarray | None = None) -> None:
         self.origin = np.asarray(centre, dtype=np.float64).reshape(3)
         self.rotation = np.eye(3)
-        self._meshes = []
+        self._meshes: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]] = []
         self._gpu: dict = {}
-        self._shadow = None
+        self._shadow: ShadowMap | None = None
         self.add_lod(vertices, faces, albedo=albedo)
 
-    def add_lod(self, vertices, faces, *, albedo=None) -> None:
-        """Add a (coarser) level of detail of the same body (``albedo``: one factor per
-        vertex, or None)."""
+    def add_lod(self, vertices: np.ndarray, faces: np.ndarray, *,
+                albedo: np.ndarray | None = None) -> None:
+        """Add a (coarser) level of detail of the same body.
+
+        Parameters
+        ----------
+        vertices : (n, 3) float, metres
+            Vertex positions, body frame.
+        faces : (m, 3) int
+            Vertex indices of each triangle, outward-wound.
+        albedo : (n,) float, optional
+            Albedo factor per vertex.
+        """
         v = np.asarray(vertices, dtype=np.float64)
         f = np.asarray(faces, dtype=np.int64)
         if v.ndim != 2 or v.shape[1] != 3 or not np.all(np.isfinite(v)):
@@ -129,15 +158,39 @@ class MeshScene:
         """Farthest distance (m) of the finest mesh's vertices from the body's centre."""
         return float(np.linalg.norm(self._meshes[0][0], axis=1).max())
 
-    def set_body_rotation(self, quaternion) -> None:
-        """Rotation R_WB of the body for the next frame."""
+    def set_body_rotation(self, quaternion: Any) -> None:
+        """Set the body's rotation for the next frame.
+
+        Parameters
+        ----------
+        quaternion : (4,) float
+            R_WB as [w, x, y, z], body to world.
+        """
         self.rotation = quat_to_matrix(quaternion)
 
-    def to_world(self, points) -> np.ndarray:
-        """Body-frame points (n, 3) to the world frame with the current rotation."""
+    def to_world(self, points: npt.ArrayLike) -> np.ndarray:
+        """Map body-frame points to the world frame with the current rotation.
+
+        Parameters
+        ----------
+        points : (n, 3) float, metres
+            Body-frame points.
+
+        Returns
+        -------
+        (n, 3) float64, metres
+            World-frame points.
+        """
         return np.atleast_2d(points) @ self.rotation.T + self.origin
 
-    def bounds(self):
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """World-frame bounding box: the cube of the body's reach about its centre.
+
+        Returns
+        -------
+        lo, hi : (3,) float64, metres
+            Its smallest and largest corner.
+        """
         r = self.reach
         return self.origin - r, self.origin + r
 

@@ -44,8 +44,14 @@ __all__ = ["Frame", "Lighting", "RenderOptions", "Renderer", "SceneGpu", "View",
 
 log = logging.getLogger(__name__)
 
-#: Nearest depth the logarithmic depth buffer resolves (m).
+#: Nearest depth the logarithmic depth buffer resolves (m): the near clip plane.
 LOG_NEAR = 0.01
+#: Smallest far distance (m) the logarithmic depth is scaled to: a scene whose farthest
+#: point is closer (or an empty one) still gets a well-defined ``log(far / near)``.
+MIN_FAR_M = 1.0
+#: Image sizes whose offscreen framebuffers are kept at once (a frame, its imposter, and
+#: the sizes of a client switching between a few).
+MAX_TARGETS = 4
 #: Solar spectral irradiance at 1 au near 643 nm (W m^-2 nm^-1), the LROC WAC red band of
 #: :data:`render.reflectance.SATO_643NM`: approximately the ASTM E-490 AM0 spectrum there.
 SOLAR_643NM = 1.58
@@ -57,10 +63,25 @@ _TOKENS = itertools.count(1)
 class Lighting:
     """Sun direction (unit vector towards the sun, world frame), albedo and reflectance.
 
-    ``hapke``: the Hapke parameters where ``brdf`` is "hapke". ``irradiance``: the solar
-    spectral irradiance at 1 au (W m^-2 nm^-1) in the camera's band and ``distance`` the body's
-    distance from the Sun (au); :attr:`spectral_irradiance` is their ratio to ``distance^2``,
-    what turns I/F into radiance (:meth:`radiance`).
+    :attr:`spectral_irradiance` (``irradiance / distance^2``) turns I/F into radiance
+    (:meth:`radiance`).
+
+    Parameters
+    ----------
+    sun : (3,) float
+        Direction towards the sun, world frame (normalised when built).
+    albedo : float
+        Normal albedo in [0, 1] (the Lambert and Lommel-Seeliger laws' factor).
+    brdf : str
+        Reflectance law (:data:`render.reflectance.BRDF_CODES`).
+    mcewen : tuple of float
+        McEwen's lunar-Lambert phase polynomial.
+    hapke : render.reflectance.Hapke
+        The Hapke parameters where ``brdf`` is "hapke".
+    irradiance : float
+        Solar spectral irradiance at 1 au in the camera's band, W m^-2 nm^-1.
+    distance : float
+        The body's distance from the Sun, au.
     """
 
     sun: tuple
@@ -94,16 +115,42 @@ class Lighting:
         return self.irradiance / self.distance**2
 
     def radiance(self, i_over_f: np.ndarray) -> np.ndarray:
-        """Spectral radiance (W m^-2 sr^-1 nm^-1) of an I/F image: ``I/F F / pi``, where F is
-        the solar spectral irradiance at the body (I/F is radiance over that of a perfect
-        diffuser lit at normal incidence, F / pi)."""
+        """Convert an I/F image to spectral radiance: ``I/F F / pi``.
+
+        F is the solar spectral irradiance at the body (I/F is radiance over that of a
+        perfect diffuser lit at normal incidence, F / pi).
+
+        Parameters
+        ----------
+        i_over_f : (h, w) float
+            Reflectance factor I/F.
+
+        Returns
+        -------
+        (h, w) float32
+            Spectral radiance, W m^-2 sr^-1 nm^-1.
+        """
         return np.asarray(i_over_f, dtype=np.float32) * np.float32(
             self.spectral_irradiance / math.pi)
 
     @classmethod
-    def from_angles(cls, azimuth_deg: float, elevation_deg: float, **kwargs) -> Lighting:
-        """Sun at an azimuth (degrees clockwise from north, +y) and elevation above the x-y
-        plane."""
+    def from_angles(cls, azimuth_deg: float, elevation_deg: float, **kwargs: Any) -> Lighting:
+        """Build the lighting of a sun at an azimuth and elevation.
+
+        Parameters
+        ----------
+        azimuth_deg : float
+            Degrees clockwise from north (+y) towards east (+x).
+        elevation_deg : float
+            Degrees above the x-y plane.
+        **kwargs
+            The other fields of :class:`Lighting`.
+
+        Returns
+        -------
+        Lighting
+            The sun at that direction.
+        """
         az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
         return cls((math.sin(az) * math.cos(el), math.cos(az) * math.cos(el), math.sin(el)),
                    **kwargs)
@@ -111,7 +158,17 @@ class Lighting:
 
 @dataclass(frozen=True)
 class View:
-    """Where the camera is and what it is: pose, intrinsics and time (s)."""
+    """Where the camera is and what it is.
+
+    Parameters
+    ----------
+    pose : render.camera.Pose
+        World-frame camera centre and attitude.
+    intrinsics : render.camera.Intrinsics
+        Image size and pinhole.
+    time : float
+        Seconds since the sequence's start.
+    """
 
     pose: Pose
     intrinsics: Intrinsics
@@ -122,12 +179,23 @@ class View:
 class RenderOptions:
     """Quality and cost settings of a frame.
 
-    ``lod_pixels``: target on-screen size (pixels) of a terrain cell; terrain blocks are drawn
-    at the coarsest level of detail that keeps cells below it. ``triangle_budget``: the most
-    triangles a frame may draw; the target is relaxed until the frame fits.
-    ``geomorph``: levels of detail change continuously (vertices morph toward the coarser
-    level over a band of distance, see :mod:`render.terrain_scene`); off, they switch.
+    Parameters
+    ----------
+    shadows : bool
+        Draw shadow maps.
+    shadow_size : int
+        Side of each shadow map, texels (64 to 8192).
+    lod_pixels : float
+        Target on-screen size (pixels) of a cell; terrain blocks and bodies are drawn at the
+        coarsest level of detail that keeps cells below it.
+    triangle_budget : int
+        The most triangles a terrain frame may draw; the target is relaxed until it fits.
+    geomorph : bool
+        Levels of detail change continuously (vertices morph toward the coarser level over a
+        band of distance, see :mod:`render.terrain_scene`); off, they switch.
 
+    Notes
+    -----
     These defaults are the only ones: a scenario's ``[render]`` table falls back to them
     (they are the values scenarios have always used; the 3.0 / 1,000,000 this class once
     had applied only to direct library calls).
@@ -152,23 +220,49 @@ class RenderOptions:
 
 @dataclass(eq=False)
 class Frame:
-    """What one frame produced (all (height, width), top row first)."""
+    """What one frame produced (images top row first).
 
-    radiance: np.ndarray     # float32, reflectance factor I/F under a unit sun
-    range: np.ndarray        # float32 metres along the ray; NaN where nothing was hit
-    normals: np.ndarray      # (h, w, 3) float32 world frame; NaN where nothing was hit
+    Parameters
+    ----------
+    radiance : (h, w) float32
+        Reflectance factor I/F under a unit sun.
+    range : (h, w) float32, metres
+        Distance along each pixel's ray from the camera centre; NaN where nothing was hit.
+    normals : (h, w, 3) float32
+        World-frame unit surface normals; NaN where nothing was hit.
+    drawn : dict
+        What the scene drew (levels of detail, triangles, imposter state).
+    """
+
+    radiance: np.ndarray
+    range: np.ndarray
+    normals: np.ndarray
     drawn: dict = field(default_factory=dict)
 
 
 def clip_from_camera(intrinsics: Intrinsics, near: float, far: float) -> np.ndarray:
-    """(4, 4) clip-space matrix acting on OpenCV camera coordinates (X, Y, Z, 1).
+    """Give the clip-space matrix acting on OpenCV camera coordinates (X, Y, Z, 1).
 
     Pixel (u, v) with v counted from the top maps to the centre of framebuffer texel
     (u, h - 1 - v): ``x_ndc = (2u + 1) / w - 1``, ``y_ndc = 1 - (2v + 1) / h``. Clip z only
     clips at the near plane: ``z_ndc = 1 - 2 near / Z`` is an infinite-far projection, so no
     far plane can cut distant geometry through float32 rounding (a finite far plane with a
     near plane of 1 cm loses whole bodies at 100 km that way); depth itself is written
-    logarithmically by the fragment shader. ``far`` is accepted for symmetry and unused.
+    logarithmically by the fragment shader.
+
+    Parameters
+    ----------
+    intrinsics : render.camera.Intrinsics
+        Image size and pinhole.
+    near : float
+        Near clip distance, metres.
+    far : float
+        Accepted for symmetry and unused.
+
+    Returns
+    -------
+    (4, 4) float64
+        Clip from camera coordinates.
     """
     k = intrinsics
     w, h = k.width, k.height
@@ -309,9 +403,16 @@ class SceneGpu:
 
 
 class Renderer:
-    """Holds the GL programs and offscreen framebuffers; renders scenes frame by frame."""
+    """Holds the GL programs and offscreen framebuffers; renders scenes frame by frame.
 
-    def __init__(self, ctx=None):
+    Parameters
+    ----------
+    ctx : moderngl.Context, optional
+        The context to render with (default: a new headless one,
+        :func:`render.context.create_context`).
+    """
+
+    def __init__(self, ctx: Any = None) -> None:
         self.ctx = ctx or create_context()
         self.scene_program = self.ctx.program(vertex_shader=_shader("scene.vert"),
                                               fragment_shader=_shader("scene.frag"))
@@ -329,12 +430,15 @@ class Renderer:
                                                                      6).tobytes(), dtype="f2")
 
     # ------------------------------------------------------------------ framebuffers
-    def _target(self, size):
-        """The offscreen framebuffer for an image size (kept per size: an imposter renders a
-        small image while a full-size frame is being planned)."""
+    def _target(self, size: tuple[int, ...]) -> Any:
+        """Return the offscreen framebuffer for an image size.
+
+        Kept per size (an imposter renders a small image just before a full-size frame), at
+        most :data:`MAX_TARGETS` sizes, the oldest dropped first.
+        """
         size = tuple(size)
         if size not in self._fbos:
-            if len(self._fbos) >= 4:  # drop the oldest size
+            if len(self._fbos) >= MAX_TARGETS:  # drop the oldest size
                 old = next(iter(self._fbos))
                 fbo = self._fbos.pop(old)
                 for tex in fbo.color_attachments:
@@ -406,7 +510,7 @@ class Renderer:
         k = view.intrinsics
         ctx = self.ctx
         state = scene.frame_state(view, lighting, options, self.gpu, imposter)
-        far = max(state.far, 1.0)
+        far = max(state.far, MIN_FAR_M)
         origin = np.asarray(scene.origin, dtype=np.float64)
         cam = np.asarray(view.pose.position, dtype=np.float64) - origin  # scene-local
         r_cw = view.pose.rotation.T

@@ -82,6 +82,7 @@ import difflib
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 from render.camera import Intrinsics
 from render.motion import Motion
@@ -219,7 +220,7 @@ class SceneSpec:
 
     @classmethod
     def from_mapping(cls, table: dict) -> SceneSpec:
-        """The record of a ``[scene]`` table; unknown keys are errors naming the nearest.
+        """Build the record of a ``[scene]`` table; unknown keys are errors naming the nearest.
 
         Parameters
         ----------
@@ -259,7 +260,7 @@ class SceneSpec:
         return cls(**values)
 
     def inputs(self) -> tuple[str, ...]:
-        """The files and folders the scene reads (relative to the scenario file).
+        """List the files and folders the scene reads (relative to the scenario file).
 
         Returns
         -------
@@ -310,7 +311,7 @@ class TrajectorySpec:
 
     @classmethod
     def from_mapping(cls, table: dict) -> TrajectorySpec:
-        """The record of a ``[trajectory]`` table; unknown keys are errors naming the nearest.
+        """Build the record of a ``[trajectory]`` table; an unknown key names the nearest.
 
         Parameters
         ----------
@@ -390,15 +391,42 @@ class Scenario:
     # {"blur": bool, "given": the velocity keys set in [motion], "motion": Motion}
     motion: dict = field(default_factory=dict)
 
-    def resolve(self, value) -> Path:
-        """A path from the scenario, relative to the scenario file."""
+    def resolve(self, value: str | Path) -> Path:
+        """Resolve a path the scenario names.
+
+        Parameters
+        ----------
+        value : str or pathlib.Path
+            A path, absolute or relative to the scenario file.
+
+        Returns
+        -------
+        pathlib.Path
+            The path itself when absolute (or when the scenario has no file), else joined
+            to the scenario file's folder.
+        """
         p = Path(value)
         if not p.is_absolute() and self.path is not None:
             p = self.path.parent / p
         return p
 
-    def with_overrides(self, frames=None, resolution=None) -> Scenario:
-        """Copy with the frame count and/or the image size changed (field of view kept)."""
+    def with_overrides(self, frames: int | None = None,
+                       resolution: tuple[int, int] | None = None) -> Scenario:
+        """Copy the scenario with the frame count and/or the image size changed.
+
+        Parameters
+        ----------
+        frames : int, optional
+            The trajectory's frame count (positive).
+        resolution : (int, int), optional
+            ``(width, height)`` pixels; the field of view is kept (focal lengths and
+            principal point scale with the image).
+
+        Returns
+        -------
+        Scenario
+            The changed copy.
+        """
         traj = self.trajectory
         if frames is not None:
             if frames < 1:
@@ -412,8 +440,20 @@ class Scenario:
                            (k.cy + 0.5) * sy - 0.5)
         return replace(self, intrinsics=k, trajectory=traj)
 
-    def samples(self, scene) -> list[Sample]:
-        """The trajectory's frames for a loaded scene."""
+    def samples(self, scene: Any) -> list[Sample]:
+        """Sample the trajectory's frames for a loaded scene.
+
+        Parameters
+        ----------
+        scene : render.scene.Scene
+            The scene the scenario names (a descent needs a terrain scene's ``site`` and
+            ``height_at``; an approach stays outside the scene's ``reach``).
+
+        Returns
+        -------
+        list of render.trajectory.Sample
+            One pose, time and body rotation per frame.
+        """
         t = self.trajectory
         kind = t.type
         frames = int(t.frames)

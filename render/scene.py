@@ -49,10 +49,17 @@ FAR_SLACK_M = 1.0
 #: Smallest distance (m) a level-of-detail choice divides by: the camera touching a bounding
 #: box still gives a finite on-screen size.
 MIN_LOD_DISTANCE_M = 1e-3
+#: Metres a shadow map's depth range extends beyond its nearest caster and its farthest
+#: receiver (after any margin), so neither lies on a clip plane where depth rounding could
+#: clip it.
+LIGHT_DEPTH_SLACK_M = 1.0
+#: Smallest side (m) of a shadow map's footprint: receivers all on one light ray still give
+#: an invertible projection.
+MIN_LIGHT_EXTENT_M = 1e-6
 
 
 def far_plane(farthest: float) -> float:
-    """The far clip distance for a scene whose farthest point is ``farthest`` metres away.
+    """Give the far clip distance for a scene whose farthest point is ``farthest`` away.
 
     Parameters
     ----------
@@ -383,11 +390,28 @@ class Imposter:
 class ShadowMap:
     """An orthographic depth map from the sun and how to look it up.
 
-    ``light_from_world`` maps scene-local coordinates (world minus the scene origin) to
-    texture coordinates and depth in [0, 1]. Biases are in depth units.
+    Parameters
+    ----------
+    texture : moderngl.Texture
+        The ``size`` x ``size`` depth texture (compares ``<=``, bilinear).
+    size : int
+        Its side, texels.
+    light_from_world : (4, 4) float64
+        Scene-local coordinates (world minus the scene origin, metres) to texture
+        coordinates and depth, each in [0, 1].
+    normal_offset : float
+        Metres along the receiver's normal the lookup moves.
+    bias, slope_bias : float
+        Constant and slope-scaled depth bias, in depth units (fractions of the depth range).
+    texel_m : float
+        Side of a texel, metres.
+    depth_range_m : float
+        Depth the map spans, metres.
+    framebuffer : moderngl.Framebuffer, optional
+        The framebuffer it is drawn through (None for a copy that shares the texture).
     """
 
-    texture: object
+    texture: Any
     size: int
     light_from_world: np.ndarray
     normal_offset: float
@@ -395,9 +419,10 @@ class ShadowMap:
     slope_bias: float
     texel_m: float = 0.0
     depth_range_m: float = 1.0
-    framebuffer: object = None
+    framebuffer: Any = None
 
-    def release(self):
+    def release(self) -> None:
+        """Release the map's texture and framebuffer on the GPU."""
         if self.framebuffer is not None:
             self.framebuffer.release()
         self.texture.release()
@@ -408,11 +433,24 @@ class Morph:
     """How a batch's vertices morph toward the next coarser level of detail.
 
     The vertex buffer's morph attributes hold each vertex's position on the coarser level and
-    a key (``Renderer.vertex_arrays``). ``mode`` 1: vertices whose key equals ``level`` morph,
-    completing at distance ``2^k`` metres; mode 2: every vertex morphs, completing at
-    ``2^(k + key)``. ``band``: octaves of distance the morph takes. ``scale``, ``top`` and
-    ``bias_per_level`` widen a terrain shadow map's bias with the continuous level
-    ``clamp(scale * d, level, top)`` (0: no extra bias).
+    a key (:meth:`Gpu.vertex_arrays`).
+
+    Parameters
+    ----------
+    mode : int
+        1: vertices whose key equals ``level`` morph, completing at distance ``2^k`` metres;
+        2: every vertex morphs, completing at ``2^(k + key)`` metres.
+    k : float
+        log2 of the distance (m) where the morph completes (mode 1), or its common part
+        (mode 2).
+    band : float
+        Octaves of distance the morph takes.
+    level : float
+        The level of detail drawn (mode 1).
+    scale, top, bias_per_level : float
+        Widen a terrain shadow map's bias by ``bias_per_level`` (depth units) per unit of
+        the continuous level ``clamp(scale * d, level, top)``, d the distance in metres
+        (0: no extra bias).
     """
 
     mode: int
@@ -426,7 +464,38 @@ class Morph:
 
 @dataclass(eq=False)
 class DrawBatch:
-    """Index ranges of one vertex array to draw with one set of uniforms."""
+    """Index ranges of one vertex array to draw with one set of uniforms.
+
+    Parameters
+    ----------
+    vao, depth_vao : moderngl.VertexArray
+        The mesh bound to the camera and the depth programs (:meth:`Gpu.vertex_arrays`);
+        ``vao`` is None in a batch only shadow maps draw.
+    ranges : list of (int, int)
+        ``(first, count)`` index ranges to draw.
+    world_from_model : (3, 3) float64
+        Rotation of the mesh into the world frame (R_WB for a body).
+    model_offset : (3,) float64, metres
+        Where the mesh's origin lies, scene-local.
+    discard : (4,) float, optional
+        ``(xmin, ymin, xmax, ymax)`` scene-local metres: fragments inside are discarded
+        (a finer terrain layer draws there).
+    shadow : ShadowMap, optional
+        The map the batch's fragments look up.
+    triangles : int
+        Triangles drawn (for the frame's facts).
+    vertex_albedo : bool
+        The vertex array binds a per-vertex albedo factor.
+    morph : Morph, optional
+        Geomorphing of the batch's vertices (see ``render/shaders/scene.vert``).
+    normal_map : tuple, optional
+        Shading normals from a texture instead of the vertices: ``(texture, (x0, y0,
+        1/width, 1/height))`` mapping scene-local x, y to texture coordinates
+        ``((x - x0) / width, (y0 - y) / height)``.
+    normal_cube : moderngl.TextureCube, optional
+        Shading normals from a cube map looked up by model-frame direction from the model
+        origin (a star-shaped body's finest normals).
+    """
 
     vao: Any
     depth_vao: Any
@@ -436,16 +505,10 @@ class DrawBatch:
     discard: tuple | None = None
     shadow: ShadowMap | None = None
     triangles: int = 0
-    vertex_albedo: bool = False   # the vertex array binds a per-vertex albedo factor
-    #: Geomorphing of the batch's vertices (see ``render/shaders/scene.vert``), or None.
+    vertex_albedo: bool = False
     morph: Morph | None = None
-    #: Shading normals from a texture instead of the vertices: (texture, (x0, y0, 1/width,
-    #: 1/height)) mapping scene-local x, y to texture coordinates ``((x - x0) / width,
-    #: (y0 - y) / height)``, or None.
     normal_map: tuple | None = None
-    #: Shading normals from a cube map looked up by model-frame direction from the model
-    #: origin (a star-shaped body's finest normals), or None.
-    normal_cube: object = None
+    normal_cube: Any = None
 
 
 @dataclass(eq=False)
@@ -472,8 +535,19 @@ class FrameState:
     albedo: tuple | None = None
 
 
-def light_basis(sun) -> np.ndarray:
-    """(3, 3) rows: light-space x, y axes and the direction light travels (-sun)."""
+def light_basis(sun: Any) -> np.ndarray:
+    """Give the light-space axes of a sun direction.
+
+    Parameters
+    ----------
+    sun : (3,) float
+        Direction towards the sun, world frame (need not be unit).
+
+    Returns
+    -------
+    (3, 3) float64
+        Rows: light-space x and y axes and the direction light travels (-sun), unit.
+    """
     s = np.asarray(sun, dtype=np.float64)
     s = s / np.linalg.norm(s)
     d = -s
@@ -484,23 +558,47 @@ def light_basis(sun) -> np.ndarray:
     return np.stack([x, y, d])
 
 
-def ortho_light(sun, receivers: np.ndarray, casters: np.ndarray, margin: float = 0.0):
-    """Orthographic light matrix fitted to ``receivers`` (points), deep enough for ``casters``.
+def ortho_light(sun: Any, receivers: np.ndarray, casters: np.ndarray, margin: float = 0.0
+                ) -> tuple[np.ndarray, np.ndarray, float, float,
+                           tuple[float, float, float, float]]:
+    """Fit an orthographic light matrix to ``receivers``, deep enough for ``casters``.
 
-    Returns ``(clip_from_world, light_from_world, extent (m), depth range (m), window)``, in
-    scene-local coordinates; ``window`` is the map's (x0, y0, x1, y1) in light-space
-    coordinates (``points @ light_basis(sun).T``), for culling casters. The map's footprint
-    covers the receivers; its depth range runs from the caster nearest the sun to the receiver
-    farthest from it, so every occluder that can shade a receiver is inside.
+    The map's footprint covers the receivers; its depth range runs from the caster nearest
+    the sun to the receiver farthest from it, so every occluder that can shade a receiver
+    is inside. :data:`LIGHT_DEPTH_SLACK_M` more at either end keeps the extreme points off
+    the clip planes.
+
+    Parameters
+    ----------
+    sun : (3,) float
+        Direction towards the sun, world frame.
+    receivers, casters : (n, 3) float64, metres, scene-local
+        Points the map must cover, and points whose shadows it must hold.
+    margin : float
+        Metres added around the receivers and to either end of the depth range.
+
+    Returns
+    -------
+    clip_from_world : (4, 4) float64
+        Scene-local coordinates to clip space.
+    light_from_world : (4, 4) float64
+        Scene-local coordinates to texture coordinates and depth in [0, 1].
+    extent : float
+        The map's larger side, metres.
+    depth : float
+        The depth range, metres.
+    window : (4,) float
+        The map's ``(x0, y0, x1, y1)`` in light-space coordinates (``points @
+        light_basis(sun).T``, metres), for culling casters.
     """
     basis = light_basis(sun)
     r = np.atleast_2d(receivers) @ basis.T
     c = np.atleast_2d(casters) @ basis.T
     x0, y0 = r[:, 0].min() - margin, r[:, 1].min() - margin
     x1, y1 = r[:, 0].max() + margin, r[:, 1].max() + margin
-    near = min(c[:, 2].min(), r[:, 2].min()) - margin - 1.0
-    far = r[:, 2].max() + margin + 1.0
-    sx, sy = max(x1 - x0, 1e-6), max(y1 - y0, 1e-6)
+    near = min(c[:, 2].min(), r[:, 2].min()) - margin - LIGHT_DEPTH_SLACK_M
+    far = r[:, 2].max() + margin + LIGHT_DEPTH_SLACK_M
+    sx, sy = max(x1 - x0, MIN_LIGHT_EXTENT_M), max(y1 - y0, MIN_LIGHT_EXTENT_M)
     view = np.eye(4)
     view[:3, :3] = basis
     ortho = np.eye(4)
@@ -516,11 +614,29 @@ def ortho_light(sun, receivers: np.ndarray, casters: np.ndarray, margin: float =
 
 
 def frustum_visible(corners: np.ndarray, view_rotation: np.ndarray, camera: np.ndarray,
-                    intrinsics, far: float = math.inf) -> np.ndarray:
-    """Which boxes (n, 8, 3 corners, scene-local) may intersect the view frustum.
+                    intrinsics: Intrinsics, far: float = math.inf) -> np.ndarray:
+    """Tell which boxes may intersect the view frustum.
 
     Conservative plane tests in OpenCV camera coordinates: a box is culled only when all its
     corners lie outside one plane (behind the camera, beyond an image edge, or beyond far).
+
+    Parameters
+    ----------
+    corners : (n, 8, 3) float64, metres, scene-local
+        The boxes' corners (:func:`box_corners`).
+    view_rotation : (3, 3) float64
+        R_WC, camera to world.
+    camera : (3,) float64, metres, scene-local
+        The camera centre.
+    intrinsics : render.camera.Intrinsics
+        The camera's image and pinhole.
+    far : float
+        Distance (m) along the optical axis beyond which nothing is seen.
+
+    Returns
+    -------
+    (n,) bool
+        True where the box may be seen.
     """
     c = (corners - camera) @ view_rotation  # (n, 8, 3) camera coordinates
     x, y, z = c[..., 0], c[..., 1], c[..., 2]
@@ -537,7 +653,18 @@ def frustum_visible(corners: np.ndarray, view_rotation: np.ndarray, camera: np.n
 
 
 def box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """(n, 8, 3) corners of axis-aligned boxes given (n, 3) minima and maxima."""
+    """Give the corners of axis-aligned boxes.
+
+    Parameters
+    ----------
+    lo, hi : (n, 3) or (3,) float64, metres
+        The boxes' minima and maxima.
+
+    Returns
+    -------
+    (n, 8, 3) float64
+        Corner i takes x, y, z from ``hi`` where bits 0, 1, 2 of i are set.
+    """
     lo = np.atleast_2d(lo)
     hi = np.atleast_2d(hi)
     out = np.empty((lo.shape[0], 8, 3))
@@ -549,6 +676,19 @@ def box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
 
 
 def box_distance(lo: np.ndarray, hi: np.ndarray, point: np.ndarray) -> np.ndarray:
-    """Distance from a point to each axis-aligned box (0 inside)."""
+    """Give the distance from a point to each axis-aligned box.
+
+    Parameters
+    ----------
+    lo, hi : (n, 3) float64, metres
+        The boxes' minima and maxima.
+    point : (3,) float64, metres
+        The point, in the boxes' frame.
+
+    Returns
+    -------
+    (n,) float64, metres
+        Euclidean distance to each box (0 inside).
+    """
     d = np.maximum(np.maximum(lo - point, 0.0), point - hi)
     return np.sqrt((d * d).sum(axis=1))

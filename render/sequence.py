@@ -10,15 +10,19 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 from render.context import describe
 from render.motion import Motion, render_exposure, trajectory_velocities
-from render.renderer import Renderer, View
+from render.renderer import Frame, Renderer, View
 from render.rundir import FrameTruth, RunWriter
 from render.scenario import Scenario
 from render.scene import Scene
+from render.trajectory import Sample
 from terrain.errors import InvalidParameterError
 from terrain.progress import Progress
 
@@ -29,37 +33,81 @@ log = logging.getLogger(__name__)
 #: Peak bytes per image pixel of one frame: float colour, range and normal attachments and
 #: depth on the GPU side, their float32 read-backs, the sensor's working copies and the image.
 FRAME_BYTES_PER_PIXEL = 96
+#: Bytes reserved per shadow-map texel: a 32-bit depth texel, and as much again allowed for
+#: the driver's own copies.
+SHADOW_BYTES_PER_TEXEL = 8
 
 
 def check_frame_memory(scenario: Scenario) -> None:
-    """Refuse a frame size whose buffers would not fit in memory, before any allocation."""
+    """Refuse a frame size whose buffers would not fit in memory, before any allocation.
+
+    Parameters
+    ----------
+    scenario : render.scenario.Scenario
+        Its image size and shadow-map size are checked.
+
+    Raises
+    ------
+    terrain.errors.MemoryRequestError
+        When the frame's buffers would not fit (:func:`terrain.memory.require`).
+    """
     from terrain import memory
 
     k = scenario.intrinsics
     shadow = scenario.options.shadow_size if scenario.options.shadows else 0
-    memory.require(k.width * k.height * FRAME_BYTES_PER_PIXEL + shadow * shadow * 8,
+    memory.require(k.width * k.height * FRAME_BYTES_PER_PIXEL
+                   + shadow * shadow * SHADOW_BYTES_PER_TEXEL,
                    f"rendering {k.width}x{k.height} frames")
 
 
 def load_scene(scenario: Scenario) -> Scene:
-    """The scene a scenario names (a terrain layer stack or an asteroid body)."""
+    """Load the scene a scenario names.
+
+    Parameters
+    ----------
+    scenario : render.scenario.Scenario
+        Its ``[scene]`` record (paths relative to the scenario file).
+
+    Returns
+    -------
+    render.scene.Scene
+        A :class:`render.terrain_scene.TerrainScene` (a layer stack) or a
+        :class:`render.asteroid_scene.AsteroidScene` (a native body).
+    """
     spec = scenario.scene
     albedo = None if spec.albedo_map is None else scenario.resolve(spec.albedo_map)
     if spec.type == "terrain":
         from render.terrain_scene import TerrainScene
 
+        assert spec.stack is not None  # required of a terrain scene by SceneSpec.from_mapping
         return TerrainScene(scenario.resolve(spec.stack), curvature=spec.curvature,
                             radius=spec.radius, albedo_map=albedo)
     from render.asteroid_scene import AsteroidScene
 
+    assert spec.body is not None  # required of an asteroid scene by SceneSpec.from_mapping
     return AsteroidScene(scenario.resolve(spec.body), boulders=spec.boulders,
                          imposter_pixels=spec.imposter_pixels, albedo=albedo)
 
 
-def frame_motion(scenario: Scenario, samples, index: int):
-    """The :class:`render.motion.Motion` of frame ``index``: the scenario's ``[motion]``
-    velocities where given, the trajectory's (central differences) otherwise; None when the
-    scenario asks for no motion blur and has no rolling shutter."""
+def frame_motion(scenario: Scenario, samples: Sequence[Sample] | None,
+                 index: int) -> Motion | None:
+    """Give the motion held during frame ``index``'s exposure.
+
+    Parameters
+    ----------
+    scenario : render.scenario.Scenario
+        Its ``[motion]`` table: whether to blur, and the velocities it gives.
+    samples : sequence of render.trajectory.Sample, optional
+        The whole trajectory (velocities by central differences).
+    index : int
+        The frame.
+
+    Returns
+    -------
+    render.motion.Motion or None
+        The scenario's ``[motion]`` velocities where given, the trajectory's otherwise;
+        None when the scenario asks for no motion blur.
+    """
     spec = scenario.motion or {}
     if not spec.get("blur"):
         return None
@@ -70,14 +118,36 @@ def frame_motion(scenario: Scenario, samples, index: int):
     return replace(given, **fields)
 
 
-def render_sample(renderer: Renderer, scene: Scene, scenario: Scenario, sample, index: int,
-                  samples=None, *, motion=None):
-    """Render one trajectory sample: (digital image, Frame, FrameTruth).
+def render_sample(renderer: Renderer, scene: Scene, scenario: Scenario, sample: Sample,
+                  index: int, samples: Sequence[Sample] | None = None, *,
+                  motion: Motion | None = None) -> tuple[np.ndarray, Frame, FrameTruth]:
+    """Render one trajectory sample through the scenario's sensor.
 
-    ``samples`` (the whole trajectory) supplies the velocities of motion blur (see
-    :func:`frame_motion`); ``motion`` (a :class:`render.motion.Motion`) overrides them for
-    this frame. The frame's radiance is the I/F the sensor integrated; range and normals
-    are those at the frame time.
+    Parameters
+    ----------
+    renderer : render.renderer.Renderer
+        Renders the frame.
+    scene : render.scene.Scene
+        The scenario's scene.
+    scenario : render.scenario.Scenario
+        Camera, sensor, lighting and render options.
+    sample : render.trajectory.Sample
+        The frame's pose, time and body rotation.
+    index : int
+        The frame's index (keys the sensor's noise).
+    samples : sequence of render.trajectory.Sample, optional
+        The whole trajectory: the velocities of motion blur (:func:`frame_motion`).
+    motion : render.motion.Motion, optional
+        Overrides those velocities for this frame.
+
+    Returns
+    -------
+    image : (h, w) uint8 or uint16
+        The digital image.
+    frame : render.renderer.Frame
+        Radiance (the I/F the sensor integrated), range and normals at the frame time.
+    truth : render.rundir.FrameTruth
+        The frame's truth entry.
     """
     view = View(sample.pose, scenario.intrinsics, sample.time)
     if motion is None:
@@ -101,9 +171,26 @@ def render_sample(renderer: Renderer, scene: Scene, scenario: Scenario, sample, 
     return image, frame, truth
 
 
-def run_sequence(scenario: Scenario, run_dir, *, resume: bool = False,
+def run_sequence(scenario: Scenario, run_dir: str | Path, *, resume: bool = False,
                  progress: Progress | None = None) -> dict:
-    """Render every frame of ``scenario`` into ``run_dir`` (see :mod:`render.rundir`)."""
+    """Render every frame of ``scenario`` into ``run_dir`` (see :mod:`render.rundir`).
+
+    Parameters
+    ----------
+    scenario : render.scenario.Scenario
+        What to render.
+    run_dir : str or pathlib.Path
+        The run directory (made; refused when it holds another run unless resuming).
+    resume : bool
+        Skip the frames the run directory's truth file already lists.
+    progress : terrain.progress.Progress, optional
+        Called as ``progress(done, total, detail)`` after every frame.
+
+    Returns
+    -------
+    dict
+        The run's manifest (also written to ``manifest.json``).
+    """
     run_dir = Path(run_dir)
     check_frame_memory(scenario)
     RunWriter.check(run_dir, resume=resume)

@@ -74,6 +74,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
 
 from render.scene import (
     MIN_LOD_DISTANCE_M,
@@ -96,6 +97,8 @@ from terrain.errors import InvalidParameterError
 
 if TYPE_CHECKING:
     from render.renderer import Lighting, RenderOptions, View
+    from terrain.layers import LayerStack
+    from terrain.tile import DEMTile
 
 __all__ = ["BLOCK", "FADE_PARENT_PIXELS", "MOON_RADIUS", "MORPH_BAND", "SKIRT_PIXELS",
            "TerrainScene"]
@@ -168,19 +171,29 @@ class TerrainScene:
 
     Parameters
     ----------
-    stack : terrain.layers.LayerStack or path of a stack folder
+    stack : terrain.layers.LayerStack, str or pathlib.Path
+        The layer stack, or its folder.
     curvature : bool
         Drop heights by d^2 / (2 R) away from the site.
     radius : float, optional
         Body radius R (m); default: the stack's datum radius if recorded, else the Moon's.
+    albedo_map : terrain.tile.DEMTile, str or pathlib.Path, optional
+        Albedo factors over the terrain (:meth:`set_albedo_map`).
+
+    Attributes
+    ----------
+    origin : (3,) float64, metres
+        The landing site at height 0: positions on the GPU are relative to it.
+    reach : float
+        0: a terrain map does not turn (:class:`render.scene.Scene`).
     """
 
     kind = "terrain"
-    #: A terrain map does not turn (:class:`render.scene.Scene`'s ``reach``).
     reach = 0.0
 
-    def __init__(self, stack, *, curvature: bool = True, radius: float | None = None,
-                 albedo_map=None):
+    def __init__(self, stack: LayerStack | str | Path, *, curvature: bool = True,
+                 radius: float | None = None,
+                 albedo_map: DEMTile | str | Path | None = None) -> None:
         from terrain.layers import LayerStack, read_stack
 
         if not isinstance(stack, LayerStack):
@@ -203,16 +216,23 @@ class TerrainScene:
         self._ctx = None
         self._shadow_cache: dict = {}
         self.triangles_full = 0
-        self.albedo_map = None
-        self._albedo_gpu = None
+        self.albedo_map: DEMTile | None = None
+        self._albedo_gpu: tuple | None = None
         if albedo_map is not None:
             self.set_albedo_map(albedo_map)
 
-    def set_albedo_map(self, tile) -> None:
-        """Albedo factors over the terrain: a :class:`terrain.tile.DEMTile` (or a path any GDAL
-        raster reader opens) in the stack's map frame, whose values multiply the albedo (or
-        Hapke's w) of the surface beneath, bilinearly interpolated between pixel centres;
-        invalid pixels and ground outside the map keep a factor of 1 (edge values repeat)."""
+    def set_albedo_map(self, tile: DEMTile | str | Path) -> None:
+        """Set the albedo factors over the terrain.
+
+        Their values multiply the albedo (or Hapke's w) of the surface beneath, bilinearly
+        interpolated between pixel centres; invalid pixels and ground outside the map keep a
+        factor of 1 (edge values repeat).
+
+        Parameters
+        ----------
+        tile : terrain.tile.DEMTile, str or pathlib.Path
+            The factors (>= 0) in the stack's map frame, or a raster any GDAL reader opens.
+        """
         from terrain.tile import DEMTile
 
         if not isinstance(tile, DEMTile):
@@ -226,8 +246,19 @@ class TerrainScene:
         self._albedo_gpu = None
 
     # ------------------------------------------------------------------ geometry
-    def to_world(self, points) -> np.ndarray:
-        """Map points (n, 3: x, y, height) to the rendered world frame (curvature applied)."""
+    def to_world(self, points: npt.ArrayLike) -> np.ndarray:
+        """Map points of the stack's map frame to the rendered world frame.
+
+        Parameters
+        ----------
+        points : (n, 3) float, metres
+            Map x (east), y (north) and height.
+
+        Returns
+        -------
+        (n, 3) float64, metres
+            The same points with the curvature drop applied to their heights.
+        """
         p = np.array(points, dtype=np.float64, ndmin=2)
         if self.curvature:
             d2 = (p[:, 0] - self.site[0]) ** 2 + (p[:, 1] - self.site[1]) ** 2
@@ -235,13 +266,29 @@ class TerrainScene:
         return p
 
     def height_at(self, x: float, y: float) -> float:
-        """Terrain height (world frame) under map point (x, y), from the finest layer there."""
+        """Give the terrain height under a map point, from the finest layer there.
+
+        Parameters
+        ----------
+        x, y : float, metres
+            Map coordinates.
+
+        Returns
+        -------
+        float, metres
+            World-frame height (bilinear in the layer's own heights, curvature applied).
+
+        Raises
+        ------
+        terrain.errors.InvalidParameterError
+            Where the point lies outside every layer.
+        """
         for tile in reversed(self.stack.tiles):
             left, bottom, right, top = tile.bounds
             if left <= x <= right and bottom <= y <= top:
-                r, c = tile.rowcol(x, y)
-                r = min(max(float(r), 0.0), tile.shape[0] - 1.0)
-                c = min(max(float(c), 0.0), tile.shape[1] - 1.0)
+                row, col = tile.rowcol(x, y)
+                r = min(max(float(row), 0.0), tile.shape[0] - 1.0)
+                c = min(max(float(col), 0.0), tile.shape[1] - 1.0)
                 i0, j0 = int(r), int(c)
                 i1, j1 = min(i0 + 1, tile.shape[0] - 1), min(j0 + 1, tile.shape[1] - 1)
                 h = tile.heights
@@ -251,7 +298,7 @@ class TerrainScene:
                 return float(self.to_world([[x, y, z]])[0, 2])
         raise InvalidParameterError(f"point {x:.6g},{y:.6g} lies outside the terrain")
 
-    def set_body_rotation(self, quaternion) -> None:
+    def set_body_rotation(self, quaternion: Any) -> None:
         """Ignored: a terrain map is drawn in the world frame and does not rotate.
 
         Parameters
@@ -261,7 +308,13 @@ class TerrainScene:
         """
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """World-frame bounding box of the whole scene."""
+        """Give the world-frame bounding box of the whole scene.
+
+        Returns
+        -------
+        lo, hi : (3,) float64, metres
+            Its smallest and largest corner (the curvature drop included).
+        """
         lo = np.array([math.inf] * 3)
         hi = -lo
         for tile in self.stack.tiles:
@@ -276,8 +329,14 @@ class TerrainScene:
         return lo, hi
 
     # ------------------------------------------------------------------ GPU
-    def upload(self, ctx) -> None:
-        """Build every layer's vertex and index buffers (once per context)."""
+    def upload(self, ctx: Any) -> None:
+        """Build every layer's vertex and index buffers (once per context).
+
+        Parameters
+        ----------
+        ctx : moderngl.Context
+            The context the buffers and normal textures go to.
+        """
         if self._ctx is ctx and self._layers:
             return
         self._ctx = ctx
@@ -300,7 +359,7 @@ class TerrainScene:
                 right - r / 2 - self.site[0], top - r / 2 - self.site[1])
 
     def _build_layer(self, ctx, k, tile, finer, parent=None):
-        """The layer's GPU buffers, and its surface (for the next layer's fade-in)."""
+        """Build the layer's GPU buffers, and its surface (for the next layer's fade-in)."""
         h, w = tile.shape
         res = tile.resolution
         x0, y0, x1, y1 = self._local_extent(tile)
@@ -616,7 +675,7 @@ class TerrainScene:
         return maps
 
     def _depth_batches(self, gpu, texel, basis, window):
-        """The blocks that can cast into a shadow map, at the detail its texel (m) resolves.
+        """Give the blocks that can cast into a shadow map, at the detail its texel resolves.
 
         An orthographic map sees a caster only where the caster's light-space x-y overlaps
         the map's window, so every other block is culled exactly.
