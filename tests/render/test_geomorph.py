@@ -189,7 +189,7 @@ def test_shadow_maps_do_not_follow_the_camera(renderer, scene):
         pose = look_at((SITE[0] + 0.3 * alt, SITE[1], z0 + alt), (SITE[0], SITE[1], z0))
         renderer.render(scene, View(pose, k), LIGHT, RenderOptions(shadow_size=256))
         maps.append([m.light_from_world.copy() for m in
-                     scene._shadow_maps(renderer, LIGHT, RenderOptions(shadow_size=256))])
+                     scene._shadow_maps(renderer.gpu, LIGHT, RenderOptions(shadow_size=256))])
     for a, b in zip(*maps, strict=True):
         assert np.array_equal(a, b)
 
