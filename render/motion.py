@@ -29,13 +29,20 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from render.camera import Pose, quat_from_matrix, quat_to_matrix
 from render.records import check_keys
 from terrain.errors import InvalidParameterError
+
+if TYPE_CHECKING:
+    from render.renderer import Frame, Lighting, Renderer, RenderOptions, View
+    from render.scene import Scene
+    from render.sensor import Sensor
 
 __all__ = ["MAX_STEP_PIXELS", "Motion", "render_exposure", "rotation_vector_matrix",
            "row_time", "trajectory_velocities"]
@@ -182,13 +189,40 @@ def _row_weights(h, times, step, exposure_time, line_time):
     return w / total
 
 
-def render_exposure(renderer, scene, view, lighting, options, sensor, motion: Motion,
-                    body_rotation=(1.0, 0.0, 0.0, 0.0)):
+def render_exposure(renderer: Renderer, scene: Scene, view: View, lighting: Lighting,
+                    options: RenderOptions, sensor: Sensor, motion: Motion,
+                    body_rotation: Sequence[float] = (1.0, 0.0, 0.0, 0.0)
+                    ) -> tuple[np.ndarray, Frame, dict]:
     """Render the I/F a sensor integrates while the camera moves (see the module docstring).
 
-    Returns ``(radiance, frame, info)``: the (h, w) float32 integrated I/F, the
-    :class:`render.renderer.Frame` at the frame time (range, normals and truth belong to it),
-    and a dict with the sub-frame count and times.
+    Parameters
+    ----------
+    renderer : render.renderer.Renderer
+        Renders the frame and its sub-frames.
+    scene : render.scene.Scene
+        What is seen; its body turns by ``motion.body_angular_velocity`` (its ``reach`` is
+        the lever arm that sets how far the spin moves the image).
+    view : render.renderer.View
+        The camera at the frame time.
+    lighting : render.renderer.Lighting
+        The sun and reflectance.
+    options : render.renderer.RenderOptions
+        Quality settings.
+    sensor : render.sensor.Sensor
+        Integration time and line time (rolling shutter).
+    motion : Motion
+        Velocities held during the exposure, and the sub-frame count.
+    body_rotation : (4,) float
+        R_WB [w, x, y, z] at the frame time.
+
+    Returns
+    -------
+    radiance : (h, w) float32
+        The integrated I/F.
+    frame : render.renderer.Frame
+        The frame at the frame time (range, normals and truth belong to it).
+    info : dict
+        The sub-frame count (``samples``) and their times (``times``, s from the start).
     """
     from render.renderer import View
 

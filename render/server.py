@@ -35,10 +35,10 @@ import signal
 import socket
 import threading
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
+from render.asteroid_scene import AsteroidScene
 from render.camera import Intrinsics, Pose, look_at
 from render.errors import ProtocolError
 from render.motion import Motion
@@ -69,7 +69,9 @@ from render.protocol import (
 )
 from render.renderer import Lighting, Renderer, View
 from render.scenario import Scenario, parse_scenario
+from render.scene import Scene
 from render.sequence import load_scene, render_sample
+from render.terrain_scene import TerrainScene
 from render.trajectory import Sample, spin_rotation
 from terrain.errors import InvalidParameterError
 
@@ -281,9 +283,8 @@ class RenderServer:
         self._listener: socket.socket | None = None
         self._cached: dict[int, _State] = {}   # insertion order = render order
         self.renderer: Renderer | None = None
-        # The loaded scene (render.sequence.load_scene): a terrain or an asteroid scene, told
-        # apart by its ``kind``.
-        self.scene: Any = None
+        # The loaded scene (render.sequence.load_scene): a terrain or an asteroid scene.
+        self._scene: Scene | None = None
         self.requests = 0
 
     # ------------------------------------------------------------------ set-up
@@ -293,7 +294,7 @@ class RenderServer:
         This uploads the geometry, compiles the programs and prepares the shadow maps.
         """
         self.renderer = Renderer()
-        self.scene = load_scene(self.scenario)
+        self._scene = load_scene(self.scenario)
         samples = self.scenario.samples(self.scene)
         if samples:
             render_sample(self.renderer, self.scene, self.scenario, samples[0], 0)
@@ -316,6 +317,13 @@ class RenderServer:
         if self._listener is None:
             raise InvalidParameterError("the server is not listening yet; call bind() first")
         return self._listener.getsockname()[:2]
+
+    @property
+    def scene(self) -> Scene:
+        """The scene :meth:`load` loaded (a terrain or an asteroid scene)."""
+        if self._scene is None:
+            raise InvalidParameterError("the server has not loaded its scene; call load() first")
+        return self._scene
 
     @property
     def _gpu(self) -> Renderer:
@@ -508,7 +516,7 @@ class RenderServer:
         out = dict(protocol=VERSION, scenario=self.scenario.name, scene=self.scene.kind,
                    bounds=[lo.tolist(), hi.tolist()], sun=list(st.lighting.sun),
                    seed=self.scenario.seed, sensor=self._sensor_info(st))
-        if self.scene.kind == "terrain":
+        if isinstance(self.scene, TerrainScene):
             out["site"] = list(self.scene.site)
         return out
 
@@ -531,9 +539,10 @@ class RenderServer:
 
     def _check_outside(self, pose: Pose, t: float) -> None:
         p = np.asarray(pose.position)
-        if self.scene.kind == "terrain":
+        scene = self.scene
+        if isinstance(scene, TerrainScene):
             try:
-                ground = self.scene.height_at(p[0], p[1])
+                ground = scene.height_at(p[0], p[1])
             except InvalidParameterError:
                 return  # beyond the terrain's edge: nothing underneath to be inside of
             if p[2] <= ground:
@@ -542,8 +551,10 @@ class RenderServer:
                                     f"({ground:.3f} m at {p[0]:.3f}, {p[1]:.3f})")
             return
         r = float(np.linalg.norm(p))
-        inside = r < float(self.scene.body.radii.min())
-        if not inside and r <= self.scene.reach:
+        # nearer the centre than the body's lowest vertex: inside whatever the direction
+        inner = float(scene.body.radii.min()) if isinstance(scene, AsteroidScene) else 0.0
+        inside = r < inner
+        if not inside and r <= scene.reach:
             rng, _, _, _, nx, ny, nz = self.cast(p, -p, t, self.scenario.lighting)
             # from outside the ray meets the near side (normal against the ray); from inside,
             # the far side's inner face (normal along it) or nothing
@@ -626,8 +637,7 @@ class RenderServer:
         n = float(np.linalg.norm(d))
         pose = look_at(o, o + d / n * max(1.0, float(np.linalg.norm(o))))
         axis = pose.rotation[:, 2]
-        if self.scene.kind == "asteroid":
-            self.scene.set_body_rotation(self.body_rotation(t))
+        self.scene.set_body_rotation(self.body_rotation(t))  # a terrain ignores it
         view = View(pose, Intrinsics(1, 1, RAY_FOCAL, RAY_FOCAL, 0.0, 0.0), t)
         options = dataclasses.replace(self.scenario.options, shadows=False)
         frame = self._gpu.render(self.scene, view, lighting, options)
@@ -639,18 +649,19 @@ class RenderServer:
 
     def height_and_normal(self, x: float, y: float) -> tuple:
         """(height, normal x, y, z) of the terrain at map (x, y) (see docs/protocol.md)."""
-        if self.scene.kind != "terrain":
+        scene = self.scene
+        if not isinstance(scene, TerrainScene):
             raise ProtocolError(ErrorCode.UNSUPPORTED,
                                 "HEIGHT_AT needs a terrain scene; use RAY on an asteroid")
-        h = self.scene.height_at(x, y)
-        step = next(t.resolution for t in reversed(self.scene.stack.tiles)
+        h = scene.height_at(x, y)
+        step = next(t.resolution for t in reversed(scene.stack.tiles)
                     if t.bounds[0] <= x <= t.bounds[2] and t.bounds[1] <= y <= t.bounds[3])
 
         def slope(dx, dy):
             pts = []
             for s in (1.0, -1.0):
                 try:
-                    pts.append((s, self.scene.height_at(x + s * dx, y + s * dy)))
+                    pts.append((s, scene.height_at(x + s * dx, y + s * dy)))
                 except InvalidParameterError:
                     pts.append((0.0, h))  # at the edge: one-sided difference
             (s0, h0), (s1, h1) = pts
