@@ -25,7 +25,7 @@ RESOLUTION = ImageSizeType(_largest_image_side)
 
 
 @click.group()
-def render():
+def render() -> None:
     """Camera images, LIDAR range and ground truth along trajectories."""
 
 
@@ -38,7 +38,8 @@ def render():
 @click.option("--resolution", type=RESOLUTION, default=None,
               help="Override the image size (field of view kept).")
 @click.option("--resume", is_flag=True, help="Continue an interrupted run in the same folder.")
-def sequence(scenario_file, output, frames, resolution, resume):
+def sequence(scenario_file: Path, output: Path, frames: int | None,
+             resolution: tuple[int, int] | None, resume: bool) -> None:
     """Render every frame of a scenario: frames/, range/, normals/, truth.json, manifest."""
     from render.scenario import load_scenario
     from render.sequence import run_sequence
@@ -56,7 +57,8 @@ def sequence(scenario_file, output, frames, resolution, resume):
               help="Image file (PNG); range, normals and truth go beside it.")
 @click.option("--index", type=int, default=None, help="Trajectory frame to render (default 0).")
 @click.option("--resolution", type=RESOLUTION, default=None, help="Override the image size.")
-def frame(scenario_file, output, index, resolution):
+def frame(scenario_file: Path, output: Path, index: int | None,
+          resolution: tuple[int, int] | None) -> None:
     """Render one view of a scenario.
 
     Writes OUT.png, OUT_range.tif, OUT_normals.tif, OUT_truth.json (and OUT_radiance.tif
@@ -115,7 +117,8 @@ def frame(scenario_file, output, index, resolution):
               show_default=True, help="Close a client whose message stalls this long (s).")
 @click.option("--max-clients", type=click.IntRange(1, 1024), default=32, show_default=True,
               help="Clients connected at once.")
-def serve(scenario_file, host, port, token, idle_timeout, read_timeout, max_clients):
+def serve(scenario_file: Path, host: str, port: int, token: str | None, idle_timeout: float,
+          read_timeout: float, max_clients: int) -> None:
     """Serve a scenario's scene over TCP until SIGINT/SIGTERM (protocol: docs/protocol.md)."""
     from render.scenario import load_scenario
     from render.server import RenderServer

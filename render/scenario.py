@@ -489,8 +489,22 @@ class Scenario:
         raise InvalidParameterError(f"unknown trajectory type {kind!r}")
 
 
-def load_scenario(path) -> Scenario:
-    """Parse and validate a scenario file."""
+def load_scenario(path: str | Path) -> Scenario:
+    """Parse and validate a scenario file.
+
+    The files it reads (the scene's stack or body, an albedo map) are protected as inputs:
+    no output may be written over them.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The scenario's TOML file.
+
+    Returns
+    -------
+    Scenario
+        The validated scenario (paths in it relative to the file's folder).
+    """
     from terrain.outputs import protect
 
     path = Path(path)
@@ -501,6 +515,20 @@ def load_scenario(path) -> Scenario:
 
 
 def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
+    """Build a scenario from its parsed TOML tables.
+
+    Parameters
+    ----------
+    data : dict
+        The scenario's tables; an unknown section or key is an error naming the nearest.
+    path : pathlib.Path, optional
+        The file it came from (relative paths resolve against its folder).
+
+    Returns
+    -------
+    Scenario
+        The validated scenario.
+    """
     unknown = set(data) - _SECTIONS
     if unknown:
         key = sorted(unknown)[0]

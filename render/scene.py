@@ -1,10 +1,18 @@
 """What a scene hands the renderer: draw batches, shadow maps and per-frame facts.
 
-A scene (:class:`render.terrain_scene.TerrainScene`, :class:`render.asteroid_scene.AsteroidScene`)
-owns its GPU buffers and, for every frame, decides what to draw (culling, level of detail,
-imposters) and which shadow map each part uses; the renderer only runs the passes. Positions
-on the GPU are relative to the scene's ``origin`` (float64, world frame), so float32 keeps
-millimetres across hundreds of kilometres.
+A scene (:class:`render.terrain_scene.TerrainScene`, :class:`render.asteroid_scene.AsteroidScene`,
+:class:`render.mesh_scene.MeshScene`; the :class:`Scene` protocol) owns its GPU buffers and,
+for every frame, decides what to draw (culling, level of detail, whether a body is an
+imposter) and which shadow map each part uses; the renderer runs every pass. A scene reaches
+the GPU only through the :class:`Gpu` handle the renderer gives it (uploads, vertex arrays,
+shadow maps), and every shadow map, a terrain layer's or a body's, is fitted and drawn by
+:func:`render_shadow_map`. Positions on the GPU are relative to the scene's ``origin``
+(float64, world frame), so float32 keeps millimetres across hundreds of kilometres.
+
+One frame, in order: the renderer asks :meth:`Scene.imposter`; if the scene wants one, the
+imposter's small view is rendered as geometry first; then :meth:`Scene.frame_state` plans the
+frame (drawing its shadow maps through the handle), the renderer draws the plan, reads the
+images back and composites the imposter (:mod:`render.imposter`).
 """
 
 from __future__ import annotations
