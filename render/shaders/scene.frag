@@ -135,13 +135,20 @@ float albedo_scale(vec3 world) {
     return a;
 }
 
+// The slope-scaled bias grows with the tangent of the sun's incidence, up to MAX_TAN_INCIDENCE
+// (the sun 2.9 degrees above the surface): closer to grazing it would outgrow the map's depth
+// range and light everything. MIN_MU0 keeps the division finite (at mu0 = 0.05 the tangent is
+// 19.97, so the two limits agree).
+const float MAX_TAN_INCIDENCE = 20.0;
+const float MIN_MU0 = 0.05;
+
 float visibility(vec3 n, float mu0) {
     if (u_shadows == 0 || mu0 <= 0.0) return 1.0;
     vec4 lc = u_light_from_world * vec4(v_rel + n * u_normal_offset, 1.0);
     vec3 c = lc.xyz / lc.w;
     if (c.x < 0.0 || c.x > 1.0 || c.y < 0.0 || c.y > 1.0 || c.z > 1.0) return 1.0;
-    float tan_i = sqrt(max(1.0 - mu0 * mu0, 0.0)) / max(mu0, 0.05);
-    float ref = c.z - u_bias - v_shadow_bias - u_slope_bias * min(tan_i, 20.0);
+    float tan_i = sqrt(max(1.0 - mu0 * mu0, 0.0)) / max(mu0, MIN_MU0);
+    float ref = c.z - u_bias - v_shadow_bias - u_slope_bias * min(tan_i, MAX_TAN_INCIDENCE);
     // one bilinear comparison (the map's LINEAR filter gives 2x2 percentage-closer filtering)
     return texture(u_shadow_map, vec3(c.xy, ref));
 }
