@@ -70,7 +70,7 @@ def terrain(tmp: Path, quick: bool, frames: int, size: int) -> dict:
     stack_dir, _ = build_scene(tmp, quick)
     renderer = Renderer(create_context())
     scene = TerrainScene(stack_dir)
-    scene.upload(renderer.ctx)
+    scene.upload(renderer.gpu)
     k = Intrinsics.from_fov(size, size, 60.0)
     site = scene.site
     ground = scene.height_at(*site)

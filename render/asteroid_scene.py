@@ -262,7 +262,8 @@ class AsteroidScene:
         return -np.full(3, self.reach), np.full(3, self.reach)
 
     # ------------------------------------------------------------------ GPU
-    def _upload(self, ctx):
+    def _upload(self, gpu):
+        ctx = gpu.context  # the key uploads are cached under
         cached = self._gpu.get(id(ctx))
         if cached is not None and cached[0] is ctx:
             return cached[1], cached[2]
@@ -298,10 +299,10 @@ class AsteroidScene:
             normals = vertex_normals(verts, faces)
             spacing = float(np.median(np.linalg.norm(verts[faces[:, 0]] - verts[faces[:, 1]],
                                                      axis=1)))
-            vbo = ctx.buffer(np.hstack([verts, normals]).astype(np.float32).tobytes())
-            ibo = ctx.buffer(faces.astype(np.uint32).tobytes())
+            vbo = gpu.buffer(np.hstack([verts, normals]).astype(np.float32).tobytes())
+            ibo = gpu.buffer(faces.astype(np.uint32).tobytes())
             albedo = self._albedo_on(mesh)
-            abo = None if albedo is None else ctx.buffer(albedo.tobytes())
+            abo = None if albedo is None else gpu.buffer(albedo.tobytes())
             lods.append(_BodyLod(mag, spacing, len(faces), vbo, ibo,
                                  tree.spheres[leaves, :3].copy(), tree.spheres[leaves, 3].copy(),
                                  np.array(firsts), np.array(counts), {}, abo))
@@ -309,8 +310,8 @@ class AsteroidScene:
         for fine, (mesh, _, _), (coarse, c_radii, c_normals) in zip(
                 lods[:-1], surfaces[:-1], surfaces[1:], strict=True):
             targets = _coarser_surface(mesh.directions(), coarse, c_radii, c_normals)
-            fine.morph = ctx.buffer(targets.astype(np.float32).tobytes())
-        lods[0].cube = _normal_cube(ctx, *surfaces[0])
+            fine.morph = gpu.buffer(targets.astype(np.float32).tobytes())
+        lods[0].cube = _normal_cube(gpu, *surfaces[0])
         levels = []
         if self.boulders is not None and len(self.boulders):
             # coarse levels for every boulder up front; finer ones only for the boulders a
@@ -318,12 +319,12 @@ class AsteroidScene:
             for level in range(min(COARSE_BOULDER_LEVELS, self.boulders.settings.levels)):
                 verts, faces = self.boulders.mesh(level)
                 normals = vertex_normals(verts, faces)
-                vbo = ctx.buffer(np.hstack([verts, normals]).astype(np.float32).tobytes())
-                ibo = ctx.buffer(faces.astype(np.uint32).tobytes())
+                vbo = gpu.buffer(np.hstack([verts, normals]).astype(np.float32).tobytes())
+                ibo = gpu.buffer(faces.astype(np.uint32).tobytes())
                 morph = _boulder_targets(verts, normals, level, self._boulder_centres(),
                                          self._boulder_radii(), self.boulders.settings.levels)
                 levels.append(_BoulderLevel(level, vbo, ibo, len(faces) // len(self.boulders),
-                                            {}, ctx.buffer(morph.astype(np.float32).tobytes())))
+                                            {}, gpu.buffer(morph.astype(np.float32).tobytes())))
         self._gpu[id(ctx)] = (ctx, lods, levels)
         log.info("asteroid scene: body LODs %s, %d boulders", magnitudes,
                  0 if self.boulders is None else len(self.boulders))
@@ -420,7 +421,7 @@ class AsteroidScene:
         render.scene.FrameState
             The batches (body, then boulders by level) and what they draw.
         """
-        lods, levels = self._upload(gpu.ctx)
+        lods, levels = self._upload(gpu)
         for old in self._fine:  # the previous frame's fine boulders
             old.release()
         self._fine = []
@@ -525,12 +526,11 @@ class AsteroidScene:
         verts = (np.einsum("nij,nvj->nvi", rot, local) + centres[:, None, :]).reshape(-1, 3)
         faces = (f[None, :, :] + (np.arange(len(indices)) * nv)[:, None, None]).reshape(-1, 3)
         normals = vertex_normals(verts, faces)
-        ctx = gpu.ctx
-        vbo = ctx.buffer(np.hstack([verts, normals]).astype(np.float32).tobytes())
-        ibo = ctx.buffer(faces.astype(np.uint32).tobytes())
+        vbo = gpu.buffer(np.hstack([verts, normals]).astype(np.float32).tobytes())
+        ibo = gpu.buffer(faces.astype(np.uint32).tobytes())
         targets = _boulder_targets(verts, normals, level, centres,
                                    self._boulder_radii()[indices], rocks.settings.levels)
-        mbo = ctx.buffer(targets.astype(np.float32).tobytes())
+        mbo = gpu.buffer(targets.astype(np.float32).tobytes())
         vao, dvao = gpu.vertex_arrays(vbo, ibo, morph=mbo)
         self._fine.extend([vao, dvao, vbo, ibo, mbo])
         return DrawBatch(vao, dvao, [(0, faces.size)], world_from_model=self.rotation,
@@ -562,14 +562,12 @@ class AsteroidScene:
         return self._shadow
 
 
-def _normal_cube(ctx, mesh, radii, normals):
+def _normal_cube(gpu, mesh, radii, normals):
     """Build a cube map of the finest level's normals by body-frame direction.
 
     Each texel holds the normal interpolated on the triangle its direction meets (module
     docstring).
     """
-    import moderngl
-
     n = NORMAL_CUBE_SIZE
     c = (np.arange(n) + 0.5) / n * 2.0 - 1.0
     tc, sc = np.meshgrid(c, c, indexing="ij")  # rows run along t, columns along s
@@ -581,9 +579,7 @@ def _normal_cube(ctx, mesh, radii, normals):
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     nrm = _coarser_surface(dirs, mesh, radii, normals)[:, 4:]
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-    tex = ctx.texture_cube((n, n), 3, nrm.astype("f2").tobytes(), dtype="f2")
-    tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
-    return tex
+    return gpu.texture_cube((n, n), 3, nrm.astype("f2").tobytes(), dtype="f2")
 
 
 def _coarser_surface(directions, coarse, c_radii, c_normals) -> np.ndarray:

@@ -195,7 +195,8 @@ class MeshScene:
         return self.origin - r, self.origin + r
 
     # ------------------------------------------------------------------ GPU
-    def _upload(self, ctx):
+    def _upload(self, gpu):
+        ctx = gpu.context  # the key uploads are cached under
         if ctx in self._gpu:
             return self._gpu[ctx]
         lods = []
@@ -213,9 +214,9 @@ class MeshScene:
             firsts = np.arange(chunks) * CHUNK * 3
             counts = np.minimum(CHUNK, len(f) - np.arange(chunks) * CHUNK) * 3
             edge = float(np.median(np.linalg.norm(v[f[:, 0]] - v[f[:, 1]], axis=1)))
-            vbo = ctx.buffer(np.hstack([v, n]).astype(np.float32).tobytes())
-            ibo = ctx.buffer(f.astype(np.uint32).tobytes())
-            abo = None if albedo is None else ctx.buffer(albedo.tobytes())
+            vbo = gpu.buffer(np.hstack([v, n]).astype(np.float32).tobytes())
+            ibo = gpu.buffer(f.astype(np.uint32).tobytes())
+            abo = None if albedo is None else gpu.buffer(albedo.tobytes())
             lods.append(_Lod(vbo, ibo, centres, radii, firsts, counts, edge, len(f), {}, abo))
         self._gpu[ctx] = lods
         return lods
@@ -265,7 +266,7 @@ class MeshScene:
         render.scene.FrameState
             One batch and what it draws.
         """
-        lods = self._upload(gpu.ctx)
+        lods = self._upload(gpu)
         k = view.intrinsics
         cam = np.asarray(view.pose.position) - self.origin      # world, relative to centre
         dist = max(np.linalg.norm(cam) - self.reach, MIN_LOD_DISTANCE_M)

@@ -284,9 +284,9 @@ def _shader(name: str) -> str:
 class SceneGpu:
     """The handle to the GPU a renderer passes its scenes (:class:`render.scene.Gpu`).
 
-    Uploads go to :attr:`ctx`; vertex arrays bind the renderer's two programs; shadow maps
-    are allocated and their depth drawn here. Nothing else: camera passes are the
-    renderer's.
+    Buffers and textures are uploaded here (the scene owns them); vertex arrays bind the
+    renderer's two programs; shadow maps are allocated and their depth drawn here. Nothing
+    else: the context itself and camera passes stay the renderer's.
 
     Parameters
     ----------
@@ -297,12 +297,86 @@ class SceneGpu:
     """
 
     def __init__(self, ctx: Any, scene_program: Any, depth_program: Any) -> None:
-        self.ctx = ctx
+        self._ctx = ctx
         # Scenes cache vertex arrays per renderer (they bind this renderer's programs). A
         # never-reused token, not id(self): a new renderer can get a dead one's id.
         self.token = next(_TOKENS)
         self._scene_program = scene_program
         self._depth_program = depth_program
+
+    @property
+    def context(self) -> object:
+        """The context uploads go to, as an opaque key (scenes cache uploads under it)."""
+        return self._ctx
+
+    def buffer(self, data: bytes) -> Any:
+        """Upload a vertex, index or attribute buffer (the scene owns it).
+
+        Parameters
+        ----------
+        data : bytes
+            Its contents.
+
+        Returns
+        -------
+        moderngl.Buffer
+            The buffer.
+        """
+        return self._ctx.buffer(data)
+
+    def texture(self, size: tuple[int, int], components: int, data: bytes,
+                dtype: str) -> Any:
+        """Upload a 2-D texture, sampled bilinearly and clamped at its edges (the scene owns it).
+
+        Parameters
+        ----------
+        size : (int, int)
+            Width and height, texels.
+        components : int
+            Values per texel (1 to 4).
+        data : bytes
+            Rows from the texture's first (v = 0) row.
+        dtype : str
+            moderngl's texel type, e.g. ``"f2"`` or ``"f4"``.
+
+        Returns
+        -------
+        moderngl.Texture
+            The texture.
+        """
+        import moderngl
+
+        tex = self._ctx.texture(size, components, data, dtype=dtype)
+        tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+        tex.repeat_x = False
+        tex.repeat_y = False
+        return tex
+
+    def texture_cube(self, size: tuple[int, int], components: int, data: bytes,
+                     dtype: str) -> Any:
+        """Upload a cube map, sampled bilinearly (the scene owns it).
+
+        Parameters
+        ----------
+        size : (int, int)
+            Side of each face, texels.
+        components : int
+            Values per texel (1 to 4).
+        data : bytes
+            The faces +X, -X, +Y, -Y, +Z, -Z in GL's order.
+        dtype : str
+            moderngl's texel type, e.g. ``"f2"``.
+
+        Returns
+        -------
+        moderngl.TextureCube
+            The cube map.
+        """
+        import moderngl
+
+        tex = self._ctx.texture_cube(size, components, data, dtype=dtype)
+        tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+        return tex
 
     def vertex_arrays(self, vbo: Any, ibo: Any, albedo: Any = None,
                       morph: Any = None) -> tuple[Any, Any]:
@@ -333,9 +407,9 @@ class SceneGpu:
             content.append((albedo, "1f", "in_albedo"))
         if morph is not None:
             content.append((morph, "4f 3f", "in_morph", "in_morph_normal"))
-        vao = self.ctx.vertex_array(self._scene_program, content, ibo)
-        dvao = self.ctx.vertex_array(self._depth_program, [(vbo, "3f 12x", "in_position")],
-                                     ibo)
+        vao = self._ctx.vertex_array(self._scene_program, content, ibo)
+        dvao = self._ctx.vertex_array(self._depth_program, [(vbo, "3f 12x", "in_position")],
+                                      ibo)
         return vao, dvao
 
     def shadow_target(self, size: int) -> tuple[Any, Any]:
@@ -354,12 +428,12 @@ class SceneGpu:
         """
         import moderngl
 
-        tex = self.ctx.depth_texture((size, size))
+        tex = self._ctx.depth_texture((size, size))
         tex.compare_func = "<="
         tex.filter = (moderngl.LINEAR, moderngl.LINEAR)  # 2x2 percentage-closer filtering
         tex.repeat_x = False
         tex.repeat_y = False
-        fbo = self.ctx.framebuffer(depth_attachment=tex)
+        fbo = self._ctx.framebuffer(depth_attachment=tex)
         return tex, fbo
 
     def draw_depth(self, framebuffer: Any, size: int, light_clip: np.ndarray,
@@ -380,7 +454,7 @@ class SceneGpu:
         """
         import moderngl
 
-        ctx = self.ctx
+        ctx = self._ctx
         framebuffer.use()
         ctx.viewport = (0, 0, size, size)
         ctx.enable(moderngl.DEPTH_TEST)

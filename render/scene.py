@@ -111,22 +111,84 @@ TERRAIN_SHADOW_BIAS = ShadowBias(NORMAL_OFFSET_TEXELS, TERRAIN_BIAS_TEXELS,
 class Gpu(Protocol):
     """The narrow handle to the GPU a renderer passes its scenes.
 
-    A scene uploads and owns its buffers and textures (through :attr:`ctx`), binds them to
-    the renderer's programs (:meth:`vertex_arrays`) and draws its shadow maps
-    (:meth:`shadow_target`, :meth:`draw_depth`, through :func:`render_shadow_map`); it never
-    runs a camera pass: the renderer does (:class:`render.renderer.SceneGpu` is the handle).
+    A scene uploads and owns its buffers and textures (:meth:`buffer`, :meth:`texture`,
+    :meth:`texture_cube`), binds them to the renderer's programs (:meth:`vertex_arrays`)
+    and draws its shadow maps (:meth:`shadow_target`, :meth:`draw_depth`, through
+    :func:`render_shadow_map`); it never sees the context or runs a camera pass: the
+    renderer does (:class:`render.renderer.SceneGpu` is the handle).
 
     Attributes
     ----------
-    ctx : moderngl.Context
-        The context the scene's buffers and textures are uploaded to.
     token : int
         Never reused between renderers: scenes cache vertex arrays under it (they bind one
         renderer's programs).
     """
 
-    ctx: Any
     token: int
+
+    @property
+    def context(self) -> object:
+        """The context uploads go to, as an opaque key: scenes cache their uploads under it."""
+        ...
+
+    def buffer(self, data: bytes) -> Any:
+        """Upload a vertex, index or attribute buffer.
+
+        Parameters
+        ----------
+        data : bytes
+            Its contents.
+
+        Returns
+        -------
+        moderngl.Buffer
+            The buffer (the scene owns it).
+        """
+        ...
+
+    def texture(self, size: tuple[int, int], components: int, data: bytes,
+                dtype: str) -> Any:
+        """Upload a 2-D texture, sampled bilinearly and clamped at its edges.
+
+        Parameters
+        ----------
+        size : (int, int)
+            Width and height, texels.
+        components : int
+            Values per texel.
+        data : bytes
+            Rows from the texture's first (v = 0) row.
+        dtype : str
+            The texel type, e.g. ``"f2"`` or ``"f4"``.
+
+        Returns
+        -------
+        moderngl.Texture
+            The texture (the scene owns it).
+        """
+        ...
+
+    def texture_cube(self, size: tuple[int, int], components: int, data: bytes,
+                     dtype: str) -> Any:
+        """Upload a cube map, sampled bilinearly.
+
+        Parameters
+        ----------
+        size : (int, int)
+            Side of each face, texels.
+        components : int
+            Values per texel.
+        data : bytes
+            The faces +X, -X, +Y, -Y, +Z, -Z in GL's order.
+        dtype : str
+            The texel type, e.g. ``"f2"``.
+
+        Returns
+        -------
+        moderngl.TextureCube
+            The cube map (the scene owns it).
+        """
+        ...
 
     def vertex_arrays(self, vbo: Any, ibo: Any, albedo: Any = None,
                       morph: Any = None) -> tuple[Any, Any]:

@@ -213,7 +213,7 @@ class TerrainScene:
             raise InvalidParameterError(f"body radius must be positive; got {radius}")
         self.radius = float(radius)
         self._layers: list[_Layer] = []
-        self._ctx = None
+        self._ctx: object = None  # the context the layers were uploaded to
         self._shadow_cache: dict = {}
         self.triangles_full = 0
         self.albedo_map: DEMTile | None = None
@@ -329,24 +329,24 @@ class TerrainScene:
         return lo, hi
 
     # ------------------------------------------------------------------ GPU
-    def upload(self, ctx: Any) -> None:
+    def upload(self, gpu: Gpu) -> None:
         """Build every layer's vertex and index buffers (once per context).
 
         Parameters
         ----------
-        ctx : moderngl.Context
-            The context the buffers and normal textures go to.
+        gpu : render.scene.Gpu
+            The handle the buffers and normal textures are uploaded through.
         """
-        if self._ctx is ctx and self._layers:
+        if self._ctx is gpu.context and self._layers:
             return
-        self._ctx = ctx
+        self._ctx = gpu.context
         self._layers = []
         tiles = self.stack.tiles
         total = 0
         parent = None
         for k, tile in enumerate(tiles):
             finer = tiles[k + 1] if k + 1 < len(tiles) else None
-            layer, parent = self._build_layer(ctx, k, tile, finer, parent)
+            layer, parent = self._build_layer(gpu, k, tile, finer, parent)
             self._layers.append(layer)
             total += int(layer.counts[1].sum()) // 3
         self.triangles_full = total
@@ -358,7 +358,7 @@ class TerrainScene:
         return (left + r / 2 - self.site[0], bottom + r / 2 - self.site[1],
                 right - r / 2 - self.site[0], top - r / 2 - self.site[1])
 
-    def _build_layer(self, ctx, k, tile, finer, parent=None):
+    def _build_layer(self, gpu, k, tile, finer, parent=None):
         """Build the layer's GPU buffers, and its surface (for the next layer's fade-in)."""
         h, w = tile.shape
         res = tile.resolution
@@ -384,12 +384,7 @@ class TerrainScene:
         n /= np.linalg.norm(n, axis=-1, keepdims=True)
         # the full-resolution normals as a texture (shading independent of the level of
         # detail, module docstring): texel (i, j) at pixel centre (xs[j], ys[i])
-        import moderngl
-
-        normal_tex = ctx.texture((w, h), 3, n.astype("f2").tobytes(), dtype="f2")
-        normal_tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
-        normal_tex.repeat_x = False
-        normal_tex.repeat_y = False
+        normal_tex = gpu.texture((w, h), 3, n.astype("f2").tobytes(), dtype="f2")
         normal_rect = (xs[0] - 0.5 * res, ys[0] + 0.5 * res, 1.0 / (w * res), 1.0 / (h * res))
         xx = np.broadcast_to(xs[None, :], (h, w))
         yy = np.broadcast_to(ys[:, None], (h, w))
@@ -410,7 +405,7 @@ class TerrainScene:
         nor = np.concatenate([normals, normals.reshape(h, w, 3)[brows].reshape(-1, 3),
                               normals.reshape(h, w, 3)[:, bcols].transpose(1, 0, 2)
                               .reshape(-1, 3)]).astype(np.float32)
-        vbo = ctx.buffer(np.hstack([pos, nor]).tobytes())
+        vbo = gpu.buffer(np.hstack([pos, nor]).tobytes())
         # geomorphing targets (module docstring); skirts follow their edge vertex
         target, level, tnormal = _morph_targets(z, n)
         m = np.zeros((h, w, 7), dtype=np.float64)
@@ -423,7 +418,7 @@ class TerrainScene:
         sk_m_cols = m[:, bcols].transpose(1, 0, 2).reshape(-1, 7).copy()
         sk_m_rows[:, 2] -= depth
         sk_m_cols[:, 2] -= depth
-        morph_vbo = ctx.buffer(np.concatenate([m.reshape(-1, 7), sk_m_rows, sk_m_cols])
+        morph_vbo = gpu.buffer(np.concatenate([m.reshape(-1, 7), sk_m_rows, sk_m_cols])
                                .astype(np.float32).tobytes())
         row_index = {int(r): i for i, r in enumerate(brows)}
         col_index = {int(c): i for i, c in enumerate(bcols)}
@@ -472,7 +467,7 @@ class TerrainScene:
                     off[b] = pos_in
                     cnt[b] = idx.size
                     pos_in += idx.size
-            ibo = ctx.buffer(np.concatenate(chunks).astype(np.uint32).tobytes())
+            ibo = gpu.buffer(np.concatenate(chunks).astype(np.uint32).tobytes())
             ibos[s] = ibo
             offsets[s] = off
             counts[s] = cnt
@@ -538,7 +533,7 @@ class TerrainScene:
         render.scene.FrameState
             The batches (coarsest layer first) and what they draw.
         """
-        self.upload(gpu.ctx)
+        self.upload(gpu)
         k = view.intrinsics
         cam = np.asarray(view.pose.position) - self.origin
         rot = view.pose.rotation
@@ -611,25 +606,21 @@ class TerrainScene:
             box_corners(lo - self.origin, hi - self.origin)[0] - cam, axis=1))))
         drawn = {"layers": drawn_layers, "triangles": sum(d["triangles"] for d in drawn_layers),
                  "lod_pixels": target, "geomorph": bool(options.geomorph)}
-        return FrameState(batches, far, drawn, albedo=self._albedo(gpu.ctx))
+        return FrameState(batches, far, drawn, albedo=self._albedo(gpu))
 
-    def _albedo(self, ctx):
-        """(texture, scene-local window) of the albedo map, uploaded once per context."""
+    def _albedo(self, gpu):
+        """Return (texture, scene-local window) of the albedo map, uploaded once per context."""
         if self.albedo_map is None:
             return None
-        if self._albedo_gpu is None or self._albedo_gpu[0] is not ctx:
-            import moderngl
-
+        if self._albedo_gpu is None or self._albedo_gpu[0] is not gpu.context:
             t = self.albedo_map
             a = np.where(t.valid, t.heights, 1.0).astype(np.float32)[::-1]  # south row first
-            tex = ctx.texture((a.shape[1], a.shape[0]), 1, np.ascontiguousarray(a).tobytes(),
+            tex = gpu.texture((a.shape[1], a.shape[0]), 1, np.ascontiguousarray(a).tobytes(),
                               dtype="f4")
-            tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
-            tex.repeat_x = tex.repeat_y = False
             left, bottom, right, top = t.bounds
             window = (left - self.origin[0], bottom - self.origin[1],
                       right - self.origin[0], top - self.origin[1])
-            self._albedo_gpu = (ctx, tex, window)
+            self._albedo_gpu = (gpu.context, tex, window)
         return self._albedo_gpu[1], self._albedo_gpu[2]
 
     def _plan(self, visible, dist, focal, target):

@@ -62,12 +62,21 @@ class _FakeTarget:
 class _RecordingGpu:
     """A Gpu handle without a GPU: records allocations and depth draws."""
 
-    ctx = None
+    context = None
     token = 0
 
     def __init__(self):
         self.targets = []
         self.draws = []
+
+    def buffer(self, data):
+        raise AssertionError("the shadow-map setup uploads nothing")
+
+    def texture(self, size, components, data, dtype):
+        raise AssertionError("the shadow-map setup uploads nothing")
+
+    def texture_cube(self, size, components, data, dtype):
+        raise AssertionError("the shadow-map setup uploads nothing")
 
     def vertex_arrays(self, vbo, ibo, albedo=None, morph=None):
         raise AssertionError("the shadow-map setup binds no meshes")
@@ -148,7 +157,8 @@ def test_a_shadow_map_is_drawn_again_in_place_until_its_size_changes():
 
 def test_the_gpu_handle_a_scene_gets_can_run_no_camera_pass():
     """Scenes reach the GPU only through the handle's few methods (uploads, vertex arrays,
-    shadow maps): the renderer's handle offers exactly the Gpu protocol's, no render."""
+    shadow maps): the renderer's handle offers exactly the Gpu protocol's, no render and no
+    context."""
     from render.renderer import SceneGpu
     from render.scene import Gpu
 
@@ -156,7 +166,7 @@ def test_the_gpu_handle_a_scene_gets_can_run_no_camera_pass():
         return {n for n, v in vars(cls).items() if inspect.isfunction(v) and n[0] != "_"}
 
     assert public_methods(SceneGpu) == public_methods(Gpu)
-    assert "render" not in public_methods(SceneGpu)
+    assert not {"render", "ctx"} & {n for n in vars(SceneGpu) if n[0] != "_"}
     for name in public_methods(Gpu):
         want = inspect.signature(getattr(Gpu, name))
         assert list(inspect.signature(getattr(SceneGpu, name)).parameters) == list(
