@@ -380,9 +380,9 @@ class AsteroidScene:
             return None
         focal = max(k.fx, k.fy)
         span = 2.0 * focal * math.tan(math.asin(min(self.reach / dist, 1.0)))
-        blend: float | None = None
+        blend: float | None
         if span < self.imposter_pixels:
-            blend = None
+            blend = None  # the imposter replaces the body
         elif options.geomorph and span < IMPOSTER_FADE * self.imposter_pixels:
             # the imposter fades in (module docstring): weight 0 at IMPOSTER_FADE x, 1 at 1 x
             blend = (IMPOSTER_FADE * self.imposter_pixels - span) / (
@@ -390,7 +390,7 @@ class AsteroidScene:
         else:
             return None
         size = int(max(MIN_IMPOSTER_TEXELS, math.ceil(span) * IMPOSTER_OVERSAMPLING))
-        half = math.asin(min(self.reach / float(np.linalg.norm(cam)), 1.0)) * IMPOSTER_FOV_MARGIN
+        half = math.asin(min(self.reach / dist, 1.0)) * IMPOSTER_FOV_MARGIN
         f = 0.5 * size / math.tan(half)
         k_imp = Intrinsics(size, size, f, f, (size - 1) / 2, (size - 1) / 2)
         # cells as large on screen as the geometry it stands for would draw: the imposter's
