@@ -33,6 +33,7 @@ def test_every_scene_has_a_reach_that_encloses_what_turns(tmp_path):
     of a body about its centre; a terrain map does not turn and reaches nothing."""
     from asteroid.body import Body
     from asteroid.sphere import SphereMesh
+    from terrain.catalog import CraterCatalog
     from terrain.layers import Layer, LayerStack
     from terrain.tile import DEMTile
 
@@ -46,8 +47,8 @@ def test_every_scene_has_a_reach_that_encloses_what_turns(tmp_path):
     lo, hi = shape.bounds()
     assert np.all(verts + shape.origin >= lo) and np.all(verts + shape.origin <= hi)
     tile = DEMTile.from_array(np.zeros((65, 65)), resolution=1.0)
-    cat = {"layer": np.zeros(0, np.int64), "id": np.zeros(0, np.uint64)}
-    terrain = TerrainScene(LayerStack((Layer(tile, None, (0, 0)),), cat, {}))
+    terrain = TerrainScene(LayerStack((Layer(tile, None, (0, 0)),),
+                                      CraterCatalog.empty(layered=True), {}))
     assert terrain.reach == 0.0
 
 
