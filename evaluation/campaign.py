@@ -43,6 +43,7 @@ from pathlib import Path
 from types import MappingProxyType
 
 from render.records import check_keys, number
+from terrain.clitools import cli_args, long_options, run_command
 from terrain.errors import InvalidParameterError
 from terrain.tomlfile import merge_tables, read_toml, toml_text
 
@@ -66,9 +67,7 @@ def _options(table, where: str, command) -> Mapping:
 
     Long options are matched by name (``--fractal-dimension`` is ``fractal_dimension``).
     """
-    names = {o[2:].replace("-", "_") for p in command.params for o in getattr(p, "opts", ())
-             if o.startswith("--")}
-    return MappingProxyType(check_keys(table, names, where))
+    return MappingProxyType(check_keys(table, long_options(command), where))
 
 
 def _optional_int(table: dict, key: str, where: str) -> int | None:
@@ -282,36 +281,6 @@ def load_campaign(path, *, quick: bool = False) -> Campaign:
     return Campaign.from_mapping(read_toml(path, "campaign file"), path, quick=quick)
 
 
-def cli_args(options: Mapping) -> list:
-    """Return the command-line arguments of a mapping of option names.
-
-    ``fractal_dimension = 2.3`` -> ``--fractal-dimension 2.3``; ``true`` -> the bare flag.
-
-    Parameters
-    ----------
-    options : Mapping
-        Option names as click's parameter names, and their values.
-
-    Returns
-    -------
-    list
-        The arguments, in the mapping's order.
-
-    Examples
-    --------
-    >>> cli_args({"fractal_dimension": 2.3, "size": 257})
-    ['--fractal-dimension', 2.3, '--size', 257]
-    """
-    out: list = []
-    for key, value in options.items():
-        flag = "--" + key.replace("_", "-")
-        if value is True:
-            out.append(flag)
-        elif value is not False:
-            out += [flag, value]
-    return out
-
-
 # ------------------------------------------------------------------------------ stages
 
 
@@ -365,24 +334,6 @@ class Stage:
         return info
 
 
-def run_cli(*args) -> None:
-    """Run a ``craterscape`` command in this process; raise on failure.
-
-    Parameters
-    ----------
-    *args
-        The command line after ``craterscape`` (converted with ``str``).
-    """
-    from terrain.cli import main
-
-    try:
-        main.main([str(a) for a in args], standalone_mode=False, prog_name="craterscape")
-    except SystemExit as exc:  # click exits with the command's status
-        if exc.code not in (0, None):
-            raise RuntimeError(f"craterscape {' '.join(map(str, args))} failed ({exc.code})") \
-                from exc
-
-
 def write_scenario(template: Path, target: Path, overrides: dict):
     """Return the scenario ``template`` with ``overrides`` merged into its tables.
 
@@ -407,6 +358,8 @@ def write_scenario(template: Path, target: Path, overrides: dict):
     from terrain.io import atomic_path
 
     data = merge_tables(read_toml(template, "scenario"), overrides)
+    if {"stack", "body"} & set(overrides.get("scene", {})):
+        data["scene"].pop("build", None)  # the campaign builds the scene the run uses
     parse_scenario(data, target)  # refused before anything is written
     with atomic_path(target) as tmp:
         tmp.write_text(f"# {template.name} as run by a campaign\n" + toml_text(data),
@@ -453,9 +406,9 @@ def lunar(c: Campaign, out: Path, say: Callable[[str], None]) -> dict:
         say(f"lunar 1/3: synthetic base, {c.base.get('resolution', 1.0):g} m per pixel")
         base.begin()
         t0 = time.perf_counter()
-        run_cli("terrain", "synth", "-o", base_tif, *synth_args,
+        run_command("terrain", "synth", "-o", base_tif, *synth_args,
                 "--catalog", base.dir / "base_craters.csv")
-        run_cli("terrain", "hillshade", base_tif, "-o", base.dir / "base_hillshade.png",
+        run_command("terrain", "hillshade", base_tif, "-o", base.dir / "base_hillshade.png",
                 "--azimuth", 45, "--altitude", 10)
         base.finish(time.perf_counter() - t0)
     tile = read_dem(base_tif)
@@ -470,7 +423,7 @@ def lunar(c: Campaign, out: Path, say: Callable[[str], None]) -> dict:
         stack.begin()
         shutil.rmtree(stack_dir, ignore_errors=True)  # a stack is written whole, or not at all
         t0 = time.perf_counter()
-        run_cli("terrain", "enhance", base_tif, "-o", stack_dir, *enhance_args)
+        run_command("terrain", "enhance", base_tif, "-o", stack_dir, *enhance_args)
         stack.finish(time.perf_counter() - t0)
     spec = c.lunar_run
     elevation = spec.sun_elevation
@@ -556,10 +509,10 @@ def asteroid(c: Campaign, out: Path, say: Callable[[str], None]) -> dict:
         say("asteroid 1/2: building an Eros-like body (Perlin base, craters, boulders)")
         body.begin()
         t0 = time.perf_counter()
-        run_cli("asteroid", "build", "-o", body_npz, *cli_args(c.body))
+        run_command("asteroid", "build", "-o", body_npz, *cli_args(c.body))
         # a mesh to open in a viewer: the body with its boulders at their coarsest level
         # (the finest levels, which the renderer uses close up, would make it 0.6 GB)
-        run_cli("asteroid", "export", body_npz, "-o", body.dir / "body.ply", "--level", 0)
+        run_command("asteroid", "export", body_npz, "-o", body.dir / "body.ply", "--level", 0)
         body.finish(time.perf_counter() - t0)
     spec = c.asteroid_run
     overrides = merge_tables(spec.overrides(), {"scene": {"body": str(body_npz)}})

@@ -18,8 +18,9 @@ import os
 import time
 from pathlib import Path
 
-from evaluation.campaign import STAGES, Campaign, Stage, run_cli
+from evaluation.campaign import STAGES, Campaign, Stage
 from terrain import metakeys as mk
+from terrain.clitools import run_command
 
 __all__ = ["evaluate"]
 
@@ -364,9 +365,9 @@ def site(c: Campaign, folder: Path, stack_dir: Path, run, facts: dict, say):
 
     ev = c.evaluation
     tif = folder / "hazards.tif"
-    run_cli("terrain", "hazards", stack_dir, "-o", tif,
-            "--lander-diameter", ev.get("lander_diameter", 4.0),
-            "--max-slope", ev.get("max_slope", 12.0), "--max-step", ev.get("max_step", 0.3))
+    run_command("terrain", "hazards", stack_dir, "-o", tif,
+                "--lander-diameter", ev.get("lander_diameter", 4.0),
+                "--max-slope", ev.get("max_slope", 12.0), "--max-step", ev.get("max_step", 0.3))
     n = len(run)
     frames = (60, 90, 110, 119) if n == 120 else sorted({n // 2, 3 * n // 4, n - 2, n - 1})
     sec = hazards_file_section(tif, run=run, frames=frames)

@@ -11,6 +11,8 @@ trajectory. Paths are relative to the scenario file. Example (``examples/lunar_d
     stack = "../demo-output/stack"   # a layer-stack folder (craterscape terrain enhance)
     curvature = true
     # asteroid scenes: body = "eros.npz", boulders = true
+    # [scene.build]: the scene's recipe, built where the scene is missing
+    # (render.scene_build: [scene.build.base] and [scene.build.stack], or [scene.build.body])
 
     [sun]
     azimuth = 90.0                   # degrees clockwise from north (terrain) ...
@@ -88,6 +90,7 @@ from render.camera import Intrinsics
 from render.motion import Motion
 from render.reflectance import Hapke, check_brdf
 from render.renderer import Lighting, RenderOptions
+from render.scene_build import SceneBuild
 from render.sensor import Sensor
 from render.trajectory import Sample, approach, descent, keyframes
 from terrain.errors import InvalidParameterError
@@ -170,7 +173,7 @@ def _number(table, key, default, where, positive=False):
 DEFAULT_IMPOSTER_PIXELS = 24.0
 #: Keys of a scenario's [scene] table.
 SCENE_KEYS = frozenset({"type", "stack", "curvature", "radius", "body", "boulders", "spin_axis",
-                        "spin_period", "spin_phase", "imposter_pixels"})
+                        "spin_period", "spin_phase", "imposter_pixels", "build"})
 #: Keys of a scenario's [trajectory] table.
 TRAJECTORY_KEYS = frozenset({"type", "frames", "duration", "start_altitude", "end_altitude",
                              "ground_track", "look", "site", "keyframe", "start_distance",
@@ -204,6 +207,9 @@ class SceneSpec:
         Asteroid: below this apparent size (pixels) the body is drawn as an imposter.
     albedo_map : str, optional
         Albedo factors (``[surface] albedo_map``), relative to the scenario file.
+    build : render.scene_build.SceneBuild, optional
+        ``[scene.build]``: the recipe the scene is built from where it is missing
+        (:func:`render.scene_build.ensure_scene`).
     """
 
     type: str
@@ -217,6 +223,7 @@ class SceneSpec:
     spin_phase: float = 0.0
     imposter_pixels: float = DEFAULT_IMPOSTER_PIXELS
     albedo_map: str | None = None
+    build: SceneBuild | None = None
 
     @classmethod
     def from_mapping(cls, table: dict) -> SceneSpec:
@@ -257,6 +264,8 @@ class SceneSpec:
                                                 DEFAULT_IMPOSTER_PIXELS, "scene", positive=True)
         if "spin_axis" in scene:
             values["spin_axis"] = _vector(scene, "spin_axis", 3, "scene")
+        if "build" in scene:
+            values["build"] = SceneBuild.from_mapping(scene["build"], kind)
         return cls(**values)
 
     def inputs(self) -> tuple[str, ...]:

@@ -63,6 +63,9 @@ def check_frame_memory(scenario: Scenario) -> None:
 def load_scene(scenario: Scenario) -> Scene:
     """Load the scene a scenario names.
 
+    A scene the scenario can build (``[scene.build]``) is built first where it is missing
+    (:func:`render.scene_build.ensure_scene`).
+
     Parameters
     ----------
     scenario : render.scenario.Scenario
@@ -74,6 +77,9 @@ def load_scene(scenario: Scenario) -> Scene:
         A :class:`render.terrain_scene.TerrainScene` (a layer stack) or a
         :class:`render.asteroid_scene.AsteroidScene` (a native body).
     """
+    from render.scene_build import ensure_scene
+
+    ensure_scene(scenario)
     spec = scenario.scene
     albedo = None if spec.albedo_map is None else scenario.resolve(spec.albedo_map)
     if spec.type == "terrain":

@@ -20,8 +20,8 @@ import click
 from terrain.errors import InvalidParameterError
 from terrain.progress import Progress
 
-__all__ = ["FINITE", "PAIR", "TRIPLE", "WINDOW", "ImageSizeType", "progress_bar", "version",
-           "version_option"]
+__all__ = ["FINITE", "PAIR", "TRIPLE", "WINDOW", "ImageSizeType", "cli_args", "long_options",
+           "progress_bar", "run_command", "version", "version_option"]
 
 
 class _FiniteFloat(click.ParamType):
@@ -192,3 +192,121 @@ def progress_bar(label: str, unit: str = "it", total: int | None = None
         yield update
     finally:
         bar.close()
+
+
+# ------------------------------------------------------------------ commands from files
+
+
+def long_options(command: click.Command) -> frozenset[str]:
+    """Return the long options of a command as Python names.
+
+    ``--fractal-dimension`` is ``fractal_dimension``: the keys a campaign or scene-recipe
+    table may hold for the command.
+
+    Parameters
+    ----------
+    command : click.Command
+        A ``craterscape`` command (e.g. ``terrain synth``).
+
+    Returns
+    -------
+    frozenset of str
+        Its long option names, without the dashes, ``-`` as ``_``.
+    """
+    return frozenset(o[2:].replace("-", "_") for p in command.params
+                     for o in getattr(p, "opts", ()) if o.startswith("--"))
+
+
+def cli_args(options: Any) -> list:
+    """Return the command-line arguments of a mapping of option names.
+
+    ``fractal_dimension = 2.3`` -> ``--fractal-dimension 2.3``; ``true`` -> the bare flag,
+    ``false`` -> nothing; a list -> its items joined by commas (``site = [1.5, 2]`` ->
+    ``--site 1.5,2``).
+
+    Parameters
+    ----------
+    options : Mapping
+        Option names as click's parameter names, and their values.
+
+    Returns
+    -------
+    list
+        The arguments, in the mapping's order.
+
+    Examples
+    --------
+    >>> cli_args({"fractal_dimension": 2.3, "size": 257})
+    ['--fractal-dimension', 2.3, '--size', 257]
+    >>> cli_args({"no_roughness": True, "cog": False, "site": [1.5, 2]})
+    ['--no-roughness', '--site', '1.5,2']
+    """
+    out: list = []
+    for key, value in options.items():
+        flag = "--" + key.replace("_", "-")
+        if value is True:
+            out.append(flag)
+        elif isinstance(value, (list, tuple)):
+            out += [flag, ",".join(str(v) for v in value)]
+        elif value is not False:
+            out += [flag, value]
+    return out
+
+
+def command(*names: str) -> click.Command:
+    """Return a ``craterscape`` command by its words (``"terrain", "synth"``).
+
+    It is the command the ``craterscape`` executable runs: float options refuse NaN and
+    infinity, and its input paths are protected from its outputs.
+
+    Parameters
+    ----------
+    *names : str
+        The group and command names.
+
+    Returns
+    -------
+    click.Command
+        The command.
+    """
+    from terrain.cli import main  # the root loads the stage groups from entry points
+
+    ctx = click.Context(main, info_name="craterscape")
+    found: click.Command = main
+    for n, name in enumerate(names):
+        sub = found.get_command(ctx, name) if isinstance(found, click.Group) else None
+        if sub is None:
+            raise InvalidParameterError(
+                f"craterscape has no command '{' '.join(names[:n + 1])}'")
+        found = sub
+    return found
+
+
+def run_command(*args: Any) -> None:
+    """Run a ``craterscape`` command in this process, as its command line would.
+
+    The command's errors propagate as exceptions (a bad value is a ``click.UsageError``, bad
+    input a :class:`terrain.errors.CraterscapeError`), so the calling command reports them in
+    its one line; logging is left as the caller set it.
+
+    Parameters
+    ----------
+    *args
+        The command line after ``craterscape``: group, command, then its arguments
+        (converted with ``str``).
+
+    Raises
+    ------
+    terrain.errors.CraterscapeError
+        When the command exits with a non-zero status of its own.
+    """
+    from terrain.errors import CraterscapeError
+
+    words = [str(a) for a in args]
+    if len(words) < 2:
+        raise InvalidParameterError(f"run_command needs a group and a command; got {words}")
+    found = command(words[0], words[1])
+    code = found.main(words[2:], prog_name=f"craterscape {words[0]} {words[1]}",
+                      standalone_mode=False)
+    if code not in (0, None):
+        raise CraterscapeError(f"craterscape {' '.join(words[:2])} failed (exit {code})")

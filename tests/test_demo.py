@@ -147,9 +147,10 @@ def test_a_second_run_reuses_finished_stages_and_absent_data_is_said(demo, tmp_p
 
 def test_demo_base_matches_lolas_south_pole_slopes(tmp_path, shared_file):
     """Stage 1's base (complex craters to 150 km) against LDEM_4 at its 7.58 km pixels."""
-    from evaluation.campaign import cli_args, load_campaign
+    from evaluation.campaign import load_campaign
     from evaluation.campaign_report import polar_ldem
     from evaluation.compare import compare_dems
+    from terrain.clitools import cli_args
     from terrain.io import read_dem
     from tests.cli_helpers import run
 

@@ -9,7 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from evaluation.campaign import Campaign, Stage, cli_args, load_campaign, write_scenario
+from evaluation.campaign import Campaign, Stage, load_campaign, write_scenario
+from terrain.clitools import cli_args
 from terrain.errors import InvalidParameterError
 
 REPO = Path(__file__).resolve().parents[2]

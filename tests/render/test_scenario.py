@@ -22,8 +22,12 @@ EXAMPLES = [p for p in sorted((Path(__file__).resolve().parents[2] / "examples")
 def _table(record) -> dict:
     """A record back as the TOML table it came from (lists, no unset keys)."""
     out = {}
-    for key, value in dataclasses.asdict(record).items():
+    for key in (f.name for f in dataclasses.fields(record)):
+        value = getattr(record, key)
         if value is None or key == "albedo_map":
+            continue
+        if key == "build":  # [scene.build], the scene's recipe
+            out[key] = value.to_mapping()
             continue
         if isinstance(value, tuple):
             value = [dict(v) if isinstance(v, dict) else v for v in value]

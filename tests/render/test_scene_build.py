@@ -1,0 +1,186 @@
+"""Scenes built from a scenario's [scene.build] recipe where they are missing."""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from render.scenario import load_scenario, parse_scenario
+from render.scene_build import SceneBuild, ensure_scene, stamp_path
+from terrain.cli import main
+from terrain.errors import InvalidParameterError
+from terrain.io import read_dem
+
+REPO = Path(__file__).resolve().parents[2]
+
+BASE = {"size": 65, "resolution": 20.0, "relief": 30.0, "dmin": 40.0, "dmax": 200.0,
+        "density": 20.0}
+STACK = {"site": [650.0, 650.0], "levels": 2, "dmin": 5.0, "dmax": 40.0, "density": 500.0}
+
+
+def toml_value(v) -> str:
+    return json.dumps(v)  # numbers, strings and lists of numbers are the same in TOML
+
+
+def terrain_scenario(folder: Path, *, stack="scene/stack", base=None, extra_base="") -> Path:
+    base = BASE if base is None else base
+    lines = ['name = "built"', "seed = 3", "[scene]", 'type = "terrain"', f'stack = "{stack}"',
+             "[scene.build]", "seed = 11", "[scene.build.base]"]
+    lines += [f"{k} = {toml_value(v)}" for k, v in base.items()] + [extra_base]
+    lines += ["[scene.build.stack]"] + [f"{k} = {toml_value(v)}" for k, v in STACK.items()]
+    lines += ["[camera]", "width = 32", "height = 32", "[render]", "shadows = false",
+              "[trajectory]", 'type = "descent"', "frames = 2", "start_altitude = 400.0",
+              "end_altitude = 100.0"]
+    path = folder / "scenario.toml"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+def layers(stack: Path) -> list[bytes]:
+    return [read_dem(p).heights.tobytes() for p in sorted(stack.glob("layer_*.tif"))]
+
+
+def test_a_missing_stack_is_built_as_its_commands_would_build_it(tmp_path, caplog):
+    scenario = load_scenario(terrain_scenario(tmp_path))
+    with caplog.at_level(logging.INFO, logger="render.scene_build"):
+        built = ensure_scene(scenario)
+    assert built == tmp_path / "scene" / "stack"
+    assert "building it from the scenario's [scene.build] recipe" in caplog.text
+    # the independent reference: the same two commands typed by hand
+    runner = CliRunner()
+    ref = tmp_path / "ref"
+    flags = [a for k, v in BASE.items() for a in (f"--{k.replace('_', '-')}", str(v))]
+    r = runner.invoke(main, ["terrain", "synth", "-o", str(tmp_path / "base.tif"), *flags,
+                             "--seed", "11"])
+    assert r.exit_code == 0, r.output
+    r = runner.invoke(main, ["terrain", "enhance", str(tmp_path / "base.tif"), "-o", str(ref),
+                             "--site", "650,650", "--levels", "2", "--dmin", "5", "--dmax", "40",
+                             "--density", "500", "--seed", "11", "--layer-size", "65"])
+    assert r.exit_code == 0, r.output
+    assert layers(built) == layers(ref) and len(layers(ref)) == 3
+    assert (tmp_path / "scene" / "stack.base.tif").exists()
+    stamp = json.loads(stamp_path(built).read_text())
+    assert stamp["key"] == scenario.scene.build.key(tmp_path)
+    assert stamp["recipe"]["stack"]["levels"] == 2
+
+
+def test_a_built_scene_is_reused_and_rebuilt_when_its_recipe_changes(tmp_path, caplog):
+    path = terrain_scenario(tmp_path)
+    built = ensure_scene(load_scenario(path))
+    manifest = built / "manifest.json"
+    before = manifest.stat().st_mtime_ns, layers(built)
+    with caplog.at_level(logging.INFO, logger="render.scene_build"):
+        ensure_scene(load_scenario(path))
+    assert "reused" in caplog.text and manifest.stat().st_mtime_ns == before[0]
+    # another relief: another recipe, so another scene where the old one was
+    path = terrain_scenario(tmp_path, base={**BASE, "relief": 60.0})
+    with caplog.at_level(logging.INFO, logger="render.scene_build"):
+        ensure_scene(load_scenario(path))
+    assert "built from another recipe" in caplog.text
+    after = layers(built)
+    assert len(after) == len(before[1]) and after[0] != before[1][0]
+    assert json.loads(stamp_path(built).read_text())["recipe"]["base"]["relief"] == 60.0
+
+
+def test_a_scene_made_otherwise_is_used_as_it_is(tmp_path):
+    stack = tmp_path / "scene" / "stack"
+    stack.mkdir(parents=True)
+    (stack / "manifest.json").write_text("{}")
+    assert ensure_scene(load_scenario(terrain_scenario(tmp_path))) == stack
+    assert [p.name for p in stack.iterdir()] == ["manifest.json"]
+    assert not stamp_path(stack).exists()
+
+
+def test_a_scenario_without_a_recipe_builds_nothing(tmp_path):
+    s = parse_scenario({"scene": {"type": "terrain", "stack": "nowhere"},
+                        "trajectory": {"type": "descent", "start_altitude": 9.0,
+                                       "end_altitude": 1.0}}, tmp_path / "s.toml")
+    assert ensure_scene(s) is None and not (tmp_path / "nowhere").exists()
+
+
+@pytest.mark.parametrize("build, words", [
+    ({"seed": 1, "base": {"sise": 65}, "stack": {"site": [1, 2]}}, ["sise", "'size'"]),
+    ({"base": {"size": "big"}, "stack": {"site": [1, 2]}}, ["base].size", "big"]),
+    ({"base": {"size": 65}, "stack": {"levels": 2}}, ["site", "site_lonlat"]),
+    ({"base": {"size": 65}, "stack": {"site": [1, 2]}, "body": {}}, ["'body'"]),
+    ({"base": {"output": "x.tif"}, "stack": {"site": [1, 2]}}, ["'output'"]),
+    ({"base": {"no_roughness": 1}, "stack": {"site": [1, 2]}}, ["flag", "no_roughness"]),
+    ({"stack": {"site": [1, 2]}}, ["[scene.build.base]"]),
+    ({"seed": -1, "base": {}, "stack": {"site": [1, 2]}}, ["seed"]),
+])
+def test_a_bad_terrain_recipe_is_refused_when_parsed(build, words):
+    with pytest.raises(InvalidParameterError) as err:
+        SceneBuild.from_mapping(build, "terrain")
+    assert all(w in str(err.value) for w in words), str(err.value)
+
+
+def test_an_asteroid_recipe_takes_the_build_options_and_resolves_its_paths(tmp_path):
+    with pytest.raises(InvalidParameterError, match="'magnitude'"):
+        SceneBuild.from_mapping({"body": {"magnitud": 8}}, "asteroid")
+    with pytest.raises(InvalidParameterError, match="seed"):
+        SceneBuild.from_mapping({"seed": 3, "body": {}}, "asteroid")
+    recipe = SceneBuild.from_mapping({"body": {"config": "r.toml", "magnitude": 8}}, "asteroid")
+    assert recipe.arguments("body", tmp_path) == ["--config", str(tmp_path / "r.toml"),
+                                                  "--magnitude", 8]
+    # the key follows the recipe file's contents, not just its name
+    (tmp_path / "r.toml").write_text("radius = 100.0\n")
+    first = recipe.key(tmp_path)
+    (tmp_path / "r.toml").write_text("radius = 200.0\n")
+    assert recipe.key(tmp_path) != first
+
+
+def test_render_frame_builds_the_missing_body_then_renders(tmp_path, gl):
+    recipe = tmp_path / "tiny.toml"
+    recipe.write_text('magnitude = 8\nradius = 500.0\nseed = 4\nbase = "perlin"\n',
+                      encoding="utf-8")
+    scenario = tmp_path / "approach.toml"
+    scenario.write_text("\n".join([
+        "[scene]", 'type = "asteroid"', 'body = "bodies/tiny.npz"', "boulders = false",
+        "[scene.build.body]", 'config = "tiny.toml"', "[camera]", "width = 48", "height = 48",
+        "[render]", "shadows = false", "[trajectory]", 'type = "approach"', "frames = 2",
+        "start_distance = 3000.0", "end_distance = 2000.0"]) + "\n", encoding="utf-8")
+    r = CliRunner().invoke(main, ["render", "frame", str(scenario), "-o",
+                                  str(tmp_path / "one.png")])
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "bodies" / "tiny.npz").exists()
+    assert (tmp_path / "bodies" / "tiny.npz.build.json").exists()
+    from PIL import Image
+
+    image = np.asarray(Image.open(tmp_path / "one.png"))
+    assert image.shape == (48, 48) and image.max() > 0  # the body is in view and lit
+
+
+def test_the_example_scenarios_build_make_demos_scenes():
+    """The recipes in examples/ are the demo campaign's own tables (so a scene the scenario
+    builds is the one `make demo` builds)."""
+    from evaluation.campaign import load_campaign
+
+    campaign = load_campaign(REPO / "examples" / "demo.toml")
+    for name in ("lunar_descent.toml", "lunar_descent_camera.toml"):
+        recipe = load_scenario(REPO / "examples" / name).scene.build
+        assert recipe is not None and recipe.seed == campaign.seed
+        assert recipe.base == dict(campaign.base)
+        assert {k: v for k, v in recipe.stack.items() if k != "site"} == dict(campaign.stack)
+    recipe = load_scenario(REPO / "examples" / "asteroid_approach.toml").scene.build
+    assert recipe is not None
+    assert str(REPO / "examples" / recipe.body["config"]) == campaign.body["config"]
+
+
+@pytest.mark.slow
+def test_the_example_site_is_the_one_the_demo_chooses(tmp_path):
+    """The lunar recipes' site is where the campaign lands on that base (its flattest spot)."""
+    from evaluation.slope import horn_slope
+    from terrain.clitools import run_command
+    from terrain.site import landing_site
+
+    recipe = load_scenario(REPO / "examples" / "lunar_descent.toml").scene.build
+    assert recipe is not None
+    run_command("terrain", "synth", "-o", tmp_path / "base.tif",
+                *recipe.arguments("base", tmp_path))
+    tile = read_dem(tmp_path / "base.tif")
+    assert landing_site(tile, horn_slope(tile)) == tuple(recipe.stack["site"])
