@@ -45,11 +45,13 @@ $(VENV)/.installed: pyproject.toml | $(PY)
 venv: $(VENV)/.installed
 
 # The main job: a lunar descent and an asteroid approach, evaluated (examples/demo.py).
-# About 4 minutes on 2 cores; run again, it reuses finished stages (DEMO_ARGS=--fresh to redo).
+# About 12 minutes on 2 cores (DEMO_ARGS=--quick: a reduced campaign, about 3); run again, it
+# reuses finished stages (DEMO_ARGS=--fresh to redo).
 demo: setup
 	$(PY) examples/demo.py --out $(DEMO_OUT) $(DEMO_ARGS)
 
-# ruff: style, numpydoc docstrings, no print, no legacy np.random; import-linter: the layers.
+# ruff: style, numpydoc docstrings, no print, no legacy np.random; import-linter: the layers,
+# and terrain/io.py the only module that imports rasterio.
 lint: setup
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/lint-imports

@@ -224,7 +224,7 @@ def _run_sampled(cmd, cwd):
 
 
 def out_of_core(work: Path, size: int, chunk: int) -> dict:
-    import rasterio
+    from terrain.io import raster_layout
 
     exe = str(Path(sys.executable).with_name("craterscape"))
     src, out, cog = work / "ooc-in.zarr", work / "ooc-out.zarr", work / "ooc-out.tif"
@@ -240,10 +240,7 @@ def out_of_core(work: Path, size: int, chunk: int) -> dict:
     wall, peak, lines = _run_sampled(
         [exe, "terrain", "expand", str(src), "--times", "1", "--seed", str(SEED),
          "-o", str(out), "--workers", "2", "--chunk", str(chunk), "--cog", str(cog)], ROOT)
-    with rasterio.open(cog) as ds:
-        geo = dict(width=ds.width, height=ds.height, transform=list(ds.transform)[:6],
-                   overviews=ds.overviews(1), driver=ds.driver,
-                   layout=ds.tags(ns="IMAGE_STRUCTURE").get("LAYOUT"))
+    geo = raster_layout(cog)
     expected = [4.0, 0.0, 4.0 - 2.0, 0.0, -4.0, 8.0 * size - 4.0 + 2.0]
     result = dict(size_in=size, size_out=2 * size - 1, chunk=chunk, workers=2,
                   synth_wall_s=synth_wall, synth_peak_tree_rss_bytes=synth_peak,

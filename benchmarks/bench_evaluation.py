@@ -117,11 +117,9 @@ def child_slope(spec: dict) -> dict:
             gdal_t, _ = _timed(gdal("-co", "TILED=YES", "-co", "COMPRESS=DEFLATE", "-co",
                                     "PREDICTOR=3"), spec["repeat"])
             gdal_plain, _ = _timed(gdal(), spec["repeat"])
-            import rasterio
+            from terrain.io import read_dem
 
-            with rasterio.open(tmp / "gdal.tif") as src:
-                g = src.read(1)
-                g[g == src.nodata] = np.nan
+            g = read_dem(tmp / "gdal.tif").heights  # gdaldem's nodata as NaN
             result.update(gdaldem=gdal_t, gdaldem_uncompressed=gdal_plain,
                           max_abs_difference_deg=float(np.nanmax(np.abs(g - slope))),
                           same_nodata_pixels=bool(np.array_equal(np.isnan(g),

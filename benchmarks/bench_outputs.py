@@ -43,6 +43,9 @@ def _times(fn, repeat):
 
 def bench_write_dem(folder: Path, size: int, repeat: int) -> dict:
     import numpy as np
+
+    # rasterio itself is the baseline here (a direct GeoTIFF write, none of write_dem's
+    # safety), so this benchmark imports it beside terrain/io.py on purpose
     import rasterio
     from rasterio.crs import CRS
 

@@ -38,7 +38,7 @@ __all__ = ["atomic_path", "check_output_path", "lonlat_to_xy", "read_dem", "read
            "read_float_tiff", "same_crs", "write_bands", "write_dem", "write_float_tiff",
            "write_png"]
 __all__ += ["orthographic_crs", "polar_crs", "reproject_polar", "synthetic_crs"]
-__all__ += ["RasterReader", "write_cog"]  # chunked runs (terrain.chunked)
+__all__ += ["RasterReader", "raster_layout", "write_cog"]  # chunked runs (terrain.chunked)
 
 log = logging.getLogger(__name__)
 
@@ -406,6 +406,35 @@ def read_float_tiff(path) -> np.ndarray:
     except (RasterioIOError, RasterioError) as exc:
         raise InvalidDEMError(f"cannot read image '{path}': {_first_line(exc)}") from exc
     return a[0] if a.shape[0] == 1 else np.moveaxis(a, 0, 2)
+
+
+def raster_layout(path) -> dict:
+    """Return how a raster file is laid out: what a check of a Cloud Optimized GeoTIFF reads.
+
+    Parameters
+    ----------
+    path : path-like
+        Any raster GDAL opens.
+
+    Returns
+    -------
+    dict
+        ``width`` and ``height`` (pixels), ``transform`` (the six affine coefficients
+        a, b, c, d, e, f), ``overviews`` (the decimation factors of band 1), ``driver`` and
+        ``layout`` (GDAL's ``IMAGE_STRUCTURE`` ``LAYOUT``: ``"COG"`` for a COG, else None).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise MissingInputError(f"raster '{path}' does not exist")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(path) as ds:
+                return dict(width=ds.width, height=ds.height, transform=list(ds.transform)[:6],
+                            overviews=ds.overviews(1), driver=ds.driver,
+                            layout=ds.tags(ns="IMAGE_STRUCTURE").get("LAYOUT"))
+    except (RasterioIOError, RasterioError) as exc:
+        raise InvalidDEMError(f"cannot read raster '{path}': {_first_line(exc)}") from exc
 
 
 def write_bands(bands, tile: DEMTile, path, *, descriptions=(), tags: dict | None = None,

@@ -47,3 +47,46 @@ def test_lower_layers_do_not_import_higher_ones():
         pytest.skip("import-linter is not installed in this environment")
     proc = subprocess.run([str(lint)], cwd=REPO, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+def _imports(path: Path):
+    """Yield (line, module, names) of every import statement of a Python file."""
+    import ast
+
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield node.lineno, alias.name, ()
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            yield node.lineno, node.module, tuple(a.name for a in node.names)
+
+
+def test_only_terrain_io_imports_rasterio():
+    """One module reads and writes rasters: in the packages (also an import-linter contract),
+    the examples and the benchmarks, where only a benchmark whose baseline *is* rasterio or
+    GDAL may import it, saying so in a comment just above."""
+    folders = ["terrain", "asteroid", "render", "evaluation", "examples", "benchmarks", "docs"]
+    found = []
+    for folder in folders:
+        for path in sorted((REPO / folder).rglob("*.py")):
+            lines = path.read_text(encoding="utf-8").splitlines()
+            for line, module, _ in _imports(path):
+                if module.split(".")[0] != "rasterio" or path == REPO / "terrain" / "io.py":
+                    continue
+                above = " ".join(lines[max(0, line - 4):line - 1]).lower()
+                if folder == "benchmarks" and "baseline" in above:
+                    continue
+                found.append(f"{path.relative_to(REPO)}:{line} imports {module}")
+    assert not found, found
+
+
+def test_the_demo_script_imports_nothing_private():
+    """examples/demo.py is what a newcomer copies: public names only, and short."""
+    path = REPO / "examples" / "demo.py"
+    for line, module, names in _imports(path):
+        assert not any(part.startswith("_") for part in module.split(".")
+                       if part != "__future__"), (line, module)
+        assert not any(n.startswith("_") for n in names), (line, names)
+    text = path.read_text(encoding="utf-8")
+    assert "._" not in text.replace("__", "")
+    assert len(text.splitlines()) < 150
