@@ -49,6 +49,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import os
 import shutil
 import time
 from dataclasses import dataclass, field
@@ -313,22 +314,23 @@ def ensure_scene(scenario: Scenario) -> Path | None:
     if recipe is None:
         return None
     target = scenario.resolve(spec.stack if spec.type == "terrain" else spec.body)
+    shown = os.path.normpath(target)  # in messages: demo-output/..., not examples/../demo-output
     folder = scenario.path.parent if scenario.path is not None else Path.cwd()
     key = recipe.key(folder)
     stamp = stamp_path(target)
     if target.exists():
         stamped = _stamped_key(stamp)
         if stamped is None:
-            log.info("scene %s exists and was not built from a recipe: used as it is", target)
+            log.info("scene %s exists and was not built from a recipe: used as it is", shown)
             return target
         if stamped == key:
-            log.info("scene %s was built from this scenario's recipe: reused", target)
+            log.info("scene %s was built from this scenario's recipe: reused", shown)
             return target
-        log.warning("scene %s was built from another recipe: building it again", target)
+        log.warning("scene %s was built from another recipe: building it again", shown)
         _remove(stamp)
         _remove(target)
     log.warning("scene %s is missing: building it from the scenario's [scene.build] recipe "
-                "(kept there for later runs)", target)
+                "(kept there for later runs)", shown)
     target.parent.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     if spec.type == "terrain":
@@ -346,5 +348,5 @@ def ensure_scene(scenario: Scenario) -> Path | None:
         tmp.write_text(json.dumps({"key": key, "seconds": round(seconds, 3),
                                    "recipe": recipe.to_mapping()}, indent=2) + "\n",
                        encoding="utf-8")
-    log.warning("built scene %s in %.0f s", target, seconds)
+    log.warning("built scene %s in %.0f s", shown, seconds)
     return target

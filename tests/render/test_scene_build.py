@@ -156,11 +156,11 @@ def test_render_frame_builds_the_missing_body_then_renders(tmp_path, gl):
 
 
 def test_the_example_scenarios_build_make_demos_scenes():
-    """The recipes in examples/ are the demo campaign's own tables (so a scene the scenario
-    builds is the one `make demo` builds)."""
+    """The recipes in examples/ are the reduced demo campaign's own tables (so a scene the
+    scenario builds is the one `make demo DEMO_ARGS=--quick` builds)."""
     from evaluation.campaign import load_campaign
 
-    campaign = load_campaign(REPO / "examples" / "demo.toml")
+    campaign = load_campaign(REPO / "examples" / "demo.toml", quick=True)
     for name in ("lunar_descent.toml", "lunar_descent_camera.toml"):
         recipe = load_scenario(REPO / "examples" / name).scene.build
         assert recipe is not None and recipe.seed == campaign.seed
@@ -169,6 +169,7 @@ def test_the_example_scenarios_build_make_demos_scenes():
     recipe = load_scenario(REPO / "examples" / "asteroid_approach.toml").scene.build
     assert recipe is not None
     assert str(REPO / "examples" / recipe.body["config"]) == campaign.body["config"]
+    assert recipe.body["magnitude"] == campaign.body["magnitude"]
 
 
 @pytest.mark.slow

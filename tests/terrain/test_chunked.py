@@ -32,7 +32,7 @@ from terrain.cratering import add_craters
 from terrain.errors import OutputPathError
 from terrain.expand import expand
 from terrain.gapfill import fill_gaps
-from terrain.io import read_dem, write_cog, write_dem
+from terrain.io import raster_layout, read_dem, write_cog, write_dem
 from terrain.population import Population
 from terrain.synthetic import synthesize_tile
 from terrain.tile import DEMTile
@@ -222,6 +222,11 @@ def test_cog_has_overviews_and_the_same_pixels_as_the_store(tmp_path):
         assert ds.profile["compress"].lower() == "deflate"
         assert np.array_equal(ds.read(1), store.read()[0])
         assert ds.transform == store.transform
+        expected = dict(width=ds.width, height=ds.height, transform=list(ds.transform)[:6],
+                        overviews=[2, 4], driver="GTiff", layout="COG")
+    assert raster_layout(tmp_path / "big.tif") == expected  # what bench_dask checks with
+    plain = raster_layout(write_dem(DEMTile.from_array(np.zeros((4, 4))), tmp_path / "p.tif"))
+    assert plain["layout"] is None and plain["overviews"] == [] and plain["width"] == 4
 
 
 def test_cli_refuses_a_chunked_run_into_a_tif_and_a_store_over_its_input(dem, tmp_path):
