@@ -40,8 +40,9 @@ scenario says it lives and writes a stamp beside it (``STACK.build.json`` or
 names) and the build's seconds. A scene that exists is used: as it is when it has no stamp
 (it was made otherwise, e.g. by ``make demo``), and built again when its stamp holds another
 key (the recipe changed). The build is deterministic (every draw is keyed by the seed: the
-same recipe gives the same heights), every file is written atomically and the stamp last, so
-a build killed part-way leaves no stamp and is done again. Every step is reported in the log.
+same recipe gives the same heights) and every file is written atomically; the stamp says
+``building`` until the scene is whole, so a build killed part-way is done again. Every step
+is reported in the log.
 """
 
 from __future__ import annotations
@@ -274,10 +275,21 @@ def stamp_path(scene: Path) -> Path:
 
 
 def _stamped_key(stamp: Path) -> str | None:
+    """Return the key of a finished build's stamp; ``""`` for a build that did not finish."""
     try:
-        return str(json.loads(stamp.read_text(encoding="utf-8"))["key"])
-    except (OSError, ValueError, KeyError, TypeError):
+        doc = json.loads(stamp.read_text(encoding="utf-8"))
+        return "" if doc.get("building") else str(doc["key"])
+    except FileNotFoundError:
         return None
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return ""
+
+
+def _write_stamp(stamp: Path, doc: dict) -> None:
+    from terrain.io import atomic_path
+
+    with atomic_path(stamp) as tmp:
+        tmp.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
 
 
 def _remove(path: Path) -> None:
@@ -307,7 +319,7 @@ def ensure_scene(scenario: Scenario) -> Path | None:
         When a build command refuses the recipe (one line naming the problem).
     """
     from terrain.clitools import run_command
-    from terrain.io import atomic_path, read_dem
+    from terrain.io import read_dem
 
     spec = scenario.scene
     recipe = spec.build
@@ -326,12 +338,13 @@ def ensure_scene(scenario: Scenario) -> Path | None:
         if stamped == key:
             log.info("scene %s was built from this scenario's recipe: reused", shown)
             return target
-        log.warning("scene %s was built from another recipe: building it again", shown)
-        _remove(stamp)
+        log.warning("scene %s was built from another recipe, or its build did not finish: "
+                    "building it again", shown)
         _remove(target)
     log.warning("scene %s is missing: building it from the scenario's [scene.build] recipe "
                 "(kept there for later runs)", shown)
     target.parent.mkdir(parents=True, exist_ok=True)
+    _write_stamp(stamp, {"key": key, "building": True})  # until the scene is whole
     t0 = time.perf_counter()
     if spec.type == "terrain":
         base = target.with_name(target.name + ".base.tif")
@@ -344,9 +357,7 @@ def ensure_scene(scenario: Scenario) -> Path | None:
     else:
         run_command("asteroid", "build", "-o", target, *recipe.arguments("body", folder))
     seconds = time.perf_counter() - t0
-    with atomic_path(stamp) as tmp:
-        tmp.write_text(json.dumps({"key": key, "seconds": round(seconds, 3),
-                                   "recipe": recipe.to_mapping()}, indent=2) + "\n",
-                       encoding="utf-8")
+    _write_stamp(stamp, {"key": key, "seconds": round(seconds, 3),
+                         "recipe": recipe.to_mapping()})
     log.warning("built scene %s in %.0f s", shown, seconds)
     return target

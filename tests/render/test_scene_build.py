@@ -185,3 +185,18 @@ def test_the_example_site_is_the_one_the_demo_chooses(tmp_path):
                 *recipe.arguments("base", tmp_path))
     tile = read_dem(tmp_path / "base.tif")
     assert landing_site(tile, horn_slope(tile)) == tuple(recipe.stack["site"])
+
+
+def test_a_build_that_did_not_finish_is_done_again(tmp_path):
+    path = terrain_scenario(tmp_path)
+    built = ensure_scene(load_scenario(path))
+    reference = layers(built)
+    # a build killed after enhance began: a partial folder, a stamp still saying "building"
+    for p in sorted(built.glob("layer_*.tif"))[1:]:
+        p.unlink()
+    stamp = stamp_path(built)
+    stamp.write_text(json.dumps({"key": json.loads(stamp.read_text())["key"],
+                                 "building": True}))
+    ensure_scene(load_scenario(path))
+    assert layers(built) == reference
+    assert "building" not in json.loads(stamp.read_text())
