@@ -325,7 +325,9 @@ def ensure_scene(scenario: Scenario) -> Path | None:
     recipe = spec.build
     if recipe is None:
         return None
-    target = scenario.resolve(spec.stack if spec.type == "terrain" else spec.body)
+    where = spec.stack if spec.type == "terrain" else spec.body
+    assert where is not None  # required of each scene type by SceneSpec.from_mapping
+    target = scenario.resolve(where)
     shown = os.path.normpath(target)  # in messages: demo-output/..., not examples/../demo-output
     folder = scenario.path.parent if scenario.path is not None else Path.cwd()
     key = recipe.key(folder)
