@@ -37,7 +37,9 @@ TRACKING_NOTES = {
         "camera closes in by several per cent between frames: Lucas-Kanade, which models "
         "the motion of a patch as a shift, would drift a little under that zoom at every "
         "step, so the tracker follows each feature from the previous frame warped by the "
-        "step's homography; what drift is left grows with a track's age. The round trip "
+        "step's homography; what drift is left grows with a track's age. No corner is "
+        "detected within half a window of a shadow too deep to show anything: its edge is "
+        "an outline, not a point of the surface. The round trip "
         "through the truth and range images of consecutive frames (last row of the table) "
         "shows the ground truth itself is exact."),
     "asteroid": (
@@ -46,7 +48,11 @@ TRACKING_NOTES = {
         "the local lighting angle changes: features slide, and the error grows with a "
         "track's age, as the right-hand panel shows. This is what a real tracker meets on "
         "a spinning body; the round trip through the truth (last row) shows the ground "
-        "truth itself is exact."),
+        "truth itself is exact. Two things would add to it and are kept out: corners on "
+        "the limb, which slide along the outline as the body turns (the tracker detects no "
+        "corner within half a window of the sky, from the image alone), and boulders "
+        "smaller than a pixel, which a renderer taking one sample a pixel draws on one "
+        "pixel or three as they move (the approach is rendered with 3x3 samples a pixel)."),
 }
 
 DEM_NOTE = (

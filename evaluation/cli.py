@@ -339,6 +339,12 @@ def _tracker_options(func):
         click.option("--prewarp/--no-prewarp", default=True, show_default=True,
                      help="Track from the previous frame warped by the step's homography "
                           "(no drift under zoom and roll), or plain Lucas-Kanade."),
+        click.option("--dark-level", type=int, default=2, show_default=True,
+                     help="Grey levels (of 255) above a frame's darkest pixel that carry no "
+                          "signal (sky, deep shadow)."),
+        click.option("--dark-margin", type=int, default=None,
+                     help="No corner is detected this close to a region without signal "
+                          "(px; 0: anywhere; default: half the window plus 2)."),
         click.option("--outlier-px", type=float, default=None,
                      help="Errors above this are outliers (px; default 2, or the thresholds "
                           "file's tracking.outlier_px)."),
@@ -349,12 +355,13 @@ def _tracker_options(func):
 
 
 def _run_tracking(run_dir, max_corners, quality, min_distance, win_size, levels, fb_threshold,
-                  outlier_px, prewarp=True):
+                  outlier_px, prewarp=True, dark_level=2, dark_margin=None):
     from evaluation.tracking import TrackerSettings, load_run, score, track
 
     settings = TrackerSettings(max_corners=max_corners, quality=quality,
                                min_distance=min_distance, win_size=win_size, levels=levels,
-                               fb_threshold=fb_threshold, prewarp=prewarp)
+                               fb_threshold=fb_threshold, prewarp=prewarp,
+                               dark_level=dark_level, dark_margin=dark_margin)
     run = load_run(run_dir)
     with progress_bar("tracking") as update:
         tracks = track(run, settings, progress=update)
@@ -367,7 +374,7 @@ def _run_tracking(run_dir, max_corners, quality, min_distance, win_size, levels,
               help="Output folder (created if missing).")
 @_tracker_options
 def track_cmd(run_dir, output, max_corners, quality, min_distance, win_size, levels,
-              fb_threshold, prewarp, outlier_px):
+              fb_threshold, prewarp, dark_level, dark_margin, outlier_px):
     """Track Harris corners through a rendered run and score them against its truth."""
     from evaluation.tracking import save_tracks
     from terrain.outputs import check_output_folder, transaction
@@ -377,7 +384,7 @@ def track_cmd(run_dir, output, max_corners, quality, min_distance, win_size, lev
     check_output_folder(output, [run_dir])
     run, scored = _run_tracking(run_dir, max_corners, quality, min_distance, win_size, levels,
                                 fb_threshold, 2.0 if outlier_px is None else outlier_px,
-                                prewarp)
+                                prewarp, dark_level, dark_margin)
     with transaction():  # every file or none
         s = save_tracks(scored, run, _outdir(output, [run_dir]),
                         inputs=[run_dir / "truth.json", run_dir / "manifest.json"])
@@ -457,8 +464,8 @@ def consistency_cmd(run_dir, output, edge_px, occlusion_tolerance):
 def report(run_dirs, output, thresholds, title, dems, band, reference, reference_band,
            slope_band, meshes, reference_mesh, reference_units, hazards, units, density, mass,
            period_hours, spin_axis, radius_deg, coarse_faces, no_gravity, max_corners,
-           quality, min_distance, win_size, levels, fb_threshold, prewarp, outlier_px,
-           compute_edges):
+           quality, min_distance, win_size, levels, fb_threshold, prewarp, dark_level,
+           dark_margin, outlier_px, compute_edges):
     """One self-contained HTML validation report (and its JSON) with pass/fail checks.
 
     Every RUN_DIR (rendered sequences, any number) gets a feature-tracking section; --dem and
@@ -497,7 +504,8 @@ def report(run_dirs, output, thresholds, title, dems, band, reference, reference
     for run_dir, key in zip(run_dirs, keys, strict=True):
         opx = limits["tracking"]["outlier_px"] if outlier_px is None else outlier_px
         run, scored = _run_tracking(run_dir, max_corners, quality, min_distance, win_size,
-                                    levels, fb_threshold, opx, prewarp)
+                                    levels, fb_threshold, opx, prewarp, dark_level,
+                                    dark_margin)
         sections.append(tracking_section(scored, run.image(len(run) - 1), limits,
                                          run_label=str(run_dir),
                                          key=key if len(run_dirs) > 1 else ""))

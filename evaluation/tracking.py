@@ -11,6 +11,15 @@ Tracking (:func:`track`)
 ------------------------
 * Corners: Harris response (``cv2.goodFeaturesToTrack(..., useHarrisDetector=True)``; Harris
   and Stephens 1988), at most ``max_corners``, at least ``min_distance`` pixels apart.
+* No corners beside regions without signal: a connected region of pixels at most
+  ``dark_level`` grey levels above the frame's darkest, at least a Lucas-Kanade window in
+  area, is sky (around a body seen whole) or shadow too deep to show anything, and no corner
+  is detected within ``dark_margin`` pixels of it. A corner there is the outline of such a
+  region, not a point of the surface: a limb's corner slides along the limb as the body
+  turns or the view changes (new surface turns into view behind it), a shadow's edge moves
+  with the sun over a spinning body, and a window that straddles the outline follows the
+  outline. The test uses the image alone, as a flight tracker must; tracks already live
+  may go on into the margin (their window keeps the surface texture it started on).
 * Motion: pyramidal Lucas-Kanade (``cv2.calcOpticalFlowPyrLK``; Bouguet 2001) from each frame
   to the next. With ``prewarp`` (the default), a first pass gives every live track's motion,
   the homography of the step is fitted to them (RANSAC), and Lucas-Kanade runs again from
@@ -104,6 +113,10 @@ TRACK_BYTES_PER_OBSERVATION = 48
 
 #: Most pyramid levels (a 2^16 reduction is far below any frame).
 MAX_PYRAMID_LEVELS = 16
+#: Pixels the default ``dark_margin`` adds to half the Lucas-Kanade window: the blur of a
+#: limb or shadow edge (the optics' PSF and the renderer's pixel footprint) reaches about
+#: this far into the surface.
+DARK_MARGIN_SLACK = 2
 
 
 @dataclass(frozen=True)
@@ -136,6 +149,13 @@ class TrackerSettings:
         homography does not: a shift-only window then no longer drifts under the zoom and
         roll of a descent (module docstring). Off: plain pyramidal Lucas-Kanade, frame to
         frame.
+    dark_level : int, grey levels (of 255)
+        Pixels at most this far above the frame's darkest pixel have no signal.
+    dark_margin : int, pixels, or None
+        No corner is detected this close to a region without signal (module docstring);
+        0: anywhere. None (the default): ``win_size // 2 +``
+        :data:`DARK_MARGIN_SLACK`, so that no detected corner's window reaches the region
+        or the blur at its edge.
     """
 
     max_corners: int = 300
@@ -148,20 +168,26 @@ class TrackerSettings:
     fb_threshold: float = 0.5
     border: int = 4
     prewarp: bool = True
+    dark_level: int = 2
+    dark_margin: int | None = None
 
     def __post_init__(self):
         if not isinstance(self.prewarp, (bool, np.bool_)):
             raise InvalidParameterError(f"tracker prewarp must be true or false; got "
                                         f"{self.prewarp!r}")
-        for name in ("max_corners", "block_size", "win_size", "levels", "border"):
+        names = ["max_corners", "block_size", "win_size", "levels", "border", "dark_level"]
+        if self.dark_margin is not None:
+            names.append("dark_margin")
+        for name in names:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
                 raise InvalidParameterError(f"tracker {name} must be an integer; got {value!r}")
         if self.max_corners < 1 or self.block_size < 3 or self.win_size < 5 or self.levels < 0 \
-                or self.border < 0:
+                or self.border < 0 or not 0 <= self.dark_level <= 255 \
+                or (self.dark_margin is not None and self.dark_margin < 0):
             raise InvalidParameterError(
-                "tracker needs max_corners >= 1, block_size >= 3, win_size >= 5, levels >= 0 "
-                f"and border >= 0; got {self}")
+                "tracker needs max_corners >= 1, block_size >= 3, win_size >= 5, levels >= 0, "
+                f"border >= 0, dark_level in [0, 255] and dark_margin >= 0; got {self}")
         if not 0.0 < self.quality < 1.0:
             raise InvalidParameterError(f"tracker quality must lie in (0, 1); got "
                                         f"{self.quality}")
@@ -176,7 +202,15 @@ class TrackerSettings:
                     min_distance=self.min_distance, block_size=self.block_size,
                     harris_k=self.harris_k, win_size=self.win_size, levels=self.levels,
                     fb_threshold=self.fb_threshold, border=self.border,
-                    prewarp=bool(self.prewarp))
+                    prewarp=bool(self.prewarp), dark_level=self.dark_level,
+                    dark_margin=self.margin)
+
+    @property
+    def margin(self) -> int:
+        """The ``dark_margin`` in effect (pixels; its default resolved)."""
+        if self.dark_margin is None:
+            return self.win_size // 2 + DARK_MARGIN_SLACK
+        return int(self.dark_margin)
 
 
 @dataclass(frozen=True, eq=False)
@@ -374,6 +408,8 @@ def track(run, settings: TrackerSettings | None = None, *, progress=None) -> Tra
         for t in live:
             u, v = tracks[t][1][-1]
             cv2.circle(mask, (int(round(u)), int(round(v))), radius, 0, -1)
+        if s.margin:
+            mask[near_dark(image, s.dark_level, s.margin, s.win_size * s.win_size)] = 0
         corners = cv2.goodFeaturesToTrack(image, maxCorners=need, qualityLevel=s.quality,
                                           minDistance=s.min_distance, mask=mask,
                                           blockSize=s.block_size, useHarrisDetector=True,
@@ -428,6 +464,53 @@ def track(run, settings: TrackerSettings | None = None, *, progress=None) -> Tra
         stop[i] = k0 + len(pts) - 1
     log.info("tracked %d features through %d frames", len(tracks), n)
     return Tracks(positions, start, stop, layer_change, (h, w), s)
+
+
+def near_dark(image: np.ndarray, level: int, margin: int, min_area: int) -> np.ndarray:
+    """Pixels within ``margin`` of a region without signal (see :class:`TrackerSettings`).
+
+    Parameters
+    ----------
+    image : (h, w) uint8, grey levels
+        A frame as the tracker sees it.
+    level : int, grey levels
+        Pixels at most this far above the frame's darkest have no signal.
+    margin : int, pixels
+        Distance (Euclidean) from such a region that counts as near it.
+    min_area : int, pixels
+        Smallest region (8-connected) that counts: smaller dark spots (a boulder's shadow, a
+        pit) are surface detail, good to track.
+
+    Returns
+    -------
+    (h, w) bool
+        True within ``margin`` of a region without signal (and on it).
+
+    Examples
+    --------
+    >>> img = np.full((40, 40), 120, np.uint8)
+    >>> img[:, :10] = 0  # sky to the left
+    >>> img[30, 30] = 0  # a dark speck on the surface
+    >>> near = near_dark(img, 2, 5, 25)
+    >>> bool(near[20, 14]), bool(near[20, 16]), bool(near[30, 30])
+    (True, False, False)
+    """
+    import cv2
+
+    img = np.asarray(image)
+    if img.ndim != 2 or img.dtype != np.uint8:
+        raise InvalidParameterError(f"near_dark needs an (h, w) uint8 image; got {img.shape} "
+                                    f"{img.dtype}")
+    dark = (img <= int(img.min()) + level).astype(np.uint8)
+    _, labels, stats, _ = cv2.connectedComponentsWithStats(dark, connectivity=8)
+    big = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= min_area)
+    big = big[big > 0]  # label 0: the pixels with signal
+    if not big.size:
+        return np.zeros(img.shape, dtype=bool)
+    region = np.isin(labels, big)
+    # distance from the region: pixels of the region are at 0
+    dist = cv2.distanceTransform((~region).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return dist <= margin
 
 
 #: Fewest first-pass tracks from which a step's homography is estimated for prewarping.

@@ -175,6 +175,10 @@ class View:
     time: float = 0.0
 
 
+#: Most samples per pixel side of an antialiased frame (49 samples a pixel).
+MAX_ANTIALIAS = 7
+
+
 @dataclass(frozen=True)
 class RenderOptions:
     """Quality and cost settings of a frame.
@@ -193,6 +197,15 @@ class RenderOptions:
     geomorph : bool
         Levels of detail change continuously (vertices morph toward the coarser level over a
         band of distance, see :mod:`render.terrain_scene`); off, they switch.
+    antialias : int
+        Samples per pixel side (odd, at most :data:`MAX_ANTIALIAS`). With more than one, a
+        frame is drawn at ``antialias`` times the resolution and each pixel's radiance is the
+        mean of its ``antialias`` squared samples, as a detector integrates its pixel's area;
+        one sample per pixel instead aliases what is smaller than a pixel (a distant
+        asteroid's boulders cover one pixel centre or three as they move, and the corners a
+        tracker follows on them jitter by tenths of a pixel between frames). Range and
+        normals stay the centre sample's, the pixel centre's own ray, so they stay exact;
+        levels of detail are chosen for the output pixels, so the scene drawn is the same.
 
     Notes
     -----
@@ -206,8 +219,15 @@ class RenderOptions:
     lod_pixels: float = 1.5
     triangle_budget: int = 3_000_000
     geomorph: bool = True
+    antialias: int = 1
 
     def __post_init__(self):
+        a = self.antialias
+        if isinstance(a, bool) or not isinstance(a, (int, np.integer)) \
+                or not 1 <= a <= MAX_ANTIALIAS or a % 2 == 0:
+            raise InvalidParameterError(
+                f"antialias must be an odd number of samples per pixel side in [1, "
+                f"{MAX_ANTIALIAS}]; got {a!r}")
         if not 64 <= int(self.shadow_size) <= 8192:
             raise InvalidParameterError(
                 f"shadow map size must lie in [64, 8192]; got {self.shadow_size}")
@@ -590,7 +610,12 @@ class Renderer:
         r_cw = view.pose.rotation.T
         cam_rel = np.eye(4)
         cam_rel[:3, :3] = r_cw
-        clip = clip_from_camera(k, LOG_NEAR, far) @ cam_rel
+        # antialiasing: the batches are drawn at a = antialias samples per pixel side,
+        # through intrinsics whose sample a u + (a - 1) / 2 is pixel u's centre
+        a = int(options.antialias)
+        ka = k if a == 1 else Intrinsics(k.width * a, k.height * a, k.fx * a, k.fy * a,
+                                         a * (k.cx + 0.5) - 0.5, a * (k.cy + 0.5) - 0.5)
+        clip = clip_from_camera(ka, LOG_NEAR, far) @ cam_rel
         prog = self.scene_program
         prog["u_clip_from_camera_rel"].write(clip.T.astype("f4").tobytes())
         prog["u_camera"].value = tuple(cam.tolist())
@@ -608,15 +633,15 @@ class Renderer:
         prog["u_log_scale"].value = 1.0 / math.log(far / LOG_NEAR)
         prog["u_shadow_map"].value = 0
 
-        fbo = self._target((k.width, k.height))
+        fbo = self._target((ka.width, ka.height))
         fbo.use()
-        ctx.viewport = (0, 0, k.width, k.height)
+        ctx.viewport = (0, 0, ka.width, ka.height)
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE)
         ctx.depth_func = "<"
         if rows is not None:
-            top, bottom = (int(r) for r in rows)
-            ctx.scissor = (0, k.height - bottom, k.width, bottom - top)
+            top, bottom = (int(r) * a for r in rows)
+            ctx.scissor = (0, ka.height - bottom, ka.width, bottom - top)
         try:
             fbo.clear(color=(0.0, 0.0, 0.0, 0.0), depth=1.0)
             for batch in state.batches:
@@ -628,13 +653,19 @@ class Renderer:
         err = ctx.error
         if err != "GL_NO_ERROR":
             raise RuntimeError(f"OpenGL error while rendering: {err}")
-        w, h = k.width, k.height
+        w, h = ka.width, ka.height
         rad = np.frombuffer(fbo.read(attachment=0, components=1, dtype="f4"),
                             dtype=np.float32).reshape(h, w)[::-1].copy()
         rng = np.frombuffer(fbo.read(attachment=1, components=1, dtype="f4"),
                             dtype=np.float32).reshape(h, w)[::-1].copy()
         nrm = np.frombuffer(fbo.read(attachment=2, components=4, dtype="f4"),
                             dtype=np.float32).reshape(h, w, 4)[::-1]
+        if a != 1:  # radiance: the mean of each pixel's samples; range, normals: its centre's
+            c = (a - 1) // 2
+            rad = rad.reshape(k.height, a, k.width, a).mean(axis=(1, 3), dtype=np.float64) \
+                .astype(np.float32)
+            rng = rng[c::a, c::a].copy()
+            nrm = nrm[c::a, c::a]
         hit = nrm[:, :, 3] > 0.5
         rng[~hit] = np.nan
         normals = np.where(hit[:, :, None], nrm[:, :, :3], np.nan).astype(np.float32)

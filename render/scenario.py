@@ -57,6 +57,7 @@ trajectory. Paths are relative to the scenario file. Example (``examples/lunar_d
     lod_pixels = 1.5
     triangle_budget = 3000000
     geomorph = true                  # levels of detail morph instead of switching
+    antialias = 1                    # samples per pixel side (odd): radiance is their mean
 
     [output]
     range = true
@@ -89,7 +90,7 @@ from typing import Any
 from render.camera import Intrinsics
 from render.motion import Motion
 from render.reflectance import Hapke, check_brdf
-from render.renderer import Lighting, RenderOptions
+from render.renderer import MAX_ANTIALIAS, Lighting, RenderOptions
 from render.scene_build import SceneBuild
 from render.sensor import Sensor
 from render.trajectory import Sample, approach, descent, keyframes
@@ -608,7 +609,7 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
                                                       "body_angular_velocity")),
               "motion": Motion.from_mapping(mot)}
     ren = _section(data, "render", {"shadows", "shadow_size", "lod_pixels", "triangle_budget",
-                                    "geomorph"})
+                                    "geomorph", "antialias"})
     defaults = RenderOptions()  # the one place render defaults live
     options = RenderOptions(shadows=_bool(ren, "shadows", defaults.shadows, "render"),
                             shadow_size=_int(ren, "shadow_size", defaults.shadow_size, "render",
@@ -617,7 +618,9 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
                                                True),
                             triangle_budget=_int(ren, "triangle_budget",
                                                  defaults.triangle_budget, "render", 1),
-                            geomorph=_bool(ren, "geomorph", defaults.geomorph, "render"))
+                            geomorph=_bool(ren, "geomorph", defaults.geomorph, "render"),
+                            antialias=_int(ren, "antialias", defaults.antialias, "render", 1,
+                                           MAX_ANTIALIAS))
     out = _section(data, "output", {"range", "normals", "radiance"})
     outputs = {"range": _bool(out, "range", True, "output"),
                "normals": _bool(out, "normals", True, "output"),

@@ -36,6 +36,9 @@ FRAME_BYTES_PER_PIXEL = 96
 #: Bytes reserved per shadow-map texel: a 32-bit depth texel, and as much again allowed for
 #: the driver's own copies.
 SHADOW_BYTES_PER_TEXEL = 8
+#: Peak bytes per sample of an antialiased frame (``RenderOptions.antialias``), on top: the
+#: attachments, depth and read-backs at the sample resolution.
+SAMPLE_BYTES_PER_PIXEL = 56
 
 
 def check_frame_memory(scenario: Scenario) -> None:
@@ -55,9 +58,12 @@ def check_frame_memory(scenario: Scenario) -> None:
 
     k = scenario.intrinsics
     shadow = scenario.options.shadow_size if scenario.options.shadows else 0
-    memory.require(k.width * k.height * FRAME_BYTES_PER_PIXEL
+    a = scenario.options.antialias
+    samples = k.width * k.height * a * a * SAMPLE_BYTES_PER_PIXEL if a > 1 else 0
+    memory.require(k.width * k.height * FRAME_BYTES_PER_PIXEL + samples
                    + shadow * shadow * SHADOW_BYTES_PER_TEXEL,
-                   f"rendering {k.width}x{k.height} frames")
+                   f"rendering {k.width}x{k.height} frames" + (f" ({a}x{a} samples a pixel)"
+                                                               if a > 1 else ""))
 
 
 def load_scene(scenario: Scenario) -> Scene:

@@ -3,6 +3,7 @@
 import dataclasses
 import logging
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -221,6 +222,82 @@ def test_silhouette_features_are_told_apart(scored):
     e = scored.error_summary()
     assert e["silhouette_tracks"] == 0
     assert e["surface_tracks"]["median_px"] == pytest.approx(e["median_px"])
+
+
+def _disc_run(run_dir, *, frames: int = 2) -> Path:
+    """A textured disc on black sky, 200 px frames, with a deep shadow (a 30 px square) and
+    a dark speck (3 px) on it; the disc slides 0.5 px right each frame."""
+    import cv2
+
+    from render.camera import Intrinsics, look_at
+    from render.rundir import FrameTruth, RunWriter
+
+    from .conftest import plane_texture
+
+    tex = plane_texture(7)[:200, :200]
+    tex = 60.0 + 140.0 * (tex - tex.min()) / (tex.max() - tex.min())
+    k = Intrinsics.from_fov(200, 200, 40.0)
+    writer = RunWriter(run_dir, dict(scene="textured disc (evaluation tests)", frames=frames,
+                                     width=200, height=200, seed=7))
+    rows, cols = np.mgrid[0:200, 0:200]
+    for i in range(frames):
+        inside = np.hypot(cols - 100.0 - 0.5 * i, rows - 100.0) <= 70.0
+        image = np.where(inside, tex, 0.0)
+        image[85:115, 60:90] = 0.0  # deep shadow
+        image[100:103, 130:133] = 0.0  # a pit: surface detail
+        image = cv2.GaussianBlur(image.astype(np.float32), (0, 0), 0.6)
+        rng = np.where(inside, 1000.0, np.nan).astype(np.float32)
+        pose = look_at((0.0, 0.0, 1000.0), (0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0))
+        writer.write_frame(FrameTruth(i, float(i), pose, k, (0.0, 0.0, 1.0)),
+                           np.clip(np.rint(image), 0, 255).astype(np.uint8), rng, None)
+    writer.finish()
+    return Path(run_dir)
+
+
+def test_no_corner_is_detected_beside_the_sky_or_a_deep_shadow(tmp_path):
+    """A limb against black sky makes the strongest corners of a frame, and not one is a
+    point of the surface; the tracker finds the sky (and deep shadow) in the image and
+    detects no corner within its margin of it. A dark speck smaller than a window is
+    surface detail and stays trackable."""
+    from evaluation.tracking import DARK_MARGIN_SLACK
+
+    run = _disc_run(tmp_path / "disc")
+    plain = track(run, TrackerSettings(dark_margin=0))
+    masked = track(run, TrackerSettings())
+    margin = TrackerSettings().win_size // 2 + DARK_MARGIN_SLACK
+    assert masked.settings.as_dict()["dark_margin"] == margin
+
+    def first(tracks):  # where each track was detected, in frame 0's disc
+        uv = tracks.positions[np.arange(tracks.n_tracks), tracks.start].astype(np.float64)
+        return uv - np.stack([0.5 * tracks.start, 0.0 * tracks.start], axis=1)
+
+    def limb_distance(tracks):
+        uv = first(tracks)
+        return 70.0 - np.hypot(uv[:, 0] - 100.0, uv[:, 1] - 100.0)
+
+    def shadow_distance(tracks):
+        uv = first(tracks)
+        du = np.maximum(np.maximum(60.0 - uv[:, 0], uv[:, 0] - 89.0), 0.0)
+        dv = np.maximum(np.maximum(85.0 - uv[:, 1], uv[:, 1] - 114.0), 0.0)
+        return np.hypot(du, dv)
+
+    # without the mask: limb and shadow corners; with it: none within the margin (the
+    # blur and the pixel grid move the dark region's edge by up to 2 px)
+    assert (limb_distance(plain) < 4).sum() >= 10 and (shadow_distance(plain) < 4).sum() >= 2
+    assert limb_distance(masked).min() >= margin - 2
+    assert shadow_distance(masked).min() >= margin - 2
+    assert masked.n_tracks >= 20
+    speck = first(masked) - np.array([131.0, 101.0])
+    assert np.hypot(speck[:, 0], speck[:, 1]).min() < 3
+    # tracks already live are followed into the margin: the mask only stops detection
+    assert masked.alive()[:, 1].sum() >= masked.alive()[:, 0].sum() - 2
+
+
+@pytest.mark.parametrize("kwargs", [dict(dark_level=-1), dict(dark_level=256),
+                                    dict(dark_margin=-2), dict(dark_margin=2.5)])
+def test_bad_dark_settings_are_refused(kwargs):
+    with pytest.raises(InvalidParameterError, match="dark_"):
+        TrackerSettings(**kwargs)
 
 
 def test_resolution_changes_are_read_from_each_scene_kind():
