@@ -184,6 +184,14 @@ def test_track_command_with_and_without_truth(planar_run, run_without_truth, tmp
     assert "error_px" not in next(csv.DictReader((tmp_path / "n" / "tracks.csv").open()))
     one_line_error(run("evaluation", "track", tmp_path / "nowhere", "-o", tmp_path / "x"),
                    "does not exist")
+    # the tracker's settings as given, and bad ones refused in one line
+    r = run("evaluation", "track", run_without_truth, "-o", tmp_path / "m", "--dark-margin", 5,
+            "--dark-level", 4)
+    assert r.exit_code == 0, r.output
+    settings = json.loads((tmp_path / "m" / "tracking.json").read_text())["tracking"]["settings"]
+    assert settings["dark_margin"] == 5 and settings["dark_level"] == 4
+    one_line_error(run("evaluation", "track", run_without_truth, "-o", tmp_path / "y",
+                       "--dark-margin", -1), "dark_margin")
 
 
 @pytest.mark.slow
