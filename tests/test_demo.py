@@ -107,7 +107,7 @@ def test_demo_leaves_no_partial_files_and_times_every_stage(demo):
     assert set(timings) == {"lunar_base", "lunar_stack", "lunar_run", "lunar_closed_loop",
                             "asteroid_body", "asteroid_run", "evaluation"}
     assert all(t["seconds"] > 0 for t in timings.values())
-    assert timings["lunar_run"]["frames"] == 8 and timings["asteroid_run"]["frames"] == 6
+    assert timings["lunar_run"]["frames"] == 16 and timings["asteroid_run"]["frames"] == 6
 
 
 def test_real_data_comparisons_are_in_the_report_where_the_data_is(demo, shared_file):
