@@ -45,7 +45,7 @@ $(VENV)/.installed: pyproject.toml | $(PY)
 venv: $(VENV)/.installed
 
 # The main job: a lunar descent and an asteroid approach, evaluated (examples/demo.py).
-# About 12 minutes on 2 cores (DEMO_ARGS=--quick: a reduced campaign, about 3); run again, it
+# About 15 minutes on 2 cores (DEMO_ARGS=--quick: a reduced campaign, about 3); run again, it
 # reuses finished stages (DEMO_ARGS=--fresh to redo).
 demo: setup
 	$(PY) examples/demo.py --out $(DEMO_OUT) $(DEMO_ARGS)
