@@ -323,23 +323,32 @@ def asteroid_slopes(meshes, output, reference, reference_units, bin_deg, units, 
 
 
 def _tracker_options(func):
+    from evaluation.tracking import TrackerSettings
+
+    default = TrackerSettings()
     options = [
-        click.option("--max-corners", type=int, default=300, show_default=True,
+        click.option("--max-corners", type=int, default=default.max_corners, show_default=True,
                      help="Live tracks kept (replenished every frame)."),
-        click.option("--quality", type=float, default=0.01, show_default=True,
+        click.option("--quality", type=float, default=default.quality,
+                     show_default=True,
                      help="Harris quality level (fraction of the strongest corner)."),
-        click.option("--min-distance", type=float, default=8.0, show_default=True,
+        click.option("--min-distance", type=float, default=default.min_distance,
+                     show_default=True,
                      help="Least distance between features (px)."),
-        click.option("--win-size", type=int, default=21, show_default=True,
+        click.option("--win-size", type=int, default=default.win_size,
+                     show_default=True,
                      help="Lucas-Kanade window (px)."),
-        click.option("--levels", type=int, default=3, show_default=True,
+        click.option("--levels", type=int, default=default.levels,
+                     show_default=True,
                      help="Pyramid levels."),
-        click.option("--fb-threshold", type=float, default=0.5, show_default=True,
+        click.option("--fb-threshold", type=float, default=default.fb_threshold,
+                     show_default=True,
                      help="Largest forward-backward error of a kept point (px)."),
-        click.option("--prewarp/--no-prewarp", default=True, show_default=True,
+        click.option("--prewarp/--no-prewarp", default=default.prewarp, show_default=True,
                      help="Track from the previous frame warped by the step's homography "
                           "(no drift under zoom and roll), or plain Lucas-Kanade."),
-        click.option("--dark-level", type=int, default=2, show_default=True,
+        click.option("--dark-level", type=int, default=default.dark_level,
+                     show_default=True,
                      help="Grey levels (of 255) above a frame's darkest pixel that carry no "
                           "signal (sky, deep shadow)."),
         click.option("--dark-margin", type=int, default=None,

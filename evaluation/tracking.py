@@ -158,7 +158,7 @@ class TrackerSettings:
         or the blur at its edge.
     """
 
-    max_corners: int = 300
+    max_corners: int = 350
     quality: float = 0.01
     min_distance: float = 8.0
     block_size: int = 7
