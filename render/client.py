@@ -42,6 +42,7 @@ from render.protocol import (
     parse_error,
     read_message,
 )
+from terrain.errors import InvalidParameterError
 
 __all__ = ["Client", "RayHit"]
 
@@ -189,7 +190,16 @@ class Client:
         -------
         image : (height, width) uint8 (bits <= 8) or uint16, DN
             Top row first; equals ``craterscape render frame`` at the same pose and index.
+
+        Raises
+        ------
+        InvalidParameterError
+            ``bits`` is not an integer from 0 to 16 (8.7 is not sent as 8), before any request.
         """
+        if isinstance(bits, bool) or not isinstance(bits, (int, np.integer)) \
+                or not 0 <= bits <= 16:
+            raise InvalidParameterError(
+                f"bits must be an integer, 0 (the sensor's) or 1 to 16; got {bits!r}")
         body = self.request(MsgType.GET_IMAGE, BITS.pack(int(bits)))
         w, h, b, _ = IMAGE_HEAD.unpack_from(body)
         dtype = np.dtype("<u1") if b <= 8 else np.dtype("<u2")

@@ -75,3 +75,15 @@ def test_records_are_frozen():
 def test_bad_scene_tables_are_refused_by_field(table, message):
     with pytest.raises(InvalidParameterError, match=message):
         SceneSpec.from_mapping(table)
+
+
+@pytest.mark.parametrize("bits", [8.7, 12.0, "8", True, 0, 17])
+def test_a_sensor_bit_depth_must_be_a_toml_integer_in_range(tmp_path, bits):
+    # like every integer key of a scenario, 12.0 is refused too: TOML writes integers bare
+    text = (Path(__file__).parents[2] / "examples" / "lunar_descent.toml").read_text()
+    assert "\nbits = 8\n" in text
+    value = repr(bits).lower() if not isinstance(bits, str) else f'"{bits}"'
+    path = tmp_path / "s.toml"
+    path.write_text(text.replace("\nbits = 8\n", f"\nbits = {value}\n"))
+    with pytest.raises(InvalidParameterError, match="sensor bits must be an integer"):
+        load_scenario(path)
