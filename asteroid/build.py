@@ -36,7 +36,7 @@ from asteroid.body import Body, load_native, save_native
 from asteroid.boulders import BOULDER_COLUMNS, Boulders, BoulderSettings, place_boulders
 from asteroid.catalog import save_table
 from asteroid.craters import CRATER_COLUMNS, add_craters, sample_craters
-from asteroid.meshio.export import mesh_format, write_mesh
+from asteroid.meshio.export import MESH_FORMATS, mesh_format, write_mesh
 from asteroid.recipe import Recipe
 from asteroid.shape import ShapeModel
 from asteroid.sphere import SphereMesh
@@ -169,8 +169,10 @@ def build(recipe: Recipe, *, progress: Progress | None = None) -> BuildResult:
 class OutputPaths:
     """Where a build writes: the mesh (None for native only), the native model, catalogues.
 
-    ``stale`` lists the catalogues of an earlier build under the same name that this build
-    does not write (a rebuild with ``--craters none``): they are removed when it commits.
+    ``stale`` lists the files of an earlier build under the same name that this build does not
+    write (its catalogues after a rebuild with ``--craters none``, its mesh in another format
+    or beside a native-only rebuild): they are removed when it commits, so no later reader
+    takes an old body's mesh for the new one. An input (a shape model) is never among them.
     """
 
     mesh: Path | None
@@ -196,10 +198,12 @@ def output_paths(output, *, craters: bool, boulders: bool, inputs=()) -> OutputP
     stem = output.with_suffix("")
     crater_csv = stem.with_name(stem.name + "_craters.csv")
     boulder_csv = stem.with_name(stem.name + "_boulders.csv")
-    stale = tuple(p for p, wanted in ((crater_csv, craters), (boulder_csv, boulders))
-                  if not wanted)
+    stale = [p for p, wanted in ((crater_csv, craters), (boulder_csv, boulders)) if not wanted]
+    given = {Path(p).resolve() for p in inputs}
+    stale += [p for p in (stem.with_suffix(s) for s in MESH_FORMATS)
+              if p != mesh and p.resolve() not in given]
     paths = OutputPaths(mesh, output.with_suffix(".npz"), crater_csv if craters else None,
-                        boulder_csv if boulders else None, stale)
+                        boulder_csv if boulders else None, tuple(stale))
     for p in (*paths.all(), *stale):
         check_output_path(p, inputs)
     return paths

@@ -42,7 +42,8 @@ def asteroid():
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help="Mesh file (.ply, .obj, .stl, .glb) or .npz for the native model only. "
                    "The native BODY.npz and the catalogues BODY_craters.csv and "
-                   "BODY_boulders.csv are written beside it.")
+                   "BODY_boulders.csv are written beside it; an earlier build's BODY mesh or "
+                   "catalogue that this one does not write is removed.")
 @click.option("--magnitude", type=int, default=None,
               help="M: rings per hemisphere; the mesh has 6 M^2 + 2 vertices.")
 @click.option("--radius", type=float, default=None,

@@ -41,11 +41,13 @@ def render() -> None:
 def sequence(scenario_file: Path, output: Path, frames: int | None,
              resolution: tuple[int, int] | None, resume: bool) -> None:
     """Render every frame of a scenario: frames/, range/, normals/, truth.json, manifest."""
+    from render.context import keep_current
     from render.scenario import load_scenario
     from render.sequence import run_sequence
 
     scenario = load_scenario(scenario_file).with_overrides(frames, resolution)
-    with progress_bar("render", "frame", total=scenario.trajectory.frames) as progress:
+    with keep_current(), progress_bar("render", "frame",
+                                      total=scenario.trajectory.frames) as progress:
         manifest = run_sequence(scenario, output, resume=resume, progress=progress)
     click.echo(f"wrote {manifest['frames_written']} frames to {output} "
                f"({manifest['render_seconds']:.1f} s)", err=True)
@@ -64,6 +66,7 @@ def frame(scenario_file: Path, output: Path, index: int | None,
     Writes OUT.png, OUT_range.tif, OUT_normals.tif, OUT_truth.json (and OUT_radiance.tif
     where [output] radiance is on).
     """
+    from render.context import keep_current
     from render.renderer import Renderer
     from render.scenario import load_scenario
     from render.sequence import check_frame_memory, load_scene, render_sample
@@ -84,8 +87,9 @@ def frame(scenario_file: Path, output: Path, index: int | None,
     index = 0 if index is None else index
     if not 0 <= index < len(samples):
         raise InvalidParameterError(f"--index must lie in [0, {len(samples) - 1}]; got {index}")
-    image, fr, truth = render_sample(Renderer(), scene, scenario, samples[index], index,
-                                     samples)
+    with keep_current():
+        image, fr, truth = render_sample(Renderer(), scene, scenario, samples[index], index,
+                                         samples)
     stale = [companions[k] for k in ("range", "normals", "radiance")
              if not scenario.outputs.get(k)]
     with transaction(stale=stale, folders=[output.parent]):  # image and truth as one set
@@ -120,6 +124,7 @@ def frame(scenario_file: Path, output: Path, index: int | None,
 def serve(scenario_file: Path, host: str, port: int, token: str | None, idle_timeout: float,
           read_timeout: float, max_clients: int) -> None:
     """Serve a scenario's scene over TCP until SIGINT/SIGTERM (protocol: docs/protocol.md)."""
+    from render.context import keep_current
     from render.scenario import load_scenario
     from render.server import RenderServer
 
@@ -127,10 +132,11 @@ def serve(scenario_file: Path, host: str, port: int, token: str | None, idle_tim
     server = RenderServer(scenario, host, port, token=token, idle_timeout=idle_timeout,
                           read_timeout=read_timeout, max_clients=max_clients)
     server.bind()
-    server.load()
-    bound_host, bound_port = server.address
-    click.echo(f"craterscape: serving {scenario.name} ({server.scene.kind}) on "
-               f"{bound_host}:{bound_port}", err=True)
-    sys.stderr.flush()
-    server.serve()
+    with keep_current():
+        server.load()
+        bound_host, bound_port = server.address
+        click.echo(f"craterscape: serving {scenario.name} ({server.scene.kind}) on "
+                   f"{bound_host}:{bound_port}", err=True)
+        sys.stderr.flush()
+        server.serve()
     click.echo(f"craterscape: server stopped after {server.requests} requests", err=True)

@@ -80,3 +80,35 @@ def test_killed_builds_leave_one_consistent_set(tmp_path):
     assert r.exit_code == 0, r.output
     assert _check_set(tmp_path) == 99
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.npz", "a.ply"]
+
+
+@pytest.mark.parametrize("first, second", [("a.ply", "a.npz"), ("a.ply", "a.obj"),
+                                           ("a.glb", "a.ply")])
+def test_rebuild_removes_a_mesh_of_the_old_body(tmp_path, first, second):
+    # an earlier build's mesh beside the new native model would be read as the new body
+    small = ["--magnitude", 6, "--radius", 1000, "--base", "perlin", "--craters", "none",
+             "--boulders", "none"]
+    assert run("asteroid", "build", "-o", tmp_path / first, "--seed", 1, *small).exit_code == 0
+    r = run("asteroid", "build", "-o", tmp_path / second, "--seed", 2, *small)
+    assert r.exit_code == 0, r.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted({"a.npz", second})
+    if second != "a.npz":
+        native = load_native(tmp_path / "a.npz").body
+        mesh = trimesh.load(tmp_path / second, force="mesh", process=False)
+        from scipy.spatial import cKDTree
+
+        # the mesh is the new body (OBJ may order and round its vertices its own way)
+        assert len(mesh.vertices) == len(native.vertices())
+        assert cKDTree(native.vertices()).query(mesh.vertices)[0].max() < 1e-3
+
+
+def test_rebuild_from_a_shape_model_keeps_the_shape_model(tmp_path):
+    # a.obj is the input here, never a stale mesh of a.npz
+    shape = tmp_path / "a.obj"
+    trimesh.creation.icosphere(subdivisions=2, radius=1.0).export(shape)
+    before = shape.read_bytes()
+    r = run("asteroid", "build", "-o", tmp_path / "a.npz", "--magnitude", 6, "--base",
+            f"shape:{shape}", "--shape-units", "m", "--craters", "none", "--boulders", "none")
+    assert r.exit_code == 0, r.output
+    assert shape.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.npz", "a.obj"]

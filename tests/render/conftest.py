@@ -47,12 +47,10 @@ def _gl_checked_and_reset(request):
         yield
         return
     ctx = request.getfixturevalue("gl")
-    ctx.__enter__()  # a CLI render in an earlier test may have made its own context current
     before = ctx.error
     if before != NO_ERROR:
         pytest.fail(f"an earlier test left {before} on the session's GL context")
     yield
-    ctx.__enter__()
     after = ctx.error
     _reset(ctx)
     assert after == NO_ERROR, f"this test left {after} on the GL context"

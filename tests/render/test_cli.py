@@ -103,12 +103,43 @@ def test_missing_egl_names_the_packages(monkeypatch):
         raise RuntimeError("libEGL.so.1: cannot open shared object file")
 
     monkeypatch.setattr(moderngl, "create_context", broken)
-    context.create_context.cache_clear()
+    monkeypatch.setattr(context, "_made", None)  # as in a fresh process; undone after the test
+    with pytest.raises(context.RenderUnavailableError) as err:
+        context.create_context()
+    msg = str(err.value)
+    assert "libegl1" in msg and "libgl1-mesa-dri" in msg and "\n" not in msg
+
+
+def _egl_current_context():
+    import ctypes
+
+    lib = ctypes.CDLL("libEGL.so.1")
+    lib.eglGetCurrentContext.restype = ctypes.c_void_p
+    return lib.eglGetCurrentContext()
+
+
+@pytest.mark.parametrize("command", ["frame", "sequence"])
+def test_an_in_process_render_gives_the_callers_gl_context_back(tmp_path, stack_dir, gl,
+                                                                command):
+    # an application with its own context current renders through the CLI entry point
+    import moderngl
+
+    sc = scenario(tmp_path, stack_dir, frames=2)
+    mine = moderngl.create_context(standalone=True, backend="egl")
     try:
-        with pytest.raises(context.RenderUnavailableError) as err:
-            context.create_context()
-        msg = str(err.value)
-        assert "libegl1" in msg and "libgl1-mesa-dri" in msg and "\n" not in msg
+        handle = _egl_current_context()
+        assert handle
+        out = tmp_path / ("one.png" if command == "frame" else "run")
+        r = run("render", command, sc, "-o", out, "--resolution", "32x24")
+        assert r.exit_code == 0, r.output
+        assert _egl_current_context() == handle    # still the caller's, not the renderer's
+        assert mine.error == "GL_NO_ERROR"
+        # and the next render in the process still draws with its own context
+        again = tmp_path / "two.png"
+        r = run("render", "frame", sc, "-o", again, "--resolution", "32x24", "--index", 1)
+        assert r.exit_code == 0, r.output
+        assert _egl_current_context() == handle
     finally:
-        monkeypatch.undo()
-        context.create_context.cache_clear()
+        mine.release()
+        gl.__enter__()  # this test's own context is gone: the session's is current again
+    assert _egl_current_context() and gl.error == "GL_NO_ERROR"
