@@ -1055,7 +1055,10 @@ def fill(input_dem, output, roughness, craters_at, despike, denoise, seed, band,
 @click.option("--seed", type=click.IntRange(0, 2**63 - 1), default=None,
               help="Seed (default: the stack's).")
 def replace_crater_cmd(stack_dir, at, diameter, age, seed):
-    """Replace a crater in a layer stack with a sharp synthetic one (edits in place)."""
+    """Replace a crater in a layer stack with a sharp synthetic one (edits in place).
+
+    The stack's rocks on the changed ground are stood on the new ground (rocks.csv follows).
+    """
     from terrain.layers import replace_crater
 
     if not stack_dir.is_dir():

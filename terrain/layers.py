@@ -552,14 +552,7 @@ def _add_layer_rocks(tiles: list, rocks, seed: int, population) -> RockCatalog:
     """
     from terrain.rocks import MIN_ROCK_PIXELS, RockTable, rock_catalog, rock_heights
 
-    levels = [k for k, t in enumerate(tiles) if MIN_ROCK_PIXELS * t.resolution < rocks.dmax]
-    craters = None
-    if levels and rocks.craters and population is not None:
-        dmin = max(5.0 * rocks.regolith_m, population.dmin)
-        if dmin < population.dmax:
-            craters = population.generate(seed, tiles[levels[0]].bounds,
-                                          margin=lambda d: rocks.reach * d / 2,
-                                          min_diameter=dmin)
+    levels, craters = _rock_levels(tiles, rocks, seed, population)
     rows: dict = {}
     for k in levels:
         tile = tiles[k]
@@ -583,6 +576,21 @@ def _add_layer_rocks(tiles: list, rocks, seed: int, population) -> RockCatalog:
     z0 = np.array([rows[int(u)][1] for u in table.uid])
     first = np.array([rows[int(u)][2] for u in table.uid], dtype=np.int64)
     return rock_catalog(table, z0, first)
+
+
+def _rock_levels(tiles: list, rocks, seed: int, population) -> tuple[list[int], Any]:
+    """Return the layers that hold rocks and the craters that raise their density."""
+    from terrain.rocks import MIN_ROCK_PIXELS
+
+    levels = [k for k, t in enumerate(tiles) if MIN_ROCK_PIXELS * t.resolution < rocks.dmax]
+    craters = None
+    if levels and rocks.craters and population is not None:
+        dmin = max(5.0 * rocks.regolith_m, population.dmin)
+        if dmin < population.dmax:
+            craters = population.generate(seed, tiles[levels[0]].bounds,
+                                          margin=lambda d: rocks.reach * d / 2,
+                                          min_diameter=dmin)
+    return levels, craters
 
 
 def merge_catalogs(catalogs: Iterable[CraterCatalog]) -> CraterCatalog:
@@ -759,8 +767,11 @@ def write_stack(stack: LayerStack, outdir, *, inputs=()) -> Path:
 
 
 def _write_files(stack: LayerStack, outdir: Path, files: list[str], only=None,
-                 catalog: str = CATALOG) -> None:
-    """Write the layers (``only`` some), the catalogue, then the manifest: the commit point."""
+                 catalog: str = CATALOG, rocks: bool = False) -> None:
+    """Write the layers (``only`` some), the catalogues, then the manifest: the commit point.
+
+    An edit (``only``) writes the rock catalogue when ``rocks`` (under the manifest's name).
+    """
     from terrain.io import atomic_path, write_dem
 
     for k, tile in enumerate(stack.tiles):
@@ -771,8 +782,8 @@ def _write_files(stack: LayerStack, outdir: Path, files: list[str], only=None,
         write_dem(tile.replace(metadata=meta), outdir / files[k])
     with atomic_path(outdir / catalog) as tmp:
         stack.catalog.to_csv(tmp)
-    if stack.rocks is not None and only is None:  # edits leave the rocks as they are
-        with atomic_path(outdir / ROCK_CATALOG) as tmp:
+    if stack.rocks is not None and (only is None or rocks):
+        with atomic_path(outdir / stack.info.get("rock_catalog", ROCK_CATALOG)) as tmp:
             stack.rocks.to_csv(tmp)
     manifest = _manifest(stack, files)
     manifest["catalog"] = catalog
@@ -944,7 +955,11 @@ def _read_stack(outdir: Path) -> LayerStack:
     catalog = CraterCatalog.from_csv(cat_path) if cat_path.exists() else merge_catalogs([])
     info = {k: v for k, v in manifest.items()
             if k not in ("layers", "format", "version", "crs", "catalog", "crater_counts")}
-    rock_path = outdir / ROCK_CATALOG
+    rock_name = info.get("rock_catalog", ROCK_CATALOG)
+    if not isinstance(rock_name, str) or Path(rock_name).name != rock_name:
+        raise InvalidDEMError(f"manifest '{mpath}' names a rock catalogue outside the stack: "
+                              f"{rock_name!r}")
+    rock_path = outdir / rock_name
     rocks = (RockCatalog.from_csv(rock_path) if "rock_catalog" in info and rock_path.exists()
              else None)
     return LayerStack(_layers(tiles, windows, origins, files), catalog, info, rocks,
@@ -962,7 +977,8 @@ def replace_crater(outdir, x: float, y: float, diameter: float, *, age: float = 
     fractal terrain, the crater is added at the finest layer that holds it completely, and
     the change propagates to every coarser layer (co-located pixels) so the layers match
     exactly. Finer layers that overlap the crater take the change too, interpolated from the
-    layer above, with their co-located pixels set exactly.
+    layer above, with their co-located pixels set exactly. A stack with rocks keeps its rocks
+    (the same keyed draw) resting on the new ground, catalogue included (:func:`_reseat_rocks`).
 
     Parameters
     ----------
@@ -1016,16 +1032,122 @@ def replace_crater(outdir, x: float, y: float, diameter: float, *, age: float = 
         changed = {k}
         _propagate_up(tiles, stack.windows, k, changed)
         _propagate_down(tiles, stack.windows, k, old, changed)
+        rocks = stack.rocks
+        if rocks is not None and stack.info.get("rocks"):
+            rocks = _reseat_rocks(stack, tiles, k, seed, changed)
         catalog = merge_catalogs([stack.catalog, result.catalog.with_layer(k)])
         edit = dict(replace_crater=dict(x=x, y=y, diameter=diameter, age=age, layer=k,
                                         seed=seed, changed_layers=sorted(changed)))
         edited = replace(
-            stack, catalog=catalog, info={**stack.info,
-                                          "edits": [*stack.info.get("edits", []), edit]},
+            stack, catalog=catalog, rocks=rocks,
+            info={**stack.info, "edits": [*stack.info.get("edits", []), edit]},
             layers=tuple(replace(layer, tile=tile)
                          for layer, tile in zip(stack.layers, tiles, strict=True)))
-        _commit(edited, outdir, changed)
+        _commit(edited, outdir, changed, rocks_changed=rocks is not stack.rocks)
     return edit["replace_crater"]
+
+
+def _reseat_rocks(stack: LayerStack, tiles: list, k: int, seed: int,
+                  changed: set) -> RockCatalog:
+    """Stand the rocks whose ground an edit changed on the new ground (``tiles`` in place).
+
+    The rocks are the stack's keyed draw (the same rocks, ids and shapes as when it was
+    built). In every rock layer from ``k`` (the edited layer) down, a rock whose outline
+    touches a changed pixel, and every rock whose outline meets such a rock's, is taken off:
+    the pixels under their outlines are filled smoothly from the ground around them
+    (:func:`terrain.gapfill.fill_gaps` without roughness: the ground a rock hid is not known,
+    and a rough fill would raise or sink it at random), and the rocks are stood on
+    that ground again (:func:`terrain.rocks.rock_heights`: base level the ground under the
+    centre). Coarser layers then take the co-located fine pixels, finest first, as when the
+    stack was built. Returns the rock catalogue with the new base levels (the finest
+    re-seated layer's, as a build records them); ``changed`` gains the layers rewritten.
+    """
+    from terrain.rocks import MIN_ROCK_PIXELS, RockModel, rock_heights
+
+    model = RockModel.from_mapping(stack.info["rocks"])
+    table = stack.info.get("population")
+    population = Population(**table) if table else None
+    draw_seed = check_seed(stack.info.get("seed", 0))
+    levels, craters = _rock_levels(tiles, model, draw_seed, population)
+    bases: dict[tuple[int, int], float] = {}
+    for j in (j for j in levels if j >= k):
+        tile, before = tiles[j], stack.tiles[j]
+        moved = ~((tile.heights == before.heights)
+                  | (np.isnan(tile.heights) & np.isnan(before.heights)))
+        if not moved.any():
+            continue
+        res = tile.resolution
+        rows, cols = np.nonzero(moved)
+        xs, ys = tile.xy(np.array([rows.min(), rows.max()]), np.array([cols.min(), cols.max()]))
+        assert model.dmax is not None  # set when the model is built
+        grow = 2.0 * model.dmax  # rocks whose outlines chain into the changed ground
+        rocks = model.generate(draw_seed, (xs.min() - grow, ys.min() - grow, xs.max() + grow,
+                                           ys.max() + grow),
+                               min_diameter=MIN_ROCK_PIXELS * res, craters=craters)
+        rocks = rocks.take(np.flatnonzero(rocks.diameter >= MIN_ROCK_PIXELS * res))
+        discs = [_disc(tile, float(cx), float(cy), float(r) + 0.5 * res)
+                 for cx, cy, r in zip(rocks.x, rocks.y, rocks.outline_radius, strict=True)]
+        taken = np.zeros(len(rocks), bool)
+        under = moved.copy()  # grows with each rock taken off until no rock straddles it
+        while True:
+            new = [i for i, (sl, m) in enumerate(discs)
+                   if not taken[i] and m is not None and np.any(under[sl] & m)]
+            if not new:
+                break
+            for i in new:
+                sl, m = discs[i]
+                taken[i] = True
+                under[sl] |= m
+        if not taken.any():
+            continue
+        off = np.zeros(tile.shape, bool)
+        for sl, m in (d for d, t in zip(discs, taken, strict=True) if t):
+            off[sl] |= m
+        # the ground a rock hid is not known: the smooth fill of the ground around it
+        ground = fill_gaps(tile.replace(valid=tile.valid & ~off), seed=seed, roughness=0.0,
+                           gaps=off).tile
+        chosen = rocks.take(np.flatnonzero(taken))
+        heights, z0, _ = rock_heights(ground, chosen)
+        tiles[j] = tile.replace(heights=heights, valid=np.isfinite(heights))
+        bases.update({(uid, j): z for uid, z in zip(chosen.uid.tolist(), z0.tolist(),
+                                                    strict=True)})
+        changed.add(j)
+        log.info("layer %d: %d rocks stood on the new ground", j, len(chosen))
+    for j in range(len(tiles) - 1, 0, -1):  # the layers agree again, finest first
+        window = stack.windows[j]
+        assert window is not None  # every layer above the base has one
+        col, row, size, _ = window
+        coarse = tiles[j - 1].heights.copy()
+        coarse[row:row + size, col:col + size] = tiles[j].heights[::2, ::2]
+        if not np.array_equal(coarse, tiles[j - 1].heights, equal_nan=True):
+            tiles[j - 1] = tiles[j - 1].replace(heights=coarse, valid=np.isfinite(coarse))
+            changed.add(j - 1)
+    cat = stack.rocks
+    assert cat is not None
+    z = cat.z_base_m.copy()
+    # the finest layer that draws each rock and holds its centre (whose base a build records)
+    finest = np.full(len(z), -1, dtype=np.int64)
+    for j in levels:
+        left, bottom, right, top = tiles[j].bounds
+        finest[(cat.diameter_m >= MIN_ROCK_PIXELS * tiles[j].resolution)
+               & (cat.x_m >= left) & (cat.x_m <= right) & (cat.y_m >= bottom)
+               & (cat.y_m <= top)] = j
+    for n, (uid, j) in enumerate(zip(cat.id.tolist(), finest.tolist(), strict=True)):
+        if (uid, j) in bases:
+            z[n] = bases[uid, j]
+    return replace(cat, z_base_m=z)
+
+
+def _disc(tile: DEMTile, x: float, y: float, radius: float):
+    """Return (slices, mask) of the pixels within ``radius`` m of (x, y); (None, None): none."""
+    r, c = tile.rowcol(x, y)
+    n = radius / tile.resolution
+    r0, r1 = max(int(math.floor(r - n)), 0), min(int(math.ceil(r + n)), tile.shape[0] - 1)
+    c0, c1 = max(int(math.floor(c - n)), 0), min(int(math.ceil(c + n)), tile.shape[1] - 1)
+    if r0 > r1 or c0 > c1:
+        return None, None
+    rr, cc = np.mgrid[r0:r1 + 1, c0:c1 + 1]
+    return (slice(r0, r1 + 1), slice(c0, c1 + 1)), np.hypot(rr - r, cc - c) <= n
 
 
 def _crater_uid(x, y, d) -> int:
@@ -1069,8 +1191,9 @@ def _propagate_down(tiles: list, windows, k: int, old_k: np.ndarray, changed: se
         changed.add(j)
 
 
-def _commit(stack: LayerStack, outdir: Path, changed: set) -> None:
-    """Write the changed layers and the catalogue under new names, then swap the manifest in.
+def _commit(stack: LayerStack, outdir: Path, changed: set, *,
+            rocks_changed: bool = False) -> None:
+    """Write the changed layers and the catalogues under new names, then swap the manifest in.
 
     The manifest's swap is the commit point; the old versions are deleted once no reader
     holds them.
@@ -1084,8 +1207,12 @@ def _commit(stack: LayerStack, outdir: Path, changed: set) -> None:
     for k in changed:
         files[k] = f"layer_{k:02d}.{stamp}.tif"
     catalog = f"craters.{stamp}.csv"
-    _write_files(stack, outdir, files, only=changed, catalog=catalog)
-    old = [name for k, name in enumerate(old_files) if name != files[k]] + [old_catalog]
+    old = []
+    if rocks_changed:
+        old.append(stack.info.get("rock_catalog", ROCK_CATALOG))
+        stack = replace(stack, info={**stack.info, "rock_catalog": f"rocks.{stamp}.csv"})
+    _write_files(stack, outdir, files, only=changed, catalog=catalog, rocks=rocks_changed)
+    old += [name for k, name in enumerate(old_files) if name != files[k]] + [old_catalog]
     with _readers_lock(outdir, exclusive=True) as held:
         if not held:
             log.warning("readers still hold %s; its old files go at the next edit", outdir)

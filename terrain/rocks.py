@@ -585,6 +585,15 @@ class RockTable:
         """Exposed height above the base level z0 (m)."""
         return self.rows[:, _C] * (1.0 - self.rows[:, _BETA])
 
+    @property
+    def outline_radius(self):
+        """Farthest reach of each rock's outline from its centre (m).
+
+        Half its long axis stretched by its harmonics: what :func:`rasterise_rocks` may touch.
+        """
+        return 0.5 * self.rows[:, _A] * (1.0 + np.abs(self.rows[:, 9]) + np.abs(self.rows[:, 11])
+                                         + np.abs(self.rows[:, 13]))
+
     def take(self, index) -> RockTable:
         """Return the rocks selected by ``index`` (an index array or boolean mask)."""
         return RockTable(self.rows[index], self.uid[index])

@@ -233,3 +233,86 @@ def test_any_window_equals_the_full_run_bitwise(col, row, w, h, seed):
     full, _ = add_rocks(tile, model, seed=seed)
     part, _ = add_rocks(tile, model, seed=seed, window=Window(col, row, w, h))
     np.testing.assert_array_equal(part.heights, full.heights[row:row + h, col:col + w])
+
+
+def _rocky_stack(folder):
+    from terrain.layers import build_stack, write_stack
+    from terrain.synthetic import synthesize_tile
+
+    base = synthesize_tile(65, resolution=4.0, relief=3.0, seed=2).tile
+    model = RockModel.from_spec("golombek:k=0.15,dmin=0.25")
+    return write_stack(build_stack(base, (130.0, 130.0), levels=4, layer_size=65, seed=3,
+                                   rocks=model), folder)
+
+
+def _resting_misfit(stack, sel):
+    """Per rock: top at its centre pixel minus (base + height), and how far its base lies
+    outside the heights of the ground around it (0 when the ground brackets it).
+
+    Each rock is looked at in the finest layer that holds its centre well inside; the ring is
+    the terrain just outside its outline (a rock resting on the ground has its base between its
+    lowest and highest point: neither floating above it all nor buried below it all).
+    """
+    cat = stack.rocks
+    top_misfit, base_misfit = [], []
+    for i in np.flatnonzero(sel):
+        for tile in stack.tiles[::-1]:
+            left, bottom, right, top = tile.bounds
+            r_out = 0.75 * cat.axis_a_m[i] * 2 + 2 * tile.resolution
+            if (cat.diameter_m[i] >= 2 * tile.resolution and left + r_out < cat.x_m[i] < right
+                    - r_out and bottom + r_out < cat.y_m[i] < top - r_out):
+                break
+        else:
+            continue
+        h = tile.heights.astype(np.float64)
+        r, c = tile.rowcol(cat.x_m[i], cat.y_m[i])
+        top_misfit.append(h[int(round(float(r))), int(round(float(c)))]
+                          - (cat.z_base_m[i] + cat.height_m[i]))
+        rows, cols = np.mgrid[0:tile.shape[0], 0:tile.shape[1]]
+        px, py = tile.xy(rows, cols)
+        d = np.hypot(px - cat.x_m[i], py - cat.y_m[i])
+        ring = (d > r_out - tile.resolution) & (d <= r_out)
+        lo, hi = h[ring].min(), h[ring].max()
+        base_misfit.append(max(cat.z_base_m[i] - hi, lo - cat.z_base_m[i], 0.0))
+    return np.array(top_misfit), np.array(base_misfit)
+
+
+def test_every_rock_rests_on_the_terrain_after_a_crater_replacement(tmp_path):
+    from terrain.layers import read_stack, replace_crater
+
+    folder = _rocky_stack(tmp_path / "s")
+    before = read_stack(folder)
+    x, y, diameter = 131.0, 129.0, 24.0
+    replace_crater(folder, x, y, diameter)
+    after = read_stack(folder)
+    cat = after.rocks
+    assert cat.id.tolist() == before.rocks.id.tolist()  # the same keyed rocks
+    near = np.hypot(cat.x_m - x, cat.y_m - y) < 0.6 * diameter
+    assert near.sum() >= 10
+    top, base = _resting_misfit(after, near)
+    assert len(top) >= 6
+    # each rock's top stands its height above its base, and its base is the ground around it
+    assert np.all(np.abs(top) < 0.15 * cat.height_m.max() + 0.05), top
+    assert np.all(base < 0.02), base
+    # the rocks were in the changed ground: their bases moved with it
+    moved = np.abs(cat.z_base_m - before.rocks.z_base_m)
+    assert np.median(moved[np.hypot(cat.x_m - x, cat.y_m - y) < 0.4 * diameter]) > 0.5
+    for k in range(1, len(after.tiles)):  # the layers still agree exactly
+        col, row, size, _ = after.windows[k]
+        assert np.array_equal(after.tiles[k - 1].heights[row:row + size, col:col + size],
+                              after.tiles[k].heights[::2, ::2])
+    # deterministic: the same edit of the same stack gives the same bytes
+    again = _rocky_stack(tmp_path / "t")
+    replace_crater(again, x, y, diameter)
+    twin = read_stack(again)
+    for a, b in zip(after.tiles, twin.tiles, strict=True):
+        np.testing.assert_array_equal(a.heights, b.heights)
+    np.testing.assert_array_equal(twin.rocks.z_base_m, cat.z_base_m)
+    # far from a small crater, rocks and their record are untouched
+    small = _rocky_stack(tmp_path / "u")
+    replace_crater(small, 140.0, 140.0, 6.0)
+    edited = read_stack(small).rocks
+    far = np.hypot(edited.x_m - 140.0, edited.y_m - 140.0) > 3 * 6.0
+    assert far.sum() >= 5
+    np.testing.assert_array_equal(edited.z_base_m[far], before.rocks.z_base_m[far])
+    assert not np.array_equal(edited.z_base_m, before.rocks.z_base_m)
