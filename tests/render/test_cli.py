@@ -129,11 +129,15 @@ def test_an_in_process_render_gives_the_callers_gl_context_back(tmp_path, stack_
     try:
         handle = _egl_current_context()
         assert handle
+        viewport = mine.viewport
+        mine.viewport = (0, 0, 3, 2)  # a state of the caller's that no render may change
         out = tmp_path / ("one.png" if command == "frame" else "run")
         r = run("render", command, sc, "-o", out, "--resolution", "32x24")
         assert r.exit_code == 0, r.output
         assert _egl_current_context() == handle    # still the caller's, not the renderer's
+        assert mine.viewport == (0, 0, 3, 2)       # and the render drew with its own context
         assert mine.error == "GL_NO_ERROR"
+        mine.viewport = viewport
         # and the next render in the process still draws with its own context
         again = tmp_path / "two.png"
         r = run("render", "frame", sc, "-o", again, "--resolution", "32x24", "--index", 1)
