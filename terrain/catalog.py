@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import contextlib
 import csv
-import difflib
 import math
 import os
 import warnings
@@ -36,7 +35,7 @@ from typing import IO, ClassVar, TypeVar
 
 import numpy as np
 
-from terrain.errors import InvalidParameterError
+from terrain.errors import InvalidParameterError, reject_unknown
 
 __all__ = ["CATALOG_COLUMNS", "CATALOG_LAYER_COLUMNS", "ROCK_COLUMNS", "ColumnTable", "Crater",
            "CraterCatalog", "CraterTable", "RockCatalog", "csv_sink", "read_circles",
@@ -285,12 +284,7 @@ class ColumnTable:
             A column is missing, unknown (named, with the nearest valid name) or invalid.
         """
         known = cls.COLUMNS + cls.OPTIONAL
-        unknown = sorted(set(columns) - set(known))
-        if unknown:
-            near = difflib.get_close_matches(unknown[0], known, n=1)
-            raise InvalidParameterError(
-                f"unknown {cls.WHAT} column {unknown[0]!r}"
-                + (f" (did you mean {near[0]!r}?)" if near else ""))
+        reject_unknown(columns, known, cls.WHAT, "column")
         missing = [name for name in cls.COLUMNS if name not in columns]
         if missing:
             raise InvalidParameterError(f"{cls.WHAT} is missing columns {missing}")

@@ -400,16 +400,11 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
             f"min crater pixels must be positive; got {min_crater_pixels}")
     model = model or CraterModel()
     outdir = Path(outdir)
-    x, y = (float(v) for v in site)
+    from terrain.layers import layer_bounds, site_in_bounds
+
     base_shape = GridShape(tuple(reader.shape), reader.transform)
-    left, top = reader.transform @ (0, 0)
-    right, bottom = reader.transform @ (reader.shape[1], reader.shape[0])
-    if not (left <= x <= right and bottom <= y <= top):
-        raise InvalidParameterError(
-            f"site {x:.6g},{y:.6g} lies outside the DEM (x {left:.6g}..{right:.6g}, "
-            f"y {bottom:.6g}..{top:.6g})")
+    x, y = site_in_bounds(site, layer_bounds(base_shape.shape, reader.transform))
     windows, origins, shapes, transforms = layer_plan(base_shape, (x, y), levels, layer_size)
-    from terrain.layers import layer_bounds
 
     plan = [(layer_bounds(sh, tr), tr.a) for sh, tr in zip(shapes, transforms, strict=True)]
     if geotiff_pixels is None:

@@ -123,7 +123,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from terrain.errors import InvalidParameterError
+from terrain.errors import InvalidParameterError, reject_unknown
 
 __all__ = [
     "Profile",
@@ -336,18 +336,12 @@ class Morphology:
     @classmethod
     def from_mapping(cls, data) -> Morphology:
         """Build from a mapping (a TOML table), rejecting unknown keys by name."""
-        import difflib
         from dataclasses import fields
 
         if not isinstance(data, dict):
             raise InvalidParameterError(
                 f"crater morphology must be a table; got {type(data).__name__}")
-        known = [f.name for f in fields(cls)]
-        for key in data:
-            if key not in known:
-                near = difflib.get_close_matches(str(key), known, n=1)
-                hint = f" (did you mean '{near[0]}'?)" if near else ""
-                raise InvalidParameterError(f"unknown crater morphology key '{key}'{hint}")
+        reject_unknown(data, [f.name for f in fields(cls)], "crater morphology")
         return cls(**data)
 
     def is_complex(self, diameter) -> np.ndarray:

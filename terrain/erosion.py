@@ -51,7 +51,7 @@ from pathlib import Path
 
 import numpy as np
 
-from terrain.errors import InvalidParameterError, MissingInputError
+from terrain.errors import InvalidParameterError, MissingInputError, reject_unknown
 
 __all__ = ["DEFAULT_BASELINE_DIAMETER", "DEFAULT_CRITICAL_SLOPE_DEG", "DEFAULT_EXPONENT",
            "ErosionModel", "SlopeDegradation"]
@@ -222,17 +222,10 @@ class SlopeDegradation:
     @classmethod
     def from_mapping(cls, data) -> SlopeDegradation:
         """Build from a mapping (a TOML table), rejecting unknown keys by name."""
-        import difflib
-
         if not isinstance(data, dict):
             raise InvalidParameterError(
                 f"slope degradation must be a table; got {type(data).__name__}")
-        known = ["enabled", "critical_slope_deg"]
-        for key in data:
-            if key not in known:
-                near = difflib.get_close_matches(str(key), known, n=1)
-                hint = f" (did you mean '{near[0]}'?)" if near else ""
-                raise InvalidParameterError(f"unknown slope degradation key '{key}'{hint}")
+        reject_unknown(data, ["enabled", "critical_slope_deg"], "slope degradation")
         return cls(**data)
 
     def rate(self, slope) -> np.ndarray:

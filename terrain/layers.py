@@ -284,6 +284,35 @@ def layer_bounds(shape: tuple[int, ...], transform: Affine) -> tuple[float, floa
     return left, bottom, right, top
 
 
+def site_in_bounds(site: tuple[float, float],
+                   bounds: tuple[float, float, float, float]) -> tuple[float, float]:
+    """Return the landing site as floats, refusing one outside the base DEM's extent.
+
+    Parameters
+    ----------
+    site : (x, y), map metres
+        The landing site.
+    bounds : (left, bottom, right, top), map metres
+        The base's extent (:func:`layer_bounds`).
+
+    Returns
+    -------
+    (x, y) : float, map metres
+
+    Raises
+    ------
+    InvalidParameterError
+        The site lies outside ``bounds``.
+    """
+    x, y = (float(v) for v in site)
+    left, bottom, right, top = bounds
+    if not (left <= x <= right and bottom <= y <= top):
+        raise InvalidParameterError(
+            f"site {x:.6g},{y:.6g} lies outside the DEM (x {left:.6g}..{right:.6g}, "
+            f"y {bottom:.6g}..{top:.6g})")
+    return x, y
+
+
 def _layer_craters(population, seed, plan, k, factor, min_pixels):
     """Craters of the population that belong to layer k (see the module docstring).
 
@@ -452,12 +481,7 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
         raise InvalidParameterError(
             f"min crater pixels must be positive; got {min_crater_pixels}")
     model = model or CraterModel()
-    x, y = (float(v) for v in site)
-    left, bottom, right, top = base.bounds
-    if not (left <= x <= right and bottom <= y <= top):
-        raise InvalidParameterError(
-            f"site {x:.6g},{y:.6g} lies outside the DEM (x {left:.6g}..{right:.6g}, "
-            f"y {bottom:.6g}..{top:.6g})")
+    x, y = site_in_bounds(site, base.bounds)
     windows, origins, shapes, transforms = layer_plan(base, (x, y), levels, layer_size)
     plan = [(layer_bounds(sh, tr), tr.a) for sh, tr in zip(shapes, transforms, strict=True)]
     pixels = sum(h * w for h, w in shapes)

@@ -92,7 +92,7 @@ import numpy as np
 from terrain import memory
 from terrain import metakeys as mk
 from terrain.catalog import ROCK_COLUMNS, RockCatalog
-from terrain.errors import InvalidParameterError
+from terrain.errors import InvalidParameterError, reject_unknown
 from terrain.rng import check_seed, gaussian, hash64, poisson, stream_id, uniform_scalar
 
 __all__ = ["CELL_EXPECTATION", "MIN_ROCK_PIXELS", "ROCK_COLUMNS", "RockModel", "RockTable",
@@ -235,15 +235,9 @@ class RockModel:
         ...
         terrain.errors.InvalidParameterError: unknown rock key 'kk' (did you mean 'k'?)
         """
-        known = [f.name for f in fields(cls)]
-        values = dict(defaults or {})
-        for key, value in dict(data).items():
-            if key not in known:
-                near = difflib.get_close_matches(str(key), known, n=1)
-                hint = f" (did you mean '{near[0]}'?)" if near else ""
-                raise InvalidParameterError(f"unknown rock key '{key}'{hint}")
-            values[key] = value
-        return cls(**values)
+        data = dict(data)
+        reject_unknown(data, [f.name for f in fields(cls)], "rock")
+        return cls(**{**(defaults or {}), **data})
 
     @classmethod
     def from_spec(cls, spec: str, *, defaults=None) -> RockModel:
