@@ -30,7 +30,7 @@ import click
 
 from evaluation.evidence import write_csv
 from terrain import metakeys as mk
-from terrain.clitools import TRIPLE, progress_bar, version
+from terrain.clitools import TRIPLE, progress_bar, version, with_options
 from terrain.errors import InvalidParameterError, MissingInputError
 
 __all__ = ["evaluation"]
@@ -225,9 +225,7 @@ def _gravity_options(func):
         click.option("--no-gravity", is_flag=True,
                      help="Radial slopes only (no gravitational slopes)."),
     ]
-    for option in reversed(options):
-        func = option(func)
-    return func
+    return with_options(options)(func)
 
 
 def _body_slopes(path, *, units, density, mass, period_hours, spin_axis, radius_deg,
@@ -358,9 +356,7 @@ def _tracker_options(func):
                      help="Errors above this are outliers (px; default 2, or the thresholds "
                           "file's tracking.outlier_px)."),
     ]
-    for option in reversed(options):
-        func = option(func)
-    return func
+    return with_options(options)(func)
 
 
 def _run_tracking(run_dir, max_corners, quality, min_distance, win_size, levels, fb_threshold,

@@ -21,7 +21,15 @@ from pathlib import Path
 import click
 
 from terrain import metakeys as mk
-from terrain.clitools import FINITE, PAIR, WINDOW, progress_bar, version, version_option
+from terrain.clitools import (
+    FINITE,
+    PAIR,
+    WINDOW,
+    progress_bar,
+    version,
+    version_option,
+    with_options,
+)
 from terrain.errors import CraterscapeError, InvalidParameterError
 from terrain.outputs import (
     cannot_write,
@@ -232,9 +240,7 @@ def _crater_options(func):
                      help="Switch off the crater fractal overlay and the irregular rim."),
         *_morphology_options,
     ]
-    for option in reversed(options):
-        func = option(func)
-    return func
+    return with_options(options)(func)
 
 
 def _model(erosion_profile, erosion_exponent, no_roughness):
@@ -334,23 +340,30 @@ def _check_outputs(output, catalog, inputs):
 # chunked runs on Dask (terrain.chunked): --workers, --scheduler, --chunk, --cog
 
 
-def _dask_options(func):
-    options = [
+def _chunk_options(lead: str, run: str, pool_note: str = "") -> list:
+    """Return --workers, --threads, --scheduler and --chunk, which every chunked command takes.
+
+    ``lead`` starts the help of --workers and --scheduler ("Run", "Build the stack"), ``run``
+    names what --chunk implies ("run", "build"), ``pool_note`` ends --workers' help.
+    """
+    return [
         click.option("--workers", type=click.IntRange(1, None), default=None,
-                     help="Run chunk by chunk on a local Dask pool of N workers (writes Zarr)."),
+                     help=f"{lead} chunk by chunk on a local Dask pool of N workers{pool_note}."),
         click.option("--threads", is_flag=True,
                      help="Local workers are threads of this process instead of processes."),
         click.option("--scheduler", default=None, metavar="tcp://HOST:PORT",
-                     help="Run chunk by chunk on the Dask cluster at this address."),
+                     help=f"{lead} chunk by chunk on the Dask cluster at this address."),
         click.option("--chunk", type=click.IntRange(16, None), default=None,
-                     help="Chunk side in pixels (default 1024); implies a chunked run."),
-        click.option("--cog", type=click.Path(dir_okay=False, path_type=Path), default=None,
-                     help="After a chunked run, also convert the Zarr output into this "
-                          "Cloud Optimized GeoTIFF."),
+                     help=f"Chunk side in pixels (default 1024); implies a chunked {run}."),
     ]
-    for option in reversed(options):
-        func = option(func)
-    return func
+
+
+_dask_options = with_options([
+    *_chunk_options("Run", "run", " (writes Zarr)"),
+    click.option("--cog", type=click.Path(dir_okay=False, path_type=Path), default=None,
+                 help="After a chunked run, also convert the Zarr output into this "
+                      "Cloud Optimized GeoTIFF."),
+])
 
 
 def _chunked_requested(output, workers, scheduler, chunk, cog, window=None) -> bool:
@@ -681,21 +694,13 @@ _roughness_options = [
 ]
 
 
-def _with(options):
-    def decorate(func):
-        for option in reversed(options):
-            func = option(func)
-        return func
-    return decorate
-
-
 @terrain.command()
 @click.argument("input_dem", type=click.Path(path_type=Path))
 @_store_output_option
 @click.option("--times", type=click.IntRange(1, 16), default=1, show_default=True,
               help="Number of 2x expansions.")
 @_seed_option
-@_with(_roughness_options)
+@with_options(_roughness_options)
 @_window_option
 @click.option("--band", type=int, default=1, show_default=True, help="Band of the input.")
 @_dask_options
@@ -752,14 +757,7 @@ def expand(input_dem, output, times, seed, fractal_dimension, height_scale, unif
 
 
 _stack_dask_options = [
-    click.option("--workers", type=click.IntRange(1, None), default=None,
-                 help="Build the stack chunk by chunk on a local Dask pool of N workers."),
-    click.option("--threads", is_flag=True,
-                 help="Local workers are threads of this process instead of processes."),
-    click.option("--scheduler", default=None, metavar="tcp://HOST:PORT",
-                 help="Build the stack chunk by chunk on the Dask cluster at this address."),
-    click.option("--chunk", type=click.IntRange(16, None), default=None,
-                 help="Chunk side in pixels (default 1024); implies a chunked build."),
+    *_chunk_options("Build the stack", "build"),
     click.option("--halo", type=click.IntRange(0, None), default=None,
                  help="Chunked builds: pixels around each chunk that every gap of the base "
                       "must fit in (default 256)."),
@@ -780,7 +778,7 @@ _stack_dask_options = [
 @click.option("--layer-size", type=int, default=1025, show_default=True,
               help="Pixels per side of each expanded layer (odd).")
 @_seed_option
-@_with(_roughness_options)
+@with_options(_roughness_options)
 @click.option("--min-crater-pixels", type=float, default=4.0, show_default=True,
               help="Smallest crater a layer takes, in its pixels.")
 @click.option("--despike", type=float, default=None,
@@ -791,7 +789,7 @@ _stack_dask_options = [
                    "power:a=3e-4,b=-2.482 (keys as `terrain rocks`; dmin defaults to two "
                    "pixels of the finest layer).")
 @_crater_options
-@_with(_stack_dask_options)
+@with_options(_stack_dask_options)
 def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, layer_size, seed,
             fractal_dimension, height_scale, uniform_roughness, min_crater_pixels, despike,
             band, rocks_spec, dmin, dmax, density, sfd_exponent, max_age, population, catalog,

@@ -21,7 +21,7 @@ from terrain.errors import InvalidParameterError
 from terrain.progress import Progress
 
 __all__ = ["FINITE", "PAIR", "TRIPLE", "WINDOW", "ImageSizeType", "cli_args", "long_options",
-           "progress_bar", "run_command", "version", "version_option"]
+           "progress_bar", "run_command", "version", "version_option", "with_options"]
 
 
 class _FiniteFloat(click.ParamType):
@@ -131,6 +131,26 @@ WINDOW = _WindowType()
 PAIR = _NumbersType(("X", "Y"))
 #: Three finite numbers X,Y,Z (a body-frame position).
 TRIPLE = _NumbersType(("X", "Y", "Z"))
+
+
+def with_options(options: list) -> Callable[[Any], Any]:
+    """Return a decorator that adds a group of click options to a command, in list order.
+
+    Parameters
+    ----------
+    options : list of click option decorators
+        As ``click.option(...)`` returns them; they appear in ``--help`` in this order.
+
+    Returns
+    -------
+    callable
+        The decorator.
+    """
+    def decorate(func: Any) -> Any:
+        for option in reversed(options):
+            func = option(func)
+        return func
+    return decorate
 
 
 def version() -> str:
