@@ -818,30 +818,25 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None,
     total = ny * nx
     if progress is not None:
         progress(done, total, "")
+    futures: list = []
     if client is None:
-        for i, j in todo:
-            (value,) = dask.compute(delayed[i, j], scheduler="synchronous")
+        results = (dask.compute(delayed[i, j], scheduler="synchronous")[0] for i, j in todo)
+    else:
+        from dask.distributed import as_completed
+
+        futures = client.compute([delayed[i, j] for i, j in todo])
+        results = (future.result() for future in as_completed(futures))
+    try:
+        for value in results:  # each chunk's (pixels, busy seconds), as chunks finish
             pixels += int(value[0, 0])
             busy += float(value[0, 1])
             done += 1
             if progress is not None:
                 progress(done, total, _rate(pixels, t0))
-    else:
-        from dask.distributed import as_completed
-
-        futures = client.compute([delayed[i, j] for i, j in todo])
-        try:
-            for future in as_completed(futures):
-                value = future.result()
-                pixels += int(value[0, 0])
-                busy += float(value[0, 1])
-                done += 1
-                if progress is not None:
-                    progress(done, total, _rate(pixels, t0))
-        finally:
-            pending = [f for f in futures if not f.done()]
-            if pending:
-                client.cancel(pending)
+    finally:
+        pending = [f for f in futures if not f.done()]
+        if pending:
+            client.cancel(pending)
     seconds = time.perf_counter() - t0
     catalog = merge_chunk_catalogs(store) if source.has_catalog else None
     store.mark_complete()
