@@ -51,7 +51,6 @@ import hashlib
 import json
 import logging
 import os
-import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -61,6 +60,7 @@ import click
 
 from render.records import check_keys
 from terrain.errors import InvalidParameterError
+from terrain.outputs import remove_path
 from terrain.rng import check_seed
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -292,13 +292,6 @@ def _write_stamp(stamp: Path, doc: dict) -> None:
         tmp.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
 
 
-def _remove(path: Path) -> None:
-    if path.is_dir() and not path.is_symlink():
-        shutil.rmtree(path)
-    elif path.exists() or path.is_symlink():
-        path.unlink()
-
-
 def ensure_scene(scenario: Scenario) -> Path | None:
     """Build the scenario's scene from its ``[scene.build]`` recipe where it is missing.
 
@@ -342,7 +335,7 @@ def ensure_scene(scenario: Scenario) -> Path | None:
             return target
         log.warning("scene %s was built from another recipe, or its build did not finish: "
                     "building it again", shown)
-        _remove(target)
+        remove_path(target)
     log.warning("scene %s is missing: building it from the scenario's [scene.build] recipe "
                 "(kept there for later runs)", shown)
     target.parent.mkdir(parents=True, exist_ok=True)

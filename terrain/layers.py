@@ -64,6 +64,7 @@ from terrain.cratering import CraterModel, add_craters
 from terrain.errors import InvalidDEMError, InvalidParameterError, MissingInputError
 from terrain.expand import expand_level, expanded_transform
 from terrain.gapfill import fill_gaps
+from terrain.outputs import remove_path
 from terrain.population import Population
 from terrain.progress import Progress
 from terrain.rng import check_seed
@@ -703,7 +704,7 @@ def prepare_folder(outdir, *, inputs=(), keep=()) -> Path:
                 f"({sorted(strangers)[0]}, ...); give a new folder")
         log.warning("removing the interrupted stack build in %s", outdir)
         for p in ours:
-            _remove(p)
+            remove_path(p)
         from terrain.outputs import sweep_partials
 
         sweep_partials(outdir)
@@ -717,17 +718,6 @@ def prepare_folder(outdir, *, inputs=(), keep=()) -> Path:
 
 def _stack_files(outdir: Path) -> list[Path]:
     return sorted({p for pattern in _STACK_FILE_PATTERNS for p in outdir.glob(pattern)})
-
-
-def _remove(path: Path) -> None:
-    """Delete a stack file or a Zarr layer (a folder); a missing one is fine."""
-    import shutil
-
-    if path.is_dir() and not path.is_symlink():
-        shutil.rmtree(path, ignore_errors=True)
-    else:
-        with contextlib.suppress(FileNotFoundError):
-            path.unlink()
 
 
 def write_stack(stack: LayerStack, outdir, *, inputs=()) -> Path:
@@ -1242,7 +1232,7 @@ def _commit(stack: LayerStack, outdir: Path, changed: set, *,
             log.warning("readers still hold %s; its old files go at the next edit", outdir)
             return
         for name in old:
-            _remove(outdir / name)
+            remove_path(outdir / name)
 
 
 def _sweep(outdir: Path) -> None:
@@ -1267,7 +1257,7 @@ def _sweep(outdir: Path) -> None:
         if not held:
             return
         for p in orphans:
-            _remove(p)
+            remove_path(p)
     log.info("removed %d file(s) of an interrupted edit from %s", len(orphans), outdir)
 
 

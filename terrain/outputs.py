@@ -63,7 +63,8 @@ from terrain.errors import OutputPathError
 
 __all__ = ["JOURNAL", "Transaction", "atomic_path", "cannot_write", "check_output_folder",
            "check_output_path", "discard", "is_write_error", "make_output_folder", "protect",
-           "protected", "remove_temporaries", "settle", "sweep_partials", "transaction"]
+           "protected", "remove_path", "remove_temporaries", "settle", "sweep_partials",
+           "transaction"]
 
 log = logging.getLogger(__name__)
 
@@ -519,6 +520,22 @@ class Transaction:
         for folder in reversed(self.created):
             with contextlib.suppress(OSError):
                 folder.rmdir()
+
+
+def remove_path(path) -> None:
+    """Delete a file or a folder (a Zarr store, a stack) at once; a missing one is fine.
+
+    Parameters
+    ----------
+    path : path-like
+        The file, link or folder (a link is removed, never followed).
+    """
+    path = Path(path)
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
 
 
 def discard(*paths) -> None:
