@@ -43,7 +43,7 @@ import numba
 import numpy as np
 
 from asteroid.sphere import SphereMesh, band_size, band_triangle
-from terrain.errors import InvalidParameterError, MissingInputError
+from terrain.core.errors import InvalidParameterError, MissingInputError
 from terrain.io import atomic_path
 
 __all__ = ["FORMAT", "Body", "NativeModel", "Stretch", "load_native", "save_native"]
@@ -310,7 +310,7 @@ def save_native(path, body: Body, tables: Mapping | None = None, *,
 
 def load_native(path) -> NativeModel:
     """Read a native ``.npz`` written by :func:`save_native`."""
-    from terrain.outputs import settle
+    from terrain.core.outputs import settle
 
     path = Path(path)
     settle(path.parent if str(path.parent) else Path("."))  # finish an interrupted build

@@ -69,9 +69,9 @@ import numpy as np
 
 from asteroid.body import Body
 from asteroid.placement import Placement, sample
-from terrain.errors import InvalidParameterError
-from terrain.population import Population
-from terrain.rng import check_seed, normal, stream_id
+from terrain.core.errors import InvalidParameterError
+from terrain.core.rng import check_seed, normal, stream_id
+from terrain.craters.population import Population
 
 __all__ = ["BOULDER_COLUMNS", "BiResolutionNode", "BoulderLOD", "BoulderSettings", "Boulders",
            "boulder_lod", "icosahedron", "lod_tree", "place_boulders", "subdivision"]

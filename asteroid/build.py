@@ -40,11 +40,11 @@ from asteroid.meshio.export import MESH_FORMATS, mesh_format, write_mesh
 from asteroid.recipe import Recipe
 from asteroid.shape import ShapeModel
 from asteroid.sphere import SphereMesh
-from terrain import memory
-from terrain.clitools import version
-from terrain.errors import InvalidParameterError
+from terrain.cli.tools import version
+from terrain.core import memory
+from terrain.core.errors import InvalidParameterError
+from terrain.core.progress import Progress
 from terrain.io import check_output_path
-from terrain.progress import Progress
 
 __all__ = ["BuildResult", "OutputPaths", "build", "export_model", "output_paths",
            "write_outputs"]
@@ -93,7 +93,7 @@ def build(recipe: Recipe, *, progress: Progress | None = None) -> BuildResult:
     recipe : Recipe
     progress : callable, optional
         ``progress(done, total, stage)`` with stage "base", "craters" or "boulders"
-        (:class:`terrain.progress.Progress`).
+        (:class:`terrain.core.progress.Progress`).
     """
     mesh = SphereMesh(recipe.magnitude)
     memory.require(mesh.n_vertices * float(BUILD_BYTES_PER_VERTEX),
@@ -222,9 +222,9 @@ def write_outputs(result: BuildResult, paths: OutputPaths, *, inputs=()) -> list
 
     The mesh, the native model and the catalogues appear together or not at all, and stale
     catalogues of an earlier build are removed in the same commit
-    (:func:`terrain.outputs.transaction`); a killed build leaves the previous set.
+    (:func:`terrain.core.outputs.transaction`); a killed build leaves the previous set.
     """
-    from terrain.outputs import transaction
+    from terrain.core.outputs import transaction
 
     folder = paths.native.parent if str(paths.native.parent) else Path(".")
     with transaction(stale=paths.stale, folders=[folder]):

@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from terrain.catalog import csv_sink
-from terrain.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError
+from terrain.craters.catalog import csv_sink
 from terrain.io import atomic_path
 
 __all__ = ["save_table", "write_table"]

@@ -1,7 +1,7 @@
 r"""The ``craterscape asteroid`` commands.
 
 They are registered through the ``craterscape.groups`` entry point, so the root command in
-:mod:`terrain.cli` never imports this package.
+:mod:`terrain.cli.commands` never imports this package.
 
 ::
 
@@ -25,8 +25,8 @@ from pathlib import Path
 
 import click
 
-from terrain.clitools import progress_bar
-from terrain.errors import InvalidParameterError
+from terrain.cli.tools import progress_bar
+from terrain.core.errors import InvalidParameterError
 
 __all__ = ["asteroid"]
 

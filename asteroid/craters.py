@@ -1,7 +1,9 @@
 r"""Craters on an asteroid: the lunar crater model mapped onto the curved mesh (section V.A).
 
-The profile, erosion and roughness are those of the flat-terrain model (:mod:`terrain.crater`,
-:mod:`terrain.erosion`, :mod:`terrain.overlay`, :class:`terrain.cratering.CraterModel`); this
+The profile, erosion and roughness are those of the flat-terrain model
+(:mod:`terrain.craters.crater`,
+:mod:`terrain.craters.erosion`, :mod:`terrain.craters.overlay`,
+:class:`terrain.craters.cratering.CraterModel`); this
 module adapts it to the 6M^2 + 2 mesh as Martin et al. (2014, section V.A) describe:
 
 1. **Region.** The vertices within the crater's footprint (ejecta edge at r = D, widened by the
@@ -33,7 +35,7 @@ module adapts it to the 6M^2 + 2 mesh as Martin et al. (2014, section V.A) descr
    model's interior would step against the ejecta there ("the crater model is smoothly
    integrated into rough terrain", section V, is what the paper asks). So the deviation
    ``h - (P + Tr - Pr)`` is kept on the upper inner wall with the flat model's obliteration
-   weight (:func:`terrain.cratering.obliteration`: all of it at the rim, smoothstep to none
+   weight (:func:`terrain.craters.cratering.obliteration`: all of it at the rim, smoothstep to none
    at ``x = -OBLITERATION_BLEND``), and the rim joins the ejecta continuously:
    ``h' = P + h_in(x) + overlay + (h - P - (Tr - Pr)) (1 - w(x))``.
 5. **Order.** Craters are applied one after another in age order, oldest first (ties by
@@ -59,21 +61,22 @@ Limits the paper recommends
   reaches 0 is not applied (it could not persist on such a slope; the catalogue keeps it with
   ``applied = 0``).
   Before that guard, a crater on sloping ground also ages faster, as on flat terrain
-  (:class:`terrain.erosion.SlopeDegradation`, the model's ``slope``, switchable): its depth
+  (:class:`terrain.craters.erosion.SlopeDegradation`, the model's ``slope``, switchable): its depth
   and rim fractions are read at the effective age ``m(S) T``.
 * **Complex craters.** Craters wider than the model's
-  :attr:`~terrain.crater.Morphology.transition_diameter` take the complex profile (flat
+  :attr:`~terrain.craters.crater.Morphology.transition_diameter` take the complex profile (flat
   floor, terraced wall, central peak or peak ring). The lunar default (15 km) scales roughly
   as 1/g, so on small bodies set it for the body (or leave it: no crater reaches it).
 
 Reuse
 -----
-The profile (:func:`terrain.crater.crater_interior`, simple or complex by the model's
-:class:`~terrain.crater.Morphology`, :func:`~terrain.crater.exterior_height`,
-:func:`~terrain.crater.shape_arrays`), erosion, overlay and irregular rim are terrain's public
+The profile (:func:`terrain.craters.crater.crater_interior`, simple or complex by the model's
+:class:`~terrain.craters.crater.Morphology`, :func:`~terrain.craters.crater.exterior_height`,
+:func:`~terrain.craters.crater.shape_arrays`), erosion, overlay and irregular rim are terrain's
+public
 functions. The plane fit, the rim-terrain table and the obliteration weight are terrain's
 compiled kernels ``fit_plane``, ``rim_terrain`` and ``obliteration``
-(:mod:`terrain.cratering`), imported rather than copied; they take a north-up grid in map
+(:mod:`terrain.craters.cratering`), imported rather than copied; they take a north-up grid in map
 metres, which the local DEM above is.
 
 On a large sphere a fresh crater reproduces the flat profile in true distance (the fitted
@@ -111,9 +114,11 @@ from asteroid.sphere import (
     surface_radius_scalar,
     unit_vertex,
 )
-from terrain import memory
-from terrain.crater import Profile, crater_interior, exterior_height, shape_arrays
-from terrain.cratering import (
+from terrain.core import memory
+from terrain.core.errors import InvalidParameterError
+from terrain.core.rng import check_seed, hash64, stream_id
+from terrain.craters.crater import Profile, crater_interior, exterior_height, shape_arrays
+from terrain.craters.cratering import (
     RIM_TERRAIN_MIN,
     RIM_TERRAIN_SAMPLES,
     CraterModel,
@@ -121,8 +126,7 @@ from terrain.cratering import (
     obliteration,
     rim_terrain,
 )
-from terrain.errors import InvalidParameterError
-from terrain.overlay import (
+from terrain.craters.overlay import (
     MAX_PATCH_LEVEL,
     RIM_SAMPLES,
     crater_params,
@@ -131,8 +135,7 @@ from terrain.overlay import (
     periodic_sample,
     rim_table,
 )
-from terrain.population import Population
-from terrain.rng import check_seed, hash64, stream_id
+from terrain.craters.population import Population
 
 __all__ = ["CRATER_COLUMNS", "CraterModel", "CraterResult", "CraterSettings", "SlopeErosion",
            "add_craters", "craters_at", "max_diameter", "sample_craters"]
@@ -383,10 +386,10 @@ class RimTables(NamedTuple):
     irregular : bool
         Whether the rim radius varies with azimuth.
     table : (m,) float64
-        Rim radius offsets per azimuth, in diameters (:func:`terrain.overlay.rim_table`).
+        Rim radius offsets per azimuth, in diameters (:func:`terrain.craters.overlay.rim_table`).
     terrain : (n,) float64, metres
         The terrain's height above the plane at the rim, per azimuth
-        (:func:`terrain.cratering.rim_terrain`).
+        (:func:`terrain.craters.cratering.rim_terrain`).
     """
 
     irregular: bool
@@ -402,7 +405,7 @@ class OverlayPatch(NamedTuple):
     rough : bool
         Whether the overlay is on (otherwise the patch is ignored).
     patch : (k, k) float64, metres
-        The overlay heights (:func:`terrain.overlay.overlay_patch`).
+        The overlay heights (:func:`terrain.craters.overlay.overlay_patch`).
     spacing : float, metres
         Patch sample spacing.
     half_extent : float, metres
@@ -422,7 +425,7 @@ def _impact(radii, idx, dist, theta, rc, diameter, rim: RimTables, overlay: Over
 
     ``rim`` holds the crater's rim tables (:class:`RimTables`), ``overlay`` its roughness
     patch (:class:`OverlayPatch`), ``plane`` the fitted plane (p0, px, py) and ``profile``
-    its profile coefficients (:class:`terrain.crater.Profile`).
+    its profile coefficients (:class:`terrain.craters.crater.Profile`).
     """
     irregular = rim.irregular
     table = rim.table
@@ -562,7 +565,7 @@ def add_craters(body: Body, craters: Placement, *, seed: int,
         slope = math.atan(math.hypot(px, py)) if nvalid >= 3 else math.nan
         sf = settings.slope.factor(slope) if nvalid >= 3 else 0.0
         if model.slope.enabled and nvalid >= 3 and math.isfinite(slope):
-            # faster degradation on steep ground (terrain.erosion.SlopeDegradation), then
+            # faster degradation on steep ground (terrain.craters.erosion.SlopeDegradation), then
             # the paper's artefact guard on the steepest slopes
             d0, r0 = model.factors(cr.ages[k], d, slope)
             depth_f0[k], rim_f0[k] = float(d0), float(r0)

@@ -1,12 +1,12 @@
-"""Exceptions of the asteroid stage (the shared ones live in :mod:`terrain.errors`).
+"""Exceptions of the asteroid stage (the shared ones live in :mod:`terrain.core.errors`).
 
 Each also inherits the builtin a caller would catch; the command line turns any
-:class:`~terrain.errors.CraterscapeError` into one line on stderr and exit code 2.
+:class:`~terrain.core.errors.CraterscapeError` into one line on stderr and exit code 2.
 """
 
 from __future__ import annotations
 
-from terrain.errors import CraterscapeError
+from terrain.core.errors import CraterscapeError
 
 __all__ = ["InvalidShapeError"]
 

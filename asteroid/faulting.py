@@ -64,9 +64,9 @@ import numpy as np
 from asteroid.body import Stretch
 from asteroid.smoothing import dependency, smooth
 from asteroid.sphere import SphereMesh, ring_offset, ring_size, surface_radius_scalar, unit_vertex
-from terrain import memory
-from terrain.errors import InvalidParameterError
-from terrain.rng import check_seed, gaussian, stream_id, uniform
+from terrain.core import memory
+from terrain.core.errors import InvalidParameterError
+from terrain.core.rng import check_seed, gaussian, stream_id, uniform
 
 __all__ = ["FIG8_FAULTING", "Faulting", "TRUNCATION", "fault_table", "fault_sum"]
 

@@ -16,7 +16,7 @@ dotted with the offset to each of the eight cell corners and blended with the qu
 ``3t^2 - 2t^3``, has a discontinuous second derivative that shows as creases in shading).
 The gradient at lattice point (i, j, k) of octave o is one of Perlin's twelve cube-edge
 vectors, picked by the top four bits of the key ``(seed, "perlin", o, i, j * 2^32 + k)``
-(:mod:`terrain.rng`), instead of Perlin's permutation table: the value at a point depends on
+(:mod:`terrain.core.rng`), instead of Perlin's permutation table: the value at a point depends on
 nothing but the point and the seed, so any subset of vertices gets exactly the values of the
 whole body, bitwise, and the noise never repeats (a 256-entry table repeats every 256 cells).
 
@@ -63,9 +63,9 @@ import numpy as np
 
 from asteroid.body import Stretch
 from asteroid.sphere import SphereMesh, unit_vertex
-from terrain import memory
-from terrain.errors import InvalidParameterError
-from terrain.rng import check_seed, hash_at, key_prefix, stream_id
+from terrain.core import memory
+from terrain.core.errors import InvalidParameterError
+from terrain.core.rng import check_seed, hash_at, key_prefix, stream_id
 
 __all__ = ["FIG5_PRESETS", "MAX_FREQUENCY", "Band", "PerlinNoise", "perlin3"]
 

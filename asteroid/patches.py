@@ -62,7 +62,7 @@ from asteroid.sphere import (
     ring_offset,
     ring_size,
 )
-from terrain.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError
 
 __all__ = ["DEFAULT_PATCH_SIZE", "PatchTree", "decode_strip"]
 

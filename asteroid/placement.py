@@ -2,9 +2,10 @@ r"""Where craters and boulders go: power-law counts over the body and uniform po
 
 Counts
 ------
-A :class:`terrain.population.Population` gives the cumulative size-frequency distribution
+A :class:`terrain.craters.population.Population` gives the cumulative size-frequency distribution
 ``N_cum(D) = c D^k`` (Martin et al. 2014, section V.B; its density is craters with D >= dmin per
-km^2). For each octave diameter bin ``[D1, D2)`` of :meth:`~terrain.population.Population.bins`
+km^2). For each octave diameter bin ``[D1, D2)`` of
+:meth:`~terrain.craters.population.Population.bins`
 the expected number on the body is ``(N_cum(D1) - N_cum(D2)) A`` (eq. 5) for the body's surface
 area A, and the count is Poisson with that mean, drawn by inverse-CDF sampling of one keyed
 uniform per bin (``(seed, stream + "-count", bin)``). Feature j of bin b then takes its fields
@@ -12,7 +13,7 @@ from keyed uniforms ``(seed, stream, b, j, field)``, so adding a bin or changing
 count never moves a feature, and the catalogue of a body is a pure function of its seed.
 
 Diameters within a bin follow the truncated power law by inverse-transform sampling,
-``D = (D1^k + u (D2^k - D1^k))^(1/k)`` (as :mod:`terrain.population`).
+``D = (D1^k + u (D2^k - D1^k))^(1/k)`` (as :mod:`terrain.craters.population`).
 
 Positions
 ---------
@@ -27,7 +28,7 @@ the 20 equal-area cells of an icosahedron, which the cube method fails.
 
 Examples
 --------
->>> from terrain.population import Population
+>>> from terrain.craters.population import Population
 >>> pop = Population(dmin=10.0, dmax=80.0, density=2.0)
 >>> p = sample(pop, 4 * np.pi * 2000.0**2, seed=3, stream="demo")
 >>> len(p), bool(np.allclose(np.linalg.norm(p.directions, axis=1), 1.0))
@@ -43,10 +44,10 @@ import numba
 import numpy as np
 from scipy.stats import poisson
 
-from terrain import memory
-from terrain.errors import InvalidParameterError
-from terrain.population import Population
-from terrain.rng import check_seed, hash64, stream_id, uniform
+from terrain.core import memory
+from terrain.core.errors import InvalidParameterError
+from terrain.core.rng import check_seed, hash64, stream_id, uniform
+from terrain.craters.population import Population
 
 __all__ = ["Placement", "expected_counts", "sample", "uniform_directions"]
 

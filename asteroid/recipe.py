@@ -70,7 +70,7 @@ On the command line ``--craters`` and ``--boulders`` take the same keys as
 The paper's ``c``: "when k = -2, N_cum is dimensionless so the crater population appears the
 same at all resolutions" (section V.B): with D in metres and areas in square metres,
 ``N_cum = 0.5 D^-2`` means 0.5 craters per m^2 larger than 1 m. It is converted to the
-:class:`terrain.population.Population` density (per km^2, D >= dmin) as ``c dmin^k 10^6``.
+:class:`terrain.craters.population.Population` density (per km^2, D >= dmin) as ``c dmin^k 10^6``.
 
 Presets
 -------
@@ -101,13 +101,17 @@ from asteroid.faulting import FIG8_FAULTING, Faulting
 from asteroid.noise import FIG5_PRESETS, PerlinNoise
 from asteroid.shape import UNITS
 from asteroid.sphere import check_magnitude
-from terrain.crater import DEFAULT_PEAK_RING_DIAMETER, DEFAULT_TRANSITION_DIAMETER, Morphology
-from terrain.cratering import CraterModel
-from terrain.erosion import ErosionModel, SlopeDegradation
-from terrain.errors import InvalidParameterError
-from terrain.population import Population
-from terrain.rng import check_seed
-from terrain.tomlfile import read_toml
+from terrain.core.errors import InvalidParameterError
+from terrain.core.rng import check_seed
+from terrain.core.tomlfile import read_toml
+from terrain.craters.crater import (
+    DEFAULT_PEAK_RING_DIAMETER,
+    DEFAULT_TRANSITION_DIAMETER,
+    Morphology,
+)
+from terrain.craters.cratering import CraterModel
+from terrain.craters.erosion import ErosionModel, SlopeDegradation
+from terrain.craters.population import Population
 
 __all__ = ["PRESETS", "BoulderSpec", "CraterSpec", "Recipe", "parse_spec"]
 

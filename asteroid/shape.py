@@ -62,8 +62,8 @@ from asteroid.body import Stretch
 from asteroid.errors import InvalidShapeError
 from asteroid.meshio.read import read_mesh
 from asteroid.sphere import SphereMesh, cap_ranges, ring_offset, ring_size, unit_vertex
-from terrain import memory
-from terrain.errors import InvalidParameterError
+from terrain.core import memory
+from terrain.core.errors import InvalidParameterError
 
 __all__ = ["UNITS", "Projection", "ShapeModel", "winding_number"]
 

@@ -37,7 +37,7 @@ import numba
 import numpy as np
 
 from asteroid.sphere import SphereMesh, ring_offset, ring_size
-from terrain.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError
 
 __all__ = ["across_halfwidth", "dependency", "smooth"]
 

@@ -65,8 +65,8 @@ from functools import cached_property
 import numba
 import numpy as np
 
-from terrain import memory
-from terrain.errors import InvalidParameterError
+from terrain.core import memory
+from terrain.core.errors import InvalidParameterError
 
 __all__ = [
     "MAX_MAGNITUDE",
@@ -107,7 +107,7 @@ def check_magnitude(magnitude) -> int:
     >>> check_magnitude(0)  # doctest: +ELLIPSIS
     Traceback (most recent call last):
     ...
-    terrain.errors.InvalidParameterError: magnitude M must be an integer >= 1 ...; got 0
+    terrain.core.errors.InvalidParameterError: magnitude M must be an integer >= 1 ...; got 0
     """
     if isinstance(magnitude, bool) or not isinstance(magnitude, (int, np.integer)):
         if isinstance(magnitude, float) and magnitude.is_integer():

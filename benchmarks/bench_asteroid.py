@@ -67,7 +67,7 @@ def _job(spec: dict):
     from asteroid.craters import add_craters, sample_craters
     from asteroid.faulting import FIG8_FAULTING
     from asteroid.sphere import SphereMesh
-    from terrain.population import Population
+    from terrain.craters.population import Population
 
     m = spec["magnitude"]
     kind = spec["kind"]

@@ -60,14 +60,14 @@ DMIN, DMAX, SFD_EXPONENT, MAX_AGE = 4.0, 500.0, -2.0, 3.5
 
 
 def _population(density: float):
-    from terrain.population import Population
+    from terrain.craters.population import Population
 
     return Population(dmin=DMIN, dmax=DMAX, density=density, sfd_exponent=SFD_EXPONENT,
                       max_age=MAX_AGE)
 
 
 def _model(name: str | None):
-    from terrain.cratering import CraterModel
+    from terrain.craters.cratering import CraterModel
 
     if name is None:
         return None
@@ -76,7 +76,7 @@ def _model(name: str | None):
 
 def _warm_up() -> float:
     """Compile (or load from numba's cache) every kernel: a 65^2 tile, both models."""
-    from terrain.synthetic import synthesize_tile
+    from terrain.fractal.synthetic import synthesize_tile
 
     t0 = time.perf_counter()
     pop = _population(20000.0)  # a few dozen craters on 64 m x 64 m
@@ -89,7 +89,7 @@ def _warm_up() -> float:
 
 
 def _synth(spec: dict, window=None):
-    from terrain.synthetic import synthesize_tile
+    from terrain.fractal.synthetic import synthesize_tile
 
     craters = _population(spec["density"]) if spec["model"] is not None else None
     return synthesize_tile(spec["size"], resolution=RESOLUTION,
@@ -120,7 +120,7 @@ def child_window(spec: dict) -> dict:
     """Time a window of the cratered tile; check it against one full tile, bitwise."""
     import numpy as np
 
-    from terrain.tile import Window
+    from terrain.core.tile import Window
 
     warmup_s = _warm_up()
     col, row, width, height = spec["window"]

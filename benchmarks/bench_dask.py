@@ -1,18 +1,18 @@
-"""Benchmarks for chunked runs on Dask (terrain.chunked): one JSON document on stdout.
+"""Benchmarks for chunked runs on Dask (terrain.execution.chunked): one JSON document on stdout.
 
 What the issue asks to show, each against a baseline measured in the same run:
 
 * ``throughput``: one 2x fractal expansion of an N^2 DEM (the enhancement's main cost) in
-  pixels per second, by the in-memory single-process path (``terrain.expand.expand``, the
+  pixels per second, by the in-memory single-process path (``terrain.fractal.expand.expand``, the
   baseline), chunk by chunk in this process, and on a ``LocalCluster`` of 1 and 2 worker
   processes; peak memory of the in-memory run and of every worker; and the cluster's
   start-up time (paid once per run).
 * ``overhead``: the scheduler's cost per chunk: N no-op chunk tasks through the same
   ``map_blocks`` path on the 2-worker cluster, and the Zarr write of an empty chunk.
 * ``enhance``: a layer stack (the base and 2 expanded layers as large as the base, craters
-  on every layer) built in memory (``terrain.layers.build_stack``, the baseline, written as
+  on every layer) built in memory (``terrain.stack.layers.build_stack``, the baseline, written as
   GeoTIFFs) and chunk by chunk on a 2-worker ``LocalCluster``
-  (``terrain.chunkedlayers.build_stack_chunked``), in stack pixels per second.
+  (``terrain.stack.chunkedlayers.build_stack_chunked``), in stack pixels per second.
 * ``out_of_core`` (full run only): a 16385^2 DEM synthesised into Zarr, expanded once to
   32769^2 (1.07e9 pixels) on 2 workers and converted into a COG, with the peak memory of the
   whole process tree (sampled) and the COG's georeferencing read back through GDAL.
@@ -51,7 +51,7 @@ SEED = 14
 
 def _input(path: Path, size: int, chunk: int, workers: int | None = None):
     """A synthetic size^2 DEM at 8 m written as Zarr (chunked, so any size fits)."""
-    from terrain.chunked import SynthSource, dask_client, run
+    from terrain.execution.chunked import SynthSource, dask_client, run
 
     with dask_client(workers) as client:
         return run(SynthSource(size, resolution=8.0, relief=200.0, seed=SEED), path,
@@ -61,9 +61,15 @@ def _input(path: Path, size: int, chunk: int, workers: int | None = None):
 def child_throughput(spec):
     import numpy as np
 
-    from terrain.chunked import ExpandSource, dask_client, estimate_parameters, open_reader, run
-    from terrain.expand import expand
-    from terrain.tile import DEMTile
+    from terrain.core.tile import DEMTile
+    from terrain.execution.chunked import (
+        ExpandSource,
+        dask_client,
+        estimate_parameters,
+        open_reader,
+        run,
+    )
+    from terrain.fractal.expand import expand
 
     work = Path(spec["dir"])
     src = work / "in.zarr"
@@ -112,8 +118,8 @@ def child_overhead(spec):
     import numpy as np
     from dask.distributed import as_completed
 
-    from terrain.chunked import dask_client
-    from terrain.zarrstore import ZarrDEM
+    from terrain.core.zarrstore import ZarrDEM
+    from terrain.execution.chunked import dask_client
 
     n = spec["tasks"]
 
@@ -145,10 +151,10 @@ def child_overhead(spec):
 def child_enhance(spec):
     import numpy as np
 
-    from terrain.chunked import dask_client, open_reader
-    from terrain.chunkedlayers import build_stack_chunked
-    from terrain.layers import build_stack, write_stack
-    from terrain.population import Population
+    from terrain.craters.population import Population
+    from terrain.execution.chunked import dask_client, open_reader
+    from terrain.stack.chunkedlayers import build_stack_chunked
+    from terrain.stack.layers import build_stack, write_stack
 
     work = Path(spec["dir"])
     reader = open_reader(work / "in.zarr")

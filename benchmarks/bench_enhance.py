@@ -46,11 +46,11 @@ GiB = 1024**3
 def warm_up() -> float:
     import numpy as np
 
-    from terrain.expand import expand
-    from terrain.gapfill import fill_gaps
-    from terrain.layers import build_stack
-    from terrain.population import Population
-    from terrain.synthetic import synthesize_tile
+    from terrain.craters.population import Population
+    from terrain.fractal.expand import expand
+    from terrain.fractal.gapfill import fill_gaps
+    from terrain.fractal.synthetic import synthesize_tile
+    from terrain.stack.layers import build_stack
 
     t0 = time.perf_counter()
     tile = synthesize_tile(33, resolution=100.0, relief=50.0, seed=1).tile
@@ -66,9 +66,9 @@ def warm_up() -> float:
 def child_expand(spec):
     import numpy as np
 
-    from terrain.expand import expand
-    from terrain.rmd import synthesize
-    from terrain.tile import DEMTile
+    from terrain.core.tile import DEMTile
+    from terrain.fractal.expand import expand
+    from terrain.fractal.rmd import synthesize
 
     warm = warm_up()
     size = spec["size"]
@@ -93,9 +93,9 @@ def child_expand(spec):
 
 
 def child_enhance(spec):
-    from terrain.layers import build_stack, write_stack
-    from terrain.population import Population
-    from terrain.synthetic import synthesize_tile
+    from terrain.craters.population import Population
+    from terrain.fractal.synthetic import synthesize_tile
+    from terrain.stack.layers import build_stack, write_stack
 
     warm = warm_up()
     base = synthesize_tile(spec["base"], resolution=1000.0, relief=3000.0, seed=SEED).tile
@@ -131,8 +131,8 @@ def child_fill(spec):
     # against, so this benchmark imports rasterio beside terrain/io.py on purpose
     from rasterio.fill import fillnodata
 
-    from terrain.gapfill import fill_gaps
-    from terrain.synthetic import synthesize_tile
+    from terrain.fractal.gapfill import fill_gaps
+    from terrain.fractal.synthetic import synthesize_tile
 
     warm = warm_up()
     size = spec["size"]

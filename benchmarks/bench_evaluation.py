@@ -83,8 +83,8 @@ def child_slope(spec: dict) -> dict:
     import numpy as np
 
     from evaluation.slope import horn, slope_tile
+    from terrain.fractal.synthetic import synthesize_tile
     from terrain.io import read_dem, write_dem
-    from terrain.synthetic import synthesize_tile
 
     n = spec["size"]
     tmp = Path(tempfile.mkdtemp(prefix="bench-eval-"))
@@ -135,7 +135,7 @@ def child_spectrum(spec: dict) -> dict:
     import numpy as np
 
     from evaluation.spectrum import fit_hurst, radial_spectrum
-    from terrain.synthetic import synthesize_tile
+    from terrain.fractal.synthetic import synthesize_tile
 
     n = spec["size"]
     # RMD with fractal dimension 2.3: Hurst exponent 0.7 (F = 3 - H)

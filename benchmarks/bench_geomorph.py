@@ -95,7 +95,7 @@ def asteroid(tmp: Path, quick: bool, frames: int, size: int) -> dict:
     from render.context import create_context
     from render.renderer import Lighting, Renderer, RenderOptions
     from render.trajectory import axis_angle
-    from terrain.cli import main
+    from terrain.cli.commands import main
 
     body = tmp / "body.npz"
     magnitude = 64 if quick else 256

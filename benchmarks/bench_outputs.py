@@ -7,7 +7,7 @@ What safety costs, each against a baseline measured in the same run:
   Target: at most 1.6x the direct write (the read-back is what turns a full disk into an
   error instead of a truncated file).
 * ``transaction``: committing four files as one set (journal, renames) against writing the
-  same four files one by one with :func:`terrain.outputs.atomic_path`. Target: at most 1.5x
+  same four files one by one with :func:`terrain.core.outputs.atomic_path`. Target: at most 1.5x
   plus 20 ms.
 * ``read_stack``: reading a 3-layer stack under the readers' lock against reading the same
   files without it. Target: at most 1.2x plus 5 ms.
@@ -49,8 +49,8 @@ def bench_write_dem(folder: Path, size: int, repeat: int) -> dict:
     import rasterio
     from rasterio.crs import CRS
 
+    from terrain.fractal.synthetic import synthesize_tile
     from terrain.io import BLOCK_SIZE, write_dem
-    from terrain.synthetic import synthesize_tile
 
     tile = synthesize_tile(size, resolution=1.0, relief=30.0, seed=1).tile
     profile = dict(driver="GTiff", dtype="float32", count=1, width=size, height=size,
@@ -75,7 +75,7 @@ def bench_write_dem(folder: Path, size: int, repeat: int) -> dict:
 def bench_transaction(folder: Path, nbytes: int, repeat: int) -> dict:
     import os
 
-    from terrain.outputs import atomic_path, transaction
+    from terrain.core.outputs import atomic_path, transaction
 
     payload = os.urandom(nbytes)
     names = ["a.ply", "a.npz", "a_craters.csv", "a_boulders.csv"]
@@ -97,8 +97,8 @@ def bench_transaction(folder: Path, nbytes: int, repeat: int) -> dict:
 
 
 def bench_read_stack(folder: Path, base_size: int, repeat: int) -> dict:
-    from terrain.layers import _read_stack, build_stack, read_stack, write_stack
-    from terrain.synthetic import synthesize_tile
+    from terrain.fractal.synthetic import synthesize_tile
+    from terrain.stack.layers import _read_stack, build_stack, read_stack, write_stack
 
     base = synthesize_tile(base_size, resolution=10.0, relief=50.0, seed=2).tile
     centre = (base_size - 1) * 10.0 / 2

@@ -34,9 +34,9 @@ def log(message: str) -> None:
 
 
 def build_scene(tmp: Path, quick: bool):
-    from terrain.layers import build_stack, write_stack
-    from terrain.population import Population
-    from terrain.synthetic import synthesize_tile
+    from terrain.craters.population import Population
+    from terrain.fractal.synthetic import synthesize_tile
+    from terrain.stack.layers import build_stack, write_stack
 
     size, levels = (257, 6) if quick else (1025, 11)
     base = synthesize_tile(size, resolution=1000.0, relief=2500.0, seed=SEED).tile

@@ -6,7 +6,7 @@ baseline measured in the same run:
 ``place``
     Rocks placed per second on a 4097 x 4097 tile (5 cm pixels, 205 m across; Golombek-Rapp
     k = 0.05, every rock of two pixels and more): generation (position-keyed cells) and the
-    heights rasteriser (:func:`terrain.rocks.add_rocks`), with peak memory. Baselines: the
+    heights rasteriser (:func:`terrain.surface.rocks.add_rocks`), with peak memory. Baselines: the
     same number of rocks' 15 parameters drawn from NumPy's sequential ``Generator`` (what
     position keying costs over an unkeyed draw), and a child that only reads the tile
     (memory).
@@ -43,8 +43,8 @@ log = logger("bench-rocks")
 def child_place(spec: dict) -> dict:
     import numpy as np
 
-    from terrain.rocks import RockModel, add_rocks
-    from terrain.synthetic import synthesize_tile
+    from terrain.fractal.synthetic import synthesize_tile
+    from terrain.surface.rocks import RockModel, add_rocks
 
     n, res = spec["size"], spec["resolution"]
     tile = synthesize_tile(n, resolution=res, relief=2.0, seed=SEED).tile
@@ -77,16 +77,16 @@ def child_place(spec: dict) -> dict:
 
 
 def _small(tile):
-    from terrain.tile import Window
+    from terrain.core.tile import Window
 
     return Window(0, 0, min(64, tile.shape[1]), min(64, tile.shape[0]))
 
 
 def child_layers(spec: dict) -> dict:
-    from terrain.layers import build_stack
-    from terrain.population import Population
-    from terrain.rocks import RockModel
-    from terrain.synthetic import synthesize_tile
+    from terrain.craters.population import Population
+    from terrain.fractal.synthetic import synthesize_tile
+    from terrain.stack.layers import build_stack
+    from terrain.surface.rocks import RockModel
 
     size, levels, extra = spec["size"], spec["levels"], spec["extra"]
     base = synthesize_tile(size, resolution=1000.0, relief=2500.0, seed=SEED).tile
@@ -126,9 +126,9 @@ def child_frame(spec: dict) -> dict:
     from render.renderer import Lighting, Renderer, RenderOptions, View
     from render.terrain_scene import TerrainScene
     from render.trajectory import descent
-    from terrain.layers import build_stack
-    from terrain.rocks import RockModel
-    from terrain.synthetic import synthesize_tile
+    from terrain.fractal.synthetic import synthesize_tile
+    from terrain.stack.layers import build_stack
+    from terrain.surface.rocks import RockModel
 
     size, image = spec["layer_size"], spec["image"]
     base = synthesize_tile(size, resolution=0.5, relief=3.0, seed=SEED).tile

@@ -65,9 +65,9 @@ def main(argv=None) -> int:
     from render.renderer import Lighting, Renderer, RenderOptions, View
     from render.sensor import Sensor
     from render.terrain_scene import TerrainScene
-    from terrain.layers import build_stack
-    from terrain.population import Population
-    from terrain.synthetic import synthesize_tile
+    from terrain.craters.population import Population
+    from terrain.fractal.synthetic import synthesize_tile
+    from terrain.stack.layers import build_stack
 
     size = 256 if args.quick else 1024
     repeat = 3 if args.quick else 5

@@ -46,9 +46,9 @@ TARGET_OVERHEAD = 0.10
 
 
 def build(tmp: Path, quick: bool, size: int, frames: int) -> Path:
-    from terrain.layers import build_stack, write_stack
-    from terrain.population import Population
-    from terrain.synthetic import synthesize_tile
+    from terrain.craters.population import Population
+    from terrain.fractal.synthetic import synthesize_tile
+    from terrain.stack.layers import build_stack, write_stack
 
     n, levels = (129, 3) if quick else (513, 6)
     base = synthesize_tile(n, resolution=200.0, relief=2000.0, seed=SEED).tile
@@ -92,7 +92,7 @@ ground_track = [800.0, -500.0]
 
 def start_server(scenario: Path):
     proc = subprocess.Popen([sys.executable, "-c",
-                             "import sys; from terrain.cli import main; sys.exit(main())",
+                             "import sys; from terrain.cli.commands import main; sys.exit(main())",
                              "render", "serve", str(scenario), "--port", "0"],
                             stderr=subprocess.PIPE, text=True, cwd=ROOT)
     deadline = time.monotonic() + 600

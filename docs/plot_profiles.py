@@ -1,7 +1,7 @@
 """Draw the crater radial profiles, fresh and degraded (Martin et al. 2014, Fig. 3).
 
 A simple 1 km crater (Martin et al. 2014) and complex craters of 40 km and 250 km (Pike 1977
-depth, rim and floor; terraces; central peak and peak ring; :mod:`terrain.crater`).
+depth, rim and floor; terraces; central peak and peak ring; :mod:`terrain.craters.crater`).
 
 Run: .venv/bin/python docs/plot_profiles.py  (writes docs/crater_profiles.png and
 docs/complex_crater_profiles.png)
@@ -15,8 +15,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from terrain.crater import CraterShape, profile  # noqa: E402
-from terrain.erosion import ErosionModel  # noqa: E402
+from terrain.craters.crater import CraterShape, profile  # noqa: E402
+from terrain.craters.erosion import ErosionModel  # noqa: E402
 
 D = 1000.0
 AGES = [0.0, 0.25, 0.5, 1.0, 2.0, 4.0]

@@ -6,10 +6,10 @@ makes; :func:`run_campaign` runs the stages in order into one output folder:
 1. ``lunar/base/``: a synthetic base (``craterscape terrain synth`` with the campaign's
    ``[lunar.base]`` options) and its hillshade.
 2. ``lunar/stack/stack/``: the base enhanced in nested layers around the flattest spot
-   near its centre (:func:`terrain.site.landing_site`; ``craterscape terrain enhance``
+   near its centre (:func:`terrain.surface.site.landing_site`; ``craterscape terrain enhance``
    with the ``[lunar.stack]`` options).
 3. ``lunar/run/run/``: the descent scenario rendered onto that stack, under the sun azimuth
-   that lights the site (:func:`terrain.site.lit_sun_azimuth`); ``lunar/closed_loop/``: a
+   that lights the site (:func:`terrain.surface.site.lit_sun_azimuth`); ``lunar/closed_loop/``: a
    landing flown through ``craterscape render serve`` by the ``[lunar.closed_loop]`` script
    (``examples/closed_loop.py``: guidance that sees only the altimeter and the camera).
 4. ``asteroid/body/``: a body built from the ``[asteroid.body]`` recipe, with a PLY copy.
@@ -43,9 +43,9 @@ from pathlib import Path
 from types import MappingProxyType
 
 from render.records import check_keys, number
-from terrain.clitools import cli_args, long_options, run_command
-from terrain.errors import InvalidParameterError
-from terrain.tomlfile import merge_tables, read_toml, toml_text
+from terrain.cli.tools import cli_args, long_options, run_command
+from terrain.core.errors import InvalidParameterError
+from terrain.core.tomlfile import merge_tables, read_toml, toml_text
 
 __all__ = ["STAGES", "Campaign", "Stage", "load_campaign", "run_campaign"]
 
@@ -190,8 +190,8 @@ class Campaign:
             The checked record.
         """
         from asteroid.cli import asteroid
-        from terrain.cli import terrain
-        from terrain.rng import check_seed
+        from terrain.cli.commands import terrain
+        from terrain.core.rng import check_seed
 
         data = check_keys(data, _TOP, "campaign")
         if quick:
@@ -397,7 +397,7 @@ def lunar(c: Campaign, out: Path, say: Callable[[str], None]) -> dict:
     """
     from evaluation.slope import horn_slope
     from terrain.io import read_dem
-    from terrain.site import landing_site, lit_sun_azimuth
+    from terrain.surface.site import landing_site, lit_sun_azimuth
 
     synth_args = cli_args({**c.base, "seed": c.seed})
     base = Stage(out, "lunar/base", dict(args=synth_args, v=4))

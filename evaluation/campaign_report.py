@@ -19,8 +19,8 @@ import time
 from pathlib import Path
 
 from evaluation.campaign import STAGES, Campaign, Stage
-from terrain import metakeys as mk
-from terrain.clitools import run_command
+from terrain.cli.tools import run_command
+from terrain.core import metakeys as mk
 
 __all__ = ["evaluate"]
 
@@ -134,9 +134,9 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
         track,
         truth_round_trip,
     )
-    from terrain.errors import InvalidDEMError, InvalidParameterError
+    from terrain.core.errors import InvalidDEMError, InvalidParameterError
     from terrain.io import read_dem
-    from terrain.layers import read_stack
+    from terrain.stack.layers import read_stack
 
     ev = c.evaluation
     have = {k: Path(p).exists() for k, p in real.items()}

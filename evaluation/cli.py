@@ -1,7 +1,7 @@
 """The ``craterscape evaluation`` commands.
 
 They are registered through the ``craterscape.groups`` entry point, so the root command in
-:mod:`terrain.cli` never imports this package.
+:mod:`terrain.cli.commands` never imports this package.
 
 ::
 
@@ -29,9 +29,9 @@ from pathlib import Path
 import click
 
 from evaluation.evidence import write_csv
-from terrain import metakeys as mk
-from terrain.clitools import TRIPLE, progress_bar, version, with_options
-from terrain.errors import InvalidParameterError, MissingInputError
+from terrain.cli.tools import TRIPLE, progress_bar, version, with_options
+from terrain.core import metakeys as mk
+from terrain.core.errors import InvalidParameterError, MissingInputError
 
 __all__ = ["evaluation"]
 
@@ -44,7 +44,7 @@ def _outdir(path: Path, inputs=()) -> Path:
     Commands call it after their checks and computations, inside the transaction that
     writes their files, so a command that fails leaves no folder and no file behind.
     """
-    from terrain.outputs import make_output_folder
+    from terrain.core.outputs import make_output_folder
 
     return make_output_folder(path, inputs)
 
@@ -72,7 +72,7 @@ def _unique(names):
 def _dem_inputs(paths, band: int) -> list:
     """(label, tile) for every DEM, expanding layer stacks (a folder or its manifest.json)."""
     from terrain.io import read_dem
-    from terrain.layers import read_stack
+    from terrain.stack.layers import read_stack
 
     items = []
     for path in paths:
@@ -153,7 +153,7 @@ def slopes(inputs, output, band, reference, reference_band, slope_band, baseline
 
     if baseline is not None and not baseline > 0:
         raise InvalidParameterError(f"--baseline must be positive metres; got {baseline}")
-    from terrain.outputs import check_output_folder, transaction
+    from terrain.core.outputs import check_output_folder, transaction
 
     edges = "gdal" if compute_edges else "mask"
     srcs = _with_stack_folders([*inputs] + ([reference] if reference else []))
@@ -190,7 +190,7 @@ def _write_slopes(output, srcs, slope_maps, evidence):
     comparisons, agreements = evidence.comparisons, evidence.agreements
     save_png(slope_distribution_figure(distributions), outdir / "slope_distributions.png",
              inputs=srcs)
-    from terrain.outputs import discard
+    from terrain.core.outputs import discard
 
     if spectra:
         save_png(spectrum_figure(spectra, fits), outdir / "spectra.png", inputs=srcs)
@@ -257,7 +257,7 @@ def asteroid_slopes(meshes, output, reference, reference_units, bin_deg, units, 
     """Radial and gravitational slopes of closed meshes, as slope-area histograms."""
     from evaluation.compare import ks_distance
     from evaluation.figures import save_png, slope_area_figure
-    from terrain.outputs import check_output_folder, transaction
+    from terrain.core.outputs import check_output_folder, transaction
 
     common = dict(density=density, mass=mass, period_hours=period_hours, spin_axis=spin_axis,
                   radius_deg=radius_deg, coarse_faces=coarse_faces, no_gravity=no_gravity)
@@ -382,7 +382,7 @@ def track_cmd(run_dir, output, max_corners, quality, min_distance, win_size, lev
               fb_threshold, prewarp, dark_level, dark_margin, outlier_px):
     """Track Harris corners through a rendered run and score them against its truth."""
     from evaluation.tracking import save_tracks
-    from terrain.outputs import check_output_folder, transaction
+    from terrain.core.outputs import check_output_folder, transaction
 
     if output.resolve() == run_dir.resolve():
         raise InvalidParameterError("the output folder must differ from the run directory")
@@ -561,7 +561,7 @@ def report(run_dirs, output, thresholds, title, dems, band, reference, reference
     if thresholds is not None:
         inputs["thresholds"] = str(thresholds)
     rep = Report(title, sections, limits, inputs)
-    from terrain.outputs import transaction
+    from terrain.core.outputs import transaction
 
     with transaction():  # the HTML and its JSON twin as one set
         html_path, json_path = write_report(rep, output, inputs=srcs)

@@ -32,9 +32,9 @@ import numpy as np
 
 from evaluation.slope import SlopeDistribution, horn_slope, matched_baseline, slope_distribution
 from evaluation.spectrum import RadialSpectrum, fit_hurst, radial_spectrum
-from terrain.errors import InvalidDEMError, InvalidParameterError
+from terrain.core.errors import InvalidDEMError, InvalidParameterError
+from terrain.core.tile import DEMTile
 from terrain.io import same_crs
-from terrain.tile import DEMTile
 
 __all__ = ["MIN_COMPARED_SLOPES", "Comparison", "SlopeMapAgreement", "check_same_crs",
            "compare_dems", "compare_slope_maps", "ks_distance", "spectrum_ratio"]

@@ -61,7 +61,7 @@ import numpy as np
 from evaluation.silhouette import SILHOUETTE_JUMP, dilate, near_contours
 from render.camera import quat_to_matrix
 from render.rundir import RunReader
-from terrain.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError
 
 __all__ = ["DARK_SIGMAS", "SILHOUETTE_JUMP", "SPIKE_BOUND", "Consistency", "PairResidual",
            "change_marks", "consistency", "pair_residual", "save_consistency"]

@@ -15,8 +15,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from terrain import metakeys as mk
-from terrain.errors import InvalidDEMError, InvalidParameterError
+from terrain.core import metakeys as mk
+from terrain.core.errors import InvalidDEMError, InvalidParameterError
 
 __all__ = ["STACK_LAYER", "DEMEvidence", "at_baseline", "dem_evidence", "write_csv",
            "write_evidence_csvs"]

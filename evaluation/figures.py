@@ -305,7 +305,7 @@ def read_png(path) -> np.ndarray:
     """
     import cv2
 
-    from terrain.errors import MissingInputError
+    from terrain.core.errors import MissingInputError
 
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:

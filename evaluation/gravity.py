@@ -57,8 +57,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from terrain import memory
-from terrain.errors import InvalidParameterError
+from terrain.core import memory
+from terrain.core.errors import InvalidParameterError
 
 __all__ = ["EROS_DENSITY", "EROS_PERIOD_H", "GRAVITATIONAL_CONSTANT", "Polyhedron",
            "centrifugal", "closed_chain", "coarsen", "polyhedron_field", "signed_volume",

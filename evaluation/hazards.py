@@ -10,7 +10,8 @@ for every frame of a terrain run, the ground point under the image centre (from 
 range of the centre pixel), its ground sample distance (range / focal length in pixels, the
 footprint of the pixel across the ray) and the finest layer drawn there (the finest layer
 whose extent, less the one-pixel overlap band the renderer keeps, holds the point).
-:func:`site_section` turns both and a :class:`terrain.hazards.HazardMap` into a report section.
+:func:`site_section` turns both and a :class:`terrain.surface.hazards.HazardMap` into a report
+section.
 """
 
 from __future__ import annotations
@@ -20,8 +21,8 @@ import math
 import numpy as np
 
 from evaluation.report import Check, Section, figure_record, fmt, image_figure, jsonable
-from terrain import metakeys as mk
-from terrain.catalog import RockCatalog
+from terrain.core import metakeys as mk
+from terrain.craters.catalog import RockCatalog
 
 __all__ = ["descent_layers", "hazards_file_section", "rock_sfd", "rock_sfd_figure",
            "site_section"]
@@ -87,7 +88,7 @@ def descent_layers(run, stack) -> list[dict]:
     ----------
     run : render.rundir.RunReader
         A terrain run with LIDAR range images and truth.
-    stack : terrain.layers.LayerStack
+    stack : terrain.stack.layers.LayerStack
         The stack it was rendered from.
 
     Returns
@@ -138,7 +139,7 @@ def site_section(hazards, hazard_png, *, layer: int | None, resolution: float, r
 
     Parameters
     ----------
-    hazards : terrain.hazards.HazardMap
+    hazards : terrain.surface.hazards.HazardMap
     hazard_png : path of the hazard picture
     layer, resolution : the layer the hazards were computed on (None: a single DEM) and its
         pixel size (m)
@@ -213,10 +214,10 @@ def hazards_file_section(path, *, run=None, frames=()) -> Section:
     import json
     from pathlib import Path
 
-    from terrain.errors import InvalidDEMError
-    from terrain.hazards import HazardMap
+    from terrain.core.errors import InvalidDEMError
     from terrain.io import read_dem
-    from terrain.rocks import MIN_ROCK_PIXELS, RockModel
+    from terrain.surface.hazards import HazardMap
+    from terrain.surface.rocks import MIN_ROCK_PIXELS, RockModel
 
     path = Path(path)
     bands = [read_dem(path, band=b) for b in (1, 2, 3)]
@@ -234,7 +235,7 @@ def hazards_file_section(path, *, run=None, frames=()) -> Section:
     kwargs: dict = {}
     source = Path(params.get("source", ""))
     if source.is_dir() and (source / "manifest.json").exists():
-        from terrain.layers import read_stack
+        from terrain.stack.layers import read_stack
 
         stack = read_stack(source)
         if stack.rocks is not None and stack.info.get("rocks"):

@@ -59,8 +59,8 @@ from evaluation.gravity import (
     signed_volume,
 )
 from evaluation.slope import cumulative_distribution, weighted_quantiles
-from terrain import memory
-from terrain.errors import InvalidParameterError
+from terrain.core import memory
+from terrain.core.errors import InvalidParameterError
 
 __all__ = ["DEFAULT_BIN_DEG", "DEFAULT_COARSE_FACES", "DEFAULT_DENSITY", "DEFAULT_RADIUS_DEG",
            "MESH_SUFFIXES", "MeshSlopes", "SlopeAreaHistogram", "Spin", "cap_average",

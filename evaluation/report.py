@@ -59,9 +59,9 @@ from typing import Any
 
 import numpy as np
 
-from terrain.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError
+from terrain.core.tomlfile import read_toml
 from terrain.io import atomic_path
-from terrain.tomlfile import read_toml
 
 __all__ = ["DEFAULT_THRESHOLDS", "REPORT_FORMAT", "Check", "Figure", "Report", "Section",
            "asteroid_section", "consistency_section", "dem_section", "image_figure",
@@ -331,7 +331,7 @@ class Report:
 
     def as_dict(self) -> dict:
         """Return the report as plain data: the document ``report.json`` holds."""
-        from terrain.clitools import version
+        from terrain.cli.tools import version
 
         ver = version()
         return dict(

@@ -25,7 +25,7 @@ on DEMs whose heights are far from zero: on the Aristarchus QuickMap DEM (height
 -1360 m, 4.76 m pixels) a float64 evaluation of the same formula differs by up to
 1.9e-3 degrees. That is far below anything a slope distribution resolves, and agreeing
 with the reference tool is worth more to a user cross-checking in QGIS; this is why this
-module supersedes :func:`terrain.hillshade.horn_gradient` (float64, edges replicated)
+module supersedes :func:`terrain.surface.hillshade.horn_gradient` (float64, edges replicated)
 for evaluation instead of reusing it.
 
 Edges and gaps (``edges``):
@@ -69,10 +69,10 @@ import numpy as np
 from affine import Affine
 from scipy import sparse
 
-from terrain import memory
-from terrain import metakeys as mk
-from terrain.errors import InvalidDEMError, InvalidParameterError
-from terrain.tile import DEMTile
+from terrain.core import memory
+from terrain.core import metakeys as mk
+from terrain.core.errors import InvalidDEMError, InvalidParameterError
+from terrain.core.tile import DEMTile
 
 __all__ = ["DEFAULT_ANGLES", "EDGE_MODES", "QUANTILES", "SlopeDistribution",
            "cumulative_distribution", "horn", "horn_aspect", "horn_slope", "matched_baseline",
@@ -372,7 +372,7 @@ def stack_distributions(stack_dir, *, edges: str = "mask", angles=None,
     label : str, optional
         Prefix of the labels (default the folder name); each gets ``_layer_NN``.
     """
-    from terrain.layers import read_stack
+    from terrain.stack.layers import read_stack
 
     stack_dir = Path(stack_dir)
     if stack_dir.name == "manifest.json":

@@ -43,10 +43,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from terrain import memory
-from terrain import metakeys as mk
-from terrain.errors import InvalidDEMError, InvalidParameterError
-from terrain.tile import DEMTile
+from terrain.core import memory
+from terrain.core import metakeys as mk
+from terrain.core.errors import InvalidDEMError, InvalidParameterError
+from terrain.core.tile import DEMTile
 
 __all__ = ["DEFAULT_BINS", "DETRENDS", "WINDOWS", "HurstFit", "RadialSpectrum", "fit_hurst",
            "fractional_brownian_surface", "radial_spectrum"]

@@ -93,8 +93,8 @@ import numpy as np
 from evaluation.silhouette import SILHOUETTE_JUMP, near_contours
 from render.camera import quat_to_matrix
 from render.rundir import RunReader
-from terrain import memory
-from terrain.errors import InvalidParameterError
+from terrain.core import memory
+from terrain.core.errors import InvalidParameterError
 
 __all__ = ["ScoredTracks", "TrackerSettings", "Tracks", "ideal_one_step", "load_run",
            "save_tracks", "score", "track", "truth_round_trip", "truth_warped_frame"]
@@ -380,7 +380,7 @@ def track(run, settings: TrackerSettings | None = None, *, progress=None) -> Tra
     if s.levels > MAX_PYRAMID_LEVELS:
         raise InvalidParameterError(f"tracker levels must be at most {MAX_PYRAMID_LEVELS}; got "
                                     f"{s.levels}")
-    from terrain import memory
+    from terrain.core import memory
 
     # two frames, their pyramids and derivative images, and per track its window patches
     memory.require(h * w * 4 * 12 + s.max_corners * s.win_size ** 2 * 4 * 6,
@@ -913,7 +913,7 @@ def _fresh_noise(image: np.ndarray, sensor: dict, seed: int, frame: int) -> np.n
     The noise is keyed by seed, frame, column and row, and rounded and clipped as the sensor
     does.
     """
-    from terrain.rng import normal, stream_id
+    from terrain.core.rng import normal, stream_id
 
     gain = float(sensor.get("gain", 0.0))
     read = float(sensor.get("read_noise", 0.0))

@@ -72,7 +72,7 @@ FLOW_ITERATIONS = 3
 def start_server(scenario: Path):
     """``craterscape render serve SCENARIO --port 0``; returns (process, port)."""
     proc = subprocess.Popen([sys.executable, "-c",
-                             "import sys; from terrain.cli import main; sys.exit(main())",
+                             "import sys; from terrain.cli.commands import main; sys.exit(main())",
                              "render", "serve", str(scenario), "--port", "0"],
                             stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 900
@@ -118,8 +118,8 @@ def fly(client, out: Path, *, size: int, dt: float, tau: float, touchdown: float
     docstring. Returns the summary."""
     from render.errors import ServerError
     from render.protocol import ErrorCode
+    from terrain.core.rng import normal_scalar, stream_id
     from terrain.io import write_png
-    from terrain.rng import normal_scalar, stream_id
 
     info = client.info()
     if info["scene"] != "terrain":

@@ -73,7 +73,7 @@ from render.scene import (
     body_shadow_map,
     far_plane,
 )
-from terrain.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError
 
 if TYPE_CHECKING:
     from asteroid.body import Body, NativeModel

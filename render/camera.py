@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from terrain.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError
 
 __all__ = ["Intrinsics", "Pose", "look_at", "quat_from_matrix", "quat_to_matrix", "slerp"]
 

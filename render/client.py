@@ -42,7 +42,7 @@ from render.protocol import (
     parse_error,
     read_message,
 )
-from terrain.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError
 
 __all__ = ["Client", "RayHit"]
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from terrain.errors import CraterscapeError
+from terrain.core.errors import CraterscapeError
 
 __all__ = ["ProtocolError", "RenderUnavailableError", "ServerError"]
 

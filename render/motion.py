@@ -37,7 +37,7 @@ import numpy as np
 
 from render.camera import Pose, quat_from_matrix, quat_to_matrix
 from render.records import check_keys
-from terrain.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError
 
 if TYPE_CHECKING:
     from render.renderer import Frame, Lighting, Renderer, RenderOptions, View

@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from terrain.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError
 
 __all__ = ["check_keys", "number"]
 

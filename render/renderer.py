@@ -37,7 +37,7 @@ from render.context import create_context
 from render.imposter import blend, composite
 from render.reflectance import BRDF_CODES, MCEWEN_MOON, SATO_643NM, Hapke, check_brdf
 from render.scene import DrawBatch, Imposter, Scene
-from terrain.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError
 
 __all__ = ["Frame", "Lighting", "RenderOptions", "Renderer", "SceneGpu", "View",
            "clip_from_camera"]

@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from render.camera import Intrinsics, Pose
-from terrain.errors import InvalidParameterError, MissingInputError
+from terrain.core.errors import InvalidParameterError, MissingInputError
 from terrain.io import atomic_path, read_float_tiff, write_float_tiff, write_png
 
 __all__ = ["FORMAT", "FrameTruth", "RunReader", "RunWriter"]
@@ -126,7 +126,7 @@ class RunWriter:
     @staticmethod
     def check(run_dir, *, resume: bool = False, manifest: dict | None = None) -> None:
         """Refuse an unusable run directory before any work (see the class docstring)."""
-        from terrain.outputs import check_output_folder
+        from terrain.core.outputs import check_output_folder
 
         run_dir = Path(run_dir)
         if run_dir.exists() and not run_dir.is_dir():
@@ -155,7 +155,7 @@ class RunWriter:
                         "scenario or choose a new folder")
 
     def __init__(self, run_dir, manifest: dict, scenario_file=None, *, resume: bool = False):
-        from terrain.outputs import sweep_partials
+        from terrain.core.outputs import sweep_partials
 
         self.dir = Path(run_dir)
         self.check(self.dir, resume=resume, manifest=manifest)

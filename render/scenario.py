@@ -94,9 +94,9 @@ from render.renderer import MAX_ANTIALIAS, Lighting, RenderOptions
 from render.scene_build import SceneBuild
 from render.sensor import Sensor
 from render.trajectory import Sample, approach, descent, keyframes
-from terrain.errors import InvalidParameterError
-from terrain.rng import check_seed
-from terrain.tomlfile import read_toml
+from terrain.core.errors import InvalidParameterError
+from terrain.core.rng import check_seed
+from terrain.core.tomlfile import read_toml
 
 __all__ = ["SceneSpec", "Scenario", "TrajectorySpec", "load_scenario"]
 
@@ -515,7 +515,7 @@ def load_scenario(path: str | Path) -> Scenario:
     Scenario
         The validated scenario (paths in it relative to the file's folder).
     """
-    from terrain.outputs import protect
+    from terrain.core.outputs import protect
 
     path = Path(path)
     scenario = parse_scenario(read_toml(path, "scenario"), path)

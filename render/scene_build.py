@@ -59,9 +59,9 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from render.records import check_keys
-from terrain.errors import InvalidParameterError
-from terrain.outputs import remove_path
-from terrain.rng import check_seed
+from terrain.core.errors import InvalidParameterError
+from terrain.core.outputs import remove_path
+from terrain.core.rng import check_seed
 
 if TYPE_CHECKING:  # pragma: no cover
     from render.scenario import Scenario
@@ -156,11 +156,11 @@ class SceneBuild:
 
         Raises
         ------
-        terrain.errors.InvalidParameterError
+        terrain.core.errors.InvalidParameterError
             An unknown key (named with the nearest valid one), a value its command would
             refuse, or a missing table or site.
         """
-        from terrain.clitools import command
+        from terrain.cli.tools import command
 
         names = COMMANDS[scene_type]
         allowed = set(names) | ({"seed"} if scene_type == "terrain" else set())
@@ -227,7 +227,7 @@ class SceneBuild:
 
     def _paths(self, name: str, options: dict, folder: Path) -> dict[str, Path]:
         """Return the options of ``name`` that are paths, resolved against the scenario's folder."""
-        from terrain.clitools import command
+        from terrain.cli.tools import command
 
         params = _parameters(command(*COMMANDS[self.type][name]))
         return {k: folder / v for k, v in options.items()
@@ -246,10 +246,10 @@ class SceneBuild:
         Returns
         -------
         list
-            Arguments for :func:`terrain.clitools.run_command` (the seed included for
+            Arguments for :func:`terrain.cli.tools.run_command` (the seed included for
             terrain tables).
         """
-        from terrain.clitools import cli_args
+        from terrain.cli.tools import cli_args
 
         options = dict(getattr(self, name))
         options.update({k: str(p) for k, p in self._paths(name, options, folder).items()})
@@ -308,10 +308,10 @@ def ensure_scene(scenario: Scenario) -> Path | None:
 
     Raises
     ------
-    terrain.errors.CraterscapeError
+    terrain.core.errors.CraterscapeError
         When a build command refuses the recipe (one line naming the problem).
     """
-    from terrain.clitools import run_command
+    from terrain.cli.tools import run_command
     from terrain.io import read_dem
 
     spec = scenario.scene

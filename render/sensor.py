@@ -58,8 +58,8 @@ from pathlib import Path
 import numpy as np
 
 from render.records import check_keys, number
-from terrain.errors import InvalidParameterError, MissingInputError
-from terrain.rng import check_seed, normal, stream_id, uniform
+from terrain.core.errors import InvalidParameterError, MissingInputError
+from terrain.core.rng import check_seed, normal, stream_id, uniform
 
 __all__ = ["PLANCK", "SPEED_OF_LIGHT", "Sensor"]
 

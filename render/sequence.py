@@ -23,8 +23,8 @@ from render.rundir import FrameTruth, RunWriter
 from render.scenario import Scenario
 from render.scene import Scene
 from render.trajectory import Sample
-from terrain.errors import InvalidParameterError
-from terrain.progress import Progress
+from terrain.core.errors import InvalidParameterError
+from terrain.core.progress import Progress
 
 __all__ = ["check_frame_memory", "frame_motion", "load_scene", "render_sample", "run_sequence"]
 
@@ -51,11 +51,10 @@ def check_frame_memory(scenario: Scenario) -> None:
 
     Raises
     ------
-    terrain.errors.MemoryRequestError
-        When the frame's buffers would not fit (:func:`terrain.memory.require`).
+    terrain.core.errors.MemoryRequestError
+        When the frame's buffers would not fit (:func:`terrain.core.memory.require`).
     """
-    from terrain import memory
-
+    from terrain.core import memory
     k = scenario.intrinsics
     shadow = scenario.options.shadow_size if scenario.options.shadows else 0
     a = scenario.options.antialias
@@ -195,7 +194,7 @@ def run_sequence(scenario: Scenario, run_dir: str | Path, *, resume: bool = Fals
         The run directory (made; refused when it holds another run unless resuming).
     resume : bool
         Skip the frames the run directory's truth file already lists.
-    progress : terrain.progress.Progress, optional
+    progress : terrain.core.progress.Progress, optional
         Called as ``progress(done, total, detail)`` after every frame.
 
     Returns

@@ -73,7 +73,7 @@ from render.scene import Scene
 from render.sequence import load_scene, render_sample
 from render.terrain_scene import TerrainScene
 from render.trajectory import Sample, spin_rotation
-from terrain.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError
 
 __all__ = ["RenderServer", "is_loopback"]
 

@@ -1,6 +1,7 @@
 """A DEM layer stack as one multi-resolution terrain mesh.
 
-Every layer of a stack (:mod:`terrain.layers`) becomes a grid mesh with a vertex at every pixel
+Every layer of a stack (:mod:`terrain.stack.layers`) becomes a grid mesh with a vertex at every
+pixel
 centre, cut into blocks of :data:`BLOCK` x :data:`BLOCK` cells. Per frame, each block is culled
 against the view frustum, dropped if a finer layer covers it completely, and otherwise drawn
 at the coarsest level of detail (every s-th vertex, s = 1, 2, 4, ... BLOCK) whose cells stay
@@ -92,13 +93,13 @@ from render.scene import (
     light_basis,
     render_shadow_map,
 )
-from terrain import metakeys as mk
-from terrain.errors import InvalidParameterError
+from terrain.core import metakeys as mk
+from terrain.core.errors import InvalidParameterError
 
 if TYPE_CHECKING:
     from render.renderer import Lighting, RenderOptions, View
-    from terrain.layers import LayerStack
-    from terrain.tile import DEMTile
+    from terrain.core.tile import DEMTile
+    from terrain.stack.layers import LayerStack
 
 __all__ = ["BLOCK", "FADE_PARENT_PIXELS", "MOON_RADIUS", "MORPH_BAND", "SKIRT_PIXELS",
            "TerrainScene"]
@@ -171,13 +172,13 @@ class TerrainScene:
 
     Parameters
     ----------
-    stack : terrain.layers.LayerStack, str or pathlib.Path
+    stack : terrain.stack.layers.LayerStack, str or pathlib.Path
         The layer stack, or its folder.
     curvature : bool
         Drop heights by d^2 / (2 R) away from the site.
     radius : float, optional
         Body radius R (m); default: the stack's datum radius if recorded, else the Moon's.
-    albedo_map : terrain.tile.DEMTile, str or pathlib.Path, optional
+    albedo_map : terrain.core.tile.DEMTile, str or pathlib.Path, optional
         Albedo factors over the terrain (:meth:`set_albedo_map`).
 
     Attributes
@@ -194,7 +195,7 @@ class TerrainScene:
     def __init__(self, stack: LayerStack | str | Path, *, curvature: bool = True,
                  radius: float | None = None,
                  albedo_map: DEMTile | str | Path | None = None) -> None:
-        from terrain.layers import LayerStack, read_stack
+        from terrain.stack.layers import LayerStack, read_stack
 
         if not isinstance(stack, LayerStack):
             stack = read_stack(Path(stack))
@@ -230,10 +231,10 @@ class TerrainScene:
 
         Parameters
         ----------
-        tile : terrain.tile.DEMTile, str or pathlib.Path
+        tile : terrain.core.tile.DEMTile, str or pathlib.Path
             The factors (>= 0) in the stack's map frame, or a raster any GDAL reader opens.
         """
-        from terrain.tile import DEMTile
+        from terrain.core.tile import DEMTile
 
         if not isinstance(tile, DEMTile):
             from terrain.io import read_dem
@@ -280,7 +281,7 @@ class TerrainScene:
 
         Raises
         ------
-        terrain.errors.InvalidParameterError
+        terrain.core.errors.InvalidParameterError
             Where the point lies outside every layer.
         """
         for tile in reversed(self.stack.tiles):

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from render.camera import Pose, look_at, quat_from_matrix, slerp
-from terrain.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError
 
 __all__ = ["Sample", "approach", "axis_angle", "descent", "keyframes", "spin_rotation"]
 

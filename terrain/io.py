@@ -28,17 +28,18 @@ import rasterio
 from rasterio.crs import CRS
 from rasterio.errors import NotGeoreferencedWarning, RasterioError, RasterioIOError
 
-from terrain import memory
-from terrain import metakeys as mk
-from terrain.errors import InvalidDEMError, MissingInputError, OutputPathError
-from terrain.outputs import atomic_path, check_output_path
-from terrain.tile import DEMTile
+from terrain.core import memory
+from terrain.core import metakeys as mk
+from terrain.core.errors import InvalidDEMError, MissingInputError, OutputPathError
+from terrain.core.outputs import atomic_path, check_output_path
+from terrain.core.tile import DEMTile
 
 __all__ = ["atomic_path", "check_output_path", "lonlat_to_xy", "read_dem", "read_dem_exact",
            "read_float_tiff", "same_crs", "write_bands", "write_dem", "write_float_tiff",
            "write_png"]
 __all__ += ["orthographic_crs", "polar_crs", "reproject_polar", "synthetic_crs"]
-__all__ += ["RasterReader", "raster_layout", "write_cog"]  # chunked runs (terrain.chunked)
+# chunked runs (terrain.execution.chunked)
+__all__ += ["RasterReader", "raster_layout", "write_cog"]
 
 log = logging.getLogger(__name__)
 
@@ -168,8 +169,8 @@ def _read_dem(path, band: int, exact: bool) -> tuple[DEMTile, np.ndarray | None]
 
 
 def _read_zarr_dem(path: Path) -> DEMTile:
-    """Return a whole Zarr DEM written by a chunked run (:mod:`terrain.zarrstore`) as a tile."""
-    from terrain.zarrstore import ZarrDEM, is_zarr
+    """Return a whole Zarr DEM written by a chunked run (:mod:`~.zarrstore`) as a tile."""
+    from terrain.core.zarrstore import ZarrDEM, is_zarr
 
     if not is_zarr(path):
         raise InvalidDEMError(f"input DEM '{path}' is a folder, not a file (nor a Zarr store)")
@@ -342,7 +343,7 @@ def write_png(image: np.ndarray, path, *, inputs: Iterable = ()) -> Path:
 
 def lonlat_to_xy(crs_wkt: str | None, lon: float, lat: float) -> tuple[float, float]:
     """Map coordinates of a longitude/latitude (degrees) on the CRS's own body and datum."""
-    from terrain.errors import InvalidParameterError
+    from terrain.core.errors import InvalidParameterError
 
     if not crs_wkt:
         raise InvalidParameterError("the DEM has no CRS, so longitude/latitude cannot be placed "
@@ -471,7 +472,7 @@ def write_bands(bands, tile: DEMTile, path, *, descriptions=(), tags: dict | Non
 
 
 # --------------------------------------------------------------------------------------
-# windowed reading and Cloud Optimized GeoTIFFs (chunked runs, terrain.chunked)
+# windowed reading and Cloud Optimized GeoTIFFs (chunked runs, terrain.execution.chunked)
 
 
 class RasterReader:
@@ -549,7 +550,7 @@ class RasterReader:
 
         Parameters
         ----------
-        window : terrain.tile.Window, optional
+        window : terrain.core.tile.Window, optional
             Default: the whole raster (which must then fit in memory).
 
         Returns
@@ -559,7 +560,7 @@ class RasterReader:
         """
         from rasterio.windows import Window as RioWindow
 
-        from terrain.tile import Window
+        from terrain.core.tile import Window
 
         window = window or Window(0, 0, self.shape[1], self.shape[0])
         window.check_inside(*self.shape)
@@ -603,7 +604,7 @@ def write_cog(source, path, *, inputs: Iterable = (), description: str = "height
     ----------
     source
         A chunked DEM: ``shape``, ``chunk``, ``transform``, ``crs``, ``nodata``, ``metadata``
-        and ``read(window) -> (heights, valid)`` (:class:`terrain.zarrstore.ZarrDEM`).
+        and ``read(window) -> (heights, valid)`` (:class:`terrain.core.zarrstore.ZarrDEM`).
     path : str or Path
         Output ``.tif``; never an input.
     progress : callable, optional
@@ -615,7 +616,7 @@ def write_cog(source, path, *, inputs: Iterable = (), description: str = "height
     from rasterio.shutil import copy as rio_copy
     from rasterio.windows import Window as RioWindow
 
-    from terrain.tile import Window
+    from terrain.core.tile import Window
 
     path = check_output_path(path, inputs)
     ny, nx = source.shape
@@ -793,9 +794,9 @@ def synthetic_crs(body: str | None, projection: str | None, centre: tuple[float,
     Parameters
     ----------
     body : str or None
-        A body of :data:`terrain.bodies.BODY_RADII`; None: no CRS.
+        A body of :data:`terrain.core.bodies.BODY_RADII`; None: no CRS.
     projection : str or None
-        A projection of :data:`terrain.bodies.PROJECTIONS` (default south-polar).
+        A projection of :data:`terrain.core.bodies.PROJECTIONS` (default south-polar).
     centre : (float, float)
         Map coordinates (m) of the projection's centre: the tile's centre.
 
@@ -804,7 +805,7 @@ def synthetic_crs(body: str | None, projection: str | None, centre: tuple[float,
     str or None
         The CRS as WKT; None without a body.
     """
-    from terrain.bodies import BODY_RADII, check_projection
+    from terrain.core.bodies import BODY_RADII, check_projection
 
     kind = check_projection(body, projection)
     if kind is None or body is None:  # check_projection gives None exactly without a body

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from click.testing import CliRunner
 
-from terrain.cli import main
+from terrain.cli.commands import main
 
 
 def run(*args, env=None):

@@ -150,7 +150,7 @@ def test_demo_base_matches_lolas_south_pole_slopes(tmp_path, shared_file):
     from evaluation.campaign import load_campaign
     from evaluation.campaign_report import polar_ldem
     from evaluation.compare import compare_dems
-    from terrain.clitools import cli_args
+    from terrain.cli.tools import cli_args
     from terrain.io import read_dem
     from tests.cli_helpers import run
 

@@ -11,7 +11,7 @@ by one block serves the next, and a variable set in one is there in the next):
   the block and its stderr; each block has a time limit;
 - ``python`` blocks run as scripts with the environment's Python;
 - ``toml`` blocks are parsed by the parser of what they document (a ``[population]`` by
-  :meth:`terrain.population.Population.from_toml`, a ``[sensor]``/``[motion]`` by the
+  :meth:`terrain.craters.population.Population.from_toml`, a ``[sensor]``/``[motion]`` by the
   scenario parser);
 - blocks that need the real data (``../shared/data``) run where it is present;
 - ``make demo``, ``make test`` and ``make bench`` are not run here: ``make test`` is this
@@ -91,7 +91,7 @@ def parse_toml_block(body: str, where: Path) -> None:
     path = where / "block.toml"
     path.write_text(body, encoding="utf-8")
     if "population" in data:
-        from terrain.population import Population
+        from terrain.craters.population import Population
 
         Population.from_toml(path)
     elif "sensor" in data or "motion" in data:

@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from terrain import memory
-from terrain.errors import InvalidParameterError, OutputPathError
+from terrain.core import memory
+from terrain.core.errors import InvalidParameterError, OutputPathError
 from terrain.io import atomic_path
 
 __all__ = ["MESH_FORMATS", "mesh_format", "write_mesh"]

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from asteroid.errors import InvalidShapeError
-from terrain import memory
-from terrain.errors import MissingInputError
+from terrain.core import memory
+from terrain.core.errors import MissingInputError
 
 __all__ = ["READ_FORMATS", "read_mesh"]
 

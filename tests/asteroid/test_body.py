@@ -5,7 +5,7 @@ import pytest
 
 from asteroid.body import Body, Stretch, load_native, save_native
 from asteroid.sphere import SphereMesh
-from terrain.errors import InvalidParameterError, MissingInputError, OutputPathError
+from terrain.core.errors import InvalidParameterError, MissingInputError, OutputPathError
 
 
 def test_native_round_trip_and_identical_bytes(tmp_path, rng):

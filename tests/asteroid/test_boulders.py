@@ -18,8 +18,8 @@ from asteroid.boulders import (
     subdivision,
 )
 from asteroid.sphere import SphereMesh
-from terrain.errors import InvalidParameterError
-from terrain.population import Population
+from terrain.core.errors import InvalidParameterError
+from terrain.craters.population import Population
 
 
 def test_icosahedron_is_regular():

@@ -18,9 +18,9 @@ from asteroid.craters import (
     sample_craters,
 )
 from asteroid.sphere import SphereMesh
-from terrain.crater import CraterShape, profile
-from terrain.errors import InvalidParameterError
-from terrain.population import Population
+from terrain.core.errors import InvalidParameterError
+from terrain.craters.crater import CraterShape, profile
+from terrain.craters.population import Population
 
 R = 100_000.0
 MESH = SphereMesh(128)

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from asteroid.body import Stretch
 from asteroid.faulting import FIG8_FAULTING, TRUNCATION, Faulting, fault_table
 from asteroid.sphere import SphereMesh
-from terrain.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError
 
 MESH = SphereMesh(20)
 

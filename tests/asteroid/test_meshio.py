@@ -6,7 +6,7 @@ import trimesh
 
 from asteroid.meshio import read_mesh, write_mesh
 from asteroid.sphere import SphereMesh
-from terrain.errors import InvalidParameterError, OutputPathError
+from terrain.core.errors import InvalidParameterError, OutputPathError
 
 
 @pytest.mark.parametrize("suffix", [".ply", ".obj", ".stl", ".glb"])

@@ -8,8 +8,8 @@ from hypothesis import strategies as st
 from asteroid.body import Stretch
 from asteroid.noise import FIG5_PRESETS, Band, PerlinNoise, perlin3
 from asteroid.sphere import SphereMesh
-from terrain.errors import InvalidParameterError
-from terrain.rng import key_prefix
+from terrain.core.errors import InvalidParameterError
+from terrain.core.rng import key_prefix
 
 MESH = SphereMesh(24)
 

@@ -7,7 +7,7 @@ from hypothesis import strategies as st
 
 from asteroid.patches import PatchTree, decode_strip
 from asteroid.sphere import SphereMesh
-from terrain.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError
 
 
 def _canonical(triangles):

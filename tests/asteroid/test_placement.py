@@ -6,8 +6,8 @@ from scipy import stats
 
 from asteroid.boulders import icosahedron
 from asteroid.placement import expected_counts, sample, uniform_directions
-from terrain.population import Population
-from terrain.rng import uniform
+from terrain.core.rng import uniform
+from terrain.craters.population import Population
 
 
 def _icosahedron_cells(directions):
@@ -82,7 +82,7 @@ def test_the_list_is_a_function_of_the_seed_and_stream():
 
 
 def test_a_population_too_large_is_refused():
-    from terrain.errors import InvalidParameterError
+    from terrain.core.errors import InvalidParameterError
 
     with pytest.raises(InvalidParameterError, match="more than the limit"):
         sample(Population(dmin=0.01, dmax=1.0, density=1e9), 1e12, seed=1, stream="x",

@@ -5,7 +5,7 @@ import pytest
 
 from asteroid.build import build
 from asteroid.recipe import PRESETS, CraterSpec, Recipe, parse_spec
-from terrain.errors import InvalidParameterError, MissingInputError
+from terrain.core.errors import InvalidParameterError, MissingInputError
 
 
 @pytest.mark.parametrize("seed", [0, 4, 10])

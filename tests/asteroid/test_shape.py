@@ -10,7 +10,7 @@ from asteroid.errors import InvalidShapeError
 from asteroid.meshio import write_mesh
 from asteroid.shape import ShapeModel, winding_number
 from asteroid.sphere import SphereMesh
-from terrain.errors import MissingInputError
+from terrain.core.errors import MissingInputError
 
 # Figures stated in asteroid/shape.py: projected volume relative to the source mesh at M = 256.
 SHAPES = [("eros_gaskell_q64.obj", 2506.39e9), ("itokawa_gaskell_q32.obj", 0.017702e9),

@@ -5,7 +5,7 @@ import pytest
 
 from asteroid.smoothing import smooth
 from asteroid.sphere import SphereMesh
-from terrain.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError
 
 
 def test_constant_field_is_unchanged_and_zero_width_is_identity(rng):

@@ -7,7 +7,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from asteroid.sphere import SphereMesh, spacing_statistics
-from terrain.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError
 
 MAGNITUDES = [1, 2, 3, 5, 8, 17, 40]
 

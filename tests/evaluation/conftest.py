@@ -30,7 +30,7 @@ SUPERSAMPLE = 3
 def plane_texture(seed: int = 5) -> np.ndarray:
     """(512, 512) float32 albedo: the low-sun hillshade of a fractal DEM."""
     from evaluation.spectrum import fractional_brownian_surface
-    from terrain.hillshade import hillshade
+    from terrain.surface.hillshade import hillshade
 
     n = int(PLANE_SIZE / TEXTURE_RESOLUTION)
     dem = fractional_brownian_surface(n, 0.7, resolution=TEXTURE_RESOLUTION, rms=3.0,

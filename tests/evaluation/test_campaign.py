@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 
 from evaluation.campaign import Campaign, Stage, load_campaign, write_scenario
-from terrain.clitools import cli_args
-from terrain.errors import InvalidParameterError
+from terrain.cli.tools import cli_args
+from terrain.core.errors import InvalidParameterError
 
 REPO = Path(__file__).resolve().parents[2]
 DEMO = REPO / "examples" / "demo.toml"

@@ -13,7 +13,7 @@ from evaluation.compare import (
     ks_distance,
 )
 from evaluation.spectrum import fractional_brownian_surface
-from terrain.errors import InvalidDEMError, InvalidParameterError
+from terrain.core.errors import InvalidDEMError, InvalidParameterError
 from terrain.io import read_dem
 
 WKT_A = ('PROJCRS["moon stereographic",BASEGEOGCRS["Moon",DATUM["Moon",ELLIPSOID["Moon",'

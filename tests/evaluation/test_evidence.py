@@ -9,7 +9,7 @@ import pytest
 
 from evaluation.evidence import DEMEvidence, dem_evidence, write_evidence_csvs
 from evaluation.spectrum import fractional_brownian_surface
-from terrain.tile import DEMTile
+from terrain.core.tile import DEMTile
 
 
 def test_one_record_with_a_fit_per_spectrum_and_tables_that_agree(tmp_path):

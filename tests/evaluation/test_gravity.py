@@ -15,7 +15,7 @@ from evaluation.gravity import (
     coarsen,
     signed_volume,
 )
-from terrain.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError
 
 G = GRAVITATIONAL_CONSTANT
 RHO = 2000.0

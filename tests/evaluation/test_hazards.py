@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 
 from evaluation.hazards import rock_sfd, site_section
-from terrain.catalog import RockCatalog
-from terrain.hazards import hazard_image, hazard_map
-from terrain.rocks import RockModel, rock_catalog
-from terrain.tile import DEMTile
+from terrain.core.tile import DEMTile
+from terrain.craters.catalog import RockCatalog
+from terrain.surface.hazards import hazard_image, hazard_map
+from terrain.surface.rocks import RockModel, rock_catalog
 
 
 def _rocks(x, y, d):

@@ -5,8 +5,8 @@ input byte-identical and no output left."""
 import pytest
 
 from evaluation.spectrum import fractional_brownian_surface
+from terrain.core.tile import DEMTile
 from terrain.io import write_dem
-from terrain.tile import DEMTile
 from tests.cli_helpers import file_size_limit, refused, run, snapshot, unwritable_folder
 
 
@@ -19,8 +19,8 @@ def dem(tmp_path):
 
 @pytest.fixture
 def stack(tmp_path):
-    from terrain.layers import build_stack, write_stack
-    from terrain.synthetic import synthesize_tile
+    from terrain.fractal.synthetic import synthesize_tile
+    from terrain.stack.layers import build_stack, write_stack
 
     base = synthesize_tile(33, resolution=8.0, relief=30.0, seed=3).tile
     return write_stack(build_stack(base, (128.0, 128.0), levels=1, layer_size=17, seed=4),

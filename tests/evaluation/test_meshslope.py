@@ -15,7 +15,7 @@ from evaluation.meshslope import (
     mesh_slopes,
     vertex_normals_and_areas,
 )
-from terrain.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError
 
 
 def test_spinning_sphere_has_the_analytic_gravitational_slope():

@@ -23,7 +23,7 @@ from evaluation.slope import slope_distribution
 from evaluation.spectrum import fit_hurst, fractional_brownian_surface, radial_spectrum
 from evaluation.tracking import score, track
 from render.rundir import RunReader
-from terrain.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError
 
 
 def assert_self_contained(text):

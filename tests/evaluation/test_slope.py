@@ -24,9 +24,9 @@ from evaluation.slope import (
     weighted_quantiles,
 )
 from evaluation.spectrum import fractional_brownian_surface
-from terrain.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError
+from terrain.core.tile import DEMTile
 from terrain.io import read_dem, write_dem
-from terrain.tile import DEMTile
 
 #: The issue's agreement with gdaldem on interior pixels (degrees).
 GDAL_TOLERANCE_DEG = 1e-4
@@ -175,8 +175,8 @@ def test_slope_distribution_of_a_dem():
 
 
 def test_stack_distributions_one_per_layer(tmp_path):
-    from terrain.layers import build_stack, write_stack
-    from terrain.synthetic import synthesize_tile
+    from terrain.fractal.synthetic import synthesize_tile
+    from terrain.stack.layers import build_stack, write_stack
 
     base = synthesize_tile(33, resolution=8.0, relief=30.0, seed=3).tile
     stack = build_stack(base, (128.0, 128.0), levels=2, layer_size=17, seed=4)

@@ -8,8 +8,8 @@ from evaluation.spectrum import (
     fractional_brownian_surface,
     radial_spectrum,
 )
-from terrain.errors import InvalidDEMError, InvalidParameterError
-from terrain.tile import DEMTile
+from terrain.core.errors import InvalidDEMError, InvalidParameterError
+from terrain.core.tile import DEMTile
 
 #: The issue's acceptance figure for the Hurst exponent.
 HURST_TOLERANCE = 0.05

@@ -11,7 +11,7 @@ import pytest
 from evaluation.tracking import TrackerSettings, score, track
 from render.camera import Pose, quat_from_matrix, quat_to_matrix
 from render.rundir import RunReader
-from terrain.errors import InvalidParameterError, MissingInputError
+from terrain.core.errors import InvalidParameterError, MissingInputError
 
 from .conftest import copy_with_truth
 
@@ -341,9 +341,9 @@ def test_tracking_a_sequence_from_the_gl_renderer(tmp_path):
     import subprocess
     import sys
 
-    from terrain.layers import build_stack, write_stack
-    from terrain.population import Population
-    from terrain.synthetic import synthesize_tile
+    from terrain.craters.population import Population
+    from terrain.fractal.synthetic import synthesize_tile
+    from terrain.stack.layers import build_stack, write_stack
 
     base = synthesize_tile(129, resolution=20.0, relief=300.0, seed=3).tile
     stack = build_stack(base, (1290.0, 1290.0), levels=2, layer_size=129, seed=4,
@@ -377,7 +377,7 @@ start_altitude = 1000.0
 end_altitude = 850.0
 ground_track = [300.0, 100.0]
 """)
-    proc = subprocess.run([sys.executable, "-c", "from terrain.cli import main; main()",
+    proc = subprocess.run([sys.executable, "-c", "from terrain.cli.commands import main; main()",
                            "render", "sequence", str(scenario), "-o", str(tmp_path / "run")],
                           capture_output=True, text=True, check=False)
     if proc.returncode != 0 and "OpenGL" in proc.stderr:

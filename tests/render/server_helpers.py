@@ -14,7 +14,8 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
 #: Starts the command line exactly as the `craterscape` script does.
-CRATERSCAPE = [sys.executable, "-c", "import sys; from terrain.cli import main; sys.exit(main())"]
+CRATERSCAPE = [sys.executable, "-c",
+               "import sys; from terrain.cli.commands import main; sys.exit(main())"]
 
 
 def rss_bytes(pid: int) -> int:

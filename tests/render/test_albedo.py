@@ -11,10 +11,10 @@ from render.mesh_scene import MeshScene
 from render.reflectance import SATO_643NM, hapke
 from render.renderer import Lighting, RenderOptions, View
 from render.terrain_scene import TerrainScene
-from terrain.catalog import CraterCatalog
-from terrain.errors import InvalidParameterError
-from terrain.layers import Layer, LayerStack
-from terrain.tile import DEMTile
+from terrain.core.errors import InvalidParameterError
+from terrain.core.tile import DEMTile
+from terrain.craters.catalog import CraterCatalog
+from terrain.stack.layers import Layer, LayerStack
 
 LIGHT = Lighting((0.3, -0.5, 0.8), albedo=0.2, brdf="lommel-seeliger")
 K = Intrinsics.from_fov(96, 96, 40.0)

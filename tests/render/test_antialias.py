@@ -8,7 +8,7 @@ import pytest
 from render.camera import Intrinsics, look_at
 from render.mesh_scene import MeshScene
 from render.renderer import Lighting, RenderOptions, View
-from terrain.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError
 
 
 def _uv_sphere(n: int = 48) -> tuple[np.ndarray, np.ndarray]:

@@ -22,7 +22,7 @@ def sphere_scene():
 
 @pytest.fixture(scope="module")
 def rocky(tmp_path_factory):
-    from terrain.cli import main
+    from terrain.cli.commands import main
 
     out = tmp_path_factory.mktemp("body") / "rocky.npz"
     r = CliRunner().invoke(main, ["asteroid", "build", "-o", str(out), "--magnitude", "32",

@@ -7,7 +7,7 @@ from hypothesis import strategies as st
 
 from render.camera import Intrinsics, look_at, quat_from_matrix, quat_to_matrix, slerp
 from render.trajectory import approach, descent, keyframes
-from terrain.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError
 
 
 def test_intrinsics_from_field_of_view():

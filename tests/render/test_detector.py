@@ -9,10 +9,10 @@ from render.camera import Intrinsics, look_at
 from render.renderer import Lighting, RenderOptions, View
 from render.sensor import PLANCK, SPEED_OF_LIGHT, Sensor
 from render.terrain_scene import TerrainScene
-from terrain.catalog import CraterCatalog
-from terrain.errors import InvalidParameterError, MissingInputError
-from terrain.layers import Layer, LayerStack
-from terrain.tile import DEMTile
+from terrain.core.errors import InvalidParameterError, MissingInputError
+from terrain.core.tile import DEMTile
+from terrain.craters.catalog import CraterCatalog
+from terrain.stack.layers import Layer, LayerStack
 
 K = Intrinsics.from_fov(128, 128, 20.0)
 

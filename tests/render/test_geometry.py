@@ -6,9 +6,9 @@ from render.camera import Intrinsics, look_at
 from render.mesh_scene import MeshScene
 from render.renderer import Lighting, RenderOptions, View
 from render.terrain_scene import TerrainScene
-from terrain.catalog import CraterCatalog
-from terrain.layers import Layer, LayerStack
-from terrain.tile import DEMTile
+from terrain.core.tile import DEMTile
+from terrain.craters.catalog import CraterCatalog
+from terrain.stack.layers import Layer, LayerStack
 
 LIGHT = Lighting.from_angles(135.0, 40.0, albedo=0.2, brdf="lambert")
 
@@ -115,9 +115,9 @@ def test_range_of_a_sphere_matches_the_analytic_range(renderer):
 
 
 def test_no_background_shows_through_layer_seams(renderer):
-    from terrain.layers import build_stack
-    from terrain.population import Population
-    from terrain.synthetic import synthesize_tile
+    from terrain.craters.population import Population
+    from terrain.fractal.synthetic import synthesize_tile
+    from terrain.stack.layers import build_stack
 
     base = synthesize_tile(65, resolution=64.0, relief=600.0, seed=4).tile
     site = (2080.0, 2080.0)

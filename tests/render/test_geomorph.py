@@ -23,9 +23,9 @@ SITE = (2080.0, 2080.0)
 
 @pytest.fixture(scope="module")
 def scene():
-    from terrain.layers import build_stack
-    from terrain.population import Population
-    from terrain.synthetic import synthesize_tile
+    from terrain.craters.population import Population
+    from terrain.fractal.synthetic import synthesize_tile
+    from terrain.stack.layers import build_stack
 
     base = synthesize_tile(65, resolution=64.0, relief=600.0, seed=4).tile
     stack = build_stack(base, SITE, levels=3, layer_size=33, seed=2,
@@ -216,9 +216,9 @@ def test_the_normal_texture_lies_where_its_pixels_are(renderer):
     """An asymmetric terrain (a hill in the north-east quarter only) shaded from the normal
     texture looks as it does shaded from the vertices: the texture is not flipped or
     shifted."""
-    from terrain.catalog import CraterCatalog
-    from terrain.layers import Layer, LayerStack
-    from terrain.tile import DEMTile
+    from terrain.core.tile import DEMTile
+    from terrain.craters.catalog import CraterCatalog
+    from terrain.stack.layers import Layer, LayerStack
 
     n = 65
     rows, cols = np.mgrid[0:n, 0:n].astype(np.float64)

@@ -12,10 +12,10 @@ from render.camera import Intrinsics, look_at
 from render.reflectance import MCEWEN_MOON, SATO_643NM, Hapke, hapke
 from render.renderer import Lighting, RenderOptions, View
 from render.terrain_scene import TerrainScene
-from terrain.catalog import CraterCatalog
-from terrain.errors import InvalidParameterError
-from terrain.layers import Layer, LayerStack
-from terrain.tile import DEMTile
+from terrain.core.errors import InvalidParameterError
+from terrain.core.tile import DEMTile
+from terrain.craters.catalog import CraterCatalog
+from terrain.stack.layers import Layer, LayerStack
 
 
 def hapke_from_the_papers(i, e, g, w, b, c, bs0, hs, bc0, hc, theta_deg, phi):

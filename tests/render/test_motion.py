@@ -13,10 +13,10 @@ from render.sensor import Sensor
 from render.sequence import render_sample
 from render.terrain_scene import TerrainScene
 from render.trajectory import keyframes
-from terrain.catalog import CraterCatalog
-from terrain.errors import InvalidParameterError
-from terrain.layers import Layer, LayerStack
-from terrain.tile import DEMTile
+from terrain.core.errors import InvalidParameterError
+from terrain.core.tile import DEMTile
+from terrain.craters.catalog import CraterCatalog
+from terrain.stack.layers import Layer, LayerStack
 
 K = Intrinsics.from_fov(128, 128, 60.0)
 H = 100.0

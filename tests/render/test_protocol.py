@@ -84,7 +84,7 @@ def test_error_bodies_carry_one_line_of_at_most_512_bytes(code, reason):
 def test_the_client_refuses_a_bit_depth_the_server_would_not_render_as_asked(bits):
     # GET_IMAGE carries one byte: 8.7 must not go out as 8, nor 300 as a struct error
     from render.client import Client
-    from terrain.errors import InvalidParameterError
+    from terrain.core.errors import InvalidParameterError
 
     with socket.create_server(("127.0.0.1", 0)) as server:
         with Client("127.0.0.1", server.getsockname()[1], timeout=1.0) as c:

@@ -12,7 +12,7 @@ from render.scenario import (
     TrajectorySpec,
     load_scenario,
 )
-from terrain.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError
 
 #: The example files that are scenarios (the others are recipes and populations).
 EXAMPLES = [p for p in sorted((Path(__file__).resolve().parents[2] / "examples").glob("*.toml"))

@@ -33,9 +33,9 @@ def test_every_scene_has_a_reach_that_encloses_what_turns(tmp_path):
     of a body about its centre; a terrain map does not turn and reaches nothing."""
     from asteroid.body import Body
     from asteroid.sphere import SphereMesh
-    from terrain.catalog import CraterCatalog
-    from terrain.layers import Layer, LayerStack
-    from terrain.tile import DEMTile
+    from terrain.core.tile import DEMTile
+    from terrain.craters.catalog import CraterCatalog
+    from terrain.stack.layers import Layer, LayerStack
 
     mesh = SphereMesh(8)
     radii = 100.0 + 20.0 * mesh.directions()[:, 0] ** 2

@@ -12,8 +12,8 @@ from click.testing import CliRunner
 
 from render.scenario import load_scenario, parse_scenario
 from render.scene_build import SceneBuild, ensure_scene, stamp_path
-from terrain.cli import main
-from terrain.errors import InvalidParameterError
+from terrain.cli.commands import main
+from terrain.core.errors import InvalidParameterError
 from terrain.io import read_dem
 
 REPO = Path(__file__).resolve().parents[2]
@@ -176,8 +176,8 @@ def test_the_example_scenarios_build_make_demos_scenes():
 def test_the_example_site_is_the_one_the_demo_chooses(tmp_path):
     """The lunar recipes' site is where the campaign lands on that base (its flattest spot)."""
     from evaluation.slope import horn_slope
-    from terrain.clitools import run_command
-    from terrain.site import landing_site
+    from terrain.cli.tools import run_command
+    from terrain.surface.site import landing_site
 
     recipe = load_scenario(REPO / "examples" / "lunar_descent.toml").scene.build
     assert recipe is not None

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from render.sensor import Sensor
-from terrain.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError
 
 
 def test_exposure_and_bit_depth():

@@ -10,10 +10,10 @@ from render.camera import Intrinsics, look_at
 from render.reflectance import reflectance
 from render.renderer import Lighting, RenderOptions, View
 from render.terrain_scene import TerrainScene
-from terrain.catalog import Crater, CraterCatalog, CraterTable
-from terrain.cratering import CraterModel, add_craters
-from terrain.layers import Layer, LayerStack
-from terrain.tile import DEMTile
+from terrain.core.tile import DEMTile
+from terrain.craters.catalog import Crater, CraterCatalog, CraterTable
+from terrain.craters.cratering import CraterModel, add_craters
+from terrain.stack.layers import Layer, LayerStack
 
 GOLDEN = Path(__file__).with_name("golden")
 UPDATE = os.environ.get("CRATERSCAPE_UPDATE_GOLDEN") == "1"

@@ -1,4 +1,4 @@
-"""Synthetic DEMs on a body carry a CRS (terrain/bodies.py, terrain.io.synthetic_crs), and a
+"""Synthetic DEMs on a body carry a CRS (terrain/core/bodies.py, terrain.io.synthetic_crs), and a
 global DEM reprojects onto a pole (terrain.io.reproject_polar)."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import rasterio
 
+from terrain.core.tile import DEMTile
 from terrain.io import lonlat_to_xy, read_dem, reproject_polar
-from terrain.tile import DEMTile
 from tests.cli_helpers import one_line_error, run
 
 MOON_R = 1737400.0

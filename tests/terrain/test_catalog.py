@@ -9,7 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from terrain.catalog import (
+from terrain.core.errors import InvalidParameterError
+from terrain.core.tile import DEMTile, default_transform
+from terrain.craters.catalog import (
     CATALOG_COLUMNS,
     CATALOG_LAYER_COLUMNS,
     ROCK_COLUMNS,
@@ -17,10 +19,8 @@ from terrain.catalog import (
     CraterTable,
     RockCatalog,
 )
-from terrain.cratering import add_craters
-from terrain.errors import InvalidParameterError
-from terrain.population import Population
-from terrain.tile import DEMTile, default_transform
+from terrain.craters.cratering import add_craters
+from terrain.craters.population import Population
 
 
 def _catalog(n: int, *, layer=None, start: int = 0) -> CraterCatalog:
@@ -180,7 +180,7 @@ def test_explicit_craters_are_catalogued_where_they_were_put():
                               transform=default_transform(1.0, 65))
     table = CraterTable.from_craters([])
     assert len(add_craters(tile, table, seed=1).catalog) == 0
-    from terrain.catalog import Crater
+    from terrain.craters.catalog import Crater
 
     x, y = tile.xy(20, 40)
     one = add_craters(tile, CraterTable.from_craters([Crater(x, y, 8.0, 0.0, 7)]), seed=1)
@@ -194,7 +194,7 @@ def test_explicit_craters_are_catalogued_where_they_were_put():
 @pytest.fixture(scope="module")
 def rocky():
     """A real rock field: 0.25 m pixels, Golombek-Rapp rocks from 0.5 m."""
-    from terrain.rocks import RockModel, add_rocks
+    from terrain.surface.rocks import RockModel, add_rocks
 
     tile = DEMTile.from_array(np.zeros((129, 129), np.float32),
                               transform=default_transform(0.25, 129))

@@ -18,7 +18,12 @@ import numpy as np
 import pytest
 import rasterio
 
-from terrain.chunked import (
+from terrain.core.errors import OutputPathError
+from terrain.core.tile import DEMTile
+from terrain.core.zarrstore import ZarrDEM
+from terrain.craters.cratering import add_craters
+from terrain.craters.population import Population
+from terrain.execution.chunked import (
     CraterSource,
     ExpandSource,
     FillSource,
@@ -28,15 +33,10 @@ from terrain.chunked import (
     open_reader,
     run,
 )
-from terrain.cratering import add_craters
-from terrain.errors import OutputPathError
-from terrain.expand import expand
-from terrain.gapfill import fill_gaps
+from terrain.fractal.expand import expand
+from terrain.fractal.gapfill import fill_gaps
+from terrain.fractal.synthetic import synthesize_tile
 from terrain.io import raster_layout, read_dem, write_cog, write_dem
-from terrain.population import Population
-from terrain.synthetic import synthesize_tile
-from terrain.tile import DEMTile
-from terrain.zarrstore import ZarrDEM
 from tests.cli_helpers import one_line_error
 from tests.cli_helpers import run as cli
 

@@ -11,15 +11,15 @@ import numpy as np
 import pytest
 import rasterio
 
-from terrain.chunked import dask_client, open_reader
-from terrain.chunkedlayers import build_stack_chunked
+from terrain.core.tile import DEMTile
+from terrain.core.zarrstore import ZarrDEM
+from terrain.craters.population import Population
+from terrain.execution.chunked import dask_client, open_reader
+from terrain.fractal.synthetic import synthesize_tile
 from terrain.io import read_dem, write_dem
-from terrain.layers import INCOMPLETE, build_stack, read_stack, write_stack
-from terrain.population import Population
-from terrain.rocks import RockModel
-from terrain.synthetic import synthesize_tile
-from terrain.tile import DEMTile
-from terrain.zarrstore import ZarrDEM
+from terrain.stack.chunkedlayers import build_stack_chunked
+from terrain.stack.layers import INCOMPLETE, build_stack, read_stack, write_stack
+from terrain.surface.rocks import RockModel
 from tests.cli_helpers import one_line_error
 from tests.cli_helpers import run as cli
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import rasterio
 
+from terrain.core.tile import DEMTile
 from terrain.io import read_dem, write_dem
-from terrain.tile import DEMTile
 from tests.cli_helpers import one_line_error, run
 
 
@@ -50,7 +50,7 @@ def test_synth_window_equals_the_window_of_the_full_run(tmp_path):
     assert r.exit_code == 0, r.output
     full, win = read_dem(tmp_path / "full.tif"), read_dem(tmp_path / "win.tif")
     assert np.array_equal(win.heights, full.heights[20:50, 10:60])
-    assert win.transform == full.window(__import__("terrain.tile").tile.Window(10, 20, 50, 30)
+    assert win.transform == full.window(__import__("terrain.core.tile").tile.Window(10, 20, 50, 30)
                                         ).transform
 
 
@@ -269,7 +269,7 @@ def test_fill_command_with_crater_gaps_and_despike(tmp_path):
 
 
 def read_dem_like_hole(tmp_path):
-    from terrain.synthetic import synthesize_tile
+    from terrain.fractal.synthetic import synthesize_tile
 
     t = synthesize_tile(65, resolution=1.0, relief=3.0, seed=1).tile
     h = t.heights.copy()
@@ -290,8 +290,8 @@ def test_add_crater_makes_complex_craters_and_takes_the_transition(tmp_path):
     """A 40 km crater through the CLI is Pike-deep; raising the transition makes it simple."""
     import csv
 
+    from terrain.core.tile import DEMTile
     from terrain.io import read_dem, write_dem
-    from terrain.tile import DEMTile
 
     flat = tmp_path / "flat.tif"
     write_dem(DEMTile.from_array(np.zeros((301, 301), np.float32), resolution=400.0), flat)

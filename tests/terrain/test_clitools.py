@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from terrain.clitools import FINITE, PAIR, TRIPLE, ImageSizeType, progress_bar
+from terrain.cli.tools import FINITE, PAIR, TRIPLE, ImageSizeType, progress_bar
 
 finite = st.floats(allow_nan=False, allow_infinity=False)
 

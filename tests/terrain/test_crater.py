@@ -5,8 +5,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from terrain.catalog import Crater, CraterTable
-from terrain.crater import (
+from terrain.core.tile import DEMTile
+from terrain.craters.catalog import Crater, CraterTable
+from terrain.craters.crater import (
     BETA_MAX,
     CraterShape,
     ejecta_amplitude,
@@ -16,9 +17,8 @@ from terrain.crater import (
     interior_alpha,
     profile,
 )
-from terrain.cratering import CraterModel, add_craters
-from terrain.erosion import ErosionModel, SlopeDegradation
-from terrain.tile import DEMTile
+from terrain.craters.cratering import CraterModel, add_craters
+from terrain.craters.erosion import ErosionModel, SlopeDegradation
 
 EPS = 1e-6
 
@@ -187,7 +187,7 @@ def test_crater_on_flat_and_tilted_planes_matches_the_profile(age, tilt):
     cx, cy = 40.3, 39.7
     crater = CraterTable.from_craters([Crater(cx, cy, d, age, 9)])
     out = add_craters(tile, crater, seed=1, model=CraterModel().smooth())
-    # a crater on the tilted plane ages faster (terrain.erosion.SlopeDegradation)
+    # a crater on the tilted plane ages faster (terrain.craters.erosion.SlopeDegradation)
     qd, qr = ErosionModel.default().factors(
         SlopeDegradation().effective_age(age, np.arctan(np.hypot(*tilt))), d)
     s = CraterShape.from_state(d, float(qd), float(qr))
@@ -250,7 +250,7 @@ def test_craters_sit_on_other_craters():
 
 def test_no_step_at_the_rim_on_rough_ground():
     """The bowl (built on the smoothed rim level) meets the ejecta (on the real terrain)."""
-    from terrain.synthetic import synthesize_tile
+    from terrain.fractal.synthetic import synthesize_tile
 
     base = synthesize_tile(129, resolution=1.0, relief=40.0, seed=6).tile
     crater = Crater(64.5, 64.5, 70.0, 0.3, 4)
@@ -362,7 +362,7 @@ def test_peak_ring_replaces_the_central_peak_at_basin_sizes():
 
 
 def test_transition_diameter_decides_the_morphology():
-    from terrain.crater import Morphology
+    from terrain.craters.crater import Morphology
 
     assert not CraterShape.from_state(14_000.0).is_complex
     assert CraterShape.from_state(16_000.0).is_complex

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from terrain.catalog import Crater, CraterTable
-from terrain.cratering import CraterModel, add_craters
-from terrain.population import Population
-from terrain.synthetic import synthesize_tile
-from terrain.tile import DEMTile, Window
+from terrain.core.tile import DEMTile, Window
+from terrain.craters.catalog import Crater, CraterTable
+from terrain.craters.cratering import CraterModel, add_craters
+from terrain.craters.population import Population
+from terrain.fractal.synthetic import synthesize_tile
 
 POP = Population(dmin=3.0, dmax=90.0, density=4000.0, max_age=1.0)
 

@@ -5,8 +5,8 @@ import io
 import numpy as np
 import pytest
 
-from terrain.erosion import ErosionModel
-from terrain.errors import InvalidParameterError, MissingInputError
+from terrain.core.errors import InvalidParameterError, MissingInputError
+from terrain.craters.erosion import ErosionModel
 
 
 def test_default_profile_is_fresh_at_age_zero_and_rim_decays_faster():
@@ -74,7 +74,7 @@ def test_missing_profile_file(tmp_path):
 
 def test_slope_rate_is_the_mean_linearised_creep_diffusivity():
     """m(S) against a finite-difference linearisation of q(S) = S / (1 - (S/Sc)^2)."""
-    from terrain.erosion import SlopeDegradation
+    from terrain.craters.erosion import SlopeDegradation
 
     deg = SlopeDegradation(critical_slope_deg=35.0)
     sc = np.tan(np.radians(35.0))

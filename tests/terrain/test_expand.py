@@ -6,10 +6,10 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy import ndimage, stats
 
-from terrain.expand import expand, expanded_shape
-from terrain.hillshade import horn_gradient
-from terrain.roughness import ExpansionParameters, estimate, local_amplitude
-from terrain.tile import DEMTile, Window
+from terrain.core.tile import DEMTile, Window
+from terrain.fractal.expand import expand, expanded_shape
+from terrain.fractal.roughness import ExpansionParameters, estimate, local_amplitude
+from terrain.surface.hillshade import horn_gradient
 
 RNG_BASE = np.random.default_rng(7).normal(size=(40, 33)).cumsum(0).cumsum(1)
 
@@ -123,8 +123,13 @@ def test_displacements_are_the_fbm_prediction_errors(hurst):
 @pytest.mark.parametrize("hurst", [0.3, 0.8])
 def test_cascade_excess_is_what_an_rmd_tile_measures(hurst):
     """k(h): square residual of a synthesized tile over the fBm its displacements assume."""
-    from terrain.rmd import prediction_variance, synthesize
-    from terrain.roughness import CASCADE_EXCESS, CASCADE_HURST, SQUARE_STENCIL, square_residual
+    from terrain.fractal.rmd import prediction_variance, synthesize
+    from terrain.fractal.roughness import (
+        CASCADE_EXCESS,
+        CASCADE_HURST,
+        SQUARE_STENCIL,
+        square_residual,
+    )
 
     z = synthesize(513, fractal_dimension=3 - hurst, relief=1.0, seed=77)
     corner2 = 1.0 - 2.0 ** (2 * hurst - 2)  # corner variance at relief 1 (eq. 15)
@@ -149,7 +154,7 @@ def test_local_roughness_map_is_exact_for_any_subregion():
 
 
 def test_bad_requests():
-    from terrain.errors import InvalidParameterError
+    from terrain.core.errors import InvalidParameterError
 
     with pytest.raises(InvalidParameterError, match="times"):
         expand(base_tile(), 0)
@@ -216,7 +221,8 @@ def test_expansion_continues_real_lunar_roughness(shared_file):
         print(f"  {name:9s} power at wavelengths "
               + " ".join(f"{1 / kk:6.1f}m:{pp:9.3g}" for kk, pp in zip(k[::3], p[::3],
                                                                         strict=True)))
-    # the fBm-faithful cascade (terrain.rmd) continues this DEM's roughness less well than the
+    # the fBm-faithful cascade (terrain.fractal.rmd) continues this DEM's roughness less well than
+    # the
     # paper's mean predictor did (0.035 then, 0.072 now, bicubic 0.089): real polar terrain
     # is smoother at metre scales than the fBm its 8.6 m residuals imply; the fBm-exact
     # corrections of issue 15 (kriging at level 1, correlated displacements) do not change

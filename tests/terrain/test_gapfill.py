@@ -4,12 +4,18 @@ import numpy as np
 import pytest
 from scipy import ndimage, stats
 
-from terrain.catalog import Crater, CraterTable
-from terrain.errors import InvalidDEMError
-from terrain.gapfill import denoise, despike, estimate_roughness, fill_crater_gaps, fill_gaps
-from terrain.hillshade import horn_gradient
-from terrain.synthetic import synthesize_tile
-from terrain.tile import DEMTile
+from terrain.core.errors import InvalidDEMError
+from terrain.core.tile import DEMTile
+from terrain.craters.catalog import Crater, CraterTable
+from terrain.fractal.gapfill import (
+    denoise,
+    despike,
+    estimate_roughness,
+    fill_crater_gaps,
+    fill_gaps,
+)
+from terrain.fractal.synthetic import synthesize_tile
+from terrain.surface.hillshade import horn_gradient
 
 
 def holes(shape):
@@ -34,7 +40,7 @@ def roughness_ratio(fill_heights, truth_heights, hole, s=2):
     """Small-scale roughness inside the hole, filled over truth.
 
     Roughness: RMS of a pixel minus the mean of its diagonal neighbours at distance s (the
-    square residual of :mod:`terrain.roughness`; s = 2 steps over the pixel-scale
+    square residual of :mod:`terrain.fractal.roughness`; s = 2 steps over the pixel-scale
     checkerboard noise of the shape-from-shading DEM).
     """
     inner = ndimage.binary_erosion(hole, iterations=s + 1)
@@ -88,7 +94,7 @@ def _compare_fills(truth, transform, res):
 
 
 def test_fill_matches_a_known_fbm_surface_where_idw_is_too_smooth():
-    from terrain.tile import default_transform
+    from terrain.core.tile import default_transform
 
     from .test_expand import fbm_surface
 
@@ -130,7 +136,7 @@ def test_roughness_estimate_follows_the_terrain():
 
 def test_crater_gaps_are_filled_with_a_crater_that_meets_the_terrain():
     """A real crater whose shadowed interior is missing (the paper's Fig. 7 situation)."""
-    from terrain.cratering import CraterModel, add_craters
+    from terrain.craters.cratering import CraterModel, add_craters
 
     terrain = synthesize_tile(129, resolution=1.0, relief=4.0, seed=2).tile
     x, y = terrain.xy(64, 64)

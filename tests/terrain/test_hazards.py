@@ -7,10 +7,10 @@ import pytest
 import rasterio
 from scipy import ndimage
 
-from terrain.errors import InvalidParameterError
-from terrain.hazards import footprint_offsets, hazard_map
-from terrain.rocks import RockTable, rock_heights
-from terrain.tile import DEMTile
+from terrain.core.errors import InvalidParameterError
+from terrain.core.tile import DEMTile
+from terrain.surface.hazards import footprint_offsets, hazard_map
+from terrain.surface.rocks import RockTable, rock_heights
 from tests.cli_helpers import one_line_error, run
 
 RES = 0.1

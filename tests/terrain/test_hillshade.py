@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import rasterio
 
-from terrain.hillshade import hillshade
+from terrain.fractal.synthetic import synthesize_tile
 from terrain.io import write_dem
-from terrain.synthetic import synthesize_tile
+from terrain.surface.hillshade import hillshade
 
 
 @pytest.mark.parametrize("azimuth, altitude", [(315.0, 45.0), (90.0, 20.0)])
@@ -29,7 +29,7 @@ def test_hillshade_agrees_with_gdaldem(tmp_path, azimuth, altitude):
 
 
 def test_gaps_are_black():
-    from terrain.tile import DEMTile
+    from terrain.core.tile import DEMTile
 
     h = np.zeros((5, 5))
     h[2, 2] = np.nan

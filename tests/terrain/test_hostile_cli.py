@@ -14,9 +14,9 @@ import pytest
 import rasterio
 from affine import Affine
 
+from terrain.fractal.synthetic import synthesize_tile
 from terrain.io import write_dem
-from terrain.layers import INCOMPLETE, MANIFEST
-from terrain.synthetic import synthesize_tile
+from terrain.stack.layers import INCOMPLETE, MANIFEST
 from tests.cli_helpers import file_size_limit, refused, run, snapshot, unwritable_folder
 
 
@@ -209,7 +209,7 @@ def test_memory_checks_respect_ulimit_v():
 
 
 def test_memory_checks_respect_cgroup_limits(tmp_path):
-    from terrain.memory import _cgroup_headroom
+    from terrain.core.memory import _cgroup_headroom
 
     v2 = tmp_path / "v2"
     (v2 / "job").mkdir(parents=True)
@@ -286,7 +286,7 @@ def test_sigterm_during_expand_leaves_no_partial_file(tmp_path, dem):
     write_dem(synthesize_tile(513, resolution=2.0, relief=20.0, seed=1).tile, big)
     before = snapshot(big)
     out = tmp_path / "out.tif"
-    proc = subprocess.Popen([sys.executable, "-c", "from terrain.cli import main; main()",
+    proc = subprocess.Popen([sys.executable, "-c", "from terrain.cli.commands import main; main()",
                              "terrain", "expand", str(big), "--times", "2", "-o", str(out)],
                             stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120

@@ -7,8 +7,8 @@ from affine import Affine
 from rasterio.crs import CRS
 
 from terrain import io
-from terrain.errors import InvalidDEMError, MissingInputError, OutputPathError
-from terrain.tile import DEMTile
+from terrain.core.errors import InvalidDEMError, MissingInputError, OutputPathError
+from terrain.core.tile import DEMTile
 
 MOON_EQC = ('PROJCS["Moon eqc",GEOGCS["Moon",DATUM["Moon",SPHEROID["Moon",1737400,0]],'
             'PRIMEM["Reference",0],UNIT["degree",0.0174532925199433]],'

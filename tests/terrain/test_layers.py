@@ -10,9 +10,11 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from terrain.cratering import CraterModel
-from terrain.errors import InvalidDEMError, InvalidParameterError, MemoryRequestError
-from terrain.layers import (
+from terrain.core.errors import InvalidDEMError, InvalidParameterError, MemoryRequestError
+from terrain.craters.cratering import CraterModel
+from terrain.craters.population import Population
+from terrain.fractal.synthetic import synthesize_tile
+from terrain.stack.layers import (
     MIN_CRATER_PIXELS,
     Layer,
     LayerStack,
@@ -21,8 +23,6 @@ from terrain.layers import (
     replace_crater,
     write_stack,
 )
-from terrain.population import Population
-from terrain.synthetic import synthesize_tile
 
 POP = Population(dmin=1.0, dmax=40000.0, density=1e5, max_age=2.0)
 
@@ -214,7 +214,7 @@ def test_more_levels_than_memory_allows_is_refused(monkeypatch):
 
 @given(st.floats(1e-3, 1e4), st.floats(1e-3, 1e4))
 def test_levels_for_resolution_is_the_fewest_that_reach_the_finest(base, finest):
-    from terrain.layers import MAX_LEVELS, levels_for_resolution
+    from terrain.stack.layers import MAX_LEVELS, levels_for_resolution
 
     try:
         levels = levels_for_resolution(base, finest)

@@ -3,7 +3,7 @@
 import ast
 from pathlib import Path
 
-from terrain import metakeys as mk
+from terrain.core import metakeys as mk
 
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("terrain", "asteroid", "render", "evaluation")

@@ -1,4 +1,4 @@
-"""The output machinery every writer shares (terrain.outputs): guards, atomic files, sets."""
+"""The output machinery every writer shares (terrain.core.outputs): guards, atomic files, sets."""
 
 import json
 import os
@@ -7,8 +7,8 @@ import sys
 
 import pytest
 
-from terrain.errors import OutputPathError
-from terrain.outputs import (
+from terrain.core.errors import OutputPathError
+from terrain.core.outputs import (
     JOURNAL,
     atomic_path,
     check_output_path,

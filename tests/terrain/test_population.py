@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from terrain.errors import InvalidParameterError
-from terrain.population import Population
+from terrain.core.errors import InvalidParameterError
+from terrain.craters.population import Population
 
 EXTENT = (0.0, 0.0, 4000.0, 4000.0)  # 16 km^2
 
@@ -106,7 +106,7 @@ def test_population_file(tmp_path):
 
 
 def test_a_request_too_large_for_memory_is_refused_before_allocating(monkeypatch):
-    from terrain.errors import MemoryRequestError
+    from terrain.core.errors import MemoryRequestError
 
     monkeypatch.setenv("CRATERSCAPE_MEMORY_LIMIT", "10M")
     pop = Population(dmin=1.0, dmax=100.0, density=1e6)

@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from terrain.errors import InvalidParameterError
-from terrain.rmd import initial_scale, scale_factor, synthesize
-from terrain.tile import Window
+from terrain.core.errors import InvalidParameterError
+from terrain.core.tile import Window
+from terrain.fractal.rmd import initial_scale, scale_factor, synthesize
 
 FULL = {}
 
@@ -76,7 +76,7 @@ def test_bad_requests_are_refused(kwargs, message):
 
 
 def test_huge_tiles_are_refused_before_allocating(monkeypatch):
-    from terrain.errors import MemoryRequestError
+    from terrain.core.errors import MemoryRequestError
 
     monkeypatch.setenv("CRATERSCAPE_MEMORY_LIMIT", "64M")
     with pytest.raises(MemoryRequestError, match="needs about"):
@@ -87,7 +87,7 @@ def test_huge_tiles_are_refused_before_allocating(monkeypatch):
 def test_spectral_hurst_exponent_is_the_nominal_one(hurst):
     """The radially averaged power spectrum of a synthesized tile has slope -(2H + 2)."""
     from evaluation.spectrum import fit_hurst, radial_spectrum
-    from terrain.tile import DEMTile
+    from terrain.core.tile import DEMTile
 
     fits = [fit_hurst(radial_spectrum(DEMTile.from_array(
         synthesize(513, fractal_dimension=3 - hurst, relief=100.0, seed=seed)))).hurst

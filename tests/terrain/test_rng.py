@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from terrain import rng
+from terrain.core import rng
 
 MASK = 2**64 - 1
 

@@ -9,10 +9,10 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from terrain.catalog import CraterTable
-from terrain.errors import InvalidParameterError
-from terrain.rocks import RockModel, add_rocks, rock_heights
-from terrain.tile import DEMTile, Window
+from terrain.core.errors import InvalidParameterError
+from terrain.core.tile import DEMTile, Window
+from terrain.craters.catalog import CraterTable
+from terrain.surface.rocks import RockModel, add_rocks, rock_heights
 
 
 def _area_fraction_ratio(model, rocks, area, factors):
@@ -134,7 +134,7 @@ def test_window_equals_the_same_window_of_the_full_run_bitwise():
 def test_rocks_gather_on_fresh_craters_and_fade_with_age():
     model = RockModel.from_spec("golombek:k=0.01,dmin=0.2")
     fresh = CraterTable.from_craters([])
-    from terrain.catalog import Crater
+    from terrain.craters.catalog import Crater
 
     def density(age, on):
         table = CraterTable.from_craters([Crater(50.0, 50.0, 40.0, age)])
@@ -180,8 +180,8 @@ def test_heights_leave_out_rocks_the_tile_cannot_resolve():
 
 
 def test_layer_stack_puts_each_rock_in_every_layer_that_resolves_it(tmp_path):
-    from terrain.layers import build_stack, read_stack, write_stack
-    from terrain.synthetic import synthesize_tile
+    from terrain.fractal.synthetic import synthesize_tile
+    from terrain.stack.layers import build_stack, read_stack, write_stack
 
     base = synthesize_tile(65, resolution=4.0, relief=3.0, seed=2).tile
     site = (130.0, 130.0)
@@ -219,7 +219,7 @@ def test_layer_stack_puts_each_rock_in_every_layer_that_resolves_it(tmp_path):
 
 @functools.lru_cache(maxsize=1)
 def _property_tile():
-    from terrain.synthetic import synthesize_tile
+    from terrain.fractal.synthetic import synthesize_tile
 
     return synthesize_tile(129, resolution=0.05, relief=0.5, seed=6).tile
 
@@ -236,8 +236,8 @@ def test_any_window_equals_the_full_run_bitwise(col, row, w, h, seed):
 
 
 def _rocky_stack(folder):
-    from terrain.layers import build_stack, write_stack
-    from terrain.synthetic import synthesize_tile
+    from terrain.fractal.synthetic import synthesize_tile
+    from terrain.stack.layers import build_stack, write_stack
 
     base = synthesize_tile(65, resolution=4.0, relief=3.0, seed=2).tile
     model = RockModel.from_spec("golombek:k=0.15,dmin=0.25")
@@ -278,7 +278,7 @@ def _resting_misfit(stack, sel):
 
 
 def test_every_rock_rests_on_the_terrain_after_a_crater_replacement(tmp_path):
-    from terrain.layers import read_stack, replace_crater
+    from terrain.stack.layers import read_stack, replace_crater
 
     folder = _rocky_stack(tmp_path / "s")
     before = read_stack(folder)

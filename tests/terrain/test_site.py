@@ -1,13 +1,13 @@
-"""Landing-site and lit-sun choice (terrain/site.py) on DEMs whose answer is known."""
+"""Landing-site and lit-sun choice (terrain/surface/site.py) on DEMs whose answer is known."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from terrain.errors import InvalidParameterError
-from terrain.site import landing_site, lit_sun_azimuth
-from terrain.tile import DEMTile
+from terrain.core.errors import InvalidParameterError
+from terrain.core.tile import DEMTile
+from terrain.surface.site import landing_site, lit_sun_azimuth
 
 
 def _slope_deg(tile: DEMTile) -> np.ndarray:

@@ -14,7 +14,9 @@ import time
 import numpy as np
 import pytest
 
-from terrain.layers import (
+from terrain.craters.population import Population
+from terrain.fractal.synthetic import synthesize_tile
+from terrain.stack.layers import (
     LOCK,
     MANIFEST,
     READERS_LOCK,
@@ -23,8 +25,6 @@ from terrain.layers import (
     replace_crater,
     write_stack,
 )
-from terrain.population import Population
-from terrain.synthetic import synthesize_tile
 
 KILLS = 24
 

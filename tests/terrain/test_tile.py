@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from affine import Affine
 
-from terrain.errors import InvalidDEMError, InvalidParameterError
-from terrain.tile import DEMTile, Window
+from terrain.core.errors import InvalidDEMError, InvalidParameterError
+from terrain.core.tile import DEMTile, Window
 
 
 def test_nan_heights_become_invalid_and_tiles_are_immutable():

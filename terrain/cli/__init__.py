@@ -1,0 +1,1 @@
+"""The ``craterscape`` command: its root, error policy, option types and ``terrain`` group."""

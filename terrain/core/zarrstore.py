@@ -1,0 +1,267 @@
+"""Chunked DEM stores in Zarr: georeferenced, written chunk by chunk, resumable.
+
+A store is a Zarr (format 2) group holding one float32 array ``height`` whose chunks are the
+work units of a chunked run (:mod:`terrain.execution.chunked`). Its attributes carry what a
+GeoTIFF's
+header would: the GDAL geotransform, the CRS as WKT, the nodata value and craterscape's
+provenance tags, plus the run's plan (what is being computed, so a resumed run can refuse a
+store that was started with other parameters) and whether every chunk is written.
+
+Every chunk is written exactly once by the task that computes it, into its own region only;
+the task then writes a completion marker (``chunks/ROW_COL.npz``, renamed into place
+atomically, holding the chunk's crater catalogue rows). A run that stops part way leaves the
+markers of the chunks that were fully written, and the next run skips exactly those: a chunk
+without a marker is computed and written again from scratch, so a torn write is never kept.
+
+``_ARRAY_DIMENSIONS`` is set (``["y", "x"]``), so xarray opens the store too.
+
+Examples
+--------
+>>> import tempfile, pathlib
+>>> from affine import Affine
+>>> d = pathlib.Path(tempfile.mkdtemp()) / "dem.zarr"
+>>> s = ZarrDEM.create(d, (5, 7), 4, transform=Affine(2, 0, 0, 0, -2, 10), crs=None,
+...                    nodata=float("nan"), metadata={}, plan={"what": "doc"})
+>>> s.write_chunk(0, 1, np.ones((4, 3), np.float32))
+>>> s.done_chunks()
+{(0, 1)}
+>>> float(s.read(Window(4, 0, 3, 2))[0][0, 0])
+1.0
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+from affine import Affine
+
+from terrain.core.errors import InvalidDEMError, MissingInputError, OutputPathError
+from terrain.core.tile import Window
+
+__all__ = ["ARRAY_NAME", "ZarrDEM", "is_zarr"]
+
+log = logging.getLogger(__name__)
+
+#: Name of the height array inside the store's group.
+ARRAY_NAME = "height"
+#: Folder (inside the store) of the per-chunk completion markers.
+MARKERS = "chunks"
+#: Attribute holding craterscape's own description of the store.
+ATTR = "craterscape"
+
+
+def is_zarr(path) -> bool:
+    """Whether ``path`` names a Zarr store (an existing one, or a new name ending in .zarr)."""
+    path = Path(path)
+    if path.is_dir():
+        return (path / ".zgroup").exists() or (path / "zarr.json").exists()
+    return path.suffix.lower() == ".zarr"
+
+
+def _zarr():
+    import zarr  # local: only chunked runs need it
+
+    return zarr
+
+
+_ARRAYS: dict = {}
+
+
+def _array(path: Path, mode: str):
+    """Return the store's height array, opened once per process and mode.
+
+    Opening costs a few milliseconds of metadata reads, as much as writing a small chunk.
+    """
+    key = (str(path), mode)
+    array = _ARRAYS.get(key)
+    if array is None:
+        array = _zarr().open_array(str(path / ARRAY_NAME), mode=mode)
+        if len(_ARRAYS) > 64:
+            _ARRAYS.clear()
+        _ARRAYS[key] = array
+    return array
+
+
+class ZarrDEM:
+    """A georeferenced float32 DEM in a Zarr store, with per-chunk completion markers.
+
+    Parameters
+    ----------
+    path : str or Path
+        The store's folder.
+
+    Attributes
+    ----------
+    shape : (nrows, ncols)
+    chunk : int
+        Chunk side in pixels (the last row and column of chunks may be smaller).
+    transform : affine.Affine
+        North-up pixel-corner to map transform (metres).
+    crs : str or None
+        WKT.
+    nodata : float
+        Value stored in unknown pixels (NaN or a finite number).
+    metadata : dict of str to str
+        Provenance tags (the GeoTIFF tags of the same DEM written in one piece).
+    plan : dict
+        What the store holds (command and parameters); resumed runs must match it.
+    complete : bool
+        Whether every chunk has been written.
+    """
+
+    def __init__(self, path):
+        path = Path(path)
+        if not path.exists():
+            raise MissingInputError(f"Zarr store '{path}' does not exist")
+        zarr = _zarr()
+        try:
+            group = zarr.open_group(str(path), mode="r")
+            attrs = dict(group.attrs).get(ATTR)
+            array = group[ARRAY_NAME]
+        except Exception as exc:  # zarr raises many types for a foreign or broken store
+            raise InvalidDEMError(f"'{path}' is not a craterscape Zarr DEM "
+                                  f"({type(exc).__name__}: {exc})") from exc
+        if not isinstance(attrs, dict):
+            raise InvalidDEMError(f"'{path}' is a Zarr store without craterscape's "
+                                  "georeferencing attributes")
+        self.path = path
+        self.shape = tuple(int(v) for v in array.shape)
+        self.chunk = int(array.chunks[0])
+        self.transform = Affine.from_gdal(*attrs["geotransform"])
+        self.crs = attrs.get("crs")
+        self.nodata = float(attrs["nodata"]) if attrs.get("nodata") is not None else float("nan")
+        self.metadata = {str(k): str(v) for k, v in attrs.get("metadata", {}).items()}
+        self.plan = attrs.get("plan", {})
+        self.complete = bool(attrs.get("complete", False))
+
+    # --- creation -----------------------------------------------------------------------
+    @classmethod
+    def create(cls, path, shape, chunk: int, *, transform: Affine, crs: str | None,
+               nodata: float, metadata: dict, plan: dict) -> ZarrDEM:
+        """Create an empty store (no chunk written yet)."""
+        path = Path(path)
+        parent = path.parent if str(path.parent) else Path(".")
+        if not parent.is_dir():
+            raise OutputPathError(f"output folder '{parent}' does not exist")
+        if path.exists():
+            raise OutputPathError(f"output '{path}' already exists")
+        zarr = _zarr()
+        ny, nx = (int(v) for v in shape)
+        for mode in ("r", "r+"):  # a store made again at a path read before is a new store
+            _ARRAYS.pop((str(path), mode), None)
+        group = zarr.open_group(str(path), mode="w-", zarr_format=2)
+        fill = float(nodata) if np.isfinite(nodata) else float("nan")
+        array = group.create_array(ARRAY_NAME, shape=(ny, nx), chunks=(chunk, chunk),
+                                   dtype="float32", fill_value=fill)
+        array.attrs["_ARRAY_DIMENSIONS"] = ["y", "x"]
+        group.attrs[ATTR] = dict(
+            geotransform=list(transform.to_gdal()), crs=crs,
+            nodata=None if not np.isfinite(nodata) else float(nodata),
+            metadata={str(k): str(v) for k, v in metadata.items()}, plan=plan, complete=False)
+        (path / MARKERS).mkdir()
+        log.info("created Zarr store %s (%d x %d, chunks %d)", path, nx, ny, chunk)
+        return cls(path)
+
+    def mark_complete(self) -> None:
+        """Record that every chunk is written (readers refuse an incomplete store)."""
+        zarr = _zarr()
+        group = zarr.open_group(str(self.path), mode="r+")
+        attrs = dict(group.attrs[ATTR])
+        attrs["complete"] = True
+        group.attrs[ATTR] = attrs
+        self.complete = True
+
+    # --- geometry -----------------------------------------------------------------------
+    @property
+    def grid(self) -> tuple[int, int]:
+        """Number of chunks along (rows, columns)."""
+        return (-(-self.shape[0] // self.chunk), -(-self.shape[1] // self.chunk))
+
+    def chunk_window(self, i: int, j: int) -> Window:
+        """Pixels of chunk (i, j)."""
+        r0, c0 = i * self.chunk, j * self.chunk
+        return Window(c0, r0, min(self.chunk, self.shape[1] - c0),
+                      min(self.chunk, self.shape[0] - r0))
+
+    @property
+    def resolution(self) -> float:
+        """The pixel spacing in metres (square pixels)."""
+        return float(self.transform.a)
+
+    # --- chunks -------------------------------------------------------------------------
+    def _marker(self, i: int, j: int) -> Path:
+        return self.path / MARKERS / f"{i}_{j}.npz"
+
+    def is_done(self, i: int, j: int) -> bool:
+        """Whether chunk (i, j)'s completion marker exists."""
+        return self._marker(i, j).exists()
+
+    def done_chunks(self) -> set[tuple[int, int]]:
+        """Chunks whose completion marker exists."""
+        done = set()
+        for p in (self.path / MARKERS).glob("*.npz"):
+            with contextlib.suppress(ValueError):
+                i, j = (int(v) for v in p.stem.split("_"))
+                done.add((i, j))
+        return done
+
+    def write_chunk(self, i: int, j: int, heights: np.ndarray, catalog: dict | None = None):
+        """Write chunk (i, j) (float32, NaN unknown), then its completion marker.
+
+        Unknown pixels are stored as the nodata value. Only the chunk's own region is
+        touched, so chunks can be written in parallel from any process.
+        """
+        w = self.chunk_window(i, j)
+        heights = np.asarray(heights, dtype=np.float32)
+        if heights.shape != (w.height, w.width):
+            raise InvalidDEMError(f"chunk {i},{j} must be {w.height}x{w.width}; "
+                                  f"got {heights.shape}")
+        if np.isfinite(self.nodata):
+            heights = np.where(np.isnan(heights), np.float32(self.nodata), heights)
+        _array(self.path, "r+")[w.row:w.row + w.height, w.col:w.col + w.width] = heights
+        marker = self._marker(i, j)
+        fd, tmp = tempfile.mkstemp(prefix=f".{marker.stem}.", suffix=".partial",
+                                   dir=marker.parent)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                np.savez(f, **(catalog or {}))
+            os.replace(tmp, marker)
+        finally:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(tmp)
+
+    def chunk_catalog(self, i: int, j: int) -> dict:
+        """Return the crater catalogue rows stored with chunk (i, j)'s marker."""
+        with np.load(self._marker(i, j)) as f:
+            return {k: f[k] for k in f.files}
+
+    # --- reading ------------------------------------------------------------------------
+    def read(self, window: Window | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Heights (float32, NaN unknown) and valid mask of a window (default: everything)."""
+        window = window or Window(0, 0, self.shape[1], self.shape[0])
+        window.check_inside(*self.shape)
+        rs, cs = window.slices
+        h = np.asarray(_array(self.path, "r")[rs, cs], dtype=np.float32)
+        valid = np.isfinite(h)
+        if np.isfinite(self.nodata):
+            valid &= h != np.float32(self.nodata)
+        h = np.where(valid, h, np.float32(np.nan)).astype(np.float32)
+        return h, valid
+
+    def check_complete(self) -> None:
+        """Raise unless every chunk is written."""
+        if not self.complete:
+            ny, nx = self.grid
+            raise InvalidDEMError(
+                f"Zarr DEM '{self.path}' is incomplete ({len(self.done_chunks())} of "
+                f"{ny * nx} chunks written); rerun the command that made it to resume")
+
+    def describe_plan(self) -> str:
+        """Return the plan as canonical JSON (to compare with a resumed run's)."""
+        return json.dumps(self.plan, sort_keys=True)

@@ -1,0 +1,1 @@
+"""Craters: the profile kernels, degradation, roughness overlays, populations and catalogues."""

@@ -1,0 +1,1 @@
+"""Chunked execution on Dask: synthesis, craters, expansion and filling chunk by chunk."""

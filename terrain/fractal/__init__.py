@@ -1,0 +1,1 @@
+"""Fractal terrain: random midpoint displacement, roughness, expansion, gap filling, synthesis."""

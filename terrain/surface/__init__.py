@@ -1,0 +1,1 @@
+"""Surface products: rocks, landing hazards, site choice and hillshade."""
