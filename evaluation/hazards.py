@@ -28,6 +28,10 @@ __all__ = ["descent_layers", "hazards_file_section", "rock_sfd", "rock_sfd_figur
            "site_section"]
 
 
+#: Relative tolerance of the SFD grid's diameters against the catalogue's (a few ulps).
+GRID_SLACK = 1e-12
+
+
 def rock_sfd(catalog: RockCatalog, extent, min_diameter: float, *, points: int = 24) -> dict:
     """Cumulative fractional area and number of the rocks centred in ``extent``.
 
@@ -51,7 +55,9 @@ def rock_sfd(catalog: RockCatalog, extent, min_diameter: float, *, points: int =
     top = d[0] if d.size else min_diameter * 2
     grid = np.geomspace(min_diameter, max(top, min_diameter * 1.01), points)
     cum_area = np.cumsum(np.pi * d**2 / 4)
-    idx = np.searchsorted(-d, -grid, side="right")  # rocks with diameter >= grid
+    # rocks with diameter >= grid; the relative slack keeps a rock whose diameter equals a grid
+    # point counted when geomspace rounds that point up by an ulp
+    idx = np.searchsorted(-d, -grid * (1.0 - GRID_SLACK), side="right")
     frac = np.where(idx > 0, cum_area[np.maximum(idx - 1, 0)], 0.0) / area
     return dict(diameter_m=grid, fractional_area=frac, number_per_m2=idx / area,
                 rocks=int(d.size), area_m2=float(area))
