@@ -70,11 +70,10 @@ def reject_unknown(keys, known, what: str, noun: str = "key") -> None:
 
     Examples
     --------
-    >>> reject_unknown({"dmin": 1, "densty": 2}, ["dmin", "density"], "population")
+    >>> reject_unknown({"dmin": 1, "dnsty": 2}, ["dmin", "density"], "rocks")
     Traceback (most recent call last):
     ...
-    terrain.core.errors.InvalidParameterError: unknown population key 'densty' (did you mean
-    'density'?)
+    terrain.core.errors.InvalidParameterError: unknown rocks key 'dnsty' (did you mean 'density'?)
     """
     import difflib
 
