@@ -120,8 +120,11 @@ def run(spec: Spec, inputs: str | PathLike | Sequence[str | PathLike] | None,
     work = stages.get(type(spec))
     if work is None:
         raise InvalidParameterError(f"run takes a terrain stage spec; got {type(spec).__name__}")
-    paths = [Path(p) for p in ([] if inputs is None else [inputs]
-                               if isinstance(inputs, (str, PathLike)) else inputs)]
+    if inputs is None:
+        inputs = []
+    elif isinstance(inputs, (str, PathLike)):
+        inputs = [inputs]
+    paths = [Path(p) for p in inputs]
     if len(paths) != (0 if isinstance(spec, specs.SynthSpec) else 1):
         wanted = "no" if isinstance(spec, specs.SynthSpec) else "one"
         raise InvalidParameterError(f"terrain {spec.STAGE} takes {wanted} input; got {paths}")
