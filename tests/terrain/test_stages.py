@@ -165,18 +165,16 @@ def test_spec_tables_are_closed_and_typed(spec, table, fragment):
 
 
 def test_a_spec_is_frozen_and_its_fields_are_the_commands_options():
-    from terrain.cli.root import main
-    from terrain.cli.tools import command
+    from terrain.cli.commands import terrain
 
     spec = specs.SynthSpec.from_mapping({"size": 33})
     with pytest.raises(dataclasses.FrozenInstanceError):
         spec.size = 65
     where = {"output", "catalog", "workers", "threads", "scheduler", "chunk", "cog", "help"}
     for name, cls, *_ in COMMANDS:
-        options = {o[2:].replace("-", "_") for p in command("terrain", name).params
+        options = {o[2:].replace("-", "_") for p in terrain.commands[name].params
                    for o in getattr(p, "opts", ()) if o.startswith("--")}
         assert options - where == {f.name for f in dataclasses.fields(cls)}, name
-    assert main.name == "main"
 
 
 # ---------------------------------------------------------------- defaults a newcomer expects
