@@ -218,29 +218,40 @@ def load_thresholds(path=None) -> dict:
 class Check:
     """One measured value against one threshold.
 
-    ``passed`` is None when the value could not be measured (``note`` says why).
+    ``passed`` is None when the value could not be measured (``note`` says why). A check
+    that does not apply to the input (``applicable`` False: no catalogue, not a body) and an
+    ``informational`` one (tracker performance) are shown but never decide the verdict.
     """
 
     section: str
     name: str
     value: float | None
-    limit: float
+    limit: float | None
     relation: str  # "<=" or ">="
     unit: str = ""
     note: str = ""
+    applicable: bool = True
+    informational: bool = False
 
     @property
     def passed(self) -> bool | None:
         """Whether the value keeps to the limit; None when it was not measured."""
-        if self.value is None or not math.isfinite(self.value):
+        if (not self.applicable or self.value is None or self.limit is None
+                or not math.isfinite(self.value)):
             return None
         return self.value <= self.limit if self.relation == "<=" else self.value >= self.limit
+
+    @property
+    def decides(self) -> bool:
+        """Whether the check takes part in the verdict."""
+        return self.applicable and not self.informational
 
     def as_dict(self) -> dict:
         """Return the check as plain data for the report's JSON (with ``passed``)."""
         return dict(section=self.section, name=self.name, value=self.value, limit=self.limit,
                     relation=self.relation, unit=self.unit, passed=self.passed,
-                    note=self.note)
+                    note=self.note, applicable=self.applicable,
+                    informational=self.informational)
 
 
 @dataclass(frozen=True, eq=False)
@@ -320,9 +331,9 @@ class Report:
         """The report's verdict: ``"fail"``, ``"incomplete"`` or ``"pass"``.
 
         ``"fail"`` if a check failed, else ``"incomplete"`` if one was not measured (or there
-        are none), else ``"pass"``.
+        are none), else ``"pass"``; checks not applicable and informational ones are left out.
         """
-        results = [c.passed for c in self.checks]
+        results = [c.passed for c in self.checks if c.decides]
         if any(r is False for r in results):
             return "fail"
         if not results or any(r is None for r in results):
@@ -353,7 +364,7 @@ def _keyed(sec: Section, key: str) -> Section:
     sec.figures = [Figure(f"{key}-{f.id}", f.title, f.png, f.data, f.caption)
                    for f in sec.figures]
     sec.checks = [Check(f"{c.section} {key}", c.name, c.value, c.limit, c.relation, c.unit,
-                        c.note) for c in sec.checks]
+                        c.note, c.applicable, c.informational) for c in sec.checks]
     return sec
 
 
@@ -853,6 +864,10 @@ def render_html(report: Report) -> str:
     rows = []
     for c in report.checks:
         state = {True: "pass", False: "fail", None: "not measured"}[c.passed]
+        if not c.applicable:
+            state = "not applicable"
+        elif c.informational and c.passed is not None:
+            state += " (informational)"
         rows.append((c, state))
     if rows:
         head = "".join(f"<th>{h}</th>" for h in ("section", "check", "value", "threshold",
@@ -860,10 +875,12 @@ def render_html(report: Report) -> str:
         body = []
         for c, state in rows:
             cls = {"pass": "pass", "fail": "fail"}.get(state, "na")
+            if c.informational and c.applicable:
+                cls = "na"
             body.append(
                 f"<tr><td>{e(c.section)}</td><td>{e(c.name)}</td><td>{e(fmt(c.value))}"
                 f"{(' ' + e(c.unit)) if c.unit else ''}</td><td>{e(c.relation)} "
-                f"{e(fmt(c.limit))}</td><td class=\"{cls}\">{e(state)}</td>"
+                f"{e(fmt(c.limit)) if c.limit is not None else ''}</td><td class=\"{cls}\">{e(state)}</td>"
                 f"<td>{e(c.note)}</td></tr>")
         parts.append(f"<table><caption>Checks</caption><tr>{head}</tr>{''.join(body)}"
                      "</table>")
@@ -882,8 +899,9 @@ def render_html(report: Report) -> str:
             parts.append(f'<figure id="fig-{e(f.id)}"{thumb}><img alt="{e(f.title)}" '
                          f'src="{uri}">'
                          f"<figcaption>{cap}</figcaption></figure>")
-    parts.append("<h2>Thresholds</h2><pre>" + e(thresholds_toml(report.thresholds))
-                 + "</pre>")
+    if report.thresholds:
+        parts.append("<h2>Thresholds</h2><pre>" + e(thresholds_toml(report.thresholds))
+                     + "</pre>")
     parts.append("</body></html>")
     return "\n".join(parts)
 
