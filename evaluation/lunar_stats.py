@@ -102,7 +102,7 @@ class TerrainLaw:
     Examples
     --------
     >>> law = TERRAINS["highlands"]
-    >>> round(law.median_slope_deg(17.0), 2), round(law.hurst_at(100.0), 2)
+    >>> round(float(law.median_slope_deg(17.0)), 2), round(law.hurst_at(100.0), 2)
     (7.5, 0.95)
     """
 
@@ -122,7 +122,7 @@ class TerrainLaw:
         return small * (np.maximum(b, self.break_m) / self.break_m) ** (self.hurst_large - 1.0)
 
     def hurst_at(self, baseline_m: float) -> float:
-        """The law's Hurst exponent at a baseline (metres)."""
+        """Return the law's Hurst exponent at a baseline (metres)."""
         return self.hurst if baseline_m <= self.break_m else self.hurst_large
 
     def as_dict(self) -> dict:

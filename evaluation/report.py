@@ -877,10 +877,11 @@ def render_html(report: Report) -> str:
             cls = {"pass": "pass", "fail": "fail"}.get(state, "na")
             if c.informational and c.applicable:
                 cls = "na"
+            limit = e(fmt(c.limit)) if c.limit is not None else ""
             body.append(
                 f"<tr><td>{e(c.section)}</td><td>{e(c.name)}</td><td>{e(fmt(c.value))}"
                 f"{(' ' + e(c.unit)) if c.unit else ''}</td><td>{e(c.relation)} "
-                f"{e(fmt(c.limit)) if c.limit is not None else ''}</td><td class=\"{cls}\">{e(state)}</td>"
+                f"{limit}</td><td class=\"{cls}\">{e(state)}</td>"
                 f"<td>{e(c.note)}</td></tr>")
         parts.append(f"<table><caption>Checks</caption><tr>{head}</tr>{''.join(body)}"
                      "</table>")

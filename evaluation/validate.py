@@ -143,7 +143,8 @@ def period2_ratio(tile: DEMTile) -> float:
 
     Examples
     --------
-    >>> z = np.add.outer(np.zeros(32), np.arange(32.0)) + 0.5 * (np.arange(32) % 2)[:, None]
+    >>> ramp = 0.1 * np.add.outer(np.arange(32.0), np.arange(32.0))
+    >>> z = ramp + 0.5 * (np.arange(32) % 2)[:, None]  # odd rows raised by 0.5 m
     >>> period2_ratio(DEMTile.from_array(z)) > 1
     True
     """
@@ -189,9 +190,9 @@ def slope_curve(tile: DEMTile, *, label: str = "", max_lag: int | None = None) -
 
     Examples
     --------
-    >>> ramp = DEMTile.from_array(np.add.outer(np.zeros(64), np.arange(64.0)))
-    >>> [round(float(v), 1) for v in slope_curve(ramp).median_deg]  # x: 45 deg, y: flat
-    [22.5, 22.5, 22.5, 22.5, 22.5]
+    >>> g = 0.5 * np.arange(64.0)  # rising 0.5 m per metre along both axes
+    >>> [round(float(v), 1) for v in slope_curve(DEMTile.from_array(np.add.outer(g, g))).median_deg]
+    [26.6, 26.6, 26.6, 26.6, 26.6]
     """
     z = _heights(tile)
     top = max(1, min(z.shape) // 4) if max_lag is None else int(max_lag)
@@ -409,7 +410,7 @@ def _steep_check(share: float, label: str, resolution: float) -> Result:
 
 
 def body_checks() -> list[Result]:
-    """The small-body checks, not applicable to a DEM."""
+    """Return the small-body checks, not applicable to a DEM."""
     why = "a DEM, not a body: give a shape model to `craterscape evaluation report --mesh`"
     return [not_applicable(REALISM, "boulder SFD index vs Ryugu, Bennu, Itokawa, Eros", why,
                            ls.BODY_BOULDER_INDEX),
@@ -436,7 +437,7 @@ class Validation:
                              and r.group != COMPARISON for r in self.results) else "pass"
 
     def failures(self) -> list[Result]:
-        """The failed checks that decide the verdict."""
+        """Return the failed checks that decide the verdict."""
         return [r for r in self.results if r.status == "fail" and not r.informational
                 and r.group != COMPARISON]
 
@@ -568,13 +569,8 @@ def _crater_checks(stack) -> tuple[list, dict]:
     base = stack.tiles[0]
     ext = layer_bounds(base.shape, base.transform)
     dmin = MIN_CRATER_PX * base.resolution
-    on_base = cat.layer == 0
     ds = np.geomspace(dmin, max(dmin * 1.01, float(cat.diameter_m.max())), 12)
-    from terrain.craters.catalog import CraterCatalog
-
-    sub = CraterCatalog(**{k: getattr(cat, k)[on_base] for k in cat.columns()}) \
-        if hasattr(cat, "columns") else cat
-    n = crater_density(sub, ext, ds)
+    n = crater_density(cat, ext, ds)
     eq = np.array([ls.equilibrium_density(d) for d in ds])
     ratio = n / eq
     data["crater_sfd"] = dict(diameter_m=ds, n_per_m2=n, equilibrium_per_m2=eq)

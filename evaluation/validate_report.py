@@ -221,10 +221,10 @@ def run_validation(path, terrain: str, output, *, reference=None, band: int = 1,
     """
     from pathlib import Path
 
+    from evaluation.report import write_report
     from evaluation.validate import compare_reference, validate_dem, validate_stack
     from terrain.core.outputs import transaction
     from terrain.io import check_output_path
-    from evaluation.report import write_report
 
     ls.terrain_law(terrain)  # refuse a bad name before any work
     srcs = [Path(path)] + ([Path(reference)] if reference else [])
