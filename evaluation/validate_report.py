@@ -249,3 +249,62 @@ def run_validation(path, terrain: str, output, *, reference=None, band: int = 1,
     with transaction():
         html_path, json_path = write_report(rep, output, inputs=srcs)
     return v, html_path, json_path
+
+
+#: Truth round trip through consecutive frames: the truth is exact to float32 range
+#: precision, so anything above a tenth of a pixel is a broken truth, not a hard scene.
+MAX_TRUTH_ROUND_TRIP_PX = 0.1
+#: One step of tracking (median px): the tracking acceptance figure applied to one step,
+#: where a tracker's drift has not accumulated and what is left is how frames change.
+MAX_ONE_STEP_PX = 0.5
+
+
+def regroup_campaign_checks(sections, facts: dict) -> None:
+    """Sort a campaign report's checks into realism, renderer consistency and tracker groups.
+
+    Tracking against truth over whole tracks measures the tracker's drift and outliers, not
+    the renderer or the terrain: those checks become informational. Frame-to-frame
+    consistency, the layers drawn against the GSD, the one-step tracking error and the
+    truth round trip judge the renderer; the comparisons of single layers with real DEMs of
+    other places are side by side (informational), and realism is decided by
+    :func:`evaluation.validate.validate_stack`'s checks. Sections are changed in place.
+
+    Parameters
+    ----------
+    sections : list of evaluation.report.Section
+    facts : dict
+        The campaign's facts (``tracking_lunar`` and ``tracking_asteroid`` with
+        ``one_step_median_px`` and ``truth_round_trip_px``).
+    """
+    from dataclasses import replace
+
+    from evaluation.validate import COMPARISON, REALISM, RENDERER
+
+    for sec in sections:
+        out = []
+        run = ""
+        for c in sec.checks:
+            where = c.section.split(" ")[0]
+            if where == "tracking":
+                run = c.section[len("tracking "):]
+                c = replace(c, section=f"{TRACKER}: {c.section[len('tracking '):]}".rstrip(": "),
+                            informational=True)
+            elif where in ("consistency", "site"):
+                c = replace(c, section=f"{RENDERER}: {c.section}")
+            elif where == "dem":
+                c = replace(c, section=f"{COMPARISON}: {c.section}", informational=True)
+            elif where == "asteroid":
+                c = replace(c, section=f"{REALISM}: {c.section}")
+            out.append(c)
+        sec.checks = out
+        if run:
+            name = "lunar" if "lunar" in run else "asteroid" if "asteroid" in run else run
+            f = facts.get(f"tracking_{name}", {})
+            one, trip = f.get("one_step_median_px"), f.get("truth_round_trip_px")
+            sec.checks.append(Check(f"{RENDERER}: {run}", "one-step tracking error (median)",
+                                    one, MAX_ONE_STEP_PX, "<=", "px",
+                                    "" if one is not None else "no truth"))
+            sec.checks.append(Check(f"{RENDERER}: {run}",
+                                    "truth round trip through consecutive frames (median)",
+                                    trip, MAX_TRUTH_ROUND_TRIP_PX, "<=", "px",
+                                    "" if trip is not None else "no truth"))

@@ -13,9 +13,9 @@ import json
 
 import numpy as np
 import pytest
-from scipy import ndimage
 
 from evaluation import lunar_stats as ls
+from evaluation.counterexamples import fresh_crater_field, smoothed_8x
 from evaluation.spectrum import fractional_brownian_surface
 from evaluation.validate import (
     compare_reference,
@@ -39,42 +39,6 @@ REAL = {  # file -> terrain type
     "aristarchus_IMP_quickmap_hsr_4p76m.tif": "maria",
     "aristarchus_CP_quickmap_hsr_26p5m.tif": "highlands",
 }
-
-
-def smoothed_8x(tile: DEMTile) -> DEMTile:
-    """The DEM decimated 8x and brought back to its spacing by bicubic interpolation."""
-    z = tile.heights
-    big = ndimage.zoom(z[::8, ::8], 8, order=3)[:z.shape[0], :z.shape[1]]
-    return DEMTile.from_array(big, resolution=tile.resolution)
-
-
-def fresh_crater_field(size: int = 256, resolution: float = 1.0, seed: int = 0) -> DEMTile:
-    """Fresh simple craters of 15-60 m laid over each other until walls cover everything.
-
-    Each new crater replaces what was inside its rim by its fresh bowl (Melosh's depth and
-    rim height, :mod:`terrain.craters.crater`) and adds its rim and ejecta outside: a surface
-    saturated by fresh craters that no erosion has touched.
-    """
-    rng = np.random.default_rng(seed)
-    z = np.zeros((size, size))
-    yy, xx = np.mgrid[0:size, 0:size] * resolution
-    for _ in range(size * size // 200):
-        d = rng.uniform(15.0, 60.0)
-        cx, cy = rng.uniform(0.0, size * resolution, 2)
-        x = 2.0 * np.hypot(xx - cx, yy - cy) / d - 1.0
-        near = x <= 1.0
-        rim = (x > 0.9) & near
-        level = z[rim].mean() if rim.any() else 0.0
-        p = profile(x[near], CraterShape.from_state(d))
-        inside = x[near] <= 0.0
-        new = z[near] + p
-        new[inside] = level + p[inside]
-        z[near] = new
-    return DEMTile.from_array(z, resolution=resolution)
-
-
-def _failed(v):
-    return {r.name for r in v.failures()}
 
 
 # ----------------------------------------------------------------------- real DEMs pass
@@ -240,3 +204,31 @@ def test_cli_writes_html_and_json_and_refuses_a_bad_terrain(tmp_path):
     assert "<img" in out.read_text() and "Rosenburg" in out.read_text()
     one_line_error(run("evaluation", "validate", dem, "--terrain", "mars", "-o", out),
                    "mars")
+
+
+def test_campaign_checks_are_grouped_and_tracker_drift_never_decides_the_verdict():
+    from evaluation.report import Check, Report, Section
+    from evaluation.validate_report import regroup_campaign_checks
+
+    tracking = Section("tracking", "t", checks=[
+        Check("tracking lunar descent", "median tracking error", 3.0, 0.5, "<="),
+        Check("tracking lunar descent", "outlier fraction (> 2 px)", 0.4, 0.05, "<=")])
+    consistency = Section("consistency", "c", checks=[
+        Check("consistency lunar descent", "largest per-frame residual over the median", 1.2,
+              1.5, "<=")])
+    dem = Section("dem", "d", checks=[Check("dem lunar layers", "KS distance", 0.3, 0.1, "<=")])
+    facts = {"tracking_lunar": dict(one_step_median_px=0.2, truth_round_trip_px=0.001)}
+    sections = [tracking, consistency, dem]
+    regroup_campaign_checks(sections, facts)
+    rep = Report("r", sections, {})
+    assert rep.verdict == "pass"  # drift, outliers and a side-by-side KS are information
+    by_name = {c.name: c for c in rep.checks}
+    assert by_name["median tracking error"].informational
+    assert by_name["median tracking error"].section.startswith("tracker performance")
+    assert by_name["one-step tracking error (median)"].section.startswith("renderer")
+    assert by_name["truth round trip through consecutive frames (median)"].passed
+    facts["tracking_lunar"]["one_step_median_px"] = 0.9  # a renderer that jitters fails
+    sections = [Section("tracking", "t", checks=[
+        Check("tracking lunar descent", "median tracking error", 3.0, 0.5, "<=")])]
+    regroup_campaign_checks(sections, facts)
+    assert Report("r", sections, {}).verdict == "fail"
