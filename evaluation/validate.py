@@ -10,8 +10,8 @@ of every figure out; :mod:`evaluation.validate_report` draws them.
 Estimators that real data cannot fool
 -------------------------------------
 Real DEMs carry artefacts a naive estimator mistakes for terrain. Shape-from-shading DEMs
-can alternate rows (a period-2 pattern: the Malapert SfS DEM's height difference at one
-pixel is 3.7 times that at two), and pushbroom or stereo DEMs stripe along one axis. So:
+can alternate rows (a period-2 pattern: the Malapert SfS DEM's median height difference
+at one pixel is 7 times that at two), and pushbroom or stereo DEMs stripe along one axis. So:
 
 * the structure function is the *median* absolute height difference at a lag (a few
   spikes do not move it), along each map axis separately;
