@@ -58,6 +58,8 @@ REPOSE_DEG = 35.0
 MIN_CRATER_PX = 8.0
 #: Depth/diameter range of the catalogue check (10-100 m craters).
 DD_RANGE_M = (10.0, 100.0)
+#: Most craters measured per layer (an even sample of those that fit).
+MAX_CRATERS_MEASURED = 400
 #: Lower end of a plausible median depth/diameter (Stopar et al. 2017: degraded ~0.05).
 DD_MIN = 0.03
 
@@ -520,15 +522,23 @@ def measured_depths(tile: DEMTile, catalog, dmin: float, dmax: float) -> tuple:
 
     Depth = mean height on the rim annulus (0.9-1.1 radii) minus the lowest height within
     half a radius, for craters wholly inside the tile and at least :data:`MIN_CRATER_PX`
-    pixels across.
+    pixels across (at most :data:`MAX_CRATERS_MEASURED`, evenly sampled).
 
     Returns
     -------
     (diameter_m, depth_m) : (n,) float64 arrays
     """
     r = tile.resolution
-    sel = ((catalog.diameter_m >= dmin) & (catalog.diameter_m <= dmax)
-           & (catalog.diameter_m >= MIN_CRATER_PX * r))
+    xmin, ymin, xmax, ymax = tile.bounds
+    x_all, y_all, d_all = catalog.x_m, catalog.y_m, catalog.diameter_m
+    sel = ((d_all >= dmin) & (d_all <= dmax) & (d_all >= MIN_CRATER_PX * r)
+           & (x_all - 0.55 * d_all >= xmin) & (x_all + 0.55 * d_all <= xmax)
+           & (y_all - 0.55 * d_all >= ymin) & (y_all + 0.55 * d_all <= ymax))
+    idx = np.flatnonzero(sel)
+    if idx.size > MAX_CRATERS_MEASURED:  # an even sample, the same every run
+        idx = idx[np.linspace(0, idx.size - 1, MAX_CRATERS_MEASURED).astype(np.int64)]
+    sel = np.zeros(d_all.shape, bool)
+    sel[idx] = True
     z = _heights(tile)
     ny, nx = z.shape
     out_d, out_h = [], []
