@@ -64,7 +64,7 @@ def main(data: Path) -> None:
         tiles[name] = tile
         v = validate_dem(tile, terrain, label=what)
         rows.append(_row(what, terrain, v))
-        for lb, h in v.hurst:
+        for _lb, h in v.hurst:
             hurst_rows.append(f"| {what} | {h.hurst:.3f} +- {h.uncertainty:.3f} | "
                               f"{h.r_squared:.3f} | {h.band_m[0]:.3g}-{h.band_m[1]:.3g} | "
                               f"{', '.join(f'{x:.2f}' for x in h.per_axis)} | "
