@@ -121,6 +121,8 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     pathlib.Path
         The report.
     """
+    from asteroid.body import load_native
+    from asteroid.build import boulders_of
     from evaluation.compare import compare_dems
     from evaluation.evidence import dem_evidence
     from evaluation.meshslope import Spin, load_body, mesh_slopes
@@ -140,8 +142,8 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
         track,
         truth_round_trip,
     )
-    from evaluation.validate import validate_stack
-    from evaluation.validate_report import regroup_campaign_checks, validation_sections
+    from evaluation.validate import boulder_check, validate_stack
+    from evaluation.validate_report import as_check, regroup_campaign_checks, validation_sections
     from terrain.core.errors import InvalidDEMError, InvalidParameterError
     from terrain.io import read_dem
     from terrain.stack.layers import read_stack
@@ -257,6 +259,9 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     if reference is None:
         sec.notes.append(f"{real.get('eros')} not found: the body is not compared with real "
                          "Eros")
+    boulders = boulders_of(load_native(Path(asteroid_facts["body"])))
+    sec.checks.append(as_check(boulder_check(
+        boulders.catalog["diameter_m"] if boulders is not None else [], label="body: ")))
     sections.append(sec)
     ks = [x for x in sec.checks if x.name.startswith("KS distance")]
     facts["asteroid_ks"] = ks[0].value if ks else None

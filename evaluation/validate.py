@@ -37,7 +37,7 @@ from evaluation import lunar_stats as ls
 from terrain.core.errors import InvalidDEMError, InvalidParameterError
 from terrain.core.tile import DEMTile
 
-__all__ = ["GROUPS", "HurstEstimate", "Result", "SlopeCurve", "Validation", "hurst_estimate",
+__all__ = ["GROUPS", "HurstEstimate", "boulder_check", "boulder_index", "Result", "SlopeCurve", "Validation", "hurst_estimate",
            "not_applicable", "period2_ratio", "slope_curve", "steep_share", "validate_dem",
            "validate_stack"]
 
@@ -409,6 +409,66 @@ def _steep_check(share: float, label: str, resolution: float) -> Result:
                       f"({100 * stat.threshold:g} % allowed): loose regolith does not stand "
                       "there; real terrain has such slopes only on young crater walls and "
                       "central peaks"))
+
+
+#: Fewest boulders the SFD index is fitted from.
+MIN_BOULDERS = 20
+
+
+def boulder_index(diameter_m, dmin: float | None = None) -> tuple[float, float, int]:
+    """Cumulative SFD power-law index of boulders, by maximum likelihood.
+
+    For N(>=D) ~ D^b above ``dmin``, b = -n / sum(ln(D / dmin)) (Clauset et al. 2009, SIAM
+    Rev. 51, 661, eq. 3.1), with standard error |b| / sqrt(n).
+
+    Parameters
+    ----------
+    diameter_m : (n,) float, metres
+    dmin : float, optional
+        Completeness limit (default: the smallest diameter).
+
+    Returns
+    -------
+    (index, stderr, n) : (float, float, int)
+
+    Examples
+    --------
+    >>> d = 2.0 * (1.0 - np.random.default_rng(1).random(4000)) ** (-1 / 3.0)
+    >>> round(boulder_index(d, 2.0)[0], 1)
+    -3.0
+    """
+    d = np.asarray(diameter_m, dtype=np.float64)
+    d = d[np.isfinite(d) & (d > 0)]
+    lo = float(d.min()) if dmin is None and d.size else float(dmin or 0.0)
+    d = d[d >= lo]
+    logs = np.log(d / lo)
+    if d.size < 2 or logs.sum() <= 0:
+        return math.nan, math.nan, int(d.size)
+    b = -d.size / float(logs.sum())
+    return b, abs(b) / math.sqrt(d.size), int(d.size)
+
+
+def boulder_check(diameter_m, *, label: str = "", dmin: float | None = None) -> Result:
+    """Judge a body's boulder SFD index against Ryugu, Bennu, Itokawa and Eros.
+
+    >>> boulder_check([]).status
+    'not applicable'
+    """
+    stat = ls.BODY_BOULDER_INDEX
+    name = f"{label}boulder SFD index vs Ryugu, Bennu, Itokawa, Eros"
+    b, se, n = boulder_index(diameter_m, dmin) if len(diameter_m) else (math.nan, 0.0, 0)
+    if n < MIN_BOULDERS or not math.isfinite(b):
+        return not_applicable(REALISM, name, f"{n} boulders: at least {MIN_BOULDERS} are "
+                              "needed for an index", stat)
+    off = abs(b - stat.value)
+    return _judge(REALISM, f"{name}: {b:.2f} +- {se:.2f} ({n} boulders)", off,
+                  stat.threshold, "<=", stat,
+                  fail_meaning=(f"the index {b:.2f} lies {off:.2f} from {stat.value:g} "
+                                f"(limit {stat.threshold:g}): "
+                                + ("too many large boulders for the small ones"
+                                   if b > stat.value else
+                                   "too few large boulders for the small ones")
+                                + "; no asteroid imaged so far has such a population"))
 
 
 def body_checks() -> list[Result]:

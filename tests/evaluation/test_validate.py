@@ -232,3 +232,21 @@ def test_campaign_checks_are_grouped_and_tracker_drift_never_decides_the_verdict
         Check("tracking lunar descent", "median tracking error", 3.0, 0.5, "<=")])]
     regroup_campaign_checks(sections, facts)
     assert Report("r", sections, {}).verdict == "fail"
+
+
+@pytest.mark.parametrize("index, verdict", [(-2.65, "pass"), (-3.1, "pass"), (-1.6, "fail"),
+                                            (-4.5, "fail")])
+def test_boulder_sfd_index_against_the_imaged_asteroids(index, verdict):
+    """Boulders drawn from N(>=D) ~ D^index above 2 m: Ryugu's and Itokawa's indices pass,
+    a crater-like -1.6 and a far steeper -4.5 fail."""
+    from evaluation.validate import boulder_check, boulder_index
+
+    u = 1.0 - np.random.default_rng(11).random(3000)
+    d = 2.0 * u ** (1.0 / index)
+    b, se, n = boulder_index(d, 2.0)
+    assert n == 3000 and abs(b - index) < 4 * se
+    r = boulder_check(d, dmin=2.0)
+    assert r.status == verdict
+    if verdict == "fail":
+        assert ("too many large" in r.meaning) == (index > -2.9)
+    assert boulder_check(d[:10]).status == "not applicable"
