@@ -142,7 +142,12 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
         track,
         truth_round_trip,
     )
-    from evaluation.validate import boulder_check, validate_stack
+    from evaluation.validate import (
+        body_slope_check,
+        boulder_check,
+        facet_matched_slopes,
+        validate_stack,
+    )
     from evaluation.validate_report import as_check, regroup_campaign_checks, validation_sections
     from terrain.core.errors import InvalidDEMError, InvalidParameterError
     from terrain.io import read_dem
@@ -262,6 +267,11 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     boulders = boulders_of(load_native(Path(asteroid_facts["body"])))
     sec.checks.append(as_check(boulder_check(
         boulders.catalog["diameter_m"] if boulders is not None else [], label="body: ")))
+    if reference is not None:  # slopes rise with facet count: compare at the same count
+        matched = facet_matched_slopes((shape.vertices, shape.faces), (eros.vertices, eros.faces),
+                                       density=density, spin=spin,
+                                       labels=("synthetic body", "433 Eros (Gaskell)"))
+        sec.checks.append(as_check(body_slope_check(*matched, label="body: ")))
     sections.append(sec)
     ks = [x for x in sec.checks if x.name.startswith("KS distance")]
     facts["asteroid_ks"] = ks[0].value if ks else None

@@ -234,12 +234,16 @@ BODY_BOULDER_INDEX = PublishedStat(
     "Itokawa -3.1+-0.1 (Michikami et al. 2008), Eros -3.2 (Thomas et al. 2001)", 0.6,
     "The four bodies span -2.65 to -3.2; the index must lie within 0.6 of -2.9.")
 
-#: Mean gravitational slope against facet count.
+#: Mean gravitational slope against a real shape model at the same facet count.
 MESH_SLOPE_RISE = PublishedStat(
-    "mesh_slope_rise", "mean slope rise per 4x facet count", 0.175, 0.075, "fraction",
-    "shape models resolve more slope at more facets (10-25 % per level)", 0.25,
-    "Compare with a real shape model coarsened to the same facet count, never across "
-    "resolutions.")
+    "mesh_slope_same_facets", "|mean gravitational slope / real model's - 1|, same facets",
+    0.175, 0.075, "fraction",
+    "measured on the shared shape models (Gaskell's Eros and Itokawa, OSIRIS-REx Bennu): mean "
+    "slope rises 7-19 % from ~3k to ~12k facets", 0.25,
+    "Shape models resolve more slope at more facets (10-25 % per 4x), so a body is compared "
+    "with a real one coarsened to the same facet count. At ~12k facets the real bodies' mean "
+    "gravitational slopes are 11.1 (Eros), 12.7 (Itokawa) and 13.7 deg (Bennu), all within "
+    "23 % of Eros: the limit is 25 %.", calibrated=True)
 
 #: KS distance of two real DEMs of the same ground (the side-by-side comparison's limit).
 KS_BETWEEN_REAL_DEMS = PublishedStat(

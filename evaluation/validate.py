@@ -37,7 +37,8 @@ from evaluation import lunar_stats as ls
 from terrain.core.errors import InvalidDEMError, InvalidParameterError
 from terrain.core.tile import DEMTile
 
-__all__ = ["GROUPS", "HurstEstimate", "boulder_check", "boulder_index", "Result", "SlopeCurve", "Validation", "hurst_estimate",
+__all__ = ["GROUPS", "HurstEstimate", "body_slope_check", "boulder_check", "boulder_index",
+           "facet_matched_slopes", "Result", "SlopeCurve", "Validation", "hurst_estimate",
            "not_applicable", "period2_ratio", "slope_curve", "steep_share", "validate_dem",
            "validate_stack"]
 
@@ -469,6 +470,66 @@ def boulder_check(diameter_m, *, label: str = "", dmin: float | None = None) -> 
                                    if b > stat.value else
                                    "too few large boulders for the small ones")
                                 + "; no asteroid imaged so far has such a population"))
+
+
+#: Most facets of the facet-matched slope comparison (gravity cost grows with their square).
+MAX_BODY_FACES = 12288
+
+
+def facet_matched_slopes(body, reference, *, density: float, spin=None,
+                         max_faces: int = MAX_BODY_FACES, labels=("body", "reference")):
+    """Slopes of a body and a real shape model coarsened to the same facet count.
+
+    Parameters
+    ----------
+    body, reference : (vertices, faces)
+        Closed meshes in metres about their centres.
+    density : float, kg m^-3
+    spin : evaluation.meshslope.Spin, optional
+    max_faces : int
+        The common count is the smaller mesh's, at most this.
+    labels : (str, str)
+
+    Returns
+    -------
+    (MeshSlopes, MeshSlopes)
+        Each vertex's own slope (no cap average), so the facet count alone sets the scale.
+    """
+    from evaluation.gravity import coarsen
+    from evaluation.meshslope import mesh_slopes
+
+    n = min(len(body[1]), len(reference[1]), int(max_faces))
+    out = []
+    for (v, f), label in zip((body, reference), labels, strict=True):
+        v, f = coarsen(np.asarray(v, float), np.asarray(f, np.int64), n)
+        out.append(mesh_slopes(v, f, label=label, radius_deg=0.0, density=density, spin=spin))
+    return out[0], out[1]
+
+
+def _mean_slope(ms) -> float:
+    g = ms.slopes("gravitational")
+    ok = np.isfinite(g)
+    return float(np.average(g[ok], weights=ms.vertex_area[ok]))
+
+
+def body_slope_check(body, reference, *, label: str = "") -> Result:
+    """Judge a body's mean gravitational slope against a real shape model's, same facets.
+
+    Parameters
+    ----------
+    body, reference : evaluation.meshslope.MeshSlopes
+        From :func:`facet_matched_slopes`.
+    """
+    stat = ls.MESH_SLOPE_RISE
+    mb, mr = _mean_slope(body), _mean_slope(reference)
+    off = abs(mb / mr - 1.0)
+    return _judge(
+        REALISM, f"{label}mean gravitational slope {mb:.3g} deg vs {reference.label} "
+        f"{mr:.3g} deg at {reference.info['faces']} facets", off, stat.threshold, "<=", stat,
+        unit="fraction",
+        fail_meaning=(f"{100 * off:.3g} % {'steeper' if mb > mr else 'flatter'} than "
+                      f"{reference.label} at the same facet count; real bodies differ by at "
+                      f"most {100 * stat.threshold:g} %"))
 
 
 def body_checks() -> list[Result]:

@@ -266,8 +266,9 @@ def regroup_campaign_checks(sections, facts: dict) -> None:
     the renderer or the terrain: those checks become informational. Frame-to-frame
     consistency, the layers drawn against the GSD, the one-step tracking error and the
     truth round trip judge the renderer; the comparisons of single layers with real DEMs of
-    other places are side by side (informational), and realism is decided by
-    :func:`evaluation.validate.validate_stack`'s checks. Sections are changed in place.
+    other places, and of meshes at different facet counts, are side by side
+    (informational), and realism is decided by :func:`evaluation.validate.validate_stack`'s
+    checks and the facet-matched body checks. Sections are changed in place.
 
     Parameters
     ----------
@@ -291,7 +292,8 @@ def regroup_campaign_checks(sections, facts: dict) -> None:
                             informational=True)
             elif where in ("consistency", "site"):
                 c = replace(c, section=f"{RENDERER}: {c.section}")
-            elif where == "dem":
+            elif where == "dem" or (where == "asteroid" and c.name.startswith("KS distance")):
+                # other places, or meshes of other facet counts: shown side by side
                 c = replace(c, section=f"{COMPARISON}: {c.section}", informational=True)
             elif where == "asteroid":
                 c = replace(c, section=f"{REALISM}: {c.section}")

@@ -250,3 +250,29 @@ def test_boulder_sfd_index_against_the_imaged_asteroids(index, verdict):
     if verdict == "fail":
         assert ("too many large" in r.meaning) == (index > -2.9)
     assert boulder_check(d[:10]).status == "not applicable"
+
+
+@pytest.mark.slow
+def test_real_bodies_agree_at_the_same_facet_count_and_a_smooth_ellipsoid_does_not(shared_file):
+    """Itokawa against Eros, both at Itokawa's 3,000-odd facets of a coarsened copy, passes;
+    Itokawa's vertices pushed onto a smooth ellipsoid fail (no relief, hardly any slope)."""
+    from evaluation.meshslope import Spin, load_body
+    from evaluation.validate import body_slope_check, facet_matched_slopes
+
+    eros = load_body(shared_file("asteroids", "eros_gaskell_q64.obj"), units="km")
+    itokawa = load_body(shared_file("asteroids", "itokawa_gaskell_q32.obj"), units="km")
+    spin = Spin(12.13, (0.0, 0.0, 1.0))
+    body, ref = facet_matched_slopes((itokawa.vertices, itokawa.faces),
+                                     (eros.vertices, eros.faces), density=1900.0, spin=spin,
+                                     max_faces=3072, labels=("Itokawa", "Eros"))
+    assert abs(body.info["faces"] - ref.info["faces"]) < 0.3 * ref.info["faces"]
+    assert body_slope_check(body, ref).status == "pass"
+    v = itokawa.vertices
+    u = v / np.linalg.norm(v, axis=1)[:, None]
+    axes = np.array([270.0, 150.0, 110.0])  # metres, about Itokawa's semi-axes
+    smooth = u / np.sqrt(((u / axes) ** 2).sum(axis=1))[:, None]
+    body, ref = facet_matched_slopes((smooth, itokawa.faces), (eros.vertices, eros.faces),
+                                     density=1900.0, spin=spin, max_faces=3072,
+                                     labels=("ellipsoid", "Eros"))
+    r = body_slope_check(body, ref)
+    assert r.status == "fail" and "flatter" in r.meaning
