@@ -534,7 +534,7 @@ def body_slope_check(body, reference, *, label: str = "") -> Result:
 
 def body_checks() -> list[Result]:
     """Return the small-body checks, not applicable to a DEM."""
-    why = "a DEM, not a body: give a shape model to `craterscape evaluation report --mesh`"
+    why = "a DEM, not a body (the campaign report judges its asteroid by these)"
     return [not_applicable(REALISM, "boulder SFD index vs Ryugu, Bennu, Itokawa, Eros", why,
                            ls.BODY_BOULDER_INDEX),
             not_applicable(REALISM, "gravitational slopes vs a real shape model at the same "
