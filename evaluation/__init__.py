@@ -5,7 +5,9 @@ Slopes and roughness of DEMs (:mod:`evaluation.slope`, :mod:`evaluation.spectrum
 gravity (:mod:`evaluation.meshslope`, :mod:`evaluation.gravity`), Harris feature tracking
 scored against the renderer's truth (:mod:`evaluation.tracking`), and figures and
 self-contained validation reports (:mod:`evaluation.figures`, :mod:`evaluation.report`,
-:mod:`evaluation.cli`).
+:mod:`evaluation.cli`). Whether terrain is lunar at all is judged by published statistics
+(:mod:`evaluation.lunar_stats`, :mod:`evaluation.validate`,
+:mod:`evaluation.validate_report`).
 """
 
 from evaluation.compare import (
@@ -38,6 +40,7 @@ from evaluation.spectrum import (
     radial_spectrum,
 )
 from evaluation.tracking import ScoredTracks, TrackerSettings, Tracks, score, track
+from evaluation.validate import Validation, validate_dem, validate_stack
 
 __all__ = [
     "Comparison",
@@ -53,6 +56,7 @@ __all__ = [
     "Spin",
     "TrackerSettings",
     "Tracks",
+    "Validation",
     "centrifugal",
     "check_same_crs",
     "coarsen",
@@ -76,5 +80,7 @@ __all__ = [
     "slope_distribution",
     "stack_distributions",
     "track",
+    "validate_dem",
+    "validate_stack",
     "write_report",
 ]

@@ -7,6 +7,12 @@ with LOLA's LDEM_4 reprojected onto the south pole (:func:`terrain.io.reproject_
 the landing-site layer with the LROC shape-from-shading DEM; the site's hazard map, its
 rocks and the layers drawn under the descent; the asteroid's slopes against Gaskell's Eros.
 Real data are used where the shared data folder holds them, and their absence is said.
+
+The verdict means realism: the stack is judged layer by layer against published lunar
+statistics (:mod:`evaluation.validate`), and the renderer by its frame-to-frame consistency,
+one-step tracking error, truth round trip and the layers drawn against the GSD; drift and
+outliers of long tracks measure the tracker and are shown as information
+(:func:`evaluation.validate_report.regroup_campaign_checks`).
 """
 
 from __future__ import annotations
@@ -115,6 +121,8 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     pathlib.Path
         The report.
     """
+    from asteroid.body import load_native
+    from asteroid.build import boulders_of
     from evaluation.compare import compare_dems
     from evaluation.evidence import dem_evidence
     from evaluation.meshslope import Spin, load_body, mesh_slopes
@@ -134,6 +142,13 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
         track,
         truth_round_trip,
     )
+    from evaluation.validate import (
+        body_slope_check,
+        boulder_check,
+        facet_matched_slopes,
+        validate_stack,
+    )
+    from evaluation.validate_report import as_check, regroup_campaign_checks, validation_sections
     from terrain.core.errors import InvalidDEMError, InvalidParameterError
     from terrain.io import read_dem
     from terrain.stack.layers import read_stack
@@ -215,6 +230,13 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     sec.notes += notes
     sec.paragraphs.append(DEM_NOTE)
     sections.append(sec)
+    # realism is judged by published lunar statistics, layer by layer (evaluation.validate);
+    # the comparisons with real DEMs of other places above are side by side
+    say("evaluation: terrain realism of every layer (published lunar statistics)")
+    realism = validate_stack(stack, "south-polar", label="lunar layer stack")
+    sections += validation_sections(realism, key="lunar")
+    facts["realism"] = dict(verdict=realism.verdict,
+                            failed=[f"{r.name}: {r.meaning}" for r in realism.failures()])
     facts["dem_comparisons"] = [dict(label=x.label, reference=x.reference_label,
                                      ks=x.ks_distance, resolution_m=x.resolution_m,
                                      median=x.distribution.quantiles["p50"],
@@ -242,6 +264,14 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     if reference is None:
         sec.notes.append(f"{real.get('eros')} not found: the body is not compared with real "
                          "Eros")
+    boulders = boulders_of(load_native(Path(asteroid_facts["body"])))
+    sec.checks.append(as_check(boulder_check(
+        boulders.catalog["diameter_m"] if boulders is not None else [], label="body: ")))
+    if reference is not None:  # slopes rise with facet count: compare at the same count
+        matched = facet_matched_slopes((shape.vertices, shape.faces), (eros.vertices, eros.faces),
+                                       density=density, spin=spin,
+                                       labels=("synthetic body", "433 Eros (Gaskell)"))
+        sec.checks.append(as_check(body_slope_check(*matched, label="body: ")))
     sections.append(sec)
     ks = [x for x in sec.checks if x.name.startswith("KS distance")]
     facts["asteroid_ks"] = ks[0].value if ks else None
@@ -254,6 +284,7 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     # -- campaign overview: timings, gallery, links
     overview = campaign_section(c, out, stage.dir, lunar_facts, asteroid_facts, tracked,
                                 summary_name)
+    regroup_campaign_checks(sections, facts)
     rep = Report(c.title, [overview] + sections, limits,
                  dict(output=str(out), seed=c.seed, quick=c.quick,
                       real_data={k: bool(v) for k, v in have.items()}))

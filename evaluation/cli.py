@@ -14,6 +14,8 @@ They are registered through the ``craterscape.groups`` entry point, so the root 
     craterscape evaluation report [RUN_DIR] -o REPORT.html [--thresholds T.toml]
         [--dem DEM ...] [--reference REF.tif] [--mesh MESH ...] [--reference-mesh MESH]
     craterscape evaluation thresholds          # print the default thresholds (TOML)
+    craterscape evaluation validate DEM_OR_STACK --terrain south-polar|highlands|maria
+        [-o REPORT.html] [--reference REAL_DEM]
 
 Every file is written atomically and never over an input; errors craterscape raises on
 purpose become one line on stderr and exit code 2 (the root group does this; ``-v`` shows the
@@ -576,3 +578,25 @@ def thresholds_cmd():
     from evaluation.report import thresholds_toml
 
     click.echo(thresholds_toml(), nl=False)
+
+
+@evaluation.command("validate")
+@click.argument("dem_or_stack", type=click.Path(exists=True, path_type=Path))
+@click.option("--terrain", required=True,
+              type=click.Choice(["south-polar", "highlands", "maria"]),
+              help="Terrain type whose published statistics the input is judged by.")
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path),
+              default=Path("validation.html"), show_default=True,
+              help="HTML report; the JSON of every figure and check goes beside it.")
+@click.option("--reference", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              default=None, help="A real DEM to compare with side by side.")
+@click.option("--band", type=int, default=1, show_default=True, help="Height band of the DEM.")
+def validate_cmd(dem_or_stack, terrain, output, reference, band):
+    """Judge a DEM or layer stack by published lunar statistics (calibrated checks)."""
+    from evaluation.validate_report import run_validation
+
+    v, html_path, json_path = run_validation(dem_or_stack, terrain, output,
+                                             reference=reference, band=band)
+    fails = v.failures()
+    click.echo(f"wrote {html_path} and {json_path}: verdict {v.verdict}"
+               + "".join(f"\n  FAIL {r.name}: {r.meaning}" for r in fails), err=True)

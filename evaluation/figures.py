@@ -20,9 +20,10 @@ import numpy as np
 
 from terrain.io import atomic_path
 
-__all__ = ["consistency_figure", "error_figure", "png_bytes", "range_thumbnail", "read_png",
-           "save_png", "slope_area_figure", "slope_distribution_figure", "spectrum_figure",
-           "thumbnail", "tracks_figure"]
+__all__ = ["consistency_figure", "crater_sfd_figure", "depth_diameter_figure", "error_figure",
+           "png_bytes", "range_thumbnail", "read_png", "save_png", "slope_area_figure",
+           "slope_baseline_figure", "slope_distribution_figure", "spectrum_figure",
+           "structure_function_figure", "thumbnail", "tracks_figure"]
 
 #: Figure size (inches) and resolution (dots per inch) of every figure.
 FIGSIZE = (7.0, 4.5)
@@ -132,6 +133,100 @@ def spectrum_figure(spectra: Sequence, fits: Sequence | None = None, *,
                                                  lambda w: 1.0 / np.maximum(w, 1e-300)))
     secax.set_xlabel("wavelength (m)")
     ax.set_title(title or "Radially averaged power spectra")
+    return fig
+
+
+def slope_baseline_figure(curves: Sequence, law, band_factor: float, *,
+                          title: str = "") -> object:
+    """Median slope against baseline, 1 cm to 10 km, over a terrain law and its band.
+
+    Parameters
+    ----------
+    curves : sequence of evaluation.validate.SlopeCurve
+        Measured points (one line per DEM or layer).
+    law : evaluation.lunar_stats.TerrainLaw
+        Drawn as a line, with the band ``law / band_factor`` to ``law * band_factor`` shaded.
+    band_factor : float
+    """
+    fig = new_figure()
+    ax = fig.add_subplot()
+    b = np.geomspace(0.01, 1e4, 200)
+    if curves:
+        lo = min(float(np.min(c.baseline_m)) for c in curves if len(c.baseline_m))
+        hi = max(float(np.max(c.baseline_m)) for c in curves if len(c.baseline_m))
+        b = np.geomspace(min(0.01, lo / 2), max(1e4, hi * 2), 200)
+    m = law.median_slope_deg(b)
+    ax.fill_between(b, m / band_factor, np.minimum(m * band_factor, 90.0), color="0.85",
+                    label=f"{law.name} law x/{band_factor:g}")
+    ax.loglog(b, m, color="0.3", lw=1.5, label=f"{law.name}: {law.slope_17m_deg:g} deg at 17 m, "
+              f"H {law.hurst:g}")
+    for c in curves:
+        if len(c.baseline_m):
+            ax.loglog(c.baseline_m, c.median_deg, "o-", ms=3, label=c.label)
+    ax.axvline(17.0, color="0.6", lw=0.8, ls=":")
+    ax.set_xlabel("baseline (m)")
+    ax.set_ylabel("median bidirectional slope (degrees)")
+    ax.grid(True, which="both", alpha=0.3)
+    _legend(fig, ax)
+    ax.set_title(title or "Median slope against baseline")
+    return fig
+
+
+def structure_function_figure(estimates: Sequence, *, title: str = "") -> object:
+    """Median |height difference| against lag, per axis, with the fitted Hurst exponent.
+
+    Parameters
+    ----------
+    estimates : sequence of (label, evaluation.validate.HurstEstimate)
+    """
+    fig = new_figure()
+    ax = fig.add_subplot()
+    for label, e in estimates:
+        lags = np.asarray(e.structure["lags_px"], float)
+        (line,) = ax.loglog(lags * e.band_m[0] / lags[0], e.structure["x"], "o-", ms=3,
+                            label=f"{label}: H {e.hurst:.2f} +- {e.uncertainty:.2f}, "
+                                  f"R$^2$ {e.r_squared:.2f}")
+        ax.loglog(lags * e.band_m[0] / lags[0], e.structure["y"], "s--", ms=3,
+                  color=line.get_color())
+    ax.set_xlabel("lag (m); circles along x, squares along y")
+    ax.set_ylabel("median |height difference| (m)")
+    ax.grid(True, which="both", alpha=0.3)
+    _legend(fig, ax)
+    ax.set_title(title or "Structure functions over the Hurst fit range (even lags)")
+    return fig
+
+
+def depth_diameter_figure(diameter_m, depth_m, *, fresh=0.196, title: str = "") -> object:
+    """Depth against diameter of measured craters, with the fresh-crater line."""
+    fig = new_figure()
+    ax = fig.add_subplot()
+    d = np.asarray(diameter_m, float)
+    ax.loglog(d, np.maximum(np.asarray(depth_m, float), 1e-3), ".", ms=4, label="measured")
+    if d.size:
+        g = np.geomspace(d.min(), d.max(), 20)
+        ax.loglog(g, fresh * g, "k-", label=f"fresh (d/D {fresh:g}, Melosh 1989)")
+        ax.loglog(g, 0.05 * g, "k:", label="degraded (d/D 0.05)")
+    ax.set_xlabel("diameter (m)")
+    ax.set_ylabel("rim-to-floor depth (m)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize="small")
+    ax.set_title(title or "Crater depth against diameter")
+    return fig
+
+
+def crater_sfd_figure(diameter_m, n_per_m2, equilibrium_per_m2, *, title: str = "") -> object:
+    """Cumulative crater density N(>=D) per km^2 against the empirical equilibrium."""
+    fig = new_figure()
+    ax = fig.add_subplot()
+    ax.loglog(diameter_m, np.maximum(np.asarray(n_per_m2) * 1e6, 1e-6), "o-", ms=3,
+              label="measured")
+    ax.loglog(diameter_m, np.asarray(equilibrium_per_m2) * 1e6, "k--",
+              label="equilibrium (Trask 1966)")
+    ax.set_xlabel("diameter D (m)")
+    ax.set_ylabel("N(>=D) per km$^2$")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize="small")
+    ax.set_title(title or "Crater size-frequency against equilibrium")
     return fig
 
 
