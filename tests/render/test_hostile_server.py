@@ -4,6 +4,7 @@ number checked when it arrives, and every failure answered with the code docs/pr
 gives it. A real server on 127.0.0.1, driven by raw sockets and by the Python client."""
 
 import contextlib
+import json
 import math
 import os
 import socket
@@ -18,7 +19,7 @@ from hypothesis import strategies as st
 
 from tests.render.scenes import cratered_stack, descent_scenario
 from tests.render.server_helpers import rss_bytes, served
-from tests.render.test_server import HDR, T_ERROR, T_PING, Raw, error_of, pose_body
+from tests.render.test_server import T_ERROR, Raw, error_of, pose_body
 
 T_SET_POSE, T_SET_SUN, T_SET_SENSOR, T_SET_MOTION = 0x0010, 0x0011, 0x0012, 0x0013
 T_GET_IMAGE, T_GET_RANGE, T_GET_NORMALS = 0x0020, 0x0021, 0x0022
@@ -197,12 +198,9 @@ def _request(kind, draw):
     if kind == "height":
         return T_HEIGHT_AT, struct.pack("<2d", draw(numbers), draw(numbers))
     if kind == "kernel":
-        body = '{"psf_kernel": %s}' % __import__("json").dumps(draw(psf_names))
-        return T_SET_SENSOR, body.encode("utf-8")
+        return T_SET_SENSOR, json.dumps({"psf_kernel": draw(psf_names)}).encode("utf-8")
     key = draw(st.sampled_from(["width", "height", "psf", "psf_sigma", "exposure", "gain",
                                 "bits", "read_noise", "line_time", "noise", "prnu_seed"]))
-    import json
-
     try:
         body = json.dumps({key: draw(sensor_values)})
     except ValueError:
@@ -345,12 +343,12 @@ def test_pinging_or_silent_clients_cannot_hold_the_slots_of_a_tokenless_server(f
 
 @pytest.mark.slow
 def test_replies_nobody_reads_do_not_pile_up_in_the_servers_memory(folder):
-    """Six clients ask for 2896^2 normals (100 MB each) and never read; the server's reply
+    """Six clients ask for 2048^2 normals (50 MB each) and never read; the server's reply
     and frame memory stays within its share of the memory it may use (1 GiB here), and a
     seventh client is served meanwhile."""
     from render.client import Client
 
-    side = 2896
+    side = 2048
     with served(folder / "flat.toml", "--read-timeout", 3,
                 env={"CRATERSCAPE_MEMORY_LIMIT": "1G"}) as (proc, port):
         with Client("127.0.0.1", port, timeout=60.0) as c:
@@ -362,7 +360,7 @@ def test_replies_nobody_reads_do_not_pile_up_in_the_servers_memory(folder):
         for _ in range(6):
             h = Raw(port, timeout=120.0)
             h.s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-            sensor = ('{"width": %d, "height": %d}' % (side, side)).encode()
+            sensor = json.dumps({"width": side, "height": side}).encode()
             assert h.call(T_SET_SENSOR, sensor)[0] == T_SET_SENSOR | 0x8000
             assert h.call(T_SET_POSE, pose_body((sx, sy, 1500.0), NADIR))[0] \
                 == T_SET_POSE | 0x8000
