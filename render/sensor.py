@@ -5,7 +5,9 @@ numbers the way a camera does, each step a ``[sensor]`` key with the unit of a d
 
 1. Point-spread function on the optical image: a sum of Gaussians ``psf = [[weight, sigma
    (pixels)], ...]`` (weights normalised to 1) or a kernel file ``psf_kernel`` (.npy or text,
-   normalised to 1); ``psf_sigma`` is the one-Gaussian shorthand.
+   normalised to 1; a regular file of at most 16 MiB and 1025 pixels a side, opened
+   non-blocking); ``psf_sigma`` is the one-Gaussian shorthand. Every sigma is at most
+   :data:`MAX_PSF_SIGMA` pixels.
 2. Photons to electrons: the in-band radiance ``L = I/F F / pi`` (F: the solar spectral
    irradiance at the body, W m^-2 nm^-1, from the scenario's ``[sun]``) over ``bandwidth``
    (nm) enters an aperture of diameter ``aperture`` (m) from a pixel's solid angle

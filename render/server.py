@@ -116,6 +116,9 @@ REPLY_MEMORY = 512 << 20
 #: Longest time (s) a new connection has to be admitted (HELLO with the token, or its first
 #: request without one); never longer than the read timeout.
 HANDSHAKE_TIMEOUT = 2.0
+#: Floor (s) of the wait for the rest of a first message whose window has run out while the
+#: server was busy (a tenth of it for the first byte, which is then already waiting).
+LATE_READ = 0.5
 #: Pending (not yet admitted) connections allowed per client slot; beyond them the oldest
 #: pending one is dropped for the new one.
 PENDING_PER_CLIENT = 4
@@ -191,15 +194,16 @@ class _Connection:
         try:
             while not srv.stopping.is_set():
                 try:
+                    # a message already waiting is read even when this thread comes late
+                    # (a busy render thread can hold it up): hence the floors
                     if self.admitted:
                         # PING keeps nothing alive: the idle clock runs from the last work
                         first = srv.idle_timeout - (time.monotonic() - self.last_work)
                         rest = srv.read_timeout
                     else:  # the whole first message within the handshake window
                         first = srv.handshake_timeout - (time.monotonic() - self.opened)
-                        rest = first
-                    if first <= 0:
-                        raise TimeoutError("idle")
+                        rest = max(first, LATE_READ)
+                    first = max(first, LATE_READ / 10)
                     _, msg_type, rid, body = read_message(
                         self.sock, MAX_REQUEST_BODY, first_timeout=first, timeout=rest)
                 except ProtocolError as exc:
@@ -231,6 +235,8 @@ class _Connection:
                 self.busy = False
                 if not sent:
                     return
+                if msg_type != MsgType.PING:  # a long render is no idleness
+                    self.last_work = time.monotonic()
                 if rtype == ERROR and int.from_bytes(rbody[:2], "little") in CLOSING:
                     return
         except (ConnectionError, OSError) as exc:
@@ -716,7 +722,7 @@ class RenderServer:
                                 f"{MAX_JSON_DEPTH} levels")
         if not isinstance(settings, dict):
             raise ProtocolError(ErrorCode.MALFORMED, "SET_SENSOR body must be a JSON object")
-        if "psf_kernel" in settings:
+        if settings.get("psf_kernel") is not None:  # null takes the kernel away
             self._check_kernel_name(settings["psf_kernel"])
         k = st.scenario.intrinsics
         w, h = settings.pop("width", k.width), settings.pop("height", k.height)
@@ -755,14 +761,21 @@ class RenderServer:
         folder = None if self.scenario.path is None else self.scenario.path.parent.resolve()
         ok = (folder is not None and isinstance(name, str) and name not in ("", ".", "..")
               and not any(c in name for c in "/\\\0") and Path(name).name == name)
+        missing = False
         if ok:
+            assert folder is not None
             try:
                 p = (folder / name).resolve()
-                ok = p.parent == folder and stat.S_ISREG(os.stat(p).st_mode)
+                ok = p.parent == folder
+                ok = ok and stat.S_ISREG(os.stat(p).st_mode)
             except FileNotFoundError:
-                ok = p.parent == folder  # beside it but missing: the sensor says so
+                missing = ok  # beside the scenario, and not there
+                ok = False
             except (OSError, RuntimeError, ValueError):
                 ok = False
+        if missing:
+            raise ProtocolError(ErrorCode.INVALID_VALUE, f"SET_SENSOR psf_kernel {name!r}: no "
+                                "such file beside the scenario")
         if not ok:
             raise ProtocolError(ErrorCode.INVALID_VALUE,
                                 f"SET_SENSOR psf_kernel must be the name of a regular file "
