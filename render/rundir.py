@@ -201,6 +201,8 @@ class RunWriter:
         from terrain.outputs import sweep_partials
 
         self.dir = Path(run_dir)
+        # what is written must read back: refuse an unknown key before making anything
+        written = check_manifest(dict(manifest, format=FORMAT, version=1), "run manifest")
         self.check(self.dir, resume=resume, manifest=manifest)
         existing = self.dir / "truth.json"
         self.frames: list[dict] = []
@@ -226,7 +228,7 @@ class RunWriter:
                                                     f"{exc}; cannot resume this run") from None
         for sub in ("frames", "range", "normals"):
             (self.dir / sub).mkdir(parents=True, exist_ok=True)
-        self.manifest = dict(manifest, format=FORMAT, version=1)
+        self.manifest = written
         if scenario_file is not None and not (self.dir / "scenario.toml").exists():
             with atomic_path(self.dir / "scenario.toml") as tmp:
                 shutil.copyfile(scenario_file, tmp)
