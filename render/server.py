@@ -492,7 +492,7 @@ class RenderServer:
                     continue
                 need = self._reply_size(conn.state, kind)
                 with self._sent:
-                    if self._queued and self._queued + need > self.reply_memory:
+                    if need and self._queued and self._queued + need > self.reply_memory:
                         # unread replies fill the budget: serve the others first
                         self.work.put((conn, kind, body))
                         self._sent.wait(timeout=0.05)
@@ -710,14 +710,15 @@ class RenderServer:
                                 f"camera at {r:.3f} m from the centre is inside the body")
 
     def _set_sensor(self, st: _State, body: bytes) -> dict:
+        too_deep = False
         try:
             settings = json.loads(body.decode("utf-8"))
         except (UnicodeDecodeError, ValueError) as exc:
             raise ProtocolError(ErrorCode.MALFORMED,
                                 f"SET_SENSOR body is not UTF-8 JSON: {exc}") from None
-        except RecursionError:
-            settings = None  # nested too deeply for the parser: refused below
-        if settings is None or _depth(settings) > MAX_JSON_DEPTH:
+        except RecursionError:  # nested too deeply for the parser itself
+            too_deep = True
+        if too_deep or _depth(settings) > MAX_JSON_DEPTH:
             raise ProtocolError(ErrorCode.MALFORMED, "SET_SENSOR body is nested deeper than "
                                 f"{MAX_JSON_DEPTH} levels")
         if not isinstance(settings, dict):
@@ -870,7 +871,7 @@ def _frame_bytes(frame) -> int:
 
 
 def _depth(obj) -> int:
-    """Nesting depth of parsed JSON (a scalar: 0), counted without recursion."""
+    """Return the nesting depth of parsed JSON (a scalar: 0), counted without recursion."""
     deepest, todo = 0, [(obj, 0)]
     while todo:
         item, d = todo.pop()
