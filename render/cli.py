@@ -116,7 +116,7 @@ def frame(scenario_file: Path, output: Path, index: int | None,
 @click.option("--token", envvar="CRATERSCAPE_TOKEN", default=None,
               help="Shared secret every client must send first (env CRATERSCAPE_TOKEN).")
 @click.option("--idle-timeout", type=click.FloatRange(min=0, min_open=True), default=300.0,
-              show_default=True, help="Close a client silent this long (s).")
+              show_default=True, help="Close a client sending nothing but PING this long (s).")
 @click.option("--read-timeout", type=click.FloatRange(min=0, min_open=True), default=10.0,
               show_default=True, help="Close a client whose message stalls this long (s).")
 @click.option("--max-clients", type=click.IntRange(1, 1024), default=32, show_default=True,

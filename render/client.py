@@ -1,7 +1,9 @@
 """A Python client of the render server (protocol in ``docs/protocol.md``).
 
 One method per request; every error reply raises :class:`~render.errors.ServerError` with the
-server's code and reason, and the connection stays usable unless the code closes it::
+server's code and reason, and the connection stays usable unless the code closes it. A reply
+that breaks the protocol (short, garbled, of the wrong size) raises
+:class:`~render.errors.ProtocolError` with code ``MALFORMED``::
 
     from render.client import Client
 
@@ -15,7 +17,9 @@ server's code and reason, and the connection stays usable unless the code closes
 from __future__ import annotations
 
 import json
+import math
 import socket
+import struct
 from dataclasses import dataclass
 
 import numpy as np
@@ -123,7 +127,7 @@ class Client:
 
     def info(self) -> dict:
         """Return the scene, the site, its bounds, the sun and the sensor (docs/protocol.md)."""
-        return json.loads(self.request(MsgType.INFO))
+        return _json(self.request(MsgType.INFO), "INFO")
 
     def set_pose(self, position, attitude, time: float = 0.0, frame: int = 0) -> None:
         """Place the camera.
@@ -175,8 +179,8 @@ class Client:
 
         Any ``[sensor]`` key, ``width``, ``height`` and ``noise`` may be changed.
         """
-        return json.loads(self.request(MsgType.SET_SENSOR,
-                                       json.dumps(settings).encode("utf-8")))
+        return _json(self.request(MsgType.SET_SENSOR, json.dumps(settings).encode("utf-8")),
+                     "SET_SENSOR")
 
     def get_image(self, bits: int = 0) -> np.ndarray:
         """Return the camera image of the current pose.
@@ -201,7 +205,10 @@ class Client:
             raise InvalidParameterError(
                 f"bits must be an integer, 0 (the sensor's) or 1 to 16; got {bits!r}")
         body = self.request(MsgType.GET_IMAGE, BITS.pack(int(bits)))
-        w, h, b, _ = IMAGE_HEAD.unpack_from(body)
+        w, h, b, _ = _unpack(IMAGE_HEAD, body, "GET_IMAGE", exact=False)
+        if not 1 <= b <= 16:
+            raise ProtocolError(ErrorCode.MALFORMED,
+                                f"GET_IMAGE reply has bit depth {b}; expected 1 to 16")
         dtype = np.dtype("<u1") if b <= 8 else np.dtype("<u2")
         return _array(body[IMAGE_HEAD.size:], dtype, (h, w)).astype(
             np.uint8 if b <= 8 else np.uint16)
@@ -215,7 +222,7 @@ class Client:
             Distance from the camera centre along each pixel's ray; NaN where nothing is hit.
         """
         body = self.request(MsgType.GET_RANGE)
-        w, h = ARRAY_HEAD.unpack_from(body)
+        w, h = _unpack(ARRAY_HEAD, body, "GET_RANGE", exact=False)
         return _array(body[ARRAY_HEAD.size:], np.dtype("<f4"), (h, w)).astype(np.float32)
 
     def get_normals(self) -> np.ndarray:
@@ -227,12 +234,12 @@ class Client:
             World frame; NaN where nothing is hit.
         """
         body = self.request(MsgType.GET_NORMALS)
-        w, h = ARRAY_HEAD.unpack_from(body)
+        w, h = _unpack(ARRAY_HEAD, body, "GET_NORMALS", exact=False)
         return _array(body[ARRAY_HEAD.size:], np.dtype("<f4"), (h, w, 3)).astype(np.float32)
 
     def get_truth(self) -> dict:
         """Return the frame's ground truth (a run's truth.json entry, without file names)."""
-        return json.loads(self.request(MsgType.GET_TRUTH))
+        return _json(self.request(MsgType.GET_TRUTH), "GET_TRUTH")
 
     def height_at(self, x: float, y: float) -> tuple[float, np.ndarray]:
         """Terrain height and normal at a map point (terrain scenes).
@@ -249,12 +256,13 @@ class Client:
         normal : (3,) float64
             Unit surface normal, world frame.
         """
-        h, *n = HEIGHT_REPLY.unpack(self.request(MsgType.HEIGHT_AT, XY.pack(x, y)))
+        h, *n = _unpack(HEIGHT_REPLY, self.request(MsgType.HEIGHT_AT, XY.pack(x, y)),
+                        "HEIGHT_AT")
         return h, np.array(n)
 
     def pixel_ray(self, u: float, v: float) -> RayHit:
         """Return the 3-D point seen through pixel (u, v) of the current pose."""
-        return _hit(self.request(MsgType.PIXEL_RAY, XY.pack(u, v)))
+        return _hit(self.request(MsgType.PIXEL_RAY, XY.pack(u, v)), "PIXEL_RAY")
 
     def ray(self, origin, direction) -> RayHit:
         """Where one ray first meets the surface (a laser altimeter).
@@ -272,17 +280,37 @@ class Client:
             Range (m), point and normal; NaN when the ray meets nothing.
         """
         values = [float(v) for v in origin] + [float(v) for v in direction]
-        return _hit(self.request(MsgType.RAY, RAY.pack(*values)))
+        return _hit(self.request(MsgType.RAY, RAY.pack(*values)), "RAY")
+
+
+def _unpack(layout: struct.Struct, body: bytes, what: str, *, exact: bool = True) -> tuple:
+    """Return the fields of a fixed reply layout (a body of the wrong size: ProtocolError)."""
+    if len(body) != layout.size if exact else len(body) < layout.size:
+        raise ProtocolError(ErrorCode.MALFORMED,
+                            f"{what} reply is {len(body)} bytes; expected "
+                            f"{'' if exact else 'at least '}{layout.size}")
+    return layout.unpack_from(body)
+
+
+def _json(body: bytes, what: str) -> dict:
+    """Return a JSON object reply (anything else: ProtocolError)."""
+    try:
+        value = json.loads(body.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError, RecursionError):
+        value = None
+    if not isinstance(value, dict):
+        raise ProtocolError(ErrorCode.MALFORMED, f"{what} reply is not a UTF-8 JSON object")
+    return value
 
 
 def _array(data: bytes, dtype, shape) -> np.ndarray:
-    n = int(np.prod(shape)) * dtype.itemsize
+    n = math.prod(int(v) for v in shape) * dtype.itemsize
     if len(data) != n:
         raise ProtocolError(ErrorCode.MALFORMED,
                             f"reply holds {len(data)} bytes of pixels; expected {n}")
     return np.frombuffer(data, dtype=dtype).reshape(shape)
 
 
-def _hit(body: bytes) -> RayHit:
-    r, *rest = RAY_REPLY.unpack(body)
+def _hit(body: bytes, what: str) -> RayHit:
+    r, *rest = _unpack(RAY_REPLY, body, what)
     return RayHit(r, np.array(rest[:3]), np.array(rest[3:]))

@@ -31,7 +31,9 @@ rolling-shutter row images the scene (see :mod:`render.motion`). Range and norma
 frame are those at the frame time.
 
 Frames and conventions are those of :mod:`render.camera`. Every file is written atomically,
-so an interrupted run leaves complete frames and a truth file that lists exactly them.
+so an interrupted run leaves complete frames and a truth file that lists exactly them. Reading
+a truth file or a manifest back refuses a key this module does not write, naming it and the
+nearest valid one (``drawn`` and the manifest's ``renderer`` are free-form records).
 """
 
 from __future__ import annotations
@@ -44,12 +46,45 @@ from pathlib import Path
 import numpy as np
 
 from render.camera import Intrinsics, Pose
+from render.records import check_keys
 from terrain.core.errors import InvalidParameterError, MissingInputError
 from terrain.io import atomic_path, read_float_tiff, write_float_tiff, write_png
 
 __all__ = ["FORMAT", "FrameTruth", "RunReader", "RunWriter"]
 
 FORMAT = "craterscape-render-run"
+#: Keys of a truth entry and of its tables (what :meth:`FrameTruth.as_dict` writes).
+TRUTH_KEYS = frozenset({"index", "time", "image", "range", "normals", "camera", "intrinsics",
+                        "sun", "body_rotation", "drawn", "motion", "radiance"})
+TRUTH_TABLE_KEYS = {"camera": frozenset({"position", "attitude"}),
+                    "intrinsics": frozenset({"width", "height", "fx", "fy", "cx", "cy"}),
+                    "sun": frozenset({"direction"}),
+                    "motion": frozenset({"velocity", "angular_velocity",
+                                         "body_angular_velocity", "exposure_time", "line_time",
+                                         "samples"})}
+#: Keys of a run's manifest (what :func:`render.sequence.run_sequence` and :class:`RunWriter`
+#: write), and of its lighting table.
+MANIFEST_KEYS = frozenset({"format", "version", "scenario", "scene", "frames", "resolution",
+                           "seed", "sensor", "lighting", "renderer", "render_seconds",
+                           "frames_rendered_this_run", "frames_written"})
+MANIFEST_LIGHTING_KEYS = frozenset({"sun", "albedo", "reflectance", "hapke", "distance_au",
+                                    "spectral_irradiance"})
+
+
+def check_manifest(manifest, where: str) -> dict:
+    """Return a run manifest read back, or refuse an unknown key naming the nearest valid one.
+
+    >>> check_manifest({"format": FORMAT, "seed": 1}, "manifest.json")["seed"]
+    1
+    """
+    from render.sensor import Sensor
+
+    m = check_keys(manifest, MANIFEST_KEYS, where)
+    if isinstance(m.get("lighting"), dict):
+        check_keys(m["lighting"], MANIFEST_LIGHTING_KEYS, f"{where} lighting")
+    if isinstance(m.get("sensor"), dict):
+        check_keys(m["sensor"], set(Sensor.__dataclass_fields__), f"{where} sensor")
+    return m
 
 
 @dataclass(frozen=True)
@@ -101,8 +136,15 @@ class FrameTruth:
         return self.pose_at(self.row_time(row))
 
     @classmethod
-    def from_dict(cls, d: dict) -> FrameTruth:
-        """Build the frame's truth from what :meth:`as_dict` wrote."""
+    def from_dict(cls, d: dict, where: str = "truth entry") -> FrameTruth:
+        """Build the frame's truth from what :meth:`as_dict` wrote.
+
+        A key it does not write is refused by name (``where`` says which file and entry).
+        """
+        d = check_keys(d, TRUTH_KEYS, where)
+        for key, allowed in TRUTH_TABLE_KEYS.items():
+            if d.get(key) is not None:
+                check_keys(d[key], allowed, f"{where} {key}")
         return cls(int(d["index"]), float(d.get("time", 0.0)),
                    Pose(tuple(d["camera"]["position"]), tuple(d["camera"]["attitude"])),
                    Intrinsics(**d["intrinsics"]), tuple(d["sun"]["direction"]),
@@ -142,10 +184,11 @@ class RunWriter:
             old = json.loads(mpath.read_text(encoding="utf-8"))
             if not isinstance(old, dict) or old.get("format") != FORMAT:
                 raise ValueError
-        except (OSError, ValueError):
+        except (OSError, ValueError, RecursionError):
             raise InvalidParameterError(
                 f"'{run_dir}' is not a craterscape run directory (no run manifest.json); "
                 "--resume continues an interrupted render only") from None
+        check_manifest(old, f"run manifest '{mpath}'")
         if manifest is not None:
             for key in RESUME_KEYS:
                 if key in manifest and old.get(key) != json.loads(json.dumps(manifest[key])):
@@ -158,6 +201,8 @@ class RunWriter:
         from terrain.core.outputs import sweep_partials
 
         self.dir = Path(run_dir)
+        # what is written must read back: refuse an unknown key before making anything
+        written = check_manifest(dict(manifest, format=FORMAT, version=1), "run manifest")
         self.check(self.dir, resume=resume, manifest=manifest)
         existing = self.dir / "truth.json"
         self.frames: list[dict] = []
@@ -168,14 +213,22 @@ class RunWriter:
                     self.frames = json.loads(existing.read_text(encoding="utf-8"))
                     frames_ok = isinstance(self.frames, list) and all(
                         isinstance(f, dict) and "index" in f for f in self.frames)
-                except ValueError:
+                except (ValueError, RecursionError):
                     frames_ok = False
                 if not frames_ok:
                     raise InvalidParameterError(f"truth file '{existing}' is corrupt; cannot "
                                                 "resume this run")
+                for i, f in enumerate(self.frames):
+                    try:
+                        FrameTruth.from_dict(f, f"truth file '{existing}' entry {i}")
+                    except InvalidParameterError:
+                        raise
+                    except (ValueError, KeyError, TypeError) as exc:
+                        raise InvalidParameterError(f"truth file '{existing}' is corrupt: "
+                                                    f"{exc}; cannot resume this run") from None
         for sub in ("frames", "range", "normals"):
             (self.dir / sub).mkdir(parents=True, exist_ok=True)
-        self.manifest = dict(manifest, format=FORMAT, version=1)
+        self.manifest = written
         if scenario_file is not None and not (self.dir / "scenario.toml").exists():
             with atomic_path(self.dir / "scenario.toml") as tmp:
                 shutil.copyfile(scenario_file, tmp)
@@ -230,14 +283,26 @@ class RunReader:
         if not self.dir.is_dir():
             raise MissingInputError(f"run directory '{self.dir}' does not exist")
         mpath = self.dir / "manifest.json"
-        self.manifest = json.loads(mpath.read_text(encoding="utf-8")) if mpath.exists() else {}
+        self.manifest: dict = {}
+        if mpath.exists():
+            try:
+                self.manifest = json.loads(mpath.read_text(encoding="utf-8"))
+            except (ValueError, RecursionError) as exc:
+                raise InvalidParameterError(f"run manifest '{mpath}' is corrupt: {exc}") \
+                    from None
+            check_manifest(self.manifest, f"run manifest '{mpath}'")
         tpath = self.dir / "truth.json"
         self.truth: list[FrameTruth] = []
         if tpath.exists():
             try:
-                self.truth = [FrameTruth.from_dict(d)
-                              for d in json.loads(tpath.read_text(encoding="utf-8"))]
-            except (ValueError, KeyError, TypeError) as exc:
+                entries = json.loads(tpath.read_text(encoding="utf-8"))
+                if not isinstance(entries, list):
+                    raise TypeError("not a list of frames")
+                self.truth = [FrameTruth.from_dict(d, f"truth file '{tpath}' entry {i}")
+                              for i, d in enumerate(entries)]
+            except InvalidParameterError:
+                raise
+            except (ValueError, KeyError, TypeError, RecursionError) as exc:
                 raise InvalidParameterError(f"truth file '{tpath}' is corrupt: {exc}") from None
         if self.truth:
             self.images = [self.dir / t.image for t in self.truth]

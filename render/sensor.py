@@ -5,7 +5,9 @@ numbers the way a camera does, each step a ``[sensor]`` key with the unit of a d
 
 1. Point-spread function on the optical image: a sum of Gaussians ``psf = [[weight, sigma
    (pixels)], ...]`` (weights normalised to 1) or a kernel file ``psf_kernel`` (.npy or text,
-   normalised to 1); ``psf_sigma`` is the one-Gaussian shorthand.
+   normalised to 1; a regular file of at most 16 MiB and 1025 pixels a side, opened
+   non-blocking); ``psf_sigma`` is the one-Gaussian shorthand. Every sigma is at most
+   :data:`MAX_PSF_SIGMA` pixels.
 2. Photons to electrons: the in-band radiance ``L = I/F F / pi`` (F: the solar spectral
    irradiance at the body, W m^-2 nm^-1, from the scenario's ``[sun]``) over ``bandwidth``
    (nm) enters an aperture of diameter ``aperture`` (m) from a pixel's solid angle
@@ -51,7 +53,10 @@ same bytes.
 
 from __future__ import annotations
 
+import io
 import math
+import os
+import stat
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
@@ -72,6 +77,12 @@ PLANCK = 6.62607015e-34
 SPEED_OF_LIGHT = 299_792_458.0
 #: Below this many electrons shot noise is drawn from the exact Poisson distribution.
 POISSON_EXACT_BELOW = 30.0
+#: Widest Gaussian of a point-spread function (pixels): a blur of more than this is no longer
+#: an image, and OpenCV's kernel size (8 sigma + 1) must stay a small integer.
+MAX_PSF_SIGMA = 1000.0
+#: Largest kernel file read (bytes) and kernel side (pixels): a PSF kernel is a small table.
+MAX_KERNEL_BYTES = 16 * 2**20
+MAX_KERNEL_SIDE = 1025
 
 _PHYSICAL = ("exposure_time", "aperture", "f_number", "pixel_pitch", "transmission", "qe",
              "wavelength", "bandwidth", "dark_current", "prnu", "full_well", "bias",
@@ -126,11 +137,13 @@ class Sensor:
             raise InvalidParameterError(f"sensor bits must be an integer in [1, 16]; got "
                                         f"{self.bits!r}")
         object.__setattr__(self, "bits", int(self.bits))
-        for name in ("exposure", "psf_sigma", "gain", "read_noise", "exposure_time", "aperture",
+        for name in ("exposure", "gain", "read_noise", "exposure_time", "aperture",
                      "f_number", "pixel_pitch", "dark_current", "prnu", "full_well", "bias",
                      "line_time", "transfer_time"):
             object.__setattr__(self, name, number(getattr(self, name), name, low=0.0,
                                                   where="sensor"))
+        object.__setattr__(self, "psf_sigma", number(self.psf_sigma, "psf_sigma", low=0.0,
+                                                     high=MAX_PSF_SIGMA, where="sensor"))
         for name in ("transmission", "qe"):
             object.__setattr__(self, name, number(getattr(self, name), name, low=0.0,
                                                   high=1.0, low_open=True, where="sensor"))
@@ -181,7 +194,7 @@ class Sensor:
                 raise InvalidParameterError(
                     f"sensor psf must be a list of [weight, sigma_pixels] pairs; got {term!r}")
             w = number(term[0], "psf weight", low=0.0, low_open=True, where="sensor")
-            s = number(term[1], "psf sigma", low=0.0, where="sensor")
+            s = number(term[1], "psf sigma", low=0.0, high=MAX_PSF_SIGMA, where="sensor")
             psf.append((w, s))
         if self.psf_sigma > 0 and psf:
             raise InvalidParameterError("sensor takes psf_sigma or psf, not both")
@@ -398,16 +411,54 @@ def _poisson_inverse(u: np.ndarray, lam: np.ndarray) -> np.ndarray:
 
 
 def _load_kernel(path: str) -> np.ndarray:
+    """Read a PSF kernel file (.npy, or a text table of numbers), normalised to sum 1.
+
+    Only a regular file is opened (checked before opening, and again on the open file), and
+    opened non-blocking, so a FIFO or a device named as a kernel is refused at once instead
+    of stalling the reader. Errors name the file, never its content.
+    """
     p = Path(path)
-    if not p.exists():
-        raise MissingInputError(f"PSF kernel file '{p}' does not exist")
     try:
-        k = np.load(p) if p.suffix == ".npy" else np.loadtxt(p, delimiter=None)
-    except ValueError as exc:
-        raise InvalidParameterError(f"PSF kernel file '{p}' is not a numeric table: {exc}") \
+        st = os.stat(p)
+    except (OSError, ValueError):
+        raise MissingInputError(f"PSF kernel file '{p}' does not exist") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise InvalidParameterError(f"PSF kernel '{p}' is not a regular file")
+    if st.st_size > MAX_KERNEL_BYTES:
+        raise InvalidParameterError(f"PSF kernel file '{p}' is larger than "
+                                    f"{MAX_KERNEL_BYTES // 2**20} MiB")
+    try:
+        fd = os.open(p, os.O_RDONLY | os.O_NONBLOCK)
+    except OSError as exc:
+        raise MissingInputError(f"cannot read PSF kernel file '{p}': "
+                                f"{exc.strerror or 'unreadable'}") from None
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):  # replaced after the check above
+            raise InvalidParameterError(f"PSF kernel '{p}' is not a regular file")
+        with os.fdopen(fd, "rb", closefd=False) as f:
+            data = f.read(MAX_KERNEL_BYTES + 1)
+    except OSError as exc:
+        raise MissingInputError(f"cannot read PSF kernel file '{p}': "
+                                f"{exc.strerror or 'unreadable'}") from None
+    finally:
+        os.close(fd)
+    if len(data) > MAX_KERNEL_BYTES:
+        raise InvalidParameterError(f"PSF kernel file '{p}' is larger than "
+                                    f"{MAX_KERNEL_BYTES // 2**20} MiB")
+    try:
+        if p.suffix == ".npy":
+            k = np.load(io.BytesIO(data), allow_pickle=False)
+        else:
+            k = np.loadtxt(io.StringIO(data.decode("utf-8")), delimiter=None)
+        k = np.atleast_2d(np.asarray(k, dtype=np.float64))
+    except (ValueError, TypeError, EOFError, OSError):  # their messages quote the content
+        raise InvalidParameterError(
+            f"PSF kernel file '{p}' is not a numeric table (.npy, or rows of numbers)") \
             from None
-    k = np.atleast_2d(np.asarray(k, dtype=np.float64))
     if k.ndim != 2 or not np.all(np.isfinite(k)) or k.sum() <= 0 or k.min() < 0:
         raise InvalidParameterError(
             f"PSF kernel '{p}' must be a 2-D table of finite values >= 0 with a positive sum")
+    if max(k.shape) > MAX_KERNEL_SIDE:
+        raise InvalidParameterError(f"PSF kernel '{p}' is {k.shape[1]}x{k.shape[0]}; at most "
+                                    f"{MAX_KERNEL_SIDE} a side")
     return k / k.sum()

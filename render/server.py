@@ -8,10 +8,23 @@ Threads:
 
 - The thread that calls :meth:`RenderServer.serve` (the main thread under the CLI) owns the
   OpenGL context and does every render, one request at a time.
-- An acceptor thread accepts connections (at most ``max_clients``; the next gets ``BUSY``).
+- An acceptor thread accepts connections. A new connection is pending until it is admitted:
+  by a HELLO with the token on a token server, by its first whole request on a server without
+  one. It must be admitted within the handshake window (:data:`HANDSHAKE_TIMEOUT`, at most
+  the read timeout) or it is closed, and pending connections have a pool of their own
+  (:data:`PENDING_PER_CLIENT` per client slot, the oldest dropped for a new one), so they
+  never take the ``max_clients`` slots of admitted clients. An admitted client that sends no
+  request but PING for the idle timeout is closed: a keep-alive holds no slot forever.
 - One thread per connection reads its messages with a timeout on every read, checks framing
   and authorisation, queues the request, waits for its reply and sends it (with a write
   timeout). A slow, silent or vanished client only ever blocks its own thread.
+
+Memory: replies not yet taken by their clients count against a budget
+(:data:`REPLY_MEMORY`, at most an eighth of the memory the process may use); a request whose
+reply would exceed it waits in the queue (others are served meanwhile) until clients read
+theirs or are closed for not reading. The clients' last frames have a budget of their own
+(:data:`FRAME_CACHE_BYTES`, at most a quarter). A frame size is checked against the largest
+side and the memory it needs when a client sets it.
 
 Fairness: a connection has at most one request in the queue (its thread reads the next only
 after sending the reply), so the FIFO queue serves busy clients round robin.
@@ -30,11 +43,15 @@ import ipaddress
 import json
 import logging
 import math
+import os
 import queue
 import signal
 import socket
+import stat
 import threading
+import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -67,13 +84,14 @@ from render.protocol import (
     pack_header,
     read_message,
 )
+from render.records import number
 from render.renderer import Lighting, Renderer, View
 from render.scenario import Scenario, parse_scenario
 from render.scene import Scene
-from render.sequence import load_scene, render_sample
+from render.sequence import check_frame_memory, load_scene, render_sample
 from render.terrain_scene import TerrainScene
 from render.trajectory import Sample, spin_rotation
-from terrain.core.errors import InvalidParameterError
+from terrain.core.errors import InvalidParameterError, MemoryRequestError, MissingInputError
 
 __all__ = ["RenderServer", "is_loopback"]
 
@@ -89,7 +107,30 @@ MAX_PIXELS = 4096 * 4096
 RAY_FOCAL = 1e5
 #: Bytes of last frames kept for all clients together (radiance, range, normals, image); the
 #: least recently rendered are dropped first and rendered again if asked for (same bytes).
+#: At most a quarter of the memory the server may use (``terrain.core.memory``).
 FRAME_CACHE_BYTES = 1 << 30
+#: Bytes of replies built but not yet taken by their clients, all clients together; at most
+#: an eighth of the memory the server may use. One reply larger than this is still sent when
+#: no other is waiting.
+REPLY_MEMORY = 512 << 20
+#: Longest time (s) a new connection has to be admitted (HELLO with the token, or its first
+#: request without one); never longer than the read timeout.
+HANDSHAKE_TIMEOUT = 2.0
+#: Floor (s) of the wait for the rest of a first message whose window has run out while the
+#: server was busy (a tenth of it for the first byte, which is then already waiting).
+LATE_READ = 0.5
+#: Pending (not yet admitted) connections allowed per client slot; beyond them the oldest
+#: pending one is dropped for the new one.
+PENDING_PER_CLIENT = 4
+#: Latest and earliest scene time a pose may carry (s): a mission clock fits (seconds since
+#: J2000 are below 1e9), and an exposure's sub-frame times stay exact to microseconds.
+MAX_TIME = 1e10
+#: Fastest camera velocity (m/s) and angular velocities (rad/s) of SET_MOTION: far beyond any
+#: spacecraft and any spin, and small enough that an exposure's motion stays finite.
+MAX_SPEED = 1e6
+MAX_RATE = 1e3
+#: Deepest nesting of a SET_SENSOR JSON body (the sensor's deepest value, psf, is 3 deep).
+MAX_JSON_DEPTH = 8
 #: Keys of SET_SENSOR handled by the server itself; the rest belong to the [sensor] table.
 SERVER_SENSOR_KEYS = ("width", "height", "noise")
 #: What ``noise = false`` sets on the sensor: no shot noise, no read noise, no fixed pattern
@@ -136,7 +177,11 @@ class _Connection:
         self.address = address
         self.number = number
         self.replies: queue.Queue = queue.Queue(maxsize=1)
+        self.admitted = False             # holds one of the max_clients slots
         self.authorized = server.token is None
+        self.opened = time.monotonic()
+        self.last_work = self.opened      # last request other than PING (the idle clock)
+        self.reply_bytes = 0              # this client's reply counted in the reply budget
         sc = server.scenario
         self.state = _State(sc, sc.lighting, dict(sc.raw.get("sensor", {})))
         self.thread = threading.Thread(target=self.run, name=f"client-{number}", daemon=True)
@@ -149,26 +194,49 @@ class _Connection:
         try:
             while not srv.stopping.is_set():
                 try:
-                    # a client that has not yet shown the token gets no idle allowance
-                    idle = srv.idle_timeout if self.authorized else srv.read_timeout
+                    # a message already waiting is read even when this thread comes late
+                    # (a busy render thread can hold it up): hence the floors
+                    if self.admitted:
+                        # PING keeps nothing alive: the idle clock runs from the last work
+                        first = srv.idle_timeout - (time.monotonic() - self.last_work)
+                        rest = srv.read_timeout
+                    else:  # the whole first message within the handshake window
+                        first = srv.handshake_timeout - (time.monotonic() - self.opened)
+                        rest = max(first, LATE_READ)
+                    first = max(first, LATE_READ / 10)
                     _, msg_type, rid, body = read_message(
-                        self.sock, MAX_REQUEST_BODY, first_timeout=idle,
-                        timeout=srv.read_timeout)
+                        self.sock, MAX_REQUEST_BODY, first_timeout=first, timeout=rest)
                 except ProtocolError as exc:
                     self.send(ERROR, 0, error_body(exc.code, exc.reason))
                     return
                 except TimeoutError:
+                    if self._closed.is_set():  # dropped for a newer pending connection
+                        return
                     self.send(ERROR, 0, error_body(
-                        ErrorCode.TIMEOUT, "no complete message within the timeout; closing"))
+                        ErrorCode.TIMEOUT, "no complete message within the timeout"
+                        if self.admitted else "not admitted within the handshake window "
+                        f"({srv.handshake_timeout:g} s); closing"))
                     return
+                if not self.admitted:
+                    refusal = self.admit(msg_type, body)
+                    if refusal is not None:
+                        self.send(ERROR, rid, refusal)
+                        return
+                if msg_type != MsgType.PING:
+                    self.last_work = time.monotonic()
                 reply = self.answer(msg_type, rid, body)
                 if reply is None:
                     return
                 rtype, rbody = reply
-                sent = self.send(rtype, rid, rbody)
+                try:
+                    sent = self.send(rtype, rid, rbody)
+                finally:
+                    srv.release_reply(self)
                 self.busy = False
                 if not sent:
                     return
+                if msg_type != MsgType.PING:  # a long render is no idleness
+                    self.last_work = time.monotonic()
                 if rtype == ERROR and int.from_bytes(rbody[:2], "little") in CLOSING:
                     return
         except (ConnectionError, OSError) as exc:
@@ -177,15 +245,22 @@ class _Connection:
             self.close()
             srv.forget(self)
 
-    def answer(self, msg_type: int, rid: int, body: bytes):
-        """Return the reply (type, body) to one message, or None when the server stopped."""
+    def admit(self, msg_type: int, body: bytes) -> bytes | None:
+        """Take a client slot for this connection; return the error body of a refusal."""
         srv = self.server
         if not self.authorized:
             if msg_type != MsgType.HELLO or not srv.check_token(body):
-                return ERROR, error_body(ErrorCode.UNAUTHORIZED,
-                                         "this server needs a HELLO with its token first")
-            self.authorized = True
-            return msg_type | REPLY, b""
+                return error_body(ErrorCode.UNAUTHORIZED,
+                                  "this server needs a HELLO with its token first")
+        if not srv.take_slot(self):
+            return error_body(ErrorCode.BUSY, f"{srv.max_clients} clients are already "
+                              "connected; try again later")
+        self.authorized = True
+        return None
+
+    def answer(self, msg_type: int, rid: int, body: bytes):
+        """Return the reply (type, body) to one message, or None when the server stopped."""
+        srv = self.server
         try:
             kind = MsgType(msg_type)
         except ValueError:
@@ -245,13 +320,20 @@ class RenderServer:
         Longest wait for a client's next request, for the rest of a message once it has begun,
         and for a client to take its reply.
     max_clients : int
-        Connections served at once.
+        Admitted connections served at once (pending ones have a pool of their own).
+    handshake_timeout : float, seconds, optional
+        Longest time a new connection has to be admitted (default :data:`HANDSHAKE_TIMEOUT`,
+        at most ``read_timeout``).
+    reply_memory : int, bytes, optional
+        Budget of replies not yet taken by their clients (default :data:`REPLY_MEMORY`, at
+        most an eighth of the memory the process may use).
     """
 
     def __init__(self, scenario: Scenario, host: str = "127.0.0.1", port: int = 10363, *,
                  token: str | None = None, idle_timeout: float = 300.0,
                  read_timeout: float = 10.0, write_timeout: float = 30.0,
-                 max_clients: int = 32):
+                 max_clients: int = 32, handshake_timeout: float | None = None,
+                 reply_memory: int | None = None):
         if token is not None:
             token = str(token)
             if not token or len(token.encode("utf-8")) > MAX_TOKEN:
@@ -262,8 +344,11 @@ class RenderServer:
                 "CRATERSCAPE_TOKEN")
         if not 0 <= int(port) <= 65535:
             raise InvalidParameterError(f"port must lie in [0, 65535]; got {port}")
+        if handshake_timeout is None:
+            handshake_timeout = min(HANDSHAKE_TIMEOUT, float(read_timeout))
         for name, v in (("idle timeout", idle_timeout), ("read timeout", read_timeout),
-                        ("write timeout", write_timeout)):
+                        ("write timeout", write_timeout),
+                        ("handshake timeout", handshake_timeout)):
             if not (v > 0 and math.isfinite(v)):
                 raise InvalidParameterError(f"{name} must be a positive number of seconds; "
                                             f"got {v}")
@@ -274,7 +359,17 @@ class RenderServer:
         self.token = token
         self.idle_timeout, self.read_timeout = float(idle_timeout), float(read_timeout)
         self.write_timeout = float(write_timeout)
+        self.handshake_timeout = float(handshake_timeout)
         self.max_clients = int(max_clients)
+        from terrain.core.memory import available_bytes
+
+        avail = available_bytes()
+        self.frame_cache_bytes = min(FRAME_CACHE_BYTES, avail // 4)
+        self.reply_memory = int(reply_memory) if reply_memory is not None \
+            else min(REPLY_MEMORY, avail // 8)
+        self._pending: list[_Connection] = []   # oldest first
+        self._queued = 0                         # bytes of replies not yet sent
+        self._sent = threading.Condition(threading.Lock())
         self.work: queue.Queue = queue.Queue()
         self.stopping = threading.Event()
         self._clients: set[_Connection] = set()
@@ -338,10 +433,31 @@ class RenderServer:
             return True
         return hmac.compare_digest(body, self.token.encode("utf-8"))
 
+    def take_slot(self, conn: _Connection) -> bool:
+        """Move a pending connection to a client slot; False when all are taken."""
+        with self._lock:
+            if conn in self._pending:
+                self._pending.remove(conn)
+            if len(self._clients) >= self.max_clients:
+                return False
+            self._clients.add(conn)
+            conn.admitted = True
+            return True
+
+    def release_reply(self, conn: _Connection) -> None:
+        """Give back the reply budget a connection's reply held (sent or not)."""
+        with self._sent:
+            self._queued -= conn.reply_bytes
+            conn.reply_bytes = 0
+            self._sent.notify_all()
+
     def forget(self, conn: _Connection) -> None:
         """Drop a closed connection (its pending frame is dropped by the render thread)."""
         with self._lock:
             self._clients.discard(conn)
+            if conn in self._pending:
+                self._pending.remove(conn)
+        self.release_reply(conn)
         self.work.put((conn, None, b""))  # the render thread drops its frame
 
     def stop(self, *_args) -> None:
@@ -372,7 +488,22 @@ class RenderServer:
                     self._cached.pop(id(conn.state), None)
                     conn.state.frame = None
                     continue
-                conn.replies.put(self._reply(conn, kind, body))
+                if conn._closed.is_set():
+                    continue
+                need = self._reply_size(conn.state, kind)
+                with self._sent:
+                    if need and self._queued and self._queued + need > self.reply_memory:
+                        # unread replies fill the budget: serve the others first
+                        self.work.put((conn, kind, body))
+                        self._sent.wait(timeout=0.05)
+                        continue
+                reply = self._reply(conn, kind, body)
+                with self._sent:
+                    conn.reply_bytes = len(reply[1])
+                    self._queued += conn.reply_bytes
+                conn.replies.put(reply)
+                if conn._closed.is_set():  # gone while it was rendered: nobody sends it
+                    self.release_reply(conn)
         finally:
             self.stopping.set()
             self._shutdown(acceptor)
@@ -389,21 +520,15 @@ class RenderServer:
                 return
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             with self._lock:
-                full = len(self._clients) >= self.max_clients
-                if not full:
-                    self._count += 1
-                    conn = _Connection(self, sock, address, self._count)
-                    self._clients.add(conn)
-            if full:
-                body = error_body(ErrorCode.BUSY, f"{self.max_clients} clients are already "
-                                  "connected; try again later")
-                try:
-                    sock.settimeout(1.0)
-                    sock.sendall(pack_header(ERROR, 0, len(body)) + body)
-                except OSError:
-                    pass
-                sock.close()
-                continue
+                self._count += 1
+                conn = _Connection(self, sock, address, self._count)
+                self._pending.append(conn)
+                oldest = None
+                if len(self._pending) > PENDING_PER_CLIENT * self.max_clients:
+                    oldest = self._pending.pop(0)
+            if oldest is not None:  # its thread sees the close and ends
+                log.info("client %d dropped unadmitted for a newer one", oldest.number)
+                oldest.close()
             log.info("client %d connected from %s", conn.number, address)
             conn.thread.start()
 
@@ -420,7 +545,7 @@ class RenderServer:
                 conn.replies.put((ERROR, error_body(ErrorCode.SHUTTING_DOWN,
                                                     "the server is shutting down")))
         with self._lock:
-            clients = list(self._clients)
+            clients = list(self._clients) + list(self._pending)
         for conn in clients:  # idle ones now; busy ones once their reply is sent
             if not conn.busy:
                 conn.close()
@@ -436,11 +561,23 @@ class RenderServer:
             return kind | REPLY, self._handle(conn.state, kind, body)
         except ProtocolError as exc:
             return ERROR, error_body(exc.code, exc.reason)
-        except (InvalidParameterError, ValueError, TypeError) as exc:
+        except RecursionError:
+            return ERROR, error_body(ErrorCode.MALFORMED, f"{kind.name} body is nested too "
+                                     "deeply")
+        except (InvalidParameterError, MissingInputError, MemoryRequestError, ValueError,
+                TypeError) as exc:
+            # a bad value, a missing input the request names, or a request beyond memory
             return ERROR, error_body(ErrorCode.INVALID_VALUE, str(exc))
         except Exception as exc:  # a failed render must not take the server down
             log.exception("request %s failed", kind.name)
             return ERROR, error_body(ErrorCode.INTERNAL, f"{type(exc).__name__}: {exc}")
+
+    @staticmethod
+    def _reply_size(st: _State, kind: MsgType) -> int:
+        """Bytes of the reply to ``kind`` at the client's image size (small ones: 0)."""
+        k = st.scenario.intrinsics
+        per_pixel = {MsgType.GET_IMAGE: 2, MsgType.GET_RANGE: 4, MsgType.GET_NORMALS: 12}
+        return k.width * k.height * per_pixel.get(kind, 0)
 
     def _handle(self, st: _State, kind: MsgType, body: bytes) -> bytes:
         if kind == MsgType.INFO:
@@ -459,6 +596,11 @@ class RenderServer:
         if kind == MsgType.SET_MOTION:
             v = MOTION.unpack(body)
             _finite("motion", v)
+            for i, (name, bound, unit) in enumerate((
+                    ("velocity", MAX_SPEED, "m/s"), ("angular velocity", MAX_RATE, "rad/s"),
+                    ("body angular velocity", MAX_RATE, "rad/s"))):
+                for x in v[3 * i:3 * i + 3]:
+                    number(x, f"{name} ({unit})", low=-bound, high=bound, where="SET_MOTION")
             base = self.scenario.motion.get("motion") or Motion()
             st.motion = dataclasses.replace(base, velocity=v[0:3], angular_velocity=v[3:6],
                                             body_angular_velocity=v[6:9])
@@ -482,7 +624,8 @@ class RenderServer:
         if kind in (MsgType.GET_RANGE, MsgType.GET_NORMALS):
             _, frame, _ = self._frame(st)
             a = frame.range if kind == MsgType.GET_RANGE else frame.normals
-            return ARRAY_HEAD.pack(a.shape[1], a.shape[0]) + a.astype("<f4").tobytes()
+            return ARRAY_HEAD.pack(a.shape[1], a.shape[0]) + a.astype(
+                "<f4", copy=False).tobytes()
         if kind == MsgType.GET_TRUTH:
             _, _, truth = self._frame(st)
             d = truth.as_dict()
@@ -522,6 +665,8 @@ class RenderServer:
 
     def _sensor_info(self, st: _State) -> dict:
         d = dict(st.scenario.sensor.as_dict(), noise=st.noise)
+        if d.get("psf_kernel") is not None:  # as named, not the server's own path
+            d["psf_kernel"] = str(st.sensor_table.get("psf_kernel"))
         d.update(st.scenario.intrinsics.as_dict())
         return d
 
@@ -533,6 +678,7 @@ class RenderServer:
         if math.hypot(x, y, z) > MAX_POSITION:
             raise ProtocolError(ErrorCode.INVALID_VALUE,
                                 f"camera position more than {MAX_POSITION:g} m from the origin")
+        number(t, "time (s)", low=-MAX_TIME, high=MAX_TIME, where="SET_POSE")
         pose = Pose((x, y, z), _scaled((qw, qx, qy, qz), "attitude quaternion"))
         self._check_outside(pose, t)
         st.pose, st.time, st.index, st.frame = pose, float(t), int(index), None
@@ -564,13 +710,21 @@ class RenderServer:
                                 f"camera at {r:.3f} m from the centre is inside the body")
 
     def _set_sensor(self, st: _State, body: bytes) -> dict:
+        too_deep = False
         try:
             settings = json.loads(body.decode("utf-8"))
         except (UnicodeDecodeError, ValueError) as exc:
             raise ProtocolError(ErrorCode.MALFORMED,
                                 f"SET_SENSOR body is not UTF-8 JSON: {exc}") from None
+        except RecursionError:  # nested too deeply for the parser itself
+            too_deep = True
+        if too_deep or _depth(settings) > MAX_JSON_DEPTH:
+            raise ProtocolError(ErrorCode.MALFORMED, "SET_SENSOR body is nested deeper than "
+                                f"{MAX_JSON_DEPTH} levels")
         if not isinstance(settings, dict):
             raise ProtocolError(ErrorCode.MALFORMED, "SET_SENSOR body must be a JSON object")
+        if settings.get("psf_kernel") is not None:  # null takes the kernel away
+            self._check_kernel_name(settings["psf_kernel"])
         k = st.scenario.intrinsics
         w, h = settings.pop("width", k.width), settings.pop("height", k.height)
         for name, v in (("width", w), ("height", h)):
@@ -581,6 +735,11 @@ class RenderServer:
         if w * h > MAX_PIXELS:
             raise ProtocolError(ErrorCode.INVALID_VALUE,
                                 f"sensor {w}x{h} exceeds {MAX_PIXELS} pixels")
+        a = self.scenario.options.antialias
+        if max(w, h) * a > MAX_SIDE:
+            raise ProtocolError(ErrorCode.INVALID_VALUE,
+                                f"sensor {w}x{h} at the scenario's {a}x{a} samples a pixel "
+                                f"renders {w * a}x{h * a} samples; at most {MAX_SIDE} a side")
         noise = settings.pop("noise", st.noise)
         if not isinstance(noise, bool):
             raise ProtocolError(ErrorCode.INVALID_VALUE,
@@ -589,9 +748,40 @@ class RenderServer:
         raw = dict(self.scenario.raw, sensor=table)
         parsed = parse_scenario(raw, self.scenario.path)  # the scenario's own validation
         base = self.scenario.with_overrides(None, (w, h))
+        check_frame_memory(base)  # MemoryRequestError: INVALID_VALUE, before any allocation
         st.scenario = dataclasses.replace(base, sensor=parsed.sensor, motion=parsed.motion)
         st.sensor_table, st.noise, st.frame = table, noise, None
         return self._sensor_info(st)
+
+    def _check_kernel_name(self, name) -> None:
+        """Refuse a ``psf_kernel`` that is not a regular file's bare name beside the scenario.
+
+        One reason for every refusal of a name, so a reply never tells whether a file outside
+        the scenario's folder exists; the file is opened (non-blocking) by the sensor.
+        """
+        folder = None if self.scenario.path is None else self.scenario.path.parent.resolve()
+        ok = (folder is not None and isinstance(name, str) and name not in ("", ".", "..")
+              and not any(c in name for c in "/\\\0") and Path(name).name == name)
+        missing = False
+        if ok:
+            assert folder is not None
+            try:
+                p = (folder / name).resolve()
+                ok = p.parent == folder
+                ok = ok and stat.S_ISREG(os.stat(p).st_mode)
+            except FileNotFoundError:
+                missing = ok  # beside the scenario, and not there
+                ok = False
+            except (OSError, RuntimeError, ValueError):
+                ok = False
+        if missing:
+            raise ProtocolError(ErrorCode.INVALID_VALUE, f"SET_SENSOR psf_kernel {name!r}: no "
+                                "such file beside the scenario")
+        if not ok:
+            raise ProtocolError(ErrorCode.INVALID_VALUE,
+                                f"SET_SENSOR psf_kernel must be the name of a regular file "
+                                f"beside the scenario (no folder, no link out of it); got "
+                                f"{name!r}")
 
     def _frame(self, st: _State):
         if st.pose is None:
@@ -613,7 +803,7 @@ class RenderServer:
         self._cached[id(st)] = st
         total = sum(_frame_bytes(s.frame) for s in self._cached.values())
         for key in list(self._cached):
-            if total <= FRAME_CACHE_BYTES or key == id(st):
+            if total <= min(FRAME_CACHE_BYTES, self.frame_cache_bytes) or key == id(st):
                 break
             old = self._cached.pop(key)
             total -= _frame_bytes(old.frame)
@@ -678,6 +868,19 @@ def _frame_bytes(frame) -> int:
         return 0
     image, fr, _ = frame
     return image.nbytes + fr.radiance.nbytes + fr.range.nbytes + fr.normals.nbytes
+
+
+def _depth(obj) -> int:
+    """Return the nesting depth of parsed JSON (a scalar: 0), counted without recursion."""
+    deepest, todo = 0, [(obj, 0)]
+    while todo:
+        item, d = todo.pop()
+        if isinstance(item, (list, dict)):
+            deepest = max(deepest, d + 1)
+            if deepest > MAX_JSON_DEPTH:
+                break
+            todo.extend((v, d + 1) for v in (item.values() if isinstance(item, dict) else item))
+    return deepest
 
 
 def _finite(what: str, values) -> None:

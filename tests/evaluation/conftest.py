@@ -99,7 +99,8 @@ def write_planar_run(run_dir, *, n_frames: int = 12, width: int = 320, height: i
     texture = plane_texture(seed)
     k = Intrinsics.from_fov(width, height, 50.0)
     writer = RunWriter(run_dir, dict(scene="textured plane z = 0 (evaluation tests)",
-                                     frames=n_frames, width=width, height=height, seed=seed))
+                                     frames=n_frames, resolution=[width, height],
+                                     seed=seed))
     for i, pose in enumerate(camera_path(n_frames)):
         image, rng = render_plane(texture, pose, k)
         written = pose if truth_pose is None else truth_pose(i, pose)

@@ -238,7 +238,7 @@ def _disc_run(run_dir, *, frames: int = 2) -> Path:
     tex = 60.0 + 140.0 * (tex - tex.min()) / (tex.max() - tex.min())
     k = Intrinsics.from_fov(200, 200, 40.0)
     writer = RunWriter(run_dir, dict(scene="textured disc (evaluation tests)", frames=frames,
-                                     width=200, height=200, seed=7))
+                                     resolution=[200, 200], seed=7))
     rows, cols = np.mgrid[0:200, 0:200]
     for i in range(frames):
         inside = np.hypot(cols - 100.0 - 0.5 * i, rows - 100.0) <= 70.0

@@ -28,15 +28,16 @@ def rss_bytes(pid: int) -> int:
 
 
 @contextlib.contextmanager
-def served(scenario, *args, startup: float = 180.0):
+def served(scenario, *args, startup: float = 180.0, env: dict | None = None):
     """Run ``craterscape render serve SCENARIO --port 0 ARGS``; yield (process, port).
 
     The port is read from the line the server prints once it is ready. On exit the server is
-    sent SIGTERM and must stop cleanly (exit status 0).
+    sent SIGTERM and must stop cleanly (exit status 0). ``env``: variables added to the
+    server's environment.
     """
     proc = subprocess.Popen([*CRATERSCAPE, "render", "serve", str(scenario), "--port", "0",
                              *map(str, args)], stderr=subprocess.PIPE, text=True,
-                            env=dict(os.environ, PYTHONUNBUFFERED="1"))
+                            env=dict(os.environ, PYTHONUNBUFFERED="1", **(env or {})))
     port = None
     deadline = time.monotonic() + startup
     lines = []

@@ -46,6 +46,9 @@ def _edit(path, old, new):
     ("seed = 5", "seed = -1", "seed"),
     ("[sun]", "[sun]\nazimut = 3.0", "did you mean 'azimuth'"),
     ("[render]\n", "[render]\n[extra]\nx = 1\n", "'extra'"),
+    ("exposure = 4.0", "exposure = 4.0\npsf = [[1.0, 1e9]]", "psf sigma must be <="),
+    ("exposure = 4.0", "exposure = 4.0\npsf_sigma = 1e300", "psf_sigma must be <="),
+    ("exposure = 4.0", 'exposure = 4.0\npsf_kernel = "/dev/zero"', "not a regular file"),
     ("ground_track = [300.0, 100.0]", 'ground_track = [300.0, "x"]', "ground_track"),
     ("ground_track = [300.0, 100.0]", 'ground_track = [300.0, 100.0]\n'
      '[[trajectory.keyframe]]\ntime = "abc"\nposition = [0.0, 0.0, 100.0]\n',
@@ -148,3 +151,23 @@ def test_a_resumed_run_leaves_no_partial_files(tmp_path, stack_dir):
     assert not [p for p in out.rglob("*.partial")]
     assert [t["index"] for t in json.loads((out / "truth.json").read_text())] == [0, 1, 2]
     assert os.path.exists(out / "frames" / "frame_000001.png")
+
+
+def test_a_kernel_that_is_a_fifo_is_refused_at_once(tmp_path, stack_dir):
+    """A FIFO named as the PSF kernel would block a reader for ever; it is not a file."""
+    import threading
+
+    sc = _edit(scenario(tmp_path, stack_dir), "exposure = 4.0",
+               'exposure = 4.0\npsf_kernel = "pipe.txt"')
+    os.mkfifo(tmp_path / "pipe.txt")
+    out = tmp_path / "f.png"
+    got = {}
+    th = threading.Thread(target=lambda: got.setdefault("r", run("render", "frame", sc, "-o",
+                                                                 out)))
+    th.start()
+    th.join(timeout=60)
+    if th.is_alive():  # release the blocked reader before failing
+        os.close(os.open(tmp_path / "pipe.txt", os.O_WRONLY | os.O_NONBLOCK))
+        th.join()
+        pytest.fail("reading the PSF kernel blocked on a FIFO")
+    refused(got["r"], {}, out, fragments=["not a regular file"], folder=tmp_path)

@@ -90,3 +90,59 @@ def test_the_client_refuses_a_bit_depth_the_server_would_not_render_as_asked(bit
         with Client("127.0.0.1", server.getsockname()[1], timeout=1.0) as c:
             with pytest.raises(InvalidParameterError, match=r"^bits must be an integer"):
                 c.get_image(bits)
+
+
+def _answering(bodies):
+    """A one-connection server on 127.0.0.1 that answers the n-th request with ``bodies[n]``
+    (a reply of the request's own type and id); returns (port, thread)."""
+    listener = socket.create_server(("127.0.0.1", 0))
+
+    def serve():
+        conn, _ = listener.accept()
+        with conn, listener:
+            for body in bodies:
+                try:
+                    _, mtype, rid, _ = read_message(conn, MAX_REQUEST_BODY, first_timeout=5.0,
+                                                    timeout=5.0)
+                except (ConnectionError, TimeoutError):
+                    return
+                conn.sendall(pack_header(mtype | 0x8000, rid, len(body)) + body)
+
+    t = threading.Thread(target=serve, daemon=True)
+    t.start()
+    return listener.getsockname()[1], t
+
+
+GARBLED = [b"", b"\x01", b"{", b"\xff\xfe", b"[1, 2]", b"\x00" * 7, b'"text"', b"{" * 5000]
+
+
+@pytest.mark.parametrize("call", [
+    lambda c: c.info(), lambda c: c.get_truth(), lambda c: c.set_sensor(gain=1.0),
+    lambda c: c.get_image(), lambda c: c.get_range(), lambda c: c.get_normals(),
+    lambda c: c.height_at(0.0, 0.0), lambda c: c.pixel_ray(1.0, 1.0),
+    lambda c: c.ray((0.0, 0.0, 1.0), (0.0, 0.0, -1.0)),
+])
+def test_the_client_turns_short_or_garbled_replies_into_protocol_errors(call):
+    from render.client import Client
+
+    port, t = _answering(GARBLED)
+    with Client("127.0.0.1", port, timeout=5.0) as c:
+        for _ in GARBLED:
+            with pytest.raises(ProtocolError) as err:
+                call(c)
+            assert err.value.code == ErrorCode.MALFORMED
+    t.join(timeout=10)
+
+
+def test_the_client_refuses_an_image_whose_header_lies_about_its_size():
+    from render.client import Client
+
+    lies = [struct.pack("<IIHH", 2**32 - 1, 2**32 - 1, 8, 0) + b"\x00" * 4,
+            struct.pack("<IIHH", 2, 2, 0, 0) + b"\x00" * 4,
+            struct.pack("<IIHH", 2, 2, 40, 0) + b"\x00" * 8]
+    port, t = _answering(lies)
+    with Client("127.0.0.1", port, timeout=5.0) as c:
+        for _ in lies:
+            with pytest.raises(ProtocolError):
+                c.get_image()
+    t.join(timeout=10)
