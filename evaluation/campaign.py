@@ -42,8 +42,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
 
-from render.records import check_keys, number
 from terrain.cli.tools import cli_args, long_options, run_command
+from terrain.core.checks import check_keys, number
 from terrain.core.errors import InvalidParameterError
 from terrain.core.tomlfile import merge_tables, read_toml, toml_text
 

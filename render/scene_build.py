@@ -58,7 +58,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from render.records import check_keys
+from terrain.core.checks import check_keys
 from terrain.core.errors import InvalidParameterError
 from terrain.core.outputs import remove_path
 from terrain.core.rng import check_seed

@@ -57,7 +57,7 @@ from pathlib import Path
 
 import numpy as np
 
-from render.records import check_keys, number
+from terrain.core.checks import check_keys, number
 from terrain.core.errors import InvalidParameterError, MissingInputError
 from terrain.core.rng import check_seed, normal, stream_id, uniform
 

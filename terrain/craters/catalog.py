@@ -36,7 +36,8 @@ from typing import IO, ClassVar, TypeVar
 
 import numpy as np
 
-from terrain.core.errors import InvalidParameterError, reject_unknown
+from terrain.core.checks import reject_unknown
+from terrain.core.errors import InvalidParameterError
 
 __all__ = ["CATALOG_COLUMNS", "CATALOG_LAYER_COLUMNS", "ROCK_COLUMNS", "ColumnTable", "Crater",
            "CraterCatalog", "CraterTable", "RockCatalog", "csv_sink", "read_circles",
