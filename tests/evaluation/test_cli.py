@@ -235,7 +235,7 @@ def test_report_command_and_thresholds(planar_run, dems, tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text("[tracking]\nmedian = 1\n")
     one_line_error(run("evaluation", "report", planar_run, "-o", tmp_path / "r.html",
-                       "--thresholds", bad), "unknown key tracking.median")
+                       "--thresholds", bad), "[tracking] key 'median'")
     # an output never enters an input folder (here it would also replace the run's truth)
     one_line_error(run("evaluation", "report", planar_run, "-o", planar_run / "truth.html"),
                    "inside the input folder")

@@ -75,7 +75,7 @@ def test_single_frame_and_resolution_override(tmp_path, stack_dir):
 @pytest.mark.parametrize("change, message", [
     ('type = "descent"', "frames"),
     ('type = "terrain"', "'terrain' or 'asteroid'"),
-    ("[sun]", "unknown keys"),
+    ("[sun]", "unknown scenario [sun] key"),
 ])
 def test_bad_scenarios_are_one_line_errors(tmp_path, stack_dir, change, message):
     sc = scenario(tmp_path, stack_dir)
