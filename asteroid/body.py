@@ -18,8 +18,8 @@ boulders, export): immutable, validated when built, and saved as the *native* mo
     Optional catalogue columns (craters, boulders) stored beside the body as ground truth.
 
 The archive is written byte-for-byte reproducibly (fixed zip timestamps, no compression, a
-fixed member order) and atomically (:func:`terrain.io.atomic_path`), so the same inputs and
-seed give the same file.
+fixed member order) and atomically (:func:`terrain.core.outputs.atomic_path`), so the same inputs
+and seed give the same file.
 
 The :class:`Stretch` value maps a body onto its affine stretch along the axes (section IV.A:
 "can be stretched along one axis to create an elongated shape"): the point ``r0 u0`` moves to
@@ -44,7 +44,7 @@ import numpy as np
 
 from asteroid.sphere import SphereMesh, band_size, band_triangle
 from terrain.core.errors import InvalidParameterError, MissingInputError
-from terrain.io import atomic_path
+from terrain.core.outputs import atomic_path
 
 __all__ = ["FORMAT", "Body", "NativeModel", "Stretch", "load_native", "save_native"]
 

@@ -29,8 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from terrain.core.errors import InvalidParameterError
+from terrain.core.outputs import atomic_path
 from terrain.craters.catalog import csv_sink
-from terrain.io import atomic_path
 
 __all__ = ["save_table", "write_table"]
 

@@ -50,7 +50,7 @@ def _outdir(path: Path, inputs=()) -> Path:
 
 
 def _write_text(path: Path, text: str, inputs=()) -> None:
-    from terrain.io import atomic_path
+    from terrain.core.outputs import atomic_path
 
     with atomic_path(path, inputs) as tmp:
         tmp.write_text(text, encoding="utf-8")

@@ -440,7 +440,7 @@ def save_consistency(result: Consistency, folder, *, inputs=()) -> dict:
     import io
 
     from evaluation.figures import consistency_figure, save_png
-    from terrain.io import atomic_path
+    from terrain.core.outputs import atomic_path
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)

@@ -18,7 +18,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from terrain.io import atomic_path
+from terrain.core.outputs import atomic_path
 
 __all__ = ["consistency_figure", "error_figure", "png_bytes", "range_thumbnail", "read_png",
            "save_png", "slope_area_figure", "slope_distribution_figure", "spectrum_figure",

@@ -61,8 +61,8 @@ import numpy as np
 
 from terrain.core.checks import check_keys, number, text
 from terrain.core.errors import InvalidParameterError
+from terrain.core.outputs import atomic_path
 from terrain.core.tomlfile import read_toml
-from terrain.io import atomic_path
 
 __all__ = ["DEFAULT_THRESHOLDS", "REPORT_FORMAT", "Check", "Figure", "Report", "Section",
            "asteroid_section", "consistency_section", "dem_section", "image_figure",

@@ -1005,7 +1005,7 @@ def save_tracks(scored: ScoredTracks, run, folder, *, inputs=()) -> dict:
     from pathlib import Path
 
     from evaluation.figures import error_figure, save_png, tracks_figure
-    from terrain.io import atomic_path
+    from terrain.core.outputs import atomic_path
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)

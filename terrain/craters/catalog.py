@@ -7,20 +7,6 @@ cratering kernel consumes. A :class:`CraterCatalog` is what the model made of ea
 crater-detection navigation; a :class:`RockCatalog` the same for rocks. Both are frozen
 tables of typed, read-only columns (:class:`ColumnTable`), written and read as the
 catalogue CSVs (``to_csv``, ``from_csv``), joined (``concatenate``) and selected (``take``).
-
-Migrating from the dicts of columns
------------------------------------
-Until version 0.1 the catalogues (``CraterResult.catalog``, ``LayerStack.catalog``,
-``RunReport.catalog``; ``LayerStack.rocks`` and the catalogue
-:func:`terrain.surface.rocks.add_rocks`
-returns) were dicts of column arrays. They are now records whose attributes are the CSV's
-column names: ``catalog["id"]`` becomes ``catalog.id``, ``len(catalog["id"])`` becomes
-``len(catalog)``, ``catalog.items()`` becomes ``catalog.as_dict().items()``,
-``write_catalog(path, catalog)`` and ``write_rock_catalog(path, rocks)`` become
-``catalog.to_csv(path)`` and ``rocks.to_csv(path)``, ``read_catalog(path)`` becomes
-``CraterCatalog.from_csv(path)`` (or :func:`read_columns` for any such CSV as a dict), and a
-dict of columns becomes a record through ``CraterCatalog.from_columns(columns)``.
-``catalog["id"]`` still works for now and warns (:class:`DeprecationWarning`).
 """
 
 from __future__ import annotations
@@ -29,7 +15,6 @@ import contextlib
 import csv
 import math
 import os
-import warnings
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import IO, ClassVar, TypeVar
@@ -189,9 +174,6 @@ CATALOG_LAYER_COLUMNS = (*CATALOG_COLUMNS, "layer")
 ROCK_COLUMNS = ("id", "x_m", "y_m", "z_base_m", "diameter_m", "height_m", "burial_m",
                 "axis_a_m", "axis_b_m", "axis_c_m", "orientation_deg", "layer")
 
-_DEPRECATED_ITEM = ("catalogue columns by name ({what}[{name!r}]) are deprecated; use the "
-                    "attribute {what}.{name}")
-
 TableT = TypeVar("TableT", bound="ColumnTable")
 
 
@@ -241,13 +223,6 @@ class ColumnTable:
 
     def __len__(self) -> int:
         return int(getattr(self, self.COLUMNS[0]).size)
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        warnings.warn(_DEPRECATED_ITEM.format(what="catalog", name=name), DeprecationWarning,
-                      stacklevel=2)
-        if name not in self.columns:
-            raise KeyError(name)
-        return getattr(self, name)
 
     @classmethod
     def empty(cls: type[TableT], *, optional: Iterable[str] = ()) -> TableT:
