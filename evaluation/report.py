@@ -36,9 +36,9 @@ thresholds`` prints them)::
     [consistency]
     max_spike_ratio = 1.5              # largest per-frame residual rms over the median
 
-The consistency bound is the consistency issue's (no spikes at layer or level-of-detail
-changes: see :mod:`evaluation.consistency`). The tracking defaults are the issue's acceptance
-figure (median <= 0.5 px) and common practice for KLT front ends; 35 degrees is where lunar
+The consistency bound asks for no spikes at layer or level-of-detail changes (see
+:mod:`evaluation.consistency`). The tracking defaults are the acceptance figure for tracking
+(median <= 0.5 px) and common practice for KLT front ends; 35 degrees is where lunar
 slope-frequency distributions roll over (Kreslavsky and Head 2016) and below which nearly all
 Eros slopes lie (Thomas et al. 2002); the KS and spectrum limits are starting points to tune
 per mission.

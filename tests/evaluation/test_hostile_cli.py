@@ -1,4 +1,4 @@
-"""Issue 17, evaluation commands: validate first, write after; never into an input; one
+"""Hostile input to the evaluation commands: validate first, write after; never into an input; one
 exit code for "cannot write here". Refusals are exit code 2 with one line on stderr, every
 input byte-identical and no output left."""
 

@@ -1,4 +1,4 @@
-"""Issue 17, render commands: typed scenarios, refusals before work, run folders that are
+"""Hostile input to the render commands: typed scenarios, refusals before work, run folders that are
 never mixed up, and no partial file after a resumed run. Refusals are exit code 2 with one
 line on stderr, every input byte-identical and no output left."""
 
