@@ -502,9 +502,9 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
     brdf = check_brdf(text(surface.get("reflectance", "lunar-lambert"), "reflectance",
                            where=_SURFACE))
     albedo = number(surface.get("albedo", 0.12), "albedo", where=_SURFACE)
-    extra = {"mcewen": vector(surface["mcewen"], "mcewen", len(surface["mcewen"])
-                              if isinstance(surface["mcewen"], list) else 0, where=_SURFACE)} \
-        if "mcewen" in surface else {}
+    extra: dict[str, Any] = {"mcewen": vector(surface["mcewen"], "mcewen", len(surface["mcewen"])
+                                              if isinstance(surface["mcewen"], list) else 0,
+                                              where=_SURFACE)} if "mcewen" in surface else {}
     hapke_keys = sorted(k for k in surface if k in _HAPKE_KEYS)
     if hapke_keys and brdf != "hapke":
         raise InvalidParameterError(
