@@ -168,9 +168,6 @@ CATALOG_COLUMNS = (
 #: The columns of a layer stack's catalogue: :data:`CATALOG_COLUMNS` and the layer.
 CATALOG_LAYER_COLUMNS = (*CATALOG_COLUMNS, "layer")
 
-#: Pixel-grid columns, written with three decimals.
-_GRID_FORMATS = {"row": "{:.3f}", "col": "{:.3f}"}
-
 #: Columns of the rock catalogue CSV, in order; the attributes of :class:`RockCatalog`.
 ROCK_COLUMNS = ("id", "x_m", "y_m", "z_base_m", "diameter_m", "height_m", "burial_m",
                 "axis_a_m", "axis_b_m", "axis_c_m", "orientation_deg", "layer")
@@ -225,6 +222,7 @@ class CraterCatalog(ColumnTable):
     DTYPES: ClassVar[Mapping[str, type]] = {"id": np.uint64, "size_class": np.int64,
                                             "layer": np.int64}
     WHAT: ClassVar[str] = "crater catalogue"
+    FORMATS: ClassVar[Mapping[str, str]] = {"row": "{:.3f}", "col": "{:.3f}"}
 
     id: np.ndarray
     x_m: np.ndarray
@@ -353,7 +351,7 @@ def write_columns(path_or_file: str | os.PathLike | IO[str],
     columns : sequence of str
         The header, in order.
     """
-    write_table(path_or_file, rows, columns, formats=_GRID_FORMATS)
+    write_table(path_or_file, rows, columns, formats=CraterCatalog.FORMATS)
 
 
 def read_columns(path: str | os.PathLike) -> dict[str, np.ndarray]:
