@@ -86,7 +86,6 @@ triangles, ``R (a / 2)^2`` for the mean spacing a (``tests/asteroid/test_craters
 Examples
 --------
 >>> from asteroid.body import Body
-from asteroid.catalog import CRATER_COLUMNS, CraterCatalog
 >>> from asteroid.sphere import SphereMesh
 >>> body = Body.sphere(SphereMesh(64), 1000.0)
 >>> crater = craters_at([10.0], [45.0], [200.0], seed=1)

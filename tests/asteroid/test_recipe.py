@@ -30,7 +30,7 @@ def test_every_preset_builds_at_a_small_magnitude(name):
     recipe = Recipe.from_sources(preset=name, magnitude=12, craters={"dmin": radius / 8})
     result = build(recipe)
     assert result.body.mesh.n_vertices == 6 * 144 + 2
-    assert result.craters is not None and result.craters["applied"].sum() > 10
+    assert result.craters is not None and result.craters.applied.sum() > 10
 
 
 def test_papers_c_becomes_a_density():
