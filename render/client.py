@@ -8,7 +8,7 @@ server's code and reason, and the connection stays usable unless the code closes
     with Client("127.0.0.1", 10363) as c:
         c.set_pose((1000.0, 2000.0, 2000.0), (0.0, 1.0, 0.0, 0.0), time=0.0, frame=0)
         image = c.get_image()            # (h, w) uint8 or uint16
-        range_m = c.get_range()              # (h, w) float32 metres, NaN = no return
+        rng = c.get_range()              # (h, w) float32 metres, NaN = no return
         hit = c.ray((1000.0, 2000.0, 2000.0), (0.0, 0.0, -1.0))   # a laser altimeter
 """
 
