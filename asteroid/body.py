@@ -43,6 +43,7 @@ import numba
 import numpy as np
 
 from asteroid.sphere import SphereMesh, band_size, band_triangle
+from terrain.core.checks import number
 from terrain.core.errors import InvalidParameterError, MissingInputError
 from terrain.core.outputs import atomic_path
 
@@ -73,13 +74,8 @@ class Stretch:
 
     def __post_init__(self):
         for name in ("x", "y", "z"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.number)):
-                raise InvalidParameterError(f"stretch {name} must be a number; got {v!r}")
-            v = float(v)
-            if not (v > 0 and math.isfinite(v)):
-                raise InvalidParameterError(f"stretch factors must be positive; got {name}={v}")
-            object.__setattr__(self, name, v)
+            object.__setattr__(self, name, number(getattr(self, name), name, low=0,
+                                                  low_open=True, where="stretch"))
 
     @classmethod
     def parse(cls, value) -> Stretch:
