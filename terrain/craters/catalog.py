@@ -5,8 +5,9 @@ A :class:`Crater` is one impact as a user names it (position, diameter, age); a
 cratering kernel consumes. A :class:`CraterCatalog` is what the model made of each crater
 (erosion state, depth, rim height, the fitted pre-impact level), the ground truth for
 crater-detection navigation; a :class:`RockCatalog` the same for rocks. Both are frozen
-tables of typed, read-only columns (:class:`ColumnTable`), written and read as the
-catalogue CSVs (``to_csv``, ``from_csv``), joined (``concatenate``) and selected (``take``).
+tables of typed, read-only columns (:class:`terrain.core.table.ColumnTable`), written and
+read as the catalogue CSVs (``to_csv``, ``from_csv``), joined (``concatenate``) and selected
+(``take``).
 """
 
 from __future__ import annotations
