@@ -18,8 +18,8 @@ boulders, export): immutable, validated when built, and saved as the *native* mo
     Optional catalogue columns (craters, boulders) stored beside the body as ground truth.
 
 The archive is written byte-for-byte reproducibly (fixed zip timestamps, no compression, a
-fixed member order) and atomically (:func:`terrain.io.atomic_path`), so the same inputs and
-seed give the same file.
+fixed member order) and atomically (:func:`terrain.core.outputs.atomic_path`), so the same inputs
+and seed give the same file.
 
 The :class:`Stretch` value maps a body onto its affine stretch along the axes (section IV.A:
 "can be stretched along one axis to create an elongated shape"): the point ``r0 u0`` moves to
@@ -43,8 +43,9 @@ import numba
 import numpy as np
 
 from asteroid.sphere import SphereMesh, band_size, band_triangle
+from terrain.core.checks import number
 from terrain.core.errors import InvalidParameterError, MissingInputError
-from terrain.io import atomic_path
+from terrain.core.outputs import atomic_path
 
 __all__ = ["FORMAT", "Body", "NativeModel", "Stretch", "load_native", "save_native"]
 
@@ -73,13 +74,8 @@ class Stretch:
 
     def __post_init__(self):
         for name in ("x", "y", "z"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.number)):
-                raise InvalidParameterError(f"stretch {name} must be a number; got {v!r}")
-            v = float(v)
-            if not (v > 0 and math.isfinite(v)):
-                raise InvalidParameterError(f"stretch factors must be positive; got {name}={v}")
-            object.__setattr__(self, name, v)
+            object.__setattr__(self, name, number(getattr(self, name), name, low=0,
+                                                  low_open=True, where="stretch"))
 
     @classmethod
     def parse(cls, value) -> Stretch:

@@ -68,12 +68,13 @@ from functools import lru_cache
 import numpy as np
 
 from asteroid.body import Body
+from asteroid.catalog import BoulderCatalog
 from asteroid.placement import Placement, sample
 from terrain.core.errors import InvalidParameterError
 from terrain.core.rng import check_seed, normal, stream_id
 from terrain.craters.population import Population
 
-__all__ = ["BOULDER_COLUMNS", "BiResolutionNode", "BoulderLOD", "BoulderSettings", "Boulders",
+__all__ = ["BiResolutionNode", "BoulderLOD", "BoulderSettings", "Boulders",
            "boulder_lod", "icosahedron", "lod_tree", "place_boulders", "subdivision"]
 
 log = logging.getLogger(__name__)
@@ -84,15 +85,6 @@ STREAM_SHAPE = stream_id("asteroid-boulder-shape")
 MAX_BOULDERS = 2_000_000
 #: Extra keyed uniforms per boulder: flattening, elongation, burial, yaw, pitch, roll.
 _EXTRA = 6
-
-#: Catalogue columns.
-BOULDER_COLUMNS = (
-    "id", "lat_deg", "lon_deg", "x_m", "y_m", "z_m", "diameter_m", "height_m", "flattening",
-    "elongation", "burial_fraction", "burial_depth_m", "surface_radius_m", "yaw_deg",
-    "pitch_deg", "roll_deg", "size_class",
-    "r00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22",
-)
-
 
 def icosahedron() -> tuple[np.ndarray, np.ndarray]:
     """Regular icosahedron of circumradius 1: (12, 3) vertices, (20, 3) outward faces."""
@@ -299,42 +291,44 @@ def _rotation_x(a):
     return r
 
 
+def _local_shapes(seed: int, settings: BoulderSettings, uid, diameter, elongation,
+                  flattening) -> np.ndarray:
+    """(n, V, 3) finest-level vertices of boulders in their own frames, metres."""
+    unit = _unit_shapes(seed, np.asarray(uid, dtype=np.uint64), settings.levels,
+                        settings.roughness, settings.hurst)
+    d, e, f = diameter, elongation, flattening
+    scale = 0.5 * d[:, None] * np.column_stack([np.sqrt(e), 1.0 / np.sqrt(e), f])
+    return unit * scale[:, None, :]
+
+
 @dataclass(frozen=True, eq=False)
 class Boulders:
     """Boulders placed on a body: their catalogue and, on demand, their meshes.
 
     Parameters
     ----------
-    catalog : dict of (n,) arrays, the columns :data:`BOULDER_COLUMNS`
+    catalog : asteroid.catalog.BoulderCatalog
     settings : BoulderSettings
     seed : int
     """
 
-    catalog: dict
+    catalog: BoulderCatalog
     settings: BoulderSettings
     seed: int
 
     def __len__(self) -> int:
-        return int(len(self.catalog["id"]))
+        return len(self.catalog)
 
     def rotations(self) -> np.ndarray:
         """(n, 3, 3) rotation of each boulder from its own frame to the body frame."""
-        c = self.catalog
-        return np.stack([c[f"r{i}{j}"] for i in range(3) for j in range(3)],
-                        axis=-1).reshape(-1, 3, 3)
+        return self.catalog.rotations()
 
     def local_shapes(self, chunk: slice | None = None) -> np.ndarray:
         """(n, V, 3) finest-level vertices of the boulders in their own frames, metres."""
         c = self.catalog
         sl = chunk or slice(None)
-        uid = np.asarray(c["id"][sl], dtype=np.uint64)
-        unit = _unit_shapes(self.seed, uid, self.settings.levels, self.settings.roughness,
-                            self.settings.hurst)
-        d = c["diameter_m"][sl]
-        e = c["elongation"][sl]
-        f = c["flattening"][sl]
-        scale = 0.5 * d[:, None] * np.column_stack([np.sqrt(e), 1.0 / np.sqrt(e), f])
-        return unit * scale[:, None, :]
+        return _local_shapes(self.seed, self.settings, c.id[sl], c.diameter_m[sl],
+                             c.elongation[sl], c.flattening[sl])
 
     def mesh(self, level: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """All boulders at one level of detail (default the finest) in the body frame.
@@ -355,7 +349,7 @@ class Boulders:
         if n == 0:
             return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
         c = self.catalog
-        centres = np.column_stack([c["x_m"], c["y_m"], c["z_m"]])
+        centres = np.column_stack([c.x_m, c.y_m, c.z_m])
         rot = self.rotations()
         out = np.empty((n, nv, 3))
         step = 4096
@@ -406,14 +400,13 @@ def place_boulders(body: Body, population: Population, *, seed: int,
     rot = (_rotation_z(lon) @ _rotation_y(colat) @ _rotation_z(yaw) @ _rotation_y(pitch)
            @ _rotation_x(roll))
     surface = body.surface_radius(placement.directions) if n else np.zeros(0)
-    boulders = Boulders(dict(id=placement.uid, diameter_m=placement.diameters,
-                             flattening=flattening, elongation=elongation), settings, seed)
     # the lowest point of each unrotated boulder (its own frame) sets how far up it sits
     zmin = np.empty(n)
     height = np.empty(n)
     for start in range(0, n, 4096):
         sl = slice(start, min(n, start + 4096))
-        z = boulders.local_shapes(sl)[..., 2]
+        z = _local_shapes(seed, settings, placement.uid[sl], placement.diameters[sl],
+                          elongation[sl], flattening[sl])[..., 2]
         zmin[sl] = z.min(axis=1)
         height[sl] = z.max(axis=1) - zmin[sl]
     depth = burial * height
@@ -429,4 +422,4 @@ def place_boulders(body: Body, population: Population, *, seed: int,
         for j in range(3):
             cat[f"r{i}{j}"] = rot[:, i, j]
     log.info("placed %d boulders", n)
-    return Boulders({k: cat[k] for k in BOULDER_COLUMNS}, settings, seed)
+    return Boulders(BoulderCatalog.from_columns(cat), settings, seed)

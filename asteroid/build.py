@@ -33,9 +33,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from asteroid.body import Body, load_native, save_native
-from asteroid.boulders import BOULDER_COLUMNS, Boulders, BoulderSettings, place_boulders
-from asteroid.catalog import save_table
-from asteroid.craters import CRATER_COLUMNS, add_craters, sample_craters
+from asteroid.boulders import Boulders, BoulderSettings, place_boulders
+from asteroid.catalog import BoulderCatalog, CraterCatalog, save_table
+from asteroid.craters import add_craters, sample_craters
 from asteroid.meshio.export import MESH_FORMATS, mesh_format, write_mesh
 from asteroid.recipe import Recipe
 from asteroid.shape import ShapeModel
@@ -63,15 +63,15 @@ class BuildResult:
     Parameters
     ----------
     body : Body
-    craters : dict of column arrays, or None
-        The crater catalogue (:data:`asteroid.craters.CRATER_COLUMNS`).
+    craters : asteroid.catalog.CraterCatalog, or None
+        The crater catalogue.
     boulders : Boulders, or None
     report : dict
         Figures for the user (counts, timings, the shape's non-star-shaped fraction).
     """
 
     body: Body
-    craters: dict | None = None
+    craters: CraterCatalog | None = None
     boulders: Boulders | None = None
     report: dict = field(default_factory=dict)
 
@@ -79,9 +79,9 @@ class BuildResult:
         """Catalogues for the native file."""
         out = {}
         if self.craters is not None:
-            out["craters"] = self.craters
+            out["craters"] = self.craters.as_dict()
         if self.boulders is not None:
-            out["boulders"] = self.boulders.catalog
+            out["boulders"] = self.boulders.catalog.as_dict()
         return out
 
 
@@ -148,7 +148,7 @@ def build(recipe: Recipe, *, progress: Progress | None = None) -> BuildResult:
         body = result.body.replace(crater_population=population.as_dict())
         craters = result.catalog
         report["craters"] = len(placement)
-        report["craters_applied"] = int(craters["applied"].sum())
+        report["craters_applied"] = int(craters.applied.sum())
         report["craters_s"] = time.perf_counter() - t1
     boulders = None
     if recipe.boulders is not None:
@@ -244,10 +244,10 @@ def _write_all(result: BuildResult, paths: OutputPaths, inputs) -> list[Path]:
     save_native(paths.native, result.body, result.tables(), inputs=inputs)
     written.append(paths.native)
     if paths.craters is not None and result.craters is not None:
-        save_table(paths.craters, result.craters, CRATER_COLUMNS, inputs=inputs)
+        save_table(paths.craters, result.craters, inputs=inputs)
         written.append(paths.craters)
     if paths.boulders is not None and result.boulders is not None:
-        save_table(paths.boulders, result.boulders.catalog, BOULDER_COLUMNS, inputs=inputs)
+        save_table(paths.boulders, result.boulders.catalog, inputs=inputs)
         written.append(paths.boulders)
     return written
 
@@ -261,7 +261,7 @@ def boulders_of(native) -> Boulders | None:
     settings = info["settings"]
     settings = BoulderSettings(**{**settings, "flattening": tuple(settings["flattening"]),
                                   "elongation": tuple(settings["elongation"])})
-    return Boulders({k: table[k] for k in BOULDER_COLUMNS}, settings, int(info["seed"]))
+    return Boulders(BoulderCatalog.from_columns(table), settings, int(info["seed"]))
 
 
 def export_model(native_path, output, *, boulders: bool = True, level: int | None = None) \

@@ -90,7 +90,7 @@ Examples
 >>> body = Body.sphere(SphereMesh(64), 1000.0)
 >>> crater = craters_at([10.0], [45.0], [200.0], seed=1)
 >>> result = add_craters(body, crater, seed=1, model=CraterModel().smooth())
->>> float(result.body.radii.min()) < 1000.0 - 30.0, int(result.catalog["applied"][0])
+>>> float(result.body.radii.min()) < 1000.0 - 30.0, int(result.catalog.applied[0])
 (True, 1)
 """
 
@@ -105,6 +105,7 @@ import numba
 import numpy as np
 
 from asteroid.body import Body
+from asteroid.catalog import CRATER_COLUMNS, CraterCatalog
 from asteroid.placement import Placement, sample
 from asteroid.sphere import (
     SphereMesh,
@@ -137,7 +138,7 @@ from terrain.craters.overlay import (
 )
 from terrain.craters.population import Population
 
-__all__ = ["CRATER_COLUMNS", "CraterModel", "CraterResult", "CraterSettings", "SlopeErosion",
+__all__ = ["CraterModel", "CraterResult", "CraterSettings", "SlopeErosion",
            "add_craters", "craters_at", "max_diameter", "sample_craters"]
 
 log = logging.getLogger(__name__)
@@ -150,14 +151,6 @@ DEFAULT_MAX_EXTENT_DEG = 60.0
 DEM_MARGIN = 2
 #: Most craters a population may expect on one body (a guard against typos in the density).
 MAX_CRATERS = 20_000_000
-
-#: Catalogue columns (see :func:`asteroid.catalog.write_table` for units).
-CRATER_COLUMNS = (
-    "id", "lat_deg", "lon_deg", "x", "y", "z", "diameter_m", "age_gyr", "size_class",
-    "depth_fraction", "rim_fraction", "slope_deg", "slope_factor", "depth_m", "rim_height_m",
-    "alpha", "beta", "reference_radius_m", "extent_deg", "applied",
-)
-
 
 @dataclass(frozen=True)
 class SlopeErosion:
@@ -284,10 +277,10 @@ def craters_at(lat_deg, lon_deg, diameters, ages=None, *, seed: int = 0) -> Plac
 
 @dataclass(frozen=True, eq=False)
 class CraterResult:
-    """A cratered body and its catalogue (columns :data:`CRATER_COLUMNS`, in age order)."""
+    """A cratered body and its catalogue (in age order)."""
 
     body: Body
-    catalog: dict
+    catalog: CraterCatalog
 
 
 # ----------------------------------------------------------------------------------------
@@ -622,4 +615,4 @@ def add_craters(body: Body, craters: Placement, *, seed: int,
     applied = int(cols["applied"].sum())
     log.info("applied %d of %d craters (%d skipped on steep slopes)", applied, n, n - applied)
     meta = dict(craters=dict(count=n, applied=applied, seed=seed, settings=settings.as_dict()))
-    return CraterResult(body.replace(radii=radii, **meta), cols)
+    return CraterResult(body.replace(radii=radii, **meta), CraterCatalog.from_columns(cols))

@@ -65,6 +65,7 @@ from asteroid.body import Stretch
 from asteroid.smoothing import dependency, smooth
 from asteroid.sphere import SphereMesh, ring_offset, ring_size, surface_radius_scalar, unit_vertex
 from terrain.core import memory
+from terrain.core.checks import integer, number
 from terrain.core.errors import InvalidParameterError
 from terrain.core.rng import check_seed, gaussian, stream_id, uniform
 
@@ -223,18 +224,11 @@ class Faulting:
 
     def __post_init__(self):
         for name in ("faults", "passes", "fine_faults"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
-                raise InvalidParameterError(f"faulting {name} must be an integer >= 0; got {v!r}")
-            object.__setattr__(self, name, int(v))
+            object.__setattr__(self, name, integer(getattr(self, name), name, low=0,
+                                                   where="faulting"))
         for name in ("max_fault", "filter_width", "fine_max_fault"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.number)):
-                raise InvalidParameterError(f"faulting {name} must be a number; got {v!r}")
-            v = float(v)
-            if not (v >= 0 and math.isfinite(v)):
-                raise InvalidParameterError(f"faulting {name} must be >= 0 metres; got {v}")
-            object.__setattr__(self, name, v)
+            object.__setattr__(self, name, number(getattr(self, name), name, low=0,
+                                                  where="faulting"))
 
     def as_dict(self) -> dict:
         """Return the parameters as plain data (metres and counts) for recipes and metadata."""

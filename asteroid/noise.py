@@ -64,6 +64,7 @@ import numpy as np
 from asteroid.body import Stretch
 from asteroid.sphere import SphereMesh, unit_vertex
 from terrain.core import memory
+from terrain.core.checks import integer, number
 from terrain.core.errors import InvalidParameterError
 from terrain.core.rng import check_seed, hash_at, key_prefix, stream_id
 
@@ -219,23 +220,15 @@ class PerlinNoise:
     bands: tuple = field(default_factory=tuple)
 
     def __post_init__(self):
-        if isinstance(self.octaves, bool) or not isinstance(self.octaves, (int, np.integer)) \
-                or not 1 <= self.octaves <= 30:
-            raise InvalidParameterError(f"octaves must be an integer in [1, 30]; got "
-                                        f"{self.octaves!r}")
-        object.__setattr__(self, "octaves", int(self.octaves))
-        checks = (("frequency", lambda v: 0 < v <= MAX_FREQUENCY, "in (0, 2^30]"),
-                  ("persistence", lambda v: 0 < v <= 1, "in (0, 1]"),
-                  ("lacunarity", lambda v: 1 < v <= 16, "in (1, 16]"),
-                  ("amplitude", lambda v: 0 <= v < 1, "in [0, 1)"))
-        for name, ok, what in checks:
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.number)):
-                raise InvalidParameterError(f"perlin {name} must be a number; got {v!r}")
-            v = float(v)
-            if not (math.isfinite(v) and ok(v)):
-                raise InvalidParameterError(f"perlin {name} must lie {what}; got {v}")
-            object.__setattr__(self, name, v)
+        object.__setattr__(self, "octaves", integer(self.octaves, "octaves", low=1, high=30,
+                                                    where="perlin"))
+        bounds = {"frequency": dict(low=0, low_open=True, high=MAX_FREQUENCY),
+                  "persistence": dict(low=0, low_open=True, high=1),
+                  "lacunarity": dict(low=1, low_open=True, high=16),
+                  "amplitude": dict(low=0, high=1, high_open=True)}
+        for name, bound in bounds.items():
+            object.__setattr__(self, name, number(getattr(self, name), name, where="perlin",
+                                                  **bound))
         bands = tuple(b if isinstance(b, Band) else Band(**b) for b in self.bands)
         seen = set()
         for b in bands:

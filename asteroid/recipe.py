@@ -101,6 +101,7 @@ from asteroid.faulting import FIG8_FAULTING, Faulting
 from asteroid.noise import FIG5_PRESETS, PerlinNoise
 from asteroid.shape import UNITS
 from asteroid.sphere import check_magnitude
+from terrain.core.checks import check_keys, number
 from terrain.core.errors import InvalidParameterError
 from terrain.core.rng import check_seed
 from terrain.core.tomlfile import read_toml
@@ -147,15 +148,6 @@ PRESETS: dict[str, dict] = {
 }
 
 
-def _number(table: str, key: str, value) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise InvalidParameterError(f"{table} {key} must be a number; got {value!r}")
-    value = float(value)
-    if not math.isfinite(value):
-        raise InvalidParameterError(f"{table} {key} must be finite; got {value}")
-    return value
-
-
 def _density(table: str, c, density, k, dmin) -> float:
     """Craters (or boulders) with D >= dmin per km^2, from the paper's c or a density."""
     if (c is None) == (density is None):
@@ -163,10 +155,8 @@ def _density(table: str, c, density, k, dmin) -> float:
             f"{table} need exactly one of c (N_cum = c D^k per m^2) or density (per km^2 with "
             f"D >= dmin); got {'both' if c is not None else 'neither'}")
     if density is not None:
-        return _number(table, "density", density)
-    c = _number(table, "c", c)
-    if c < 0:
-        raise InvalidParameterError(f"{table} c must be >= 0; got {c}")
+        return number(density, "density", where=table)
+    c = number(c, "c", low=0, where=table)
     return c * dmin**k * 1e6
 
 
@@ -295,13 +285,10 @@ def _merge(base: dict, update: dict) -> dict:
 def _build_dataclass(cls, table: str, values: dict, rename: dict | None = None):
     names = {f.name for f in fields(cls)}
     rename = rename or {}
+    check_keys(values, names | set(rename), f"recipe [{table}]")
     kwargs = {}
     for key, value in values.items():
         key2 = rename.get(key, key)
-        if key2 not in names:
-            raise InvalidParameterError(
-                f"[{table}] has unknown key {key!r}; expected one of "
-                f"{sorted(set(names) | set(rename))}")
         kwargs[key2] = int(value) if isinstance(value, float) and value.is_integer() and \
             key2 in ("octaves", "faults", "passes", "fine_faults", "levels") else value
     return cls(**kwargs)
@@ -371,10 +358,7 @@ class Recipe:
     @classmethod
     def from_dict(cls, data: dict) -> Recipe:
         """Build a recipe from the TOML layout (a preset named in it is applied underneath)."""
-        unknown = set(data) - _TOP_KEYS - _TABLES
-        if unknown:
-            raise InvalidParameterError(
-                f"unknown recipe keys {sorted(unknown)}; expected {sorted(_TOP_KEYS | _TABLES)}")
+        check_keys(data, _TOP_KEYS | _TABLES, "recipe")
         preset = data.get("preset")
         if preset is not None:
             if preset not in PRESETS:
@@ -384,16 +368,14 @@ class Recipe:
         base = data.get("base")
         if base is None:
             raise InvalidParameterError("give a base: --base perlin|faulting|shape:FILE")
-        shape = dict(data.get("shape") or {})
+        shape = check_keys(data.get("shape") or {}, {"file", "units", "centre"},
+                           "recipe [shape]")
         if isinstance(base, str) and base.startswith("shape:"):
             shape["file"] = base.split(":", 1)[1]
             base = "shape"
         shape_file = shape.pop("file", None)
         units = shape.pop("units", "km")
         centre = shape.pop("centre", "centroid")
-        if shape:
-            raise InvalidParameterError(
-                f"[shape] has unknown keys {sorted(shape)}; expected file, units, centre")
         if "magnitude" not in data:
             raise InvalidParameterError("give the magnitude: --magnitude M")
         craters = data.get("craters")

@@ -78,7 +78,6 @@ __all__ = [
     "cap_ranges",
     "cap_vertices",
     "check_magnitude",
-    "cone_coordinates",
     "locate_scalar",
     "ring_offset",
     "ring_unit",
@@ -86,7 +85,6 @@ __all__ = [
     "ring_vertex",
     "spacing_statistics",
     "surface_radius_scalar",
-    "triangle_vertices",
     "unit_vertex",
 ]
 
@@ -212,20 +210,6 @@ def _ring_of(m, idx, rings, positions):
         rings[k] = g
         positions[k] = idx[k] - ring_offset(m, g)
 
-
-@numba.njit(cache=True)
-def triangle_vertices(m, t_global):
-    """Return the three flat vertex indices of canonical triangle ``t_global``, wound outwards."""
-    # find the band by bisection on band offsets
-    lo, hi = 0, 2 * m - 1
-    while lo < hi:
-        mid = (lo + hi + 1) // 2
-        if band_offset(m, mid) <= t_global:
-            lo = mid
-        else:
-            hi = mid - 1
-    b = lo
-    return band_triangle(m, b, t_global - band_offset(m, b))
 
 
 @numba.njit(cache=True)
@@ -453,20 +437,6 @@ def _cone(ax, ay, az, bx, by, bz, cx, cy, cz, ux, uy, uz):
     return ((ux * bcx + uy * bcy + uz * bcz) / det, (ux * cax + uy * cay + uz * caz) / det,
             (ux * abx + uy * aby + uz * abz) / det)
 
-
-@numba.njit(cache=True)
-def cone_coordinates(m, tri, ux, uy, uz):
-    """Return the cone coordinates (alpha, beta, gamma) of u in triangle ``tri``.
-
-    u = alpha A + beta B + gamma C for the triangle's unit vertex directions A, B, C
-    (Cramer's rule); all >= 0 when u lies in the triangle's cone.
-    """
-    i0, i1, i2 = triangle_vertices(m, tri)
-    ax, ay, az = unit_vertex(m, i0)
-    bx, by, bz = unit_vertex(m, i1)
-    cx, cy, cz = unit_vertex(m, i2)
-    alpha, beta, gamma = _cone(ax, ay, az, bx, by, bz, cx, cy, cz, ux, uy, uz)
-    return i0, i1, i2, alpha, beta, gamma
 
 
 #: Order in which locate_scalar tries the bands (0: the band of u's colatitude) and the

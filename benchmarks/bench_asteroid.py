@@ -107,7 +107,7 @@ def _job(spec: dict):
         def call():
             result = add_craters(base, craters, seed=SEED)
             return dict(vertices=mesh.n_vertices, craters=len(craters),
-                        applied=int(result.catalog["applied"].sum()), dmin_m=dmin,
+                        applied=int(result.catalog.applied.sum()), dmin_m=dmin,
                         dmax_m=CRATER_DMAX)
         return call
     raise ValueError(f"unknown benchmark kind {kind!r}")

@@ -42,8 +42,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
 
-from render.records import check_keys, number
 from terrain.cli.tools import cli_args, long_options, run_command
+from terrain.core.checks import check_keys, number
 from terrain.core.errors import InvalidParameterError
 from terrain.core.tomlfile import merge_tables, read_toml, toml_text
 
@@ -355,7 +355,7 @@ def write_scenario(template: Path, target: Path, overrides: dict):
         The parsed scenario, read from ``target``.
     """
     from render.scenario import load_scenario, parse_scenario
-    from terrain.io import atomic_path
+    from terrain.core.outputs import atomic_path
 
     data = merge_tables(read_toml(template, "scenario"), overrides)
     if {"stack", "body"} & set(overrides.get("scene", {})):
@@ -572,7 +572,7 @@ def run_campaign(c: Campaign, out, *, shared=None, fresh: bool = False,
         if marker.exists():
             timings[name.replace("/", "_")] = json.loads(marker.read_text())
     summary = dict(seconds=time.perf_counter() - t0, stages=timings, report=str(report))
-    from terrain.io import atomic_path
+    from terrain.core.outputs import atomic_path
 
     with atomic_path(out / summary_name) as tmp:
         tmp.write_text(json.dumps(summary, indent=2))

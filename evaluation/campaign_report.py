@@ -266,7 +266,7 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
                          "Eros")
     boulders = boulders_of(load_native(Path(asteroid_facts["body"])))
     sec.checks.append(as_check(boulder_check(
-        boulders.catalog["diameter_m"] if boulders is not None else [], label="body: ")))
+        boulders.catalog.diameter_m if boulders is not None else [], label="body: ")))
     if reference is not None:  # slopes rise with facet count: compare at the same count
         matched = facet_matched_slopes((shape.vertices, shape.faces), (eros.vertices, eros.faces),
                                        density=density, spin=spin,

@@ -52,7 +52,7 @@ def _outdir(path: Path, inputs=()) -> Path:
 
 
 def _write_text(path: Path, text: str, inputs=()) -> None:
-    from terrain.io import atomic_path
+    from terrain.core.outputs import atomic_path
 
     with atomic_path(path, inputs) as tmp:
         tmp.write_text(text, encoding="utf-8")
@@ -322,56 +322,73 @@ def asteroid_slopes(meshes, output, reference, reference_units, bin_deg, units, 
                err=True)
 
 
+#: Help of each :class:`evaluation.tracking.TrackerSettings` field as a command-line option
+#: (``--max-corners`` for ``max_corners``); types and defaults come from the record.
+TRACKER_HELP = {
+    "max_corners": "Live tracks kept (replenished every frame).",
+    "quality": "Harris quality level (fraction of the strongest corner).",
+    "min_distance": "Least distance between features (px).",
+    "block_size": "Harris window (px).",
+    "harris_k": "Harris detector free parameter.",
+    "win_size": "Lucas-Kanade window (px).",
+    "levels": "Pyramid levels.",
+    "fb_threshold": "Largest forward-backward error of a kept point (px).",
+    "border": "Points closer than this to the image edge are dropped (px).",
+    "prewarp": "Track from the previous frame warped by the step's homography (no drift "
+               "under zoom and roll), or plain Lucas-Kanade.",
+    "dark_level": "Grey levels (of 255) above a frame's darkest pixel that carry no signal "
+                  "(sky, deep shadow).",
+    "dark_margin": "No corner is detected this close to a region without signal (px; 0: "
+                   "anywhere; default: half the window plus 2).",
+}
+
+
 def _tracker_options(func):
+    """Give a command one option per TrackerSettings field and pass it ``tracker``, the record.
+
+    Also adds ``--outlier-px`` (a scoring option, passed on as ``outlier_px``).
+    """
+    import dataclasses
+    import functools
+    import typing
+
     from evaluation.tracking import TrackerSettings
 
-    default = TrackerSettings()
-    options = [
-        click.option("--max-corners", type=int, default=default.max_corners, show_default=True,
-                     help="Live tracks kept (replenished every frame)."),
-        click.option("--quality", type=float, default=default.quality,
-                     show_default=True,
-                     help="Harris quality level (fraction of the strongest corner)."),
-        click.option("--min-distance", type=float, default=default.min_distance,
-                     show_default=True,
-                     help="Least distance between features (px)."),
-        click.option("--win-size", type=int, default=default.win_size,
-                     show_default=True,
-                     help="Lucas-Kanade window (px)."),
-        click.option("--levels", type=int, default=default.levels,
-                     show_default=True,
-                     help="Pyramid levels."),
-        click.option("--fb-threshold", type=float, default=default.fb_threshold,
-                     show_default=True,
-                     help="Largest forward-backward error of a kept point (px)."),
-        click.option("--prewarp/--no-prewarp", default=default.prewarp, show_default=True,
-                     help="Track from the previous frame warped by the step's homography "
-                          "(no drift under zoom and roll), or plain Lucas-Kanade."),
-        click.option("--dark-level", type=int, default=default.dark_level,
-                     show_default=True,
-                     help="Grey levels (of 255) above a frame's darkest pixel that carry no "
-                          "signal (sky, deep shadow)."),
-        click.option("--dark-margin", type=int, default=None,
-                     help="No corner is detected this close to a region without signal "
-                          "(px; 0: anywhere; default: half the window plus 2)."),
-        click.option("--outlier-px", type=float, default=None,
-                     help="Errors above this are outliers (px; default 2, or the thresholds "
-                          "file's tracking.outlier_px)."),
-    ]
-    return with_options(options)(func)
+    hints = typing.get_type_hints(TrackerSettings)
+    fields = dataclasses.fields(TrackerSettings)
+    names = [f.name for f in fields]
+    if set(names) != set(TRACKER_HELP):
+        raise RuntimeError(f"TRACKER_HELP must describe exactly {sorted(names)}")
+
+    @functools.wraps(func)
+    def command(**kwargs):
+        tracker = TrackerSettings(**{name: kwargs.pop(name) for name in names})
+        return func(tracker=tracker, **kwargs)
+
+    options = []
+    for f in fields:
+        flag = "--" + f.name.replace("_", "-")
+        kind = typing.get_args(hints[f.name]) or (hints[f.name],)
+        kind = next(k for k in kind if k is not type(None))
+        if kind is bool:
+            options.append(click.option(f"{flag}/--no-{flag[2:]}", f.name, default=f.default,
+                                        show_default=True, help=TRACKER_HELP[f.name]))
+        else:
+            options.append(click.option(flag, f.name, type=kind, default=f.default,
+                                        show_default=f.default is not None,
+                                        help=TRACKER_HELP[f.name]))
+    options.append(click.option("--outlier-px", type=float, default=None,
+                                help="Errors above this are outliers (px; default 2, or the "
+                                     "thresholds file's tracking.outlier_px)."))
+    return with_options(options)(command)
 
 
-def _run_tracking(run_dir, max_corners, quality, min_distance, win_size, levels, fb_threshold,
-                  outlier_px, prewarp=True, dark_level=2, dark_margin=None):
-    from evaluation.tracking import TrackerSettings, load_run, score, track
+def _run_tracking(run_dir, tracker, outlier_px):
+    from evaluation.tracking import load_run, score, track
 
-    settings = TrackerSettings(max_corners=max_corners, quality=quality,
-                               min_distance=min_distance, win_size=win_size, levels=levels,
-                               fb_threshold=fb_threshold, prewarp=prewarp,
-                               dark_level=dark_level, dark_margin=dark_margin)
     run = load_run(run_dir)
     with progress_bar("tracking") as update:
-        tracks = track(run, settings, progress=update)
+        tracks = track(run, tracker, progress=update)
     return run, score(tracks, run, outlier_px=outlier_px)
 
 
@@ -380,8 +397,7 @@ def _run_tracking(run_dir, max_corners, quality, min_distance, win_size, levels,
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Output folder (created if missing).")
 @_tracker_options
-def track_cmd(run_dir, output, max_corners, quality, min_distance, win_size, levels,
-              fb_threshold, prewarp, dark_level, dark_margin, outlier_px):
+def track_cmd(run_dir, output, tracker, outlier_px):
     """Track Harris corners through a rendered run and score them against its truth."""
     from evaluation.tracking import save_tracks
     from terrain.core.outputs import check_output_folder, transaction
@@ -389,9 +405,7 @@ def track_cmd(run_dir, output, max_corners, quality, min_distance, win_size, lev
     if output.resolve() == run_dir.resolve():
         raise InvalidParameterError("the output folder must differ from the run directory")
     check_output_folder(output, [run_dir])
-    run, scored = _run_tracking(run_dir, max_corners, quality, min_distance, win_size, levels,
-                                fb_threshold, 2.0 if outlier_px is None else outlier_px,
-                                prewarp, dark_level, dark_margin)
+    run, scored = _run_tracking(run_dir, tracker, 2.0 if outlier_px is None else outlier_px)
     with transaction():  # every file or none
         s = save_tracks(scored, run, _outdir(output, [run_dir]),
                         inputs=[run_dir / "truth.json", run_dir / "manifest.json"])
@@ -470,9 +484,8 @@ def consistency_cmd(run_dir, output, edge_px, occlusion_tolerance):
 @_edges_option
 def report(run_dirs, output, thresholds, title, dems, band, reference, reference_band,
            slope_band, meshes, reference_mesh, reference_units, hazards, units, density, mass,
-           period_hours, spin_axis, radius_deg, coarse_faces, no_gravity, max_corners,
-           quality, min_distance, win_size, levels, fb_threshold, prewarp, dark_level,
-           dark_margin, outlier_px, compute_edges):
+           period_hours, spin_axis, radius_deg, coarse_faces, no_gravity, tracker, outlier_px,
+           compute_edges):
     """One self-contained HTML validation report (and its JSON) with pass/fail checks.
 
     Every RUN_DIR (rendered sequences, any number) gets a feature-tracking section; --dem and
@@ -510,9 +523,7 @@ def report(run_dirs, output, thresholds, title, dems, band, reference, reference
     keys = _unique(keys)
     for run_dir, key in zip(run_dirs, keys, strict=True):
         opx = limits["tracking"]["outlier_px"] if outlier_px is None else outlier_px
-        run, scored = _run_tracking(run_dir, max_corners, quality, min_distance, win_size,
-                                    levels, fb_threshold, opx, prewarp, dark_level,
-                                    dark_margin)
+        run, scored = _run_tracking(run_dir, tracker, opx)
         sections.append(tracking_section(scored, run.image(len(run) - 1), limits,
                                          run_label=str(run_dir),
                                          key=key if len(run_dirs) > 1 else ""))

@@ -42,8 +42,8 @@ geometry (the reflectance depends on the emission and phase angles), resampling 
 finer than a pixel, and the renderer's own inconsistency.
 
 Per frame, the residual's rms, mean and the counted fraction are reported; the run's
-figure of merit is ``spike_ratio``, the largest per-frame rms over the median (the issue's
-bound is 1.5): a level-of-detail switch or a layer switching on shows as a spike at its
+figure of merit is ``spike_ratio``, the largest per-frame rms over the median (at most
+:data:`SPIKE_BOUND`): a level-of-detail switch or a layer switching on shows as a spike at its
 frame. Frames where the drawn layers or the levels of detail change are marked, from each
 frame's truth ``drawn`` record (:func:`change_marks`).
 """
@@ -70,7 +70,7 @@ log = logging.getLogger(__name__)
 
 #: A pixel at most this many noise levels (read and rounding noise) above black is dark.
 DARK_SIGMAS = 4.0
-#: The issue's bound: the largest per-frame rms at most this many times the median.
+#: Acceptance bound: the largest per-frame rms at most this many times the median.
 SPIKE_BOUND = 1.5
 #: Sun directions (in the body frame) closer than this (radians) count as the same sun.
 SUN_STILL_RAD = 1e-7
@@ -440,7 +440,7 @@ def save_consistency(result: Consistency, folder, *, inputs=()) -> dict:
     import io
 
     from evaluation.figures import consistency_figure, save_png
-    from terrain.io import atomic_path
+    from terrain.core.outputs import atomic_path
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)

@@ -179,7 +179,7 @@ def write_csv(path, header, rows, inputs=()) -> Path:
     pathlib.Path
         ``path``.
     """
-    from terrain.io import atomic_path
+    from terrain.core.outputs import atomic_path
 
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")

@@ -18,7 +18,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from terrain.io import atomic_path
+from terrain.core.outputs import atomic_path
 
 __all__ = ["consistency_figure", "crater_sfd_figure", "depth_diameter_figure", "error_figure",
            "png_bytes", "range_thumbnail", "read_png", "save_png", "slope_area_figure",
@@ -444,12 +444,12 @@ def thumbnail(image: np.ndarray, target, size: int = THUMBNAIL_SIDE):
     return write_png(small, target)
 
 
-def range_thumbnail(rng: np.ndarray, target, size: int = THUMBNAIL_SIDE):
+def range_thumbnail(range_m: np.ndarray, target, size: int = THUMBNAIL_SIDE):
     """Write a range image colour-mapped (viridis, near = dark; no return black) as PNG.
 
     Parameters
     ----------
-    rng : (h, w) float array, metres
+    range_m : (h, w) float array, metres
         Range image; NaN or 0 where there is no return.
     target : path-like
         The PNG to write (atomically).
@@ -463,10 +463,10 @@ def range_thumbnail(rng: np.ndarray, target, size: int = THUMBNAIL_SIDE):
     """
     from matplotlib import colormaps
 
-    finite = np.isfinite(rng) & (rng > 0)
-    rgb = np.zeros(rng.shape + (3,), dtype=np.uint8)
+    finite = np.isfinite(range_m) & (range_m > 0)
+    rgb = np.zeros(range_m.shape + (3,), dtype=np.uint8)
     if finite.any():
-        lo, hi = np.percentile(rng[finite], [0.5, 99.5])
-        t = np.clip((rng - lo) / max(hi - lo, 1e-9), 0, 1)
+        lo, hi = np.percentile(range_m[finite], [0.5, 99.5])
+        t = np.clip((range_m - lo) / max(hi - lo, 1e-9), 0, 1)
         rgb[finite] = (colormaps["viridis"](t[finite])[:, :3] * 255 + 0.5).astype(np.uint8)
     return thumbnail(rgb, target, size)

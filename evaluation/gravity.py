@@ -61,8 +61,7 @@ from terrain.core import memory
 from terrain.core.errors import InvalidParameterError
 
 __all__ = ["EROS_DENSITY", "EROS_PERIOD_H", "GRAVITATIONAL_CONSTANT", "Polyhedron",
-           "centrifugal", "closed_chain", "coarsen", "polyhedron_field", "signed_volume",
-           "volume_centroid"]
+           "centrifugal", "closed_chain", "coarsen", "polyhedron_field", "signed_volume"]
 
 log = logging.getLogger(__name__)
 
@@ -103,13 +102,6 @@ def signed_volume(vertices, faces) -> float:
     a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
     return float(np.einsum("ij,ij->", a, np.cross(b, c)) / 6.0)
 
-
-def volume_centroid(vertices, faces) -> np.ndarray:
-    """(3,) float64: centroid of the enclosed volume (the centre of mass of a uniform body)."""
-    v, f = _as_mesh(vertices, faces)
-    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
-    vol = np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0
-    return ((a + b + c) / 4.0 * vol[:, None]).sum(axis=0) / vol.sum()
 
 
 def closed_chain(faces) -> bool:

@@ -104,12 +104,12 @@ def descent_layers(run, stack) -> list[dict]:
     """
     rows = []
     for k, truth in enumerate(run.truth):
-        rng = run.range(k)
-        if rng is None:
+        range_m = run.range(k)
+        if range_m is None:
             continue
         intr = truth.intrinsics
         i, j = int(round(intr.cy)), int(round(intr.cx))  # pixel centres at integers
-        r = float(rng[i, j])
+        r = float(range_m[i, j])
         if not (math.isfinite(r) and r > 0):
             continue
         point = truth.pose.unproject([[j, i]], [r], intr)[0]

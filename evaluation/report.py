@@ -36,9 +36,9 @@ thresholds`` prints them)::
     [consistency]
     max_spike_ratio = 1.5              # largest per-frame residual rms over the median
 
-The consistency bound is the consistency issue's (no spikes at layer or level-of-detail
-changes: see :mod:`evaluation.consistency`). The tracking defaults are the issue's acceptance
-figure (median <= 0.5 px) and common practice for KLT front ends; 35 degrees is where lunar
+The consistency bound asks for no spikes at layer or level-of-detail changes (see
+:mod:`evaluation.consistency`). The tracking defaults are the acceptance figure for tracking
+(median <= 0.5 px) and common practice for KLT front ends; 35 degrees is where lunar
 slope-frequency distributions roll over (Kreslavsky and Head 2016) and below which nearly all
 Eros slopes lie (Thomas et al. 2002); the DEM KS limit is what two real DEMs of the same
 ground meet (:data:`evaluation.lunar_stats.KS_BETWEEN_REAL_DEMS`: the Malapert SfS and stereo
@@ -61,9 +61,10 @@ from typing import Any
 
 import numpy as np
 
+from terrain.core.checks import check_keys, number, text
 from terrain.core.errors import InvalidParameterError
+from terrain.core.outputs import atomic_path
 from terrain.core.tomlfile import read_toml
-from terrain.io import atomic_path
 
 __all__ = ["DEFAULT_THRESHOLDS", "REPORT_FORMAT", "Check", "Figure", "Report", "Section",
            "asteroid_section", "consistency_section", "dem_section", "image_figure",
@@ -181,35 +182,17 @@ def load_thresholds(path=None) -> dict:
     if path is None:
         return out
     data = read_toml(path, "thresholds file")
+    where = f"thresholds file '{path}'"
+    check_keys(data, out, where)
     for section, values in data.items():
-        if section not in out or not isinstance(values, dict):
-            raise InvalidParameterError(
-                f"thresholds file '{path}': unknown table [{section}]; expected one of "
-                f"{', '.join(sorted(out))}")
-        for key, value in values.items():
-            if key not in out[section]:
-                raise InvalidParameterError(
-                    f"thresholds file '{path}': unknown key {section}.{key}; expected one of "
-                    f"{', '.join(sorted(out[section]))}")
-            default = out[section][key]
-            if isinstance(default, str):
-                if key == "slope_kind" and value not in ("gravitational", "radial"):
-                    raise InvalidParameterError(
-                        f"thresholds file '{path}': {section}.{key} must be 'gravitational' "
-                        f"or 'radial'; got {value!r}")
-                out[section][key] = value
+        table = check_keys(values, out[section], f"{where} [{section}]")
+        for key, value in table.items():
+            if isinstance(out[section][key], str):
+                out[section][key] = text(value, key, choices=("gravitational", "radial"),
+                                         where=f"{where} [{section}]")
             else:
-                if isinstance(value, bool) or not isinstance(value, (int, float)) \
-                        or not math.isfinite(value) or value < 0:
-                    raise InvalidParameterError(
-                        f"thresholds file '{path}': {section}.{key} must be a non-negative "
-                        f"number; got {value!r}")
-                upper = _UPPER_BOUNDS.get(key)
-                if upper is not None and value > upper:
-                    raise InvalidParameterError(
-                        f"thresholds file '{path}': {section}.{key} must be at most {upper:g} "
-                        f"({_COMMENTS.get(key, 'a fraction')}); got {value!r}")
-                out[section][key] = float(value)
+                out[section][key] = number(value, key, low=0, high=_UPPER_BOUNDS.get(key),
+                                           where=f"{where} [{section}]")
     return out
 
 

@@ -18,12 +18,12 @@ __all__ = ["SILHOUETTE_JUMP", "contour_pixels", "dilate", "near_contours"]
 SILHOUETTE_JUMP = 0.05
 
 
-def contour_pixels(rng: np.ndarray, jump: float = SILHOUETTE_JUMP) -> np.ndarray:
+def contour_pixels(range_m: np.ndarray, jump: float = SILHOUETTE_JUMP) -> np.ndarray:
     """Return the pixels of a range image on an occluding contour.
 
     Parameters
     ----------
-    rng : (h, w) float, metres
+    range_m : (h, w) float, metres
         Range per pixel; NaN (or inf) without return.
     jump : float
         Relative range jump between 4-neighbours that marks a contour (both pixels are on
@@ -43,11 +43,11 @@ def contour_pixels(rng: np.ndarray, jump: float = SILHOUETTE_JUMP) -> np.ndarray
     array([[0, 1, 1],
            [0, 1, 0]])
     """
-    edge = ~np.isfinite(rng)
+    edge = ~np.isfinite(range_m)
     with np.errstate(invalid="ignore"):
         for axis in (0, 1):
-            a = rng[:-1] if axis == 0 else rng[:, :-1]
-            b = rng[1:] if axis == 0 else rng[:, 1:]
+            a = range_m[:-1] if axis == 0 else range_m[:, :-1]
+            b = range_m[1:] if axis == 0 else range_m[:, 1:]
             step = np.abs(a - b) > jump * np.minimum(a, b)
             if axis == 0:
                 edge[:-1] |= step
@@ -79,12 +79,12 @@ def dilate(mask: np.ndarray, px: int) -> np.ndarray:
     return cv2.dilate(mask.astype(np.uint8), np.ones((size, size), np.uint8)) > 0
 
 
-def near_contours(rng: np.ndarray, px: int, jump: float = SILHOUETTE_JUMP) -> np.ndarray:
+def near_contours(range_m: np.ndarray, px: int, jump: float = SILHOUETTE_JUMP) -> np.ndarray:
     """Return the pixels within ``px`` pixels of an occluding contour.
 
     Parameters
     ----------
-    rng : (h, w) float, metres
+    range_m : (h, w) float, metres
         Range per pixel; NaN without return.
     px : int, pixels
         Distance (Chebyshev) from a contour pixel.
@@ -95,4 +95,4 @@ def near_contours(rng: np.ndarray, px: int, jump: float = SILHOUETTE_JUMP) -> np
     -------
     (h, w) bool
     """
-    return dilate(contour_pixels(rng, jump), px)
+    return dilate(contour_pixels(range_m, jump), px)

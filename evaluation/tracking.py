@@ -546,9 +546,9 @@ def _prewarped(prev, image, p0, p1, st1, lk):
 # ------------------------------------------------------------------------------ truth
 
 
-def _sample_range(rng: np.ndarray, uv: np.ndarray, tolerance: float) -> np.ndarray:
+def _sample_range(range_m: np.ndarray, uv: np.ndarray, tolerance: float) -> np.ndarray:
     """Range at fractional pixels: bilinear where the 4 returns agree, else nearest; NaN."""
-    h, w = rng.shape
+    h, w = range_m.shape
     u, v = uv[:, 0], uv[:, 1]
     out = np.full(len(uv), np.nan)
     inside = (u >= -0.5) & (u <= w - 0.5) & (v >= -0.5) & (v <= h - 0.5) & np.isfinite(u) \
@@ -560,13 +560,13 @@ def _sample_range(rng: np.ndarray, uv: np.ndarray, tolerance: float) -> np.ndarr
     v0 = np.clip(np.floor(vi).astype(np.int64), 0, h - 2) if h > 1 else np.zeros(vi.size, int)
     u1, v1 = np.minimum(u0 + 1, w - 1), np.minimum(v0 + 1, h - 1)
     fu, fv = np.clip(ui - u0, 0, 1), np.clip(vi - v0, 0, 1)
-    c = np.stack([rng[v0, u0], rng[v0, u1], rng[v1, u0], rng[v1, u1]], axis=1)
+    c = np.stack([range_m[v0, u0], range_m[v0, u1], range_m[v1, u0], range_m[v1, u1]], axis=1)
     bil = (c[:, 0] * (1 - fu) * (1 - fv) + c[:, 1] * fu * (1 - fv) + c[:, 2] * (1 - fu) * fv
            + c[:, 3] * fu * fv)
     with np.errstate(invalid="ignore"):
         spread = c.max(axis=1) - c.min(axis=1)  # NaN when a return is missing
         agree = np.isfinite(spread) & (spread <= tolerance * c.min(axis=1))
-    nearest = rng[np.clip(np.rint(vi).astype(np.int64), 0, h - 1),
+    nearest = range_m[np.clip(np.rint(vi).astype(np.int64), 0, h - 1),
                   np.clip(np.rint(ui).astype(np.int64), 0, w - 1)]
     out[inside] = np.where(agree, bil, nearest)
     return out
@@ -621,10 +621,10 @@ def truth_round_trip(run, *, step: int = 1, spacing: int = 8) -> float:
     return float(np.median(values)) if values.size else float("nan")
 
 
-def _near_silhouette(rng: np.ndarray, uv: np.ndarray) -> np.ndarray:
+def _near_silhouette(range_m: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """(n,) bool: pixels within SILHOUETTE_PX of no return or of an occluding contour."""
-    h, w = rng.shape
-    near = near_contours(rng, SILHOUETTE_PX, SILHOUETTE_JUMP)
+    h, w = range_m.shape
+    near = near_contours(range_m, SILHOUETTE_PX, SILHOUETTE_JUMP)
     cols = np.clip(np.rint(uv[:, 0]).astype(np.int64), 0, w - 1)
     rows = np.clip(np.rint(uv[:, 1]).astype(np.int64), 0, h - 1)
     return near[rows, cols]
@@ -786,9 +786,9 @@ def score(tracks: Tracks, run, *, outlier_px: float = 2.0,
     for k in np.unique(tracks.start):
         sel = np.flatnonzero(tracks.start == k)
         uv = tracks.positions[sel, k].astype(np.float64)
-        rng = run.range(int(k))
-        silhouette[sel] = _near_silhouette(rng, uv)
-        r = _sample_range(rng, uv, occlusion_tolerance)
+        range_m = run.range(int(k))
+        silhouette[sel] = _near_silhouette(range_m, uv)
+        r = _sample_range(range_m, uv, occlusion_tolerance)
         ok = np.isfinite(r)
         if ok.any():
             t = truth[int(k)]
@@ -827,16 +827,16 @@ def score(tracks: Tracks, run, *, outlier_px: float = 2.0,
                         one_step)
 
 
-def _carry(run, k0: int, k1: int, uv: np.ndarray, rng0: np.ndarray, rng1: np.ndarray,
+def _carry(run, k0: int, k1: int, uv: np.ndarray, range0: np.ndarray, range1: np.ndarray,
            tolerance: float) -> np.ndarray:
     """Return where the truth puts pixels ``uv`` of frame k0 in frame k1.
 
     NaN where a pixel is unliftable, hidden or outside.
     """
     a, b = run.truth[k0], run.truth[k1]
-    h, w = rng1.shape
+    h, w = range1.shape
     out = np.full((len(uv), 2), np.nan)
-    r = _sample_range(rng0, uv, tolerance)
+    r = _sample_range(range0, uv, tolerance)
     ok = np.flatnonzero(np.isfinite(r))
     if not ok.size:
         return out
@@ -844,7 +844,7 @@ def _carry(run, k0: int, k1: int, uv: np.ndarray, rng0: np.ndarray, rng1: np.nda
              @ quat_to_matrix(b.body_rotation).T)
     q = b.pose.project(world, b.intrinsics)
     dist = np.linalg.norm(world - np.asarray(b.pose.position), axis=1)
-    seen = _sample_range(rng1, q, tolerance)
+    seen = _sample_range(range1, q, tolerance)
     with np.errstate(invalid="ignore"):
         good = (np.isfinite(q).all(axis=1) & (q[:, 0] >= -0.5) & (q[:, 0] <= w - 0.5)
                 & (q[:, 1] >= -0.5) & (q[:, 1] <= h - 0.5) & np.isfinite(seen)
@@ -860,14 +860,14 @@ def _one_step_errors(tracks: Tracks, run, tolerance: float) -> np.ndarray:
     out = np.full((tracks.n_tracks, n), np.nan)
     prev = run.range(0) if n else np.empty((0, 0))  # no frames: the loop does not run
     for k in range(1, n):
-        rng = run.range(k)
+        range_m = run.range(k)
         sel = np.flatnonzero(alive[:, k] & alive[:, k - 1])
         if sel.size:
             q = _carry(run, k - 1, k, tracks.positions[sel, k - 1].astype(np.float64), prev,
-                       rng, tolerance)
+                       range_m, tolerance)
             out[sel, k] = np.linalg.norm(tracks.positions[sel, k].astype(np.float64) - q,
                                          axis=1)
-        prev = rng
+        prev = range_m
     return out
 
 
@@ -884,13 +884,13 @@ def truth_warped_frame(run, k0: int, k1: int, image0=None, image1=None) -> np.nd
 
     img0 = run.image(k0) if image0 is None else image0
     img1 = run.image(k1) if image1 is None else image1
-    rng0, rng1 = run.range(k0), run.range(k1)
-    if rng0 is None or rng1 is None:
+    range0, range1 = run.range(k0), run.range(k1)
+    if range0 is None or range1 is None:
         raise InvalidParameterError("truth-warped frames need range images")
-    h, w = rng1.shape
+    h, w = range1.shape
     v, u = np.mgrid[0:h, 0:w]
     uv = np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64)
-    q = _carry(run, k1, k0, uv, rng1, rng0, 0.002)
+    q = _carry(run, k1, k0, uv, range1, range0, 0.002)
     ok = np.isfinite(q).all(axis=1)
     mu = np.where(ok, q[:, 0], -10.0).astype(np.float32).reshape(h, w)
     mv = np.where(ok, q[:, 1], -10.0).astype(np.float32).reshape(h, w)
@@ -1005,7 +1005,7 @@ def save_tracks(scored: ScoredTracks, run, folder, *, inputs=()) -> dict:
     from pathlib import Path
 
     from evaluation.figures import error_figure, save_png, tracks_figure
-    from terrain.io import atomic_path
+    from terrain.core.outputs import atomic_path
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)

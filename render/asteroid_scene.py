@@ -196,9 +196,9 @@ class AsteroidScene:
         self.reach = float(body.radii.max())
         if self.boulders is not None and len(self.boulders):
             c = self.boulders.catalog
-            centres = np.column_stack([c["x_m"], c["y_m"], c["z_m"]])
+            centres = np.column_stack([c.x_m, c.y_m, c.z_m])
             self.reach = max(self.reach, float(np.linalg.norm(centres, axis=1).max()
-                                               + c["diameter_m"].max()))
+                                               + c.diameter_m.max()))
         self._gpu: dict = {}
         self._shadow: ShadowMap | None = None
         self._fine: list = []
@@ -345,12 +345,12 @@ class AsteroidScene:
     def _boulder_centres(self) -> np.ndarray:
         """(n, 3) float64 boulder centres (m, body frame)."""
         c = self._rocks().catalog
-        return np.column_stack([c["x_m"], c["y_m"], c["z_m"]])
+        return np.column_stack([c.x_m, c.y_m, c.z_m])
 
     def _boulder_radii(self) -> np.ndarray:
         """(n,) bounding radius (m) the level-of-detail and visibility rules use."""
         c = self._rocks().catalog
-        return 0.5 * c["diameter_m"] * np.sqrt(np.maximum(c["elongation"], 1.0))
+        return 0.5 * c.diameter_m * np.sqrt(np.maximum(c.elongation, 1.0))
 
     # ------------------------------------------------------------------ per frame
     def imposter(self, view: View, options: RenderOptions) -> Imposter | None:
@@ -520,7 +520,7 @@ class AsteroidScene:
         nv = 10 * 4**level + 2
         c = rocks.catalog
         rot = rocks.rotations()[indices]
-        centres = np.column_stack([c["x_m"], c["y_m"], c["z_m"]])[indices]
+        centres = np.column_stack([c.x_m, c.y_m, c.z_m])[indices]
         local = np.stack([rocks.local_shapes(slice(int(i), int(i) + 1))[0, :nv]
                           for i in indices])
         verts = (np.einsum("nij,nvj->nvi", rot, local) + centres[:, None, :]).reshape(-1, 3)

@@ -70,8 +70,8 @@ def frame(scenario_file: Path, output: Path, index: int | None,
     from render.renderer import Renderer
     from render.scenario import load_scenario
     from render.sequence import check_frame_memory, load_scene, render_sample
-    from terrain.core.outputs import transaction
-    from terrain.io import atomic_path, check_output_path, write_float_tiff, write_png
+    from terrain.core.outputs import atomic_path, check_output_path, transaction
+    from terrain.io import write_float_tiff, write_png
 
     if output.suffix.lower() != ".png":
         raise InvalidParameterError(f"frame output must be a .png file; got '{output}'")

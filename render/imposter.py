@@ -22,7 +22,7 @@ import numpy as np
 __all__ = ["blend", "composite"]
 
 
-def composite(view: Any, radiance: np.ndarray, rng: np.ndarray, normals: np.ndarray,
+def composite(view: Any, radiance: np.ndarray, range_m: np.ndarray, normals: np.ndarray,
               imposter: Any, pose: Any, intrinsics: Any) -> None:
     """Draw an imposter image into a frame's images, in place, where it shows the body.
 
@@ -30,7 +30,7 @@ def composite(view: Any, radiance: np.ndarray, rng: np.ndarray, normals: np.ndar
     ----------
     view : render.renderer.View
         The frame's camera.
-    radiance, rng : (h, w) float32
+    radiance, range_m : (h, w) float32
         The frame's I/F and range (m, NaN where nothing was hit), top row first.
     normals : (h, w, 3) float32
         The frame's world-frame normals (NaN where nothing was hit).
@@ -71,11 +71,11 @@ def composite(view: Any, radiance: np.ndarray, rng: np.ndarray, normals: np.ndar
     with np.errstate(invalid="ignore", divide="ignore"):
         rad = np.where(den > 0, num / np.maximum(den, 1e-12), 0.0)
     radiance[rows, cols] = rad[rows, cols]
-    rng[rows, cols] = imposter.range[jv, ju]
+    range_m[rows, cols] = imposter.range[jv, ju]
     normals[rows, cols] = imposter.normals[jv, ju]
 
 
-def blend(view: Any, radiance: np.ndarray, rng: np.ndarray, normals: np.ndarray,
+def blend(view: Any, radiance: np.ndarray, range_m: np.ndarray, normals: np.ndarray,
           imposter: Any, pose: Any, intrinsics: Any, weight: float) -> None:
     """Blend an imposter's radiance into a geometry frame, in place (the fade).
 
@@ -84,15 +84,15 @@ def blend(view: Any, radiance: np.ndarray, rng: np.ndarray, normals: np.ndarray,
 
     Parameters
     ----------
-    view, radiance, rng, normals, imposter, pose, intrinsics
-        As :func:`composite`; ``rng`` and ``normals`` are read, not changed.
+    view, radiance, range_m, normals, imposter, pose, intrinsics
+        As :func:`composite`; ``range_m`` and ``normals`` are read, not changed.
     weight : float
         The imposter's weight, clamped to [0, 1].
     """
     w = float(min(max(weight, 0.0), 1.0))
     rad = np.zeros_like(radiance)
-    r = np.full_like(rng, np.nan)
+    r = np.full_like(range_m, np.nan)
     n = np.full_like(normals, np.nan)
     composite(view, rad, r, n, imposter, pose, intrinsics)
-    both = np.isfinite(r) & np.isfinite(rng)
+    both = np.isfinite(r) & np.isfinite(range_m)
     radiance[both] = (1.0 - w) * radiance[both] + w * rad[both]

@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from render.camera import Pose, quat_from_matrix, quat_to_matrix
-from render.records import check_keys
+from terrain.core.checks import check_keys
 from terrain.core.errors import InvalidParameterError
 
 if TYPE_CHECKING:

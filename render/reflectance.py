@@ -46,7 +46,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from render.records import check_keys, number
+from terrain.core.checks import check_keys, number
 from terrain.core.errors import InvalidParameterError
 
 __all__ = ["BRDF_CODES", "MCEWEN_MOON", "SATO_643NM", "Hapke", "check_brdf", "hapke",

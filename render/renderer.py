@@ -656,7 +656,7 @@ class Renderer:
         w, h = ka.width, ka.height
         rad = np.frombuffer(fbo.read(attachment=0, components=1, dtype="f4"),
                             dtype=np.float32).reshape(h, w)[::-1].copy()
-        rng = np.frombuffer(fbo.read(attachment=1, components=1, dtype="f4"),
+        range_m = np.frombuffer(fbo.read(attachment=1, components=1, dtype="f4"),
                             dtype=np.float32).reshape(h, w)[::-1].copy()
         nrm = np.frombuffer(fbo.read(attachment=2, components=4, dtype="f4"),
                             dtype=np.float32).reshape(h, w, 4)[::-1]
@@ -664,12 +664,12 @@ class Renderer:
             c = (a - 1) // 2
             rad = rad.reshape(k.height, a, k.width, a).mean(axis=(1, 3), dtype=np.float64) \
                 .astype(np.float32)
-            rng = rng[c::a, c::a].copy()
+            range_m = range_m[c::a, c::a].copy()
             nrm = nrm[c::a, c::a]
         hit = nrm[:, :, 3] > 0.5
-        rng[~hit] = np.nan
+        range_m[~hit] = np.nan
         normals = np.where(hit[:, :, None], nrm[:, :, :3], np.nan).astype(np.float32)
-        return Frame(np.ascontiguousarray(rad), rng, normals, dict(state.drawn))
+        return Frame(np.ascontiguousarray(rad), range_m, normals, dict(state.drawn))
 
     def _set_albedo_map(self, prog, albedo):
         """Bind a scene's albedo map ((texture, (xmin, ymin, xmax, ymax) scene-local)) or none."""

@@ -46,9 +46,10 @@ from pathlib import Path
 import numpy as np
 
 from render.camera import Intrinsics, Pose
-from render.records import check_keys
+from terrain.core.checks import check_keys
 from terrain.core.errors import InvalidParameterError, MissingInputError
-from terrain.io import atomic_path, read_float_tiff, write_float_tiff, write_png
+from terrain.core.outputs import atomic_path
+from terrain.io import read_float_tiff, write_float_tiff, write_png
 
 __all__ = ["FORMAT", "FrameTruth", "RunReader", "RunWriter"]
 

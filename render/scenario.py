@@ -81,8 +81,6 @@ Keyframes: ``[[trajectory.keyframe]]`` tables with ``time``, ``position`` and ``
 
 from __future__ import annotations
 
-import difflib
-import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -94,6 +92,7 @@ from render.renderer import MAX_ANTIALIAS, Lighting, RenderOptions
 from render.scene_build import SceneBuild
 from render.sensor import Sensor
 from render.trajectory import Sample, approach, descent, keyframes
+from terrain.core.checks import boolean, check_keys, integer, number, text, vector
 from terrain.core.errors import InvalidParameterError
 from terrain.core.rng import check_seed
 from terrain.core.tomlfile import read_toml
@@ -103,71 +102,21 @@ __all__ = ["SceneSpec", "Scenario", "TrajectorySpec", "load_scenario"]
 _SECTIONS = {"name", "seed", "scene", "sun", "surface", "camera", "sensor", "render", "output",
              "trajectory", "description", "motion"}
 _HAPKE_KEYS = set(Hapke.__dataclass_fields__)
+#: How each section is named in messages.
+_SCENE, _TRAJECTORY, _SURFACE, _SUN, _CAMERA, _RENDER, _OUTPUT = (
+    f"scenario [{name}]" for name in ("scene", "trajectory", "surface", "sun", "camera", "render",
+                                      "output"))
 
 
 def _section(data: dict, name: str, allowed: set[str]) -> dict:
-    table = data.get(name, {})
-    if not isinstance(table, dict):
-        raise InvalidParameterError(f"scenario [{name}] must be a table")
-    unknown = set(table) - allowed
-    if unknown:
-        key = sorted(unknown)[0]
-        near = difflib.get_close_matches(key, sorted(allowed), n=1)
-        raise InvalidParameterError(
-            f"scenario [{name}] has unknown keys {sorted(unknown)}"
-            + (f" (did you mean {near[0]!r}?)" if near else "")
-            + f"; expected some of {sorted(allowed)}")
-    return table
+    return check_keys(data.get(name, {}), allowed, f"scenario [{name}]")
 
 
-def _bool(table, key, default, where):
-    v = table.get(key, default)
-    if not isinstance(v, bool):
-        raise InvalidParameterError(
-            f"scenario {where}.{key} must be true or false (unquoted); got {v!r}")
-    return v
-
-
-def _int(table, key, default, where, minimum=None, maximum=None):
-    v = table.get(key, default)
-    if isinstance(v, bool) or not isinstance(v, int):
-        raise InvalidParameterError(f"scenario {where}.{key} must be an integer; got {v!r}")
-    if (minimum is not None and v < minimum) or (maximum is not None and v > maximum):
-        raise InvalidParameterError(
-            f"scenario {where}.{key} must lie in [{minimum}, {maximum}]; got {v}")
-    return v
-
-
-def _text(table, key, default, where):
-    v = table.get(key, default)
-    if not isinstance(v, str):
-        raise InvalidParameterError(f"scenario {where}.{key} must be a string; got {v!r}")
-    return v
-
-
-def _vector(table, key, n, where):
-    v = table.get(key)
-    if (not isinstance(v, list) or len(v) != n
-            or any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in v)
-            or not all(math.isfinite(x) for x in v)):
-        raise InvalidParameterError(
-            f"scenario {where}.{key} must be a list of {n} finite numbers; got {v!r}")
-    return tuple(float(x) for x in v)
-
+#: Bounds of a value that must be positive.
+_POSITIVE: dict = {"low": 0, "low_open": True}
 
 #: Largest image side a scenario may ask for (pixels).
 MAX_IMAGE_SIDE = 32768
-
-
-def _number(table, key, default, where, positive=False):
-    v = table.get(key, default)
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise InvalidParameterError(f"scenario {where}.{key} must be a number; got {v!r}")
-    v = float(v)
-    if not math.isfinite(v) or (positive and v <= 0):
-        raise InvalidParameterError(
-            f"scenario {where}.{key} must be {'positive' if positive else 'finite'}; got {v}")
-    return v
 
 
 #: Bodies an asteroid scene is drawn as an imposter below, in pixels across.
@@ -239,7 +188,7 @@ class SceneSpec:
         -------
         SceneSpec
         """
-        scene = _section({"scene": table}, "scene", set(SCENE_KEYS))
+        scene = check_keys(table, SCENE_KEYS, _SCENE)
         kind = scene.get("type")
         if kind not in ("terrain", "asteroid"):
             raise InvalidParameterError(
@@ -251,20 +200,20 @@ class SceneSpec:
         values: dict = {"type": kind}
         for key in ("stack", "body"):
             if key in scene:
-                values[key] = _text(scene, key, "", "scene")
+                values[key] = text(scene.get(key, ""), key, where=_SCENE)
         for key in ("curvature", "boulders"):
             if key in scene:
-                values[key] = _bool(scene, key, True, "scene")
+                values[key] = boolean(scene.get(key, True), key, where=_SCENE)
         for key in ("spin_period", "spin_phase"):
             if key in scene:
-                values[key] = _number(scene, key, 0.0, "scene")
+                values[key] = number(scene.get(key, 0.0), key, where=_SCENE)
         if "radius" in scene:
-            values["radius"] = _number(scene, "radius", 1.0, "scene", positive=True)
+            values["radius"] = number(scene.get("radius", 1.0), "radius", **_POSITIVE, where=_SCENE)
         if "imposter_pixels" in scene:
-            values["imposter_pixels"] = _number(scene, "imposter_pixels",
-                                                DEFAULT_IMPOSTER_PIXELS, "scene", positive=True)
+            values["imposter_pixels"] = number(scene["imposter_pixels"], "imposter_pixels",
+                                               **_POSITIVE, where=_SCENE)
         if "spin_axis" in scene:
-            values["spin_axis"] = _vector(scene, "spin_axis", 3, "scene")
+            values["spin_axis"] = vector(scene.get("spin_axis"), "spin_axis", 3, where=_SCENE)
         if "build" in scene:
             values["build"] = SceneBuild.from_mapping(scene["build"], kind)
         return cls(**values)
@@ -332,54 +281,49 @@ class TrajectorySpec:
         -------
         TrajectorySpec
         """
-        traj = _section({"trajectory": table}, "trajectory", set(TRAJECTORY_KEYS))
+        traj = check_keys(table, TRAJECTORY_KEYS, _TRAJECTORY)
         kind = traj.get("type")
         if kind not in ("descent", "keyframes", "approach"):
             raise InvalidParameterError(
                 f"scenario [trajectory] type must be 'descent', 'keyframes' or 'approach'; "
                 f"got {kind!r}")
-        frames = traj.get("frames", 1)
-        if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
-            raise InvalidParameterError(
-                f"scenario [trajectory] frames must be a positive integer; got {frames!r}")
+        frames = integer(traj.get("frames", 1), "frames", low=1, where=_TRAJECTORY)
         values: dict = {"type": kind, "frames": frames}
         if "duration" in traj:
-            values["duration"] = _number(traj, "duration", 0.0, "trajectory")
+            values["duration"] = number(traj.get("duration", 0.0), "duration", where=_TRAJECTORY)
         if "look" in traj:
-            look = _text(traj, "look", "site", "trajectory")
-            if look not in ("site", "nadir"):
-                raise InvalidParameterError(
-                    f"scenario trajectory.look must be 'site' or 'nadir'; got {look!r}")
-            values["look"] = look
+            values["look"] = text(traj["look"], "look", choices=("site", "nadir"),
+                                  where=_TRAJECTORY)
         if "site" in traj:
-            values["site"] = _vector(traj, "site", 2, "trajectory")
+            values["site"] = vector(traj.get("site"), "site", 2, where=_TRAJECTORY)
         if "direction" in traj:
-            values["direction"] = _vector(traj, "direction", 3, "trajectory")
+            values["direction"] = vector(traj.get("direction"), "direction", 3, where=_TRAJECTORY)
         if kind == "descent":
             for key in ("start_altitude", "end_altitude"):
-                values[key] = _number(traj, key, None, "trajectory", positive=True)
+                values[key] = number(traj.get(key), key, **_POSITIVE, where=_TRAJECTORY)
         if kind == "approach":
             for key in ("start_distance", "end_distance"):
-                values[key] = _number(traj, key, None, "trajectory", positive=True)
+                values[key] = number(traj.get(key), key, **_POSITIVE, where=_TRAJECTORY)
         if "keyframe" in traj and (not isinstance(traj["keyframe"], list) or not all(
                 isinstance(k, dict) for k in traj["keyframe"])):
             raise InvalidParameterError("scenario trajectory.keyframe must be "
                                         "[[trajectory.keyframe]] tables")
         for n, key in enumerate(traj.get("keyframe", []), start=1):
-            where = f"trajectory.keyframe #{n}"
-            _section({"keyframe": key}, "keyframe", {"time", "position", "attitude", "look_at"})
-            _number(key, "time", None, where)
-            _vector(key, "position", 3, where)
+            where = f"scenario [[trajectory.keyframe]] #{n}"
+            check_keys(key, {"time", "position", "attitude", "look_at"}, where)
+            number(key.get("time"), "time", where=where)
+            vector(key.get("position"), "position", 3, where=where)
             if "attitude" in key:
-                _vector(key, "attitude", 4, where)
+                vector(key.get("attitude"), "attitude", 4, where=where)
             if "look_at" in key:
-                _vector(key, "look_at", 3, where)
+                vector(key.get("look_at"), "look_at", 3, where=where)
         if kind == "keyframes" and not traj.get("keyframe"):
             raise InvalidParameterError(
                 "scenario keyframe trajectory needs [[trajectory.keyframe]]")
         values["keyframe"] = tuple(dict(k) for k in traj.get("keyframe", []))
         if "ground_track" in traj:
-            values["ground_track"] = _vector(traj, "ground_track", 2, "trajectory")
+            values["ground_track"] = vector(traj["ground_track"], "ground_track", 2,
+                                            where=_TRAJECTORY)
         return cls(**values)
 
 
@@ -539,19 +483,14 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
     Scenario
         The validated scenario.
     """
-    unknown = set(data) - _SECTIONS
-    if unknown:
-        key = sorted(unknown)[0]
-        near = difflib.get_close_matches(key, sorted(_SECTIONS), n=1)
-        raise InvalidParameterError(f"scenario has unknown section or key {key!r}"
-                                    + (f" (did you mean {near[0]!r}?)" if near else ""))
+    check_keys(data, _SECTIONS, "scenario")
     for section in _SECTIONS - {"name", "seed", "description"}:
         if section in data and not isinstance(data[section], dict):
             raise InvalidParameterError(f"scenario [{section}] must be a table; got "
                                         f"{data[section]!r}")
-    name = _text(data, "name", path.stem if path else "scenario", "scenario")
+    name = text(data.get("name", path.stem if path else "scenario"), "name", where="scenario")
     if "description" in data:
-        _text(data, "description", "", "scenario")
+        text(data.get("description", ""), "description", where="scenario")
     try:
         seed = check_seed(data.get("seed", 0))
     except ValueError as exc:
@@ -560,11 +499,12 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
     sun = _section(data, "sun", {"azimuth", "elevation", "direction", "distance", "irradiance"})
     surface = _section(data, "surface", {"albedo", "reflectance", "mcewen", "albedo_map"}
                        | _HAPKE_KEYS)
-    brdf = check_brdf(_text(surface, "reflectance", "lunar-lambert", "surface"))
-    albedo = _number(surface, "albedo", 0.12, "surface")
-    extra = {"mcewen": _vector(surface, "mcewen", len(surface["mcewen"])
-                               if isinstance(surface["mcewen"], list) else 0, "surface")} \
-        if "mcewen" in surface else {}
+    brdf = check_brdf(text(surface.get("reflectance", "lunar-lambert"), "reflectance",
+                           where=_SURFACE))
+    albedo = number(surface.get("albedo", 0.12), "albedo", where=_SURFACE)
+    extra: dict[str, Any] = {"mcewen": vector(surface["mcewen"], "mcewen", len(surface["mcewen"])
+                                              if isinstance(surface["mcewen"], list) else 0,
+                                              where=_SURFACE)} if "mcewen" in surface else {}
     hapke_keys = sorted(k for k in surface if k in _HAPKE_KEYS)
     if hapke_keys and brdf != "hapke":
         raise InvalidParameterError(
@@ -573,33 +513,36 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
     extra["hapke"] = Hapke.from_mapping({k: surface[k] for k in hapke_keys})
     for key in ("distance", "irradiance"):
         if key in sun:
-            extra[key] = _number(sun, key, None, "sun", positive=True)
+            extra[key] = number(sun.get(key), key, **_POSITIVE, where=_SUN)
     if "albedo_map" in surface:
-        scene = replace(scene, albedo_map=_text(surface, "albedo_map", "", "surface"))
+        scene = replace(scene, albedo_map=text(surface["albedo_map"], "albedo_map",
+                                               where=_SURFACE))
     if "direction" in sun:
-        lighting = Lighting(_vector(sun, "direction", 3, "sun"), albedo, brdf, **extra)
+        lighting = Lighting(vector(sun["direction"], "direction", 3, where=_SUN), albedo, brdf,
+                            **extra)
     else:
-        lighting = Lighting.from_angles(_number(sun, "azimuth", 90.0, "sun"),
-                                        _number(sun, "elevation", 10.0, "sun"), albedo=albedo,
-                                        brdf=brdf, **extra)
+        lighting = Lighting.from_angles(number(sun.get("azimuth", 90.0), "azimuth", where=_SUN),
+                                        number(sun.get("elevation", 10.0), "elevation",
+                                               where=_SUN),
+                                        albedo=albedo, brdf=brdf, **extra)
 
     cam = _section(data, "camera", {"width", "height", "fov", "fx", "fy", "cx", "cy"})
-    w = _int(cam, "width", 1024, "camera", 1, MAX_IMAGE_SIDE)
-    h = _int(cam, "height", 1024, "camera", 1, MAX_IMAGE_SIDE)
+    w = integer(cam.get("width", 1024), "width", low=1, high=MAX_IMAGE_SIDE, where=_CAMERA)
+    h = integer(cam.get("height", 1024), "height", low=1, high=MAX_IMAGE_SIDE, where=_CAMERA)
     if "fx" in cam:
-        fx = _number(cam, "fx", None, "camera", True)
-        intrinsics = Intrinsics(w, h, fx, _number(cam, "fy", fx, "camera", True),
-                                _number(cam, "cx", (w - 1) / 2, "camera"),
-                                _number(cam, "cy", (h - 1) / 2, "camera"))
+        fx = number(cam.get("fx"), "fx", **_POSITIVE, where=_CAMERA)
+        intrinsics = Intrinsics(w, h, fx,
+                                number(cam.get("fy", fx), "fy", **_POSITIVE, where=_CAMERA),
+                                number(cam.get("cx", (w - 1) / 2), "cx", where=_CAMERA),
+                                number(cam.get("cy", (h - 1) / 2), "cy", where=_CAMERA))
     else:
-        intrinsics = Intrinsics.from_fov(w, h, _number(cam, "fov", 60.0, "camera", True))
+        intrinsics = Intrinsics.from_fov(w, h, number(cam.get("fov", 60.0), "fov", **_POSITIVE,
+                                                      where=_CAMERA))
 
     sen = data.get("sensor", {})
     sensor = Sensor.from_mapping(sen, seed=seed, base=path.parent if path else None)
     mot = dict(_section(data, "motion", {"blur", *Motion.__dataclass_fields__}))
-    blur = mot.pop("blur", bool(mot))
-    if not isinstance(blur, bool):
-        raise InvalidParameterError(f"scenario [motion] blur must be true or false; got {blur!r}")
+    blur = boolean(mot.pop("blur", bool(mot)), "blur", where="scenario [motion]")
     if blur and not sensor.physical and not sensor.rolling:
         raise InvalidParameterError(
             "scenario [motion] blur needs the sensor's exposure_time (s); an I/F-calibrated "
@@ -611,20 +554,21 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
     ren = _section(data, "render", {"shadows", "shadow_size", "lod_pixels", "triangle_budget",
                                     "geomorph", "antialias"})
     defaults = RenderOptions()  # the one place render defaults live
-    options = RenderOptions(shadows=_bool(ren, "shadows", defaults.shadows, "render"),
-                            shadow_size=_int(ren, "shadow_size", defaults.shadow_size, "render",
-                                             1, MAX_IMAGE_SIDE),
-                            lod_pixels=_number(ren, "lod_pixels", defaults.lod_pixels, "render",
-                                               True),
-                            triangle_budget=_int(ren, "triangle_budget",
-                                                 defaults.triangle_budget, "render", 1),
-                            geomorph=_bool(ren, "geomorph", defaults.geomorph, "render"),
-                            antialias=_int(ren, "antialias", defaults.antialias, "render", 1,
-                                           MAX_ANTIALIAS))
+    options = RenderOptions(
+        shadows=boolean(ren.get("shadows", defaults.shadows), "shadows", where=_RENDER),
+        shadow_size=integer(ren.get("shadow_size", defaults.shadow_size), "shadow_size", low=1,
+                            high=MAX_IMAGE_SIDE, where=_RENDER),
+        lod_pixels=number(ren.get("lod_pixels", defaults.lod_pixels), "lod_pixels", **_POSITIVE,
+                          where=_RENDER),
+        triangle_budget=integer(ren.get("triangle_budget", defaults.triangle_budget),
+                                "triangle_budget", low=1, where=_RENDER),
+        geomorph=boolean(ren.get("geomorph", defaults.geomorph), "geomorph", where=_RENDER),
+        antialias=integer(ren.get("antialias", defaults.antialias), "antialias", low=1,
+                          high=MAX_ANTIALIAS, where=_RENDER))
     out = _section(data, "output", {"range", "normals", "radiance"})
-    outputs = {"range": _bool(out, "range", True, "output"),
-               "normals": _bool(out, "normals", True, "output"),
-               "radiance": _bool(out, "radiance", False, "output")}
+    outputs = {"range": boolean(out.get("range", True), "range", where=_OUTPUT),
+               "normals": boolean(out.get("normals", True), "normals", where=_OUTPUT),
+               "radiance": boolean(out.get("radiance", False), "radiance", where=_OUTPUT)}
 
     trajectory = TrajectorySpec.from_mapping(data.get("trajectory", {}))
     return Scenario(name, path, seed, scene, lighting, intrinsics, sensor, options, outputs,

@@ -58,7 +58,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from render.records import check_keys
+from terrain.core.checks import check_keys
 from terrain.core.errors import InvalidParameterError
 from terrain.core.outputs import remove_path
 from terrain.core.rng import check_seed
@@ -286,7 +286,7 @@ def _stamped_key(stamp: Path) -> str | None:
 
 
 def _write_stamp(stamp: Path, doc: dict) -> None:
-    from terrain.io import atomic_path
+    from terrain.core.outputs import atomic_path
 
     with atomic_path(stamp) as tmp:
         tmp.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")

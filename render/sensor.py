@@ -35,12 +35,11 @@ numbers the way a camera does, each step a ``[sensor]`` key with the unit of a d
 8. Gain and offset: ``DN = electrons / gain + bias`` (``gain`` e-/DN, ``bias`` DN), rounded
    and clipped to ``bits`` (1-16; 8-bit images are uint8, deeper ones uint16).
 
-Today's simple sensors keep working: a sensor with ``exposure`` (DN full scale per unit
-I/F, the I/F-calibrated mode of craterscape <= 0.1) maps I/F straight to electrons as
-``I/F exposure (2^bits - 1) gain`` with ``gain`` in e-/DN switching shot noise on (0: off,
-counted as 1 e-/DN) and ``read_noise`` in DN, so every old scenario renders as before (bias
-0, full well at the top DN; ``prnu``, ``full_well`` and ``bias`` may be added, while the optics
-and dark-current keys need the physical chain). Giving ``exposure_time`` (and optics)
+An I/F-calibrated sensor, given ``exposure`` (DN full scale per unit I/F), maps I/F straight
+to electrons as ``I/F exposure (2^bits - 1) gain`` with ``gain`` in e-/DN switching shot noise
+on (0: off, counted as 1 e-/DN) and ``read_noise`` in DN (bias 0, full well at the top DN;
+``prnu``, ``full_well`` and ``bias`` may be added, while the optics and dark-current keys need
+the physical chain). Giving ``exposure_time`` (and optics)
 instead selects the physical chain; the two cannot be mixed.
 
 Rolling shutter: ``line_time`` (s) delays each row's exposure by that much after the row above
@@ -62,7 +61,7 @@ from pathlib import Path
 
 import numpy as np
 
-from render.records import check_keys, number
+from terrain.core.checks import check_keys, number
 from terrain.core.errors import InvalidParameterError, MissingInputError
 from terrain.core.rng import check_seed, normal, stream_id, uniform
 

@@ -84,13 +84,13 @@ from render.protocol import (
     pack_header,
     read_message,
 )
-from render.records import number
 from render.renderer import Lighting, Renderer, View
 from render.scenario import Scenario, parse_scenario
 from render.scene import Scene
 from render.sequence import check_frame_memory, load_scene, render_sample
 from render.terrain_scene import TerrainScene
 from render.trajectory import Sample, spin_rotation
+from terrain.core.checks import number
 from terrain.core.errors import InvalidParameterError, MemoryRequestError, MissingInputError
 
 __all__ = ["RenderServer", "is_loopback"]

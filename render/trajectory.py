@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from render.camera import Pose, look_at, quat_from_matrix, slerp
+from render.camera import Pose, look_at, slerp
 from terrain.core.errors import InvalidParameterError
 
 __all__ = ["Sample", "approach", "axis_angle", "descent", "keyframes", "spin_rotation"]
@@ -183,8 +183,3 @@ def spin_rotation(t: float, spin_axis=(0.0, 0.0, 1.0), spin_period: float = 0.0,
     if spin_period:
         angle += 2 * math.pi * t / spin_period
     return axis_angle(spin_axis, angle)
-
-
-def rotation_quaternion(matrix) -> np.ndarray:
-    """Quaternion of a rotation matrix (re-exported for scenario files)."""
-    return quat_from_matrix(matrix)

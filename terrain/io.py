@@ -34,7 +34,7 @@ from terrain.core.errors import InvalidDEMError, MissingInputError, OutputPathEr
 from terrain.core.outputs import atomic_path, check_output_path
 from terrain.core.tile import DEMTile
 
-__all__ = ["atomic_path", "check_output_path", "lonlat_to_xy", "read_dem", "read_dem_exact",
+__all__ = ["check_output_path", "lonlat_to_xy", "read_dem", "read_dem_exact",
            "read_float_tiff", "same_crs", "write_bands", "write_dem", "write_float_tiff",
            "write_png"]
 __all__ += ["orthographic_crs", "polar_crs", "reproject_polar", "synthetic_crs"]

@@ -36,7 +36,7 @@ def snapshot(*paths):
 
 
 def refused(result, before, *absent, fragments=(), folder=None):
-    """Assert a refusal as issue 17 asks: exit code 2 and one line on stderr
+    """Assert a clean refusal: exit code 2 and one line on stderr
     (:func:`one_line_error`), every input byte-identical (``before`` is a :func:`snapshot`),
     no output (``absent``) and no partial file left in ``folder``."""
     one_line_error(result, *fragments)

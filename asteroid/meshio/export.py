@@ -30,7 +30,7 @@ import numpy as np
 
 from terrain.core import memory
 from terrain.core.errors import InvalidParameterError, OutputPathError
-from terrain.io import atomic_path
+from terrain.core.outputs import atomic_path
 
 __all__ = ["MESH_FORMATS", "mesh_format", "write_mesh"]
 

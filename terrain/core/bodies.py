@@ -10,8 +10,7 @@ without a CRS.
 
 from __future__ import annotations
 
-import difflib
-
+from terrain.core.checks import text
 from terrain.core.errors import InvalidParameterError
 
 __all__ = ["BODY_RADII", "PROJECTIONS", "check_projection"]
@@ -48,10 +47,7 @@ def check_projection(body: str | None, projection: str | None) -> tuple | None:
         if projection is not None:
             raise InvalidParameterError("--crs needs --body (the sphere the CRS lies on)")
         return None
-    if body not in BODY_RADII:
-        near = difflib.get_close_matches(body, sorted(BODY_RADII), n=1)
-        raise InvalidParameterError(f"unknown body {body!r}" + (
-            f"; did you mean {near[0]!r}?" if near else f"; expected one of {sorted(BODY_RADII)}"))
+    text(body, "--body", choices=BODY_RADII)
     projection = projection or "south-polar"
     if projection in ("south-polar", "north-polar"):
         return ("stere", -90.0 if projection == "south-polar" else 90.0)

@@ -15,7 +15,6 @@ __all__ = [
     "MemoryRequestError",
     "MissingInputError",
     "OutputPathError",
-    "reject_unknown",
 ]
 
 
@@ -46,40 +45,3 @@ class MemoryRequestError(CraterscapeError, MemoryError):
 class GapTooLargeError(CraterscapeError, ValueError):
     """A gap does not fit inside a chunk's halo, so it cannot be filled chunk by chunk."""
 
-
-def reject_unknown(keys, known, what: str, noun: str = "key") -> None:
-    """Refuse the first of ``keys`` (in sorted order) not in ``known``, naming the nearest.
-
-    The one check behind every ``from_mapping`` that rejects an unknown key by name.
-
-    Parameters
-    ----------
-    keys : iterable of str
-        The keys given (a table's keys, a file's columns).
-    known : iterable of str
-        The valid ones.
-    what : str
-        What they belong to, for the message ("rock", "crater morphology").
-    noun : str, optional
-        What one of them is called ("key", "column").
-
-    Raises
-    ------
-    InvalidParameterError
-        ``unknown {what} {noun} 'name' (did you mean 'nearest'?)``.
-
-    Examples
-    --------
-    >>> reject_unknown({"dmin": 1, "dnsty": 2}, ["dmin", "density"], "rocks")
-    Traceback (most recent call last):
-    ...
-    terrain.core.errors.InvalidParameterError: unknown rocks key 'dnsty' (did you mean 'density'?)
-    """
-    import difflib
-
-    known = list(known)
-    unknown = sorted(str(k) for k in keys if k not in known)
-    if unknown:
-        near = difflib.get_close_matches(unknown[0], known, n=1)
-        hint = f" (did you mean '{near[0]}'?)" if near else ""
-        raise InvalidParameterError(f"unknown {what} {noun} '{unknown[0]}'{hint}")

@@ -5,42 +5,27 @@ A :class:`Crater` is one impact as a user names it (position, diameter, age); a
 cratering kernel consumes. A :class:`CraterCatalog` is what the model made of each crater
 (erosion state, depth, rim height, the fitted pre-impact level), the ground truth for
 crater-detection navigation; a :class:`RockCatalog` the same for rocks. Both are frozen
-tables of typed, read-only columns (:class:`ColumnTable`), written and read as the
-catalogue CSVs (``to_csv``, ``from_csv``), joined (``concatenate``) and selected (``take``).
-
-Migrating from the dicts of columns
------------------------------------
-Until version 0.1 the catalogues (``CraterResult.catalog``, ``LayerStack.catalog``,
-``RunReport.catalog``; ``LayerStack.rocks`` and the catalogue
-:func:`terrain.surface.rocks.add_rocks`
-returns) were dicts of column arrays. They are now records whose attributes are the CSV's
-column names: ``catalog["id"]`` becomes ``catalog.id``, ``len(catalog["id"])`` becomes
-``len(catalog)``, ``catalog.items()`` becomes ``catalog.as_dict().items()``,
-``write_catalog(path, catalog)`` and ``write_rock_catalog(path, rocks)`` become
-``catalog.to_csv(path)`` and ``rocks.to_csv(path)``, ``read_catalog(path)`` becomes
-``CraterCatalog.from_csv(path)`` (or :func:`read_columns` for any such CSV as a dict), and a
-dict of columns becomes a record through ``CraterCatalog.from_columns(columns)``.
-``catalog["id"]`` still works for now and warns (:class:`DeprecationWarning`).
+tables of typed, read-only columns (:class:`terrain.core.table.ColumnTable`), written and
+read as the catalogue CSVs (``to_csv``, ``from_csv``), joined (``concatenate``) and selected
+(``take``).
 """
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import math
 import os
-import warnings
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import IO, ClassVar, TypeVar
+from typing import IO, ClassVar
 
 import numpy as np
 
-from terrain.core.errors import InvalidParameterError, reject_unknown
+from terrain.core.errors import InvalidParameterError
+from terrain.core.table import ColumnTable, read_table, write_table
 
-__all__ = ["CATALOG_COLUMNS", "CATALOG_LAYER_COLUMNS", "ROCK_COLUMNS", "ColumnTable", "Crater",
-           "CraterCatalog", "CraterTable", "RockCatalog", "csv_sink", "read_circles",
-           "read_columns", "write_columns"]
+__all__ = ["CATALOG_COLUMNS", "CATALOG_LAYER_COLUMNS", "ROCK_COLUMNS", "Crater", "CraterCatalog",
+           "CraterTable", "RockCatalog", "read_circles", "read_columns", "write_columns"]
 
 
 @dataclass(frozen=True)
@@ -188,212 +173,6 @@ CATALOG_LAYER_COLUMNS = (*CATALOG_COLUMNS, "layer")
 ROCK_COLUMNS = ("id", "x_m", "y_m", "z_base_m", "diameter_m", "height_m", "burial_m",
                 "axis_a_m", "axis_b_m", "axis_c_m", "orientation_deg", "layer")
 
-_DEPRECATED_ITEM = ("catalogue columns by name ({what}[{name!r}]) are deprecated; use the "
-                    "attribute {what}.{name}")
-
-TableT = TypeVar("TableT", bound="ColumnTable")
-
-
-class ColumnTable:
-    """What a catalogue record shares: equal-length, typed, read-only columns, and CSV.
-
-    A subclass is a frozen dataclass whose fields are its columns (named as in the CSV) and
-    says which they are in :attr:`COLUMNS` (required, in CSV order), :attr:`OPTIONAL`
-    (trailing columns a table may lack; None then) and :attr:`DTYPES` (the columns that are
-    not float64). Its ``__post_init__`` calls :meth:`_freeze_columns` and then checks values.
-    """
-
-    #: Required columns, in CSV order.
-    COLUMNS: ClassVar[tuple[str, ...]] = ()
-    #: Trailing columns a table may lack (None when absent).
-    OPTIONAL: ClassVar[tuple[str, ...]] = ()
-    #: Columns that are not float64, and their dtypes.
-    DTYPES: ClassVar[Mapping[str, type]] = {}
-    #: What the table is called in messages.
-    WHAT: ClassVar[str] = "table"
-
-    def _freeze_columns(self) -> None:
-        """Convert every present column to a read-only 1-D array of its dtype, equal lengths."""
-        n = None
-        for name in self.columns:
-            dtype = self.DTYPES.get(name, np.float64)
-            try:
-                a: np.ndarray = np.array(getattr(self, name), dtype=dtype, copy=True)
-            except (TypeError, ValueError, OverflowError) as exc:
-                raise InvalidParameterError(
-                    f"{self.WHAT} column {name} must be {np.dtype(dtype).name}: {exc}") from None
-            if a.ndim != 1:
-                raise InvalidParameterError(
-                    f"{self.WHAT} column {name} must be one-dimensional; got shape {a.shape}")
-            if n is None:
-                n = a.size
-            elif a.size != n:
-                raise InvalidParameterError(
-                    f"{self.WHAT} column {name} has {a.size} rows; expected {n}")
-            a.flags.writeable = False
-            object.__setattr__(self, name, a)
-
-    @property
-    def columns(self) -> tuple[str, ...]:
-        """The column names, in CSV order (optional ones only when present)."""
-        return self.COLUMNS + tuple(k for k in self.OPTIONAL if getattr(self, k) is not None)
-
-    def __len__(self) -> int:
-        return int(getattr(self, self.COLUMNS[0]).size)
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        warnings.warn(_DEPRECATED_ITEM.format(what="catalog", name=name), DeprecationWarning,
-                      stacklevel=2)
-        if name not in self.columns:
-            raise KeyError(name)
-        return getattr(self, name)
-
-    @classmethod
-    def empty(cls: type[TableT], *, optional: Iterable[str] = ()) -> TableT:
-        """Return a table without rows.
-
-        Parameters
-        ----------
-        optional : iterable of str
-            The optional columns it has.
-
-        Returns
-        -------
-        ColumnTable
-            Of the class it is called on.
-        """
-        names = cls.COLUMNS + tuple(optional)
-        return cls(**{name: np.zeros(0, cls.DTYPES.get(name, np.float64)) for name in names})
-
-    @classmethod
-    def from_columns(cls: type[TableT], columns: Mapping[str, object]) -> TableT:
-        """Return the table of a mapping of column arrays (the old dict form).
-
-        Parameters
-        ----------
-        columns : mapping of str to (n,) array_like
-            Every column of :attr:`COLUMNS`, and optionally those of :attr:`OPTIONAL`.
-
-        Returns
-        -------
-        ColumnTable
-            Of the class it is called on.
-
-        Raises
-        ------
-        InvalidParameterError
-            A column is missing, unknown (named, with the nearest valid name) or invalid.
-        """
-        known = cls.COLUMNS + cls.OPTIONAL
-        reject_unknown(columns, known, cls.WHAT, "column")
-        missing = [name for name in cls.COLUMNS if name not in columns]
-        if missing:
-            raise InvalidParameterError(f"{cls.WHAT} is missing columns {missing}")
-        return cls(**{name: np.asarray(value) for name, value in columns.items()})
-
-    def as_dict(self) -> dict[str, np.ndarray]:
-        """Return the columns as a dict of read-only arrays, in CSV order."""
-        return {name: getattr(self, name) for name in self.columns}
-
-    def take(self: TableT, index: np.ndarray | slice) -> TableT:
-        """Return the rows selected by ``index``.
-
-        Parameters
-        ----------
-        index : (m,) int array, (n,) bool mask or slice
-            The rows, in the order wanted.
-
-        Returns
-        -------
-        ColumnTable
-            Of the same class and columns.
-        """
-        return type(self)(**{name: getattr(self, name)[index] for name in self.columns})
-
-    def with_columns(self: TableT, **columns: np.ndarray) -> TableT:
-        """Return the table with some columns replaced or added (checked as when built).
-
-        Parameters
-        ----------
-        **columns : (n,) array_like
-            New values of columns, by name.
-
-        Returns
-        -------
-        ColumnTable
-            Of the same class.
-        """
-        return type(self).from_columns({**self.as_dict(), **columns})
-
-    @classmethod
-    def concatenate(cls: type[TableT], tables: Iterable[TableT], *,
-                    optional: Iterable[str] = ()) -> TableT:
-        """Return one table of the rows of ``tables``, in order.
-
-        Parameters
-        ----------
-        tables : iterable of ColumnTable
-            All with the same columns.
-        optional : iterable of str
-            The optional columns of an empty result (with tables, theirs decide).
-
-        Returns
-        -------
-        ColumnTable
-            Of the class it is called on.
-
-        Raises
-        ------
-        InvalidParameterError
-            The tables' columns differ.
-        """
-        tables = list(tables)
-        if not tables:
-            return cls.empty(optional=optional)
-        names = tables[0].columns
-        if any(t.columns != names for t in tables):
-            raise InvalidParameterError(
-                f"cannot join {cls.WHAT}s with different columns: "
-                f"{sorted({t.columns for t in tables})}")
-        return cls(**{name: np.concatenate([getattr(t, name) for t in tables])
-                      for name in names})
-
-    def to_csv(self, path_or_file: str | os.PathLike | IO[str]) -> None:
-        """Write the table as CSV (the header :attr:`columns`, one line per row).
-
-        Parameters
-        ----------
-        path_or_file : path or text file
-            Where to write (a path is opened and closed here; write through
-            :func:`terrain.core.outputs.atomic_path` to commit it atomically).
-        """
-        write_columns(path_or_file, self.as_dict(), self.columns)
-
-    @classmethod
-    def from_csv(cls: type[TableT], path: str | os.PathLike) -> TableT:
-        """Read a CSV written by :meth:`to_csv`.
-
-        Parameters
-        ----------
-        path : path
-            The CSV.
-
-        Returns
-        -------
-        ColumnTable
-            Of the class it is called on.
-
-        Raises
-        ------
-        InvalidParameterError
-            The file's columns or values are not the table's (the message names the file).
-        """
-        try:
-            return cls.from_columns(read_columns(path))
-        except ValueError as exc:
-            raise InvalidParameterError(f"{cls.WHAT} '{path}': {exc}") from None
-
-
 @dataclass(frozen=True, eq=False)
 class CraterCatalog(ColumnTable):
     """The catalogue of placed craters: one row per crater, columns as the CSV names them.
@@ -444,6 +223,7 @@ class CraterCatalog(ColumnTable):
     DTYPES: ClassVar[Mapping[str, type]] = {"id": np.uint64, "size_class": np.int64,
                                             "layer": np.int64}
     WHAT: ClassVar[str] = "crater catalogue"
+    FORMATS: ClassVar[Mapping[str, str]] = {"row": "{:.3f}", "col": "{:.3f}"}
 
     id: np.ndarray
     x_m: np.ndarray
@@ -556,27 +336,6 @@ class RockCatalog(ColumnTable):
             raise InvalidParameterError("rock catalogue layers must be >= 0")
 
 
-@contextlib.contextmanager
-def csv_sink(path_or_file: str | os.PathLike | IO[str]) -> Iterator[IO[str]]:
-    """Yield a text file for a CSV writer.
-
-    Parameters
-    ----------
-    path_or_file : path or text file
-        A file (anything with ``write``) is yielded itself; a path is opened for writing
-        and closed afterwards.
-
-    Yields
-    ------
-    text file
-    """
-    if not isinstance(path_or_file, (str, os.PathLike)):
-        yield path_or_file
-        return
-    with open(path_or_file, "w", newline="", encoding="utf-8") as f:
-        yield f
-
-
 def write_columns(path_or_file: str | os.PathLike | IO[str],
                   rows: Mapping[str, np.ndarray], columns: Sequence[str]) -> None:
     """Write a table of equal-length columns as CSV, the way every craterscape catalogue is.
@@ -593,23 +352,7 @@ def write_columns(path_or_file: str | os.PathLike | IO[str],
     columns : sequence of str
         The header, in order.
     """
-    n = len(rows[columns[0]]) if rows else 0
-    with csv_sink(path_or_file) as f:
-        writer = csv.writer(f)
-        writer.writerow(columns)
-        for i in range(n):
-            out = []
-            for name in columns:
-                v = rows[name][i]
-                if name == "id":
-                    out.append(f"{int(v):016x}")
-                elif name in ("row", "col"):
-                    out.append(f"{float(v):.3f}")
-                elif isinstance(v, (int, np.integer)):
-                    out.append(str(int(v)))
-                else:
-                    out.append(repr(float(v)) if math.isfinite(float(v)) else "")
-            writer.writerow(out)
+    write_table(path_or_file, rows, columns, formats=CraterCatalog.FORMATS)
 
 
 def read_columns(path: str | os.PathLike) -> dict[str, np.ndarray]:
@@ -631,22 +374,7 @@ def read_columns(path: str | os.PathLike) -> dict[str, np.ndarray]:
     ValueError
         A value is not a number.
     """
-    with open(path, newline="", encoding="utf-8") as f:
-        reader = csv.DictReader(f)
-        names = reader.fieldnames or []
-        cols: dict[str, list[str]] = {name: [] for name in names}
-        for row in reader:
-            for name in names:
-                cols[name].append(row[name])
-    out = {}
-    for name, values in cols.items():
-        if name == "id":
-            out[name] = np.array([int(v, 16) for v in values], dtype=np.uint64)
-        elif name in ("size_class", "layer"):
-            out[name] = np.array([int(v) for v in values], dtype=np.int64)
-        else:
-            out[name] = np.array([float(v) if v else np.nan for v in values])
-    return out
+    return read_table(path, {"size_class": np.int64, "layer": np.int64})
 
 
 def read_circles(path) -> CraterTable:

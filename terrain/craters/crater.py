@@ -123,7 +123,8 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from terrain.core.errors import InvalidParameterError, reject_unknown
+from terrain.core.checks import reject_unknown
+from terrain.core.errors import InvalidParameterError
 
 __all__ = [
     "Profile",

@@ -52,7 +52,8 @@ from pathlib import Path
 
 import numpy as np
 
-from terrain.core.errors import InvalidParameterError, MissingInputError, reject_unknown
+from terrain.core.checks import reject_unknown
+from terrain.core.errors import InvalidParameterError, MissingInputError
 
 __all__ = ["DEFAULT_BASELINE_DIAMETER", "DEFAULT_CRITICAL_SLOPE_DEG", "DEFAULT_EXPONENT",
            "ErosionModel", "SlopeDegradation"]

@@ -28,7 +28,6 @@ same map area enumerates exactly the same craters.
 
 from __future__ import annotations
 
-import difflib
 import math
 from dataclasses import asdict, dataclass, fields
 
@@ -36,6 +35,7 @@ import numba
 import numpy as np
 
 from terrain.core import memory
+from terrain.core.checks import check_keys, number
 from terrain.core.errors import InvalidParameterError
 from terrain.core.rng import check_seed, hash64, poisson, stream_id, uniform_scalar
 from terrain.core.tomlfile import read_toml
@@ -89,13 +89,7 @@ class Population:
 
     def __post_init__(self):
         for f in fields(self):
-            value = getattr(self, f.name)
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.number)):
-                raise InvalidParameterError(f"{f.name} must be a number; got {value!r}")
-            value = float(value)
-            if not math.isfinite(value):
-                raise InvalidParameterError(f"{f.name} must be finite; got {value}")
-            object.__setattr__(self, f.name, value)
+            object.__setattr__(self, f.name, number(getattr(self, f.name), f.name))
         if self.dmin <= 0:
             raise InvalidParameterError(f"dmin must be positive; got {self.dmin}")
         if self.dmax <= self.dmin:
@@ -120,11 +114,7 @@ class Population:
         data = read_toml(path, "population file")
         known = {f.name for f in fields(cls)}
         if "population" in data:
-            extra = sorted(set(data) - {"population"})
-            if extra:
-                raise InvalidParameterError(
-                    f"population file '{path}' has an unknown table or key {extra[0]!r}; "
-                    "it holds one [population] table")
+            check_keys(data, {"population"}, f"population file '{path}'")
             table = data["population"]
             if not isinstance(table, dict):
                 raise InvalidParameterError(
@@ -136,14 +126,7 @@ class Population:
                 raise InvalidParameterError(
                     f"population file '{path}' has an unknown table [population.{key}]; "
                     f"[population] takes only {sorted(known)}")
-        unknown = set(table) - known
-        if unknown:
-            key = sorted(unknown)[0]
-            near = difflib.get_close_matches(key, sorted(known), n=1)
-            raise InvalidParameterError(
-                f"population file '{path}' has unknown keys {sorted(unknown)}"
-                + (f" (did you mean {near[0]!r}?)" if near else "")
-                + f"; expected {sorted(known)}")
+        check_keys(table, known, f"population file '{path}'")
         values = dict(defaults or {})
         values.update({k: v for k, v in table.items() if k in known})
         values.update({k: v for k, v in overrides.items() if v is not None})

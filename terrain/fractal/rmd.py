@@ -95,7 +95,7 @@ from terrain.core.tile import Window
 
 __all__ = ["DD_WEIGHTS", "NO_ROW", "PREDICTORS", "check_fractal_dimension", "check_tile_size",
            "correlated_value", "error_correlations", "initial_scale", "kriging_line_weights",
-           "kriging_weights", "line_sigmas", "noise_norm", "noise_rows", "noise_taps", "predict",
+           "kriging_weights", "line_sigmas", "noise_rows", "noise_taps", "predict",
            "prediction_variance", "scale_factor", "synthesize"]
 
 STREAM_RMD = stream_id("rmd")
@@ -302,10 +302,6 @@ def correlated_value(rows, m, b_col, norm):
     """
     return (rows[1, m] + b_col * (rows[0, m] + rows[2, m])) * norm
 
-
-def noise_norm(b_row: float, b_col: float) -> float:
-    """1 / sqrt((1 + 2 b_row^2)(1 + 2 b_col^2)): unit variance of the moving average."""
-    return 1.0 / math.sqrt((1.0 + 2.0 * b_row * b_row) * (1.0 + 2.0 * b_col * b_col))
 
 
 @numba.njit(cache=True)

@@ -18,10 +18,8 @@ RMD adds, at each square phase, the part of a height its four diagonal parents c
 
 for s = 1, 2, 4 pixels over every valid position, and fits ``sigma(s) = sigma_1 s^h``. These
 second-order increments remove the local trend, so large-scale topography does not inflate h
-the way a first-order variogram does: on the LRO shape-from-shading DEM of the south pole
-(``../shared/data``), the variogram gives h = 0.86 from an 8x decimated copy while the residuals
-give h = 0.6, and the residuals of the full-resolution DEM confirm the latter down to 4 m.
-With the fit, the paper's parameters follow: F = 3 - h, and H from eq. 15 such that the base's
+the way a first-order variogram does (``docs/roughness.md`` compares the two on the south-pole
+DEM). With the fit, the paper's parameters follow: F = 3 - h, and H from eq. 15 such that the base's
 last square phase displaces by the measured sigma(1) (:meth:`ExpansionParameters.from_fit`).
 
 Local roughness
@@ -31,9 +29,8 @@ amplitude spreads the same roughness everywhere, which turns a real DEM's heavy-
 distribution into a Gaussian-like one. :func:`local_amplitude` measures the square residual
 sigma(1) in a box of :data:`LOCAL_BOX` pixels around every base pixel, relative to the global
 value, and expansion multiplies every displacement by this map (bilinearly interpolated to the
-new pixel). On the south-pole DEM, decimated 8x and expanded back to 1.08 m, this halves the
-Kolmogorov-Smirnov distance between the expanded and the real slope distributions (0.058 with
-a uniform amplitude, 0.036 with a 5-pixel box). The map is a fixed local function of the base
+new pixel), which keeps a real DEM's heavy-tailed slope distribution (``docs/roughness.md``
+gives the measurement). The map is a fixed local function of the base
 heights (each value sums its own box in a fixed order), so windows stay exact.
 """
 
@@ -78,7 +75,7 @@ CASCADE_HURST = tuple(round(0.05 * k, 2) for k in range(1, 20))
 #: k(h): square residual of a stationary four-point RMD cascade over that of the fBm whose
 #: prediction errors set its displacements (:mod:`terrain.fractal.rmd`), mean over spacings 2, 4, 8
 #: and 16 pixels of four 513 x 513 tiles per h (seeds 1000-1003); see
-#: :meth:`ExpansionParameters.sigmas`. ``tests/terrain/test_expand.py`` re-measures it.
+#: :meth:`ExpansionParameters.sigmas` and ``docs/roughness.md``.
 CASCADE_EXCESS = (1.937, 1.832, 1.739, 1.656, 1.584, 1.52, 1.463, 1.412, 1.368, 1.328, 1.293,
                   1.262, 1.234, 1.21, 1.188, 1.169, 1.152, 1.138, 1.125)
 #: The square residual's neighbours (base pixels): the four diagonal ones.
@@ -380,48 +377,27 @@ class ExpansionParameters:
         the expansion made, which carry their own independent displacements where fBm's
         errors are correlated. A stationary cascade built this way (an RMD tile,
         :func:`terrain.fractal.rmd.synthesize`) is an fBm of the right h whose square residual is
-        k(h) times that of the fBm its displacements were computed for (k = 1.17 at h = 0.8,
-        1.52 at h = 0.3: :data:`CASCADE_EXCESS`, measured). Uncorrected, the expanded levels
-        are k^2 times too strong in power, which flattened the spectrum of a decimated,
-        re-expanded fBm to h = 0.71 for 0.8. Dividing every displacement by k(h) makes the
-        cascade continue the data's own fBm: on 1025 x 1025 fBm surfaces decimated 8x and
-        expanded back, the spectral h was within 0.05 of nominal for h = 0.5 ... 0.8, but
-        0.06 to 0.08 high at h = 0.3 and 0.04 to 0.06 low at 0.9. Two causes remained, and two
-        corrections, each derived from the fBm variogram, remove them:
+        k(h) times that of the fBm its displacements were computed for (:data:`CASCADE_EXCESS`),
+        so every displacement is divided by k(h) and the cascade continues the data's own fBm.
+        Two further corrections, each derived from the fBm variogram, keep the continued
+        spectrum's h at its nominal value at both ends of its range:
 
-        * at h near 1, independent displacements spread the error's power evenly over the new
-          octave, and between neighbouring columns, where fBm's errors move together, they add
-          a white high-frequency floor (measured: 0.84-0.88 of the truth's power at 10-16 m
-          from an 8 m base, 1.1-1.3 at 3-4 m). The displacements are drawn with the fBm
+        * at h near 1, independent displacements would add a white high-frequency floor
+          where fBm's errors move together, so the displacements are drawn with the fBm
           errors' own correlations along and across the line
-          (:func:`terrain.fractal.rmd.noise_taps`,
-          derived in :mod:`terrain.fractal.rmd`).
-        * at small h, level 1 reads data sampled from a rough surface, which holds the power
-          that sampling aliased into it from above its Nyquist frequency (for an
-          ``f^-(2h + 2)`` spectrum at h = 0.3, about a third of the power just below
-          Nyquist). The four-point predictor reproduces cubics, so it keeps that power where
-          it was aliased to: with only the data interpolated (no displacements), 16-42 m
-          wavelengths carried 1.1-1.2 times the truth's power. The conditional expectation of
-          the fBm, which a prediction should be, instead attenuates the data near Nyquist and
-          leaves the power to the displacements: level 1 predicts by kriging on the fBm
-          variogram from the same four (three, two) points on the line
-          (:func:`terrain.fractal.rmd.kriging_line_weights`: outer weights +0.068 at h = 0.3, 0 at
-          0.5,
-          -0.063 at 0.9, where Deslauriers-Dubuc has -1/16), displacing by its own error,
-          ``sqrt(V E_krig(h)) d^h / k(h)``. Later levels read the cascade's heights, which
-          carry no aliased power (each level's kernel band-limits them), and keep the
-          four-point predictor: kriging there too loses the cascade's self-similarity (an RMD
-          tile built by kriging at every level measured h = 0.16 for 0.3).
+          (:func:`terrain.fractal.rmd.noise_taps`, derived in :mod:`terrain.fractal.rmd`).
+        * at small h, level 1 reads data that holds the power sampling aliased into it from
+          above its Nyquist frequency, which the four-point predictor (it reproduces cubics)
+          would keep. The conditional expectation of the fBm, which a prediction should be,
+          attenuates the data near Nyquist and leaves that power to the displacements: level 1
+          predicts by kriging on the fBm variogram from the same four (three, two) points on
+          the line (:func:`terrain.fractal.rmd.kriging_line_weights`), displacing by its own
+          error, ``sqrt(V E_krig(h)) d^h / k(h)``. Later levels read the cascade's heights,
+          which carry no aliased power (each level's kernel band-limits them), and keep the
+          four-point predictor, which preserves the cascade's self-similarity.
 
-        Measured on 1025 x 1025 spectral fBm surfaces decimated 8x and expanded back (seeds 0
-        and 1, mean of the two): h = 0.306, 0.488, 0.684, 0.787, 0.891 for nominal 0.3, 0.5,
-        0.7, 0.8, 0.9 (0.361, 0.507, 0.671, 0.759, 0.849 before the two corrections; the
-        surfaces' own fits are 0.295, 0.495, 0.696, 0.796, 0.896):
-        ``tests/terrain/test_expand.py``. Displacements with all power below the coarse
-        grid's Nyquist frequency removed along their line (``(g(p) - (g(p - 2d) +
-        g(p + 2d)) / 2) / sqrt(1.5)``) were also tried: they bring h within 0.05 for
-        0.5 ... 0.9 but continue the real shape-from-shading DEM no better than bicubic (KS
-        0.088 against 0.089; 0.072 with these), so they are not used.
+        ``docs/roughness.md`` gives the measurements behind each correction and the
+        alternatives that were tried; ``tests/terrain/test_expand.py`` checks the spectra.
         """
         if level < 1:
             raise InvalidParameterError(f"expansion level must be >= 1; got {level}")

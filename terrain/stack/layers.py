@@ -788,7 +788,8 @@ def _write_files(stack: LayerStack, outdir: Path, files: list[str], only=None,
 
     An edit (``only``) writes the rock catalogue when ``rocks`` (under the manifest's name).
     """
-    from terrain.io import atomic_path, write_dem
+    from terrain.core.outputs import atomic_path
+    from terrain.io import write_dem
 
     for k, tile in enumerate(stack.tiles):
         if only is not None and k not in only:

@@ -120,7 +120,8 @@ def check_outputs(output: Path, catalog: Path | None, inputs: list) -> None:
 def write_result(result: Any, output: Path, catalog: Path | None, inputs: list, command: str,
                  params: dict, noun: str = "craters") -> Written:
     """Write a DEM and its catalogue, committed together (:func:`~.outputs.transaction`)."""
-    from terrain.io import atomic_path, write_dem
+    from terrain.core.outputs import atomic_path
+    from terrain.io import write_dem
 
     tile = result.tile.with_metadata(**{mk.COMMAND: command, mk.PARAMETERS: params,
                                         mk.VERSION: mk.version()})

@@ -181,10 +181,11 @@ def run_chunked(source: Any, output: Path, execution: Execution, label: str, *,
                 progress: ProgressFactory, catalog: Path | None = None,
                 inputs: Iterable[Path] = (), cog: Path | None = None) -> Written:
     """Run ``source`` chunk by chunk into the Zarr store ``output`` (resumed if it exists)."""
+    from terrain.core.outputs import atomic_path
     from terrain.core.zarrstore import ZarrDEM
     from terrain.execution.chunked import DEFAULT_CHUNK, dask_client
     from terrain.execution.chunked import run as run_chunks
-    from terrain.io import atomic_path, check_output_path, write_cog
+    from terrain.io import check_output_path, write_cog
 
     inputs = [p for p in inputs if p is not None]
     for item in inputs:

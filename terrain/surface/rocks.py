@@ -81,7 +81,6 @@ Examples
 
 from __future__ import annotations
 
-import difflib
 import logging
 import math
 from dataclasses import asdict, dataclass, fields
@@ -91,7 +90,8 @@ import numpy as np
 
 from terrain.core import memory
 from terrain.core import metakeys as mk
-from terrain.core.errors import InvalidParameterError, reject_unknown
+from terrain.core.checks import reject_unknown, text
+from terrain.core.errors import InvalidParameterError
 from terrain.core.rng import check_seed, gaussian, hash64, poisson, stream_id, uniform_scalar
 from terrain.craters.catalog import ROCK_COLUMNS, RockCatalog
 
@@ -163,11 +163,7 @@ class RockModel:
     regolith_m: float = 5.0
 
     def __post_init__(self):
-        if self.model not in MODELS:
-            near = difflib.get_close_matches(str(self.model), MODELS, n=1)
-            hint = f" (did you mean '{near[0]}'?)" if near else ""
-            raise InvalidParameterError(
-                f"rock model must be one of {', '.join(MODELS)}; got '{self.model}'{hint}")
+        text(self.model, "rock model", choices=MODELS)
         for f in fields(self):
             if f.name in ("model", "craters"):
                 continue

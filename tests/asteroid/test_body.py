@@ -78,5 +78,5 @@ def test_stretch_is_the_affine_image():
     assert Stretch.parse("2,1,1") == Stretch(2, 1, 1) and Stretch.parse(None).is_identity
     with pytest.raises(InvalidParameterError, match="three numbers"):
         Stretch.parse("2,1")
-    with pytest.raises(InvalidParameterError, match="positive"):
+    with pytest.raises(InvalidParameterError, match="stretch x must be > 0"):
         Stretch(0, 1, 1)

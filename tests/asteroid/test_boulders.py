@@ -8,7 +8,6 @@ import trimesh
 
 from asteroid.body import Body
 from asteroid.boulders import (
-    BOULDER_COLUMNS,
     BiResolutionNode,
     BoulderSettings,
     boulder_lod,
@@ -17,6 +16,7 @@ from asteroid.boulders import (
     place_boulders,
     subdivision,
 )
+from asteroid.catalog import BOULDER_COLUMNS
 from asteroid.sphere import SphereMesh
 from terrain.core.errors import InvalidParameterError
 from terrain.craters.population import Population
@@ -75,30 +75,30 @@ def test_placement_up_axis_burial_and_catalogue():
     body, boulders = _placed(max_tilt_deg=0.0, max_burial=0.5)
     assert len(boulders) > 50
     cat = boulders.catalog
-    assert tuple(cat) == BOULDER_COLUMNS
+    assert cat.columns == BOULDER_COLUMNS
     rot = boulders.rotations()
     assert np.allclose(np.einsum("nij,nkj->nik", rot, rot), np.eye(3), atol=1e-12)
     assert np.allclose(np.linalg.det(rot), 1.0)
-    lat, lon = np.radians(cat["lat_deg"]), np.radians(cat["lon_deg"])
+    lat, lon = np.radians(cat.lat_deg), np.radians(cat.lon_deg)
     zenith = np.column_stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)])
     assert np.allclose(rot[:, :, 2], zenith, atol=1e-12)     # "up" along the local zenith
-    centres = np.column_stack([cat["x_m"], cat["y_m"], cat["z_m"]])
+    centres = np.column_stack([cat.x_m, cat.y_m, cat.z_m])
     assert np.allclose(centres / np.linalg.norm(centres, axis=1)[:, None], zenith)
     # the buried fraction of each boulder's height lies below the surface along the zenith
     v, _ = boulders.mesh()
     per = v.reshape(len(boulders), -1, 3)
     lowest = np.einsum("nvi,ni->nv", per, zenith).min(axis=1)
-    assert np.allclose(lowest, cat["surface_radius_m"] - cat["burial_depth_m"], atol=1e-9)
-    assert np.allclose(cat["burial_depth_m"], cat["burial_fraction"] * cat["height_m"])
-    assert cat["burial_fraction"].max() <= 0.5
-    assert np.allclose(cat["surface_radius_m"], body.surface_radius(zenith))
+    assert np.allclose(lowest, cat.surface_radius_m - cat.burial_depth_m, atol=1e-9)
+    assert np.allclose(cat.burial_depth_m, cat.burial_fraction * cat.height_m)
+    assert cat.burial_fraction.max() <= 0.5
+    assert np.allclose(cat.surface_radius_m, body.surface_radius(zenith))
 
 
 def test_random_rotations_and_levels_of_detail():
     _, boulders = _placed(max_tilt_deg=25.0)
     cat = boulders.catalog
-    assert np.abs(cat["pitch_deg"]).max() <= 25.0 and np.abs(cat["roll_deg"]).max() <= 25.0
-    assert cat["yaw_deg"].min() >= 0 and cat["yaw_deg"].max() < 360
+    assert np.abs(cat.pitch_deg).max() <= 25.0 and np.abs(cat.roll_deg).max() <= 25.0
+    assert cat.yaw_deg.min() >= 0 and cat.yaw_deg.max() < 360
     for level in range(4):
         v, f = boulders.mesh(level)
         assert len(v) == len(boulders) * (10 * 4**level + 2)

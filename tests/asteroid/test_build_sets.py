@@ -1,4 +1,4 @@
-"""A build's files belong together (issue 17): the mesh, the native model and the catalogues
+"""A build's files belong together: the mesh, the native model and the catalogues
 appear together or not at all, whatever moment the build is killed at, and a rebuild
 without craters or boulders removes the old catalogues."""
 

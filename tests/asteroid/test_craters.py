@@ -7,8 +7,8 @@ import pytest
 from scipy import stats
 
 from asteroid.body import Body
+from asteroid.catalog import CRATER_COLUMNS
 from asteroid.craters import (
-    CRATER_COLUMNS,
     CraterModel,
     CraterSettings,
     SlopeErosion,
@@ -55,9 +55,9 @@ def test_fresh_crater_on_a_large_sphere_is_the_flat_profile_in_true_distance(lat
     assert -floor == pytest.approx(shape.depth - shape.rim_height, rel=0.05)
     assert rim == pytest.approx(shape.rim_height, rel=0.05)
     row = result.catalog
-    assert row["depth_m"][0] == pytest.approx(shape.depth)
-    assert row["rim_height_m"][0] == pytest.approx(shape.rim_height)
-    assert row["slope_deg"][0] < 0.1 and row["applied"][0] == 1
+    assert row.depth_m[0] == pytest.approx(shape.depth)
+    assert row.rim_height_m[0] == pytest.approx(shape.rim_height)
+    assert row.slope_deg[0] < 0.1 and row.applied[0] == 1
 
 
 def test_crater_positions_are_uniform_over_equal_area_cells():
@@ -107,20 +107,20 @@ def test_slope_erosion_reduces_craters_on_steep_slopes():
         return body, add_craters(body, craters_at([0.0], [90.0], [d]), seed=2, model=SMOOTH)
 
     _, gentle = on_ramp(10.0)
-    assert gentle.catalog["slope_factor"][0] == 1.0
+    assert gentle.catalog.slope_factor[0] == 1.0
     body, steep = on_ramp(40.0)
-    assert steep.catalog["slope_deg"][0] == pytest.approx(40.0, abs=1.0)
-    assert steep.catalog["slope_factor"][0] == pytest.approx(0.5, abs=0.05)
+    assert steep.catalog.slope_deg[0] == pytest.approx(40.0, abs=1.0)
+    assert steep.catalog.slope_factor[0] == pytest.approx(0.5, abs=0.05)
     fresh = CraterShape.from_state(d)
-    assert steep.catalog["depth_m"][0] == pytest.approx(0.5 * fresh.depth, rel=0.1)
+    assert steep.catalog.depth_m[0] == pytest.approx(0.5 * fresh.depth, rel=0.1)
     body, cliff = on_ramp(55.0)
-    assert cliff.catalog["applied"][0] == 0 and cliff.catalog["slope_factor"][0] == 0.0
+    assert cliff.catalog.applied[0] == 0 and cliff.catalog.slope_factor[0] == 0.0
     assert np.array_equal(cliff.body.radii, body.radii)
     # switched off, the crater keeps its full depth on the same slope
     off = CraterSettings(SMOOTH, slope=SlopeErosion(enabled=False))
     body, kept = on_ramp(40.0)
     kept = add_craters(body, craters_at([0.0], [90.0], [d]), seed=2, settings=off)
-    assert kept.catalog["depth_fraction"][0] == 1.0
+    assert kept.catalog.depth_fraction[0] == 1.0
 
 
 def test_maximum_extent_is_enforced():
@@ -144,10 +144,10 @@ def test_same_seed_same_surface_and_a_full_catalogue():
     c = add_craters(body, craters, seed=6)
     assert np.array_equal(a.body.radii, b.body.radii)
     assert not np.array_equal(a.body.radii, c.body.radii)   # roughness keyed by the seed
-    assert set(a.catalog) == set(CRATER_COLUMNS)
-    assert all(len(v) == len(craters) for v in a.catalog.values())
-    assert np.all(np.diff(a.catalog["age_gyr"]) <= 0)        # age order, oldest first
-    assert a.catalog["applied"].sum() == len(craters)
+    assert a.catalog.columns == CRATER_COLUMNS
+    assert len(a.catalog) == len(craters)
+    assert np.all(np.diff(a.catalog.age_gyr) <= 0)        # age order, oldest first
+    assert a.catalog.applied.sum() == len(craters)
     assert a.body.radii.min() < 2000.0 and a.body.metadata["craters"]["count"] == len(craters)
 
 
@@ -206,4 +206,4 @@ def test_complex_crater_on_a_large_sphere_is_the_flat_complex_profile():
     assert dr[top] - np.median(dr[floor]) == pytest.approx(
         shape.peak_height * (1 - rho**2) ** 2, rel=0.05)
     assert dr[top] - np.median(dr[floor]) > 0.8 * shape.peak_height
-    assert result.catalog["depth_m"][0] == pytest.approx(1.044 * 40**0.301 * 1000, rel=1e-3)
+    assert result.catalog.depth_m[0] == pytest.approx(1.044 * 40**0.301 * 1000, rel=1e-3)

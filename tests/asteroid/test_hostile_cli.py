@@ -1,4 +1,4 @@
-"""Issue 17, asteroid commands: absurd sizes, inputs as outputs, and "cannot write here".
+"""Hostile input to the asteroid commands: absurd sizes, inputs as outputs, and "cannot write here".
 Refusals are exit code 2 with one line on stderr, every input byte-identical, no output."""
 
 from tests.cli_helpers import file_size_limit, refused, run, snapshot, unwritable_folder

@@ -235,8 +235,24 @@ def test_report_command_and_thresholds(planar_run, dems, tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text("[tracking]\nmedian = 1\n")
     one_line_error(run("evaluation", "report", planar_run, "-o", tmp_path / "r.html",
-                       "--thresholds", bad), "unknown key tracking.median")
+                       "--thresholds", bad), "[tracking] key 'median'")
     # an output never enters an input folder (here it would also replace the run's truth)
     one_line_error(run("evaluation", "report", planar_run, "-o", planar_run / "truth.html"),
                    "inside the input folder")
     one_line_error(run("evaluation", "report", "--dem", fine, "-o", fine), "same file as input")
+
+
+def test_every_tracker_setting_is_an_option_and_reaches_the_tracker(tmp_path):
+    import dataclasses
+
+    from evaluation.tracking import TrackerSettings
+
+    usage = run("evaluation", "track", "--help").output
+    for f in dataclasses.fields(TrackerSettings):
+        assert "--" + f.name.replace("_", "-") in usage, f.name
+    # a value the record refuses is refused before the run folder is even looked at
+    one_line_error(run("evaluation", "track", tmp_path / "no_run", "-o", tmp_path / "t",
+                       "--quality", 2.0), "tracker quality must lie in (0, 1)")
+    one_line_error(run("evaluation", "track", tmp_path / "no_run", "-o", tmp_path / "t",
+                       "--block-size", 1), "block_size >= 3")
+    assert not (tmp_path / "t").exists()

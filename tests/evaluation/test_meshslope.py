@@ -102,7 +102,7 @@ def eros_slopes():
 
 
 def test_eros_radial_slopes_mislead_and_gravitational_ones_do_not(eros_slopes):
-    """The issue's figures: radial median ~44 deg; published Eros slopes nearly all < 35."""
+    """Acceptance figures: radial median ~44 deg; published Eros slopes nearly all < 35."""
     radial = eros_slopes.summary("radial")
     grav = eros_slopes.summary("gravitational")
     print(f"Eros: radial median {radial['p50']:.2f} deg "

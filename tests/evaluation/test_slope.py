@@ -28,7 +28,7 @@ from terrain.core.errors import InvalidParameterError
 from terrain.core.tile import DEMTile
 from terrain.io import read_dem, write_dem
 
-#: The issue's agreement with gdaldem on interior pixels (degrees).
+#: Required agreement with gdaldem on interior pixels (degrees).
 GDAL_TOLERANCE_DEG = 1e-4
 
 
@@ -66,7 +66,7 @@ def test_slope_and_aspect_agree_with_gdaldem_including_gaps_and_edges(tmp_path, 
     # the same pixels are missing (edges, gap neighbours) ...
     assert np.array_equal(np.isnan(ours_s), np.isnan(theirs_s))
     assert np.array_equal(np.isnan(ours_a), np.isnan(theirs_a))
-    # ... and the others agree, to well within the 1e-4 degrees (bitwise in practice)
+    # ... and the others agree, to well within 1e-4 degrees (bitwise in practice)
     assert np.nanmax(np.abs(ours_s - theirs_s)) <= GDAL_TOLERANCE_DEG
     d = np.abs(((ours_a - theirs_a) + 180.0) % 360.0 - 180.0)
     assert np.nanmax(d) <= GDAL_TOLERANCE_DEG

@@ -11,7 +11,7 @@ from evaluation.spectrum import (
 from terrain.core.errors import InvalidDEMError, InvalidParameterError
 from terrain.core.tile import DEMTile
 
-#: The issue's acceptance figure for the Hurst exponent.
+#: Acceptance figure for the Hurst exponent.
 HURST_TOLERANCE = 0.05
 
 

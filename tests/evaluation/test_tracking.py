@@ -15,7 +15,7 @@ from terrain.core.errors import InvalidParameterError, MissingInputError
 
 from .conftest import copy_with_truth
 
-#: The issue's acceptance figure for tracking on a rendered sequence of known motion.
+#: Acceptance figure for tracking on a rendered sequence of known motion.
 MEDIAN_ERROR_PX = 0.5
 
 

@@ -34,8 +34,8 @@ def test_sequence_writes_frames_range_normals_truth_and_manifest(tmp_path, stack
 
     reader = RunReader(run_dir)
     assert reader.image(2).dtype == np.uint16 and reader.image(2).shape == (48, 64)
-    rng = reader.range(1)
-    assert rng.dtype == np.float32 and np.nanmin(rng) > 0
+    range_m = reader.range(1)
+    assert range_m.dtype == np.float32 and np.nanmin(range_m) > 0
     assert reader.normals(0).shape == (48, 64, 3)
     assert truth[0]["drawn"]["triangles"] > 0
     # the same scenario and seed give the same bytes
@@ -75,7 +75,7 @@ def test_single_frame_and_resolution_override(tmp_path, stack_dir):
 @pytest.mark.parametrize("change, message", [
     ('type = "descent"', "frames"),
     ('type = "terrain"', "'terrain' or 'asteroid'"),
-    ("[sun]", "unknown keys"),
+    ("[sun]", "unknown scenario [sun] key"),
 ])
 def test_bad_scenarios_are_one_line_errors(tmp_path, stack_dir, change, message):
     sc = scenario(tmp_path, stack_dir)

@@ -1,4 +1,4 @@
-"""Issue 17, render commands: typed scenarios, refusals before work, run folders that are
+"""Hostile input to the render commands: typed scenarios, refusals before work, run folders that are
 never mixed up, and no partial file after a resumed run. Refusals are exit code 2 with one
 line on stderr, every input byte-identical and no output left."""
 
@@ -41,7 +41,7 @@ def _edit(path, old, new):
 @pytest.mark.parametrize("old, new, fragment", [
     ("[render]\n", '[render]\nshadows = "false"\n', "true or false"),
     ("[render]\n", '[output]\nrange = "no"\n[render]\n', "true or false"),
-    ("width = 64", 'width = "abc"', "camera.width must be an integer"),
+    ("width = 64", 'width = "abc"', "scenario [camera] width must be an integer"),
     ("exposure = 4.0", 'exposure = "high"', "exposure must be a number"),
     ("seed = 5", "seed = -1", "seed"),
     ("[sun]", "[sun]\nazimut = 3.0", "did you mean 'azimuth'"),
@@ -52,7 +52,7 @@ def _edit(path, old, new):
     ("ground_track = [300.0, 100.0]", 'ground_track = [300.0, "x"]', "ground_track"),
     ("ground_track = [300.0, 100.0]", 'ground_track = [300.0, 100.0]\n'
      '[[trajectory.keyframe]]\ntime = "abc"\nposition = [0.0, 0.0, 100.0]\n',
-     "keyframe #1.time must be a number"),
+     "keyframe]] #1 time must be a number"),
 ])
 def test_scenarios_are_typed_key_by_key(tmp_path, stack_dir, old, new, fragment):
     sc = _edit(scenario(tmp_path, stack_dir), old, new)

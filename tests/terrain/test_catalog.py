@@ -166,13 +166,11 @@ def test_splitting_and_joining_gives_the_catalogue_back(cuts):
         assert np.array_equal(getattr(joined, name), getattr(cat, name)), name
 
 
-def test_the_old_dict_access_still_works_and_warns(cratered):
+def test_columns_are_attributes_not_items(cratered):
     cat = cratered.catalog
-    with pytest.warns(DeprecationWarning, match=r"use the attribute catalog\.id"):
-        ids = cat["id"]
-    assert ids is cat.id
-    with pytest.warns(DeprecationWarning), pytest.raises(KeyError):
-        cat["layer"]  # no such column outside a layer stack
+    assert len(cat.id) == len(cat)
+    with pytest.raises(TypeError):
+        cat["id"]
 
 
 def test_explicit_craters_are_catalogued_where_they_were_put():

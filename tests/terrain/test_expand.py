@@ -221,12 +221,10 @@ def test_expansion_continues_real_lunar_roughness(shared_file):
         print(f"  {name:9s} power at wavelengths "
               + " ".join(f"{1 / kk:6.1f}m:{pp:9.3g}" for kk, pp in zip(k[::3], p[::3],
                                                                         strict=True)))
-    # the fBm-faithful cascade (terrain.fractal.rmd) continues this DEM's roughness less well than
-    # the
-    # paper's mean predictor did (0.035 then, 0.072 now, bicubic 0.089): real polar terrain
-    # is smoother at metre scales than the fBm its 8.6 m residuals imply; the fBm-exact
-    # corrections of issue 15 (kriging at level 1, correlated displacements) do not change
-    # that (0.071 before them), so the bar stays at 0.85 of bicubic's, not the old 0.6
+    # the fBm-faithful cascade (terrain.fractal.rmd) does not continue this DEM's roughness as
+    # closely as a mean predictor would (KS 0.072 against bicubic's 0.089): real polar terrain
+    # is smoother at metre scales than the fBm its 8.6 m residuals imply, so the bar is 0.85 of
+    # bicubic's
     assert ks_enh <= 0.85 * ks_bic
     # at the finest wavelengths bicubic has lost power that the expansion restores
     _, p_true = radial_spectrum(truth.astype(np.float64), tile.resolution)
@@ -260,7 +258,7 @@ def test_expansion_halves_bicubics_slope_distance_on_an_fbm_with_hurst_08():
 @pytest.mark.parametrize("hurst", [0.3, 0.5, 0.7, 0.8, 0.9])
 def test_expansion_continues_the_hurst_exponent_of_a_decimated_fbm(hurst):
     """Spectral H of a decimated (8x), re-expanded fBm (the default, estimated parameters) is
-    within 0.05 of nominal (issue 15)."""
+    within 0.05 of nominal."""
     from evaluation.spectrum import fit_hurst, fractional_brownian_surface
     from evaluation.spectrum import radial_spectrum as spectrum
 

@@ -1,5 +1,5 @@
-"""Issue 17, terrain commands: bad input as a hostile user gives it. Each refusal is exit code
-2 with one line on stderr, leaves every input byte-identical and no output or partial file."""
+"""Terrain commands given bad input as a hostile user gives it. Each refusal is exit code 2
+with one line on stderr, leaves every input byte-identical and no output or partial file."""
 
 import os
 import signal

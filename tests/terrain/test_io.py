@@ -7,6 +7,7 @@ from affine import Affine
 from rasterio.crs import CRS
 
 from terrain import io
+from terrain.core import outputs
 from terrain.core.errors import InvalidDEMError, MissingInputError, OutputPathError
 from terrain.core.tile import DEMTile
 
@@ -119,7 +120,7 @@ def test_output_over_an_input_is_refused_before_writing(tmp_path):
 def test_writes_are_atomic(tmp_path):
     target = tmp_path / "keep.tif"
     target.write_bytes(b"previous content")
-    with pytest.raises(RuntimeError), io.atomic_path(target) as tmp:
+    with pytest.raises(RuntimeError), outputs.atomic_path(target) as tmp:
         tmp.write_bytes(b"half-written")
         raise RuntimeError("crash while writing")
     assert target.read_bytes() == b"previous content"
