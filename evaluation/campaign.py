@@ -24,6 +24,11 @@ same parameters; a stage interrupted part-way resumes where it can (rendering) o
 again. ``campaign.json`` (``demo.json`` for the demo) holds the time of every stage. Nothing
 outside the output folder is written, and every file is written atomically.
 
+A campaign removes only what a campaign wrote: the output folder holds
+``.craterscape-campaign`` (written before the first stage) and every stage folder its
+``.stage-key``. A non-empty folder without the first is refused, and so is a stage folder
+without the second, so a campaign pointed at a home directory writes and removes nothing.
+
 Scenario overrides (the scene, the sun, ``--quick``'s frames and image size) are merged
 into the scenario's tables and parsed by :func:`render.scenario.parse_scenario`; the
 scenario as run is written beside the run.
@@ -31,11 +36,11 @@ scenario as run is written beside the run.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
 import os
-import shutil
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -45,15 +50,26 @@ from types import MappingProxyType
 from render.records import check_keys, number
 from terrain.cli.tools import cli_args, long_options, run_command
 from terrain.core.errors import InvalidParameterError
+from terrain.core.outputs import remove_path
 from terrain.core.tomlfile import merge_tables, read_toml, toml_text
 
-__all__ = ["STAGES", "Campaign", "Stage", "load_campaign", "run_campaign"]
+__all__ = ["STAGES", "Campaign", "Stage", "claim_output", "load_campaign", "run_campaign"]
 
 log = logging.getLogger(__name__)
 
 #: The stages in the order they run (their markers are ``.<stage with _>.done.json``).
 STAGES = ("lunar/base", "lunar/stack", "lunar/run", "lunar/closed_loop", "asteroid/body",
           "asteroid/run", "evaluation")
+
+#: The file that marks a folder as a campaign's output (see :func:`claim_output`).
+CAMPAIGN_MARKER = ".craterscape-campaign"
+#: The file that marks a stage's folder as written by a campaign (its key).
+STAGE_STAMP = ".stage-key"
+#: Options each stage's command takes from the campaign itself, never from its table: the
+#: outputs (inside the campaign's folder), the one seed, and the site the campaign chooses.
+BUILDER_OPTIONS = {"base": frozenset({"output", "catalog", "seed"}),
+                   "stack": frozenset({"output", "seed", "site", "site_lonlat"}),
+                   "body": frozenset({"output"})}
 
 _TOP = {"title", "seed", "summary", "lunar", "asteroid", "evaluation", "quick"}
 _RUN_KEYS = {"scenario", "frames", "image", "sun_elevation"}
@@ -62,12 +78,13 @@ _EVAL_KEYS = {"shared_data", "ldem", "sfs", "eros", "eros_density", "eros_period
               "lander_diameter", "max_slope", "max_step"}
 
 
-def _options(table, where: str, command) -> Mapping:
+def _options(table, where: str, command, owned: frozenset[str]) -> Mapping:
     """Return the CLI options of a stage, checked against the click command's own.
 
-    Long options are matched by name (``--fractal-dimension`` is ``fractal_dimension``).
+    Long options are matched by name (``--fractal-dimension`` is ``fractal_dimension``); the
+    ``owned`` ones are the campaign's and refused.
     """
-    return MappingProxyType(check_keys(table, long_options(command), where))
+    return MappingProxyType(check_keys(table, long_options(command) - owned, where))
 
 
 def _optional_int(table: dict, key: str, where: str) -> int | None:
@@ -212,7 +229,7 @@ class Campaign:
             if key not in ast:
                 raise InvalidParameterError(f"campaign needs an [asteroid.{key}] table")
         body = dict(_options(ast["body"], "campaign [asteroid.body]",
-                             asteroid.commands["build"]))
+                             asteroid.commands["build"], BUILDER_OPTIONS["body"]))
         if "config" in body:
             body["config"] = str(folder / body["config"])
         evaluation = check_keys(data.get("evaluation", {}), _EVAL_KEYS, "campaign [evaluation]")
@@ -232,9 +249,10 @@ class Campaign:
         return cls(
             title=str(data.get("title", "craterscape campaign")), seed=seed,
             summary=str(data.get("summary", "")),
-            base=_options(lunar["base"], "campaign [lunar.base]", terrain.commands["synth"]),
+            base=_options(lunar["base"], "campaign [lunar.base]", terrain.commands["synth"],
+                          BUILDER_OPTIONS["base"]),
             stack=_options(lunar["stack"], "campaign [lunar.stack]",
-                           terrain.commands["enhance"]),
+                           terrain.commands["enhance"], BUILDER_OPTIONS["stack"]),
             lunar_run=RunSpec.from_mapping(lunar["run"], "campaign [lunar.run]", folder),
             body=MappingProxyType(body),
             asteroid_run=RunSpec.from_mapping(ast["run"], "campaign [asteroid.run]", folder),
@@ -317,13 +335,23 @@ class Stage:
         """Make the stage's folder ready.
 
         It is kept when it holds a partial run of these same parameters (so rendering resumes),
-        emptied otherwise.
+        emptied when a campaign wrote it for other parameters.
+
+        Raises
+        ------
+        terrain.core.errors.InvalidParameterError
+            When the folder exists but no campaign wrote it (it has no stage stamp).
         """
-        stamp = self.dir / ".stage-key"
-        if not (stamp.exists() and stamp.read_text() == self.key):
-            shutil.rmtree(self.dir, ignore_errors=True)
-            self.dir.mkdir(parents=True)
-            stamp.write_text(self.key)
+        stamp = self.dir / STAGE_STAMP
+        if stamp.is_file() and stamp.read_text() == self.key:
+            return
+        if self.dir.is_symlink() or (self.dir.exists() and not stamp.is_file()):
+            raise InvalidParameterError(
+                f"campaign stage folder '{self.dir}' was not written by a campaign (it has no "
+                f"{STAGE_STAMP}): move it away or choose another output folder")
+        remove_path(self.dir)
+        self.dir.mkdir(parents=True)
+        stamp.write_text(self.key)
 
     def finish(self, seconds: float, **facts) -> dict:
         """Write the marker (atomically) with the key, the stage's seconds and ``facts``."""
@@ -332,6 +360,65 @@ class Stage:
         tmp.write_text(json.dumps(info, indent=2))
         tmp.replace(self.marker)
         return info
+
+
+def _holds_campaign(out: Path) -> bool:
+    return (out / CAMPAIGN_MARKER).is_file()
+
+
+def claim_output(out, *, fresh: bool = False) -> Path:
+    """Make ``out`` a campaign's output folder, or refuse it before anything is written.
+
+    A missing or empty folder is created and marked (``.craterscape-campaign``); a folder
+    already marked is taken as it is. With ``fresh`` the stages a campaign wrote there are
+    removed (their folders, which hold a stage stamp, and their markers); nothing else is.
+
+    Parameters
+    ----------
+    out : path-like
+        The output folder.
+    fresh : bool, optional
+        Remove the finished and partial stages first.
+
+    Returns
+    -------
+    pathlib.Path
+        The folder, resolved.
+
+    Raises
+    ------
+    terrain.core.errors.InvalidParameterError
+        When ``out`` is not a folder, or is a non-empty folder that holds no campaign.
+    """
+    from terrain.io import atomic_path
+
+    out = Path(out).expanduser().resolve()
+    if out.exists() and not out.is_dir():
+        raise InvalidParameterError(f"campaign output '{out}' is not a folder")
+    if out.is_dir() and not _holds_campaign(out) and any(out.iterdir()):
+        raise InvalidParameterError(
+            f"campaign output folder '{out}' is not empty and holds no campaign (no "
+            f"{CAMPAIGN_MARKER}): choose a new or empty folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        if not _holds_campaign(out):
+            with atomic_path(out / CAMPAIGN_MARKER) as tmp:
+                tmp.write_text("A craterscape campaign's output folder (evaluation.campaign): "
+                               "a campaign removes only the stage folders it stamped here.\n",
+                               encoding="utf-8")
+    except OSError as exc:
+        raise InvalidParameterError(
+            f"cannot write the campaign output folder '{out}': {exc.strerror or exc}") from None
+    if fresh:
+        for name in STAGES:
+            stage_dir = out / name
+            if (stage_dir / STAGE_STAMP).is_file() and not stage_dir.is_symlink():
+                remove_path(stage_dir)
+            remove_path(out / f".{name.replace('/', '_')}.done.json")
+            for parent in Path(name).parents[:-1]:  # lunar/, asteroid/ when they are empty
+                with contextlib.suppress(OSError):
+                    (out / parent).rmdir()
+    return out
 
 
 def write_scenario(template: Path, target: Path, overrides: dict):
@@ -421,7 +508,7 @@ def lunar(c: Campaign, out: Path, say: Callable[[str], None]) -> dict:
         say(f"lunar 2/3: enhancing the base in {c.stack.get('levels')} nested layers around "
             f"the site ({site[0] / 1000:.1f} km, {site[1] / 1000:.1f} km)")
         stack.begin()
-        shutil.rmtree(stack_dir, ignore_errors=True)  # a stack is written whole, or not at all
+        remove_path(stack_dir)  # a stack is written whole, or not at all
         t0 = time.perf_counter()
         run_command("terrain", "enhance", base_tif, "-o", stack_dir, *enhance_args)
         stack.finish(time.perf_counter() - t0)
@@ -538,11 +625,11 @@ def run_campaign(c: Campaign, out, *, shared=None, fresh: bool = False,
     c : Campaign
         The campaign.
     out : path-like
-        The output folder (created).
+        The output folder: new, empty, or a campaign's (see :func:`claim_output`).
     shared : path-like, optional
         The real-data folder (default: the campaign's ``shared_data``).
     fresh : bool, optional
-        Delete the output folder first.
+        Remove what a campaign wrote there first (see :func:`claim_output`).
     say : callable, optional
         Called with one line per step (default: the log, at INFO).
     summary_name : str, optional
@@ -556,10 +643,9 @@ def run_campaign(c: Campaign, out, *, shared=None, fresh: bool = False,
     from evaluation.campaign_report import evaluate
 
     say = say or log.info
-    out = Path(out).resolve()
+    out = claim_output(out, fresh=fresh)
     if fresh:
-        shutil.rmtree(out, ignore_errors=True)
-    out.mkdir(parents=True, exist_ok=True)
+        remove_path(out / summary_name)
     t0 = time.perf_counter()
     lunar_facts = lunar(c, out, say)
     closed_loop(c, out, say)

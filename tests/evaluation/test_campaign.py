@@ -91,3 +91,74 @@ def test_a_stage_is_done_only_for_the_same_parameters(tmp_path):
     assert not b.done()
     b.begin()  # other parameters: emptied
     assert not (b.dir / "partial.txt").exists()
+
+
+class _Started(Exception):
+    """Raised by a campaign's first progress line: the test needs nothing beyond it."""
+
+
+def _stop(message: str) -> None:
+    raise _Started(message)
+
+
+@pytest.mark.parametrize("fresh", [True, False])
+def test_a_folder_that_holds_no_campaign_is_refused_untouched(tmp_path, fresh):
+    from evaluation.campaign import run_campaign
+
+    home = tmp_path / "home"
+    (home / "lunar" / "base").mkdir(parents=True)
+    (home / "notes.txt").write_text("mine")
+    (home / "lunar" / "base" / "survey.tif").write_text("mine too")
+    with pytest.raises(InvalidParameterError, match="holds no campaign"):
+        run_campaign(load_campaign(DEMO, quick=True), home, fresh=fresh, say=_stop)
+    assert (home / "notes.txt").read_text() == "mine"
+    assert (home / "lunar" / "base" / "survey.tif").read_text() == "mine too"
+
+
+def test_an_output_that_is_a_file_is_refused(tmp_path):
+    from evaluation.campaign import run_campaign
+
+    (tmp_path / "out").write_text("a file")
+    with pytest.raises(InvalidParameterError, match="not a folder"):
+        run_campaign(load_campaign(DEMO, quick=True), tmp_path / "out", say=_stop)
+    assert (tmp_path / "out").read_text() == "a file"
+
+
+def test_a_stage_never_empties_a_folder_it_did_not_write(tmp_path):
+    (tmp_path / "evaluation").mkdir()
+    (tmp_path / "evaluation" / "mine.txt").write_text("kept")
+    stage = Stage(tmp_path, "evaluation", {"v": 1})
+    with pytest.raises(InvalidParameterError, match="not written by a campaign"):
+        stage.begin()
+    assert (tmp_path / "evaluation" / "mine.txt").read_text() == "kept"
+
+
+def test_fresh_removes_only_what_the_campaign_wrote(tmp_path):
+    from evaluation.campaign import claim_output
+
+    out = claim_output(tmp_path / "out")
+    stage = Stage(out, "lunar/base", {"size": 257})
+    stage.begin()
+    (stage.dir / "base.tif").write_text("made by the campaign")
+    stage.finish(1.0)
+    (out / "notes.txt").write_text("the user's")
+    assert claim_output(out) == out  # a campaign's folder is taken again as it is
+    assert stage.done()
+    claim_output(out, fresh=True)
+    assert not stage.dir.exists() and not stage.marker.exists()
+    assert not (out / "lunar").exists()  # emptied parents of the stages go too
+    assert (out / "notes.txt").read_text() == "the user's"
+    # and the emptied folder is still the campaign's
+    assert claim_output(out) == out
+
+
+@pytest.mark.parametrize("table, key", [
+    (("lunar", "base"), "output"), (("lunar", "base"), "catalog"), (("lunar", "base"), "seed"),
+    (("lunar", "stack"), "output"), (("lunar", "stack"), "seed"), (("lunar", "stack"), "site"),
+    (("asteroid", "body"), "output"),
+])
+def test_options_the_campaign_sets_itself_are_refused(table, key):
+    data = _demo()
+    data[table[0]][table[1]][key] = "/tmp/elsewhere.tif" if key != "seed" else 3
+    with pytest.raises(InvalidParameterError, match=f"'{key}'"):
+        Campaign.from_mapping(data, DEMO)
