@@ -252,6 +252,11 @@ class SceneSpec:
         for key in ("stack", "body"):
             if key in scene:
                 values[key] = _text(scene, key, "", "scene")
+                if Path(values[key]).name in ("", ".", ".."):  # "", "/", ".", "x/.."
+                    what = "a layer-stack folder" if key == "stack" else "an asteroid .npz"
+                    raise InvalidParameterError(
+                        f"scenario [scene] {key} must name {what}, not a folder above it; "
+                        f"got {values[key]!r}")
         for key in ("curvature", "boulders"):
             if key in scene:
                 values[key] = _bool(scene, key, True, "scene")

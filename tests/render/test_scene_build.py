@@ -200,3 +200,21 @@ def test_a_build_that_did_not_finish_is_done_again(tmp_path):
     ensure_scene(load_scenario(path))
     assert layers(built) == reference
     assert "building" not in json.loads(stamp.read_text())
+
+
+@pytest.mark.parametrize("scene", [
+    {"type": "terrain", "stack": ""}, {"type": "terrain", "stack": "/"},
+    {"type": "terrain", "stack": "."}, {"type": "terrain", "stack": "scenes/.."},
+    {"type": "asteroid", "body": ""}, {"type": "asteroid", "body": "/"},
+])
+def test_a_scene_must_name_a_file_or_folder(tmp_path, scene):
+    kind = scene["type"]
+    build = ({"base": dict(BASE), "stack": dict(STACK)} if kind == "terrain"
+             else {"body": {"magnitude": 8}})
+    trajectory = ({"type": "descent", "start_altitude": 9.0, "end_altitude": 1.0}
+                  if kind == "terrain" else
+                  {"type": "approach", "start_distance": 3000.0, "end_distance": 2000.0})
+    key = "stack" if kind == "terrain" else "body"
+    for data in ({"scene": scene}, {"scene": {**scene, "build": build}}):
+        with pytest.raises(InvalidParameterError, match=rf"scenario \[scene\] {key} must name"):
+            parse_scenario({**data, "trajectory": trajectory}, tmp_path / "s.toml")
