@@ -41,17 +41,20 @@ names) and the build's seconds. A scene that exists is used: as it is when it ha
 (it was made otherwise, e.g. by ``make demo``), and built again when its stamp holds another
 key (the recipe changed). The build is deterministic (every draw is keyed by the seed: the
 same recipe gives the same heights) and every file is written atomically; the stamp says
-``building`` until the scene is whole, so a build killed part-way is done again. Every step
-is reported in the log.
+``building`` until the scene is whole, so a build killed part-way is done again. A build
+holds a lock beside the scene (``STACK.build.lock``): a second run of the scenario started
+meanwhile waits for it, then uses the scene it built. Every step is reported in the log.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
 import os
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -311,9 +314,6 @@ def ensure_scene(scenario: Scenario) -> Path | None:
     terrain.core.errors.CraterscapeError
         When a build command refuses the recipe (one line naming the problem).
     """
-    from terrain.cli.tools import run_command
-    from terrain.io import read_dem
-
     spec = scenario.scene
     recipe = spec.build
     if recipe is None:
@@ -325,20 +325,63 @@ def ensure_scene(scenario: Scenario) -> Path | None:
     folder = scenario.path.parent if scenario.path is not None else Path.cwd()
     key = recipe.key(folder)
     stamp = stamp_path(target)
-    if target.exists():
-        stamped = _stamped_key(stamp)
-        if stamped is None:
-            log.info("scene %s exists and was not built from a recipe: used as it is", shown)
-            return target
-        if stamped == key:
-            log.info("scene %s was built from this scenario's recipe: reused", shown)
-            return target
-        log.warning("scene %s was built from another recipe, or its build did not finish: "
-                    "building it again", shown)
-        remove_path(target)
+    if target.exists() and _stamped_key(stamp) in (None, key):
+        return _use(target, stamp, shown)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    with _build_lock(target, shown):
+        if target.exists():  # another run may have built it while this one waited
+            stamped = _stamped_key(stamp)
+            if stamped in (None, key):
+                return _use(target, stamp, shown)
+            log.warning("scene %s was built from another recipe, or its build did not "
+                        "finish: building it again", shown)
+            remove_path(target)
+        return _build(scenario, target, key, shown, folder)
+
+
+def _use(target: Path, stamp: Path, shown: str) -> Path:
+    """Return a scene that exists, saying why it is used."""
+    if _stamped_key(stamp) is None:
+        log.info("scene %s exists and was not built from a recipe: used as it is", shown)
+    else:
+        log.info("scene %s was built from this scenario's recipe: reused", shown)
+    return target
+
+
+@contextlib.contextmanager
+def _build_lock(target: Path, shown: str) -> Iterator[None]:
+    """Hold the scene's build lock (``STACK.build.lock`` beside it) while building it.
+
+    A second run of the scenario waits here for the first to finish, then uses its scene.
+    The lock file stays: removing it would let a third run lock a file the second no longer
+    sees.
+    """
+    import fcntl
+
+    lock = target.with_name(target.name + ".build.lock")
+    with open(lock, "a+b") as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            log.warning("scene %s is being built by another run: waiting for it", shown)
+            fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def _build(scenario: Scenario, target: Path, key: str, shown: str, folder: Path) -> Path:
+    """Build the scene at ``target`` from the scenario's recipe (the build lock is held)."""
+    from terrain.cli.tools import run_command
+    from terrain.io import read_dem
+
+    spec = scenario.scene
+    recipe = spec.build
+    assert recipe is not None
+    stamp = stamp_path(target)
     log.warning("scene %s is missing: building it from the scenario's [scene.build] recipe "
                 "(kept there for later runs)", shown)
-    target.parent.mkdir(parents=True, exist_ok=True)
     _write_stamp(stamp, {"key": key, "building": True})  # until the scene is whole
     t0 = time.perf_counter()
     if spec.type == "terrain":

@@ -218,3 +218,30 @@ def test_a_scene_must_name_a_file_or_folder(tmp_path, scene):
     for data in ({"scene": scene}, {"scene": {**scene, "build": build}}):
         with pytest.raises(InvalidParameterError, match=rf"scenario \[scene\] {key} must name"):
             parse_scenario({**data, "trajectory": trajectory}, tmp_path / "s.toml")
+
+
+def test_two_first_runs_build_the_scene_once(tmp_path):
+    """Two runs of one scenario started together: one builds, the other waits and uses it."""
+    import os
+    import subprocess
+    import sys
+
+    path = terrain_scenario(tmp_path)
+    code = ("import logging; logging.basicConfig(level=logging.WARNING); "
+            "from render.scenario import load_scenario; "
+            "from render.scene_build import ensure_scene; "
+            f"print(ensure_scene(load_scenario({str(path)!r})))")
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    runs = [subprocess.Popen([sys.executable, "-c", code], env=env, stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True) for _ in range(2)]
+    results = [(p.returncode, *p.communicate(timeout=300)) for p in runs]
+    results = [(p.returncode, out, err) for p, (_, out, err) in zip(runs, results, strict=True)]
+    for rc, out, err in results:
+        assert rc == 0, err
+        assert out.strip() == str(tmp_path / "scene" / "stack")
+    built = [err for _, _, err in results if "is missing: building it" in err]
+    assert len(built) == 1, [err for _, _, err in results]
+    scenario = load_scenario(path)
+    assert json.loads(stamp_path(tmp_path / "scene" / "stack").read_text())["key"] == \
+        scenario.scene.build.key(tmp_path)
+    assert len(layers(tmp_path / "scene" / "stack")) == 3
