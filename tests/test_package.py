@@ -25,7 +25,7 @@ def test_the_console_script_reaches_each_packages_own_group():
 
     import click
 
-    from terrain.cli.commands import main
+    from terrain.cli.root import main
 
     (script,) = entry_points(group="console_scripts", name="craterscape")
     assert script.load() is main

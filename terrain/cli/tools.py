@@ -18,6 +18,7 @@ from typing import Any
 import click
 
 from terrain.core.errors import InvalidParameterError
+from terrain.core.metakeys import version
 from terrain.core.progress import Progress
 
 __all__ = ["FINITE", "PAIR", "TRIPLE", "WINDOW", "ImageSizeType", "cli_args", "long_options",
@@ -151,23 +152,6 @@ def with_options(options: list) -> Callable[[Any], Any]:
             func = option(func)
         return func
     return decorate
-
-
-def version() -> str:
-    """Return the installed craterscape version, recorded in every output.
-
-    Returns
-    -------
-    str
-        The package version, or ``"unknown"`` when running from a checkout never installed.
-    """
-    from importlib.metadata import PackageNotFoundError
-    from importlib.metadata import version as package_version
-
-    try:
-        return package_version("craterscape")
-    except PackageNotFoundError:  # pragma: no cover - running from a bare checkout
-        return "unknown"
 
 
 #: ``--version`` of the root command.

@@ -17,7 +17,7 @@ Examples
 
 from __future__ import annotations
 
-__all__ = ["KEYS", "PREFIX", "is_key"]
+__all__ = ["KEYS", "PREFIX", "is_key", "version"]
 
 #: Every craterscape tag starts with this; :func:`terrain.io.read_dem` keeps only these tags.
 PREFIX = "CRATERSCAPE_"
@@ -109,3 +109,20 @@ def is_key(name: str) -> bool:
         True for ``CRATERSCAPE_*`` names, registered or written by an older version.
     """
     return name.startswith(PREFIX)
+
+
+def version() -> str:
+    """Return the installed craterscape version, recorded under :data:`VERSION` in outputs.
+
+    Returns
+    -------
+    str
+        The package version, or ``"unknown"`` when running from a checkout never installed.
+    """
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as package_version
+
+    try:
+        return package_version("craterscape")
+    except PackageNotFoundError:  # pragma: no cover - running from a bare checkout
+        return "unknown"

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import rasterio
 
-from terrain.core.tile import DEMTile
+from terrain.core.tile import DEMTile, Window
 from terrain.io import read_dem, write_dem
 from tests.cli_helpers import one_line_error, run
 
@@ -50,8 +50,7 @@ def test_synth_window_equals_the_window_of_the_full_run(tmp_path):
     assert r.exit_code == 0, r.output
     full, win = read_dem(tmp_path / "full.tif"), read_dem(tmp_path / "win.tif")
     assert np.array_equal(win.heights, full.heights[20:50, 10:60])
-    assert win.transform == full.window(__import__("terrain.core.tile").tile.Window(10, 20, 50, 30)
-                                        ).transform
+    assert win.transform == full.window(Window(10, 20, 50, 30)).transform
 
 
 def test_craters_command_and_window(dem, tmp_path):

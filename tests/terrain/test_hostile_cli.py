@@ -200,7 +200,7 @@ def test_requests_larger_than_memory_are_refused_first(tmp_path, dem):
 
 
 def test_memory_checks_respect_ulimit_v():
-    code = ("import resource; from terrain import memory; "
+    code = ("import resource; from terrain.core import memory; "
             "resource.setrlimit(resource.RLIMIT_AS, (6 * 2**30, resource.RLIM_INFINITY)); "
             "print(memory.available_bytes())")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
