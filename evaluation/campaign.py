@@ -46,12 +46,24 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
+from typing import TYPE_CHECKING
 
 from render.records import check_keys, number
-from terrain.cli.tools import cli_args, long_options, run_command
+from render.scene_build import (
+    BODY_KEYS,
+    body_recipe,
+    build_body,
+    enhance_base,
+    synth_base,
+    terrain_specs,
+)
 from terrain.core.errors import InvalidParameterError
 from terrain.core.outputs import remove_path
 from terrain.core.tomlfile import merge_tables, read_toml, toml_text
+
+if TYPE_CHECKING:  # pragma: no cover
+    from asteroid.recipe import Recipe
+    from terrain.stages.specs import EnhanceSpec, SynthSpec
 
 __all__ = ["STAGES", "Campaign", "Stage", "claim_output", "load_campaign", "run_campaign"]
 
@@ -65,26 +77,11 @@ STAGES = ("lunar/base", "lunar/stack", "lunar/run", "lunar/closed_loop", "astero
 CAMPAIGN_MARKER = ".craterscape-campaign"
 #: The file that marks a stage's folder as written by a campaign (its key).
 STAGE_STAMP = ".stage-key"
-#: Options each stage's command takes from the campaign itself, never from its table: the
-#: outputs (inside the campaign's folder), the one seed, and the site the campaign chooses.
-BUILDER_OPTIONS = {"base": frozenset({"output", "catalog", "seed"}),
-                   "stack": frozenset({"output", "seed", "site", "site_lonlat"}),
-                   "body": frozenset({"output"})}
-
 _TOP = {"title", "seed", "summary", "lunar", "asteroid", "evaluation", "quick"}
 _RUN_KEYS = {"scenario", "frames", "image", "sun_elevation"}
 _LOOP_KEYS = {"script", "size", "dt"}
 _EVAL_KEYS = {"shared_data", "ldem", "sfs", "eros", "eros_density", "eros_period_h",
               "lander_diameter", "max_slope", "max_step"}
-
-
-def _options(table, where: str, command, owned: frozenset[str]) -> Mapping:
-    """Return the CLI options of a stage, checked against the click command's own.
-
-    Long options are matched by name (``--fractal-dimension`` is ``fractal_dimension``); the
-    ``owned`` ones are the campaign's and refused.
-    """
-    return MappingProxyType(check_keys(table, long_options(command) - owned, where))
 
 
 def _optional_int(table: dict, key: str, where: str) -> int | None:
@@ -152,15 +149,22 @@ class Campaign:
     summary : str
         The report's opening paragraph.
     base : Mapping
-        ``craterscape terrain synth`` options of the lunar base (names as in Python,
-        e.g. ``fractal_dimension``).
+        The ``[lunar.base]`` table: ``terrain synth`` fields of the lunar base (names as
+        the command's long options, e.g. ``fractal_dimension``).
     stack : Mapping
-        ``craterscape terrain enhance`` options of the layer stack (the site and the layer
-        size are the campaign's).
+        The ``[lunar.stack]`` table: ``terrain enhance`` fields of the layer stack (the
+        seed, the site and the layer size are the campaign's).
     lunar_run, asteroid_run : RunSpec
         The descent and the approach.
     body : Mapping
-        ``craterscape asteroid build`` options (``config`` relative to the campaign file).
+        The ``[asteroid.body]`` table: ``asteroid build`` options (``config`` resolved
+        against the campaign file).
+    synth : terrain.stages.specs.SynthSpec
+        The base's spec (the campaign's seed).
+    enhance : terrain.stages.specs.EnhanceSpec
+        The stack's spec, but its site (chosen on the base when it is built).
+    recipe : asteroid.recipe.Recipe
+        The body's recipe.
     evaluation : Mapping
         Real data (``ldem``, ``sfs``, ``eros`` relative to ``shared_data``), Eros's density
         (kg m^-3) and spin period (h), and the lander of the hazard map
@@ -183,6 +187,9 @@ class Campaign:
     lunar_run: RunSpec
     body: Mapping
     asteroid_run: RunSpec
+    synth: SynthSpec
+    enhance: EnhanceSpec
+    recipe: Recipe
     evaluation: Mapping = field(default_factory=dict)
     closed_loop: Mapping | None = None
     path: Path | None = None
@@ -206,8 +213,6 @@ class Campaign:
         Campaign
             The checked record.
         """
-        from asteroid.cli import asteroid
-        from terrain.cli.commands import terrain
         from terrain.core.rng import check_seed
 
         data = check_keys(data, _TOP, "campaign")
@@ -228,8 +233,10 @@ class Campaign:
         for key in ("body", "run"):
             if key not in ast:
                 raise InvalidParameterError(f"campaign needs an [asteroid.{key}] table")
-        body = dict(_options(ast["body"], "campaign [asteroid.body]",
-                             asteroid.commands["build"], BUILDER_OPTIONS["body"]))
+        synth, enhance = terrain_specs(lunar["base"], lunar["stack"], seed, "campaign [lunar",
+                                       site="refused")
+        recipe = body_recipe(ast["body"], folder, "campaign [asteroid.body]")
+        body = check_keys(ast["body"], BODY_KEYS, "campaign [asteroid.body]")
         if "config" in body:
             body["config"] = str(folder / body["config"])
         evaluation = check_keys(data.get("evaluation", {}), _EVAL_KEYS, "campaign [evaluation]")
@@ -249,10 +256,9 @@ class Campaign:
         return cls(
             title=str(data.get("title", "craterscape campaign")), seed=seed,
             summary=str(data.get("summary", "")),
-            base=_options(lunar["base"], "campaign [lunar.base]", terrain.commands["synth"],
-                          BUILDER_OPTIONS["base"]),
-            stack=_options(lunar["stack"], "campaign [lunar.stack]",
-                           terrain.commands["enhance"], BUILDER_OPTIONS["stack"]),
+            base=MappingProxyType(dict(lunar["base"])),
+            stack=MappingProxyType(dict(lunar["stack"])),
+            synth=synth, enhance=enhance, recipe=recipe,
             lunar_run=RunSpec.from_mapping(lunar["run"], "campaign [lunar.run]", folder),
             body=MappingProxyType(body),
             asteroid_run=RunSpec.from_mapping(ast["run"], "campaign [asteroid.run]", folder),
@@ -484,33 +490,31 @@ def lunar(c: Campaign, out: Path, say: Callable[[str], None]) -> dict:
     """
     from evaluation.slope import horn_slope
     from terrain.io import read_dem
+    from terrain.stages.runner import run
+    from terrain.stages.specs import EnhanceSpec, HillshadeSpec
     from terrain.surface.site import landing_site, lit_sun_azimuth
 
-    synth_args = cli_args({**c.base, "seed": c.seed})
-    base = Stage(out, "lunar/base", dict(args=synth_args, v=4))
+    base = Stage(out, "lunar/base", dict(spec=c.synth.as_dict(), v=5))
     base_tif = base.dir / "base.tif"
     if not base.done():
-        say(f"lunar 1/3: synthetic base, {c.base.get('resolution', 1.0):g} m per pixel")
+        say(f"lunar 1/3: synthetic base, {c.synth.resolution:g} m per pixel")
         base.begin()
         t0 = time.perf_counter()
-        run_command("terrain", "synth", "-o", base_tif, *synth_args,
-                "--catalog", base.dir / "base_craters.csv")
-        run_command("terrain", "hillshade", base_tif, "-o", base.dir / "base_hillshade.png",
-                "--azimuth", 45, "--altitude", 10)
+        synth_base(c.synth, base_tif, base.dir / "base_craters.csv")
+        run(HillshadeSpec.from_mapping({"azimuth": 45.0, "altitude": 10.0}), base_tif,
+            base.dir / "base_hillshade.png")
         base.finish(time.perf_counter() - t0)
     tile = read_dem(base_tif)
     site = landing_site(tile, horn_slope(tile))
-    enhance_args = ["--site", f"{site[0]},{site[1]}",
-                    *cli_args({"layer_size": tile.shape[0], "seed": c.seed, **c.stack})]
-    stack = Stage(out, "lunar/stack", dict(base=base.key, args=enhance_args, v=4))
+    enhance = EnhanceSpec.from_mapping({**c.enhance.as_dict(), "site": site})
+    stack = Stage(out, "lunar/stack", dict(base=base.key, spec=enhance.as_dict(), v=5))
     stack_dir = stack.dir / "stack"
     if not stack.done():
-        say(f"lunar 2/3: enhancing the base in {c.stack.get('levels')} nested layers around "
+        say(f"lunar 2/3: enhancing the base in {enhance.levels} nested layers around "
             f"the site ({site[0] / 1000:.1f} km, {site[1] / 1000:.1f} km)")
         stack.begin()
-        remove_path(stack_dir)  # a stack is written whole, or not at all
         t0 = time.perf_counter()
-        run_command("terrain", "enhance", base_tif, "-o", stack_dir, *enhance_args)
+        enhance_base(enhance, base_tif, stack_dir)
         stack.finish(time.perf_counter() - t0)
     spec = c.lunar_run
     elevation = spec.sun_elevation
@@ -588,6 +592,8 @@ def asteroid(c: Campaign, out: Path, say: Callable[[str], None]) -> dict:
     dict
         ``body`` and ``run``: the body's ``.npz`` and the run folder.
     """
+    from asteroid.build import export_model
+
     recipe = Path(c.body["config"]).read_text(encoding="utf-8") if "config" in c.body else ""
     body = Stage(out, "asteroid/body", dict(
         recipe=recipe, options={k: v for k, v in c.body.items() if k != "config"}, v=2))
@@ -596,10 +602,11 @@ def asteroid(c: Campaign, out: Path, say: Callable[[str], None]) -> dict:
         say("asteroid 1/2: building an Eros-like body (Perlin base, craters, boulders)")
         body.begin()
         t0 = time.perf_counter()
-        run_command("asteroid", "build", "-o", body_npz, *cli_args(c.body))
+        config = c.body.get("config")
+        build_body(c.recipe, body_npz, inputs=() if config is None else (Path(config),))
         # a mesh to open in a viewer: the body with its boulders at their coarsest level
         # (the finest levels, which the renderer uses close up, would make it 0.6 GB)
-        run_command("asteroid", "export", body_npz, "-o", body.dir / "body.ply", "--level", 0)
+        export_model(body_npz, body.dir / "body.ply", level=0)
         body.finish(time.perf_counter() - t0)
     spec = c.asteroid_run
     overrides = merge_tables(spec.overrides(), {"scene": {"body": str(body_npz)}})

@@ -10,7 +10,6 @@ from pathlib import Path
 import pytest
 
 from evaluation.campaign import Campaign, Stage, load_campaign, write_scenario
-from terrain.cli.tools import cli_args
 from terrain.core.errors import InvalidParameterError
 
 REPO = Path(__file__).resolve().parents[2]
@@ -52,11 +51,30 @@ def test_unknown_keys_are_named_with_the_nearest(table, key, near):
         Campaign.from_mapping(data, DEMO)
 
 
-def test_stage_options_become_the_commands_own_flags():
+def test_stage_tables_become_the_stages_specs():
+    """What the campaign file says is what the stages get, and the campaign's own values
+    (its seed, layers as large as the base) fill in the rest."""
     c = load_campaign(DEMO)
-    args = cli_args(c.stack)
-    assert "--rocks" in args and "--fractal-dimension" in args
-    assert cli_args({"no_roughness": True, "cog": False}) == ["--no-roughness"]
+    assert c.synth.fractal_dimension == 2.3 and c.synth.size == 1025
+    assert c.enhance.rocks == "golombek:k=0.02" and c.enhance.levels == 15
+    assert c.synth.seed == c.enhance.seed == 2014
+    assert c.enhance.layer_size == c.synth.size and c.enhance.site is None
+    assert c.recipe.magnitude == 256 and c.recipe.seed == 433  # examples/eros_like.toml
+    assert load_campaign(DEMO, quick=True).recipe.magnitude == 96
+
+
+@pytest.mark.parametrize("table, key, value, words", [
+    (("lunar", "base"), "size", 1000, ["[lunar.base]", "2^n + 1"]),
+    (("lunar", "base"), "relief", "high", ["[lunar.base]", "relief", "number"]),
+    (("lunar", "stack"), "finest_resolution", 0.5, ["[lunar.stack]", "levels"]),
+    (("asteroid", "body"), "magnitude", "big", ["[asteroid.body]", "magnitude"]),
+])
+def test_stage_values_are_checked_when_the_campaign_is_parsed(table, key, value, words):
+    data = _demo()
+    data[table[0]][table[1]][key] = value
+    with pytest.raises(InvalidParameterError) as err:
+        Campaign.from_mapping(data, DEMO)
+    assert all(w in str(err.value) for w in words), str(err.value)
 
 
 def test_scenario_overrides_go_through_the_parser(tmp_path):

@@ -105,11 +105,17 @@ def test_a_scenario_without_a_recipe_builds_nothing(tmp_path):
 
 @pytest.mark.parametrize("build, words", [
     ({"seed": 1, "base": {"sise": 65}, "stack": {"site": [1, 2]}}, ["sise", "'size'"]),
-    ({"base": {"size": "big"}, "stack": {"site": [1, 2]}}, ["base].size", "big"]),
+    ({"base": {"size": "big"}, "stack": {"site": [1, 2]}}, ["[scene.build.base]", "size",
+                                                           "big"]),
     ({"base": {"size": 65}, "stack": {"levels": 2}}, ["site", "site_lonlat"]),
     ({"base": {"size": 65}, "stack": {"site": [1, 2]}, "body": {}}, ["'body'"]),
     ({"base": {"output": "x.tif"}, "stack": {"site": [1, 2]}}, ["'output'"]),
-    ({"base": {"no_roughness": 1}, "stack": {"site": [1, 2]}}, ["flag", "no_roughness"]),
+    ({"base": {"no_roughness": 1}, "stack": {"site": [1, 2]}}, ["true or false",
+                                                               "no_roughness"]),
+    ({"base": {"size": 64}, "stack": {"site": [1, 2], "levels": 2}}, ["2^n + 1"]),
+    ({"base": {"size": 65}, "stack": {"site": [1, 2]}}, ["levels", "finest_resolution"]),
+    ({"base": {"size": 65}, "stack": {"site": [1, 2], "levels": 1, "dmin": "x"}},
+     ["[scene.build.stack]", "dmin"]),
     ({"stack": {"site": [1, 2]}}, ["[scene.build.base]"]),
     ({"seed": -1, "base": {}, "stack": {"site": [1, 2]}}, ["seed"]),
 ])
@@ -125,12 +131,13 @@ def test_an_asteroid_recipe_takes_the_build_options_and_resolves_its_paths(tmp_p
     with pytest.raises(InvalidParameterError, match="seed"):
         SceneBuild.from_mapping({"seed": 3, "body": {}}, "asteroid")
     recipe = SceneBuild.from_mapping({"body": {"config": "r.toml", "magnitude": 8}}, "asteroid")
-    assert recipe.arguments("body", tmp_path) == ["--config", str(tmp_path / "r.toml"),
-                                                  "--magnitude", 8]
+    # the recipe file is read from the scenario's folder, and the table's keys override it
+    (tmp_path / "r.toml").write_text('magnitude = 4\nradius = 100.0\nbase = "perlin"\n')
+    body = recipe.recipe(tmp_path)
+    assert (body.magnitude, body.radius, body.base) == (8, 100.0, "perlin")
     # the key follows the recipe file's contents, not just its name
-    (tmp_path / "r.toml").write_text("radius = 100.0\n")
     first = recipe.key(tmp_path)
-    (tmp_path / "r.toml").write_text("radius = 200.0\n")
+    (tmp_path / "r.toml").write_text('magnitude = 4\nradius = 200.0\nbase = "perlin"\n')
     assert recipe.key(tmp_path) != first
 
 
@@ -176,13 +183,12 @@ def test_the_example_scenarios_build_make_demos_scenes():
 def test_the_example_site_is_the_one_the_demo_chooses(tmp_path):
     """The lunar recipes' site is where the campaign lands on that base (its flattest spot)."""
     from evaluation.slope import horn_slope
-    from terrain.cli.tools import run_command
+    from terrain.stages.runner import run
     from terrain.surface.site import landing_site
 
     recipe = load_scenario(REPO / "examples" / "lunar_descent.toml").scene.build
     assert recipe is not None
-    run_command("terrain", "synth", "-o", tmp_path / "base.tif",
-                *recipe.arguments("base", tmp_path))
+    run(recipe.terrain(tmp_path)[0], None, tmp_path / "base.tif")
     tile = read_dem(tmp_path / "base.tif")
     assert landing_site(tile, horn_slope(tile)) == tuple(recipe.stack["site"])
 
@@ -245,3 +251,21 @@ def test_two_first_runs_build_the_scene_once(tmp_path):
     assert json.loads(stamp_path(tmp_path / "scene" / "stack").read_text())["key"] == \
         scenario.scene.build.key(tmp_path)
     assert len(layers(tmp_path / "scene" / "stack")) == 3
+
+
+def test_a_base_without_craters_builds(tmp_path):
+    base = {k: v for k, v in BASE.items() if k not in ("dmin", "dmax", "density")}
+    built = ensure_scene(load_scenario(terrain_scenario(tmp_path, base=base)))
+    assert len(layers(built)) == 3
+    assert not (tmp_path / "scene" / "stack.base_craters.csv").exists()
+
+
+def test_a_recipe_refused_when_parsed_leaves_nothing(tmp_path):
+    """A stack table the enhance stage would refuse stops the scenario before the base is
+    made: no base, no stamp, no folder."""
+    path = terrain_scenario(tmp_path)
+    text = path.read_text().replace("levels = 2", "levels = 2\nfinest_resolution = 0.5")
+    path.write_text(text)
+    with pytest.raises(InvalidParameterError, match="levels"):
+        ensure_scene(load_scenario(path))
+    assert not (tmp_path / "scene").exists()
