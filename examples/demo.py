@@ -17,10 +17,12 @@ complete from an earlier run with the same parameters:
 6. ``evaluation/``: tracks, slopes, spectra, real-data comparisons (where ``../shared/data``
    holds them), hazards and ``report.html``, which links every file.
 
-``demo.json`` holds the time of every stage. Nothing outside the output folder is written,
-and only what a campaign wrote there is ever removed: a non-empty folder that holds no
-campaign is refused. A bad campaign file or output folder is one line on stderr (exit 2;
-``-v`` shows the traceback).
+``demo.json`` holds the time of every stage; the figures the run measured go to
+``docs/results.md`` (the ``--quick`` or another campaign's: ``results.md`` in the output
+folder), stamped with the commit. Nothing else outside the output folder is written, and
+only what a campaign wrote there is ever removed: a non-empty folder that holds no campaign
+is refused. A bad campaign file or output folder is one line on stderr (exit 2; ``-v`` shows
+the traceback).
 
 Usage::
 
@@ -65,8 +67,11 @@ def main(argv=None) -> int:
     shared = os.environ.get("CRATERSCAPE_SHARED_DATA")  # the real data, never copied
     try:
         campaign = load_campaign(args.campaign, quick=args.quick)
+        # the full demo's figures are the README's: docs/results.md, stamped with the commit
+        full = not args.quick and args.campaign.resolve() == HERE / "demo.toml"
         run_campaign(campaign, args.out, shared=shared, fresh=args.fresh, say=say,
-                     summary_name="demo.json")
+                     summary_name="demo.json",
+                     results=HERE.parent / "docs" / "results.md" if full else None)
     except (CraterscapeError, OSError) as exc:
         if args.verbose:
             logging.getLogger("demo").exception("the campaign stopped")
