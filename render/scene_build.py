@@ -10,7 +10,7 @@ nested layers around a site (what ``make demo``'s first two stages do)::
     stack = "scenes/descent_stack"     # built here when it is missing
 
     [scene.build]
-    seed = 2014                        # --seed of both commands (default 0)
+    seed = 2014                        # the seed of both stages (default 0)
 
     [scene.build.base]                 # `craterscape terrain synth` options
     body = "moon"
@@ -27,12 +27,17 @@ Asteroid scenes are one ``craterscape asteroid build``::
     config = "eros_like.toml"          # paths relative to the scenario file
     magnitude = 96
 
-Option names are those of the command's long options (``--fractal-dimension`` is
-``fractal_dimension``; a flag is ``true``; a list is joined with commas); unknown names are
-refused with the nearest valid one and values are checked when the scenario is parsed. The
-output options are the builder's: ``-o`` is where ``[scene]`` says the scene lives, and a
-terrain base is kept beside its stack (``STACK.base.tif``, its craters in
-``STACK.base_craters.csv``).
+The terrain tables are the stages' specs (:class:`terrain.stages.specs.SynthSpec` and
+:class:`~terrain.stages.specs.EnhanceSpec`, whose field names are the commands' long options:
+``--fractal-dimension`` is ``fractal_dimension``, a flag is ``true``, a pair a list); the body
+table is ``asteroid build``'s options, read into an :class:`asteroid.recipe.Recipe`. Every
+value is checked when the scenario is parsed, an unknown key refused with the nearest valid
+one, so a recipe its stages would refuse leaves nothing behind. The outputs and the seed are
+the builder's: the scene goes where ``[scene]`` says it lives, and a terrain base is kept
+beside its stack (``STACK.base.tif``, its craters, where it has any, in
+``STACK.base_craters.csv``). Nothing here calls the command line: the builds run through
+:func:`terrain.stages.runner.run` and :mod:`asteroid.build`, the functions
+:mod:`evaluation.campaign` shares (:func:`terrain_specs`, :func:`synth_then_enhance`).
 
 The cache is the scene itself. :func:`ensure_scene` builds a missing scene where the
 scenario says it lives and writes a stamp beside it (``STACK.build.json`` or
