@@ -369,7 +369,13 @@ class Stage:
 
 
 def _holds_campaign(out: Path) -> bool:
-    return (out / CAMPAIGN_MARKER).is_file()
+    """Whether ``out`` is a campaign's folder.
+
+    It is when marked, or when it holds a finished stage's marker (a folder a campaign wrote
+    before folders were marked).
+    """
+    return (out / CAMPAIGN_MARKER).is_file() or any(
+        (out / f".{name.replace('/', '_')}.done.json").is_file() for name in STAGES)
 
 
 def claim_output(out, *, fresh: bool = False) -> Path:

@@ -210,3 +210,13 @@ def test_results_are_the_reports_figures_stamped_with_the_commit(tmp_path):
     assert "| asteroid against Eros: slope KS distance | 0.1 |" in text
     assert source_commit(tmp_path) == "unknown"
     assert re.fullmatch(r"[0-9a-f]{40}", source_commit(REPO))
+
+
+def test_a_folder_with_finished_stages_is_a_campaigns(tmp_path):
+    """An output folder a campaign wrote before folders were marked is still taken."""
+    from evaluation.campaign import claim_output
+
+    stage = Stage(tmp_path, "lunar/base", {"size": 257})
+    stage.begin()
+    stage.finish(1.0)
+    assert claim_output(tmp_path) == tmp_path.resolve() and stage.done()
