@@ -16,58 +16,28 @@ import click
 
 from terrain.cli.tools import PAIR, WINDOW, progress_bar, with_options
 
-__all__ = ["EXECUTION", "OUTPUTS", "spec_options", "stage_command"]
+__all__ = ["OUTPUTS", "spec_options", "stage_command"]
 
+_FILE = click.Path(dir_okay=False, path_type=Path)
 _TYPES = {"int": click.INT, "float": click.FLOAT, "text": click.STRING, "pair": PAIR,
-          "window": WINDOW, "path": click.Path(dir_okay=False, path_type=Path)}
-
-_OUT = "Output {} (written atomically; never over an input)"
-#: The ``-o`` of each kind of output.
-OUTPUTS = {
-    "dem": click.option("-o", "--output", required=True,
-                        type=click.Path(dir_okay=False, path_type=Path),
-                        help=_OUT.format("GeoTIFF") + "."),
-    "store": click.option("-o", "--output", required=True, type=click.Path(path_type=Path),
-                          help=_OUT.format("GeoTIFF") + ", or a Zarr store (NAME.zarr: a "
-                          "chunked run, resumed if it exists)."),
-    "png": click.option("-o", "--output", required=True,
-                        type=click.Path(dir_okay=False, path_type=Path),
-                        help="Output PNG (8-bit grey)."),
-    "stack": click.option("-o", "--output", required=True,
-                          type=click.Path(file_okay=False, path_type=Path),
-                          help="Output folder for the layer stack (new or empty)."),
-}
-CATALOG = click.option("--catalog", type=click.Path(dir_okay=False, path_type=Path),
-                       default=None, help="Write the catalogue (CSV) here.")
+          "window": WINDOW, "path": _FILE}
+_SAFE = "Output GeoTIFF (written atomically; never over an input)"
+#: The click type and help of ``-o`` for each kind of output.
+OUTPUTS = {"dem": (_FILE, _SAFE + "."),
+           "store": (click.Path(path_type=Path), _SAFE + ", or a Zarr store (NAME.zarr: a "
+                     "chunked run, resumed if it exists)."),
+           "png": (_FILE, "Output PNG (8-bit grey)."),
+           "stack": (click.Path(file_okay=False, path_type=Path),
+                     "Output folder for the layer stack (new or empty).")}
 
 
-def _execution(lead: str, run: str, pool_note: str = "", cog: bool = True) -> list:
-    """--workers, --threads, --scheduler, --chunk (and --cog) of :class:`~.runner.Execution`."""
-    return [
-        click.option("--workers", type=click.IntRange(1, None), default=None,
-                     help=f"{lead} chunk by chunk on a local Dask pool of N workers{pool_note}."),
-        click.option("--threads", is_flag=True,
-                     help="Local workers are threads of this process instead of processes."),
-        click.option("--scheduler", default=None, metavar="tcp://HOST:PORT",
-                     help=f"{lead} chunk by chunk on the Dask cluster at this address."),
-        click.option("--chunk", type=click.IntRange(16, None), default=None,
-                     help=f"Chunk side in pixels (default 1024); implies a chunked {run}."),
-        *([click.option("--cog", type=click.Path(dir_okay=False, path_type=Path), default=None,
-                        help="After a chunked run, also convert the Zarr output into this "
-                             "Cloud Optimized GeoTIFF.")] if cog else []),
-    ]
-
-
-#: The execution options of a chunked DEM command and of `terrain enhance`.
-EXECUTION = {"dem": _execution("Run", "run", " (writes Zarr)"),
-             "stack": _execution("Build the stack", "build", cog=False)}
-
-
-def spec_options(spec: type) -> Callable[[Any], Any]:
-    """Return a decorator adding one ``--option`` per field of a stage spec, in field order."""
+def spec_options(spec: type, skip: tuple = ()) -> Callable[[Any], Any]:
+    """Return a decorator adding one ``--option`` per field of a spec (its own fields first)."""
     options = []
-    own = spec.__dict__.get("__annotations__", {})  # the stage's own fields first
+    own = spec.__dict__.get("__annotations__", {})
     for field in sorted(dataclasses.fields(spec), key=lambda f: f.name not in own):
+        if field.name in skip:
+            continue
         kind, name = field.metadata["kind"], "--" + field.name.replace("_", "-")
         required = field.default is dataclasses.MISSING
         default = None if required else field.default
@@ -87,24 +57,10 @@ def stage_command(group: click.Group, name: str, spec: type, *, help: str,  # no
                   execution: str | None = None) -> click.Command:
     """Add to ``group`` the command ``name``: options -> ``spec`` -> :func:`~.runner.run`.
 
-    Parameters
-    ----------
-    group : click.Group
-        The group it joins.
-    name : str
-        The command's name.
-    spec : type
-        Its stage spec; every field becomes an option.
-    help : str
-        The command's help.
-    output : str
-        The kind of ``-o`` (a key of :data:`OUTPUTS`).
-    source : bool
-        Whether it reads an input (the ``SOURCE`` argument).
-    catalog : bool
-        Whether it takes ``--catalog``.
-    execution : str, optional
-        Its execution options (a key of :data:`EXECUTION`); none where None.
+    ``output`` is the kind of ``-o`` (a key of :data:`OUTPUTS`), ``source`` whether it reads
+    an input (the ``SOURCE`` argument), ``catalog`` whether it takes ``--catalog``;
+    ``execution`` ``"dem"`` adds every option of :class:`~.runner.Execution`, ``"stack"`` all
+    but ``--cog``, None none.
     """
     from terrain.stages.fields import named_as_options
     from terrain.stages.runner import Execution, run
@@ -116,13 +72,18 @@ def stage_command(group: click.Group, name: str, spec: type, *, help: str,  # no
         fields = {k: v for k, v in options.items() if k not in names}
         with named_as_options():
             stage = spec.from_mapping(fields)  # type: ignore[attr-defined]
-        how = Execution(**{k: v for k, v in options.items() if k in names})
+            how = Execution(**{k: v for k, v in options.items() if k in names})
         done = run(stage, source, output, how, catalog=catalog, progress=progress_bar)
         click.echo(done.message, err=True)
 
-    params = [OUTPUTS[output], spec_options(spec), *EXECUTION.get(execution or "", [])]
+    out_type, out_help = OUTPUTS[output]
+    params = [click.option("-o", "--output", required=True, type=out_type, help=out_help),
+              spec_options(spec)]
+    if execution is not None:
+        params.append(spec_options(Execution, skip=("cog",) if execution == "stack" else ()))
     if catalog:
-        params.insert(1, CATALOG)
+        params.insert(1, click.option("--catalog", type=_FILE, default=None,
+                                      help="Write the catalogue (CSV) here."))
     if source:
         params.insert(0, click.argument("source", type=click.Path(path_type=Path)))
     return group.command(name, help=help)(with_options(params)(command))

@@ -8,7 +8,7 @@ missing tag.
 
 Examples
 --------
->>> from terrain import metakeys as mk
+>>> from terrain.core import metakeys as mk
 >>> mk.SEED
 'CRATERSCAPE_SEED'
 >>> mk.is_key("CRATERSCAPE_SEED"), mk.is_key("AREA_OR_POINT")

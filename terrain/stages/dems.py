@@ -19,6 +19,7 @@ from terrain.core import metakeys as mk
 from terrain.core.errors import InvalidParameterError
 from terrain.core.outputs import transaction
 from terrain.stages.runner import (
+    WORKING_BYTES_PER_PIXEL,
     Execution,
     ProgressFactory,
     Written,
@@ -153,7 +154,7 @@ def synth(spec: SynthSpec, source: None, output: Path, execution: Execution, *,
         raise InvalidParameterError("--catalog needs craters: give --density or --population")
     model = crater_model(spec)
     if chunked or (spec.window is None
-                   and not fits_in_memory(spec.size ** 2 * 40.0)):
+                   and not fits_in_memory(spec.size ** 2 * WORKING_BYTES_PER_PIXEL)):
         from terrain.execution.chunked import SynthSource
 
         return run_dask(SynthSource(spec.size, spec.resolution, spec.fractal_dimension,

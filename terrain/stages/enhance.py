@@ -35,7 +35,7 @@ def _site(spec: EnhanceSpec, reader: Any) -> tuple[float, float]:
     if spec.site is not None:
         return spec.site
     ny, nx = reader.shape
-    x, y = reader.transform * (nx / 2.0, ny / 2.0)
+    x, y = reader.transform @ (nx / 2.0, ny / 2.0)
     return float(x), float(y)
 
 

@@ -170,7 +170,8 @@ class Spec:
         """
         names = [f.name for f in dataclasses.fields(cls)]  # type: ignore[arg-type]
         table = checks.check_keys(table, names, f"terrain {cls.STAGE}")
-        missing = [n for n in names if n not in table and n not in cls.defaults()]
+        defaults = cls.defaults()
+        missing = [n for n in names if n not in table and n not in defaults]
         if missing:
             raise InvalidParameterError(f"terrain {cls.STAGE} needs {cls.label(missing[0])}")
         return cls(**table)

@@ -20,12 +20,12 @@ from os import PathLike
 from pathlib import Path
 from typing import Any
 
-from terrain.core import checks, memory
+from terrain.core import memory
 from terrain.core import metakeys as mk
 from terrain.core.errors import InvalidParameterError
 from terrain.core.outputs import protected
 from terrain.core.progress import Progress
-from terrain.stages.fields import Spec
+from terrain.stages.fields import FLAG, OUTPUT_PATH, Spec, integer, option, text
 
 __all__ = ["Execution", "ProgressFactory", "Written", "run"]
 
@@ -39,48 +39,28 @@ WORKING_BYTES_PER_PIXEL = 40.0
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
-class Execution:
+class Execution(Spec):
     """How a stage runs (never what it computes: the bytes are the same every way).
 
-    Parameters
-    ----------
-    workers : int, optional
-        Run chunk by chunk on a local Dask pool of this many workers.
-    threads : bool
-        Local workers are threads of this process instead of processes.
-    scheduler : str, optional
-        Run chunk by chunk on the Dask cluster at this address (``tcp://HOST:PORT``).
-    chunk : int, optional
-        Chunk side in pixels (default 1024); implies a chunked run.
-    cog : path, optional
-        After a chunked run, also convert the Zarr output into this Cloud Optimized GeoTIFF.
-
     The default runs in this process, in memory, or out of core when the request does not
-    fit in memory.
+    fit in memory; a count of workers, a scheduler, a chunk size or a COG asks for a chunked
+    run on Dask into a Zarr store.
+
+    >>> Execution.from_mapping({"workers": 2}).chunked
+    True
     """
 
-    workers: int | None = None
-    threads: bool = False
-    scheduler: str | None = None
-    chunk: int | None = None
-    cog: Path | None = None
-
-    def __post_init__(self) -> None:
-        if self.workers is not None:
-            object.__setattr__(self, "workers", checks.integer(self.workers, "workers", low=1))
-        if self.chunk is not None:
-            object.__setattr__(self, "chunk", checks.integer(self.chunk, "chunk", low=16))
-        if self.scheduler is not None:
-            checks.text(self.scheduler, "scheduler", empty=False)
-        if self.cog is not None:
-            object.__setattr__(self, "cog", Path(self.cog))
-        object.__setattr__(self, "threads", checks.boolean(self.threads, "threads"))
-
-    @classmethod
-    def from_mapping(cls, table: Any) -> Execution:
-        """Return the execution of a table (``workers``, ``threads``, ...), checked."""
-        names = [f.name for f in dataclasses.fields(cls)]
-        return cls(**checks.check_keys(table, names, "execution"))
+    STAGE = "execution"
+    workers: int | None = option(None, "Run chunk by chunk on a local Dask pool of N workers.",
+                                 integer(low=1))
+    threads: bool = option(False, "Local workers are threads of this process instead of "
+                           "processes.", FLAG)
+    scheduler: str | None = option(None, "Run chunk by chunk on the Dask cluster at this "
+                                   "address (tcp://HOST:PORT).", text())
+    chunk: int | None = option(None, "Chunk side in pixels (default 1024); implies a chunked "
+                               "run.", integer(low=16))
+    cog: Path | None = option(None, "After a chunked run, also convert the Zarr output into "
+                              "this Cloud Optimized GeoTIFF.", OUTPUT_PATH)
 
     @property
     def chunked(self) -> bool:
@@ -140,8 +120,11 @@ def run(spec: Spec, inputs: str | PathLike | Sequence[str | PathLike] | None,
     work = stages.get(type(spec))
     if work is None:
         raise InvalidParameterError(f"run takes a terrain stage spec; got {type(spec).__name__}")
-    paths = [Path(p) for p in ([] if inputs is None else [inputs]
-                               if isinstance(inputs, (str, PathLike)) else inputs)]
+    if inputs is None:
+        inputs = []
+    elif isinstance(inputs, (str, PathLike)):
+        inputs = [inputs]
+    paths = [Path(p) for p in inputs]
     if len(paths) != (0 if isinstance(spec, specs.SynthSpec) else 1):
         wanted = "no" if isinstance(spec, specs.SynthSpec) else "one"
         raise InvalidParameterError(f"terrain {spec.STAGE} takes {wanted} input; got {paths}")

@@ -25,7 +25,7 @@ EQC_MOON = ('PROJCS["unknown",GEOGCS["unknown",DATUM["unknown",SPHEROID["unknown
 def test_a_moon_dem_opens_at_the_south_pole_with_the_same_heights(tmp_path):
     plain, moon = tmp_path / "plain.tif", tmp_path / "moon.tif"
     args = ["--size", 33, "--resolution", 100.0, "--seed", 3]
-    assert run("terrain", "synth", "-o", plain, *args).exit_code == 0
+    assert run("terrain", "synth", "-o", plain, *args, "--local-grid").exit_code == 0
     result = run("terrain", "synth", "-o", moon, *args, "--body", "moon")
     assert result.exit_code == 0, result.output
     with rasterio.open(moon) as ds:  # GDAL places it
@@ -52,7 +52,7 @@ def test_a_site_centred_orthographic_dem(tmp_path):
 
 
 @pytest.mark.parametrize("args, fragment", [
-    (["--crs", "south-polar"], "--crs needs --body"),
+    (["--local-grid", "--crs", "south-polar"], "--local-grid"),
     (["--body", "moom"], "did you mean 'moon'"),
     (["--body", "moon", "--crs", "ortho:10"], "ortho:LON,LAT"),
     (["--body", "moon", "--crs", "mercator"], "unknown --crs"),
