@@ -651,6 +651,11 @@ def source_commit(folder: Path) -> str:
     return done.stdout.strip() or "unknown"
 
 
+def _escape(text) -> str:
+    """Return ``text`` safe inside a Markdown table cell."""
+    return str(text).replace("|", "\\|")
+
+
 def _cell(value) -> str:
     if value is None:
         return "not measured"
@@ -685,11 +690,13 @@ def results_text(c: Campaign, out: Path, report: Path, commit: str) -> str:
              f"at commit `{commit}`; do not edit by hand, run the campaign again. The report "
              f"is `{os.path.relpath(report, out)}` in its output folder.", "",
              f"Verdict at the default thresholds: **{doc.get('verdict', 'unknown')}**.", "",
-             "## Checks", "", "| check | value | limit | result |", "|---|---|---|---|"]
+             "## Checks", "", "| section | check | value | limit | result |",
+             "|---|---|---|---|---|"]
     for check in doc.get("checks", []):
         result = {True: "pass", False: "fail", None: "not measured"}[check.get("passed")]
         unit = f" {check['unit']}" if check.get("unit") else ""
-        lines.append(f"| {check['name']} | {_cell(check['value'])}{unit} | "
+        lines.append(f"| {_escape(check['section'])} | {_escape(check['name'])} | "
+                     f"{_cell(check['value'])}{unit} | "
                      f"{check['relation']} {_cell(check['limit'])}{unit} | {result} |")
     lines += ["", "## Stages (wall time on the machine that ran them)", "",
               "| stage | seconds | frames | frames per second |", "|---|---|---|---|"]

@@ -192,8 +192,8 @@ def test_results_are_the_reports_figures_stamped_with_the_commit(tmp_path):
     report = out / "evaluation" / "report.html"
     checks = [dict(section="a", name="descent tracking median", value=0.27, limit=0.5,
                    relation="<=", unit="px", passed=True, note=""),
-              dict(section="b", name="site against SFS", value=0.36, limit=0.2, relation="<=",
-                   unit="", passed=False, note=""),
+              dict(section="b", name="site |log10 ratio|", value=0.36, limit=0.2,
+                   relation="<=", unit="", passed=False, note=""),
               dict(section="b", name="Hurst exponent", value=None, limit=0.1, relation="<=",
                    unit="", passed=None, note="too small")]
     report.with_suffix(".json").write_text(json.dumps({"verdict": "fail", "checks": checks}))
@@ -203,9 +203,9 @@ def test_results_are_the_reports_figures_stamped_with_the_commit(tmp_path):
     text = write_results(load_campaign(DEMO), out, report, tmp_path / "results.md",
                          "0123abc").read_text(encoding="utf-8")
     assert "`0123abc`" in text and "**fail**" in text
-    assert "| descent tracking median | 0.27 px | <= 0.5 px | pass |" in text
-    assert "| site against SFS | 0.36 | <= 0.2 | fail |" in text
-    assert "| Hurst exponent | not measured | <= 0.1 | not measured |" in text
+    assert "| a | descent tracking median | 0.27 px | <= 0.5 px | pass |" in text
+    assert "| b | site \\|log10 ratio\\| | 0.36 | <= 0.2 | fail |" in text
+    assert "| b | Hurst exponent | not measured | <= 0.1 | not measured |" in text
     assert "| lunar/run | 12.5 | 16 | 1.28 |" in text
     assert "| asteroid against Eros: slope KS distance | 0.1 |" in text
     assert source_commit(tmp_path) == "unknown"
