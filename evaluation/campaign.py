@@ -24,6 +24,11 @@ same parameters; a stage interrupted part-way resumes where it can (rendering) o
 again. ``campaign.json`` (``demo.json`` for the demo) holds the time of every stage. Nothing
 outside the output folder is written, and every file is written atomically.
 
+A campaign removes only what a campaign wrote: the output folder holds
+``.craterscape-campaign`` (written before the first stage) and every stage folder its
+``.stage-key``. A non-empty folder without the first is refused, and so is a stage folder
+without the second, so a campaign pointed at a home directory writes and removes nothing.
+
 Scenario overrides (the scene, the sun, ``--quick``'s frames and image size) are merged
 into the scenario's tables and parsed by :func:`render.scenario.parse_scenario`; the
 scenario as run is written beside the run.
@@ -31,23 +36,36 @@ scenario as run is written beside the run.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
 import os
-import shutil
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
+from typing import TYPE_CHECKING
 
-from terrain.cli.tools import cli_args, long_options, run_command
+from render.scene_build import (
+    BODY_KEYS,
+    body_recipe,
+    build_body,
+    enhance_base,
+    synth_base,
+    terrain_specs,
+)
 from terrain.core.checks import check_keys, number
 from terrain.core.errors import InvalidParameterError
+from terrain.core.outputs import remove_path
 from terrain.core.tomlfile import merge_tables, read_toml, toml_text
 
-__all__ = ["STAGES", "Campaign", "Stage", "load_campaign", "run_campaign"]
+if TYPE_CHECKING:  # pragma: no cover
+    from asteroid.recipe import Recipe
+    from terrain.stages.specs import EnhanceSpec, SynthSpec
+
+__all__ = ["STAGES", "Campaign", "Stage", "claim_output", "load_campaign", "run_campaign"]
 
 log = logging.getLogger(__name__)
 
@@ -55,19 +73,15 @@ log = logging.getLogger(__name__)
 STAGES = ("lunar/base", "lunar/stack", "lunar/run", "lunar/closed_loop", "asteroid/body",
           "asteroid/run", "evaluation")
 
+#: The file that marks a folder as a campaign's output (see :func:`claim_output`).
+CAMPAIGN_MARKER = ".craterscape-campaign"
+#: The file that marks a stage's folder as written by a campaign (its key).
+STAGE_STAMP = ".stage-key"
 _TOP = {"title", "seed", "summary", "lunar", "asteroid", "evaluation", "quick"}
 _RUN_KEYS = {"scenario", "frames", "image", "sun_elevation"}
 _LOOP_KEYS = {"script", "size", "dt"}
 _EVAL_KEYS = {"shared_data", "ldem", "sfs", "eros", "eros_density", "eros_period_h",
               "lander_diameter", "max_slope", "max_step"}
-
-
-def _options(table, where: str, command) -> Mapping:
-    """Return the CLI options of a stage, checked against the click command's own.
-
-    Long options are matched by name (``--fractal-dimension`` is ``fractal_dimension``).
-    """
-    return MappingProxyType(check_keys(table, long_options(command), where))
 
 
 def _optional_int(table: dict, key: str, where: str) -> int | None:
@@ -135,15 +149,22 @@ class Campaign:
     summary : str
         The report's opening paragraph.
     base : Mapping
-        ``craterscape terrain synth`` options of the lunar base (names as in Python,
-        e.g. ``fractal_dimension``).
+        The ``[lunar.base]`` table: ``terrain synth`` fields of the lunar base (names as
+        the command's long options, e.g. ``fractal_dimension``).
     stack : Mapping
-        ``craterscape terrain enhance`` options of the layer stack (the site and the layer
-        size are the campaign's).
+        The ``[lunar.stack]`` table: ``terrain enhance`` fields of the layer stack (the
+        seed, the site and the layer size are the campaign's).
     lunar_run, asteroid_run : RunSpec
         The descent and the approach.
     body : Mapping
-        ``craterscape asteroid build`` options (``config`` relative to the campaign file).
+        The ``[asteroid.body]`` table: ``asteroid build`` options (``config`` resolved
+        against the campaign file).
+    synth : terrain.stages.specs.SynthSpec
+        The base's spec (the campaign's seed).
+    enhance : terrain.stages.specs.EnhanceSpec
+        The stack's spec, but its site (chosen on the base when it is built).
+    recipe : asteroid.recipe.Recipe
+        The body's recipe.
     evaluation : Mapping
         Real data (``ldem``, ``sfs``, ``eros`` relative to ``shared_data``), Eros's density
         (kg m^-3) and spin period (h), and the lander of the hazard map
@@ -166,6 +187,9 @@ class Campaign:
     lunar_run: RunSpec
     body: Mapping
     asteroid_run: RunSpec
+    synth: SynthSpec
+    enhance: EnhanceSpec
+    recipe: Recipe
     evaluation: Mapping = field(default_factory=dict)
     closed_loop: Mapping | None = None
     path: Path | None = None
@@ -189,8 +213,6 @@ class Campaign:
         Campaign
             The checked record.
         """
-        from asteroid.cli import asteroid
-        from terrain.cli.commands import terrain
         from terrain.core.rng import check_seed
 
         data = check_keys(data, _TOP, "campaign")
@@ -211,8 +233,10 @@ class Campaign:
         for key in ("body", "run"):
             if key not in ast:
                 raise InvalidParameterError(f"campaign needs an [asteroid.{key}] table")
-        body = dict(_options(ast["body"], "campaign [asteroid.body]",
-                             asteroid.commands["build"]))
+        synth, enhance = terrain_specs(lunar["base"], lunar["stack"], seed, "campaign [lunar",
+                                       site="refused")
+        recipe = body_recipe(ast["body"], folder, "campaign [asteroid.body]")
+        body = check_keys(ast["body"], BODY_KEYS, "campaign [asteroid.body]")
         if "config" in body:
             body["config"] = str(folder / body["config"])
         evaluation = check_keys(data.get("evaluation", {}), _EVAL_KEYS, "campaign [evaluation]")
@@ -232,9 +256,9 @@ class Campaign:
         return cls(
             title=str(data.get("title", "craterscape campaign")), seed=seed,
             summary=str(data.get("summary", "")),
-            base=_options(lunar["base"], "campaign [lunar.base]", terrain.commands["synth"]),
-            stack=_options(lunar["stack"], "campaign [lunar.stack]",
-                           terrain.commands["enhance"]),
+            base=MappingProxyType(dict(lunar["base"])),
+            stack=MappingProxyType(dict(lunar["stack"])),
+            synth=synth, enhance=enhance, recipe=recipe,
             lunar_run=RunSpec.from_mapping(lunar["run"], "campaign [lunar.run]", folder),
             body=MappingProxyType(body),
             asteroid_run=RunSpec.from_mapping(ast["run"], "campaign [asteroid.run]", folder),
@@ -317,13 +341,23 @@ class Stage:
         """Make the stage's folder ready.
 
         It is kept when it holds a partial run of these same parameters (so rendering resumes),
-        emptied otherwise.
+        emptied when a campaign wrote it for other parameters.
+
+        Raises
+        ------
+        terrain.core.errors.InvalidParameterError
+            When the folder exists but no campaign wrote it (it has no stage stamp).
         """
-        stamp = self.dir / ".stage-key"
-        if not (stamp.exists() and stamp.read_text() == self.key):
-            shutil.rmtree(self.dir, ignore_errors=True)
-            self.dir.mkdir(parents=True)
-            stamp.write_text(self.key)
+        stamp = self.dir / STAGE_STAMP
+        if stamp.is_file() and stamp.read_text() == self.key:
+            return
+        if self.dir.is_symlink() or (self.dir.exists() and not stamp.is_file()):
+            raise InvalidParameterError(
+                f"campaign stage folder '{self.dir}' was not written by a campaign (it has no "
+                f"{STAGE_STAMP}): move it away or choose another output folder")
+        remove_path(self.dir)
+        self.dir.mkdir(parents=True)
+        stamp.write_text(self.key)
 
     def finish(self, seconds: float, **facts) -> dict:
         """Write the marker (atomically) with the key, the stage's seconds and ``facts``."""
@@ -332,6 +366,71 @@ class Stage:
         tmp.write_text(json.dumps(info, indent=2))
         tmp.replace(self.marker)
         return info
+
+
+def _holds_campaign(out: Path) -> bool:
+    """Whether ``out`` is a campaign's folder.
+
+    It is when marked, or when it holds a finished stage's marker (a folder a campaign wrote
+    before folders were marked).
+    """
+    return (out / CAMPAIGN_MARKER).is_file() or any(
+        (out / f".{name.replace('/', '_')}.done.json").is_file() for name in STAGES)
+
+
+def claim_output(out, *, fresh: bool = False) -> Path:
+    """Make ``out`` a campaign's output folder, or refuse it before anything is written.
+
+    A missing or empty folder is created and marked (``.craterscape-campaign``); a folder
+    already marked is taken as it is. With ``fresh`` the stages a campaign wrote there are
+    removed (their folders, which hold a stage stamp, and their markers); nothing else is.
+
+    Parameters
+    ----------
+    out : path-like
+        The output folder.
+    fresh : bool, optional
+        Remove the finished and partial stages first.
+
+    Returns
+    -------
+    pathlib.Path
+        The folder, resolved.
+
+    Raises
+    ------
+    terrain.core.errors.InvalidParameterError
+        When ``out`` is not a folder, or is a non-empty folder that holds no campaign.
+    """
+    from terrain.core.outputs import atomic_path
+
+    out = Path(out).expanduser().resolve()
+    if out.exists() and not out.is_dir():
+        raise InvalidParameterError(f"campaign output '{out}' is not a folder")
+    if out.is_dir() and not _holds_campaign(out) and any(out.iterdir()):
+        raise InvalidParameterError(
+            f"campaign output folder '{out}' is not empty and holds no campaign (no "
+            f"{CAMPAIGN_MARKER}): choose a new or empty folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        if not _holds_campaign(out):
+            with atomic_path(out / CAMPAIGN_MARKER) as tmp:
+                tmp.write_text("A craterscape campaign's output folder (evaluation.campaign): "
+                               "a campaign removes only the stage folders it stamped here.\n",
+                               encoding="utf-8")
+    except OSError as exc:
+        raise InvalidParameterError(
+            f"cannot write the campaign output folder '{out}': {exc.strerror or exc}") from None
+    if fresh:
+        for name in STAGES:
+            stage_dir = out / name
+            if (stage_dir / STAGE_STAMP).is_file() and not stage_dir.is_symlink():
+                remove_path(stage_dir)
+            remove_path(out / f".{name.replace('/', '_')}.done.json")
+            for parent in Path(name).parents[:-1]:  # lunar/, asteroid/ when they are empty
+                with contextlib.suppress(OSError):
+                    (out / parent).rmdir()
+    return out
 
 
 def write_scenario(template: Path, target: Path, overrides: dict):
@@ -397,33 +496,31 @@ def lunar(c: Campaign, out: Path, say: Callable[[str], None]) -> dict:
     """
     from evaluation.slope import horn_slope
     from terrain.io import read_dem
+    from terrain.stages.runner import run
+    from terrain.stages.specs import EnhanceSpec, HillshadeSpec
     from terrain.surface.site import landing_site, lit_sun_azimuth
 
-    synth_args = cli_args({**c.base, "seed": c.seed})
-    base = Stage(out, "lunar/base", dict(args=synth_args, v=4))
+    base = Stage(out, "lunar/base", dict(spec=c.synth.as_dict(), v=5))
     base_tif = base.dir / "base.tif"
     if not base.done():
-        say(f"lunar 1/3: synthetic base, {c.base.get('resolution', 1.0):g} m per pixel")
+        say(f"lunar 1/3: synthetic base, {c.synth.resolution:g} m per pixel")
         base.begin()
         t0 = time.perf_counter()
-        run_command("terrain", "synth", "-o", base_tif, *synth_args,
-                "--catalog", base.dir / "base_craters.csv")
-        run_command("terrain", "hillshade", base_tif, "-o", base.dir / "base_hillshade.png",
-                "--azimuth", 45, "--altitude", 10)
+        synth_base(c.synth, base_tif, base.dir / "base_craters.csv")
+        run(HillshadeSpec.from_mapping({"azimuth": 45.0, "altitude": 10.0}), base_tif,
+            base.dir / "base_hillshade.png")
         base.finish(time.perf_counter() - t0)
     tile = read_dem(base_tif)
     site = landing_site(tile, horn_slope(tile))
-    enhance_args = ["--site", f"{site[0]},{site[1]}",
-                    *cli_args({"layer_size": tile.shape[0], "seed": c.seed, **c.stack})]
-    stack = Stage(out, "lunar/stack", dict(base=base.key, args=enhance_args, v=4))
+    enhance = EnhanceSpec.from_mapping({**c.enhance.as_dict(), "site": site})
+    stack = Stage(out, "lunar/stack", dict(base=base.key, spec=enhance.as_dict(), v=5))
     stack_dir = stack.dir / "stack"
     if not stack.done():
-        say(f"lunar 2/3: enhancing the base in {c.stack.get('levels')} nested layers around "
+        say(f"lunar 2/3: enhancing the base in {enhance.levels} nested layers around "
             f"the site ({site[0] / 1000:.1f} km, {site[1] / 1000:.1f} km)")
         stack.begin()
-        shutil.rmtree(stack_dir, ignore_errors=True)  # a stack is written whole, or not at all
         t0 = time.perf_counter()
-        run_command("terrain", "enhance", base_tif, "-o", stack_dir, *enhance_args)
+        enhance_base(enhance, base_tif, stack_dir)
         stack.finish(time.perf_counter() - t0)
     spec = c.lunar_run
     elevation = spec.sun_elevation
@@ -501,6 +598,8 @@ def asteroid(c: Campaign, out: Path, say: Callable[[str], None]) -> dict:
     dict
         ``body`` and ``run``: the body's ``.npz`` and the run folder.
     """
+    from asteroid.build import export_model
+
     recipe = Path(c.body["config"]).read_text(encoding="utf-8") if "config" in c.body else ""
     body = Stage(out, "asteroid/body", dict(
         recipe=recipe, options={k: v for k, v in c.body.items() if k != "config"}, v=2))
@@ -509,10 +608,11 @@ def asteroid(c: Campaign, out: Path, say: Callable[[str], None]) -> dict:
         say("asteroid 1/2: building an Eros-like body (Perlin base, craters, boulders)")
         body.begin()
         t0 = time.perf_counter()
-        run_command("asteroid", "build", "-o", body_npz, *cli_args(c.body))
+        config = c.body.get("config")
+        build_body(c.recipe, body_npz, inputs=() if config is None else (Path(config),))
         # a mesh to open in a viewer: the body with its boulders at their coarsest level
         # (the finest levels, which the renderer uses close up, would make it 0.6 GB)
-        run_command("asteroid", "export", body_npz, "-o", body.dir / "body.ply", "--level", 0)
+        export_model(body_npz, body.dir / "body.ply", level=0)
         body.finish(time.perf_counter() - t0)
     spec = c.asteroid_run
     overrides = merge_tables(spec.overrides(), {"scene": {"body": str(body_npz)}})
@@ -528,9 +628,130 @@ def asteroid(c: Campaign, out: Path, say: Callable[[str], None]) -> dict:
     return {"body": str(body_npz), "run": str(run_dir)}
 
 
+def source_commit(folder: Path) -> str:
+    """Return the git commit checked out at ``folder`` (``"unknown"`` outside a checkout).
+
+    Parameters
+    ----------
+    folder : pathlib.Path
+        A folder of the checkout (the campaign file's).
+
+    Returns
+    -------
+    str
+        ``git rev-parse HEAD``, or ``"unknown"``.
+    """
+    import subprocess
+
+    try:
+        done = subprocess.run(["git", "rev-parse", "HEAD"], cwd=folder, capture_output=True,
+                              text=True, timeout=30, check=True)
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return done.stdout.strip() or "unknown"
+
+
+def _escape(text) -> str:
+    """Return ``text`` safe inside a Markdown table cell."""
+    return str(text).replace("|", "\\|")
+
+
+def _cell(value) -> str:
+    if value is None:
+        return "not measured"
+    if isinstance(value, float):
+        return f"{value:.3g}"
+    return str(value)
+
+
+def results_text(c: Campaign, out: Path, report: Path, commit: str) -> str:
+    """Return the figures a campaign run measured, as Markdown (see :func:`write_results`).
+
+    Parameters
+    ----------
+    c : Campaign
+        The campaign.
+    out : pathlib.Path
+        Its output folder (the stage markers are read).
+    report : pathlib.Path
+        The report (its JSON beside it is read).
+    commit : str
+        The commit the run was made at.
+
+    Returns
+    -------
+    str
+        The page.
+    """
+    doc = json.loads(report.with_suffix(".json").read_text(encoding="utf-8"))
+    name = c.path.name if c.path is not None else "the campaign"
+    lines = [f"# {c.title}: measured results", "",
+             f"Generated by the campaign ({name}{', reduced by --quick' if c.quick else ''}) "
+             f"at commit `{commit}`; do not edit by hand, run the campaign again. The report "
+             f"is `{os.path.relpath(report, out)}` in its output folder.", "",
+             f"Verdict at the default thresholds: **{doc.get('verdict', 'unknown')}**.", "",
+             "## Checks", "", "| section | check | value | limit | result |",
+             "|---|---|---|---|---|"]
+    for check in doc.get("checks", []):
+        result = {True: "pass", False: "fail", None: "not measured"}[check.get("passed")]
+        unit = f" {check['unit']}" if check.get("unit") else ""
+        lines.append(f"| {_escape(check['section'])} | {_escape(check['name'])} | "
+                     f"{_cell(check['value'])}{unit} | "
+                     f"{check['relation']} {_cell(check['limit'])}{unit} | {result} |")
+    lines += ["", "## Stages (wall time on the machine that ran them)", "",
+              "| stage | seconds | frames | frames per second |", "|---|---|---|---|"]
+    for stage in STAGES:
+        marker = out / f".{stage.replace('/', '_')}.done.json"
+        if marker.exists():
+            info = json.loads(marker.read_text())
+            lines.append(f"| {stage} | {info['seconds']:.1f} | {info.get('frames', '')} | "
+                         f"{_cell(info.get('fps')) if info.get('fps') else ''} |")
+    facts = {}
+    evaluation_marker = out / ".evaluation.done.json"
+    if evaluation_marker.exists():
+        facts = json.loads(evaluation_marker.read_text())
+    rows = []
+    for run in ("lunar", "asteroid"):
+        t = facts.get(f"tracking_{run}", {})
+        if t:
+            rows += [(f"{run}: tracks", t.get("tracks")),
+                     (f"{run}: tracking error against truth, median (px)", t.get("median_px")),
+                     (f"{run}: one-step error on truth-warped frames, median (px)",
+                      t.get("ideal_one_step_median_px")),
+                     (f"{run}: truth round trip, median (px)", t.get("truth_round_trip_px"))]
+    for comparison in facts.get("dem_comparisons", []):
+        rows.append((f"{comparison['label']} against {comparison['reference']}: slope KS "
+                     f"distance", comparison["ks"]))
+    if "site" in facts:
+        rows += [("landing site: safe fraction", facts["site"].get("safe_fraction")),
+                 ("landing site: rocks", facts["site"].get("rocks"))]
+    if "asteroid_ks" in facts:
+        rows.append(("asteroid against Eros: slope KS distance", facts["asteroid_ks"]))
+    if rows:
+        lines += ["", "## Measured", "", "| quantity | value |", "|---|---|"]
+        lines += [f"| {label} | {_cell(value)} |" for label, value in rows]
+    return "\n".join(lines) + "\n"
+
+
+def write_results(c: Campaign, out: Path, report: Path, target, commit: str) -> Path:
+    """Write :func:`results_text` to ``target`` (atomically).
+
+    Returns
+    -------
+    pathlib.Path
+        ``target``.
+    """
+    from terrain.core.outputs import atomic_path
+
+    target = Path(target)
+    with atomic_path(target) as tmp:
+        tmp.write_text(results_text(c, out, report, commit), encoding="utf-8")
+    return target
+
+
 def run_campaign(c: Campaign, out, *, shared=None, fresh: bool = False,
-                 say: Callable[[str], None] | None = None, summary_name: str = "campaign.json"
-                 ) -> Path:
+                 say: Callable[[str], None] | None = None, summary_name: str = "campaign.json",
+                 results=None) -> Path:
     """Run every stage of a campaign into ``out`` (finished stages are reused).
 
     Parameters
@@ -538,15 +759,18 @@ def run_campaign(c: Campaign, out, *, shared=None, fresh: bool = False,
     c : Campaign
         The campaign.
     out : path-like
-        The output folder (created).
+        The output folder: new, empty, or a campaign's (see :func:`claim_output`).
     shared : path-like, optional
         The real-data folder (default: the campaign's ``shared_data``).
     fresh : bool, optional
-        Delete the output folder first.
+        Remove what a campaign wrote there first (see :func:`claim_output`).
     say : callable, optional
         Called with one line per step (default: the log, at INFO).
     summary_name : str, optional
         Name of the JSON file of stage timings written in ``out``.
+    results : path-like, optional
+        Where the measured figures go as Markdown, stamped with the commit
+        (:func:`write_results`; default ``out / "results.md"``).
 
     Returns
     -------
@@ -556,10 +780,9 @@ def run_campaign(c: Campaign, out, *, shared=None, fresh: bool = False,
     from evaluation.campaign_report import evaluate
 
     say = say or log.info
-    out = Path(out).resolve()
+    out = claim_output(out, fresh=fresh)
     if fresh:
-        shutil.rmtree(out, ignore_errors=True)
-    out.mkdir(parents=True, exist_ok=True)
+        remove_path(out / summary_name)
     t0 = time.perf_counter()
     lunar_facts = lunar(c, out, say)
     closed_loop(c, out, say)
@@ -576,6 +799,10 @@ def run_campaign(c: Campaign, out, *, shared=None, fresh: bool = False,
 
     with atomic_path(out / summary_name) as tmp:
         tmp.write_text(json.dumps(summary, indent=2))
+    folder = c.path.resolve().parent if c.path is not None else Path.cwd()
+    written = write_results(c, out, report, out / "results.md" if results is None else results,
+                            source_commit(folder))
+    say(f"measured figures in {written}")
     say(f"done in {summary['seconds']:.0f} s; open {report}")
     return report
 

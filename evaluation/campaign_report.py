@@ -25,7 +25,6 @@ import time
 from pathlib import Path
 
 from evaluation.campaign import STAGES, Campaign, Stage
-from terrain.cli.tools import run_command
 from terrain.core import metakeys as mk
 
 __all__ = ["evaluate"]
@@ -375,7 +374,7 @@ def consistency_report(run, scored, tracking_sec, folder: Path, limits, key, fac
 def site(c: Campaign, folder: Path, stack_dir: Path, run, facts: dict, say):
     """Return the site section: hazards, rocks and the layers drawn under the descent.
 
-    The hazard map of the site (``craterscape terrain hazards``), the rocks against their
+    The hazard map of the site (:class:`terrain.stages.specs.HazardsSpec`), the rocks against their
     model and the finest layer drawn under each descent frame's centre.
 
     Parameters
@@ -399,12 +398,15 @@ def site(c: Campaign, folder: Path, stack_dir: Path, run, facts: dict, say):
         The site section.
     """
     from evaluation.hazards import hazards_file_section
+    from terrain.stages.runner import run as run_stage
+    from terrain.stages.specs import HazardsSpec
 
     ev = c.evaluation
     tif = folder / "hazards.tif"
-    run_command("terrain", "hazards", stack_dir, "-o", tif,
-                "--lander-diameter", ev.get("lander_diameter", 4.0),
-                "--max-slope", ev.get("max_slope", 12.0), "--max-step", ev.get("max_step", 0.3))
+    spec = HazardsSpec.from_mapping({"lander_diameter": ev.get("lander_diameter", 4.0),
+                                     "max_slope": ev.get("max_slope", 12.0),
+                                     "max_step": ev.get("max_step", 0.3)})
+    log.info("%s", run_stage(spec, stack_dir, tif).message)
     n = len(run)
     frames = (60, 90, 110, 119) if n == 120 else sorted({n // 2, 3 * n // 4, n - 2, n - 1})
     sec = hazards_file_section(tif, run=run, frames=frames)

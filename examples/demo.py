@@ -17,11 +17,17 @@ complete from an earlier run with the same parameters:
 6. ``evaluation/``: tracks, slopes, spectra, real-data comparisons (where ``../shared/data``
    holds them), hazards and ``report.html``, which links every file.
 
-``demo.json`` holds the time of every stage. Nothing outside the output folder is written.
+``demo.json`` holds the time of every stage; the figures the run measured go to
+``docs/results.md`` (the ``--quick`` or another campaign's: ``results.md`` in the output
+folder), stamped with the commit. Nothing else outside the output folder is written, and
+only what a campaign wrote there is ever removed: a non-empty folder that holds no campaign
+is refused. A bad campaign file or output folder is one line on stderr (exit 2; ``-v`` shows
+the traceback).
 
 Usage::
 
     .venv/bin/python examples/demo.py [--out demo-output] [--fresh] [--quick]
+                                      [--campaign examples/demo.toml] [-v]
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ import time
 from pathlib import Path
 
 from evaluation.campaign import load_campaign, run_campaign
+from terrain.core.errors import CraterscapeError
 
 HERE = Path(__file__).resolve().parent
 
@@ -47,14 +54,29 @@ def main(argv=None) -> int:
     """Run the demo campaign; see the module docstring."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=HERE.parent / "demo-output")
-    parser.add_argument("--fresh", action="store_true", help="delete the output folder first")
+    parser.add_argument("--fresh", action="store_true",
+                        help="remove what an earlier campaign wrote in the output folder first")
     parser.add_argument("--quick", action="store_true", help="a reduced campaign")
+    parser.add_argument("--campaign", type=Path, default=HERE / "demo.toml",
+                        help="the campaign file (default: examples/demo.toml)")
+    parser.add_argument("-v", "--verbose", action="store_true",
+                        help="log more, and show the traceback of an error")
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    campaign = load_campaign(HERE / "demo.toml", quick=args.quick)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
     shared = os.environ.get("CRATERSCAPE_SHARED_DATA")  # the real data, never copied
-    run_campaign(campaign, args.out, shared=shared, fresh=args.fresh, say=say,
-                 summary_name="demo.json")
+    try:
+        campaign = load_campaign(args.campaign, quick=args.quick)
+        # the full demo's figures are the README's: docs/results.md, stamped with the commit
+        full = not args.quick and args.campaign.resolve() == HERE / "demo.toml"
+        run_campaign(campaign, args.out, shared=shared, fresh=args.fresh, say=say,
+                     summary_name="demo.json",
+                     results=HERE.parent / "docs" / "results.md" if full else None)
+    except (CraterscapeError, OSError) as exc:
+        if args.verbose:
+            logging.getLogger("demo").exception("the campaign stopped")
+        print(f"demo: error: {exc}", file=sys.stderr)
+        return 2
     return 0
 
 

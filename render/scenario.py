@@ -201,6 +201,11 @@ class SceneSpec:
         for key in ("stack", "body"):
             if key in scene:
                 values[key] = text(scene.get(key, ""), key, where=_SCENE)
+                if Path(values[key]).name in ("", ".", ".."):  # "", "/", ".", "x/.."
+                    what = "a layer-stack folder" if key == "stack" else "an asteroid .npz"
+                    raise InvalidParameterError(
+                        f"scenario [scene] {key} must name {what}, not a folder above it; "
+                        f"got {values[key]!r}")
         for key in ("curvature", "boulders"):
             if key in scene:
                 values[key] = boolean(scene.get(key, True), key, where=_SCENE)

@@ -10,7 +10,6 @@ from pathlib import Path
 import pytest
 
 from evaluation.campaign import Campaign, Stage, load_campaign, write_scenario
-from terrain.cli.tools import cli_args
 from terrain.core.errors import InvalidParameterError
 
 REPO = Path(__file__).resolve().parents[2]
@@ -52,11 +51,30 @@ def test_unknown_keys_are_named_with_the_nearest(table, key, near):
         Campaign.from_mapping(data, DEMO)
 
 
-def test_stage_options_become_the_commands_own_flags():
+def test_stage_tables_become_the_stages_specs():
+    """What the campaign file says is what the stages get, and the campaign's own values
+    (its seed, layers as large as the base) fill in the rest."""
     c = load_campaign(DEMO)
-    args = cli_args(c.stack)
-    assert "--rocks" in args and "--fractal-dimension" in args
-    assert cli_args({"no_roughness": True, "cog": False}) == ["--no-roughness"]
+    assert c.synth.fractal_dimension == 2.3 and c.synth.size == 1025
+    assert c.enhance.rocks == "golombek:k=0.02" and c.enhance.levels == 15
+    assert c.synth.seed == c.enhance.seed == 2014
+    assert c.enhance.layer_size == c.synth.size and c.enhance.site is None
+    assert c.recipe.magnitude == 256 and c.recipe.seed == 433  # examples/eros_like.toml
+    assert load_campaign(DEMO, quick=True).recipe.magnitude == 96
+
+
+@pytest.mark.parametrize("table, key, value, words", [
+    (("lunar", "base"), "size", 1000, ["[lunar.base]", "2^n + 1"]),
+    (("lunar", "base"), "relief", "high", ["[lunar.base]", "relief", "number"]),
+    (("lunar", "stack"), "finest_resolution", 0.5, ["[lunar.stack]", "levels"]),
+    (("asteroid", "body"), "magnitude", "big", ["[asteroid.body]", "magnitude"]),
+])
+def test_stage_values_are_checked_when_the_campaign_is_parsed(table, key, value, words):
+    data = _demo()
+    data[table[0]][table[1]][key] = value
+    with pytest.raises(InvalidParameterError) as err:
+        Campaign.from_mapping(data, DEMO)
+    assert all(w in str(err.value) for w in words), str(err.value)
 
 
 def test_scenario_overrides_go_through_the_parser(tmp_path):
@@ -91,3 +109,114 @@ def test_a_stage_is_done_only_for_the_same_parameters(tmp_path):
     assert not b.done()
     b.begin()  # other parameters: emptied
     assert not (b.dir / "partial.txt").exists()
+
+
+class _Started(Exception):
+    """Raised by a campaign's first progress line: the test needs nothing beyond it."""
+
+
+def _stop(message: str) -> None:
+    raise _Started(message)
+
+
+@pytest.mark.parametrize("fresh", [True, False])
+def test_a_folder_that_holds_no_campaign_is_refused_untouched(tmp_path, fresh):
+    from evaluation.campaign import run_campaign
+
+    home = tmp_path / "home"
+    (home / "lunar" / "base").mkdir(parents=True)
+    (home / "notes.txt").write_text("mine")
+    (home / "lunar" / "base" / "survey.tif").write_text("mine too")
+    with pytest.raises(InvalidParameterError, match="holds no campaign"):
+        run_campaign(load_campaign(DEMO, quick=True), home, fresh=fresh, say=_stop)
+    assert (home / "notes.txt").read_text() == "mine"
+    assert (home / "lunar" / "base" / "survey.tif").read_text() == "mine too"
+
+
+def test_an_output_that_is_a_file_is_refused(tmp_path):
+    from evaluation.campaign import run_campaign
+
+    (tmp_path / "out").write_text("a file")
+    with pytest.raises(InvalidParameterError, match="not a folder"):
+        run_campaign(load_campaign(DEMO, quick=True), tmp_path / "out", say=_stop)
+    assert (tmp_path / "out").read_text() == "a file"
+
+
+def test_a_stage_never_empties_a_folder_it_did_not_write(tmp_path):
+    (tmp_path / "evaluation").mkdir()
+    (tmp_path / "evaluation" / "mine.txt").write_text("kept")
+    stage = Stage(tmp_path, "evaluation", {"v": 1})
+    with pytest.raises(InvalidParameterError, match="not written by a campaign"):
+        stage.begin()
+    assert (tmp_path / "evaluation" / "mine.txt").read_text() == "kept"
+
+
+def test_fresh_removes_only_what_the_campaign_wrote(tmp_path):
+    from evaluation.campaign import claim_output
+
+    out = claim_output(tmp_path / "out")
+    stage = Stage(out, "lunar/base", {"size": 257})
+    stage.begin()
+    (stage.dir / "base.tif").write_text("made by the campaign")
+    stage.finish(1.0)
+    (out / "notes.txt").write_text("the user's")
+    assert claim_output(out) == out  # a campaign's folder is taken again as it is
+    assert stage.done()
+    claim_output(out, fresh=True)
+    assert not stage.dir.exists() and not stage.marker.exists()
+    assert not (out / "lunar").exists()  # emptied parents of the stages go too
+    assert (out / "notes.txt").read_text() == "the user's"
+    # and the emptied folder is still the campaign's
+    assert claim_output(out) == out
+
+
+@pytest.mark.parametrize("table, key", [
+    (("lunar", "base"), "output"), (("lunar", "base"), "catalog"), (("lunar", "base"), "seed"),
+    (("lunar", "stack"), "output"), (("lunar", "stack"), "seed"), (("lunar", "stack"), "site"),
+    (("asteroid", "body"), "output"),
+])
+def test_options_the_campaign_sets_itself_are_refused(table, key):
+    data = _demo()
+    data[table[0]][table[1]][key] = "/tmp/elsewhere.tif" if key != "seed" else 3
+    with pytest.raises(InvalidParameterError, match=f"'{key}'"):
+        Campaign.from_mapping(data, DEMO)
+
+
+def test_results_are_the_reports_figures_stamped_with_the_commit(tmp_path):
+    import re
+
+    from evaluation.campaign import source_commit, write_results
+
+    out = tmp_path / "out"
+    (out / "evaluation").mkdir(parents=True)
+    report = out / "evaluation" / "report.html"
+    checks = [dict(section="a", name="descent tracking median", value=0.27, limit=0.5,
+                   relation="<=", unit="px", passed=True, note=""),
+              dict(section="b", name="site |log10 ratio|", value=0.36, limit=0.2,
+                   relation="<=", unit="", passed=False, note=""),
+              dict(section="b", name="Hurst exponent", value=None, limit=0.1, relation="<=",
+                   unit="", passed=None, note="too small")]
+    report.with_suffix(".json").write_text(json.dumps({"verdict": "fail", "checks": checks}))
+    Stage(out, "lunar/run", {}).finish(12.5, frames=16, fps=1.28)
+    Stage(out, "evaluation", {}).finish(3.0, asteroid_ks=0.1,
+                                        tracking_lunar=dict(tracks=40, median_px=0.27))
+    text = write_results(load_campaign(DEMO), out, report, tmp_path / "results.md",
+                         "0123abc").read_text(encoding="utf-8")
+    assert "`0123abc`" in text and "**fail**" in text
+    assert "| a | descent tracking median | 0.27 px | <= 0.5 px | pass |" in text
+    assert "| b | site \\|log10 ratio\\| | 0.36 | <= 0.2 | fail |" in text
+    assert "| b | Hurst exponent | not measured | <= 0.1 | not measured |" in text
+    assert "| lunar/run | 12.5 | 16 | 1.28 |" in text
+    assert "| asteroid against Eros: slope KS distance | 0.1 |" in text
+    assert source_commit(tmp_path) == "unknown"
+    assert re.fullmatch(r"[0-9a-f]{40}", source_commit(REPO))
+
+
+def test_a_folder_with_finished_stages_is_a_campaigns(tmp_path):
+    """An output folder a campaign wrote before folders were marked is still taken."""
+    from evaluation.campaign import claim_output
+
+    stage = Stage(tmp_path, "lunar/base", {"size": 257})
+    stage.begin()
+    stage.finish(1.0)
+    assert claim_output(tmp_path) == tmp_path.resolve() and stage.done()

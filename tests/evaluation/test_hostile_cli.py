@@ -91,3 +91,46 @@ def test_a_rerun_into_the_same_folder_leaves_no_stale_comparison(tmp_path, dem):
     r = run("evaluation", "slopes", dem, "-o", out)
     assert r.exit_code == 0, r.output
     assert not (out / "comparison.json").exists()  # it compared with a reference no more
+
+
+def _demo(*args, cwd):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    demo = Path(__file__).resolve().parents[2] / "examples" / "demo.py"
+    return subprocess.run([sys.executable, str(demo), *map(str, args)], cwd=cwd,
+                          capture_output=True, text=True, timeout=300)
+
+
+def _one_line(result, *fragments):
+    assert result.returncode == 2, result.stdout + result.stderr
+    lines = [ln for ln in result.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "Traceback" not in result.stderr, result.stderr
+    assert lines[0].startswith("demo: error:"), lines[0]
+    for fragment in fragments:
+        assert fragment in lines[0], lines[0]
+
+
+def test_demo_refuses_bad_campaigns_and_outputs_in_one_line(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('title = "x"\ntitel = "y"\n', encoding="utf-8")
+    _one_line(_demo("--campaign", bad, "--out", tmp_path / "o1", cwd=tmp_path),
+              "'titel'", "did you mean 'title'")
+    broken = tmp_path / "broken.toml"
+    broken.write_text("title = \n", encoding="utf-8")
+    _one_line(_demo("--campaign", broken, "--out", tmp_path / "o2", cwd=tmp_path))
+    _one_line(_demo("--campaign", tmp_path / "none.toml", "--out", tmp_path / "o3",
+                    cwd=tmp_path), "none.toml")
+    (tmp_path / "a-file").write_text("mine")
+    _one_line(_demo("--quick", "--out", tmp_path / "a-file", cwd=tmp_path), "not a folder")
+    home = tmp_path / "home"
+    home.mkdir()
+    (home / "notes.txt").write_text("mine")
+    before = snapshot(home)
+    _one_line(_demo("--quick", "--fresh", "--out", home, cwd=tmp_path), "holds no campaign")
+    assert snapshot(home) == before
+    assert not any((tmp_path / name).exists() for name in ("o1", "o2", "o3"))
+    # -v shows where it failed
+    verbose = _demo("-v", "--quick", "--out", tmp_path / "a-file", cwd=tmp_path)
+    assert verbose.returncode == 2 and "Traceback" in verbose.stderr

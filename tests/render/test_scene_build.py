@@ -105,11 +105,17 @@ def test_a_scenario_without_a_recipe_builds_nothing(tmp_path):
 
 @pytest.mark.parametrize("build, words", [
     ({"seed": 1, "base": {"sise": 65}, "stack": {"site": [1, 2]}}, ["sise", "'size'"]),
-    ({"base": {"size": "big"}, "stack": {"site": [1, 2]}}, ["base].size", "big"]),
+    ({"base": {"size": "big"}, "stack": {"site": [1, 2]}}, ["[scene.build.base]", "size",
+                                                           "big"]),
     ({"base": {"size": 65}, "stack": {"levels": 2}}, ["site", "site_lonlat"]),
     ({"base": {"size": 65}, "stack": {"site": [1, 2]}, "body": {}}, ["'body'"]),
     ({"base": {"output": "x.tif"}, "stack": {"site": [1, 2]}}, ["'output'"]),
-    ({"base": {"no_roughness": 1}, "stack": {"site": [1, 2]}}, ["flag", "no_roughness"]),
+    ({"base": {"no_roughness": 1}, "stack": {"site": [1, 2]}}, ["true or false",
+                                                               "no_roughness"]),
+    ({"base": {"size": 64}, "stack": {"site": [1, 2], "levels": 2}}, ["2^n + 1"]),
+    ({"base": {"size": 65}, "stack": {"site": [1, 2]}}, ["levels", "finest_resolution"]),
+    ({"base": {"size": 65}, "stack": {"site": [1, 2], "levels": 1, "dmin": "x"}},
+     ["[scene.build.stack]", "dmin"]),
     ({"stack": {"site": [1, 2]}}, ["[scene.build.base]"]),
     ({"seed": -1, "base": {}, "stack": {"site": [1, 2]}}, ["seed"]),
 ])
@@ -125,12 +131,13 @@ def test_an_asteroid_recipe_takes_the_build_options_and_resolves_its_paths(tmp_p
     with pytest.raises(InvalidParameterError, match="seed"):
         SceneBuild.from_mapping({"seed": 3, "body": {}}, "asteroid")
     recipe = SceneBuild.from_mapping({"body": {"config": "r.toml", "magnitude": 8}}, "asteroid")
-    assert recipe.arguments("body", tmp_path) == ["--config", str(tmp_path / "r.toml"),
-                                                  "--magnitude", 8]
+    # the recipe file is read from the scenario's folder, and the table's keys override it
+    (tmp_path / "r.toml").write_text('magnitude = 4\nradius = 100.0\nbase = "perlin"\n')
+    body = recipe.recipe(tmp_path)
+    assert (body.magnitude, body.radius, body.base) == (8, 100.0, "perlin")
     # the key follows the recipe file's contents, not just its name
-    (tmp_path / "r.toml").write_text("radius = 100.0\n")
     first = recipe.key(tmp_path)
-    (tmp_path / "r.toml").write_text("radius = 200.0\n")
+    (tmp_path / "r.toml").write_text('magnitude = 4\nradius = 200.0\nbase = "perlin"\n')
     assert recipe.key(tmp_path) != first
 
 
@@ -176,13 +183,12 @@ def test_the_example_scenarios_build_make_demos_scenes():
 def test_the_example_site_is_the_one_the_demo_chooses(tmp_path):
     """The lunar recipes' site is where the campaign lands on that base (its flattest spot)."""
     from evaluation.slope import horn_slope
-    from terrain.cli.tools import run_command
+    from terrain.stages.runner import run
     from terrain.surface.site import landing_site
 
     recipe = load_scenario(REPO / "examples" / "lunar_descent.toml").scene.build
     assert recipe is not None
-    run_command("terrain", "synth", "-o", tmp_path / "base.tif",
-                *recipe.arguments("base", tmp_path))
+    run(recipe.terrain(tmp_path)[0], None, tmp_path / "base.tif")
     tile = read_dem(tmp_path / "base.tif")
     assert landing_site(tile, horn_slope(tile)) == tuple(recipe.stack["site"])
 
@@ -200,3 +206,66 @@ def test_a_build_that_did_not_finish_is_done_again(tmp_path):
     ensure_scene(load_scenario(path))
     assert layers(built) == reference
     assert "building" not in json.loads(stamp.read_text())
+
+
+@pytest.mark.parametrize("scene", [
+    {"type": "terrain", "stack": ""}, {"type": "terrain", "stack": "/"},
+    {"type": "terrain", "stack": "."}, {"type": "terrain", "stack": "scenes/.."},
+    {"type": "asteroid", "body": ""}, {"type": "asteroid", "body": "/"},
+])
+def test_a_scene_must_name_a_file_or_folder(tmp_path, scene):
+    kind = scene["type"]
+    build = ({"base": dict(BASE), "stack": dict(STACK)} if kind == "terrain"
+             else {"body": {"magnitude": 8}})
+    trajectory = ({"type": "descent", "start_altitude": 9.0, "end_altitude": 1.0}
+                  if kind == "terrain" else
+                  {"type": "approach", "start_distance": 3000.0, "end_distance": 2000.0})
+    key = "stack" if kind == "terrain" else "body"
+    for data in ({"scene": scene}, {"scene": {**scene, "build": build}}):
+        with pytest.raises(InvalidParameterError, match=rf"scenario \[scene\] {key} must name"):
+            parse_scenario({**data, "trajectory": trajectory}, tmp_path / "s.toml")
+
+
+def test_two_first_runs_build_the_scene_once(tmp_path):
+    """Two runs of one scenario started together: one builds, the other waits and uses it."""
+    import os
+    import subprocess
+    import sys
+
+    path = terrain_scenario(tmp_path)
+    code = ("import logging; logging.basicConfig(level=logging.WARNING); "
+            "from render.scenario import load_scenario; "
+            "from render.scene_build import ensure_scene; "
+            f"print(ensure_scene(load_scenario({str(path)!r})))")
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    runs = [subprocess.Popen([sys.executable, "-c", code], env=env, stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True) for _ in range(2)]
+    results = [(p.returncode, *p.communicate(timeout=300)) for p in runs]
+    results = [(p.returncode, out, err) for p, (_, out, err) in zip(runs, results, strict=True)]
+    for rc, out, err in results:
+        assert rc == 0, err
+        assert out.strip() == str(tmp_path / "scene" / "stack")
+    built = [err for _, _, err in results if "is missing: building it" in err]
+    assert len(built) == 1, [err for _, _, err in results]
+    scenario = load_scenario(path)
+    assert json.loads(stamp_path(tmp_path / "scene" / "stack").read_text())["key"] == \
+        scenario.scene.build.key(tmp_path)
+    assert len(layers(tmp_path / "scene" / "stack")) == 3
+
+
+def test_a_base_without_craters_builds(tmp_path):
+    base = {k: v for k, v in BASE.items() if k not in ("dmin", "dmax", "density")}
+    built = ensure_scene(load_scenario(terrain_scenario(tmp_path, base=base)))
+    assert len(layers(built)) == 3
+    assert not (tmp_path / "scene" / "stack.base_craters.csv").exists()
+
+
+def test_a_recipe_refused_when_parsed_leaves_nothing(tmp_path):
+    """A stack table the enhance stage would refuse stops the scenario before the base is
+    made: no base, no stamp, no folder."""
+    path = terrain_scenario(tmp_path)
+    text = path.read_text().replace("levels = 2", "levels = 2\nfinest_resolution = 0.5")
+    path.write_text(text)
+    with pytest.raises(InvalidParameterError, match="levels"):
+        ensure_scene(load_scenario(path))
+    assert not (tmp_path / "scene").exists()
