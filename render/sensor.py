@@ -79,6 +79,10 @@ POISSON_EXACT_BELOW = 30.0
 #: Widest Gaussian of a point-spread function (pixels): a blur of more than this is no longer
 #: an image, and OpenCV's kernel size (8 sigma + 1) must stay a small integer.
 MAX_PSF_SIGMA = 1000.0
+#: Longest integration, row delay or transfer time (s). Flight navigation cameras integrate
+#: for micro- to milliseconds and star trackers for at most seconds; an hour keeps every frame's
+#: exposure span (rows x line time + integration) a finite, small multiple of the frame rate.
+MAX_SENSOR_TIME = 3600.0
 #: Largest kernel file read (bytes) and kernel side (pixels): a PSF kernel is a small table.
 MAX_KERNEL_BYTES = 16 * 2**20
 MAX_KERNEL_SIDE = 1025
@@ -136,11 +140,13 @@ class Sensor:
             raise InvalidParameterError(f"sensor bits must be an integer in [1, 16]; got "
                                         f"{self.bits!r}")
         object.__setattr__(self, "bits", int(self.bits))
-        for name in ("exposure", "gain", "read_noise", "exposure_time", "aperture",
-                     "f_number", "pixel_pitch", "dark_current", "prnu", "full_well", "bias",
-                     "line_time", "transfer_time"):
+        for name in ("exposure", "gain", "read_noise", "aperture", "f_number", "pixel_pitch",
+                     "dark_current", "prnu", "full_well", "bias"):
             object.__setattr__(self, name, number(getattr(self, name), name, low=0.0,
                                                   where="sensor"))
+        for name in ("exposure_time", "line_time", "transfer_time"):
+            object.__setattr__(self, name, number(getattr(self, name), f"{name} (s)", low=0.0,
+                                                  high=MAX_SENSOR_TIME, where="sensor"))
         object.__setattr__(self, "psf_sigma", number(self.psf_sigma, "psf_sigma", low=0.0,
                                                      high=MAX_PSF_SIGMA, where="sensor"))
         for name in ("transmission", "qe"):

@@ -151,6 +151,22 @@ def test_times_and_motions_accepted_never_break_a_later_frame(server):
         assert image.shape == (48, 64) and image.max() > 0
 
 
+@pytest.mark.parametrize("key", ["line_time", "exposure_time", "transfer_time"])
+def test_sensor_times_beyond_any_camera_are_refused_and_the_next_frame_renders(server, key):
+    """A line time of 1.8e308 s made the exposure span infinite and every later frame fail
+    as INTERNAL (found by the fuzz test)."""
+    from render.client import Client
+    from render.errors import ServerError
+
+    with Client("127.0.0.1", server[1], timeout=60.0) as c:
+        sx, sy = _site(c)
+        c.set_pose((sx, sy, 1200.0), NADIR)
+        with pytest.raises(ServerError) as err:
+            c.set_sensor(**{key: 1.7976931348623157e308})
+        assert err.value.code == E_INVALID and key in err.value.reason
+        assert c.get_image().max() > 0
+
+
 def test_a_frame_too_large_to_render_is_refused_when_the_size_arrives(server):
     """The scenario renders 3 x 3 samples a pixel: 4096^2 pixels are 12288^2 samples, above
     the largest side; 2700^2 would need more memory than the server's limit (3 GiB here)."""
