@@ -40,9 +40,9 @@ from asteroid.meshio.export import MESH_FORMATS, mesh_format, write_mesh
 from asteroid.recipe import Recipe
 from asteroid.shape import ShapeModel
 from asteroid.sphere import SphereMesh
-from terrain.cli.tools import version
 from terrain.core import memory
 from terrain.core.errors import InvalidParameterError
+from terrain.core.metakeys import version
 from terrain.core.progress import Progress
 from terrain.io import check_output_path
 

@@ -327,7 +327,7 @@ class Report:
 
     def as_dict(self) -> dict:
         """Return the report as plain data: the document ``report.json`` holds."""
-        from terrain.cli.tools import version
+        from terrain.core.metakeys import version
 
         ver = version()
         return dict(

@@ -90,3 +90,19 @@ def test_the_demo_script_imports_nothing_private():
     text = path.read_text(encoding="utf-8")
     assert "._" not in text.replace("__", "")
     assert len(text.splitlines()) < 150
+
+
+def test_only_the_command_line_modules_import_click_or_the_terrain_cli():
+    """The library is a library first: apart from the command-line modules (each package's
+    ``cli.py`` and ``terrain/cli/``), no module of the four packages imports click or
+    ``terrain.cli``, so nothing in the library drives the command line."""
+    found = []
+    for folder in ["terrain", "asteroid", "render", "evaluation"]:
+        for path in sorted((REPO / folder).rglob("*.py")):
+            rel = path.relative_to(REPO)
+            if rel.name == "cli.py" or rel.parts[:2] == ("terrain", "cli"):
+                continue
+            for line, module, _ in _imports(path):
+                if module.split(".")[0] == "click" or module.startswith("terrain.cli"):
+                    found.append(f"{rel}:{line} imports {module}")
+    assert not found, found
