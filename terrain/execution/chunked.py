@@ -61,6 +61,7 @@ from terrain.core.errors import (
     InvalidParameterError,
     OutputPathError,
 )
+from terrain.core.outputs import remove_path
 from terrain.core.progress import Progress
 from terrain.core.tile import Window, default_transform
 from terrain.core.zarrstore import ZarrDEM, is_zarr
@@ -781,7 +782,7 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None,
         Zarr store (a folder). If it exists and holds the same run, finished chunks are
         kept and only the others are computed; if it holds another run, it is refused.
     chunk : int
-        Chunk side in pixels.
+        Chunk side in pixels (one larger than the DEM is taken as the DEM's larger side).
     client : dask.distributed.Client, optional
         Cluster to run on; without one, chunks run one after another in this process.
     progress : callable, optional
@@ -794,17 +795,30 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None,
     -------
     RunReport
     """
-    import dask
-    import dask.array as da
-
     if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < MIN_CHUNK:
         raise InvalidParameterError(f"chunk must be an integer >= {MIN_CHUNK} pixels; "
                                     f"got {chunk!r}")
-    chunk = int(chunk)
+    # A chunk larger than the DEM holds the DEM: Zarr would allocate the whole chunk anyway.
+    chunk = min(int(chunk), max(MIN_CHUNK, *source.shape))
     path = Path(output)
     if hasattr(source, "check"):
         source.check(chunk)
+    created = not path.exists()
     store = _open_store(source, path, chunk, metadata)
+    try:
+        return _run_store(source, store, client, progress)
+    except BaseException:
+        if created and not store.done_chunks():  # nothing to resume: leave nothing behind
+            remove_path(path)
+        raise
+
+
+def _run_store(source, store: ZarrDEM, client, progress) -> RunReport:
+    """Compute the chunks of ``store`` not yet written (:func:`run`, once the store is open)."""
+    import dask
+    import dask.array as da
+
+    path = store.path
     ny, nx = store.grid
     done_before = store.done_chunks()
     todo = [(i, j) for i in range(ny) for j in range(nx) if (i, j) not in done_before]
@@ -884,7 +898,8 @@ def dask_client(workers: int | None = None, scheduler: str | None = None,
     ----------
     workers : int, optional
         Local workers, each single-threaded (the kernels hold the GIL, so processes are
-        what runs in parallel; threads share one process and its memory).
+        what runs in parallel; threads share one process and its memory). The local
+        cluster, its workers and its dashboard listen on loopback (127.0.0.1) only.
     scheduler : str, optional
         Address of a running scheduler, e.g. ``tcp://10.0.0.5:8786``.
     processes : bool
@@ -925,9 +940,11 @@ def _local_client(workers, processes, memory_limit, env):
     # Worker processes get single-threaded numerics through the nanny's environment. This
     # process's own environment is left alone: numba re-reads NUMBA_NUM_THREADS and refuses
     # a value that differs from the one its thread pool started with.
-    extra = {"env": env} if processes else {}
+    # The scheduler, the workers and the dashboard listen on loopback only: none of them asks
+    # for credentials, so nothing else on the network may reach them.
+    extra = {"env": env, "host": "127.0.0.1"} if processes else {}  # threads: in-process
     with LocalCluster(
             n_workers=int(workers), threads_per_worker=1, processes=processes,
-            dashboard_address=":0", memory_limit=memory_limit,
+            dashboard_address="127.0.0.1:0", memory_limit=memory_limit,
             silence_logs=logging.ERROR, **extra) as cluster, Client(cluster) as client:
         yield client
