@@ -1227,11 +1227,11 @@ def _run_out_of_core(source, output, *, workers, threads, scheduler, chunk, labe
                      catalog=None, inputs=()):
     """Run a request larger than memory chunk by chunk, instead of refusing it.
 
-    The chunks go to a scratch Zarr store beside the output; the output GeoTIFF is written
-    from it as a COG.
+    The chunks go to a scratch Zarr store beside the output (resumed by a rerun of the same
+    request, removed once the output is written); the output GeoTIFF is written from it as a
+    COG.
     """
     import shutil
-    import tempfile
 
     from terrain.core import memory
     from terrain.io import check_output_path
@@ -1248,18 +1248,18 @@ def _run_out_of_core(source, output, *, workers, threads, scheduler, chunk, labe
             "running them out of core needs "
             f"about {memory.format_bytes(need)} of disk in '{parent}', but only "
             f"{memory.format_bytes(free)} is free")
-    if chunk is None:  # a chunk (with its halo) per worker well inside the memory there is
-        from terrain.execution.chunked import DEFAULT_CHUNK
+    from terrain.execution.chunked import DEFAULT_CHUNK, scratch_store
 
-        halo = getattr(source, "halo", 0)
-        share = memory.available_bytes() / (workers or 1) / 4
-        chunk = DEFAULT_CHUNK
-        while chunk > 64 and (chunk + 2 * halo) ** 2 * 64 > share:
-            chunk //= 2
-    with tempfile.TemporaryDirectory(prefix=f".{output.name}.", dir=parent) as scratch:
+    with scratch_store(source, output, chunk) as (scratch, chunk):
+        if chunk is None:  # a chunk (with its halo) per worker well inside the memory there is
+            halo = getattr(source, "halo", 0)
+            share = memory.available_bytes() / (workers or 1) / 4
+            chunk = DEFAULT_CHUNK
+            while chunk > 64 and (chunk + 2 * halo) ** 2 * 64 > share:
+                chunk //= 2
         log.warning("%s: %dx%d pixels do not fit in memory; running chunk by chunk through "
                     "%s", label, source.shape[1], source.shape[0], scratch)
-        _run_chunked(source, Path(scratch) / "out.zarr", workers=workers, threads=threads,
+        _run_chunked(source, scratch, workers=workers, threads=threads,
                      scheduler=scheduler, chunk=chunk, cog=output, label=label,
                      catalog=catalog, inputs=inputs)
 

@@ -41,6 +41,7 @@ True
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import logging
 import math
@@ -74,7 +75,7 @@ if TYPE_CHECKING:
 
 __all__ = ["DEFAULT_CHUNK", "CraterSource", "ExpandSource", "FillSource", "GapTooLargeError",
            "OnReaderGrid", "RunReport", "SynthSource", "dask_client", "estimate_parameters",
-           "open_reader", "run"]
+           "open_reader", "run", "scratch_path", "scratch_store"]
 
 log = logging.getLogger(__name__)
 
@@ -859,6 +860,70 @@ def _run_store(source, store: ZarrDEM, client, progress) -> RunReport:
              len(done_before), pixels / max(seconds, 1e-9) / 1e6)
     return RunReport(path, total, len(todo), len(done_before), pixels, seconds, catalog, todo,
                      busy)
+
+
+def scratch_path(source, output) -> Path:
+    """Return the scratch Zarr store of an out-of-core run of ``source`` into ``output``.
+
+    A hidden folder beside the output, named for the output and for what decides the
+    output's bytes (:meth:`plan` of the source and its shape), so the same request finds the
+    store again after a kill and another request never touches it.
+
+    Parameters
+    ----------
+    source : SynthSource, CraterSource, ExpandSource or FillSource
+    output : str or Path
+        The file the run's result is written to (a GeoTIFF).
+
+    Returns
+    -------
+    Path
+        ``.NAME.KEY.zarr`` in the output's folder (KEY: 16 hexadecimal digits).
+    """
+    output = Path(output)
+    parent = output.parent if str(output.parent) else Path(".")
+    request = json.dumps(dict(output=os.path.abspath(output), plan=source.plan(),
+                              shape=list(source.shape)), sort_keys=True, default=str)
+    key = hashlib.sha256(request.encode("utf-8")).hexdigest()[:16]
+    return parent / f".{output.name}.{key}.zarr"
+
+
+@contextlib.contextmanager
+def scratch_store(source, output, chunk: int | None = None):
+    """Yield ``(path, chunk)`` of the scratch store of an out-of-core run; remove it on success.
+
+    The store (:func:`scratch_path`) that a killed run of the same request left is resumed:
+    ``chunk`` None takes that store's chunk side (None when there is no such store: the
+    caller picks one). A store of the same request that cannot be resumed (another chunk
+    side asked for, or damaged) is replaced. The store is removed once the block completes,
+    that is once the output is committed; if the block fails, it stays for the next run.
+
+    Parameters
+    ----------
+    source : SynthSource, CraterSource, ExpandSource or FillSource
+    output : str or Path
+        The output file.
+    chunk : int, optional
+        Chunk side asked for.
+    """
+    path = scratch_path(source, output)
+    if path.exists():
+        try:
+            store = ZarrDEM(path)
+            found = store.chunk
+        except (InvalidDEMError, OSError, KeyError, ValueError) as exc:
+            log.warning("replacing the damaged scratch store %s (%s)", path, exc)
+            remove_path(path)
+        else:
+            if chunk is None or min(int(chunk), max(MIN_CHUNK, *source.shape)) == found:
+                chunk = found
+                log.warning("resuming the interrupted run in %s", path)
+            else:
+                log.warning("replacing the scratch store %s (chunk %d, now %d)", path, found,
+                            chunk)
+                remove_path(path)
+    yield path, chunk
+    remove_path(path)
 
 
 def merge_chunk_catalogs(store: ZarrDEM) -> CraterCatalog:

@@ -450,3 +450,22 @@ def test_no_listener_of_the_local_cluster_binds_a_non_loopback_address(client):
     assert listening
     exposed = [a for a in listening if not ipaddress.ip_address(a.ip).is_loopback]
     assert not exposed, exposed
+
+
+def test_the_scratch_store_of_an_out_of_core_run_is_found_again_only_by_the_same_request(
+        tmp_path):
+    from terrain.execution.chunked import scratch_path, scratch_store
+
+    out = tmp_path / "k.tif"
+    same = scratch_path(SynthSource(129, seed=3), out)
+    assert same == scratch_path(SynthSource(129, seed=3), out)
+    assert same.parent == tmp_path and same.name.startswith(".k.tif.")
+    assert scratch_path(SynthSource(129, seed=4), out) != same
+    assert scratch_path(SynthSource(129, seed=3), tmp_path / "l.tif") != same
+    with pytest.raises(Interrupted), scratch_store(StopsAfter(129, seed=3), out) as (path, _):
+        run(StopsAfter(129, seed=3), path, chunk=32)
+    assert path == same and len(ZarrDEM(path).done_chunks()) == 10  # kept for the rerun
+    with scratch_store(SynthSource(129, seed=3), out) as (path, chunk):
+        assert chunk == 32  # the interrupted run's chunk side, so it resumes
+        assert run(SynthSource(129, seed=3), path, chunk=chunk).skipped == 10
+    assert not path.exists()

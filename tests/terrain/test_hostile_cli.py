@@ -302,3 +302,46 @@ def test_sigterm_during_expand_leaves_no_partial_file(tmp_path, dem):
     if proc.returncode == 143:
         assert not out.exists() and "Traceback" not in err and err.strip().endswith(
             "terminated")
+
+
+# ------------------------------------------------------ 15. a killed out-of-core run resumes
+
+
+def test_a_killed_out_of_core_geotiff_run_resumes_and_cleans_its_scratch(tmp_path, monkeypatch):
+    from terrain.execution.chunked import SynthSource
+
+    small = {"CRATERSCAPE_MEMORY_LIMIT": "400K"}  # a 129 x 129 synthesis does not fit
+    whole = tmp_path / "whole.tif"
+    assert run("terrain", "synth", "--size", 129, "--seed", 4, "-o", whole).exit_code == 0
+    out = tmp_path / "k.tif"
+    compute = SynthSource.compute
+    calls = []
+
+    def killed_after_four(self, window):
+        if len(calls) == 4:
+            raise KeyboardInterrupt  # the run is killed part way
+        calls.append(window)
+        return compute(self, window)
+
+    monkeypatch.setattr(SynthSource, "compute", killed_after_four)
+    assert run("terrain", "synth", "--size", 129, "--seed", 4, "-o", out,
+               env=small).exit_code == 130
+    monkeypatch.setattr(SynthSource, "compute", compute)
+    left = [p for p in tmp_path.iterdir() if p.name.startswith(".k.tif.")]
+    assert len(left) == 1 and not out.exists()
+    other = run("terrain", "synth", "--size", 129, "--seed", 5, "-o", tmp_path / "o.tif",
+                env=small)  # another request keeps to its own scratch
+    assert other.exit_code == 0 and left[0].exists()
+    again = run("terrain", "synth", "--size", 129, "--seed", 4, "-o", out, env=small)
+    assert again.exit_code == 0, again.output
+    assert "4 already written" in again.output
+    with rasterio.open(whole) as a, rasterio.open(out) as b:
+        assert np.array_equal(a.read(1), b.read(1))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["k.tif", "o.tif", "whole.tif"]
+
+
+def test_a_chunk_larger_than_the_dem_is_clamped_and_leaves_nothing_else(tmp_path):
+    out = tmp_path / "c.zarr"
+    result = run("terrain", "synth", "--size", 65, "--chunk", 100_000, "-o", out)
+    assert result.exit_code == 0, result.output
+    assert "1 of 1 chunks computed" in result.output
