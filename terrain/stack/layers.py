@@ -1017,7 +1017,9 @@ def replace_crater(outdir, x: float, y: float, diameter: float, *, age: float = 
     Raises
     ------
     InvalidParameterError
-        The diameter is not positive, or the crater fits in no layer.
+        The diameter is not positive, the crater fits in no layer, or it is smaller than
+        the finest layer that holds it resolves (``min_crater_pixels`` of its pixels, the
+        bound of the stack's own craters).
     """
     outdir = Path(outdir)
     if not (diameter > 0 and math.isfinite(diameter)):
@@ -1034,6 +1036,13 @@ def replace_crater(outdir, x: float, y: float, diameter: float, *, age: float = 
                 f"a crater of diameter {diameter} m at {x:.6g},{y:.6g} does not fit in any "
                 "layer of the stack")
         tile = stack.tiles[k]
+        smallest = float(stack.info.get("min_crater_pixels", MIN_CRATER_PIXELS)) \
+            * tile.resolution
+        if diameter < smallest:  # the bound the stack's own population was drawn with
+            raise InvalidParameterError(
+                f"a crater of diameter {diameter:.6g} m is below what layer {k} "
+                f"({tile.resolution:.6g} m pixels) resolves at {x:.6g},{y:.6g}: give a "
+                f"diameter of at least {smallest:.6g} m")
         old = tile.heights.astype(np.float64)
         rows, cols = np.mgrid[0:tile.shape[0], 0:tile.shape[1]]
         px, py = tile.xy(rows, cols)

@@ -345,3 +345,12 @@ def test_a_chunk_larger_than_the_dem_is_clamped_and_leaves_nothing_else(tmp_path
     result = run("terrain", "synth", "--size", 65, "--chunk", 100_000, "-o", out)
     assert result.exit_code == 0, result.output
     assert "1 of 1 chunks computed" in result.output
+
+
+def test_a_crater_too_small_for_the_stack_is_refused(tmp_path, dem):
+    stack = tmp_path / "stack"
+    assert run("terrain", "enhance", dem, "-o", stack, "--site", "64,64", "--levels", 1,
+               "--layer-size", 33).exit_code == 0
+    before = snapshot(stack)
+    refused(run("terrain", "replace-crater", stack, "--at", "64,64", "--diameter", 0.001),
+            before, fragments=["0.001", "resolves"], folder=tmp_path)

@@ -223,3 +223,18 @@ def test_levels_for_resolution_is_the_fewest_that_reach_the_finest(base, finest)
         return
     assert base / 2**levels <= finest * (1 + 1e-9)
     assert levels == 0 or base / 2 ** (levels - 1) > finest * (1 - 1e-9)
+
+
+def test_a_crater_below_what_its_layer_resolves_is_refused_and_nothing_moves(stack, tmp_path):
+    from tests.cli_helpers import snapshot
+
+    out = write_stack(stack, tmp_path / "stack")
+    before = snapshot(out)
+    x, y = stack.tiles[-1].xy(64, 64)
+    finest = stack.tiles[-1].resolution
+    for diameter in (0.001, 0.5 * finest, 3.9 * finest):
+        with pytest.raises(InvalidParameterError, match="resolves"):
+            replace_crater(out, float(x), float(y), diameter)
+    assert snapshot(out) == before  # no known height moved, no crater recorded
+    done = replace_crater(out, float(x), float(y), 4.0 * finest)
+    assert done["layer"] == len(stack.tiles) - 1

@@ -38,8 +38,9 @@ def stack_folder(tmp_path):
 
 
 def _edit(folder, i):
-    # small craters near the site, each in the finest layer; positions differ per edit
-    replace_crater(folder, 1650.0 + 3.0 * (i % 7), 1650.0 - 2.0 * (i % 5), 20.0 + i % 4)
+    # the smallest craters the finest layer resolves (4 of its 25 m pixels), near the site,
+    # each in the finest layer; positions differ per edit
+    replace_crater(folder, 1650.0 + 3.0 * (i % 7), 1650.0 - 2.0 * (i % 5), 100.0 + i % 4)
 
 
 def _check_consistent(folder, base_rows):
