@@ -354,3 +354,11 @@ def test_a_crater_too_small_for_the_stack_is_refused(tmp_path, dem):
     before = snapshot(stack)
     refused(run("terrain", "replace-crater", stack, "--at", "64,64", "--diameter", 0.001),
             before, fragments=["0.001", "resolves"], folder=tmp_path)
+
+
+def test_a_lander_wider_than_the_dem_is_one_line(tmp_path, dem):
+    before = snapshot(dem)
+    out = tmp_path / "h.tif"
+    refused(run("terrain", "hazards", dem, "-o", out, "--lander-diameter", 1e6,
+                "--max-slope", 10, "--max-step", 0.3), before, out, tmp_path / "h.png",
+            fragments=["wider than the DEM"], folder=tmp_path)
