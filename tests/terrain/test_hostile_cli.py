@@ -362,3 +362,12 @@ def test_a_lander_wider_than_the_dem_is_one_line(tmp_path, dem):
     refused(run("terrain", "hazards", dem, "-o", out, "--lander-diameter", 1e6,
                 "--max-slope", 10, "--max-step", 0.3), before, out, tmp_path / "h.png",
             fragments=["wider than the DEM"], folder=tmp_path)
+
+
+def test_a_population_file_nested_50000_deep_is_one_line(tmp_path):
+    deep = tmp_path / "deep.toml"
+    deep.write_text("[population]\ndmin = " + "[" * 50_000 + "]" * 50_000 + "\n")
+    before = snapshot(deep)
+    out = tmp_path / "o.tif"
+    refused(run("terrain", "synth", "--size", 33, "--population", deep, "-o", out), before,
+            out, fragments=["deep.toml", "nests deeper"], folder=tmp_path)
