@@ -185,16 +185,22 @@ class ZarrDEM:
         ny, nx = (int(v) for v in shape)
         for mode in ("r", "r+"):  # a store made again at a path read before is a new store
             _ARRAYS.pop((str(path), mode), None)
-        group = zarr.open_group(str(path), mode="w-", zarr_format=2)
-        fill = float(nodata) if np.isfinite(nodata) else float("nan")
-        array = group.create_array(ARRAY_NAME, shape=(ny, nx), chunks=(chunk, chunk),
-                                   dtype="float32", fill_value=fill)
-        array.attrs["_ARRAY_DIMENSIONS"] = ["y", "x"]
-        group.attrs[ATTR] = dict(
-            geotransform=list(transform.to_gdal()), crs=crs,
-            nodata=None if not np.isfinite(nodata) else float(nodata),
-            metadata={str(k): str(v) for k, v in metadata.items()}, plan=plan, complete=False)
-        (path / MARKERS).mkdir()
+        try:
+            group = zarr.open_group(str(path), mode="w-", zarr_format=2)
+            fill = float(nodata) if np.isfinite(nodata) else float("nan")
+            array = group.create_array(ARRAY_NAME, shape=(ny, nx), chunks=(chunk, chunk),
+                                       dtype="float32", fill_value=fill)
+            array.attrs["_ARRAY_DIMENSIONS"] = ["y", "x"]
+            group.attrs[ATTR] = dict(
+                geotransform=list(transform.to_gdal()), crs=crs,
+                nodata=None if not np.isfinite(nodata) else float(nodata),
+                metadata={str(k): str(v) for k, v in metadata.items()}, plan=plan,
+                complete=False)
+            (path / MARKERS).mkdir()
+        except OSError as exc:
+            if is_write_error(exc):
+                raise cannot_write(path, exc) from exc
+            raise
         log.info("created Zarr store %s (%d x %d, chunks %d)", path, nx, ny, chunk)
         return cls(path)
 
@@ -204,7 +210,12 @@ class ZarrDEM:
         group = zarr.open_group(str(self.path), mode="r+")
         attrs = dict(group.attrs[ATTR])
         attrs["complete"] = True
-        group.attrs[ATTR] = attrs
+        try:
+            group.attrs[ATTR] = attrs
+        except OSError as exc:
+            if is_write_error(exc):
+                raise cannot_write(self.path, exc) from exc
+            raise
         self.complete = True
 
     # --- geometry -----------------------------------------------------------------------

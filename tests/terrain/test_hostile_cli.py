@@ -17,7 +17,14 @@ from affine import Affine
 from terrain.fractal.synthetic import synthesize_tile
 from terrain.io import write_dem
 from terrain.stack.layers import INCOMPLETE, MANIFEST
-from tests.cli_helpers import file_size_limit, refused, run, snapshot, unwritable_folder
+from tests.cli_helpers import (
+    file_size_limit,
+    one_line_error,
+    refused,
+    run,
+    snapshot,
+    unwritable_folder,
+)
 
 
 @pytest.fixture
@@ -200,7 +207,7 @@ def test_requests_larger_than_memory_are_refused_first(tmp_path, dem):
 
 
 def test_memory_checks_respect_ulimit_v():
-    code = ("import resource; from terrain import memory; "
+    code = ("import resource; from terrain.core import memory; "
             "resource.setrlimit(resource.RLIMIT_AS, (6 * 2**30, resource.RLIM_INFINITY)); "
             "print(memory.available_bytes())")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
@@ -371,3 +378,13 @@ def test_a_population_file_nested_50000_deep_is_one_line(tmp_path):
     out = tmp_path / "o.tif"
     refused(run("terrain", "synth", "--size", 33, "--population", deep, "-o", out), before,
             out, fragments=["deep.toml", "nests deeper"], folder=tmp_path)
+
+
+def test_a_full_disk_names_the_path_it_could_not_write(tmp_path):
+    assert run("terrain", "synth", "--size", 129, "--chunk", 64, "-o",
+               tmp_path / "warm.zarr").exit_code == 0  # compiled kernels are cached
+    with file_size_limit(2_000):
+        result = run("terrain", "synth", "--size", 129, "--chunk", 64, "-o",
+                     tmp_path / "full.zarr")
+    one_line_error(result, "full.zarr", "File too large")
+    assert "'output'" not in result.output
