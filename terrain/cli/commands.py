@@ -809,7 +809,9 @@ def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, lay
     from terrain.fractal.gapfill import despike as run_despike
     from terrain.fractal.roughness import RoughnessChoice
     from terrain.io import lonlat_to_xy, read_dem
-    from terrain.stack.layers import build_stack, levels_for_resolution, write_stack
+    from terrain.stack.build import build_stack
+    from terrain.stack.plan import levels_for_resolution
+    from terrain.stack.store import write_stack
 
     if (site is None) == (site_lonlat is None):
         raise InvalidParameterError("give exactly one of --site X,Y and --site-lonlat LON,LAT")
@@ -818,7 +820,7 @@ def enhance(input_dem, output, site, site_lonlat, levels, finest_resolution, lay
     if catalog is not None:
         raise InvalidParameterError("enhance writes its catalogue into the output folder "
                                     "(craters.csv); drop --catalog")
-    from terrain.stack.layers import prepare_folder
+    from terrain.stack.store import prepare_folder
 
     asked = any(v is not None for v in (workers, scheduler, chunk, halo))
     if asked or not _stack_fits(input_dem, band, site, site_lonlat, levels, finest_resolution,
@@ -895,7 +897,7 @@ def _stack_geometry(input_dem, band, site, site_lonlat, levels, finest_resolutio
     """(reader, site, levels, layer shapes) of a stack, from the input's header only."""
     from terrain.execution.chunked import open_reader
     from terrain.io import lonlat_to_xy
-    from terrain.stack.layers import GridShape, layer_plan, levels_for_resolution
+    from terrain.stack.plan import GridShape, layer_plan, levels_for_resolution
 
     reader = open_reader(input_dem, band)
     if site_lonlat is not None:
@@ -940,7 +942,7 @@ def _enhance_chunked(*, input_dem, output, site, site_lonlat, levels, finest_res
     if despike is not None:
         raise InvalidParameterError("a chunked enhance takes no --despike; run `terrain fill "
                                     "--despike` on the DEM first")
-    from terrain.stack.layers import prepare_folder
+    from terrain.stack.store import prepare_folder
 
     prepare_folder(output, inputs=[input_dem], keep=(".craterscape.work",))
     reader, site, levels, shapes = _stack_geometry(input_dem, band, site, site_lonlat, levels,
@@ -1061,7 +1063,7 @@ def replace_crater_cmd(stack_dir, at, diameter, age, seed):
 
     The stack's rocks on the changed ground are stood on the new ground (rocks.csv follows).
     """
-    from terrain.stack.layers import replace_crater
+    from terrain.stack.edit import replace_crater
 
     if not stack_dir.is_dir():
         raise InvalidParameterError(f"'{stack_dir}' is not a layer-stack folder")
@@ -1191,7 +1193,7 @@ def hazards(source, output, lander_diameter, max_slope, max_step, layer, png, ba
     if png.resolve() == output.resolve():
         raise InvalidParameterError("--png must differ from --output")
     if source.is_dir():
-        from terrain.stack.layers import read_stack
+        from terrain.stack.store import read_stack
 
         stack = read_stack(source)
         resolutions = [t.resolution for t in stack.tiles]

@@ -16,7 +16,7 @@ from affine import Affine
 
 from terrain.fractal.synthetic import synthesize_tile
 from terrain.io import write_dem
-from terrain.stack.layers import INCOMPLETE, MANIFEST
+from terrain.stack.store import INCOMPLETE, MANIFEST
 from tests.cli_helpers import (
     file_size_limit,
     one_line_error,

@@ -14,15 +14,11 @@ from terrain.core.errors import InvalidDEMError, InvalidParameterError, MemoryRe
 from terrain.craters.cratering import CraterModel
 from terrain.craters.population import Population
 from terrain.fractal.synthetic import synthesize_tile
-from terrain.stack.layers import (
-    MIN_CRATER_PIXELS,
-    Layer,
-    LayerStack,
-    build_stack,
-    read_stack,
-    replace_crater,
-    write_stack,
-)
+from terrain.stack.build import build_stack
+from terrain.stack.edit import replace_crater
+from terrain.stack.model import Layer, LayerStack
+from terrain.stack.plan import MIN_CRATER_PIXELS
+from terrain.stack.store import read_stack, write_stack
 
 POP = Population(dmin=1.0, dmax=40000.0, density=1e5, max_age=2.0)
 
@@ -214,7 +210,7 @@ def test_more_levels_than_memory_allows_is_refused(monkeypatch):
 
 @given(st.floats(1e-3, 1e4), st.floats(1e-3, 1e4))
 def test_levels_for_resolution_is_the_fewest_that_reach_the_finest(base, finest):
-    from terrain.stack.layers import MAX_LEVELS, levels_for_resolution
+    from terrain.stack.plan import MAX_LEVELS, levels_for_resolution
 
     try:
         levels = levels_for_resolution(base, finest)

@@ -16,15 +16,9 @@ import pytest
 
 from terrain.craters.population import Population
 from terrain.fractal.synthetic import synthesize_tile
-from terrain.stack.layers import (
-    LOCK,
-    MANIFEST,
-    READERS_LOCK,
-    build_stack,
-    read_stack,
-    replace_crater,
-    write_stack,
-)
+from terrain.stack.build import build_stack
+from terrain.stack.edit import replace_crater
+from terrain.stack.store import LOCK, MANIFEST, READERS_LOCK, read_stack, write_stack
 
 KILLS = 24
 
