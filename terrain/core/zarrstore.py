@@ -374,7 +374,3 @@ class ZarrDEM:
             raise InvalidDEMError(
                 f"Zarr DEM '{self.path}' is incomplete ({len(self.done_chunks())} of "
                 f"{ny * nx} chunks written); rerun the command that made it to resume")
-
-    def describe_plan(self) -> str:
-        """Return the plan as canonical JSON (to compare with a resumed run's)."""
-        return json.dumps(self.plan, sort_keys=True)
