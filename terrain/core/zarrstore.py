@@ -368,9 +368,34 @@ class ZarrDEM:
                                f"({type(exc).__name__}: {exc})")
 
     def check_complete(self) -> None:
-        """Raise unless every chunk is written."""
+        """Raise unless every chunk is written and its file has the size its marker recorded.
+
+        The sizes are compared, not the checksums (that would read the whole store): a chunk
+        file removed or truncated since is named instead of being read as nodata.
+        """
         if not self.complete:
             ny, nx = self.grid
             raise InvalidDEMError(
                 f"Zarr DEM '{self.path}' is incomplete ({len(self.done_chunks())} of "
                 f"{ny * nx} chunks written); rerun the command that made it to resume")
+        ny, nx = self.grid
+        for i in range(ny):
+            for j in range(nx):
+                marker = self._marker(i, j)
+                try:
+                    with np.load(marker) as f:
+                        if CHUNK_STAMP not in f.files:  # a store from before the stamps
+                            continue
+                        size = int(f[CHUNK_STAMP][0])
+                except _UNREADABLE as exc:
+                    raise InvalidDEMError(
+                        f"Zarr DEM '{self.path}': the marker of chunk {i},{j} ('{marker}') "
+                        f"cannot be read ({type(exc).__name__}: {exc}); the store is "
+                        "damaged") from None
+                chunk_file = self.chunk_file(i, j)
+                found = chunk_file.stat().st_size if chunk_file.exists() else -1
+                if found != size:
+                    state = "is missing" if found < 0 else f"holds {found} bytes, not {size}"
+                    raise InvalidDEMError(
+                        f"Zarr DEM '{self.path}': chunk {i},{j} ('{chunk_file}') {state}; "
+                        "the store is damaged")

@@ -469,3 +469,15 @@ def test_the_scratch_store_of_an_out_of_core_run_is_found_again_only_by_the_same
         assert chunk == 32  # the interrupted run's chunk side, so it resumes
         assert run(SynthSource(129, seed=3), path, chunk=chunk).skipped == 10
     assert not path.exists()
+
+
+def test_a_finished_store_missing_a_chunk_is_refused_instead_of_read_as_a_hole(tmp_path):
+    from terrain.core.errors import InvalidDEMError
+
+    out = tmp_path / "h.zarr"
+    run(SynthSource(65, seed=1), out, chunk=32)
+    _chunk_file(out, 1, 1).unlink()
+    with pytest.raises(InvalidDEMError, match=r"h\.zarr.*chunk 1,1"):
+        open_reader(out)
+    one_line_error(cli("terrain", "cog", out, "-o", tmp_path / "h.tif"), "chunk 1,1")
+    assert not (tmp_path / "h.tif").exists()
