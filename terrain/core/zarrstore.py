@@ -212,6 +212,9 @@ class ZarrDEM:
         attrs["complete"] = True
         try:
             group.attrs[ATTR] = attrs
+            for flushed in (self.path / ".zattrs", self.path):
+                with contextlib.suppress(FileNotFoundError):
+                    _fsync(flushed)
         except OSError as exc:
             if is_write_error(exc):
                 raise cannot_write(self.path, exc) from exc
