@@ -758,7 +758,7 @@ def _open_store(source, path: Path, chunk: int, metadata=None) -> ZarrDEM:
             raise OutputPathError(
                 f"output '{path}' holds another run (other parameters, input or chunk size); "
                 "give the same command to resume it, or choose another output")
-        log.info("resuming %s: %d chunks already written", path, len(store.done_chunks()))
+        log.info("resuming %s", path)  # run checks and counts the chunks already written
         return store
     return ZarrDEM.create(path, source.shape, chunk, transform=source.transform,
                           crs=source.crs, nodata=source.nodata,
