@@ -10,7 +10,7 @@ What the issue asks to show, each against a baseline measured in the same run:
 * ``overhead``: the scheduler's cost per chunk: N no-op chunk tasks through the same
   ``map_blocks`` path on the 2-worker cluster, and the Zarr write of an empty chunk.
 * ``enhance``: a layer stack (the base and 2 expanded layers as large as the base, craters
-  on every layer) built in memory (``terrain.stack.layers.build_stack``, the baseline, written as
+  on every layer) built in memory (``terrain.stack.build.build_stack``, the baseline, written as
   GeoTIFFs) and chunk by chunk on a 2-worker ``LocalCluster``
   (``terrain.stack.chunkedlayers.build_stack_chunked``), in stack pixels per second.
 * ``out_of_core`` (full run only): a 16385^2 DEM synthesised into Zarr, expanded once to
@@ -153,8 +153,9 @@ def child_enhance(spec):
 
     from terrain.craters.population import Population
     from terrain.execution.chunked import dask_client, open_reader
+    from terrain.stack.build import build_stack
     from terrain.stack.chunkedlayers import build_stack_chunked
-    from terrain.stack.layers import build_stack, write_stack
+    from terrain.stack.store import write_stack
 
     work = Path(spec["dir"])
     reader = open_reader(work / "in.zarr")

@@ -50,7 +50,7 @@ def warm_up() -> float:
     from terrain.fractal.expand import expand
     from terrain.fractal.gapfill import fill_gaps
     from terrain.fractal.synthetic import synthesize_tile
-    from terrain.stack.layers import build_stack
+    from terrain.stack.build import build_stack
 
     t0 = time.perf_counter()
     tile = synthesize_tile(33, resolution=100.0, relief=50.0, seed=1).tile
@@ -95,7 +95,8 @@ def child_expand(spec):
 def child_enhance(spec):
     from terrain.craters.population import Population
     from terrain.fractal.synthetic import synthesize_tile
-    from terrain.stack.layers import build_stack, write_stack
+    from terrain.stack.build import build_stack
+    from terrain.stack.store import write_stack
 
     warm = warm_up()
     base = synthesize_tile(spec["base"], resolution=1000.0, relief=3000.0, seed=SEED).tile

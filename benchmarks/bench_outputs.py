@@ -98,7 +98,8 @@ def bench_transaction(folder: Path, nbytes: int, repeat: int) -> dict:
 
 def bench_read_stack(folder: Path, base_size: int, repeat: int) -> dict:
     from terrain.fractal.synthetic import synthesize_tile
-    from terrain.stack.layers import _read_stack, build_stack, read_stack, write_stack
+    from terrain.stack.build import build_stack
+    from terrain.stack.store import _read_stack, read_stack, write_stack
 
     base = synthesize_tile(base_size, resolution=10.0, relief=50.0, seed=2).tile
     centre = (base_size - 1) * 10.0 / 2

@@ -36,7 +36,8 @@ def log(message: str) -> None:
 def build_scene(tmp: Path, quick: bool):
     from terrain.craters.population import Population
     from terrain.fractal.synthetic import synthesize_tile
-    from terrain.stack.layers import build_stack, write_stack
+    from terrain.stack.build import build_stack
+    from terrain.stack.store import write_stack
 
     size, levels = (257, 6) if quick else (1025, 11)
     base = synthesize_tile(size, resolution=1000.0, relief=2500.0, seed=SEED).tile

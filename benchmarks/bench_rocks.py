@@ -85,7 +85,7 @@ def _small(tile):
 def child_layers(spec: dict) -> dict:
     from terrain.craters.population import Population
     from terrain.fractal.synthetic import synthesize_tile
-    from terrain.stack.layers import build_stack
+    from terrain.stack.build import build_stack
     from terrain.surface.rocks import RockModel
 
     size, levels, extra = spec["size"], spec["levels"], spec["extra"]
@@ -127,7 +127,7 @@ def child_frame(spec: dict) -> dict:
     from render.terrain_scene import TerrainScene
     from render.trajectory import descent
     from terrain.fractal.synthetic import synthesize_tile
-    from terrain.stack.layers import build_stack
+    from terrain.stack.build import build_stack
     from terrain.surface.rocks import RockModel
 
     size, image = spec["layer_size"], spec["image"]

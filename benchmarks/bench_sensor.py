@@ -67,7 +67,7 @@ def main(argv=None) -> int:
     from render.terrain_scene import TerrainScene
     from terrain.craters.population import Population
     from terrain.fractal.synthetic import synthesize_tile
-    from terrain.stack.layers import build_stack
+    from terrain.stack.build import build_stack
 
     size = 256 if args.quick else 1024
     repeat = 3 if args.quick else 5

@@ -48,7 +48,8 @@ TARGET_OVERHEAD = 0.10
 def build(tmp: Path, quick: bool, size: int, frames: int) -> Path:
     from terrain.craters.population import Population
     from terrain.fractal.synthetic import synthesize_tile
-    from terrain.stack.layers import build_stack, write_stack
+    from terrain.stack.build import build_stack
+    from terrain.stack.store import write_stack
 
     n, levels = (129, 3) if quick else (513, 6)
     base = synthesize_tile(n, resolution=200.0, relief=2000.0, seed=SEED).tile

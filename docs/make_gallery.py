@@ -74,7 +74,7 @@ def main(demo: Path) -> None:
 
     from evaluation.figures import png_bytes, slope_distribution_figure
     from evaluation.slope import slope_distribution
-    from terrain.stack.layers import read_stack
+    from terrain.stack.store import read_stack
 
     stack = read_stack(demo / "lunar" / "stack" / "stack")
     fig = slope_distribution_figure([slope_distribution(t, label=f"{t.resolution:.3g} m")

@@ -150,7 +150,7 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     from evaluation.validate_report import as_check, regroup_campaign_checks, validation_sections
     from terrain.core.errors import InvalidDEMError, InvalidParameterError
     from terrain.io import read_dem
-    from terrain.stack.layers import read_stack
+    from terrain.stack.store import read_stack
 
     ev = c.evaluation
     have = {k: Path(p).exists() for k, p in real.items()}

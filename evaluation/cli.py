@@ -74,7 +74,7 @@ def _unique(names):
 def _dem_inputs(paths, band: int) -> list:
     """(label, tile) for every DEM, expanding layer stacks (a folder or its manifest.json)."""
     from terrain.io import read_dem
-    from terrain.stack.layers import read_stack
+    from terrain.stack.store import read_stack
 
     items = []
     for path in paths:

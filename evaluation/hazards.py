@@ -94,7 +94,7 @@ def descent_layers(run, stack) -> list[dict]:
     ----------
     run : render.rundir.RunReader
         A terrain run with LIDAR range images and truth.
-    stack : terrain.stack.layers.LayerStack
+    stack : terrain.stack.model.LayerStack
         The stack it was rendered from.
 
     Returns
@@ -241,7 +241,7 @@ def hazards_file_section(path, *, run=None, frames=()) -> Section:
     kwargs: dict = {}
     source = Path(params.get("source", ""))
     if source.is_dir() and (source / "manifest.json").exists():
-        from terrain.stack.layers import read_stack
+        from terrain.stack.store import read_stack
 
         stack = read_stack(source)
         if stack.rocks is not None and stack.info.get("rocks"):

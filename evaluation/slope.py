@@ -372,7 +372,7 @@ def stack_distributions(stack_dir, *, edges: str = "mask", angles=None,
     label : str, optional
         Prefix of the labels (default the folder name); each gets ``_layer_NN``.
     """
-    from terrain.stack.layers import read_stack
+    from terrain.stack.store import read_stack
 
     stack_dir = Path(stack_dir)
     if stack_dir.name == "manifest.json":

@@ -693,7 +693,7 @@ def _crater_checks(stack) -> tuple[list, dict]:
                                ls.CRATER_EQUILIBRIUM),
                 not_applicable(REALISM, "depth/diameter of 10-100 m craters", why,
                                ls.FRESH_DEPTH_DIAMETER)], data
-    from terrain.stack.layers import layer_bounds
+    from terrain.stack.plan import layer_bounds
 
     results = []
     # counts on the base, where the catalogue is complete from its smallest resolved crater
@@ -749,7 +749,7 @@ def _rock_check(stack) -> tuple[Result, dict]:
     if rocks is None or len(rocks.diameter_m) == 0:
         return not_applicable(REALISM, name, "the stack has no rocks", stat), {}
     from evaluation.hazards import rock_sfd
-    from terrain.stack.layers import layer_bounds
+    from terrain.stack.plan import layer_bounds
 
     # the finest layer whose pixels resolve a 1 m rock, where the catalogue is complete
     k = max((i for i, t in enumerate(stack.tiles) if t.resolution <= 0.5), default=None)
@@ -773,7 +773,7 @@ def validate_stack(stack, terrain: str, *, label: str = "stack") -> Validation:
 
     Parameters
     ----------
-    stack : terrain.stack.layers.LayerStack
+    stack : terrain.stack.model.LayerStack
     terrain : {"south-polar", "highlands", "maria"}
     label : str
 

@@ -184,7 +184,7 @@ def load_input(path, *, band: int = 1):
     from pathlib import Path
 
     from terrain.io import read_dem, reproject_polar
-    from terrain.stack.layers import read_stack
+    from terrain.stack.store import read_stack
 
     path = Path(path)
     if path.is_dir() or path.name == "manifest.json":

@@ -1,6 +1,6 @@
 """A DEM layer stack as one multi-resolution terrain mesh.
 
-Every layer of a stack (:mod:`terrain.stack.layers`) becomes a grid mesh with a vertex at every
+Every layer of a stack (:mod:`terrain.stack.model`) becomes a grid mesh with a vertex at every
 pixel
 centre, cut into blocks of :data:`BLOCK` x :data:`BLOCK` cells. Per frame, each block is culled
 against the view frustum, dropped if a finer layer covers it completely, and otherwise drawn
@@ -99,7 +99,7 @@ from terrain.core.errors import InvalidParameterError
 if TYPE_CHECKING:
     from render.renderer import Lighting, RenderOptions, View
     from terrain.core.tile import DEMTile
-    from terrain.stack.layers import LayerStack
+    from terrain.stack.model import LayerStack
 
 __all__ = ["BLOCK", "FADE_PARENT_PIXELS", "MOON_RADIUS", "MORPH_BAND", "SKIRT_PIXELS",
            "TerrainScene"]
@@ -172,7 +172,7 @@ class TerrainScene:
 
     Parameters
     ----------
-    stack : terrain.stack.layers.LayerStack, str or pathlib.Path
+    stack : terrain.stack.model.LayerStack, str or pathlib.Path
         The layer stack, or its folder.
     curvature : bool
         Drop heights by d^2 / (2 R) away from the site.
@@ -195,7 +195,8 @@ class TerrainScene:
     def __init__(self, stack: LayerStack | str | Path, *, curvature: bool = True,
                  radius: float | None = None,
                  albedo_map: DEMTile | str | Path | None = None) -> None:
-        from terrain.stack.layers import LayerStack, read_stack
+        from terrain.stack.model import LayerStack
+        from terrain.stack.store import read_stack
 
         if not isinstance(stack, LayerStack):
             stack = read_stack(Path(stack))

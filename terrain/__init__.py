@@ -9,7 +9,7 @@ rocks and hazards
 (:mod:`terrain.surface.rocks`, :mod:`terrain.surface.hazards`), fractal expansion and gap filling
 (:mod:`terrain.fractal.expand`, :mod:`terrain.fractal.roughness`, :mod:`terrain.fractal.gapfill`),
 layer stacks
-(:mod:`terrain.stack.layers`), chunked runs (:mod:`terrain.execution.chunked`,
+(:mod:`terrain.stack.model`), chunked runs (:mod:`terrain.execution.chunked`,
 :mod:`terrain.core.zarrstore`) and
 safe outputs (:mod:`terrain.core.outputs`). The ``craterscape`` root command lives in
 :mod:`terrain.cli.commands`; higher layers register their groups through entry points.

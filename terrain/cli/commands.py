@@ -91,7 +91,7 @@ def replace_crater_cmd(stack_dir, at, diameter, age, seed):
 
     The stack's rocks on the changed ground are stood on the new ground (rocks.csv follows).
     """
-    from terrain.stack.layers import replace_crater
+    from terrain.stack.edit import replace_crater
 
     if not stack_dir.is_dir():
         raise InvalidParameterError(f"'{stack_dir}' is not a layer-stack folder")

@@ -120,7 +120,7 @@ class _Root(click.Group):
             ctx.exit(EXIT_TERMINATED)
         except OSError as exc:
             if is_write_error(exc):  # one code and one message for "cannot write here"
-                _fail(ctx, cannot_write(exc.filename or "output", exc), EXIT_BAD_INPUT)
+                _fail(ctx, cannot_write(None, exc), EXIT_BAD_INPUT)
             _fail(ctx, exc, 1)
         except ArithmeticError as exc:  # an unchecked number overflowed: still bad input
             _fail(ctx, InvalidParameterError(

@@ -82,6 +82,9 @@ _PROTECTED: contextvars.ContextVar[tuple] = contextvars.ContextVar("craterscape_
                                                                     default=())
 _ACTIVE: contextvars.ContextVar = contextvars.ContextVar("craterscape_transaction",
                                                          default=None)
+#: Outputs being written now, innermost last: a write error that names no file is theirs.
+_WRITING: contextvars.ContextVar[tuple] = contextvars.ContextVar("craterscape_writing",
+                                                                 default=())
 
 
 # ------------------------------------------------------------------------------ inputs
@@ -210,11 +213,26 @@ def is_write_error(exc: BaseException) -> bool:
 
 
 def cannot_write(path, exc: BaseException) -> OutputPathError:
-    """Return the one message for every "cannot write here": ``cannot write 'PATH': REASON``."""
+    """Return the one message for every "cannot write here": ``cannot write 'PATH': REASON``.
+
+    Parameters
+    ----------
+    path : path-like or None
+        What could not be written. None: the file the error names, else the output being
+        written now (:func:`atomic_path`); a write() that fails names no file.
+    exc : BaseException
+        The error (its ``strerror`` is the reason).
+    """
+    if path is None:
+        path = getattr(exc, "filename", None)
+    if path is None and _WRITING.get():
+        path = _WRITING.get()[-1]
     reason = getattr(exc, "strerror", None)
     if not reason:
         text = str(exc).strip()
         reason = text.splitlines()[0] if text else type(exc).__name__
+    if path is None:
+        return OutputPathError(f"cannot write an output: {reason}")
     return OutputPathError(f"cannot write '{path}': {reason}")
 
 
@@ -318,6 +336,7 @@ def atomic_path(path, inputs: Iterable = ()) -> Iterator[Path]:
     tmp = _temp_beside(final)
     active = _ACTIVE.get()
     done = False
+    writing = _WRITING.set((*_WRITING.get(), path))
     try:
         try:
             yield tmp
@@ -334,6 +353,7 @@ def atomic_path(path, inputs: Iterable = ()) -> Iterator[Path]:
                 raise cannot_write(path, exc) from exc
             raise
     finally:
+        _WRITING.reset(writing)
         if not (done and active is not None):
             with contextlib.suppress(FileNotFoundError):
                 tmp.unlink()

@@ -13,11 +13,34 @@ from pathlib import Path
 
 from terrain.core.errors import InvalidParameterError, MissingInputError
 
-__all__ = ["merge_tables", "read_toml", "toml_text"]
+__all__ = ["MAX_DEPTH", "merge_tables", "read_toml", "toml_text"]
+
+#: Deepest nesting of tables and arrays a user's file may have (craterscape's own files nest
+#: four deep at most; the bound keeps every reader's recursion far from Python's limit).
+MAX_DEPTH = 64
+
+
+def _depth(value) -> int:
+    """Nesting depth of parsed TOML (a scalar is 0), walked without recursion."""
+    deepest = 0
+    todo = [(value, 0)]
+    while todo:
+        item, level = todo.pop()
+        children = item.values() if isinstance(item, dict) else \
+            item if isinstance(item, list) else None
+        if children is None:
+            continue
+        deepest = max(deepest, level + 1)
+        if deepest > MAX_DEPTH:
+            break
+        todo.extend((child, level + 1) for child in children)
+    return deepest
 
 
 def read_toml(path, what: str) -> dict:
     """Return the parsed TOML file at ``path``; a missing or malformed file is refused in one line.
+
+    So is a file nesting tables or arrays more than :data:`MAX_DEPTH` deep.
 
     ``what`` names the file in the message (``"scenario"``, ``"population file"``, ...).
 
@@ -29,10 +52,17 @@ def read_toml(path, what: str) -> dict:
     path = Path(path)
     if not path.exists():
         raise MissingInputError(f"{what} '{path}' does not exist")
+    deep = InvalidParameterError(f"{what} '{path}' nests deeper than {MAX_DEPTH} tables or "
+                                 "arrays")
     try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise InvalidParameterError(f"{what} '{path}' is not valid TOML: {exc}") from None
+    except RecursionError:  # the parser recurses once per level of nesting
+        raise deep from None
+    if _depth(data) > MAX_DEPTH:
+        raise deep
+    return data
 
 
 def merge_tables(data: dict, overrides: dict) -> dict:

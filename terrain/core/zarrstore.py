@@ -8,10 +8,14 @@ provenance tags, plus the run's plan (what is being computed, so a resumed run c
 store that was started with other parameters) and whether every chunk is written.
 
 Every chunk is written exactly once by the task that computes it, into its own region only;
-the task then writes a completion marker (``chunks/ROW_COL.npz``, renamed into place
-atomically, holding the chunk's crater catalogue rows). A run that stops part way leaves the
-markers of the chunks that were fully written, and the next run skips exactly those: a chunk
-without a marker is computed and written again from scratch, so a torn write is never kept.
+the task then flushes the chunk's file to disk and writes a completion marker
+(``chunks/ROW_COL.npz``, flushed and renamed into place atomically) holding the chunk's crater
+catalogue rows and the size and CRC-32 of the chunk's file as written (or that no file was
+written: Zarr stores no file for a chunk that is all nodata). A run that stops part way leaves
+the markers of the chunks that were fully written, and the next run skips exactly the chunks
+whose file still matches its marker: a chunk without a readable marker, or whose file was
+removed, truncated or altered since, is computed and written again from scratch, so neither a
+torn write nor a damaged file is ever kept.
 
 ``_ARRAY_DIMENSIONS`` is set (``["y", "x"]``), so xarray opens the store too.
 
@@ -36,12 +40,15 @@ import json
 import logging
 import os
 import tempfile
+import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
 from affine import Affine
 
 from terrain.core.errors import InvalidDEMError, MissingInputError, OutputPathError
+from terrain.core.outputs import cannot_write, is_write_error
 from terrain.core.tile import Window
 
 __all__ = ["ARRAY_NAME", "ZarrDEM", "is_zarr"]
@@ -54,6 +61,29 @@ ARRAY_NAME = "height"
 MARKERS = "chunks"
 #: Attribute holding craterscape's own description of the store.
 ATTR = "craterscape"
+#: Marker entry holding (size in bytes, CRC-32) of the chunk's file; size -1: no file.
+CHUNK_STAMP = "_chunk_file"
+#: What a marker or chunk file that cannot be read raises (numpy, zipfile, zarr and blosc).
+_UNREADABLE = (OSError, ValueError, EOFError, RuntimeError, KeyError, zipfile.BadZipFile,
+               zlib.error)
+
+
+def _fsync(path: Path) -> None:
+    """Flush a file or folder to disk, so a machine that loses power still finds it."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _file_stamp(path: Path) -> tuple[int, int]:
+    """(size, CRC-32) of a file; (-1, 0) when there is none."""
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return (-1, 0)
+    return (len(data), zlib.crc32(data))
 
 
 def is_zarr(path) -> bool:
@@ -155,16 +185,22 @@ class ZarrDEM:
         ny, nx = (int(v) for v in shape)
         for mode in ("r", "r+"):  # a store made again at a path read before is a new store
             _ARRAYS.pop((str(path), mode), None)
-        group = zarr.open_group(str(path), mode="w-", zarr_format=2)
-        fill = float(nodata) if np.isfinite(nodata) else float("nan")
-        array = group.create_array(ARRAY_NAME, shape=(ny, nx), chunks=(chunk, chunk),
-                                   dtype="float32", fill_value=fill)
-        array.attrs["_ARRAY_DIMENSIONS"] = ["y", "x"]
-        group.attrs[ATTR] = dict(
-            geotransform=list(transform.to_gdal()), crs=crs,
-            nodata=None if not np.isfinite(nodata) else float(nodata),
-            metadata={str(k): str(v) for k, v in metadata.items()}, plan=plan, complete=False)
-        (path / MARKERS).mkdir()
+        try:
+            group = zarr.open_group(str(path), mode="w-", zarr_format=2)
+            fill = float(nodata) if np.isfinite(nodata) else float("nan")
+            array = group.create_array(ARRAY_NAME, shape=(ny, nx), chunks=(chunk, chunk),
+                                       dtype="float32", fill_value=fill)
+            array.attrs["_ARRAY_DIMENSIONS"] = ["y", "x"]
+            group.attrs[ATTR] = dict(
+                geotransform=list(transform.to_gdal()), crs=crs,
+                nodata=None if not np.isfinite(nodata) else float(nodata),
+                metadata={str(k): str(v) for k, v in metadata.items()}, plan=plan,
+                complete=False)
+            (path / MARKERS).mkdir()
+        except OSError as exc:
+            if is_write_error(exc):
+                raise cannot_write(path, exc) from exc
+            raise
         log.info("created Zarr store %s (%d x %d, chunks %d)", path, nx, ny, chunk)
         return cls(path)
 
@@ -174,7 +210,15 @@ class ZarrDEM:
         group = zarr.open_group(str(self.path), mode="r+")
         attrs = dict(group.attrs[ATTR])
         attrs["complete"] = True
-        group.attrs[ATTR] = attrs
+        try:
+            group.attrs[ATTR] = attrs
+            for flushed in (self.path / ".zattrs", self.path):
+                with contextlib.suppress(FileNotFoundError):
+                    _fsync(flushed)
+        except OSError as exc:
+            if is_write_error(exc):
+                raise cannot_write(self.path, exc) from exc
+            raise
         self.complete = True
 
     # --- geometry -----------------------------------------------------------------------
@@ -198,17 +242,49 @@ class ZarrDEM:
     def _marker(self, i: int, j: int) -> Path:
         return self.path / MARKERS / f"{i}_{j}.npz"
 
+    def chunk_file(self, i: int, j: int) -> Path:
+        """Return the file Zarr keeps chunk (i, j) in (absent while the chunk is all nodata)."""
+        return self.path / ARRAY_NAME / f"{i}{self._separator}{j}"
+
+    @property
+    def _separator(self) -> str:
+        try:
+            meta = json.loads((self.path / ARRAY_NAME / ".zarray").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return "."
+        return str(meta.get("dimension_separator") or ".")
+
     def is_done(self, i: int, j: int) -> bool:
-        """Whether chunk (i, j)'s completion marker exists."""
-        return self._marker(i, j).exists()
+        """Whether chunk (i, j) is written: its marker is readable and its file matches it.
+
+        A chunk whose file was removed, truncated or altered after its marker was written is
+        not done (a resumed run computes it again).
+        """
+        marker = self._marker(i, j)
+        try:
+            with np.load(marker) as f:
+                size, crc = (int(v) for v in f[CHUNK_STAMP])
+        except FileNotFoundError:
+            return False
+        except _UNREADABLE as exc:
+            log.warning("chunk %d,%d of %s: unreadable marker (%s); computing it again",
+                        i, j, self.path, exc)
+            return False
+        if _file_stamp(self.chunk_file(i, j)) != (size, crc):
+            log.warning("chunk %d,%d of %s does not match its marker (removed or altered "
+                        "since it was written); computing it again", i, j, self.path)
+            return False
+        return True
 
     def done_chunks(self) -> set[tuple[int, int]]:
-        """Chunks whose completion marker exists."""
+        """Chunks that are written and match their markers (:meth:`is_done`)."""
         done = set()
+        ny, nx = self.grid
         for p in (self.path / MARKERS).glob("*.npz"):
             with contextlib.suppress(ValueError):
                 i, j = (int(v) for v in p.stem.split("_"))
-                done.add((i, j))
+                if 0 <= i < ny and 0 <= j < nx and self.is_done(i, j):
+                    done.add((i, j))
         return done
 
     def write_chunk(self, i: int, j: int, heights: np.ndarray, catalog: dict | None = None):
@@ -224,22 +300,43 @@ class ZarrDEM:
                                   f"got {heights.shape}")
         if np.isfinite(self.nodata):
             heights = np.where(np.isnan(heights), np.float32(self.nodata), heights)
-        _array(self.path, "r+")[w.row:w.row + w.height, w.col:w.col + w.width] = heights
         marker = self._marker(i, j)
-        fd, tmp = tempfile.mkstemp(prefix=f".{marker.stem}.", suffix=".partial",
-                                   dir=marker.parent)
         try:
-            with os.fdopen(fd, "wb") as f:
-                np.savez(f, **(catalog or {}))
-            os.replace(tmp, marker)
-        finally:
-            with contextlib.suppress(FileNotFoundError):
-                os.unlink(tmp)
+            _array(self.path, "r+")[w.row:w.row + w.height, w.col:w.col + w.width] = heights
+            chunk_file = self.chunk_file(i, j)
+            stamp = _file_stamp(chunk_file)
+            if stamp[0] >= 0:
+                _fsync(chunk_file)
+            _fsync(chunk_file.parent)
+            fd, tmp = tempfile.mkstemp(prefix=f".{marker.stem}.", suffix=".partial",
+                                       dir=marker.parent)
+            try:
+                with os.fdopen(fd, "wb") as f:
+                    entries = dict(catalog or {})
+                    entries[CHUNK_STAMP] = np.array(stamp, np.int64)
+                    np.savez(f, **entries)
+                    f.flush()
+                    os.fsync(f.fileno())
+                os.replace(tmp, marker)
+                _fsync(marker.parent)
+            finally:
+                with contextlib.suppress(FileNotFoundError):
+                    os.unlink(tmp)
+        except OSError as exc:
+            if is_write_error(exc):
+                raise cannot_write(self.chunk_file(i, j), exc) from exc
+            raise
 
     def chunk_catalog(self, i: int, j: int) -> dict:
         """Return the crater catalogue rows stored with chunk (i, j)'s marker."""
-        with np.load(self._marker(i, j)) as f:
-            return {k: f[k] for k in f.files}
+        marker = self._marker(i, j)
+        try:
+            with np.load(marker) as f:
+                return {k: f[k] for k in f.files if k != CHUNK_STAMP}
+        except _UNREADABLE as exc:
+            raise InvalidDEMError(f"Zarr DEM '{self.path}': the marker of chunk {i},{j} "
+                                  f"('{marker}') cannot be read ({type(exc).__name__}: {exc}); "
+                                  "remove it and rerun the command that made the store") from None
 
     # --- reading ------------------------------------------------------------------------
     def read(self, window: Window | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -247,21 +344,61 @@ class ZarrDEM:
         window = window or Window(0, 0, self.shape[1], self.shape[0])
         window.check_inside(*self.shape)
         rs, cs = window.slices
-        h = np.asarray(_array(self.path, "r")[rs, cs], dtype=np.float32)
+        try:
+            h = np.asarray(_array(self.path, "r")[rs, cs], dtype=np.float32)
+        except _UNREADABLE as exc:
+            raise self._unreadable(window, exc) from None
         valid = np.isfinite(h)
         if np.isfinite(self.nodata):
             valid &= h != np.float32(self.nodata)
         h = np.where(valid, h, np.float32(np.nan)).astype(np.float32)
         return h, valid
 
+    def _unreadable(self, window: Window, exc: BaseException) -> InvalidDEMError:
+        """Return the error for a failed read, naming the first chunk that cannot be read."""
+        array = _array(self.path, "r")
+        c = self.chunk
+        for i in range(window.row // c, -(-(window.row + window.height) // c)):
+            for j in range(window.col // c, -(-(window.col + window.width) // c)):
+                w = self.chunk_window(i, j)
+                try:
+                    array[w.row:w.row + w.height, w.col:w.col + w.width]
+                except _UNREADABLE as err:
+                    return InvalidDEMError(
+                        f"Zarr DEM '{self.path}': chunk {i},{j} ('{self.chunk_file(i, j)}') "
+                        f"cannot be read ({type(err).__name__}: {err}); the store is damaged")
+        return InvalidDEMError(f"Zarr DEM '{self.path}' cannot be read "
+                               f"({type(exc).__name__}: {exc})")
+
     def check_complete(self) -> None:
-        """Raise unless every chunk is written."""
+        """Raise unless every chunk is written and its file has the size its marker recorded.
+
+        The sizes are compared, not the checksums (that would read the whole store): a chunk
+        file removed or truncated since is named instead of being read as nodata.
+        """
         if not self.complete:
             ny, nx = self.grid
             raise InvalidDEMError(
                 f"Zarr DEM '{self.path}' is incomplete ({len(self.done_chunks())} of "
                 f"{ny * nx} chunks written); rerun the command that made it to resume")
-
-    def describe_plan(self) -> str:
-        """Return the plan as canonical JSON (to compare with a resumed run's)."""
-        return json.dumps(self.plan, sort_keys=True)
+        ny, nx = self.grid
+        for i in range(ny):
+            for j in range(nx):
+                marker = self._marker(i, j)
+                try:
+                    with np.load(marker) as f:
+                        if CHUNK_STAMP not in f.files:  # a store from before the stamps
+                            continue
+                        size = int(f[CHUNK_STAMP][0])
+                except _UNREADABLE as exc:
+                    raise InvalidDEMError(
+                        f"Zarr DEM '{self.path}': the marker of chunk {i},{j} ('{marker}') "
+                        f"cannot be read ({type(exc).__name__}: {exc}); the store is "
+                        "damaged") from None
+                chunk_file = self.chunk_file(i, j)
+                found = chunk_file.stat().st_size if chunk_file.exists() else -1
+                if found != size:
+                    state = "is missing" if found < 0 else f"holds {found} bytes, not {size}"
+                    raise InvalidDEMError(
+                        f"Zarr DEM '{self.path}': chunk {i},{j} ('{chunk_file}') {state}; "
+                        "the store is damaged")

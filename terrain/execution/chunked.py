@@ -41,6 +41,7 @@ True
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import logging
 import math
@@ -61,6 +62,7 @@ from terrain.core.errors import (
     InvalidParameterError,
     OutputPathError,
 )
+from terrain.core.outputs import remove_path
 from terrain.core.progress import Progress
 from terrain.core.tile import Window, default_transform
 from terrain.core.zarrstore import ZarrDEM, is_zarr
@@ -73,7 +75,7 @@ if TYPE_CHECKING:
 
 __all__ = ["DEFAULT_CHUNK", "CraterSource", "ExpandSource", "FillSource", "GapTooLargeError",
            "OnReaderGrid", "RunReport", "SynthSource", "dask_client", "estimate_parameters",
-           "open_reader", "run"]
+           "open_reader", "run", "scratch_path", "scratch_store"]
 
 log = logging.getLogger(__name__)
 
@@ -756,7 +758,7 @@ def _open_store(source, path: Path, chunk: int, metadata=None) -> ZarrDEM:
             raise OutputPathError(
                 f"output '{path}' holds another run (other parameters, input or chunk size); "
                 "give the same command to resume it, or choose another output")
-        log.info("resuming %s: %d chunks already written", path, len(store.done_chunks()))
+        log.info("resuming %s", path)  # run checks and counts the chunks already written
         return store
     return ZarrDEM.create(path, source.shape, chunk, transform=source.transform,
                           crs=source.crs, nodata=source.nodata,
@@ -781,7 +783,7 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None,
         Zarr store (a folder). If it exists and holds the same run, finished chunks are
         kept and only the others are computed; if it holds another run, it is refused.
     chunk : int
-        Chunk side in pixels.
+        Chunk side in pixels (one larger than the DEM is taken as the DEM's larger side).
     client : dask.distributed.Client, optional
         Cluster to run on; without one, chunks run one after another in this process.
     progress : callable, optional
@@ -794,17 +796,30 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None,
     -------
     RunReport
     """
-    import dask
-    import dask.array as da
-
     if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < MIN_CHUNK:
         raise InvalidParameterError(f"chunk must be an integer >= {MIN_CHUNK} pixels; "
                                     f"got {chunk!r}")
-    chunk = int(chunk)
+    # A chunk larger than the DEM holds the DEM: Zarr would allocate the whole chunk anyway.
+    chunk = min(int(chunk), max(MIN_CHUNK, *source.shape))
     path = Path(output)
     if hasattr(source, "check"):
         source.check(chunk)
+    created = not path.exists()
     store = _open_store(source, path, chunk, metadata)
+    try:
+        return _run_store(source, store, client, progress)
+    except BaseException:
+        if created and not store.done_chunks():  # nothing to resume: leave nothing behind
+            remove_path(path)
+        raise
+
+
+def _run_store(source, store: ZarrDEM, client, progress) -> RunReport:
+    """Compute the chunks of ``store`` not yet written (:func:`run`, once the store is open)."""
+    import dask
+    import dask.array as da
+
+    path = store.path
     ny, nx = store.grid
     done_before = store.done_chunks()
     todo = [(i, j) for i in range(ny) for j in range(nx) if (i, j) not in done_before]
@@ -847,6 +862,70 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None,
                      busy)
 
 
+def scratch_path(source, output) -> Path:
+    """Return the scratch Zarr store of an out-of-core run of ``source`` into ``output``.
+
+    A hidden folder beside the output, named for the output and for what decides the
+    output's bytes (:meth:`plan` of the source and its shape), so the same request finds the
+    store again after a kill and another request never touches it.
+
+    Parameters
+    ----------
+    source : SynthSource, CraterSource, ExpandSource or FillSource
+    output : str or Path
+        The file the run's result is written to (a GeoTIFF).
+
+    Returns
+    -------
+    Path
+        ``.NAME.KEY.zarr`` in the output's folder (KEY: 16 hexadecimal digits).
+    """
+    output = Path(output)
+    parent = output.parent if str(output.parent) else Path(".")
+    request = json.dumps(dict(output=os.path.abspath(output), plan=source.plan(),
+                              shape=list(source.shape)), sort_keys=True, default=str)
+    key = hashlib.sha256(request.encode("utf-8")).hexdigest()[:16]
+    return parent / f".{output.name}.{key}.zarr"
+
+
+@contextlib.contextmanager
+def scratch_store(source, output, chunk: int | None = None):
+    """Yield ``(path, chunk)`` of the scratch store of an out-of-core run; remove it on success.
+
+    The store (:func:`scratch_path`) that a killed run of the same request left is resumed:
+    ``chunk`` None takes that store's chunk side (None when there is no such store: the
+    caller picks one). A store of the same request that cannot be resumed (another chunk
+    side asked for, or damaged) is replaced. The store is removed once the block completes,
+    that is once the output is committed; if the block fails, it stays for the next run.
+
+    Parameters
+    ----------
+    source : SynthSource, CraterSource, ExpandSource or FillSource
+    output : str or Path
+        The output file.
+    chunk : int, optional
+        Chunk side asked for.
+    """
+    path = scratch_path(source, output)
+    if path.exists():
+        try:
+            store = ZarrDEM(path)
+            found = store.chunk
+        except (InvalidDEMError, OSError, KeyError, ValueError) as exc:
+            log.warning("replacing the damaged scratch store %s (%s)", path, exc)
+            remove_path(path)
+        else:
+            if chunk is None or min(int(chunk), max(MIN_CHUNK, *source.shape)) == found:
+                chunk = found
+                log.warning("resuming the interrupted run in %s", path)
+            else:
+                log.warning("replacing the scratch store %s (chunk %d, now %d)", path, found,
+                            chunk)
+                remove_path(path)
+    yield path, chunk
+    remove_path(path)
+
+
 def merge_chunk_catalogs(store: ZarrDEM) -> CraterCatalog:
     """Return the whole DEM's crater catalogue from the chunks' rows, in composition order.
 
@@ -884,7 +963,8 @@ def dask_client(workers: int | None = None, scheduler: str | None = None,
     ----------
     workers : int, optional
         Local workers, each single-threaded (the kernels hold the GIL, so processes are
-        what runs in parallel; threads share one process and its memory).
+        what runs in parallel; threads share one process and its memory). The local
+        cluster, its workers and its dashboard listen on loopback (127.0.0.1) only.
     scheduler : str, optional
         Address of a running scheduler, e.g. ``tcp://10.0.0.5:8786``.
     processes : bool
@@ -925,9 +1005,11 @@ def _local_client(workers, processes, memory_limit, env):
     # Worker processes get single-threaded numerics through the nanny's environment. This
     # process's own environment is left alone: numba re-reads NUMBA_NUM_THREADS and refuses
     # a value that differs from the one its thread pool started with.
-    extra = {"env": env} if processes else {}
+    # The scheduler, the workers and the dashboard listen on loopback only: none of them asks
+    # for credentials, so nothing else on the network may reach them.
+    extra = {"env": env, "host": "127.0.0.1"} if processes else {}  # threads: in-process
     with LocalCluster(
             n_workers=int(workers), threads_per_worker=1, processes=processes,
-            dashboard_address=":0", memory_limit=memory_limit,
+            dashboard_address="127.0.0.1:0", memory_limit=memory_limit,
             silence_logs=logging.ERROR, **extra) as cluster, Client(cluster) as client:
         yield client

@@ -431,7 +431,7 @@ class RoughnessChoice:
     """What a user chose of a DEM's expansion roughness; the rest is measured from the DEM.
 
     A layer stack measures its roughness from its base after filling the base's gaps
-    (:func:`terrain.stack.layers.build_stack`); this record carries the user's choices there, so no
+    (:func:`terrain.stack.build.build_stack`); this record carries the user's choices there, so no
     caller fills gaps or measures roughness itself.
 
     Parameters

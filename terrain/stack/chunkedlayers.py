@@ -11,7 +11,7 @@ of the in-memory build, in its order:
     (:class:`StackExpandSource`, the local roughness map taken from the filled base);
 ``c`` the craters that belong to layer ``k`` (:class:`terrain.execution.chunked.CraterSource` with
 the
-    layer's crater table, :func:`terrain.stack.layers._layer_craters`);
+    layer's crater table, :func:`terrain.stack.plan.layer_craters`);
 ``r`` the rocks the layer resolves (:class:`RockSource`), on every rock layer;
 ``f`` the agreement step, finest layer first: pixels inside layer ``k + 1`` take its
     co-located pixels (:class:`AgreeSource`).
@@ -26,7 +26,7 @@ halo (the crater halo, the expansion's parent pixels, four chunks of the finer l
 agreement step); the client holds the layers' crater and rock catalogues, never a layer.
 Layers small enough for memory are written as GeoTIFFs (``layer_NN.tif``) as in-memory
 builds write them; larger ones stay Zarr DEMs (``layer_NN.zarr``), which
-:func:`terrain.io.read_dem` and so :func:`terrain.stack.layers.read_stack` open too.
+:func:`terrain.io.read_dem` and so :func:`terrain.stack.store.read_stack` open too.
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ from terrain.core import metakeys as mk
 from terrain.core.errors import InvalidDEMError, InvalidParameterError
 from terrain.core.tile import Window
 from terrain.execution.chunked import OnReaderGrid, filled_field, merge_chunk_catalogs
-from terrain.stack.layers import WORK
+from terrain.stack.store import WORK
 from terrain.surface.rocks import bilinear_at
 
 if TYPE_CHECKING:
@@ -68,7 +68,7 @@ _PLAN = "plan.json"
 
 
 def stack_fits_in_memory(base_shape, shapes) -> bool:
-    """Return whether :func:`terrain.stack.layers.build_stack` may hold a stack in memory.
+    """Return whether :func:`terrain.stack.build.build_stack` may hold a stack in memory.
 
     The stack's layers are of ``shapes`` on a base of ``base_shape`` (its own memory estimate,
     and the input read once).
@@ -247,7 +247,7 @@ class AgreeSource(OnReaderGrid):
     """The agreement step of a layer.
 
     Pixels of a layer inside the next finer layer take its co-located pixels (its even rows
-    and columns), as :func:`terrain.stack.layers.build_stack` does.
+    and columns), as :func:`terrain.stack.build.build_stack` does.
     """
 
     reader: DEMReader  # this layer (after craters and rocks)
@@ -283,7 +283,7 @@ class AgreeSource(OnReaderGrid):
 
 @dataclass(frozen=True)
 class _Layer:
-    """What :func:`terrain.stack.layers._manifest` reads of a layer that is not in memory."""
+    """What :func:`terrain.stack.store.stack_manifest` reads of a layer that is not in memory."""
 
     shape: tuple
     transform: Affine
@@ -297,7 +297,7 @@ class _Layer:
     @property
     def bounds(self):
         """The layer's (left, bottom, right, top) in map metres."""
-        from terrain.stack.layers import layer_bounds
+        from terrain.stack.plan import layer_bounds
 
         return layer_bounds(self.shape, self.transform)
 
@@ -352,7 +352,7 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
                         geotiff_pixels: int | None = None, info=None, inputs=()) -> dict:
     """Build a layer stack chunk by chunk into ``outdir`` and commit it (manifest last).
 
-    Parameters are those of :func:`terrain.stack.layers.build_stack`, with the base given as a
+    Parameters are those of :func:`terrain.stack.build.build_stack`, with the base given as a
     windowed reader (:func:`terrain.execution.chunked.open_reader`), and
 
     estimate : dict, optional
@@ -382,15 +382,8 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
     from terrain.core.rng import check_seed
     from terrain.craters.cratering import CraterModel
     from terrain.execution.chunked import CraterSource, FillSource, estimate_parameters
-    from terrain.stack.layers import (
-        INCOMPLETE,
-        MIN_CRATER_PIXELS,
-        GridShape,
-        _layer_craters,
-        layer_plan,
-        prepare_folder,
-        stack_lock,
-    )
+    from terrain.stack.plan import MIN_CRATER_PIXELS, GridShape, layer_craters, layer_plan
+    from terrain.stack.store import INCOMPLETE, prepare_folder, stack_lock
 
     seed = check_seed(seed)
     if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 0:
@@ -401,7 +394,7 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
             f"min crater pixels must be positive; got {min_crater_pixels}")
     model = model or CraterModel()
     outdir = Path(outdir)
-    from terrain.stack.layers import layer_bounds, site_in_bounds
+    from terrain.stack.plan import layer_bounds, site_in_bounds
 
     base_shape = GridShape(tuple(reader.shape), reader.transform)
     x, y = site_in_bounds(site, layer_bounds(base_shape.shape, reader.transform))
@@ -451,7 +444,7 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
                     k, params, seed, base), work, **common)
             table = None
             if population is not None:
-                table = _layer_craters(population, seed, plan, k, factor, min_crater_pixels)
+                table = layer_craters(population, seed, plan, k, factor, min_crater_pixels)
                 if not len(table):
                     table = None
             if table is not None:
@@ -499,16 +492,8 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
 
         # commit: layer files, catalogues, then the manifest
         from terrain.core.outputs import atomic_path
-        from terrain.stack.layers import (
-            CATALOG,
-            MANIFEST,
-            READERS_LOCK,
-            ROCK_CATALOG,
-            LayerStack,
-            _layers,
-            _manifest,
-            merge_catalogs,
-        )
+        from terrain.stack.model import CATALOG, LayerStack, layer_records, merge_catalogs
+        from terrain.stack.store import MANIFEST, READERS_LOCK, ROCK_CATALOG, stack_manifest
 
         files = []
         for k, store in enumerate(finals):
@@ -541,14 +526,14 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
                     population=population.as_dict() if population else None,
                     crater_model=model.as_dict(), chunked=dict(chunk=chunk, halo=halo))
         layers = [_Layer(sh, tr, reader.crs) for sh, tr in zip(shapes, transforms, strict=True)]
-        stack = LayerStack(_layers(layers, windows, origins), catalog, info, rock_catalog)
+        stack = LayerStack(layer_records(layers, windows, origins), catalog, info, rock_catalog)
         with atomic_path(outdir / CATALOG) as tmp:
             catalog.to_csv(tmp)
         if rock_catalog is not None:
             with atomic_path(outdir / ROCK_CATALOG) as tmp:
                 rock_catalog.to_csv(tmp)
         (outdir / READERS_LOCK).touch()
-        manifest = _manifest(stack, files)
+        manifest = stack_manifest(stack, files)
         manifest["catalog"] = CATALOG
         with atomic_path(outdir / MANIFEST) as tmp:
             tmp.write_text(json.dumps(manifest, indent=2, sort_keys=True), encoding="utf-8")
@@ -588,7 +573,7 @@ def _layer_metadata(reader, k: int, table, seed: int, model) -> dict:
 
 
 def _rock_catalog(rows: dict) -> RockCatalog:
-    """Return the stack's rock catalogue, as :func:`terrain.stack.layers._add_layer_rocks` does."""
+    """Return the stack's rock catalogue, as :func:`terrain.stack.build._add_layer_rocks` does."""
     from terrain.surface.rocks import _OUT, RockTable, rock_catalog
 
     if not rows:

@@ -40,7 +40,7 @@ def _site(spec: EnhanceSpec, reader: Any) -> tuple[float, float]:
 
 
 def _levels(spec: EnhanceSpec, resolution: float) -> int:
-    from terrain.stack.layers import levels_for_resolution
+    from terrain.stack.plan import levels_for_resolution
 
     if spec.finest_resolution is not None:
         return levels_for_resolution(resolution, spec.finest_resolution)
@@ -66,7 +66,7 @@ def _fits(spec: EnhanceSpec, source: Path) -> bool:
     from terrain.execution.chunked import open_reader
     from terrain.io import RasterReader
     from terrain.stack.chunkedlayers import stack_fits_in_memory
-    from terrain.stack.layers import GridShape, layer_plan
+    from terrain.stack.plan import GridShape, layer_plan
 
     if source.is_dir() and is_zarr(source):
         return False  # a Zarr base is read by window
@@ -89,7 +89,8 @@ def enhance(spec: EnhanceSpec, source: Path, output: Path, execution: Execution,
     from terrain.fractal.gapfill import despike
     from terrain.fractal.roughness import RoughnessChoice
     from terrain.io import read_dem
-    from terrain.stack.layers import build_stack, prepare_folder, write_stack
+    from terrain.stack.build import build_stack
+    from terrain.stack.store import prepare_folder, write_stack
 
     asked = execution.chunked or spec.halo is not None
     if execution.cog is not None:
@@ -124,7 +125,8 @@ def _chunked(spec: EnhanceSpec, source: Path, output: Path, execution: Execution
     from terrain.execution.chunked import DEFAULT_CHUNK, dask_client, open_reader
     from terrain.fractal.roughness import LOCAL_BOX
     from terrain.stack.chunkedlayers import build_stack_chunked
-    from terrain.stack.layers import GridShape, layer_plan, prepare_folder
+    from terrain.stack.plan import GridShape, layer_plan
+    from terrain.stack.store import prepare_folder
 
     if spec.despike is not None:
         raise InvalidParameterError("a chunked enhance takes no --despike; run `terrain fill "

@@ -13,7 +13,6 @@ import contextlib
 import dataclasses
 import logging
 import shutil
-import tempfile
 from collections.abc import Callable, Iterable, Sequence
 from contextlib import AbstractContextManager as ContextManager
 from os import PathLike
@@ -234,8 +233,9 @@ def run_out_of_core(source: Any, output: Path, execution: Execution, label: str,
                     inputs: Iterable[Path] = ()) -> Written:
     """Run a request larger than memory chunk by chunk, instead of refusing it.
 
-    The chunks go to a scratch Zarr store beside the output; the output GeoTIFF is written
-    from it as a COG.
+    The chunks go to a scratch Zarr store beside the output (resumed by a rerun of the same
+    request, removed once the output is written); the output GeoTIFF is written from it as a
+    COG.
     """
     from terrain.io import check_output_path
 
@@ -252,20 +252,18 @@ def run_out_of_core(source: Any, output: Path, execution: Execution, label: str,
             "running them out of core needs "
             f"about {memory.format_bytes(need)} of disk in '{parent}', but only "
             f"{memory.format_bytes(free)} is free")
-    chunk = execution.chunk
-    if chunk is None:  # a chunk (with its halo) per worker well inside the memory there is
-        from terrain.execution.chunked import DEFAULT_CHUNK
+    from terrain.execution.chunked import DEFAULT_CHUNK, scratch_store
 
-        halo = getattr(source, "halo", 0)
-        share = memory.available_bytes() / (execution.workers or 1) / 4
-        chunk = DEFAULT_CHUNK
-        while chunk > 64 and (chunk + 2 * halo) ** 2 * 64 > share:
-            chunk //= 2
-    with tempfile.TemporaryDirectory(prefix=f".{output.name}.", dir=parent) as scratch:
+    with scratch_store(source, output, execution.chunk) as (scratch, chunk):
+        if chunk is None:  # a chunk (with its halo) per worker well inside the memory there is
+            halo = getattr(source, "halo", 0)
+            share = memory.available_bytes() / (execution.workers or 1) / 4
+            chunk = DEFAULT_CHUNK
+            while chunk > 64 and (chunk + 2 * halo) ** 2 * 64 > share:
+                chunk //= 2
         log.warning("%s: %dx%d pixels do not fit in memory; running chunk by chunk through "
                     "%s", label, nx, ny, scratch)
-        done = run_chunked(source, Path(scratch) / "out.zarr",
-                           dataclasses.replace(execution, chunk=chunk), label,
+        done = run_chunked(source, scratch, dataclasses.replace(execution, chunk=chunk), label,
                            progress=progress, catalog=catalog, inputs=inputs, cog=output)
     written = (output, catalog) if catalog is not None else (output,)
     return Written(written, done.message)

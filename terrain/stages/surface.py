@@ -104,7 +104,7 @@ def hazards(spec: HazardsSpec, source: Path, output: Path, execution: Execution,
     check_output_path(png, [source, output], suffixes=PNG_SUFFIXES, what="PNG")
     layer = spec.layer
     if source.is_dir():
-        from terrain.stack.layers import read_stack
+        from terrain.stack.store import read_stack
 
         stack = read_stack(source)
         if layer is None:

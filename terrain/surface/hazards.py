@@ -90,6 +90,11 @@ class HazardMap:
                 mk.MAX_STEP_M: repr(self.max_step)}
 
 
+#: Bytes per cell of the footprint's bounding square while the kernels are built: the
+#: (row, col) grid (2 int64), the inside mask, the offsets (2 int64) and four float64 kernels.
+FOOTPRINT_BYTES_PER_CELL = 2 * 8 + 1 + 2 * 8 + 4 * 8
+
+
 def footprint_offsets(lander_diameter: float, resolution: float) -> np.ndarray:
     """(n, 2) int (row, col) offsets of the pixel centres within L / 2 of a pixel's centre."""
     r = lander_diameter / 2 / resolution
@@ -140,9 +145,19 @@ def hazard_map(tile, *, lander_diameter: float, max_slope: float,
 
     res = tile.resolution
     _check(lander_diameter, max_slope, max_step, res)
-    offsets = footprint_offsets(lander_diameter, res)
     ny, nx = tile.shape
-    memory.require(ny * nx * 8 * 24, f"a {nx}x{ny} hazard map")
+    reach = int(math.floor(lander_diameter / 2 / res + 1e-9))  # footprint radius, pixels
+    if 2 * reach + 1 > min(ny, nx):
+        raise InvalidParameterError(
+            f"a lander {lander_diameter:.6g} m across is wider than the DEM "
+            f"({nx}x{ny} pixels of {res:.4g} m): no footprint lies inside it")
+    size = 2 * reach + 1
+    # the footprint's grid, offsets and kernels, then the maps and the FFT's padded planes
+    memory.require(size * size * FOOTPRINT_BYTES_PER_CELL,
+                   f"a {lander_diameter:.6g} m footprint ({size}x{size} pixels)")
+    memory.require(ny * nx * 8 * 24 + (ny + size) * (nx + size) * 16 * 4,
+                   f"a {nx}x{ny} hazard map with a {size}x{size} pixel footprint")
+    offsets = footprint_offsets(lander_diameter, res)
     n = int(np.abs(offsets).max())
     # kernels indexed [n + di, n + dj]; correlation = convolution with the flipped kernel
     size = 2 * n + 1

@@ -54,7 +54,8 @@ def test_slopes_writes_georeferenced_slope_maps_and_distributions(dems, tmp_path
 @pytest.mark.slow
 def test_slopes_of_a_layer_stack_one_distribution_per_layer(tmp_path):
     from terrain.fractal.synthetic import synthesize_tile
-    from terrain.stack.layers import build_stack, write_stack
+    from terrain.stack.build import build_stack
+    from terrain.stack.store import write_stack
 
     base = synthesize_tile(33, resolution=8.0, relief=30.0, seed=3).tile
     folder = write_stack(build_stack(base, (128.0, 128.0), levels=2, layer_size=17, seed=4),
@@ -71,7 +72,8 @@ def test_a_stack_is_compared_with_a_reference_only_where_its_layers_can_be(tmp_p
     """Layers span kilometres to metres: those too coarse for a small reference are skipped
     with a warning (a DEM given alone is refused instead, with one line)."""
     from terrain.fractal.synthetic import synthesize_tile
-    from terrain.stack.layers import build_stack, write_stack
+    from terrain.stack.build import build_stack
+    from terrain.stack.store import write_stack
 
     base = synthesize_tile(129, resolution=8.0, relief=30.0, seed=3).tile
     folder = write_stack(build_stack(base, (512.0, 512.0), levels=2, layer_size=129, seed=4),

@@ -20,7 +20,8 @@ def dem(tmp_path):
 @pytest.fixture
 def stack(tmp_path):
     from terrain.fractal.synthetic import synthesize_tile
-    from terrain.stack.layers import build_stack, write_stack
+    from terrain.stack.build import build_stack
+    from terrain.stack.store import write_stack
 
     base = synthesize_tile(33, resolution=8.0, relief=30.0, seed=3).tile
     return write_stack(build_stack(base, (128.0, 128.0), levels=1, layer_size=17, seed=4),

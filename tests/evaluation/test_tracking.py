@@ -343,7 +343,8 @@ def test_tracking_a_sequence_from_the_gl_renderer(tmp_path):
 
     from terrain.craters.population import Population
     from terrain.fractal.synthetic import synthesize_tile
-    from terrain.stack.layers import build_stack, write_stack
+    from terrain.stack.build import build_stack
+    from terrain.stack.store import write_stack
 
     base = synthesize_tile(129, resolution=20.0, relief=300.0, seed=3).tile
     stack = build_stack(base, (1290.0, 1290.0), levels=2, layer_size=129, seed=4,

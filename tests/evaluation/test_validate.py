@@ -145,7 +145,7 @@ def test_fresh_crater_walls_everywhere_fail_on_the_angle_of_repose():
 
 def test_a_layer_stack_is_judged_layer_by_layer():
     from terrain.fractal.synthetic import synthesize_tile
-    from terrain.stack.layers import build_stack
+    from terrain.stack.build import build_stack
 
     base = synthesize_tile(65, resolution=8.0, relief=30.0, seed=3).tile
     stack = build_stack(base, (256.0, 256.0), levels=1, layer_size=65, seed=4)

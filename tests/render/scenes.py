@@ -9,7 +9,8 @@ def cratered_stack(folder: Path) -> Path:
     """Write a three-layer stack (65 px of 100 m, layers of 33 px, craters from 1 m) there."""
     from terrain.craters.population import Population
     from terrain.fractal.synthetic import synthesize_tile
-    from terrain.stack.layers import build_stack, write_stack
+    from terrain.stack.build import build_stack
+    from terrain.stack.store import write_stack
 
     base = synthesize_tile(65, resolution=100.0, relief=500.0, seed=3).tile
     stack = build_stack(base, (3250.0, 3250.0), levels=2, layer_size=33, seed=4,

@@ -14,7 +14,7 @@ from render.terrain_scene import TerrainScene
 from terrain.core.errors import InvalidParameterError
 from terrain.core.tile import DEMTile
 from terrain.craters.catalog import CraterCatalog
-from terrain.stack.layers import Layer, LayerStack
+from terrain.stack.model import Layer, LayerStack
 
 LIGHT = Lighting((0.3, -0.5, 0.8), albedo=0.2, brdf="lommel-seeliger")
 K = Intrinsics.from_fov(96, 96, 40.0)

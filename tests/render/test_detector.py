@@ -12,7 +12,7 @@ from render.terrain_scene import TerrainScene
 from terrain.core.errors import InvalidParameterError, MissingInputError
 from terrain.core.tile import DEMTile
 from terrain.craters.catalog import CraterCatalog
-from terrain.stack.layers import Layer, LayerStack
+from terrain.stack.model import Layer, LayerStack
 
 K = Intrinsics.from_fov(128, 128, 20.0)
 

@@ -8,7 +8,7 @@ from render.renderer import Lighting, RenderOptions, View
 from render.terrain_scene import TerrainScene
 from terrain.core.tile import DEMTile
 from terrain.craters.catalog import CraterCatalog
-from terrain.stack.layers import Layer, LayerStack
+from terrain.stack.model import Layer, LayerStack
 
 LIGHT = Lighting.from_angles(135.0, 40.0, albedo=0.2, brdf="lambert")
 
@@ -117,7 +117,7 @@ def test_range_of_a_sphere_matches_the_analytic_range(renderer):
 def test_no_background_shows_through_layer_seams(renderer):
     from terrain.craters.population import Population
     from terrain.fractal.synthetic import synthesize_tile
-    from terrain.stack.layers import build_stack
+    from terrain.stack.build import build_stack
 
     base = synthesize_tile(65, resolution=64.0, relief=600.0, seed=4).tile
     site = (2080.0, 2080.0)

@@ -25,7 +25,7 @@ SITE = (2080.0, 2080.0)
 def scene():
     from terrain.craters.population import Population
     from terrain.fractal.synthetic import synthesize_tile
-    from terrain.stack.layers import build_stack
+    from terrain.stack.build import build_stack
 
     base = synthesize_tile(65, resolution=64.0, relief=600.0, seed=4).tile
     stack = build_stack(base, SITE, levels=3, layer_size=33, seed=2,
@@ -218,7 +218,7 @@ def test_the_normal_texture_lies_where_its_pixels_are(renderer):
     shifted."""
     from terrain.core.tile import DEMTile
     from terrain.craters.catalog import CraterCatalog
-    from terrain.stack.layers import Layer, LayerStack
+    from terrain.stack.model import Layer, LayerStack
 
     n = 65
     rows, cols = np.mgrid[0:n, 0:n].astype(np.float64)

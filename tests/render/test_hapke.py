@@ -15,7 +15,7 @@ from render.terrain_scene import TerrainScene
 from terrain.core.errors import InvalidParameterError
 from terrain.core.tile import DEMTile
 from terrain.craters.catalog import CraterCatalog
-from terrain.stack.layers import Layer, LayerStack
+from terrain.stack.model import Layer, LayerStack
 
 
 def hapke_from_the_papers(i, e, g, w, b, c, bs0, hs, bc0, hc, theta_deg, phi):

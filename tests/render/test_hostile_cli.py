@@ -24,7 +24,8 @@ def _session_context_current_again(gl):
 @pytest.fixture(scope="module")
 def stack_dir(tmp_path_factory, gl):
     from terrain.fractal.synthetic import synthesize_tile
-    from terrain.stack.layers import build_stack, write_stack
+    from terrain.stack.build import build_stack
+    from terrain.stack.store import write_stack
 
     base = synthesize_tile(65, resolution=100.0, relief=500.0, seed=3).tile
     stack = build_stack(base, (3250.0, 3250.0), levels=1, layer_size=33, seed=4)

@@ -16,7 +16,7 @@ from render.trajectory import keyframes
 from terrain.core.errors import InvalidParameterError
 from terrain.core.tile import DEMTile
 from terrain.craters.catalog import CraterCatalog
-from terrain.stack.layers import Layer, LayerStack
+from terrain.stack.model import Layer, LayerStack
 
 K = Intrinsics.from_fov(128, 128, 60.0)
 H = 100.0

@@ -35,7 +35,7 @@ def test_every_scene_has_a_reach_that_encloses_what_turns(tmp_path):
     from asteroid.sphere import SphereMesh
     from terrain.core.tile import DEMTile
     from terrain.craters.catalog import CraterCatalog
-    from terrain.stack.layers import Layer, LayerStack
+    from terrain.stack.model import Layer, LayerStack
 
     mesh = SphereMesh(8)
     radii = 100.0 + 20.0 * mesh.directions()[:, 0] ** 2

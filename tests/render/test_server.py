@@ -233,7 +233,7 @@ def test_a_c_client_written_from_the_spec(server, reference, tmp_path):
 # ---------------------------------------------------------------- surface queries
 def test_height_normal_and_rays_agree_with_the_dem(server, stack_dir):
     from render.client import Client
-    from terrain.stack.layers import read_stack
+    from terrain.stack.store import read_stack
 
     tile = read_stack(stack_dir).tiles[-1]
     r, col = 10, 20

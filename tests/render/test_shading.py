@@ -13,7 +13,7 @@ from render.terrain_scene import TerrainScene
 from terrain.core.tile import DEMTile
 from terrain.craters.catalog import Crater, CraterCatalog, CraterTable
 from terrain.craters.cratering import CraterModel, add_craters
-from terrain.stack.layers import Layer, LayerStack
+from terrain.stack.model import Layer, LayerStack
 
 GOLDEN = Path(__file__).with_name("golden")
 UPDATE = os.environ.get("CRATERSCAPE_UPDATE_GOLDEN") == "1"

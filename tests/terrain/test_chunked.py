@@ -363,3 +363,121 @@ def test_a_float64_input_is_refused_by_chunked_runs_so_no_known_height_is_rounde
         dst.write(heights, 1)
     one_line_error(cli("terrain", "expand", path, "-o", tmp_path / "x.zarr"), "float64",
                    "Float32")
+
+
+# ------------------------------------------------------------ a resume trusts only what is there
+
+
+def _chunk_file(store_path, i, j):
+    return Path(store_path, "height", f"{i}.{j}")
+
+
+@pytest.mark.parametrize("damage", ["removed", "truncated", "flipped"])
+def test_a_resume_recomputes_a_chunk_whose_file_no_longer_matches_its_marker(tmp_path, damage):
+    out = tmp_path / "m.zarr"
+    with pytest.raises(Interrupted):
+        run(StopsAfter(129, seed=3), out, chunk=32)
+    victim = _chunk_file(out, 1, 2)
+    data = victim.read_bytes()
+    if damage == "removed":
+        victim.unlink()
+    elif damage == "truncated":
+        victim.write_bytes(data[: len(data) // 2])
+    else:
+        victim.write_bytes(data[:-9] + bytes([data[-9] ^ 0xFF]) + data[-8:])
+    assert (out / "chunks" / "1_2.npz").exists()  # the marker stays
+    report = run(SynthSource(129, seed=3), out, chunk=32)
+    assert (1, 2) in report.computed_chunks and report.skipped == 9
+    assert np.array_equal(stored(out), synthesize_tile(129, seed=3).tile.heights)
+
+
+def test_a_resume_recomputes_a_chunk_whose_marker_is_unreadable(tmp_path):
+    out = tmp_path / "u.zarr"
+    with pytest.raises(Interrupted):
+        run(StopsAfter(129, seed=3), out, chunk=32)
+    (out / "chunks" / "0_3.npz").write_bytes(b"not a marker")
+    report = run(SynthSource(129, seed=3), out, chunk=32)
+    assert (0, 3) in report.computed_chunks and report.skipped == 9
+    assert np.array_equal(stored(out), synthesize_tile(129, seed=3).tile.heights)
+
+
+def test_a_corrupt_chunk_or_marker_of_a_finished_store_is_one_line_naming_it(tmp_path):
+    from terrain.core.errors import InvalidDEMError
+
+    out = tmp_path / "c.zarr"
+    run(SynthSource(65, seed=1, craters=POP), out, chunk=32)
+    victim = _chunk_file(out, 1, 0)
+    victim.write_bytes(b"\x00" * 40)
+    with pytest.raises(InvalidDEMError, match=r"c\.zarr.*chunk 1,0"):
+        ZarrDEM(out).read()
+    result = cli("terrain", "cog", out, "-o", tmp_path / "c.tif")
+    one_line_error(result, "chunk 1,0")
+    assert not (tmp_path / "c.tif").exists()
+    (out / "chunks" / "0_1.npz").write_bytes(b"junk")
+    with pytest.raises(InvalidDEMError, match="0_1.npz"):
+        ZarrDEM(out).chunk_catalog(0, 1)
+
+
+@dataclass(frozen=True)
+class CannotAllocate(SynthSource):
+    """Synthesis whose first chunk fails (as a chunk too large for memory does)."""
+
+    def compute(self, window):
+        raise MemoryError("Unable to allocate 37.3 GiB")
+
+
+def test_a_chunk_larger_than_the_dem_is_clamped_and_a_failed_start_leaves_no_store(tmp_path):
+    out = tmp_path / "big.zarr"
+    report = run(SynthSource(65, seed=1), out, chunk=100_000)
+    assert report.total == 1
+    assert ZarrDEM(out).chunk == 65
+    assert np.array_equal(stored(out), synthesize_tile(65, seed=1).tile.heights)
+    failed = tmp_path / "failed.zarr"
+    with pytest.raises(MemoryError):
+        run(CannotAllocate(129, seed=3), failed, chunk=64)  # no chunk gets done
+    assert not failed.exists()
+    run(SynthSource(129, seed=3), failed, chunk=32)  # nothing blocks another chunk size
+
+
+def test_no_listener_of_the_local_cluster_binds_a_non_loopback_address(client):
+    import ipaddress
+
+    import psutil
+
+    me = psutil.Process()
+    listening = [c.laddr for p in (me, *me.children(recursive=True))
+                 for c in p.net_connections(kind="inet") if c.status == psutil.CONN_LISTEN]
+    assert listening
+    exposed = [a for a in listening if not ipaddress.ip_address(a.ip).is_loopback]
+    assert not exposed, exposed
+
+
+def test_the_scratch_store_of_an_out_of_core_run_is_found_again_only_by_the_same_request(
+        tmp_path):
+    from terrain.execution.chunked import scratch_path, scratch_store
+
+    out = tmp_path / "k.tif"
+    same = scratch_path(SynthSource(129, seed=3), out)
+    assert same == scratch_path(SynthSource(129, seed=3), out)
+    assert same.parent == tmp_path and same.name.startswith(".k.tif.")
+    assert scratch_path(SynthSource(129, seed=4), out) != same
+    assert scratch_path(SynthSource(129, seed=3), tmp_path / "l.tif") != same
+    with pytest.raises(Interrupted), scratch_store(StopsAfter(129, seed=3), out) as (path, _):
+        run(StopsAfter(129, seed=3), path, chunk=32)
+    assert path == same and len(ZarrDEM(path).done_chunks()) == 10  # kept for the rerun
+    with scratch_store(SynthSource(129, seed=3), out) as (path, chunk):
+        assert chunk == 32  # the interrupted run's chunk side, so it resumes
+        assert run(SynthSource(129, seed=3), path, chunk=chunk).skipped == 10
+    assert not path.exists()
+
+
+def test_a_finished_store_missing_a_chunk_is_refused_instead_of_read_as_a_hole(tmp_path):
+    from terrain.core.errors import InvalidDEMError
+
+    out = tmp_path / "h.zarr"
+    run(SynthSource(65, seed=1), out, chunk=32)
+    _chunk_file(out, 1, 1).unlink()
+    with pytest.raises(InvalidDEMError, match=r"h\.zarr.*chunk 1,1"):
+        open_reader(out)
+    one_line_error(cli("terrain", "cog", out, "-o", tmp_path / "h.tif"), "chunk 1,1")
+    assert not (tmp_path / "h.tif").exists()

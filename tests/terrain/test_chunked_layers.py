@@ -17,8 +17,9 @@ from terrain.craters.population import Population
 from terrain.execution.chunked import dask_client, open_reader
 from terrain.fractal.synthetic import synthesize_tile
 from terrain.io import read_dem, write_dem
+from terrain.stack.build import build_stack
 from terrain.stack.chunkedlayers import build_stack_chunked
-from terrain.stack.layers import INCOMPLETE, build_stack, read_stack, write_stack
+from terrain.stack.store import INCOMPLETE, read_stack, write_stack
 from terrain.surface.rocks import RockModel
 from tests.cli_helpers import one_line_error
 from tests.cli_helpers import run as cli

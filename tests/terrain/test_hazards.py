@@ -93,3 +93,25 @@ def test_cli_writes_three_bands_safe_fraction_and_png(tmp_path):
                        "--lander-diameter", 2, "--max-slope", 12, "--max-step", -1),
                    "max step must be positive")
     assert not (tmp_path / "x.tif").exists()
+
+
+def test_a_lander_wider_than_the_dem_is_refused_before_anything_is_allocated(monkeypatch):
+    import terrain.surface.hazards as hz
+
+    def no_footprint(*args):
+        raise AssertionError("the footprint was built before the request was checked")
+
+    monkeypatch.setattr(hz, "footprint_offsets", no_footprint)
+    with pytest.raises(InvalidParameterError, match="wider than the DEM"):
+        hazard_map(plane(1, 0), lander_diameter=1e6, max_slope=10, max_step=0.3)
+
+
+def test_a_footprint_too_large_for_memory_is_refused_first(monkeypatch):
+    from terrain.core.errors import MemoryRequestError
+
+    tile = plane(1, 0)
+    ny, nx = tile.shape
+    monkeypatch.setenv("CRATERSCAPE_MEMORY_LIMIT", str(ny * nx * 8 * 24 + 1000))
+    with pytest.raises(MemoryRequestError, match="footprint"):
+        hazard_map(tile, lander_diameter=0.9 * nx * tile.resolution, max_slope=10,
+                   max_step=0.3)

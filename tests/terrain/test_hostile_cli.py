@@ -16,8 +16,15 @@ from affine import Affine
 
 from terrain.fractal.synthetic import synthesize_tile
 from terrain.io import write_dem
-from terrain.stack.layers import INCOMPLETE, MANIFEST
-from tests.cli_helpers import file_size_limit, refused, run, snapshot, unwritable_folder
+from terrain.stack.store import INCOMPLETE, MANIFEST
+from tests.cli_helpers import (
+    file_size_limit,
+    one_line_error,
+    refused,
+    run,
+    snapshot,
+    unwritable_folder,
+)
 
 
 @pytest.fixture
@@ -302,3 +309,82 @@ def test_sigterm_during_expand_leaves_no_partial_file(tmp_path, dem):
     if proc.returncode == 143:
         assert not out.exists() and "Traceback" not in err and err.strip().endswith(
             "terminated")
+
+
+# ------------------------------------------------------ 15. a killed out-of-core run resumes
+
+
+def test_a_killed_out_of_core_geotiff_run_resumes_and_cleans_its_scratch(tmp_path, monkeypatch):
+    from terrain.execution.chunked import SynthSource
+
+    small = {"CRATERSCAPE_MEMORY_LIMIT": "400K"}  # a 129 x 129 synthesis does not fit
+    whole = tmp_path / "whole.tif"
+    assert run("terrain", "synth", "--size", 129, "--seed", 4, "-o", whole).exit_code == 0
+    out = tmp_path / "k.tif"
+    compute = SynthSource.compute
+    calls = []
+
+    def killed_after_four(self, window):
+        if len(calls) == 4:
+            raise KeyboardInterrupt  # the run is killed part way
+        calls.append(window)
+        return compute(self, window)
+
+    monkeypatch.setattr(SynthSource, "compute", killed_after_four)
+    assert run("terrain", "synth", "--size", 129, "--seed", 4, "-o", out,
+               env=small).exit_code == 130
+    monkeypatch.setattr(SynthSource, "compute", compute)
+    left = [p for p in tmp_path.iterdir() if p.name.startswith(".k.tif.")]
+    assert len(left) == 1 and not out.exists()
+    other = run("terrain", "synth", "--size", 129, "--seed", 5, "-o", tmp_path / "o.tif",
+                env=small)  # another request keeps to its own scratch
+    assert other.exit_code == 0 and left[0].exists()
+    again = run("terrain", "synth", "--size", 129, "--seed", 4, "-o", out, env=small)
+    assert again.exit_code == 0, again.output
+    assert "4 already written" in again.output
+    with rasterio.open(whole) as a, rasterio.open(out) as b:
+        assert np.array_equal(a.read(1), b.read(1))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["k.tif", "o.tif", "whole.tif"]
+
+
+def test_a_chunk_larger_than_the_dem_is_clamped_and_leaves_nothing_else(tmp_path):
+    out = tmp_path / "c.zarr"
+    result = run("terrain", "synth", "--size", 65, "--chunk", 100_000, "-o", out)
+    assert result.exit_code == 0, result.output
+    assert "1 of 1 chunks computed" in result.output
+
+
+def test_a_crater_too_small_for_the_stack_is_refused(tmp_path, dem):
+    stack = tmp_path / "stack"
+    assert run("terrain", "enhance", dem, "-o", stack, "--site", "64,64", "--levels", 1,
+               "--layer-size", 33).exit_code == 0
+    before = snapshot(stack)
+    refused(run("terrain", "replace-crater", stack, "--at", "64,64", "--diameter", 0.001),
+            before, fragments=["0.001", "resolves"], folder=tmp_path)
+
+
+def test_a_lander_wider_than_the_dem_is_one_line(tmp_path, dem):
+    before = snapshot(dem)
+    out = tmp_path / "h.tif"
+    refused(run("terrain", "hazards", dem, "-o", out, "--lander-diameter", 1e6,
+                "--max-slope", 10, "--max-step", 0.3), before, out, tmp_path / "h.png",
+            fragments=["wider than the DEM"], folder=tmp_path)
+
+
+def test_a_population_file_nested_50000_deep_is_one_line(tmp_path):
+    deep = tmp_path / "deep.toml"
+    deep.write_text("[population]\ndmin = " + "[" * 50_000 + "]" * 50_000 + "\n")
+    before = snapshot(deep)
+    out = tmp_path / "o.tif"
+    refused(run("terrain", "synth", "--size", 33, "--population", deep, "-o", out), before,
+            out, fragments=["deep.toml", "nests deeper"], folder=tmp_path)
+
+
+def test_a_full_disk_names_the_path_it_could_not_write(tmp_path):
+    assert run("terrain", "synth", "--size", 129, "--chunk", 64, "-o",
+               tmp_path / "warm.zarr").exit_code == 0  # compiled kernels are cached
+    with file_size_limit(2_000):
+        result = run("terrain", "synth", "--size", 129, "--chunk", 64, "-o",
+                     tmp_path / "full.zarr")
+    one_line_error(result, "full.zarr", "File too large")
+    assert "'output'" not in result.output

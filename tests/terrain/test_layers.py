@@ -14,15 +14,11 @@ from terrain.core.errors import InvalidDEMError, InvalidParameterError, MemoryRe
 from terrain.craters.cratering import CraterModel
 from terrain.craters.population import Population
 from terrain.fractal.synthetic import synthesize_tile
-from terrain.stack.layers import (
-    MIN_CRATER_PIXELS,
-    Layer,
-    LayerStack,
-    build_stack,
-    read_stack,
-    replace_crater,
-    write_stack,
-)
+from terrain.stack.build import build_stack
+from terrain.stack.edit import replace_crater
+from terrain.stack.model import Layer, LayerStack
+from terrain.stack.plan import MIN_CRATER_PIXELS
+from terrain.stack.store import read_stack, write_stack
 
 POP = Population(dmin=1.0, dmax=40000.0, density=1e5, max_age=2.0)
 
@@ -214,7 +210,7 @@ def test_more_levels_than_memory_allows_is_refused(monkeypatch):
 
 @given(st.floats(1e-3, 1e4), st.floats(1e-3, 1e4))
 def test_levels_for_resolution_is_the_fewest_that_reach_the_finest(base, finest):
-    from terrain.stack.layers import MAX_LEVELS, levels_for_resolution
+    from terrain.stack.plan import MAX_LEVELS, levels_for_resolution
 
     try:
         levels = levels_for_resolution(base, finest)
@@ -223,3 +219,18 @@ def test_levels_for_resolution_is_the_fewest_that_reach_the_finest(base, finest)
         return
     assert base / 2**levels <= finest * (1 + 1e-9)
     assert levels == 0 or base / 2 ** (levels - 1) > finest * (1 - 1e-9)
+
+
+def test_a_crater_below_what_its_layer_resolves_is_refused_and_nothing_moves(stack, tmp_path):
+    from tests.cli_helpers import snapshot
+
+    out = write_stack(stack, tmp_path / "stack")
+    before = snapshot(out)
+    x, y = stack.tiles[-1].xy(64, 64)
+    finest = stack.tiles[-1].resolution
+    for diameter in (0.001, 0.5 * finest, 3.9 * finest):
+        with pytest.raises(InvalidParameterError, match="resolves"):
+            replace_crater(out, float(x), float(y), diameter)
+    assert snapshot(out) == before  # no known height moved, no crater recorded
+    done = replace_crater(out, float(x), float(y), 4.0 * finest)
+    assert done["layer"] == len(stack.tiles) - 1

@@ -68,3 +68,28 @@ def test_only_temporaries_of_dead_processes_are_swept(tmp_path):
     alive.write_text("")
     assert sweep_partials(tmp_path) == [gone]
     assert alive.exists()
+
+
+def test_a_write_error_without_a_file_name_names_the_output_being_written(tmp_path):
+    import errno
+
+    from terrain.core.outputs import cannot_write
+
+    full = OSError(errno.EFBIG, "File too large")  # what a failed write() raises: no filename
+    with atomic_path(tmp_path / "x.tif"):
+        message = str(cannot_write(None, full))
+    assert message == f"cannot write '{tmp_path / 'x.tif'}': File too large"
+    named = OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "y.csv"))
+    assert str(cannot_write(None, named)) == (f"cannot write '{tmp_path / 'y.csv'}': "
+                                              "No space left on device")
+    assert "'output'" not in str(cannot_write(None, full))
+
+
+def test_a_full_disk_under_a_zarr_store_names_the_chunk(tmp_path):
+    from terrain.execution.chunked import SynthSource, run
+    from tests.cli_helpers import file_size_limit
+
+    run(SynthSource(129, seed=1), tmp_path / "warm.zarr", chunk=64)  # compiled kernels cached
+    with file_size_limit(2_000), pytest.raises(OutputPathError) as info:
+        run(SynthSource(129, seed=1), tmp_path / "full.zarr", chunk=64)
+    assert "full.zarr" in str(info.value) and "File too large" in str(info.value)

@@ -181,7 +181,8 @@ def test_heights_leave_out_rocks_the_tile_cannot_resolve():
 
 def test_layer_stack_puts_each_rock_in_every_layer_that_resolves_it(tmp_path):
     from terrain.fractal.synthetic import synthesize_tile
-    from terrain.stack.layers import build_stack, read_stack, write_stack
+    from terrain.stack.build import build_stack
+    from terrain.stack.store import read_stack, write_stack
 
     base = synthesize_tile(65, resolution=4.0, relief=3.0, seed=2).tile
     site = (130.0, 130.0)
@@ -237,7 +238,8 @@ def test_any_window_equals_the_full_run_bitwise(col, row, w, h, seed):
 
 def _rocky_stack(folder):
     from terrain.fractal.synthetic import synthesize_tile
-    from terrain.stack.layers import build_stack, write_stack
+    from terrain.stack.build import build_stack
+    from terrain.stack.store import write_stack
 
     base = synthesize_tile(65, resolution=4.0, relief=3.0, seed=2).tile
     model = RockModel.from_spec("golombek:k=0.15,dmin=0.25")
@@ -278,7 +280,8 @@ def _resting_misfit(stack, sel):
 
 
 def test_every_rock_rests_on_the_terrain_after_a_crater_replacement(tmp_path):
-    from terrain.stack.layers import read_stack, replace_crater
+    from terrain.stack.edit import replace_crater
+    from terrain.stack.store import read_stack
 
     folder = _rocky_stack(tmp_path / "s")
     before = read_stack(folder)

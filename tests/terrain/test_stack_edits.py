@@ -16,15 +16,9 @@ import pytest
 
 from terrain.craters.population import Population
 from terrain.fractal.synthetic import synthesize_tile
-from terrain.stack.layers import (
-    LOCK,
-    MANIFEST,
-    READERS_LOCK,
-    build_stack,
-    read_stack,
-    replace_crater,
-    write_stack,
-)
+from terrain.stack.build import build_stack
+from terrain.stack.edit import replace_crater
+from terrain.stack.store import LOCK, MANIFEST, READERS_LOCK, read_stack, write_stack
 
 KILLS = 24
 
@@ -38,8 +32,9 @@ def stack_folder(tmp_path):
 
 
 def _edit(folder, i):
-    # small craters near the site, each in the finest layer; positions differ per edit
-    replace_crater(folder, 1650.0 + 3.0 * (i % 7), 1650.0 - 2.0 * (i % 5), 20.0 + i % 4)
+    # the smallest craters the finest layer resolves (4 of its 25 m pixels), near the site,
+    # each in the finest layer; positions differ per edit
+    replace_crater(folder, 1650.0 + 3.0 * (i % 7), 1650.0 - 2.0 * (i % 5), 100.0 + i % 4)
 
 
 def _check_consistent(folder, base_rows):
