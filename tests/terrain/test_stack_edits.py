@@ -1,4 +1,4 @@
-"""Layer-stack edits under kills and concurrent readers (issue 17: nothing lost or stale).
+"""Layer-stack edits under kills and concurrent readers: nothing lost or stale.
 
 Edits run in forked children that are SIGKILLed at random moments; every stack that
 survives must be consistent: the manifest, the catalogue it names and the layers it names
