@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from terrain.core import metakeys as mk
+from terrain.core.checks import check_keys
 from terrain.core.errors import InvalidDEMError, InvalidParameterError, MissingInputError
 from terrain.core.outputs import remove_path
 from terrain.craters.catalog import CraterCatalog, RockCatalog
@@ -68,6 +69,17 @@ _LOCKS = (LOCK, READERS_LOCK, INCOMPLETE)
 #: Seconds an edit waits for another edit of the same stack before giving up.
 LOCK_TIMEOUT = 600.0
 FORMAT = "craterscape-layer-stack"
+#: Keys of a manifest: its own, then the provenance its builders, edits and the enhance stage
+#: record (``LayerStack.info``). A manifest is machine-written, so any other key is refused
+#: both when it is written and when it is read.
+MANIFEST_KEYS = frozenset({
+    "format", "version", "crs", "layers", "catalog", "crater_counts",
+    "base_filled_pixels", "base_fill_roughness", "rocks", "rock_catalog", "rock_counts", "seed",
+    "site", "levels", "layer_size", "expansion", "min_crater_pixels", "population",
+    "crater_model", "chunked", "source", "command", "craterscape_version", "edits"})
+#: Keys of each layer's entry in a manifest.
+LAYER_KEYS = frozenset({"level", "file", "resolution", "width", "height", "bounds", "transform",
+                        "parent", "window_in_parent", "origin"})
 
 
 def stack_manifest(stack: LayerStack, files: list[str]) -> dict:
@@ -98,8 +110,10 @@ def stack_manifest(stack: LayerStack, files: list[str]) -> dict:
     layer = stack.catalog.layer
     counts = np.bincount(layer, minlength=len(stack.tiles)).tolist() \
         if layer is not None and len(layer) else [0] * len(stack.tiles)
-    return dict(format=FORMAT, version=1, crs=stack.tiles[0].crs, layers=layers,
-                catalog=CATALOG, crater_counts=counts, **stack.info)
+    manifest = dict(format=FORMAT, version=1, crs=stack.tiles[0].crs, layers=layers,
+                    catalog=CATALOG, crater_counts=counts, **stack.info)
+    check_keys(manifest, MANIFEST_KEYS, "layer-stack manifest")
+    return manifest
 
 
 def prepare_folder(outdir, *, inputs=(), keep=()) -> Path:
@@ -188,6 +202,7 @@ def write_stack(stack: LayerStack, outdir, *, inputs=()) -> Path:
         ``outdir``: ``manifest.json``, ``layer_NN.tif`` and ``craters.csv`` (and
         ``rocks.csv`` with rocks).
     """
+    check_keys(stack.info, MANIFEST_KEYS, "layer-stack manifest")  # before anything is made
     outdir = prepare_folder(outdir, inputs=inputs)
     if outdir.exists() and not outdir.is_dir():
         raise InvalidParameterError(f"output '{outdir}' exists and is not a folder")
@@ -392,7 +407,10 @@ def _read_stack(outdir: Path) -> LayerStack:
         manifest = json.loads(mpath.read_text(encoding="utf-8"))
         if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
             raise ValueError("not a craterscape layer stack")
+        check_keys(manifest, MANIFEST_KEYS, "layer-stack manifest")
         layers = manifest["layers"]
+        for entry in layers:
+            check_keys(entry, LAYER_KEYS, "layer-stack manifest layer")
         files = [entry["file"] for entry in layers]
         windows = [None if e["window_in_parent"] is None else tuple(e["window_in_parent"])
                    for e in layers]

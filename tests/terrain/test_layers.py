@@ -194,6 +194,20 @@ def test_corrupt_manifest_is_a_clear_error(stack, tmp_path):
         replace_crater(out, SITE[0], SITE[1], 100.0)
 
 
+@pytest.mark.parametrize("where", ["top", "layer"])
+def test_a_manifest_key_no_writer_writes_is_refused_by_name(stack, tmp_path, where):
+    """A manifest is machine-written: a key nobody writes means a foreign or altered file."""
+    out = write_stack(stack, tmp_path / "s")
+    manifest = json.loads((out / "manifest.json").read_text())
+    (manifest if where == "top" else manifest["layers"][1])["sead"] = 3
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(InvalidDEMError, match="'sead'"):
+        read_stack(out)
+    with pytest.raises(InvalidParameterError, match="unknown layer-stack manifest key 'note'"):
+        write_stack(stack.with_info(note="x"), tmp_path / "t")
+    assert not (tmp_path / "t").exists()
+
+
 def test_bad_requests():
     with pytest.raises(InvalidParameterError, match="outside the DEM"):
         build_stack(base(), (-5.0, 3.0), levels=2, layer_size=65)
