@@ -51,7 +51,7 @@ def test_a_run_as_written_reads_back(run_dir):
 def test_an_unknown_key_in_the_truth_file_is_refused_by_name(run_dir, change, key, near):
     _edit(run_dir / "truth.json", change)
     for read in (lambda: RunReader(run_dir), lambda: RunWriter(run_dir, {}, resume=True)):
-        with pytest.raises(InvalidParameterError, match=f"key '{key}' .did you mean '{near}'"):
+        with pytest.raises(InvalidParameterError, match=f"key '{key}' .*'{near}'"):
             read()
 
 
@@ -63,5 +63,5 @@ def test_an_unknown_key_in_the_truth_file_is_refused_by_name(run_dir, change, ke
 def test_an_unknown_key_in_the_manifest_is_refused_by_name(run_dir, change, key, near):
     _edit(run_dir / "manifest.json", change)
     for read in (lambda: RunReader(run_dir), lambda: RunWriter(run_dir, {}, resume=True)):
-        with pytest.raises(InvalidParameterError, match=f"key '{key}' .did you mean '{near}'"):
+        with pytest.raises(InvalidParameterError, match=f"key '{key}' .*'{near}'"):
             read()
