@@ -5,17 +5,19 @@ The project's target (its issue): 100,000 craters (D 4-500 m, k = -2) on a 4097^
 crater (a Blender-based peer reports about 220).
 
 Every configuration runs in its own child process (this script re-invoked with ``--child``),
-so that the peak resident set size (``ru_maxrss``) of each is isolated. A child first does a
-small warm-up call with both crater models (numba compiles, or loads its on-disk cache), then
-repeats the timed call and reports median, min and max wall time. Each benchmark compares
-against a baseline measured in the same run:
+so that the peak resident set size of each is its own. A child first does a small warm-up
+call with both crater models (numba compiles, or loads its on-disk cache), then times one
+call. The configurations run in rounds (``--repeat``), alternating: base, default, smooth,
+window, then the reverse, and so on, so that the baseline is measured interleaved with what
+it is compared with; each reports median, min and max over its rounds. Each benchmark
+compares against a baseline measured in the same run:
 
 * ``tile``: the RMD base alone (baseline) vs base + craters with the default model
   (roughness overlay and irregular rims on) and with ``CraterModel().smooth()``; the crater
   cost is the difference of the medians, divided by the number of craters touching the tile.
 * ``window``: a window of the same cratered tile vs the full tile (the default-model
-  configuration above); the child also checks that the window equals the same pixels of a
-  full tile it computes once, bitwise.
+  configuration above); the first round's child also checks that the window equals the same
+  pixels of a full tile it computes once, bitwise.
 
 Usage::
 
@@ -34,8 +36,7 @@ import sys
 import time
 from pathlib import Path
 
-from _common import logger, machine_facts, peak_rss_bytes, summary
-from _common import run_child as _run_child
+from _common import logger, machine_facts, peak_rss_bytes, pool, run_rounds, summary
 
 ROOT = Path(__file__).resolve().parent.parent
 log = logger("bench-craters")
@@ -135,26 +136,21 @@ def child_window(spec: dict) -> dict:
         del result
         log(f"  window run {i + 1}/{spec['repeat']}: {times[-1]:.3f} s")
     peak_window = peak_rss_bytes()
+    out = dict(warmup_s=warmup_s, wall=summary(times), n_craters=n_craters,
+               peak_rss_window_bytes=peak_window)
+    if spec.get("round", 0) > 0:
+        return out  # the first round checks the window against a full tile
     t0 = time.perf_counter()
     full = _synth(spec)
     full_s = time.perf_counter() - t0
     log(f"  full tile for the exactness check: {full_s:.3f} s")
     rows, cols = window.slices
     same = bool(np.array_equal(part, full.tile.heights[rows, cols]))
-    return dict(warmup_s=warmup_s, wall=summary(times), n_craters=n_craters,
-                peak_rss_window_bytes=peak_window, full_tile_single_s=full_s,
-                bitwise_equal_to_full_tile=same)
+    return dict(out, full_tile_single_s=full_s, bitwise_equal_to_full_tile=same)
 
 
 # ----------------------------------------------------------------------------------------
 # parent side
-
-
-def run_child(spec: dict, timeout: float) -> dict:
-    out = _run_child(__file__, spec, timeout, log)
-    log(f"{spec['name']}: done in {out.pop('_child_s'):.1f} s "
-        f"(median {out['wall']['median_s']:.3f} s)")
-    return out
 
 
 def _mib(n: int) -> float:
@@ -169,15 +165,18 @@ def benchmark(quick: bool, repeat: int, timeout: float) -> dict:
     density = target_craters / side_km**2
     win = 128 if quick else 512
     corner = (size - win) // 2
-    common = dict(size=size, density=density, repeat=repeat)
+    common = dict(size=size, density=density, repeat=1)
     expected = _population(density).expected_count(side_km**2)
 
-    base = run_child(dict(common, name="base_rmd", kind="tile", model=None), timeout)
-    default = run_child(dict(common, name="craters_default", kind="tile", model="default"),
-                        timeout)
-    smooth = run_child(dict(common, name="craters_smooth", kind="tile", model="smooth"), timeout)
-    window = run_child(dict(common, name="window", kind="window", model="default",
-                            window=[corner, corner, win, win]), timeout)
+    specs = dict(
+        base_rmd=dict(common, name="base_rmd", kind="tile", model=None),
+        craters_default=dict(common, name="craters_default", kind="tile", model="default"),
+        craters_smooth=dict(common, name="craters_smooth", kind="tile", model="smooth"),
+        window=dict(common, name="window", kind="window", model="default",
+                    window=[corner, corner, win, win]),
+    )
+    runs = run_rounds(__file__, specs, repeat, timeout, log)
+    base, default, smooth, window = (pool(runs[name]) for name in specs)
 
     base_med = base["wall"]["median_s"]
 
@@ -223,7 +222,8 @@ def benchmark(quick: bool, repeat: int, timeout: float) -> dict:
                         dmin_m=DMIN, dmax_m=DMAX, sfd_exponent=SFD_EXPONENT, max_age_gyr=MAX_AGE,
                         density_per_km2=density, expected_craters_on_tile=expected,
                         repeat=repeat, timer="time.perf_counter",
-                        memory="ru_maxrss of a child process per configuration"),
+                        memory="peak RSS (VmHWM) of a child process per configuration and round, "
+                               "largest over rounds"),
         tile=dict(
             configs=configs,
             crater_cost=dict(default=cost_default, smooth=cost_smooth),
@@ -245,7 +245,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true",
                         help="1025^2 tile and ~6,000 craters (smoke test, seconds)")
     parser.add_argument("--repeat", type=int, default=3,
-                        help="timed calls per configuration (default 3)")
+                        help="rounds: timed calls per configuration (default 3)")
     parser.add_argument("--timeout", type=float, default=900.0,
                         help="seconds allowed per child process (default 900)")
     parser.add_argument("--child", metavar="SPEC", help=argparse.SUPPRESS)

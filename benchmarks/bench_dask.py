@@ -17,7 +17,10 @@ What the issue asks to show, each against a baseline measured in the same run:
   32769^2 (1.07e9 pixels) on 2 workers and converted into a COG, with the peak memory of the
   whole process tree (sampled) and the COG's georeferencing read back through GDAL.
 
-Every configuration runs in its own child process. Usage::
+Every configuration runs in its own child process, one per round, the configurations of a
+comparison alternating between rounds (baseline first, then the reverse order, and so on);
+each reports the median over its rounds. A worker's peak memory is read inside the worker
+process (its own high-water mark, not the ``ru_maxrss`` it inherits from its parent). Usage::
 
     .venv/bin/python benchmarks/bench_dask.py            # full benchmark (~15 minutes)
     .venv/bin/python benchmarks/bench_dask.py --quick    # small sizes (a minute)
@@ -37,7 +40,7 @@ import threading
 import time
 from pathlib import Path
 
-from _common import logger, machine_facts, peak_rss_bytes, summary
+from _common import logger, machine_facts, peak_rss_bytes, run_rounds, summary
 from _common import run_child as _run_child
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -96,10 +99,7 @@ def child_throughput(spec):
             report = run(ExpandSource(reader, 1, SEED, params), out, chunk=spec["chunk"],
                          client=client)
             if client is not None:
-                import resource
-
-                rss = client.run(lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
-                extra["worker_peak_rss_bytes"] = sorted(int(v) * 1024 for v in rss.values())
+                extra["worker_peak_rss_bytes"] = worker_peak_rss(client)
         times.append(report.seconds)
         extra.setdefault("worker_s_per_chunk_runs", []).append(report.seconds_per_chunk)
         extra["cluster_start_s"] = started
@@ -162,7 +162,8 @@ def child_enhance(spec):
     site = reader.transform @ (nx / 2, ny / 2)
     pop = Population(dmin=16.0, dmax=400.0, density=200.0)
     args = dict(levels=2, layer_size=spec["layer_size"], seed=SEED, population=pop)
-    times = []
+    times: list[float] = []
+    extra: dict = {}
     for k in range(spec["repeat"]):
         out = work / f"stack-{spec['mode']}-{k}"
         if spec["mode"] == "memory":
@@ -180,12 +181,52 @@ def child_enhance(spec):
                 result = build_stack_chunked(reader, out, site, chunk=spec["chunk"],
                                              client=client, **args)
                 times.append(time.perf_counter() - t0)
+                extra["worker_peak_rss_bytes"] = worker_peak_rss(client)
             pixels = ny * nx + 2 * spec["layer_size"] ** 2
             assert result["craters"] > 0
         shutil.rmtree(out)
     med = float(np.median(times))
     return dict(summary(times), pixels=pixels, pixels_per_s=pixels / med,
-                peak_rss_bytes=peak_rss_bytes())
+                peak_rss_bytes=peak_rss_bytes(), **extra)
+
+
+def worker_peak_rss(client) -> list[int]:
+    """Every worker's own peak RSS in bytes, read in the worker process itself, sorted.
+
+    ``peak_rss_bytes`` travels by value (the workers need not import this folder) and reads
+    the worker's own high-water mark: ``ru_maxrss`` would give the parent's peak, which a
+    freshly started worker process inherits.
+    """
+    import _common
+    import cloudpickle
+
+    cloudpickle.register_pickle_by_value(_common)
+    try:
+        peaks = client.run(_common.peak_rss_bytes)
+    finally:
+        cloudpickle.unregister_pickle_by_value(_common)
+    return sorted(int(v) for v in peaks.values())
+
+
+def _pooled(children: list[dict]) -> dict:
+    """One configuration's children (one per round) as one record: times pooled, peaks maxed."""
+    import numpy as np
+
+    times = [t for c in children for t in c["runs_s"]]
+    first = children[0]
+    out = dict(first, **summary(times), children=len(children),
+               peak_rss_bytes=max(c["peak_rss_bytes"] for c in children))
+    out["pixels_per_s"] = first["pixels"] / out["median_s"]
+    if "worker_peak_rss_bytes" in first:  # the k-th largest worker's, largest over rounds
+        out["worker_peak_rss_bytes"] = [int(v) for v in np.max(
+            [c["worker_peak_rss_bytes"] for c in children], axis=0)]
+    if "worker_s_per_chunk_runs" in first:
+        runs = [t for c in children for t in c["worker_s_per_chunk_runs"]]
+        out["worker_s_per_chunk_runs"] = runs
+        out["worker_s_per_chunk"] = float(np.median(runs))
+    if "cluster_start_s" in first:
+        out["cluster_start_s"] = float(np.median([c["cluster_start_s"] for c in children]))
+    return out
 
 
 def _tree_rss(pid):
@@ -278,18 +319,18 @@ def main(argv=None) -> int:
         print(json.dumps(result))
         return 0
 
-    size, chunk, repeat = (1025, 256, 1) if args.quick else (4097, 1024, 3)
+    size, chunk, rounds = (1025, 256, 2) if args.quick else (4097, 1024, 3)
     work = Path(tempfile.mkdtemp(prefix="bench-dask-"))
     results = dict(machine=machine_facts(note="shared machine: other jobs ran concurrently"))
     try:
         log(f"input: {size}^2 synthetic DEM")
         _input(work / "in.zarr", size, chunk)
-        runs = {}
-        for mode, workers in (("memory", None), ("inprocess", None), ("cluster1", 1),
-                              ("cluster2", 2)):
-            spec = dict(kind="throughput", name=mode, mode=mode, workers=workers, chunk=chunk,
-                        repeat=repeat, dir=str(work))
-            runs[mode] = _run_child(__file__, spec, 3600, log)
+        specs = {mode: dict(kind="throughput", name=mode, mode=mode, workers=workers,
+                            chunk=chunk, repeat=1, dir=str(work))
+                 for mode, workers in (("memory", None), ("inprocess", None), ("cluster1", 1),
+                                       ("cluster2", 2))}
+        runs = {mode: _pooled(children) for mode, children in
+                run_rounds(__file__, specs, rounds, 3600, log).items()}
         base = runs["memory"]["pixels_per_s"]
         results["throughput"] = dict(
             input_size=size, output_size=2 * size - 1, chunk=chunk, runs=runs,
@@ -301,11 +342,11 @@ def main(argv=None) -> int:
         results["overhead"] = _run_child(__file__, dict(
             kind="overhead", name="overhead", tasks=200, chunk=chunk, repeat=1, dir=str(work)),
             600, log)
-        stack = {}
-        for mode, workers in (("memory", None), ("cluster2", 2)):
-            spec = dict(kind="enhance", name=f"enhance-{mode}", mode=mode, workers=workers,
-                        chunk=chunk, repeat=1, layer_size=size, dir=str(work))
-            stack[mode] = _run_child(__file__, spec, 3600, log)
+        specs = {mode: dict(kind="enhance", name=f"enhance-{mode}", mode=mode, workers=workers,
+                            chunk=chunk, repeat=1, layer_size=size, dir=str(work))
+                 for mode, workers in (("memory", None), ("cluster2", 2))}
+        stack = {mode: _pooled(children) for mode, children in
+                 run_rounds(__file__, specs, rounds, 3600, log).items()}
         results["enhance"] = dict(
             base_size=size, layer_size=size, levels=2, chunk=chunk, runs=stack,
             baseline="memory",
