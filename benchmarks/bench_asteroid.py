@@ -113,17 +113,24 @@ def _job(spec: dict):
     raise ValueError(f"unknown benchmark kind {kind!r}")
 
 
-def _warm_up() -> float:
-    """Compile (or load from numba's cache) every kernel the benchmarks use, at small M."""
+#: The kernels each configuration's call runs, warmed up before it is timed.
+WARM_UP = {"mesh": ("mesh",), "perlin": ("mesh", "perlin"), "faulting": ("mesh", "faulting"),
+           "craters": ("mesh", "perlin", "craters")}
+
+
+def _warm_up(kind: str) -> float:
+    """Compile (or load from numba's cache) the kernels of ``kind``'s call, at small M."""
     t0 = time.perf_counter()
-    for kind in ("mesh", "perlin", "faulting"):
-        _job(dict(kind=kind, magnitude=6))()
-    _job(dict(kind="craters", magnitude=64, craters=20))()
+    for part in WARM_UP[kind]:
+        if part == "craters":
+            _job(dict(kind="craters", magnitude=64, craters=20))()
+        else:
+            _job(dict(kind=part, magnitude=6))()
     return time.perf_counter() - t0
 
 
 def child(spec: dict) -> dict:
-    warmup_s = _warm_up()
+    warmup_s = _warm_up(spec["kind"])
     rss_after_warmup = peak_rss_bytes()
     t0 = time.perf_counter()
     call = _job(spec)
@@ -206,8 +213,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
     parser.add_argument("--quick", action="store_true",
                         help="M = 200 / 100 and 1,000 craters (smoke test, seconds)")
-    parser.add_argument("--repeat", type=int, default=3,
-                        help="rounds: timed calls per configuration (default 3)")
+    parser.add_argument("--repeat", type=int, default=None,
+                        help="rounds: timed calls per configuration (default 3, 2 with --quick)")
     parser.add_argument("--timeout", type=float, default=1800.0,
                         help="seconds allowed per child process (default 1800)")
     parser.add_argument("--child", metavar="SPEC", help=argparse.SUPPRESS)
@@ -216,6 +223,8 @@ def main(argv: list[str] | None = None) -> int:
         json.dump(child(json.loads(args.child)), sys.stdout)
         sys.stdout.write("\n")
         return 0
+    if args.repeat is None:
+        args.repeat = 2 if args.quick else 3
     if args.repeat < 1:
         parser.error("--repeat must be >= 1")
     t0 = time.perf_counter()

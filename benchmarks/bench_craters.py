@@ -6,11 +6,11 @@ crater (a Blender-based peer reports about 220).
 
 Every configuration runs in its own child process (this script re-invoked with ``--child``),
 so that the peak resident set size of each is its own. A child first does a small warm-up
-call with both crater models (numba compiles, or loads its on-disk cache), then times one
-call. The configurations run in rounds (``--repeat``), alternating: base, default, smooth,
-window, then the reverse, and so on, so that the baseline is measured interleaved with what
-it is compared with; each reports median, min and max over its rounds. Each benchmark
-compares against a baseline measured in the same run:
+call with its crater model (numba compiles, or loads its on-disk cache), then times one call.
+The configurations run in rounds (``--repeat``: 3, or 2 with ``--quick``), alternating: base,
+default, smooth, window, then the reverse, and so on, so that the baseline is measured
+interleaved with what it is compared with; each reports median, min and max over its rounds.
+Each benchmark compares against a baseline measured in the same run:
 
 * ``tile``: the RMD base alone (baseline) vs base + craters with the default model
   (roughness overlay and irregular rims on) and with ``CraterModel().smooth()``; the crater
@@ -75,17 +75,14 @@ def _model(name: str | None):
     return CraterModel() if name == "default" else CraterModel().smooth()
 
 
-def _warm_up() -> float:
-    """Compile (or load from numba's cache) every kernel: a 65^2 tile, both models."""
+def _warm_up(model: str | None) -> float:
+    """Compile (or load from numba's cache) the kernels of a 65^2 tile with ``model``."""
     from terrain.fractal.synthetic import synthesize_tile
 
     t0 = time.perf_counter()
-    pop = _population(20000.0)  # a few dozen craters on 64 m x 64 m
-    for name in ("default", "smooth"):
-        synthesize_tile(65, resolution=RESOLUTION, fractal_dimension=FRACTAL_DIMENSION,
-                        relief=RELIEF, seed=1, craters=pop, model=_model(name))
+    pop = _population(20000.0) if model else None  # a few dozen craters on 64 m x 64 m
     synthesize_tile(65, resolution=RESOLUTION, fractal_dimension=FRACTAL_DIMENSION,
-                    relief=RELIEF, seed=1)
+                    relief=RELIEF, seed=1, craters=pop, model=_model(model))
     return time.perf_counter() - t0
 
 
@@ -100,7 +97,7 @@ def _synth(spec: dict, window=None):
 
 def child_tile(spec: dict) -> dict:
     """Time ``spec["repeat"]`` calls of one tile configuration; peak RSS around them."""
-    warmup_s = _warm_up()
+    warmup_s = _warm_up(spec["model"])
     rss_after_warmup = peak_rss_bytes()
     times, n_craters, checksum = [], None, None
     for i in range(spec["repeat"]):
@@ -123,7 +120,7 @@ def child_window(spec: dict) -> dict:
 
     from terrain.core.tile import Window
 
-    warmup_s = _warm_up()
+    warmup_s = _warm_up(spec["model"])
     col, row, width, height = spec["window"]
     window = Window(col, row, width, height)
     times, n_craters = [], None
@@ -244,8 +241,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
     parser.add_argument("--quick", action="store_true",
                         help="1025^2 tile and ~6,000 craters (smoke test, seconds)")
-    parser.add_argument("--repeat", type=int, default=3,
-                        help="rounds: timed calls per configuration (default 3)")
+    parser.add_argument("--repeat", type=int, default=None,
+                        help="rounds: timed calls per configuration (default 3, 2 with --quick)")
     parser.add_argument("--timeout", type=float, default=900.0,
                         help="seconds allowed per child process (default 900)")
     parser.add_argument("--child", metavar="SPEC", help=argparse.SUPPRESS)
@@ -258,6 +255,8 @@ def main(argv: list[str] | None = None) -> int:
         sys.stdout.write("\n")
         return 0
 
+    if args.repeat is None:
+        args.repeat = 2 if args.quick else 3
     if args.repeat < 1:
         parser.error("--repeat must be >= 1")
     t0 = time.perf_counter()
