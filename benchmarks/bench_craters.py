@@ -7,7 +7,7 @@ crater (a Blender-based peer reports about 220).
 Every configuration runs in its own child process (this script re-invoked with ``--child``),
 so that the peak resident set size of each is its own. A child first does a small warm-up
 call with its crater model (numba compiles, or loads its on-disk cache), then times one call.
-The configurations run in rounds (``--repeat``: 3, or 2 with ``--quick``), alternating: base,
+The configurations run in rounds (``--repeat``: 3, or 1 with ``--quick``), alternating: base,
 default, smooth, window, then the reverse, and so on, so that the baseline is measured
 interleaved with what it is compared with; each reports median, min and max over its rounds.
 Each benchmark compares against a baseline measured in the same run:
@@ -242,7 +242,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true",
                         help="1025^2 tile and ~6,000 craters (smoke test, seconds)")
     parser.add_argument("--repeat", type=int, default=None,
-                        help="rounds: timed calls per configuration (default 3, 2 with --quick)")
+                        help="rounds: timed calls per configuration (default 3, 1 with --quick)")
     parser.add_argument("--timeout", type=float, default=900.0,
                         help="seconds allowed per child process (default 900)")
     parser.add_argument("--child", metavar="SPEC", help=argparse.SUPPRESS)
@@ -256,7 +256,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     if args.repeat is None:
-        args.repeat = 2 if args.quick else 3
+        args.repeat = 1 if args.quick else 3  # --quick: a smoke test
     if args.repeat < 1:
         parser.error("--repeat must be >= 1")
     t0 = time.perf_counter()
