@@ -2,6 +2,7 @@
 #   make demo   set everything up, then run the main job on the built-in default scenario
 #   make test   set everything up, then run the whole test suite (what CI runs)
 #   make bench  set everything up, then run the benchmarks (JSON on stdout)
+#   make bench-quick  the same at smoke-test sizes (what CI runs before the tests)
 
 PYTHON ?= python3
 VENV   ?= .venv
@@ -12,7 +13,7 @@ DEMO_OUT ?= demo-output
 # and GDAL's command-line tools as an independent reference in tests.
 APT_PACKAGES := libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri gdal-bin
 
-.PHONY: all setup apt venv demo test test-fast lint typecheck bench clean distclean
+.PHONY: all setup apt venv demo test test-fast lint typecheck bench bench-quick clean distclean
 
 all: test
 
@@ -70,6 +71,9 @@ test-fast: lint typecheck
 
 bench: setup
 	$(PY) benchmarks/run.py
+
+bench-quick: setup
+	$(PY) benchmarks/run.py --quick
 
 clean:
 	rm -rf $(DEMO_OUT) .pytest_cache .ruff_cache

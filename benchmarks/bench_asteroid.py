@@ -8,11 +8,12 @@ Targets (the asteroid issue), each also <= 6 GB peak memory:
 * 10,000 craters at M = 1000: <= 120 s.
 
 Every configuration runs in its own child process (this script re-invoked with ``--child``),
-so that the peak resident set size (``ru_maxrss``) of each is isolated. A child first warms
-up at a tiny magnitude (numba compiles, or loads its on-disk cache), then times the call
-``--repeat`` times and reports median, min and max wall time. The baseline, measured in the
-same run, is building the M = 1000 mesh itself (unit directions and the face array): what any
-job at that size pays before its own work.
+so that the peak resident set size of each is its own. A child first warms up at a tiny
+magnitude (numba compiles, or loads its on-disk cache), then times one call. The
+configurations run in ``--repeat`` rounds, alternating (baseline first, then the reverse
+order, and so on), and each reports median, min and max over its rounds. The baseline,
+interleaved with the others, is building the M = 1000 mesh itself (unit directions and the
+face array): what any job at that size pays before its own work.
 
 Usage::
 
@@ -31,8 +32,7 @@ import sys
 import time
 from pathlib import Path
 
-from _common import logger, machine_facts, peak_rss_bytes, summary
-from _common import run_child as _run_child
+from _common import logger, machine_facts, peak_rss_bytes, pool, run_rounds, summary
 
 ROOT = Path(__file__).resolve().parent.parent
 log = logger("bench-asteroid")
@@ -113,17 +113,24 @@ def _job(spec: dict):
     raise ValueError(f"unknown benchmark kind {kind!r}")
 
 
-def _warm_up() -> float:
-    """Compile (or load from numba's cache) every kernel the benchmarks use, at small M."""
+#: The kernels each configuration's call runs, warmed up before it is timed.
+WARM_UP = {"mesh": ("mesh",), "perlin": ("mesh", "perlin"), "faulting": ("mesh", "faulting"),
+           "craters": ("mesh", "perlin", "craters")}
+
+
+def _warm_up(kind: str) -> float:
+    """Compile (or load from numba's cache) the kernels of ``kind``'s call, at small M."""
     t0 = time.perf_counter()
-    for kind in ("mesh", "perlin", "faulting"):
-        _job(dict(kind=kind, magnitude=6))()
-    _job(dict(kind="craters", magnitude=64, craters=20))()
+    for part in WARM_UP[kind]:
+        if part == "craters":
+            _job(dict(kind="craters", magnitude=64, craters=20))()
+        else:
+            _job(dict(kind=part, magnitude=6))()
     return time.perf_counter() - t0
 
 
 def child(spec: dict) -> dict:
-    warmup_s = _warm_up()
+    warmup_s = _warm_up(spec["kind"])
     rss_after_warmup = peak_rss_bytes()
     t0 = time.perf_counter()
     call = _job(spec)
@@ -144,27 +151,20 @@ def child(spec: dict) -> dict:
 # parent side
 
 
-def run_child(spec: dict, timeout: float) -> dict:
-    out = _run_child(__file__, spec, timeout, log)
-    log(f"{spec['name']}: done in {out.pop('_child_s'):.1f} s "
-        f"(median {out['wall']['median_s']:.3f} s, peak {out['peak_rss_mib']} MiB)")
-    return out
-
-
 def benchmark(quick: bool, repeat: int, timeout: float) -> dict:
     big = 200 if quick else 1000
     faulting_m = 100 if quick else 400
     n_craters = 1000 if quick else CRATER_COUNT
-    common = dict(repeat=repeat)
-    configs = {
-        "mesh_baseline": run_child(dict(common, name="mesh_baseline", kind="mesh",
-                                        magnitude=big), timeout),
-        "perlin": run_child(dict(common, name="perlin", kind="perlin", magnitude=big), timeout),
-        "faulting": run_child(dict(common, name="faulting", kind="faulting",
-                                   magnitude=faulting_m), timeout),
-        "craters": run_child(dict(common, name="craters", kind="craters", magnitude=big,
-                                  craters=n_craters), timeout),
+    common = dict(repeat=1)
+    specs = {
+        "mesh_baseline": dict(common, name="mesh_baseline", kind="mesh", magnitude=big),
+        "perlin": dict(common, name="perlin", kind="perlin", magnitude=big),
+        "faulting": dict(common, name="faulting", kind="faulting", magnitude=faulting_m),
+        "craters": dict(common, name="craters", kind="craters", magnitude=big,
+                        craters=n_craters),
     }
+    runs = run_rounds(__file__, specs, repeat, timeout, log)
+    configs = {name: pool(children) for name, children in runs.items()}
 
     def flag(ok: bool) -> bool | None:
         return None if quick else bool(ok)
@@ -195,7 +195,8 @@ def benchmark(quick: bool, repeat: int, timeout: float) -> dict:
                         crater_dmax_m=CRATER_DMAX, crater_model="CraterModel() (roughness on)",
                         crater_base="the Perlin base above", seed=SEED, repeat=repeat,
                         timer="time.perf_counter",
-                        memory="ru_maxrss of a child process per configuration"),
+                        memory="peak RSS (VmHWM) of a child process per configuration and round, "
+                               "largest over rounds"),
         configs=configs,
         derived=dict(
             perlin_over_mesh_baseline=med["perlin"] / med["mesh_baseline"],
@@ -212,8 +213,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
     parser.add_argument("--quick", action="store_true",
                         help="M = 200 / 100 and 1,000 craters (smoke test, seconds)")
-    parser.add_argument("--repeat", type=int, default=3,
-                        help="timed calls per configuration (default 3)")
+    parser.add_argument("--repeat", type=int, default=None,
+                        help="rounds: timed calls per configuration (default 3, 1 with --quick)")
     parser.add_argument("--timeout", type=float, default=1800.0,
                         help="seconds allowed per child process (default 1800)")
     parser.add_argument("--child", metavar="SPEC", help=argparse.SUPPRESS)
@@ -222,6 +223,8 @@ def main(argv: list[str] | None = None) -> int:
         json.dump(child(json.loads(args.child)), sys.stdout)
         sys.stdout.write("\n")
         return 0
+    if args.repeat is None:
+        args.repeat = 1 if args.quick else 3  # --quick: a smoke test
     if args.repeat < 1:
         parser.error("--repeat must be >= 1")
     t0 = time.perf_counter()

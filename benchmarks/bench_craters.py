@@ -5,17 +5,19 @@ The project's target (its issue): 100,000 craters (D 4-500 m, k = -2) on a 4097^
 crater (a Blender-based peer reports about 220).
 
 Every configuration runs in its own child process (this script re-invoked with ``--child``),
-so that the peak resident set size (``ru_maxrss``) of each is isolated. A child first does a
-small warm-up call with both crater models (numba compiles, or loads its on-disk cache), then
-repeats the timed call and reports median, min and max wall time. Each benchmark compares
-against a baseline measured in the same run:
+so that the peak resident set size of each is its own. A child first does a small warm-up
+call with its crater model (numba compiles, or loads its on-disk cache), then times one call.
+The configurations run in rounds (``--repeat``: 3, or 1 with ``--quick``), alternating: base,
+default, smooth, window, then the reverse, and so on, so that the baseline is measured
+interleaved with what it is compared with; each reports median, min and max over its rounds.
+Each benchmark compares against a baseline measured in the same run:
 
 * ``tile``: the RMD base alone (baseline) vs base + craters with the default model
   (roughness overlay and irregular rims on) and with ``CraterModel().smooth()``; the crater
   cost is the difference of the medians, divided by the number of craters touching the tile.
 * ``window``: a window of the same cratered tile vs the full tile (the default-model
-  configuration above); the child also checks that the window equals the same pixels of a
-  full tile it computes once, bitwise.
+  configuration above); the first round's child also checks that the window equals the same
+  pixels of a full tile it computes once, bitwise.
 
 Usage::
 
@@ -34,8 +36,7 @@ import sys
 import time
 from pathlib import Path
 
-from _common import logger, machine_facts, peak_rss_bytes, summary
-from _common import run_child as _run_child
+from _common import logger, machine_facts, peak_rss_bytes, pool, run_rounds, summary
 
 ROOT = Path(__file__).resolve().parent.parent
 log = logger("bench-craters")
@@ -74,17 +75,14 @@ def _model(name: str | None):
     return CraterModel() if name == "default" else CraterModel().smooth()
 
 
-def _warm_up() -> float:
-    """Compile (or load from numba's cache) every kernel: a 65^2 tile, both models."""
+def _warm_up(model: str | None) -> float:
+    """Compile (or load from numba's cache) the kernels of a 65^2 tile with ``model``."""
     from terrain.fractal.synthetic import synthesize_tile
 
     t0 = time.perf_counter()
-    pop = _population(20000.0)  # a few dozen craters on 64 m x 64 m
-    for name in ("default", "smooth"):
-        synthesize_tile(65, resolution=RESOLUTION, fractal_dimension=FRACTAL_DIMENSION,
-                        relief=RELIEF, seed=1, craters=pop, model=_model(name))
+    pop = _population(20000.0) if model else None  # a few dozen craters on 64 m x 64 m
     synthesize_tile(65, resolution=RESOLUTION, fractal_dimension=FRACTAL_DIMENSION,
-                    relief=RELIEF, seed=1)
+                    relief=RELIEF, seed=1, craters=pop, model=_model(model))
     return time.perf_counter() - t0
 
 
@@ -99,7 +97,7 @@ def _synth(spec: dict, window=None):
 
 def child_tile(spec: dict) -> dict:
     """Time ``spec["repeat"]`` calls of one tile configuration; peak RSS around them."""
-    warmup_s = _warm_up()
+    warmup_s = _warm_up(spec["model"])
     rss_after_warmup = peak_rss_bytes()
     times, n_craters, checksum = [], None, None
     for i in range(spec["repeat"]):
@@ -122,7 +120,7 @@ def child_window(spec: dict) -> dict:
 
     from terrain.core.tile import Window
 
-    warmup_s = _warm_up()
+    warmup_s = _warm_up(spec["model"])
     col, row, width, height = spec["window"]
     window = Window(col, row, width, height)
     times, n_craters = [], None
@@ -135,26 +133,21 @@ def child_window(spec: dict) -> dict:
         del result
         log(f"  window run {i + 1}/{spec['repeat']}: {times[-1]:.3f} s")
     peak_window = peak_rss_bytes()
+    out = dict(warmup_s=warmup_s, wall=summary(times), n_craters=n_craters,
+               peak_rss_window_bytes=peak_window)
+    if spec.get("round", 0) > 0:
+        return out  # the first round checks the window against a full tile
     t0 = time.perf_counter()
     full = _synth(spec)
     full_s = time.perf_counter() - t0
     log(f"  full tile for the exactness check: {full_s:.3f} s")
     rows, cols = window.slices
     same = bool(np.array_equal(part, full.tile.heights[rows, cols]))
-    return dict(warmup_s=warmup_s, wall=summary(times), n_craters=n_craters,
-                peak_rss_window_bytes=peak_window, full_tile_single_s=full_s,
-                bitwise_equal_to_full_tile=same)
+    return dict(out, full_tile_single_s=full_s, bitwise_equal_to_full_tile=same)
 
 
 # ----------------------------------------------------------------------------------------
 # parent side
-
-
-def run_child(spec: dict, timeout: float) -> dict:
-    out = _run_child(__file__, spec, timeout, log)
-    log(f"{spec['name']}: done in {out.pop('_child_s'):.1f} s "
-        f"(median {out['wall']['median_s']:.3f} s)")
-    return out
 
 
 def _mib(n: int) -> float:
@@ -169,15 +162,18 @@ def benchmark(quick: bool, repeat: int, timeout: float) -> dict:
     density = target_craters / side_km**2
     win = 128 if quick else 512
     corner = (size - win) // 2
-    common = dict(size=size, density=density, repeat=repeat)
+    common = dict(size=size, density=density, repeat=1)
     expected = _population(density).expected_count(side_km**2)
 
-    base = run_child(dict(common, name="base_rmd", kind="tile", model=None), timeout)
-    default = run_child(dict(common, name="craters_default", kind="tile", model="default"),
-                        timeout)
-    smooth = run_child(dict(common, name="craters_smooth", kind="tile", model="smooth"), timeout)
-    window = run_child(dict(common, name="window", kind="window", model="default",
-                            window=[corner, corner, win, win]), timeout)
+    specs = dict(
+        base_rmd=dict(common, name="base_rmd", kind="tile", model=None),
+        craters_default=dict(common, name="craters_default", kind="tile", model="default"),
+        craters_smooth=dict(common, name="craters_smooth", kind="tile", model="smooth"),
+        window=dict(common, name="window", kind="window", model="default",
+                    window=[corner, corner, win, win]),
+    )
+    runs = run_rounds(__file__, specs, repeat, timeout, log)
+    base, default, smooth, window = (pool(runs[name]) for name in specs)
 
     base_med = base["wall"]["median_s"]
 
@@ -223,7 +219,8 @@ def benchmark(quick: bool, repeat: int, timeout: float) -> dict:
                         dmin_m=DMIN, dmax_m=DMAX, sfd_exponent=SFD_EXPONENT, max_age_gyr=MAX_AGE,
                         density_per_km2=density, expected_craters_on_tile=expected,
                         repeat=repeat, timer="time.perf_counter",
-                        memory="ru_maxrss of a child process per configuration"),
+                        memory="peak RSS (VmHWM) of a child process per configuration and round, "
+                               "largest over rounds"),
         tile=dict(
             configs=configs,
             crater_cost=dict(default=cost_default, smooth=cost_smooth),
@@ -244,8 +241,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
     parser.add_argument("--quick", action="store_true",
                         help="1025^2 tile and ~6,000 craters (smoke test, seconds)")
-    parser.add_argument("--repeat", type=int, default=3,
-                        help="timed calls per configuration (default 3)")
+    parser.add_argument("--repeat", type=int, default=None,
+                        help="rounds: timed calls per configuration (default 3, 1 with --quick)")
     parser.add_argument("--timeout", type=float, default=900.0,
                         help="seconds allowed per child process (default 900)")
     parser.add_argument("--child", metavar="SPEC", help=argparse.SUPPRESS)
@@ -258,6 +255,8 @@ def main(argv: list[str] | None = None) -> int:
         sys.stdout.write("\n")
         return 0
 
+    if args.repeat is None:
+        args.repeat = 1 if args.quick else 3  # --quick: a smoke test
     if args.repeat < 1:
         parser.error("--repeat must be >= 1")
     t0 = time.perf_counter()

@@ -7,12 +7,14 @@ Targets (the DEM-enhancement issue), each against a baseline measured in the sam
   into freshly allocated memory.
 * ``enhance``: the 11-level enhancement of a 1025^2 base at 1 km down to about 0.5 m with
   1025^2 layers and a lunar crater population, written to disk, in <= 60 s; baseline: the
-  same stack with no craters.
+  same stack with no craters, the two built in alternating rounds (one child each a round;
+  2 rounds, 1 with ``--quick``).
 * ``fill``: filling 1 million unknown pixels (one disc on a 2049^2 DEM); baseline: GDAL's
   inverse-distance ``fillnodata`` (rasterio) on the same gap.
 
 Each configuration runs in its own child process (this script with ``--child``), so its peak
-resident set size is its own; children warm numba up first and report that separately.
+resident set size is its own; children warm numba up first and report that separately. The
+expansion and its copy, and the two fills, alternate run by run inside their child.
 
 Usage::
 
@@ -31,7 +33,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from _common import logger, summary
+from _common import logger, pool, run_rounds, summary
 from _common import peak_rss_bytes as peak_rss
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -189,18 +191,26 @@ def main(argv=None) -> int:
         print(json.dumps(CHILDREN[spec["kind"]](spec)))
         return 0
     q = args.quick
-    specs = {
-        "expand": dict(kind="expand", size=1025 if q else 4097, repeat=args.repeat),
-        "enhance": dict(kind="enhance", base=257 if q else 1025, levels=4 if q else 11,
-                        layer=257 if q else 1025, craters=True, repeat=1 if q else 2),
-        "enhance_no_craters": dict(kind="enhance", base=257 if q else 1025,
-                                   levels=4 if q else 11, layer=257 if q else 1025,
-                                   craters=False, repeat=1 if q else 2),
-        "fill": dict(kind="fill", size=513 if q else 2049, pixels=50_000 if q else 1_000_000,
-                     repeat=args.repeat),
-    }
+    stack = dict(kind="enhance", base=257 if q else 1025, levels=4 if q else 11,
+                 layer=257 if q else 1025, repeat=1)
     t0 = time.perf_counter()
-    results = {name: run_child(spec) for name, spec in specs.items()}
+    results = {}
+    results["expand"] = run_child(dict(kind="expand", size=1025 if q else 4097,
+                                       repeat=args.repeat))
+    # with and without craters in alternating rounds (its baseline interleaved with it)
+    try:
+        rounds = run_rounds(__file__, dict(
+            enhance=dict(stack, name="enhance", craters=True),
+            enhance_no_craters=dict(stack, name="enhance_no_craters", craters=False)),
+            1 if q else 2, 1800, log)
+        results.update({name: pool(children) for name, children in rounds.items()})
+        results["enhance"]["ratio_to_no_craters"] = (
+            results["enhance"]["build_and_write"]["median_s"]
+            / results["enhance_no_craters"]["build_and_write"]["median_s"])
+    except (RuntimeError, subprocess.TimeoutExpired) as exc:
+        results["enhance"] = {"error": str(exc)}
+    results["fill"] = run_child(dict(kind="fill", size=513 if q else 2049,
+                                     pixels=50_000 if q else 1_000_000, repeat=args.repeat))
     targets = None
     if not q and all("error" not in r for r in results.values()):
         targets = dict(

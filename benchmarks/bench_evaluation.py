@@ -1,10 +1,11 @@
 """Benchmarks for craterscape's evaluation stage: one JSON document on stdout.
 
 Every configuration runs in its own child process (this script re-invoked with ``--child``),
-so that the peak resident set size (``ru_maxrss``) of each is isolated; a child warms up first
-(numba compiles its kernels, or loads them from its on-disk cache), then repeats the timed
-call and reports median, min and max wall time. Each compares against a baseline measured in
-the same run:
+so that the peak resident set size of each is its own; a child warms up first (numba compiles
+its kernels, or loads them from its on-disk cache), then times its call and its baseline
+alternately (A B, B A, A B ...), so that both see the same load, and reports median, min and
+max wall time of each; peak memory is read after the first call, before any baseline ran.
+Each compares against a baseline measured in the same run:
 
 * ``slope``: Horn slope of an N x N float32 DEM (RMD terrain), ours (compute only, and read +
   compute + write a GeoTIFF) against the ``gdaldem slope -alg Horn`` binary on the same file
@@ -37,14 +38,13 @@ import importlib.util
 import json
 import os
 import shutil
-import statistics
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-from _common import logger, peak_rss_bytes
+from _common import alternate, logger, peak_rss_bytes
 from _common import machine_facts as _machine_facts
 from _common import run_child as _run_child
 
@@ -63,16 +63,6 @@ def machine_facts() -> dict:
     return _machine_facts(
         load_average=list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
         gdaldem=shutil.which("gdaldem"))
-
-
-def _timed(fn, repeat: int) -> tuple[dict, object]:
-    times, out = [], None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-    return dict(median_s=statistics.median(times), min_s=min(times), max_s=max(times),
-                runs_s=times), out
 
 
 # ----------------------------------------------------------------------------------------
@@ -95,33 +85,32 @@ def child_slope(spec: dict) -> dict:
         write_dem(dem, path)
         horn(dem)  # warm-up
         rss0 = peak_rss_bytes()
-        compute, (slope, _) = _timed(lambda: horn(dem), spec["repeat"])
-        peak = peak_rss_bytes()
 
         def end_to_end():
             write_dem(slope_tile(read_dem(path)), tmp / "ours.tif")
 
-        ours_e2e, _ = _timed(end_to_end, spec["repeat"])
-        result = dict(pixels=n * n, ours_compute=compute, ours_read_compute_write=ours_e2e,
-                      peak_rss_bytes=peak, peak_rss_increment_bytes=peak - rss0)
+        calls = dict(ours_compute=lambda: horn(dem), ours_read_compute_write=end_to_end)
         exe = shutil.which("gdaldem")
         if exe:
-            def gdal(*options):
+            def gdal(out, *options):
                 def call():
                     subprocess.run([exe, "slope", "-alg", "Horn", "-q", *options, str(path),
-                                    str(tmp / "gdal.tif")], check=True)
+                                    str(tmp / out)], check=True)
                 return call
 
             # as write_dem writes (tiled, DEFLATE, floating-point predictor), and gdaldem's
             # default (plain, uncompressed GeoTIFF)
-            gdal_t, _ = _timed(gdal("-co", "TILED=YES", "-co", "COMPRESS=DEFLATE", "-co",
-                                    "PREDICTOR=3"), spec["repeat"])
-            gdal_plain, _ = _timed(gdal(), spec["repeat"])
-            from terrain.io import read_dem
-
+            calls["gdaldem"] = gdal("gdal.tif", "-co", "TILED=YES", "-co", "COMPRESS=DEFLATE",
+                                    "-co", "PREDICTOR=3")
+            calls["gdaldem_uncompressed"] = gdal("gdal-plain.tif")
+        timed = alternate(calls, spec["repeat"])
+        peak = timed.peak_after_first_bytes
+        slope, _ = timed.results["ours_compute"]
+        result = dict(pixels=n * n, **timed.timings, peak_rss_bytes=peak,
+                      peak_rss_increment_bytes=peak - rss0)
+        if exe:
             g = read_dem(tmp / "gdal.tif").heights  # gdaldem's nodata as NaN
-            result.update(gdaldem=gdal_t, gdaldem_uncompressed=gdal_plain,
-                          max_abs_difference_deg=float(np.nanmax(np.abs(g - slope))),
+            result.update(max_abs_difference_deg=float(np.nanmax(np.abs(g - slope))),
                           same_nodata_pixels=bool(np.array_equal(np.isnan(g),
                                                                  np.isnan(slope))))
         else:
@@ -144,11 +133,11 @@ def child_spectrum(spec: dict) -> dict:
     fit_hurst(radial_spectrum(dem))  # warm-up
     z = dem.heights.astype(np.float64)
     rss0 = peak_rss_bytes()
-    ours, fit = _timed(lambda: fit_hurst(radial_spectrum(dem)), spec["repeat"])
-    peak = peak_rss_bytes()
-    bare, _ = _timed(lambda: np.fft.rfft2(z), spec["repeat"])
-    return dict(pixels=n * n, ours=ours, bare_rfft2=bare, hurst_nominal_rmd=0.7,
-                hurst_estimated=fit.hurst,
+    timed = alternate(dict(ours=lambda: fit_hurst(radial_spectrum(dem)),
+                           bare_rfft2=lambda: np.fft.rfft2(z)), spec["repeat"])
+    peak = timed.peak_after_first_bytes
+    return dict(pixels=n * n, **timed.timings, hurst_nominal_rmd=0.7,
+                hurst_estimated=timed.results["ours"].hurst,
                 peak_rss_bytes=peak, peak_rss_increment_bytes=peak - rss0)
 
 
@@ -171,16 +160,19 @@ def child_gravity(spec: dict) -> dict:
     body = Polyhedron.build(cv, cf, 2670.0)
     pts = v[np.linspace(0, len(v) - 1, spec["points"]).astype(np.int64)] * 1.0005
     body.field(pts[:8])  # warm-up (compile or load the cache)
-    rss0 = peak_rss_bytes()
-    ours, (_, g) = _timed(lambda: body.field(pts), spec["repeat"])
-    peak = peak_rss_bytes()
     gm = GRAVITATIONAL_CONSTANT * body.mass
 
     def point_mass():
         r = np.linalg.norm(pts, axis=1)
         return -gm * pts / r[:, None] ** 3
 
-    base, gp = _timed(point_mass, spec["repeat"])
+    rss0 = peak_rss_bytes()
+    timed = alternate(dict(ours=lambda: body.field(pts), point_mass=point_mass),
+                      spec["repeat"])
+    peak = timed.peak_after_first_bytes
+    ours, base = timed.timings["ours"], timed.timings["point_mass"]
+    _, g = timed.results["ours"]
+    gp = timed.results["point_mass"]
     cosang = np.einsum("ij,ij->i", g, gp) / (np.linalg.norm(g, axis=1)
                                              * np.linalg.norm(gp, axis=1))
     angle = np.degrees(np.arccos(np.clip(cosang, -1, 1)))
@@ -205,12 +197,14 @@ def child_mesh_slopes(spec: dict) -> dict:
     small = build(Recipe(magnitude=8, radius=500.0, seed=1, base="perlin")).body
     mesh_slopes(small.vertices(), small.mesh.faces(), coarse_faces=200)  # warm-up
     rss0 = peak_rss_bytes()
-    ours, r = _timed(lambda: mesh_slopes(v, f, spin=Spin(5.27),
-                                         coarse_faces=spec["coarse_faces"]), spec["repeat"])
-    peak = peak_rss_bytes()
-    radial, _ = _timed(lambda: mesh_slopes(v, f, gravity=False), spec["repeat"])
+    timed = alternate(dict(ours=lambda: mesh_slopes(v, f, spin=Spin(5.27),
+                                                    coarse_faces=spec["coarse_faces"]),
+                           radial_only=lambda: mesh_slopes(v, f, gravity=False)),
+                      spec["repeat"])
+    peak = timed.peak_after_first_bytes
+    r = timed.results["ours"]
     return dict(vertices=len(v), faces=len(f), coarse_faces=r.info["coarse_faces"],
-                ours=ours, radial_only=radial, gravity_s=r.info["gravity_s"],
+                **timed.timings, gravity_s=r.info["gravity_s"],
                 radial_median_deg=r.summary("radial")["p50"],
                 gravitational_median_deg=r.summary("gravitational")["p50"],
                 peak_rss_bytes=peak, peak_rss_increment_bytes=peak - rss0)
@@ -245,9 +239,6 @@ def child_tracking(spec: dict) -> dict:
         def ours():
             return score(track(reader), reader)
 
-        ours_t, scored = _timed(ours, spec["repeat"])
-        peak = peak_rss_bytes()
-
         def bare():
             p = cv2.goodFeaturesToTrack(frames[0], 300, 0.01, 8, useHarrisDetector=True)
             for a, b in zip(frames[:-1], frames[1:], strict=True):
@@ -256,11 +247,13 @@ def child_tracking(spec: dict) -> dict:
                 p = p[st.reshape(-1) == 1].reshape(-1, 1, 2)
             return p
 
-        bare_t, _ = _timed(bare, spec["repeat"])
+        timed = alternate(dict(ours=ours, bare_opencv=bare), spec["repeat"])
+        peak = timed.peak_after_first_bytes
+        scored = timed.results["ours"]
         e = scored.error_summary()
         return dict(frames=len(frames), width=spec["width"], height=spec["height"],
-                    render_s=render_s, ours=ours_t, bare_opencv=bare_t,
-                    ours_frames_per_s=len(frames) / ours_t["median_s"],
+                    render_s=render_s, **timed.timings,
+                    ours_frames_per_s=len(frames) / timed.timings["ours"]["median_s"],
                     tracks=scored.tracks.n_tracks, median_error_px=e["median_px"],
                     outlier_fraction=e["outlier_fraction"],
                     peak_rss_bytes=peak, peak_rss_increment_bytes=peak - rss0,
@@ -306,7 +299,8 @@ def benchmark(quick: bool, repeat: int, timeout: float) -> dict:
     return dict(benchmark="craterscape evaluation", mode="quick" if quick else "full",
                 machine=machine_facts(), parameters=dict(sizes=sizes, repeat=repeat,
                                                          timer="time.perf_counter",
-                                                         memory="ru_maxrss per child"),
+                                                         memory="peak RSS (VmHWM) per child, "
+                                                                "after its first call"),
                 results=results)
 
 

@@ -1,6 +1,7 @@
 """Benchmarks for the safe-output machinery (issue 17): one JSON document on stdout.
 
-What safety costs, each against a baseline measured in the same run:
+What safety costs, each against a baseline measured in the same run, the two timed
+alternately (A B, B A, ...) so that both see the same load:
 
 * ``write_dem``: writing a 2049^2 DEM the way every command does (temporary file, read back
   and compared, renamed into place) against rasterio writing the same GeoTIFF directly.
@@ -24,21 +25,11 @@ import argparse
 import json
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-from _common import logger, machine_facts, summary
+from _common import alternate, logger, machine_facts
 
 log = logger("bench-outputs")
-
-
-def _times(fn, repeat):
-    out = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        out.append(time.perf_counter() - t0)
-    return out
 
 
 def bench_write_dem(folder: Path, size: int, repeat: int) -> dict:
@@ -65,9 +56,9 @@ def bench_write_dem(folder: Path, size: int, repeat: int) -> dict:
     def safe():
         write_dem(tile, folder / "safe.tif")
 
-    base = summary(_times(direct, repeat))
-    ours = summary(_times(safe, repeat))
-    ratio = ours["median_s"] / base["median_s"]
+    timed = alternate(dict(safe=safe, direct=direct), repeat)
+    ours, base = timed.timings["safe"], timed.timings["direct"]
+    ratio = timed.ratio("safe", "direct")
     return dict(size=size, safe=ours, baseline_direct=base, ratio=ratio,
                 target_ratio=1.6, passed=ratio <= 1.6)
 
@@ -89,8 +80,8 @@ def bench_transaction(folder: Path, nbytes: int, repeat: int) -> dict:
         with transaction(folders=[folder]):
             write_all()
 
-    base = summary(_times(write_all, repeat))
-    ours = summary(_times(as_set, repeat))
+    timed = alternate(dict(as_set=as_set, one_by_one=write_all), repeat)
+    ours, base = timed.timings["as_set"], timed.timings["one_by_one"]
     limit = 1.5 * base["median_s"] + 0.020
     return dict(bytes_per_file=nbytes, files=len(names), set=ours, baseline_one_by_one=base,
                 ratio=ours["median_s"] / base["median_s"], passed=ours["median_s"] <= limit)
@@ -105,8 +96,9 @@ def bench_read_stack(folder: Path, base_size: int, repeat: int) -> dict:
     centre = (base_size - 1) * 10.0 / 2
     stack = write_stack(build_stack(base, (centre, centre), levels=2, layer_size=base_size,
                                     seed=3), folder / "stack")
-    unlocked = summary(_times(lambda: _read_stack(stack), repeat))
-    locked = summary(_times(lambda: read_stack(stack), repeat))
+    timed = alternate(dict(locked=lambda: read_stack(stack),
+                           unlocked=lambda: _read_stack(stack)), repeat)
+    locked, unlocked = timed.timings["locked"], timed.timings["unlocked"]
     limit = 1.2 * unlocked["median_s"] + 0.005
     return dict(layer_size=base_size, locked=locked, baseline_unlocked=unlocked,
                 ratio=locked["median_s"] / unlocked["median_s"],

@@ -1,7 +1,7 @@
 """Rocks and centimetre layers: placement speed and memory, extra levels, frame time.
 
 Three measurements, each in its own child process (so peak memory is its own), each with a
-baseline measured in the same run:
+baseline measured in the same run, interleaved with it where the two are separate calls:
 
 ``place``
     Rocks placed per second on a 4097 x 4097 tile (5 cm pixels, 205 m across; Golombek-Rapp
@@ -16,7 +16,8 @@ baseline measured in the same run:
     standard levels 1-11 of the same build (baseline), and the rock pass.
 ``frame``
     Frame time at 1024 x 1024 with shadows on the last 100 m of a descent onto a rocky site
-    (layers down to 3 cm) against the same views of the same stack without rocks.
+    (layers down to 3 cm) against the same views of the same stack without rocks, frame by
+    frame, alternating which goes first.
 
 Usage::
 
@@ -34,7 +35,15 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import logger, machine_facts, peak_rss_bytes, run_child, summary  # noqa: E402
+from _common import (  # noqa: E402
+    alternate,
+    logger,
+    machine_facts,
+    order,
+    peak_rss_bytes,
+    run_child,
+    summary,
+)
 
 SEED = 2014
 log = logger("bench-rocks")
@@ -52,28 +61,24 @@ def child_place(spec: dict) -> dict:
         return dict(peak_rss_bytes=peak_rss_bytes())
     model = RockModel.from_spec(spec["rocks"], defaults=dict(dmin=2 * res))
     add_rocks(tile.window(_small(tile)), model, seed=SEED)  # compile outside the timing
-    times, counts = [], []
-    for _ in range(spec["repeat"]):
-        t0 = time.perf_counter()
+    placed = {}
+
+    def place():
         _, cat = add_rocks(tile, model, seed=SEED)
-        times.append(time.perf_counter() - t0)
-        counts.append(len(cat))
-    gen = []
-    for _ in range(spec["repeat"]):
-        t0 = time.perf_counter()
-        model.generate(SEED, tile.bounds, min_diameter=2 * res)
-        gen.append(time.perf_counter() - t0)
-    plain = []
-    for _ in range(spec["repeat"]):
-        t0 = time.perf_counter()
+        placed["rocks"] = len(cat)
+
+    def plain():  # as many rocks as place() placed: it runs first, in the first round
         rng = np.random.default_rng(SEED)
-        rng.random((counts[0], 15))
-        plain.append(time.perf_counter() - t0)
-    t = statistics.median(times)
-    return dict(rocks=counts[0], add_rocks=summary(times), generate=summary(gen),
-                numpy_generator_draw=summary(plain), rocks_per_s=counts[0] / t,
-                generate_ratio_to_numpy_draw=statistics.median(gen) / statistics.median(plain),
-                peak_rss_bytes=peak_rss_bytes())
+        rng.random((placed["rocks"], 15))
+
+    timed = alternate(dict(
+        add_rocks=place,
+        generate=lambda: model.generate(SEED, tile.bounds, min_diameter=2 * res),
+        numpy_generator_draw=plain), spec["repeat"])
+    return dict(rocks=placed["rocks"], **timed.timings,
+                rocks_per_s=placed["rocks"] / timed.timings["add_rocks"]["median_s"],
+                generate_ratio_to_numpy_draw=timed.ratio("generate", "numpy_generator_draw"),
+                peak_rss_bytes=timed.peak_after_first_bytes)
 
 
 def _small(tile):
@@ -139,22 +144,27 @@ def child_frame(spec: dict) -> dict:
     renderer = Renderer(ctx)
     k = Intrinsics.from_fov(image, image, 60.0)
     light = Lighting.from_angles(60.0, 12.0)
-    out = {}
+    options = RenderOptions(shadows=True)
+    scenes, counts = {}, {}
     for key, model in (("without_rocks", None), ("with_rocks", rocks)):
         stack = build_stack(base, site, levels=spec["levels"], layer_size=size, seed=SEED,
                             rocks=model)
-        scene = TerrainScene(stack, curvature=False)
-        ground = scene.height_at(*scene.site)
-        samples = descent(spec["frames"], (*scene.site, ground), start_altitude=100.0,
-                          end_altitude=20.0, duration=10.0, ground_track=(40.0, -30.0))
-        renderer.render(scene, View(samples[0].pose, k), light, RenderOptions(shadows=True))
-        times = []
-        for s in samples:
+        scenes[key] = TerrainScene(stack, curvature=False)
+        counts[key] = 0 if stack.rocks is None else len(stack.rocks)
+    # the same views of both (the ground of the stack without rocks)
+    scene = scenes["without_rocks"]
+    samples = descent(spec["frames"], (*scene.site, scene.height_at(*scene.site)),
+                      start_altitude=100.0, end_altitude=20.0, duration=10.0,
+                      ground_track=(40.0, -30.0))
+    for scene in scenes.values():  # warm: uploads, programs, shadow maps
+        renderer.render(scene, View(samples[0].pose, k), light, options)
+    times = {key: [] for key in scenes}
+    for i, s in enumerate(samples):  # frame by frame, alternating which goes first
+        for key in order(list(scenes), i):
             t0 = time.perf_counter()
-            renderer.render(scene, View(s.pose, k), light, RenderOptions(shadows=True))
-            times.append(time.perf_counter() - t0)
-        out[key] = dict(summary(times), rocks=0 if stack.rocks is None
-                        else len(stack.rocks))
+            renderer.render(scenes[key], View(s.pose, k), light, options)
+            times[key].append(time.perf_counter() - t0)
+    out = {key: dict(summary(times[key]), rocks=counts[key]) for key in scenes}
     out["ratio_with_to_without"] = out["with_rocks"]["median_s"] / out["without_rocks"]["median_s"]
     out["renderer"] = describe()
     out["peak_rss_bytes"] = peak_rss_bytes()

@@ -3,7 +3,9 @@
 A synthetic lunar terrain (RMD relief with a crater population, 513^2 at 2 m) is rendered with
 Hapke photometry at 1024 x 1024 from 600 m up, looking 30 degrees off nadir. Each figure is a
 median over repeated frames, against the baseline measured in the same run: the plain render
-(the draw and the read-back of the I/F, range and normal images), what every frame pays.
+(the draw and the read-back of the I/F, range and normal images), what every frame pays. The
+six calls are timed in rounds, interleaved (each round in the reverse order of the last), so
+that a change in machine load hits all alike.
 
 * ``plain_render``: the baseline; ``plain_render_lunar_lambert``: the same frame with
   lunar-Lambert instead of Hapke (what the Hapke shader costs).
@@ -30,27 +32,15 @@ import argparse
 import json
 import math
 import os
-import statistics
 import sys
-import time
 from dataclasses import replace
 from pathlib import Path
 
-from _common import logger, machine_facts, peak_rss_bytes
+from _common import alternate, logger, machine_facts, peak_rss_bytes
 
 ROOT = Path(__file__).resolve().parent.parent
 log = logger("bench-sensor")
 SEED = 16
-
-
-def timed(fn, repeat):
-    times, out = [], None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-    return dict(median_s=statistics.median(times), min_s=min(times), max_s=max(times),
-                runs_s=times), out
 
 
 def main(argv=None) -> int:
@@ -82,33 +72,38 @@ def main(argv=None) -> int:
     view = View(pose, k)
     light = Lighting.from_angles(120.0, 20.0, brdf="hapke")
     options = RenderOptions(shadows=True, shadow_size=2048, lod_pixels=1.5)
-    renderer.render(scene, view, light, options)  # warm-up: uploads, shadow maps
-    rss0 = peak_rss_bytes()
-    log(f"plain render {size}^2")
-    plain, frame = timed(lambda: renderer.render(scene, view, light, options), repeat)
-    rad = frame.radiance
+    # warm-up: uploads, shadow maps; its I/F is what the sensors expose
+    rad = renderer.render(scene, view, light, options).radiance
     ll = Lighting.from_angles(120.0, 20.0, brdf="lunar-lambert")
     renderer.render(scene, view, ll, options)
-    lunar_lambert, _ = timed(lambda: renderer.render(scene, view, ll, options), repeat)
     simple = Sensor(bits=8, exposure=5.0, psf_sigma=0.5, gain=20.0, read_noise=1.0, seed=SEED)
-    simple_t, _ = timed(lambda: simple.expose(rad, 0), repeat)
     chain = Sensor.from_mapping(dict(
         bits=12, exposure_time=0.02, aperture=0.01, transmission=0.85, qe=0.6, wavelength=643.0,
         bandwidth=40.0, dark_current=200.0, prnu=0.01, read_noise=15.0, full_well=30000.0,
         gain=8.0, bias=50.0, psf=[[0.8, 0.7], [0.2, 3.0]], natural_vignetting=True,
         transfer_time=0.001), seed=SEED)
-    log("detector chain")
-    chain_t, image = timed(lambda: chain.expose(rad, 1, intrinsics=k,
-                                                spectral_irradiance=light.spectral_irradiance),
-                           repeat)
     motion = Motion(velocity=(30.0, 0.0, 0.0), angular_velocity=(0.0, 0.0, math.radians(2.0)))
-    log("motion blur")
-    blur_t, (_, _, blur_info) = timed(
-        lambda: render_exposure(renderer, scene, view, light, options, chain, motion), repeat)
     rolling = replace(chain, line_time=20e-3 / size)
-    log("rolling shutter")
-    roll_t, (_, _, roll_info) = timed(
-        lambda: render_exposure(renderer, scene, view, light, options, rolling, motion), repeat)
+    rss0 = peak_rss_bytes()
+    log(f"{size}^2: plain render, lunar-Lambert, two sensors, motion blur, rolling shutter, "
+        f"interleaved, {repeat} rounds")
+    timed = alternate(dict(
+        plain_render=lambda: renderer.render(scene, view, light, options),
+        plain_render_lunar_lambert=lambda: renderer.render(scene, view, ll, options),
+        simple_sensor=lambda: simple.expose(rad, 0),
+        detector_chain=lambda: chain.expose(rad, 1, intrinsics=k,
+                                            spectral_irradiance=light.spectral_irradiance),
+        motion_blur=lambda: render_exposure(renderer, scene, view, light, options, chain,
+                                            motion),
+        rolling_shutter=lambda: render_exposure(renderer, scene, view, light, options,
+                                                rolling, motion),
+    ), repeat)
+    plain, lunar_lambert = timed.timings["plain_render"], \
+        timed.timings["plain_render_lunar_lambert"]
+    simple_t, chain_t = timed.timings["simple_sensor"], timed.timings["detector_chain"]
+    blur_t, roll_t = timed.timings["motion_blur"], timed.timings["rolling_shutter"]
+    frame, image = timed.results["plain_render"], timed.results["detector_chain"]
+    blur_info, roll_info = timed.results["motion_blur"][2], timed.results["rolling_shutter"][2]
     base_s = plain["median_s"]
     out = dict(
         benchmark="sensor", frame=[size, size], repeat=repeat,

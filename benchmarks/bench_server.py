@@ -9,8 +9,9 @@ flies the same descent poses (1024 x 1024, shadows on, sensor noise on) two ways
   and ``GET_RANGE`` ("image+range"), measured by the client from the first byte sent to the
   last byte received.
 
-Each pose is rendered the three ways back to back (in process, image, image+range), over
-``--rounds`` passes, so a change in machine load hits all three alike. Reported per mode:
+Each pose is rendered the three ways back to back (in process, image, image+range; the order
+reversed every other pose), over ``--rounds`` passes, so a change in machine load hits all
+three alike. Reported per mode:
 median and 99th-percentile latency, frames per second and requests per second, and the
 overhead: the median over poses of (server time / in-process time of the same pose) - 1.
 Target (issue 13): server latency at most 10 % above in-process rendering; PANGU's 10 Hz is
@@ -37,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import ROOT, logger, machine_facts  # noqa: E402
+from _common import ROOT, logger, machine_facts, order  # noqa: E402
 
 SEED = 1013
 log = logger("bench-server")
@@ -151,18 +152,21 @@ def main(argv=None) -> int:
                 for r in range(rounds):
                     log(f"round {r + 1}/{rounds}: {frames} poses x 3 modes at {size}^2")
                     for i, s in enumerate(samples):
-                        t0 = time.perf_counter()
-                        reference, frame, _ = render_sample(renderer, scene, scenario, s, i)
-                        _ = frame.range  # image+range in process: the same render
-                        times["in_process"].append(time.perf_counter() - t0)
-                        for mode in ("image", "image+range"):
+                        images = {}
+                        for mode in order(list(times), r * frames + i):
                             t0 = time.perf_counter()
-                            client.set_pose(s.pose.position, s.pose.attitude, s.time, i)
-                            image = client.get_image()
-                            if mode == "image+range":
-                                client.get_range()
+                            if mode == "in_process":
+                                images[mode], frame, _ = render_sample(renderer, scene,
+                                                                       scenario, s, i)
+                                _ = frame.range  # image+range in process: the same render
+                            else:
+                                client.set_pose(s.pose.position, s.pose.attitude, s.time, i)
+                                images[mode] = client.get_image()
+                                if mode == "image+range":
+                                    client.get_range()
                             times[mode].append(time.perf_counter() - t0)
-                            same &= bool(np.array_equal(image, reference))
+                        same &= all(bool(np.array_equal(images[mode], images["in_process"]))
+                                    for mode in ("image", "image+range"))
         finally:
             proc.send_signal(signal.SIGTERM)
             proc.wait(timeout=60)

@@ -1,50 +1,96 @@
 """Run every benchmark (``benchmarks/bench_*.py``) and print one JSON document.
 
-``make bench`` runs this. Each benchmark script prints its own JSON (speed and memory
-against a baseline measured in the same run, with pass/fail flags against its issue's
-targets); this driver collects them under their names.
+``make bench`` runs this; ``make bench-quick`` and CI (``.ci/run``) run it with ``--quick``,
+so that a benchmark that breaks fails the build. Each benchmark script prints its own JSON
+(speed and memory against a baseline measured in the same run, interleaved with it, with
+pass/fail flags against its issue's targets); this driver collects them under their names,
+with each script's wall time and the CPU time of its process tree (``timing``).
 
 Usage::
 
-    .venv/bin/python benchmarks/run.py [--quick] [--only NAME ...]
+    .venv/bin/python benchmarks/run.py [--quick] [--only NAME ...] [--output FILE]
+
+The exit status is 1 when a script fails or prints no JSON, else 0 (targets met or not).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import resource
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 
 
+def _children_cpu_s() -> float:
+    """User + system CPU seconds of every child process waited for so far."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def _write(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file beside it, renamed into place."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as out:
+            out.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="smoke-test sizes")
-    parser.add_argument("--only", nargs="*", default=None,
-                        help="benchmark names to run (e.g. craters enhance asteroid)")
+    names = sorted(p.stem.removeprefix("bench_") for p in HERE.glob("bench_*.py"))
+    parser.add_argument("--only", nargs="*", default=None, choices=names, metavar="NAME",
+                        help=f"benchmarks to run, of: {' '.join(names)}")
+    parser.add_argument("--output", type=Path, default=None, metavar="FILE",
+                        help="write the JSON to FILE and print a one-line summary instead")
     args = parser.parse_args(argv)
-    scripts = sorted(HERE.glob("bench_*.py"))
-    results, status = {}, 0
+    results, timing, failed = {}, {}, []
     t0 = time.perf_counter()
-    for script in scripts:
-        name = script.stem.removeprefix("bench_")
+    for name in names:
         if args.only and name not in args.only:
             continue
         print(f"[bench] {name} ...", file=sys.stderr, flush=True)
-        proc = subprocess.run([sys.executable, str(script)] + (["--quick"] if args.quick else []),
+        w0, c0 = time.perf_counter(), _children_cpu_s()
+        proc = subprocess.run([sys.executable, str(HERE / f"bench_{name}.py")]
+                              + (["--quick"] if args.quick else []),
                               stdout=subprocess.PIPE, text=True, check=False)
+        timing[name] = dict(wall_s=round(time.perf_counter() - w0, 2),
+                            cpu_s=round(_children_cpu_s() - c0, 2))
         try:
             results[name] = json.loads(proc.stdout)
         except json.JSONDecodeError:
             results[name] = {"error": f"no JSON (exit status {proc.returncode})"}
-        if proc.returncode != 0:
-            status = 1
-    print(json.dumps(dict(benchmarks=results, total_s=time.perf_counter() - t0), indent=2))
-    return status
+            failed.append(name)
+        else:
+            if proc.returncode != 0:
+                failed.append(name)
+        print(f"[bench] {name}: exit {proc.returncode}, {timing[name]['wall_s']:.0f} s wall, "
+              f"{timing[name]['cpu_s']:.0f} s CPU", file=sys.stderr, flush=True)
+    total = time.perf_counter() - t0
+    doc = dict(benchmarks=results, quick=args.quick, failed=failed, timing=timing,
+               total_s=total, total_cpu_s=round(sum(t["cpu_s"] for t in timing.values()), 2),
+               load_average=list(os.getloadavg()))
+    text = json.dumps(doc, indent=2) + "\n"
+    if args.output is None:
+        sys.stdout.write(text)
+    else:
+        _write(args.output, text)
+        verdict = f"FAILED: {' '.join(failed)}" if failed else "all ran"
+        print(f"benchmarks{' (quick)' if args.quick else ''}: {len(results)} scripts, "
+              f"{verdict}, {total:.0f} s; JSON in {args.output}")
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":
