@@ -70,7 +70,7 @@ def _warm_up() -> None:
     from terrain.craters.population import Population
     from terrain.fractal.expand import expand
     from terrain.fractal.synthetic import synthesize_tile
-    from terrain.stack.layers import build_stack
+    from terrain.stack.build import build_stack
 
     tile = synthesize_tile(33, resolution=8.0, relief=20.0, seed=1).tile
     expand(tile, 1, seed=1)
