@@ -268,14 +268,25 @@ def test_every_toml_block_of_the_docs_is_accepted_by_its_parser(tmp_path):
     assert parsed >= 2, "the population and sensor examples were not found"
 
 
+def heading_anchors(page: Path) -> set[str]:
+    """The anchors GitHub gives a page's headings (lower case, punctuation dropped)."""
+    return {re.sub(r"[^\w\- ]", "", line.lstrip("#").strip().lower()).replace(" ", "-")
+            for line in page.read_text(encoding="utf-8").splitlines()
+            if line.startswith("#")}
+
+
 def test_every_relative_link_of_the_readme_and_docs_names_a_file_that_exists():
-    """Links and pictures point at files of this repository that are there."""
+    """Links and pictures point at files of this repository that are there (and sections
+    of its pages that are there)."""
     broken = []
     for page in [README, *sorted((REPO / "docs").glob("*.md"))]:
         for match in LINK.finditer(page.read_text(encoding="utf-8")):
-            target = (match.group(1) or match.group(2)).split("#")[0]
+            target, _, anchor = (match.group(1) or match.group(2)).partition("#")
             if not target or "://" in target or target.startswith("mailto:"):
                 continue
-            if not (page.parent / target).exists():
+            path = page.parent / target
+            if not path.exists():
                 broken.append(f"{page_name(page)}: {target}")
-    assert not broken, f"links to missing files: {broken}"
+            elif anchor and path.suffix == ".md" and anchor not in heading_anchors(path):
+                broken.append(f"{page_name(page)}: {target}#{anchor}")
+    assert not broken, f"links to missing files or sections: {broken}"
