@@ -1,11 +1,12 @@
-"""Every command block of README.md runs as written, in order, from a fresh clone.
+"""Every command block of README.md, then of docs/cookbook.md, runs as written, in order.
 
 The tracked files of this checkout (as they are in the working tree) are copied into a
 temporary folder, as ``git clone`` would lay them out, with ``.venv`` a link to the virtual
 environment running this test (nothing is installed) and ``../shared/data`` a link to the real
-data where this checkout has it beside it. The README's blocks then run in order in one bash
-session, as a reader would type them in one terminal (so a server started in the background
-by one block serves the next, and a variable set in one is there in the next):
+data where this checkout has it beside it. The blocks of the README and then those of the
+cookbook run in order in one bash session, as a reader would type them in one terminal (so a
+server started in the background by one block serves the next, and a variable set in one is
+there in the next):
 
 - ``sh`` blocks run with ``set -e``: the first failing command fails the test, which shows
   the block and its stderr; each block has a time limit;
@@ -22,6 +23,9 @@ by one block serves the next, and a variable set in one is there in the next):
 
 Every process the blocks start (a render server, a Dask scheduler and its workers) belongs
 to the session's process group, which is killed when the test ends, whatever happens.
+
+The other pages of ``docs/`` are reference, not a walk-through: their TOML blocks are parsed
+like the cookbook's, and every relative link of every page must name a file that exists.
 """
 
 from __future__ import annotations
@@ -40,17 +44,21 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 README = REPO / "README.md"
+COOKBOOK = REPO / "docs" / "cookbook.md"
+#: The walk-throughs whose blocks run, in this order, in one shell session.
+WALKTHROUGHS = (README, COOKBOOK)
 SHARED = REPO.parent / "shared"
 
-#: Seconds one block may take (the first render builds make demo's lunar stack).
+#: Seconds one block may take (the first render builds the reduced demo's lunar stack).
 BLOCK_TIMEOUT = 900
 FENCE = re.compile(r"^```([\w-]*)[ \t]*\n(.*?)^```[ \t]*$", re.M | re.S)
+LINK = re.compile(r"\]\(([^)\s]+)\)|<img [^>]*src=\"([^\"]+)\"")
 DONE = "__README_BLOCK_DONE__"
 MAKE_TARGETS = {"demo": "examples/demo.py", "test": "-m pytest", "bench": "benchmarks/run.py"}
 
 
 def readme_blocks(text: str) -> list[tuple[str, str, int]]:
-    """Return every fenced block of the README: (language, body, line number)."""
+    """Return every fenced block of a Markdown page: (language, body, line number)."""
     return [(m.group(1), m.group(2), text.count("\n", 0, m.start()) + 1)
             for m in FENCE.finditer(text)]
 
@@ -126,7 +134,7 @@ class Session:
             ["bash", "--noprofile", "--norc"], cwd=clone, env=env, stdin=subprocess.PIPE,
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
 
-    def run(self, script: str, n: int, text: str, line: int) -> None:
+    def run(self, script: str, n: int, text: str, where: str) -> None:
         """Run one block's script; fail with its text, its output and its stderr."""
         err = self.scratch / f"block_{n}.err"
         assert self.proc.stdin is not None and self.proc.stdout is not None
@@ -139,14 +147,14 @@ class Session:
         while True:
             left = deadline - time.monotonic()
             if left <= 0:
-                self._fail(f"timed out after {BLOCK_TIMEOUT} s", text, line, out, err)
+                self._fail(f"timed out after {BLOCK_TIMEOUT} s", text, where, out, err)
             ready, _, _ = select.select([fd], [], [], min(left, 5.0))
             if not ready:
                 continue
             chunk = os.read(fd, 65536)
             if not chunk:  # the shell exited: a command failed under set -e
                 self.proc.wait(timeout=30)
-                self._fail(f"failed (exit {self.proc.returncode})", text, line, out, err)
+                self._fail(f"failed (exit {self.proc.returncode})", text, where, out, err)
             pending += chunk
             *lines, pending = pending.split(b"\n")
             for raw in lines:
@@ -154,13 +162,13 @@ class Session:
                 if decoded.startswith(DONE):
                     code = int(decoded.split()[1])
                     if code != 0:
-                        self._fail(f"failed (exit {code})", text, line, out, err)
+                        self._fail(f"failed (exit {code})", text, where, out, err)
                     return
                 out.append(decoded)
 
-    def _fail(self, what: str, text: str, line: int, out: list[str], err: Path) -> None:
+    def _fail(self, what: str, text: str, where: str, out: list[str], err: Path) -> None:
         stderr = err.read_text(errors="replace") if err.exists() else ""
-        pytest.fail(f"README block at line {line} {what}:\n{text}\n--- stdout (end):\n"
+        pytest.fail(f"block at {where} {what}:\n{text}\n--- stdout (end):\n"
                     + "\n".join(out[-30:]) + f"\n--- stderr (end):\n{stderr[-4000:]}",
                     pytrace=False)
 
@@ -179,55 +187,106 @@ class Session:
                 time.sleep(2)  # let children that outlive the shell take the signal too
 
 
+def page_name(page: Path) -> str:
+    """A page's path relative to the repository, as a failure names it."""
+    return str(page.relative_to(REPO))
+
+
 @pytest.mark.slow
-def test_every_readme_command_block_runs_in_order_from_a_fresh_clone(tmp_path):
+def test_every_command_block_of_readme_and_cookbook_runs_in_order_from_a_fresh_clone(tmp_path):
     if shutil.which("bash") is None:
         pytest.skip("no bash here to run the README's shell blocks")
-    text = README.read_text(encoding="utf-8")
-    blocks = readme_blocks(text)
-    assert len(blocks) >= 15, "the README's code blocks were not found"
+    pages = [(page, readme_blocks(page.read_text(encoding="utf-8"))) for page in WALKTHROUGHS]
+    counts = {page_name(page): len(blocks) for page, blocks in pages}
+    assert counts["README.md"] >= 2 and counts["docs/cookbook.md"] >= 15, \
+        f"the code blocks were not found: {counts}"
     clone = fresh_clone(tmp_path)
+    # decided once, with the clone: the data may appear beside the checkout while this runs
+    have_data = (tmp_path / "shared" / "data").is_dir()
     scratch = tmp_path / "blocks"
     scratch.mkdir()
     session = Session(clone, scratch)
     ran, skipped = 0, []
+    n = 0
     try:
-        for n, (lang, body, line) in enumerate(blocks):
-            if lang == "toml":
-                parse_toml_block(body, scratch)
-                continue
-            if lang in ("sh", "bash", "shell"):
-                lines = commands(body)
-                makes = [c for c in lines if c.startswith("make ")]
-                if makes:
-                    assert makes == lines, f"mixed make block at line {line}:\n{body}"
-                    check_make_targets(clone, [c.split()[1] for c in makes], tmp_path)
+        for page, blocks in pages:
+            for lang, body, line in blocks:
+                n += 1
+                where = f"{page_name(page)}:{line}"
+                if lang == "toml":
+                    parse_toml_block(body, scratch)
                     continue
-                if "../shared/data" in body and not (SHARED / "data").is_dir():
-                    skipped.append(line)
-                    continue
-                script_file = scratch / f"block_{n}.sh"
-                script_file.write_text("set -e -o pipefail\n" + body, encoding="utf-8")
-                session.run(f"source {script_file}", n, body, line)
-            elif lang == "python":
-                script_file = scratch / f"block_{n}.py"
-                script_file.write_text(body, encoding="utf-8")
-                session.run(f"python {script_file}", n, body, line)
-            else:
-                raise AssertionError(f"README block at line {line} is '{lang}': say how to "
-                                     "check it in tests/test_readme.py")
-            ran += 1
+                if lang in ("sh", "bash", "shell"):
+                    lines = commands(body)
+                    makes = [c for c in lines if c.startswith("make ")]
+                    if makes:
+                        assert makes == lines, f"mixed make block at {where}:\n{body}"
+                        check_make_targets(clone, [c.split()[1] for c in makes], tmp_path)
+                        continue
+                    if "../shared/data" in body and not have_data:
+                        skipped.append(where)
+                        continue
+                    script_file = scratch / f"block_{n}.sh"
+                    script_file.write_text("set -e -o pipefail\n" + body, encoding="utf-8")
+                    session.run(f"source {script_file}", n, body, where)
+                elif lang == "python":
+                    script_file = scratch / f"block_{n}.py"
+                    script_file.write_text(body, encoding="utf-8")
+                    session.run(f"python {script_file}", n, body, where)
+                else:
+                    raise AssertionError(f"block at {where} is '{lang}': say how to "
+                                         "check it in tests/test_readme.py")
+                ran += 1
     finally:
         session.close()
     assert ran >= 12
     if skipped:
-        print(f"blocks needing ../shared/data, absent here, not run: lines {skipped}")
+        print(f"blocks needing ../shared/data, absent here, not run: {skipped}")
 
 
-def test_the_readme_parser_sees_every_fence():
-    """Every ``` line of the README opens or closes a block the test runs or parses."""
-    text = README.read_text(encoding="utf-8")
+@pytest.mark.parametrize("page", WALKTHROUGHS, ids=page_name)
+def test_the_block_parser_sees_every_fence(page):
+    """Every ``` line of a walk-through opens or closes a block the test runs or parses."""
+    text = page.read_text(encoding="utf-8")
     fences = sum(1 for line in text.splitlines() if line.startswith("```"))
     blocks = readme_blocks(text)
     assert fences == 2 * len(blocks)
     assert {lang for lang, _, _ in blocks} <= {"sh", "python", "toml"}
+
+
+def test_every_toml_block_of_the_docs_is_accepted_by_its_parser(tmp_path):
+    """A TOML example anywhere in docs/ is one the parser of what it documents accepts."""
+    parsed = 0
+    for page in sorted((REPO / "docs").glob("*.md")):
+        for lang, body, line in readme_blocks(page.read_text(encoding="utf-8")):
+            if lang == "toml":
+                try:
+                    parse_toml_block(body, tmp_path)
+                except Exception as exc:
+                    pytest.fail(f"TOML block at {page_name(page)}:{line}: {exc}", pytrace=False)
+                parsed += 1
+    assert parsed >= 2, "the population and sensor examples were not found"
+
+
+def heading_anchors(page: Path) -> set[str]:
+    """The anchors GitHub gives a page's headings (lower case, punctuation dropped)."""
+    return {re.sub(r"[^\w\- ]", "", line.lstrip("#").strip().lower()).replace(" ", "-")
+            for line in page.read_text(encoding="utf-8").splitlines()
+            if line.startswith("#")}
+
+
+def test_every_relative_link_of_the_readme_and_docs_names_a_file_that_exists():
+    """Links and pictures point at files of this repository that are there (and sections
+    of its pages that are there)."""
+    broken = []
+    for page in [README, *sorted((REPO / "docs").glob("*.md"))]:
+        for match in LINK.finditer(page.read_text(encoding="utf-8")):
+            target, _, anchor = (match.group(1) or match.group(2)).partition("#")
+            if not target or "://" in target or target.startswith("mailto:"):
+                continue
+            path = page.parent / target
+            if not path.exists():
+                broken.append(f"{page_name(page)}: {target}")
+            elif anchor and path.suffix == ".md" and anchor not in heading_anchors(path):
+                broken.append(f"{page_name(page)}: {target}#{anchor}")
+    assert not broken, f"links to missing files or sections: {broken}"
