@@ -58,7 +58,10 @@ def rock_sfd(catalog: RockCatalog, extent, min_diameter: float, *, points: int =
     # rocks with diameter >= grid; the relative slack keeps a rock whose diameter equals a grid
     # point counted when geomspace rounds that point up by an ulp
     idx = np.searchsorted(-d, -grid * (1.0 - GRID_SLACK), side="right")
-    frac = np.where(idx > 0, cum_area[np.maximum(idx - 1, 0)], 0.0) / area
+    if d.size:
+        frac = np.where(idx > 0, cum_area[np.maximum(idx - 1, 0)], 0.0) / area
+    else:  # no rock of min_diameter or more: nothing to index
+        frac = np.zeros(grid.size)
     return dict(diameter_m=grid, fractional_area=frac, number_per_m2=idx / area,
                 rocks=int(d.size), area_m2=float(area))
 

@@ -19,6 +19,13 @@ def _rocks(x, y, d):
                        axis_c_m=d / 2, orientation_deg=zero, layer=np.zeros(d.size, int))
 
 
+def test_rock_sfd_of_an_extent_without_rocks_that_large_is_zero():
+    cat = _rocks([1.0, 2.0], [1.0, 2.0], [0.2, 0.4])
+    m = rock_sfd(cat, (0.0, 0.0, 10.0, 10.0), 1.0, points=4)
+    assert m["rocks"] == 0
+    assert not np.any(m["number_per_m2"]) and not np.any(m["fractional_area"])
+
+
 def test_rock_sfd_counts_area_and_number_of_rocks_at_least_d():
     cat = _rocks([1.0, 2.0, 3.0, 50.0], [1.0, 2.0, 3.0, 3.0], [0.2, 0.4, 0.8, 5.0])
     m = rock_sfd(cat, (0.0, 0.0, 10.0, 10.0), 0.2, points=3)  # the 5 m rock lies outside
