@@ -11,7 +11,8 @@ shortens. Then it reports
 * slope quantiles of both;
 * the ratio of their radially averaged power spectra over the band both resolve, with the
   median and largest ``|log10 ratio|`` (the paper's Fig. 14 comparison as numbers), and
-  the Hurst exponent of each (:mod:`evaluation.spectrum`).
+  the Hurst exponent of each from the median structure function over even lags
+  (:func:`evaluation.validate.hurst_estimate`), which a period-2 pattern cannot bias.
 
 DEMs in different coordinate reference systems are refused: their pixels are not the same
 shape on the ground, so their slopes are not comparable until one is reprojected onto the
@@ -31,7 +32,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from evaluation.slope import SlopeDistribution, horn_slope, matched_baseline, slope_distribution
-from evaluation.spectrum import RadialSpectrum, fit_hurst, radial_spectrum
+from evaluation.spectrum import RadialSpectrum, radial_spectrum
+from evaluation.validate import hurst_estimate
 from terrain.core.errors import InvalidDEMError, InvalidParameterError
 from terrain.core.tile import DEMTile
 from terrain.io import same_crs
@@ -118,6 +120,7 @@ class Comparison:
     ratio_frequency, ratio : (k,) float64
         ``P / P_ref`` over the common band (cycles per metre).
     hurst, reference_hurst : float or None
+        From the median structure function over even lags (robust to period-2 patterns).
     """
 
     label: str
@@ -168,13 +171,19 @@ class Comparison:
 
 
 def _spectrum_and_hurst(tile, label):
+    """Return the power spectrum and the Hurst exponent (or None where a DEM is too small).
+
+    The exponent comes from the median structure function over even lags
+    (:func:`evaluation.validate.hurst_estimate`): a period-2 row or column pattern, as in
+    shape-from-shading DEMs, cancels on even lags where it would bend a spectral fit.
+    """
     try:
         spectrum = radial_spectrum(tile, label=label)
     except InvalidDEMError as exc:
         log.warning("%s: no power spectrum (%s)", label, exc)
-        return None, None
+        spectrum = None
     try:
-        return spectrum, fit_hurst(spectrum).hurst
+        return spectrum, hurst_estimate(tile).hurst
     except InvalidDEMError as exc:
         log.warning("%s: no Hurst exponent (%s)", label, exc)
         return spectrum, None
