@@ -227,6 +227,19 @@ ROCK_ABUNDANCE = PublishedStat(
     "More than 10 % of the area under metre-size rocks is found only on the ejecta of fresh "
     "craters.")
 
+#: VIPER environment specification's rock size-frequency models, N(>=D) = a D^b per m^2 (D in
+#: metres): (a, b) of the low, nominal and high (after Haworth) models.
+VIPER_ROCK_MODELS = {"low": (1e-4, -1.755), "nominal": (3e-4, -2.482), "high": (2e-3, -2.661)}
+
+#: Rocks of a metre and more per km^2, against the VIPER environment specification.
+ROCK_DENSITY = PublishedStat(
+    "rock_density_1m", "rocks >= 1 m per km^2", 300.0, 200.0, "per km^2",
+    "VIPER environment specification (NASA): rock SFD models N(>=D) = 3e-4 D^-2.482 per m^2 "
+    "(nominal), 1e-4 D^-1.755 (low) and 2e-3 D^-2.661 (high, after Haworth)", 100.0,
+    "At D = 1 m the low and high models give 100 and 2,000 rocks per km^2 (nominal 300): a "
+    "surface with fewer than the low model has no metre-scale rocks where landers meet "
+    "them; one above the high model is rockier than the specification's rockiest site.")
+
 #: Boulder cumulative SFD power-law index on small bodies.
 BODY_BOULDER_INDEX = PublishedStat(
     "boulder_sfd_index", "cumulative boulder SFD power-law index", -2.9, 0.3, "",

@@ -742,27 +742,49 @@ def _crater_checks(stack) -> tuple[list, dict]:
     return results, data
 
 
-def _rock_check(stack) -> tuple[Result, dict]:
+def _rock_check(stack) -> tuple[list[Result], dict]:
     stat = ls.ROCK_ABUNDANCE
     name = "rock abundance (area under rocks >= 1 m)"
     rocks = stack.rocks
     if rocks is None or len(rocks.diameter_m) == 0:
-        return not_applicable(REALISM, name, "the stack has no rocks", stat), {}
+        return [not_applicable(REALISM, name, "the stack has no rocks", stat)], {}
     from evaluation.hazards import rock_sfd
     from terrain.stack.plan import layer_bounds
 
     # the finest layer whose pixels resolve a 1 m rock, where the catalogue is complete
     k = max((i for i, t in enumerate(stack.tiles) if t.resolution <= 0.5), default=None)
     if k is None:
-        return not_applicable(REALISM, name, "no layer resolves a 1 m rock", stat), {}
+        return [not_applicable(REALISM, name, "no layer resolves a 1 m rock", stat)], {}
     tile = stack.tiles[k]
     sfd = rock_sfd(rocks, layer_bounds(tile.shape, tile.transform), 1.0)
     share = float(sfd["fractional_area"][0])
-    return _judge(REALISM, name + f" (layer {k})", share, stat.threshold, "<=", stat,
-                  unit="fraction",
-                  fail_meaning=(f"{100 * share:.3g} % of the area lies under rocks of a "
-                                "metre and more; Diviner sees that only on fresh ejecta")), \
-        dict(rock_sfd=sfd, rock_layer=k)
+    abundance = _judge(REALISM, name + f" (layer {k})", share, stat.threshold, "<=", stat,
+                       unit="fraction",
+                       fail_meaning=(f"{100 * share:.3g} % of the area lies under rocks of a "
+                                     "metre and more; Diviner sees that only on fresh ejecta"))
+    return [abundance, _rock_density_check(sfd, k)], dict(rock_sfd=sfd, rock_layer=k)
+
+
+def _rock_density_check(sfd: dict, layer: int) -> Result:
+    """Rocks of a metre and more per km^2 inside the VIPER specification's low-high band.
+
+    The band's edges widen by two standard deviations of a Poisson count over the measured
+    area, so a field drawn from an edge model passes as often as counting allows (97.7 %).
+    """
+    stat = ls.ROCK_DENSITY
+    per_km2 = float(sfd["number_per_m2"][0]) * 1e6
+    area_km2 = float(sfd["area_m2"]) / 1e6
+    low0, high0 = (ls.VIPER_ROCK_MODELS[m][0] * 1e6 for m in ("low", "high"))
+    low = low0 - 2.0 * math.sqrt(low0 * area_km2) / area_km2
+    high = high0 + 2.0 * math.sqrt(high0 * area_km2) / area_km2
+    name = f"rocks >= 1 m per km^2 within the VIPER low-high band (layer {layer})"
+    if per_km2 < low:
+        return _judge(REALISM, name, per_km2, low, ">=", stat, unit="per km^2",
+                      fail_meaning=(f"{per_km2:.3g} per km^2, below the low model's {low0:.0f}: "
+                                    "no metre-scale rocks where a lander meets them"))
+    return _judge(REALISM, name, per_km2, high, "<=", stat, unit="per km^2",
+                  fail_meaning=(f"{per_km2:.3g} per km^2, above the high model's {high0:.0f}: "
+                                "rockier than the specification's rockiest site"))
 
 
 def validate_stack(stack, terrain: str, *, label: str = "stack") -> Validation:
@@ -798,7 +820,7 @@ def validate_stack(stack, terrain: str, *, label: str = "stack") -> Validation:
     cr, data = _crater_checks(stack)
     results += cr
     rock, rdata = _rock_check(stack)
-    results.append(rock)
+    results += rock
     data.update(rdata)
     results += body_checks()
     data["layers"] = per_layer

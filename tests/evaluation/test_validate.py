@@ -276,3 +276,23 @@ def test_real_bodies_agree_at_the_same_facet_count_and_a_smooth_ellipsoid_does_n
                                      labels=("ellipsoid", "Eros"))
     r = body_slope_check(body, ref)
     assert r.status == "fail" and "flatter" in r.meaning
+
+
+@pytest.mark.parametrize("model, verdict", [
+    ("nominal", "pass"), ("high", "pass"), ("low", "pass"), ("none", "fail"), ("dense", "fail")])
+def test_metre_rocks_are_judged_against_the_viper_specification(model, verdict):
+    """Rocks drawn from the VIPER specification's own models over 1 km^2 pass; a field with no
+    metre-scale rock, or ten times the high model, fails with the reason."""
+    from evaluation.hazards import rock_sfd
+    from evaluation.lunar_stats import VIPER_ROCK_MODELS
+    from evaluation.validate import _rock_density_check
+    from terrain.surface.rocks import RockModel, rock_catalog
+
+    a, b = {"none": (1e-7, -2.5), "dense": (2e-2, -2.661)}.get(model) or VIPER_ROCK_MODELS[model]
+    rocks = RockModel.from_spec(f"power:a={a},b={b},dmin=1,dmax=10").generate(
+        3, (0.0, 0.0, 1000.0, 1000.0), margin=False)
+    cat = rock_catalog(rocks, np.zeros(len(rocks)), np.zeros(len(rocks), int))
+    result = _rock_density_check(rock_sfd(cat, (0.0, 0.0, 1000.0, 1000.0), 1.0), 15)
+    assert result.status == verdict, result
+    if verdict == "fail":
+        assert "model" in result.meaning
