@@ -49,7 +49,8 @@ def test_demo_writes_one_folder_and_a_report_with_every_figure(demo):
     ids = [s["id"] for s in doc["sections"]]
     assert ids == ["campaign", "tracking-lunar descent", "consistency-lunar descent",
                    "tracking-asteroid approach", "consistency-asteroid approach",
-                   "dem-lunar layers", "site", "asteroid", "closed-loop"]
+                   "dem-lunar layers", "realism-lunar", "sources-lunar", "site", "asteroid",
+                   "closed-loop"]
     # every figure is embedded, and none is empty
     images = re.findall(r'<img alt="[^"]*" src="data:image/png;base64,([A-Za-z0-9+/=]+)"', text)
     assert len(images) == len(doc["figures"]) >= 15
