@@ -765,6 +765,11 @@ def _rock_check(stack) -> tuple[list[Result], dict]:
     return [abundance, _rock_density_check(sfd, k)], dict(rock_sfd=sfd, rock_layer=k)
 
 
+#: Fewest rocks of 1 m the low VIPER model must expect over the measured area for a count to
+#: tell a rocky surface from a bare one (Poisson: no rock at all is then below 5 % likely).
+MIN_EXPECTED_ROCKS = 3.0
+
+
 def _rock_density_check(sfd: dict, layer: int) -> Result:
     """Rocks of a metre and more per km^2 inside the VIPER specification's low-high band.
 
@@ -775,9 +780,14 @@ def _rock_density_check(sfd: dict, layer: int) -> Result:
     per_km2 = float(sfd["number_per_m2"][0]) * 1e6
     area_km2 = float(sfd["area_m2"]) / 1e6
     low0, high0 = (ls.VIPER_ROCK_MODELS[m][0] * 1e6 for m in ("low", "high"))
+    name = f"rocks >= 1 m per km^2 within the VIPER low-high band (layer {layer})"
+    if low0 * area_km2 < MIN_EXPECTED_ROCKS:
+        return not_applicable(
+            REALISM, name, f"layer {layer} covers {area_km2:.3g} km^2, where the low model "
+            f"expects {low0 * area_km2:.2g} rocks of 1 m: too small to tell rocks from none",
+            stat)
     low = low0 - 2.0 * math.sqrt(low0 * area_km2) / area_km2
     high = high0 + 2.0 * math.sqrt(high0 * area_km2) / area_km2
-    name = f"rocks >= 1 m per km^2 within the VIPER low-high band (layer {layer})"
     if per_km2 < low:
         return _judge(REALISM, name, per_km2, low, ">=", stat, unit="per km^2",
                       fail_meaning=(f"{per_km2:.3g} per km^2, below the low model's {low0:.0f}: "

@@ -296,3 +296,12 @@ def test_metre_rocks_are_judged_against_the_viper_specification(model, verdict):
     assert result.status == verdict, result
     if verdict == "fail":
         assert "model" in result.meaning
+
+
+def test_a_rock_count_over_too_small_an_area_is_not_judged():
+    """0.001 km^2 holds 0.1 rocks of 1 m at the low model: finding none says nothing."""
+    from evaluation.validate import _rock_density_check
+
+    sfd = {"number_per_m2": np.zeros(4), "area_m2": 1000.0}
+    result = _rock_density_check(sfd, 15)
+    assert result.status == "not applicable" and "too small" in result.meaning
