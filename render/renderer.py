@@ -82,6 +82,12 @@ class Lighting:
         Solar spectral irradiance at 1 au in the camera's band, W m^-2 nm^-1.
     distance : float
         The body's distance from the Sun, au.
+    earth : (3,) float or None
+        Direction towards the Earth (unit vector, world frame) where earthshine is drawn;
+        None for no second source.
+    earthshine : float
+        Irradiance from the Earth on a surface facing it, as a fraction of the direct solar
+        irradiance at the body (its phase, albedo and distance folded in; 0 for none).
     """
 
     sun: tuple
@@ -91,6 +97,8 @@ class Lighting:
     hapke: Hapke = SATO_643NM
     irradiance: float = SOLAR_643NM
     distance: float = 1.0
+    earth: tuple | None = None
+    earthshine: float = 0.0
 
     def __post_init__(self):
         s = np.asarray(self.sun, dtype=np.float64).reshape(-1)
@@ -108,6 +116,25 @@ class Lighting:
             if not (v > 0 and math.isfinite(v)):
                 raise InvalidParameterError(f"sun {name} must be positive; got {v}")
             object.__setattr__(self, name, v)
+        if self.earth is not None:
+            e = np.asarray(self.earth, dtype=np.float64).reshape(-1)
+            if e.shape != (3,) or not np.all(np.isfinite(e)) or np.linalg.norm(e) == 0:
+                raise InvalidParameterError(
+                    f"earth direction must be a non-zero 3-vector; got {e}")
+            object.__setattr__(self, "earth", tuple((e / np.linalg.norm(e)).tolist()))
+        es = float(self.earthshine)
+        if not (0.0 <= es < 1.0):
+            raise InvalidParameterError(f"earthshine must lie in [0, 1); got {es}")
+        object.__setattr__(self, "earthshine", es)
+
+    @property
+    def sun_angular_radius(self) -> float:
+        """Angular radius of the solar disk seen from the body (radians).
+
+        The Sun's photospheric radius 695,700 km (IAU 2015 Resolution B3 nominal value) over
+        the body's distance (1 au = 149,597,870.7 km, IAU 2012 Resolution B2).
+        """
+        return math.asin(695_700.0 / (self.distance * 149_597_870.7))
 
     @property
     def spectral_irradiance(self) -> float:

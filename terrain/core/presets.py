@@ -1,0 +1,133 @@
+"""Terrain presets: the published numbers that make a tile look like one kind of lunar ground.
+
+``--terrain south-polar|highlands|maria`` (synth, enhance and rocks; scenarios and campaign files
+as ``terrain = "..."``) chooses one :class:`TerrainPreset`. Each field is a measured quantity, and
+each preset lists the measurements it comes from in :attr:`TerrainPreset.sources`; the table is
+repeated, with the sources, in ``docs/presets.md``.
+
+Roughness is given as the LOLA bidirectional-slope law: the median slope ``slope_17m_deg`` at a
+17 m baseline and the Hurst exponent ``hurst``, so that the median slope at baseline ``L`` is
+``atan(tan(slope_17m) (L / 17 m)^(hurst - 1))`` up to ``self_affine_max_m``, beyond which the
+surface stops being self-affine and the slope falls faster (Rosenburg et al. 2011, JGR 116,
+E02001, Table 1 and Figs. 5-8; Kreslavsky et al. 2013, Icarus 226, 52).
+
+Examples
+--------
+>>> preset("south-polar").hurst
+0.95
+>>> preset("south polar")  # doctest: +ELLIPSIS
+Traceback (most recent call last):
+...
+terrain.core.errors.InvalidParameterError: terrain preset 'south polar' is not known (did you ...
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from terrain.core.checks import text
+
+__all__ = ["PRESETS", "TerrainPreset", "preset"]
+
+
+@dataclass(frozen=True)
+class TerrainPreset:
+    """One kind of lunar ground, as published measurements.
+
+    Parameters
+    ----------
+    name : str
+        The preset's name (``--terrain NAME``).
+    description : str
+        One line for listings.
+    slope_17m_deg : float
+        Median bidirectional slope at a 17 m baseline, degrees (LOLA).
+    hurst : float
+        Hurst exponent of the slope-baseline law from 17 m up to ``self_affine_max_m``.
+    self_affine_max_m : float
+        Largest baseline (m) over which the surface stays self-affine.
+    crater_equilibrium : float
+        Density of small craters as a multiple of the empirical equilibrium
+        ``N(>=D) = 0.0158 D^-2`` per m^2 (Trask 1966, in Melosh 1989 ch. 10).
+    surface_age_gyr : float
+        Age of the surface (Gyr): the oldest crater it keeps.
+    repose_deg : float
+        Angle of repose of the regolith (degrees): old slopes relax to it.
+    rock_model : str
+        Rock model name (the VIPER environment specification's ``viper-low``,
+        ``viper-nominal`` or ``viper-high``).
+    sources : tuple of str
+        Where each number comes from.
+    """
+
+    name: str
+    description: str
+    slope_17m_deg: float
+    hurst: float
+    self_affine_max_m: float
+    crater_equilibrium: float
+    surface_age_gyr: float
+    repose_deg: float
+    rock_model: str
+    sources: tuple[str, ...]
+
+
+#: The presets by name. Numbers: LOLA slopes and Hurst exponents from Rosenburg et al. (2011,
+#: JGR 116, E02001); the issue-quoted south-polar 7.6 deg at 17 m is their polar value; maria
+#: 2.0 deg at 17 m with H 0.76 self-affine to ~0.5 km and highlands 7.5 deg with H 0.95 to ~1 km
+#: (same paper, Table 1); crater equilibrium from Trask (1966); surface ages from crater counts
+#: (south-polar and highlands ~3.9 Gyr: Stöffler and Ryder 2001; maria ~3.5 Gyr: Hiesinger et
+#: al. 2011); angle of repose 35 deg for lunar regolith (Carrier et al. 1991, Lunar Sourcebook
+#: ch. 9, 30-50 deg measured, 35 deg typical at the surface's low density); rocks from the VIPER
+#: environment specification (NASA VIPER-ENV, after Haworth and Li et al.).
+PRESETS: dict[str, TerrainPreset] = {
+    p.name: p for p in (
+        TerrainPreset(
+            name="south-polar",
+            description="lunar south-polar highland terrain (the demo's site)",
+            slope_17m_deg=7.6, hurst=0.95, self_affine_max_m=1000.0,
+            crater_equilibrium=1.0, surface_age_gyr=3.9, repose_deg=35.0,
+            rock_model="viper-nominal",
+            sources=("Rosenburg et al. 2011 (LOLA slopes and Hurst exponent, polar)",
+                     "Trask 1966 (crater equilibrium)",
+                     "Carrier et al. 1991 (angle of repose)",
+                     "VIPER environment specification (rock SFD, nominal)")),
+        TerrainPreset(
+            name="highlands",
+            description="lunar highlands (heavily cratered, rough at km scale)",
+            slope_17m_deg=7.5, hurst=0.95, self_affine_max_m=1000.0,
+            crater_equilibrium=1.0, surface_age_gyr=3.9, repose_deg=35.0,
+            rock_model="viper-nominal",
+            sources=("Rosenburg et al. 2011 (LOLA highlands slopes and Hurst exponent)",
+                     "Trask 1966 (crater equilibrium)",
+                     "Carrier et al. 1991 (angle of repose)",
+                     "VIPER environment specification (rock SFD, nominal)")),
+        TerrainPreset(
+            name="maria",
+            description="lunar mare plains (smooth, self-affine to ~0.5 km)",
+            slope_17m_deg=2.0, hurst=0.76, self_affine_max_m=500.0,
+            crater_equilibrium=1.0, surface_age_gyr=3.5, repose_deg=35.0,
+            rock_model="viper-low",
+            sources=("Rosenburg et al. 2011 (LOLA maria slopes and Hurst exponent)",
+                     "Trask 1966 (crater equilibrium)",
+                     "Hiesinger et al. 2011 (mare ages)",
+                     "Carrier et al. 1991 (angle of repose)",
+                     "VIPER environment specification (rock SFD, low)")),
+    )
+}
+
+
+def preset(name: str) -> TerrainPreset:
+    """Return the preset called ``name``; an unknown name is refused naming the nearest.
+
+    Parameters
+    ----------
+    name : str
+        ``south-polar``, ``highlands`` or ``maria``.
+
+    Returns
+    -------
+    TerrainPreset
+        Its published numbers.
+    """
+    return PRESETS[text(name, "terrain preset", choices=PRESETS)]
