@@ -730,6 +730,14 @@ def results_text(c: Campaign, out: Path, report: Path, commit: str) -> str:
     if rows:
         lines += ["", "## Measured", "", "| quantity | value |", "|---|---|"]
         lines += [f"| {label} | {_cell(value)} |" for label, value in rows]
+    terrain = facts.get("terrain_figures")
+    if terrain:
+        lines += ["", f"## The lunar stack against the {terrain['terrain']} preset", "",
+                  "Slopes at each baseline on the layer fit for it, steep ground outside young "
+                  "craters, the visible small craters and the rocks "
+                  "(evaluation.validate.preset_figures).", "", "| quantity | value |",
+                  "|---|---|"]
+        lines += [f"| {_escape(label)} | {_cell(value)} |" for label, value in terrain["rows"]]
     return "\n".join(lines) + "\n"
 
 

@@ -145,6 +145,7 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
         body_slope_check,
         boulder_check,
         facet_matched_slopes,
+        preset_figures,
         validate_stack,
     )
     from evaluation.validate_report import as_check, regroup_campaign_checks, validation_sections
@@ -232,10 +233,14 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     # realism is judged by published lunar statistics, layer by layer (evaluation.validate);
     # the comparisons with real DEMs of other places above are side by side
     say("evaluation: terrain realism of every layer (published lunar statistics)")
-    realism = validate_stack(stack, "south-polar", label="lunar layer stack")
+    # the stack is judged as the terrain type it was built for (its synth preset)
+    terrain = getattr(c.synth, "terrain", None) or "south-polar"
+    realism = validate_stack(stack, terrain, label="lunar layer stack")
     sections += validation_sections(realism, key="lunar")
     facts["realism"] = dict(verdict=realism.verdict,
                             failed=[f"{r.name}: {r.meaning}" for r in realism.failures()])
+    facts["terrain_figures"] = dict(terrain=terrain, rows=[
+        [label, value] for label, value in preset_figures(realism)])
     facts["dem_comparisons"] = [dict(label=x.label, reference=x.reference_label,
                                      ks=x.ks_distance, resolution_m=x.resolution_m,
                                      median=x.distribution.quantiles["p50"],

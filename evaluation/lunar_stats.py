@@ -32,9 +32,10 @@ from dataclasses import dataclass
 from terrain.core.errors import InvalidParameterError
 
 __all__ = ["BODY_BOULDER_INDEX", "CRATER_EQUILIBRIUM", "FRESH_DEPTH_DIAMETER",
-           "HURST_TOLERANCE", "KS_BETWEEN_REAL_DEMS", "MESH_SLOPE_RISE",
-           "ROCK_ABUNDANCE", "SLOPE_BAND_FACTOR", "SMOOTHNESS", "STEEP_SLOPE", "STATS",
-           "TERRAINS", "PublishedStat", "TerrainLaw", "terrain_law"]
+           "HURST_TOLERANCE", "KS_BETWEEN_REAL_DEMS", "MESH_SLOPE_RISE", "REGOLITH_RMS_SLOPE",
+           "ROCK_ABUNDANCE", "SLOPE_BAND_FACTOR", "SLOPE_LAW_DEG", "SMALL_CRATER_DD",
+           "SMOOTHNESS", "STATS", "STEEP_OLD_TERRAIN", "STEEP_SLOPE", "TERRAINS",
+           "PublishedStat", "TerrainLaw", "terrain_law", "viper_cumulative"]
 
 
 @dataclass(frozen=True)
@@ -136,20 +137,19 @@ class TerrainLaw:
 #: :mod:`evaluation.validate` (0.55-0.6 over 15-120 km); the laws take 0.5.
 _H_LARGE = 0.5
 
-TERRAINS: dict[str, TerrainLaw] = {
-    "south-polar": TerrainLaw(
-        "south-polar", 7.6, 0.95, 1000.0, _H_LARGE,
-        "LOLA south polar median slope ~7.6 deg at 17 m (Rosenburg et al. 2011, JGR 116, "
-        "E02001); H as the highlands; beyond 1 km H from LOLA LDEM_4 (Smith et al. 2010)"),
-    "highlands": TerrainLaw(
-        "highlands", 7.5, 0.95, 1000.0, _H_LARGE,
-        "Rosenburg et al. 2011: highlands median slope 7.5 deg at 17 m, H 0.95, self-affine "
-        "to ~1 km"),
-    "maria": TerrainLaw(
-        "maria", 2.0, 0.76, 500.0, _H_LARGE,
-        "Rosenburg et al. 2011: maria median slope 2.0 deg at 17 m, H 0.76, self-affine to "
-        "~0.5 km"),
-}
+def _laws() -> dict[str, TerrainLaw]:
+    from terrain.core.presets import PRESETS
+
+    return {name: TerrainLaw(name, p.slope_17m_deg, p.hurst, p.self_affine_max_m, _H_LARGE,
+                             "; ".join(p.sources[:1]) + f"; H {p.hurst:g} self-affine to "
+                             f"{p.self_affine_max_m:g} m; beyond it H from LOLA LDEM_4 (Smith "
+                             "et al. 2010)")
+            for name, p in PRESETS.items()}
+
+
+#: The slope laws of the terrain presets (:mod:`terrain.core.presets`, where each number's
+#: source is given): the generator and the validation read the same table.
+TERRAINS: dict[str, TerrainLaw] = _laws()
 
 
 def terrain_law(name: str) -> TerrainLaw:
@@ -265,9 +265,51 @@ KS_BETWEEN_REAL_DEMS = PublishedStat(
     0.3, "Two real DEMs of one area differ by 0.225; the limit 0.3 lets them agree.",
     calibrated=True)
 
+#: Median slope of a terrain built for a law, against the law, from 17 m to 1 km.
+SLOPE_LAW_DEG = PublishedStat(
+    "slope_law_deg", "|median slope - law| at 17 m to 1 km baselines, terrain built for the law",
+    0.0, 1.0, "deg", "Rosenburg et al. 2011 (LOLA median bidirectional slopes, 17 m - 2.7 km)",
+    1.0,
+    "A synthetic site is built to its terrain law, so it must reproduce the law's median "
+    "slope at the baselines LOLA measures to within 1 deg (13 % of the polar 7.6 deg at 17 m), "
+    "well inside the factor-2 scatter between real sites: a miss means the generator missed "
+    "its target. Real DEMs are judged by the wider band of slope_band_factor instead.")
+
+#: RMS slope of regolith at centimetre baselines, rock-free, the site's tilt removed.
+REGOLITH_RMS_SLOPE = PublishedStat(
+    "regolith_rms_slope", "RMS slope at the finest centimetre baseline (plane removed)",
+    15.0, 5.0, "deg",
+    "Helfenstein and Shepard 1999 (Icarus 141, 107: Apollo stereo photographs of regolith, "
+    "self-affine from millimetres to centimetres); Hayne et al. 2021 (Nat. Astron. 5, 169: "
+    "sub-metre roughness from Diviner thermal emission): RMS slopes ~10-20 deg at ~1 cm",
+    10.0,
+    "The regolith's RMS slope rises from a few degrees at a metre to 10-20 deg at "
+    "centimetres; at the finest layer's baseline (at most 5 cm) it must lie in 10-20 deg "
+    "(the threshold is the lower edge; the upper edge is checked as well).")
+
+#: Share steeper than the angle of repose away from young craters.
+STEEP_OLD_TERRAIN = PublishedStat(
+    "steep_share_old", "area steeper than 35 deg outside craters younger than 100 Myr",
+    0.0, 0.005, "fraction",
+    "Kreslavsky and Head 2016 (Icarus 273, 329): lunar slope-frequency distributions roll "
+    "over at the angle of repose (32-35 deg, Carrier et al. 1991); only young crater walls "
+    "stand steeper", 0.005,
+    "Away from fresh craters (younger than 100 Myr, within 1.2 radii of the centre) old "
+    "terrain has relaxed to repose: at most 0.5 % of it may be steeper than 35 deg.")
+
+#: Depth/diameter of the visible 10-100 m craters (a population, not only fresh ones).
+SMALL_CRATER_DD = PublishedStat(
+    "small_crater_dd_mean", "mean depth/diameter of visible 10-100 m craters", 0.12, 0.04, "",
+    "Stopar et al. 2017 (Icarus 298, 34) and Mahanti et al. 2018 (Icarus 299, 475): small "
+    "craters' d/D is near log-normal, fresh 0.14-0.2, degraded down to ~0.04 where they stop "
+    "being counted; population means ~0.1-0.14", 0.04,
+    "The mean must lie within 0.04 of 0.12 (0.08-0.16): a population stuck at its degraded "
+    "floor (mean 0.02-0.05) or all fresh (0.2) fails.")
+
 #: Every entry, for the report's sources table.
-STATS = (SLOPE_BAND_FACTOR, HURST_TOLERANCE, SMOOTHNESS, STEEP_SLOPE, CRATER_EQUILIBRIUM,
-         FRESH_DEPTH_DIAMETER, ROCK_ABUNDANCE, BODY_BOULDER_INDEX, MESH_SLOPE_RISE,
+STATS = (SLOPE_BAND_FACTOR, SLOPE_LAW_DEG, REGOLITH_RMS_SLOPE, HURST_TOLERANCE, SMOOTHNESS,
+         STEEP_SLOPE, STEEP_OLD_TERRAIN, CRATER_EQUILIBRIUM, FRESH_DEPTH_DIAMETER,
+         SMALL_CRATER_DD, ROCK_ABUNDANCE, ROCK_DENSITY, BODY_BOULDER_INDEX, MESH_SLOPE_RISE,
          KS_BETWEEN_REAL_DEMS)
 
 
@@ -280,3 +322,22 @@ def equilibrium_density(diameter_m) -> float:
     d_km = float(diameter_m) / 1000.0
     return 10 ** -1.1 * d_km ** -2 / 1e6
 
+
+
+def viper_cumulative(model: str, diameter_m):
+    """N(>=D) per m^2 of a VIPER environment specification rock model.
+
+    Parameters
+    ----------
+    model : str
+        ``"low"``, ``"nominal"`` or ``"high"`` (a ``viper-`` prefix is accepted).
+    diameter_m : float or array
+        Diameters, metres.
+
+    >>> round(float(viper_cumulative("viper-nominal", 1.0)) * 1e6)
+    300
+    """
+    import numpy as np
+
+    a, b = VIPER_ROCK_MODELS[model.removeprefix("viper-")]
+    return a * np.asarray(diameter_m, dtype=float) ** b

@@ -575,7 +575,7 @@ class Validation:
                     stats=[s.as_dict() for s in ls.STATS], **self.data)
 
 
-def _tile_checks(tile: DEMTile, law, label: str, prefix: str):
+def _tile_checks(tile: DEMTile, law, label: str, prefix: str, *, steep: bool = True):
     from evaluation.slope import slope_distribution
 
     results, hurst = [], []
@@ -587,7 +587,8 @@ def _tile_checks(tile: DEMTile, law, label: str, prefix: str):
         results.append(not_applicable(REALISM, f"{prefix}Hurst exponent", str(exc),
                                       ls.HURST_TOLERANCE))
     results.append(_smooth_check(fine_spectral_hurst(tile), prefix))
-    results.append(_steep_check(steep_share(tile), prefix, tile.resolution))
+    if steep:
+        results.append(_steep_check(steep_share(tile), prefix, tile.resolution))
     dist = slope_distribution(tile, label=label)
     return results, hurst, dist
 
@@ -751,18 +752,23 @@ def _rock_check(stack) -> tuple[list[Result], dict]:
     from evaluation.hazards import rock_sfd
     from terrain.stack.plan import layer_bounds
 
-    # the finest layer whose pixels resolve a 1 m rock, where the catalogue is complete
-    k = max((i for i, t in enumerate(stack.tiles) if t.resolution <= 0.5), default=None)
+    # the coarsest layer whose pixels resolve a 1 m rock: the widest area where the catalogue
+    # is complete at 1 m (every layer holds the rocks it resolves)
+    k = _coarsest_rock_layer(stack)
     if k is None:
         return [not_applicable(REALISM, name, "no layer resolves a 1 m rock", stat)], {}
     tile = stack.tiles[k]
     sfd = rock_sfd(rocks, layer_bounds(tile.shape, tile.transform), 1.0)
     share = float(sfd["fractional_area"][0])
+    figures = dict(layer=k, per_km2=float(sfd["number_per_m2"][0]) * 1e6,
+                   area_km2=float(sfd["area_m2"]) / 1e6,
+                   largest_m=float(np.max(rocks.diameter_m)))
     abundance = _judge(REALISM, name + f" (layer {k})", share, stat.threshold, "<=", stat,
                        unit="fraction",
                        fail_meaning=(f"{100 * share:.3g} % of the area lies under rocks of a "
                                      "metre and more; Diviner sees that only on fresh ejecta"))
-    return [abundance, _rock_density_check(sfd, k)], dict(rock_sfd=sfd, rock_layer=k)
+    return [abundance, _rock_density_check(sfd, k)], dict(rock_sfd=sfd, rock_layer=k,
+                                                           rocks_1m=figures)
 
 
 #: Fewest rocks of 1 m the low VIPER model must expect over the measured area for a count to
@@ -797,6 +803,318 @@ def _rock_density_check(sfd: dict, layer: int) -> Result:
                                 "rockier than the specification's rockiest site"))
 
 
+# ------------------------------------------------------------------ the preset's figures
+
+#: Baselines (m) of the slope table: centimetres to a kilometre.
+SLOPE_TABLE_M = (0.03, 0.3, 1.0, 5.0, 17.0, 57.0, 225.0, 1000.0)
+#: Baselines (m) over which a terrain built for a law must match it within a degree.
+LAW_RANGE_M = (17.0, 1000.0)
+#: Fewest pixels a baseline spans in the layer it is measured on, where a layer allows it.
+MIN_LAG_PX = 4
+#: Craters younger than this (Gyr) may keep walls steeper than repose.
+YOUNG_GYR = 0.1
+#: The cells within this many radii of a young crater's centre are its walls and rim.
+YOUNG_REACH = 1.2
+#: Largest baseline (m) still counted as a centimetre scale of the regolith check.
+REGOLITH_MAX_M = 0.05
+
+
+def _plane_removed(z: np.ndarray) -> np.ndarray:
+    """Heights less their least-squares plane (the site's tilt)."""
+    ny, nx = z.shape
+    yy, xx = np.mgrid[0:ny, 0:nx]
+    ok = np.isfinite(z)
+    a = np.column_stack([xx[ok], yy[ok], np.ones(int(ok.sum()))]).astype(np.float64)
+    coef, *_ = np.linalg.lstsq(a, z[ok].astype(np.float64), rcond=None)
+    return z - (coef[0] * xx + coef[1] * yy + coef[2])
+
+
+def baseline_slopes(tile: DEMTile, lag: int) -> tuple[float, float]:
+    """Median and RMS bidirectional slope (degrees) at ``lag`` pixels, both map axes pooled.
+
+    The median is of the heights as they are (LOLA's slope maps); the RMS is of the heights
+    less their plane (the site's tilt removed), as roughness at a scale is quoted.
+
+    >>> g = 0.5 * np.arange(32.0)
+    >>> [round(v, 1) for v in baseline_slopes(DEMTile.from_array(np.add.outer(g, g)), 2)]
+    [26.6, 0.0]
+    """
+    z = _heights(tile)
+    length = lag * tile.resolution
+
+    def diffs(a):
+        d = np.concatenate([(a[:, lag:] - a[:, :-lag]).ravel(),
+                            (a[lag:, :] - a[:-lag, :]).ravel()])
+        return d[np.isfinite(d)]
+
+    raw, flat = diffs(z), diffs(_plane_removed(z))
+    if raw.size < 16:
+        return math.nan, math.nan
+    med = math.degrees(math.atan(float(np.median(np.abs(raw))) / length))
+    rms = math.degrees(math.atan(math.sqrt(float(np.mean(flat**2))) / length))
+    return med, rms
+
+
+def stack_slope_table(stack, baselines=SLOPE_TABLE_M) -> list[dict]:
+    """Median and RMS slope of a layer stack at each baseline, each from the layer fit for it.
+
+    A baseline is measured on the coarsest layer (the widest area) where it spans at least
+    :data:`MIN_LAG_PX` pixels, or else on the finest layer, and never on a layer narrower
+    than four baselines.
+
+    Returns
+    -------
+    list of dict
+        ``baseline_m`` (as measured: whole pixels), ``layer``, ``lag_px``, ``median_deg``,
+        ``rms_deg``; baselines no layer holds are left out.
+    """
+    rows = []
+    tiles = list(enumerate(stack.tiles))
+    for want in baselines:
+        fits = [(k, t, max(1, int(round(want / t.resolution)))) for k, t in tiles]
+        fits = [(k, t, lag) for k, t, lag in fits if 4 * lag <= min(t.shape)
+                and abs(lag * t.resolution / want - 1.0) <= 0.35]
+        if not fits:
+            continue
+        wide = [f for f in fits if f[2] >= MIN_LAG_PX]
+        # layers run from the base (0, coarsest) to the finest
+        k, tile, lag = (min(wide, key=lambda f: f[0]) if wide
+                        else max(fits, key=lambda f: f[0]))
+        med, rms = baseline_slopes(tile, lag)
+        rows.append(dict(baseline_m=lag * tile.resolution, layer=k, lag_px=lag,
+                         median_deg=med, rms_deg=rms))
+    return rows
+
+
+def _law_slope_check(table: list[dict], law: ls.TerrainLaw) -> Result:
+    stat = ls.SLOPE_LAW_DEG
+    lo, hi = LAW_RANGE_M
+    name = (f"median slope at {lo:g} m - {hi:g} m within {stat.threshold:g} deg of the "
+            f"{law.name} law")
+    rows = [r for r in table if lo * 0.9 <= r["baseline_m"] <= hi * 1.1
+            and np.isfinite(r["median_deg"])]
+    if not rows:
+        return not_applicable(REALISM, name, "no layer holds those baselines", stat)
+    diff = [r["median_deg"] - float(law.median_slope_deg(r["baseline_m"])) for r in rows]
+    k = int(np.argmax(np.abs(diff)))
+    r = rows[k]
+    detail = ", ".join(f"{x['baseline_m']:.3g} m: {x['median_deg']:.2f} vs "
+                       f"{float(law.median_slope_deg(x['baseline_m'])):.2f}" for x in rows)
+    return _judge(REALISM, name, abs(diff[k]), stat.threshold, "<=", stat, unit="deg",
+                  fail_meaning=(f"at {r['baseline_m']:.3g} m (layer {r['layer']}) the median "
+                                f"slope is {r['median_deg']:.2f} deg, {abs(diff[k]):.2f} deg "
+                                + ("steeper" if diff[k] > 0 else "smoother")
+                                + f" than the law ({detail})"),
+                  pass_meaning=detail)
+
+
+def _regolith_check(table: list[dict]) -> Result:
+    stat = ls.REGOLITH_RMS_SLOPE
+    name = "RMS slope at the finest centimetre baseline (plane removed), 10-20 deg"
+    fine = [r for r in table if r["baseline_m"] <= REGOLITH_MAX_M and np.isfinite(r["rms_deg"])]
+    if not fine:
+        return not_applicable(REALISM, name, f"no layer of {100 * REGOLITH_MAX_M:g} cm or "
+                              "finer", stat)
+    r = min(fine, key=lambda x: x["baseline_m"])
+    metre = [x for x in table if abs(math.log(x["baseline_m"])) < 0.4]
+    rise = (f"; {metre[0]['rms_deg']:.3g} deg at {metre[0]['baseline_m']:.3g} m"
+            if metre else "")
+    value, low, high = r["rms_deg"], stat.value - stat.scatter, stat.value + stat.scatter
+    where = f"{value:.3g} deg at {100 * r['baseline_m']:.2g} cm (layer {r['layer']}){rise}"
+    if value > high:
+        return _judge(REALISM, name, value, high, "<=", stat, unit="deg",
+                      fail_meaning=f"{where}: rougher than measured regolith")
+    return _judge(REALISM, name, value, low, ">=", stat, unit="deg",
+                  fail_meaning=(f"{where}: the regolith is smoother at centimetres than "
+                                "measured (10-20 deg)"), pass_meaning=where)
+
+
+def young_crater_mask(tile: DEMTile, catalog, *, young_gyr: float = YOUNG_GYR,
+                      reach: float = YOUNG_REACH) -> np.ndarray:
+    """Cells of ``tile`` within ``reach`` radii of a crater younger than ``young_gyr``.
+
+    >>> from terrain.craters.catalog import CraterCatalog
+    >>> young_crater_mask(DEMTile.from_array(np.zeros((8, 8))), CraterCatalog.empty()).any()
+    np.False_
+    """
+    import cv2
+
+    mask = np.zeros(tile.shape, np.uint8)
+    if catalog is None or len(catalog.diameter_m) == 0:
+        return mask.astype(bool)
+    xmin, ymin, xmax, ymax = tile.bounds
+    d, x, y = catalog.diameter_m, catalog.x_m, catalog.y_m
+    rad = reach * d / 2
+    sel = ((catalog.age_gyr < young_gyr) & (x + rad >= xmin) & (x - rad <= xmax)
+           & (y + rad >= ymin) & (y - rad <= ymax) & (rad >= 0.5 * tile.resolution))
+    rows, cols = tile.rowcol(x[sel], y[sel])
+    for r, c, rr in zip(rows, cols, rad[sel] / tile.resolution, strict=True):
+        cv2.circle(mask, (int(round(c)), int(round(r))), int(math.ceil(rr)), 1, -1)
+    return mask.astype(bool)
+
+
+def _steep_old_check(tile: DEMTile, catalog, label: str) -> Result:
+    from evaluation.slope import horn_slope
+
+    stat = ls.STEEP_OLD_TERRAIN
+    s = horn_slope(tile)
+    keep = np.isfinite(s) & ~young_crater_mask(tile, catalog)
+    share = float(np.mean(s[keep] > REPOSE_DEG)) if keep.any() else math.nan
+    return _judge(
+        REALISM, f"{label}area steeper than {REPOSE_DEG:g} deg at {tile.resolution:.3g} m "
+        f"outside craters younger than {1000 * YOUNG_GYR:g} Myr", share, stat.threshold, "<=",
+        stat, unit="fraction",
+        fail_meaning=(f"{100 * share:.3g} % of the old terrain stands steeper than repose "
+                      f"({100 * stat.threshold:g} % allowed): old slopes have not relaxed"))
+
+
+def _visible_depth_check(d: np.ndarray, h: np.ndarray) -> tuple[Result, dict]:
+    stat = ls.SMALL_CRATER_DD
+    name = f"mean depth/diameter of visible {DD_RANGE_M[0]:g}-{DD_RANGE_M[1]:g} m craters"
+    if d.size < 5:
+        return not_applicable(REALISM, name, f"only {d.size} such craters resolved "
+                              f"({MIN_CRATER_PX:g} px across) in the stack", stat), {}
+    dd = h / d
+    figures = dict(mean=float(dd.mean()), p10=float(np.percentile(dd, 10)),
+                   p90=float(np.percentile(dd, 90)), craters=int(dd.size))
+    where = (f"mean {figures['mean']:.3g}, p10 {figures['p10']:.3g}, p90 {figures['p90']:.3g} "
+             f"({dd.size} craters)")
+    mean, low, high = figures["mean"], stat.value - stat.threshold, stat.value + stat.threshold
+    if mean > high:
+        return _judge(REALISM, name, mean, high, "<=", stat,
+                      fail_meaning=f"{where}: deeper than the Moon's small craters"), figures
+    return _judge(REALISM, name, mean, low, ">=", stat,
+                  fail_meaning=(f"{where}: shallower than the Moon's visible small craters "
+                                "(degraded craters are kept past visibility)"),
+                  pass_meaning=where), figures
+
+
+#: The diameter (m) of the small-crater density figure.
+SMALL_CRATER_M = 10.0
+
+
+def _small_crater_density(stack, terrain: str) -> tuple[Result, dict]:
+    from terrain.core.presets import preset
+    from terrain.stack.plan import layer_bounds
+
+    stat = ls.CRATER_EQUILIBRIUM
+    name = f"visible craters N(>={SMALL_CRATER_M:g} m) per km^2 over the {terrain} equilibrium"
+    cat = stack.catalog
+    k = min((i for i, t in enumerate(stack.tiles)
+             if t.resolution * MIN_CRATER_PX <= SMALL_CRATER_M), default=None)
+    if cat is None or k is None:
+        return not_applicable(REALISM, name, f"no layer resolves {SMALL_CRATER_M:g} m craters "
+                              "or no catalogue", stat), {}
+    tile = stack.tiles[k]
+    n = float(crater_density(cat, layer_bounds(tile.shape, tile.transform),
+                             [SMALL_CRATER_M])[0])
+    eq = preset(terrain).crater_equilibrium * ls.equilibrium_density(SMALL_CRATER_M)
+    ratio = n / eq
+    figures = dict(per_km2=n * 1e6, equilibrium_per_km2=eq * 1e6, layer=k)
+    where = (f"{n * 1e6:.4g} per km^2 in layer {k} against {eq * 1e6:.4g} (ratio "
+             f"{ratio:.2g})")
+    if ratio < 1.0 / stat.threshold:
+        return _judge(REALISM, name, ratio, 1.0 / stat.threshold, ">=", stat, unit="x",
+                      fail_meaning=f"{where}: too few small craters survive"), figures
+    return _judge(REALISM, name, ratio, stat.threshold, "<=", stat, unit="x",
+                  fail_meaning=f"{where}: more craters than the surface keeps",
+                  pass_meaning=where), figures
+
+
+def _rock_sfd_check(stack, terrain: str) -> tuple[Result, dict]:
+    """Judge the rocks' N(>=D) over a decade of size against the preset's VIPER model.
+
+    Measured on the layer where the model expects the most rocks at ten times its smallest
+    complete diameter (2 px), at five diameters over that decade; each ratio may miss 1 by
+    15 % plus two Poisson standard deviations of the expected count.
+    """
+    from evaluation.hazards import rock_sfd
+    from terrain.core.presets import preset
+    from terrain.stack.plan import layer_bounds
+
+    stat = ls.ROCK_DENSITY
+    model = preset(terrain).rock_model
+    name = f"rock N(>=D) over a decade of size against the {model} model"
+    rocks = stack.rocks
+    if rocks is None or len(rocks.diameter_m) == 0:
+        return not_applicable(REALISM, name, "the stack has no rocks", stat), {}
+    def expected(k: int) -> float:
+        t = stack.tiles[k]
+        ext = layer_bounds(t.shape, t.transform)
+        return float(ls.viper_cumulative(model, 20 * t.resolution)) * (ext[2] - ext[0]) * (
+            ext[3] - ext[1])
+
+    k = max(range(len(stack.tiles)), key=expected)
+    tile = stack.tiles[k]
+    ext = layer_bounds(tile.shape, tile.transform)
+    area = (ext[2] - ext[0]) * (ext[3] - ext[1])
+    d0 = 2.0 * tile.resolution
+    ds = np.geomspace(d0, 10 * d0, 5)
+    sfd = rock_sfd(rocks, ext, d0, points=2)
+    x, y, dia = rocks.x_m, rocks.y_m, rocks.diameter_m
+    inside = (x >= ext[0]) & (x <= ext[2]) & (y >= ext[1]) & (y <= ext[3])
+    counts = np.array([np.count_nonzero(inside & (dia >= d)) for d in ds], float)
+    model_n = ls.viper_cumulative(model, ds) * area
+    ratio = counts / model_n
+    excess = np.abs(ratio - 1.0) - (0.15 + 2.0 / np.sqrt(model_n))
+    j = int(np.argmax(excess))
+    figures = dict(layer=k, diameter_m=ds.tolist(), count=counts.tolist(),
+                   model_count=model_n.tolist(), area_m2=area, rocks=sfd["rocks"])
+    detail = ", ".join(f"{d:.2g} m: {c:.0f} vs {m:.1f}"
+                       for d, c, m in zip(ds, counts, model_n, strict=True))
+    limit = 0.15 + 2.0 / math.sqrt(model_n[j])
+    return _judge(REALISM, name + f" (layer {k})", abs(ratio[j] - 1.0), limit, "<=", stat,
+                  fail_meaning=(f"N(>={ds[j]:.2g} m) is {ratio[j]:.2g} times the model's "
+                                f"({detail})"), pass_meaning=detail), figures
+
+
+def _coarsest_rock_layer(stack) -> int | None:
+    """Return the coarsest layer resolving a 1 m rock (2 px): the widest complete count."""
+    return min((i for i, t in enumerate(stack.tiles) if t.resolution <= 0.5), default=None)
+
+
+def preset_figures(v: Validation) -> list[tuple[str, object]]:
+    """Return the figures a terrain preset is judged by, as (quantity, value) rows.
+
+    Median and RMS slope at each baseline of :data:`SLOPE_TABLE_M` against the law, the
+    share steeper than 35 deg per layer outside young craters, the visible small craters'
+    depth/diameter and density, and the rocks' density, largest size and SFD.
+    """
+    law = ls.terrain_law(v.terrain)
+    rows: list[tuple[str, object]] = []
+    for r in v.data.get("slope_table", []):
+        rows.append((f"median slope at {r['baseline_m']:.3g} m (layer {r['layer']}), deg; "
+                     f"law {float(law.median_slope_deg(r['baseline_m'])):.3g}",
+                     round(r["median_deg"], 3)))
+        rows.append((f"RMS slope, plane removed, at {r['baseline_m']:.3g} m, deg",
+                     round(r["rms_deg"], 3)))
+    for k, share in v.data.get("steep_old", []):
+        rows.append((f"layer {k}: share steeper than 35 deg outside craters < 100 Myr",
+                     share))
+    dd = v.data.get("visible_dd")
+    if dd:
+        rows += [("visible 10-100 m craters: d/D mean", dd["mean"]),
+                 ("visible 10-100 m craters: d/D p10", dd["p10"]),
+                 ("visible 10-100 m craters: d/D p90", dd["p90"]),
+                 ("visible 10-100 m craters measured", dd["craters"])]
+    dens = v.data.get("small_craters")
+    if dens:
+        rows.append((f"craters N(>=10 m) per km^2 (layer {dens['layer']}); equilibrium "
+                     f"{dens['equilibrium_per_km2']:.4g}", dens["per_km2"]))
+    rk = v.data.get("rocks_1m")
+    if rk:
+        rows.append((f"rocks N(>=1 m) per km^2 (layer {rk['layer']}, {rk['area_km2']:.3g} "
+                     "km^2)", rk["per_km2"]))
+        rows.append(("largest rock, m", rk["largest_m"]))
+    sfd = v.data.get("rock_model_sfd")
+    if sfd:
+        rows += [(f"rocks N(>={d:.2g} m) in layer {sfd['layer']}: measured / model",
+                  f"{c:.0f} / {m:.1f}")
+                 for d, c, m in zip(sfd["diameter_m"], sfd["count"], sfd["model_count"],
+                                    strict=True)]
+    return rows
+
+
 def validate_stack(stack, terrain: str, *, label: str = "stack") -> Validation:
     """Validate every layer of a layer stack, its craters and its rocks.
 
@@ -815,23 +1133,44 @@ def validate_stack(stack, terrain: str, *, label: str = "stack") -> Validation:
     """
     law = ls.terrain_law(terrain)
     curves, results, hurst, dists = [], [], [], []
-    per_layer = []
+    per_layer, steep_old = [], []
     for k, tile in enumerate(stack.tiles):
         name = f"layer {k}"
         curves.append(slope_curve(tile, label=f"{name} ({tile.resolution:.3g} m)",
                                   max_lag=None if k == 0 else 8))
-        res, h, dist = _tile_checks(tile, law, name, f"{name}: ")
-        results += res
+        res, h, dist = _tile_checks(tile, law, name, f"{name}: ", steep=False)
+        old = _steep_old_check(tile, stack.catalog, f"{name}: ")
+        results += res + [old]
+        steep_old.append((k, old.value))
         hurst += h
         dists.append(dist)
         per_layer.append(dict(layer=k, resolution_m=tile.resolution,
                               period2_ratio=period2_ratio(tile)))
-    results.insert(0, _slope_curve_check(curves, law))
+    table = stack_slope_table(stack)
+    results[:0] = [_slope_curve_check(curves, law), _law_slope_check(table, law),
+                   _regolith_check(table)]
     cr, data = _crater_checks(stack)
     results += cr
+    data["slope_table"] = table
+    data["steep_old"] = steep_old
+    if "depth_diameter" in data:
+        dd = data["depth_diameter"]
+        check, figures = _visible_depth_check(np.asarray(dd["diameter_m"]),
+                                              np.asarray(dd["depth_m"]))
+        results.append(check)
+        data["visible_dd"] = figures
+    if stack.catalog is not None and len(stack.catalog.diameter_m):
+        check, figures = _small_crater_density(stack, terrain)
+        results.append(check)
+        if figures:
+            data["small_craters"] = figures
     rock, rdata = _rock_check(stack)
     results += rock
     data.update(rdata)
+    if stack.rocks is not None and len(stack.rocks.diameter_m):
+        check, figures = _rock_sfd_check(stack, terrain)
+        results.append(check)
+        data["rock_model_sfd"] = figures
     results += body_checks()
     data["layers"] = per_layer
     return Validation(label, terrain, results, curves, hurst, dists, data)

@@ -305,3 +305,101 @@ def test_a_rock_count_over_too_small_an_area_is_not_judged():
     sfd = {"number_per_m2": np.zeros(4), "area_m2": 1000.0}
     result = _rock_density_check(sfd, 15)
     assert result.status == "not applicable" and "too small" in result.meaning
+
+
+# ------------------------------------------------------- a terrain built for its preset
+
+
+def _scaled_fbm(size, hurst, resolution, baseline_m, target_deg, *, median=True, seed=5):
+    """An fBm surface (evaluation.spectrum, independent of terrain's generators) scaled so
+    its median (or plane-removed RMS) slope at ``baseline_m`` is ``target_deg``."""
+    from evaluation.validate import baseline_slopes
+
+    tile = fractional_brownian_surface(size, hurst, resolution=resolution, seed=seed)
+    lag = int(round(baseline_m / resolution))
+    med, rms = baseline_slopes(tile, lag)
+    now = np.tan(np.radians(med if median else rms))
+    return DEMTile.from_array(np.asarray(tile.heights, dtype=np.float64) * np.tan(np.radians(target_deg)) / now,
+                              resolution=resolution)
+
+
+def test_the_law_check_passes_a_surface_of_the_law_and_fails_a_random_walk():
+    """fBm of the maria law's H (0.76), scaled to the law at 16 m, keeps within a degree of
+    it to 1 km; a random walk (H 0.5) scaled to the south-polar law at 16 m is far too
+    smooth at a kilometre. (Spectral synthesis realises H near 1 with a bias of ~0.05 over
+    these lags, so the highland H 0.95 is not used to make the passing surface.)"""
+    from types import SimpleNamespace
+
+    from evaluation.validate import _law_slope_check, stack_slope_table
+
+    results = {}
+    for name, h in (("maria", 0.76), ("south-polar", 0.5)):
+        law = ls.terrain_law(name)
+        tile = _scaled_fbm(2048, h, 4.0, 16.0, float(law.median_slope_deg(16.0)))
+        table = stack_slope_table(SimpleNamespace(tiles=[tile]), (17.0, 57.0, 225.0, 1000.0))
+        assert [round(r["baseline_m"]) for r in table] == [16, 56, 224, 1000]
+        results[name] = _law_slope_check(table, law)
+    assert results["maria"].status == "pass", results["maria"]
+    assert results["south-polar"].status == "fail"
+    assert "smoother" in results["south-polar"].meaning
+
+
+def test_centimetre_regolith_roughness_is_judged_with_the_tilt_removed():
+    """Regolith at 15 deg RMS over 3 cm on a 10 deg tilted site passes; the same surface
+    smoothed over 8 px (a DEM with no centimetre roughness) fails as too smooth."""
+    from types import SimpleNamespace
+
+    from evaluation.validate import _regolith_check, stack_slope_table
+    from scipy.ndimage import uniform_filter
+
+    rough = _scaled_fbm(256, 0.6, 0.03, 0.03, 15.0, median=False)
+    yy = np.mgrid[0:256, 0:256][0] * 0.03
+    tilted = DEMTile.from_array(np.asarray(rough.heights, dtype=np.float64) + np.tan(np.radians(10.0)) * yy,
+                                resolution=0.03)
+    smooth = DEMTile.from_array(uniform_filter(np.asarray(tilted.heights, dtype=np.float64), 8), resolution=0.03)
+    verdicts = {}
+    for name, tile in (("rough", tilted), ("smooth", smooth)):
+        table = stack_slope_table(SimpleNamespace(tiles=[tile]), (0.03, 0.3))
+        verdicts[name] = _regolith_check(table)
+    assert verdicts["rough"].status == "pass", verdicts["rough"]
+    assert abs(verdicts["rough"].value - 15.0) < 0.5
+    assert verdicts["smooth"].status == "fail" and "smoother" in verdicts["smooth"].meaning
+
+
+@pytest.mark.parametrize("age_gyr, verdict", [(0.05, "pass"), (2.0, "fail")])
+def test_only_young_crater_walls_may_stand_beyond_repose(age_gyr, verdict):
+    """A fresh-shaped 60 m crater on a plane: excused when the catalogue says it is 50 Myr
+    old, a failure of mass wasting when it claims 2 Gyr."""
+    from types import SimpleNamespace
+
+    from evaluation.validate import _steep_old_check
+
+    n, res, d = 128, 1.0, 60.0
+    yy, xx = (np.mgrid[0:n, 0:n] + 0.5) * res
+    x = 2.0 * np.hypot(xx - 64.0, yy - 64.0) / d - 1.0
+    z = np.where(x <= 1.0, profile(np.minimum(x, 1.0), CraterShape.from_state(d)), 0.0)
+    tile = DEMTile.from_array(z, resolution=res)
+    cat = SimpleNamespace(x_m=np.array([64.0]), y_m=np.array([n * res - 64.0]),
+                          diameter_m=np.array([d]), age_gyr=np.array([age_gyr]))
+    r = _steep_old_check(tile, cat, "")
+    assert r.status == verdict, r
+
+
+@pytest.mark.parametrize("scale, verdict", [(1.0, "pass"), (3.0, "fail")])
+def test_rock_sfd_is_judged_against_the_presets_viper_model(scale, verdict):
+    """Rocks drawn from the south-polar preset's VIPER nominal law over a decade of size
+    match it within 15 % (plus counting noise); three times as many rocks fail."""
+    from types import SimpleNamespace
+
+    from evaluation.validate import _rock_sfd_check
+    from terrain.surface.rocks import RockModel, rock_catalog
+
+    a, b = ls.VIPER_ROCK_MODELS["nominal"]
+    extent = (0.0, 0.0, 200.0, 200.0)
+    rocks = RockModel.from_spec(f"power:a={a * scale},b={b},dmin=0.2,dmax=10").generate(
+        7, extent, margin=False)
+    cat = rock_catalog(rocks, np.zeros(len(rocks)), np.zeros(len(rocks), int))
+    tile = DEMTile.from_array(np.zeros((2000, 2000), np.float32), resolution=0.1)
+    r, figures = _rock_sfd_check(SimpleNamespace(tiles=[tile], rocks=cat), "south-polar")
+    assert r.status == verdict, r
+    assert figures["diameter_m"][0] == pytest.approx(0.2)
