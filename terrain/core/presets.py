@@ -48,7 +48,7 @@ class TerrainPreset:
         Largest baseline (m) over which the surface stays self-affine.
     crater_equilibrium : float
         Density of small craters as a multiple of the empirical equilibrium
-        ``N(>=D) = 0.0158 D^-2`` per m^2 (Trask 1966, in Melosh 1989 ch. 10).
+        ``N(>=D) = 10^-1.1 D_km^-2`` per km^2 (Trask 1966; 0.079 D^-2 per m^2 with D in m).
     surface_age_gyr : float
         Age of the surface (Gyr): the oldest crater it keeps.
     repose_deg : float
