@@ -185,17 +185,17 @@ def main(argv=None) -> int:
         print(json.dumps(CHILDREN[spec["kind"]](spec)))
         return 0
     q = args.quick
-    rocks = "golombek:k=0.05"
+    rocks = "golombek-rapp-mars:k=0.05"
     specs = {
         "place": [dict(kind="place", name="place", size=513 if q else 4097, resolution=0.05,
                        rocks=rocks, repeat=1 if q else 3),
                   dict(kind="place", name="place_baseline_read_only", size=513 if q else 4097,
                        resolution=0.05, rocks=rocks, repeat=1, baseline=True)],
         "layers": [dict(kind="layers", name="layers", size=129 if q else 1025,
-                        levels=7 if q else 11, extra=4, rocks="golombek:k=0.02", repeat=1)],
+                        levels=7 if q else 11, extra=4, rocks="golombek-rapp-mars:k=0.02", repeat=1)],
         "frame": [dict(kind="frame", name="frame", layer_size=257 if q else 1025,
                        levels=2 if q else 4, image=256 if q else 1024, frames=3 if q else 8,
-                       rocks="golombek:k=0.05", repeat=1)],
+                       rocks="golombek-rapp-mars:k=0.05", repeat=1)],
     }
     results = {}
     t0 = time.perf_counter()

@@ -22,6 +22,7 @@ import dataclasses
 from pathlib import Path
 
 from terrain.core.errors import InvalidParameterError
+from terrain.core.presets import PRESETS
 from terrain.core.tile import Window
 from terrain.stages.fields import (
     FLAG,
@@ -243,9 +244,9 @@ class EnhanceSpec(_RoughnessFields, _CraterFields):
         number())
     band: int = BAND
     rocks: str | None = option(
-        None, "Rocks on every layer that resolves them, e.g. golombek:k=0.01 or "
-        "power:a=3e-4,b=-2.482 (keys as `terrain rocks`; dmin defaults to two pixels of the "
-        "finest layer).", text())
+        None, "Rocks on every layer that resolves them, e.g. viper-nominal, "
+        "golombek-rapp-mars:k=0.01 or power:a=3e-4,b=-2.482 (keys as `terrain rocks`; dmin "
+        "defaults to two pixels of the finest layer).", text())
     halo: int | None = option(
         None, "Chunked builds: pixels around each chunk that every gap of the base must fit "
         "in (default 256).", integer(low=0))
@@ -261,13 +262,19 @@ class EnhanceSpec(_RoughnessFields, _CraterFields):
 
 @_frozen
 class RocksSpec(Spec):
-    """`terrain rocks`: a rock field (Golombek-Rapp or power law) stood on a DEM."""
+    """`terrain rocks`: a rock field (VIPER lunar laws, Golombek-Rapp or a power law) on a DEM."""
 
     STAGE = "rocks"
-    model: str = option("golombek", "Size-frequency model of the rocks.",
-                        choice("golombek", "power"))
+    model: str | None = option(
+        None, "Size-frequency model of the rocks (default: the --terrain preset's, else "
+        "viper-nominal).", choice("viper-nominal", "viper-low", "viper-high",
+                                  "golombek-rapp-mars", "power"))
+    terrain: str | None = option(
+        None, "Terrain preset whose rock model to use (south-polar, highlands, maria); an "
+        "explicit --model wins.", choice(*PRESETS))
     k: float | None = option(
-        None, "golombek: fraction of the area covered by rocks, 0 < k < 1.", number())
+        None, "golombek-rapp-mars: fraction of the area covered by rocks, 0 < k < 1.",
+        number())
     a: float | None = option(None, "power: a of N(>=D) = a D^b per m^2.", number())
     b: float | None = option(None, "power: b of N(>=D) = a D^b (< 0).", number())
     dmin: float | None = option(
@@ -275,10 +282,10 @@ class RocksSpec(Spec):
     dmax: float | None = option(
         None, "Largest rock diameter (m). Default: where the model has run out.", number())
     craters: Path | None = option(
-        None, "Crater catalogue CSV (x_m/x, y_m/y, diameter, age): rocks gather on the fresh "
-        "ones.", PATH)
+        None, "Crater catalogue CSV (x_m/x, y_m/y, diameter, age): fresh craters get block "
+        "fields.", PATH)
     no_crater_rocks: bool = option(
-        False, "Do not raise the rock density on fresh craters.", FLAG)
+        False, "Give fresh craters no block fields.", FLAG)
     seed: int = SEED
     window: Window | None = WINDOW_FIELD
     band: int = BAND
