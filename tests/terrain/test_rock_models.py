@@ -169,3 +169,10 @@ def test_chunks_of_a_rocky_tile_equal_the_full_run():
                 part.heights, full.heights[w.row:w.row + w.height, w.col:w.col + w.width])
             ids += pcat.id.tolist()
     assert sorted(ids) == sorted(cat.id.tolist())
+
+
+def test_every_terrain_preset_names_a_rock_model_that_exists():
+    from terrain.core.presets import PRESETS
+
+    for p in PRESETS.values():
+        assert RockModel.from_spec(f"{p.rock_model}:dmin=0.1").model == p.rock_model
