@@ -12,8 +12,8 @@ baseline measured in the same run, interleaved with it where the two are separat
     (memory).
 ``layers``
     Layers per second of a layer stack built as the demo builds it (1025 x 1025 layers from a
-    1 km base) to 15 levels with the lunar default rocks: the extra centimetre levels 12-15 against the
-    standard levels 1-11 of the same build (baseline), and the rock pass.
+    1 km base) to 15 levels with the lunar default rocks: the extra centimetre levels 12-15
+    against the standard levels 1-11 of the same build (baseline), and the rock pass.
 ``stack``
     The rock pass of a demo-like stack (1 km per pixel base, 1025 x 1025 layers, 15 levels to
     3 cm, the demo's crater population): every layer that resolves rocks gets them over its
