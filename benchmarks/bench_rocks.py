@@ -173,7 +173,7 @@ def child_stack(spec: dict) -> dict:
     first = list(models)[0]
     for name, cat in catalogs.items():
         res = np.array([t.a for t in transforms])
-        one_m = int(np.argmin(np.abs(res - 1.0)))
+        one_m = int(np.flatnonzero(2 * res <= 1.0 + 1e-9)[0])  # the widest layer holding 1 m
         left, top = transforms[one_m].c, transforms[one_m].f
         side = shapes[one_m][0] * res[one_m]
         inside = ((cat.x_m >= left) & (cat.x_m <= left + side) & (cat.y_m <= top)
