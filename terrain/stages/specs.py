@@ -21,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+from terrain.core import checks
 from terrain.core.errors import InvalidParameterError
 from terrain.core.presets import PRESETS
 from terrain.core.tile import Window
@@ -260,15 +261,19 @@ class EnhanceSpec(_RoughnessFields, _CraterFields):
                                         f"{self.label('finest_resolution')}")
 
 
+#: The rock models by name (:data:`terrain.surface.rocks.MODELS`, which checks the same names).
+ROCK_MODELS = ("viper-nominal", "viper-low", "viper-high", "golombek-rapp-mars", "power")
+
+
 @_frozen
 class RocksSpec(Spec):
     """`terrain rocks`: a rock field (VIPER lunar laws, Golombek-Rapp or a power law) on a DEM."""
 
     STAGE = "rocks"
     model: str | None = option(
-        None, "Size-frequency model of the rocks (default: the --terrain preset's, else "
-        "viper-nominal).", choice("viper-nominal", "viper-low", "viper-high",
-                                  "golombek-rapp-mars", "power"))
+        None, "Size-frequency model of the rocks: viper-nominal, viper-low, viper-high (lunar), "
+        "golombek-rapp-mars (Mars) or power (default: the --terrain preset's, else "
+        "viper-nominal).", text())
     terrain: str | None = option(
         None, "Terrain preset whose rock model to use (south-polar, highlands, maria); an "
         "explicit --model wins.", choice(*PRESETS))
@@ -291,6 +296,8 @@ class RocksSpec(Spec):
     band: int = BAND
 
     def _check(self) -> None:
+        if self.model is not None:
+            checks.text(self.model, "rock model", choices=ROCK_MODELS)
         if self.craters is not None and self.no_crater_rocks:
             raise InvalidParameterError(f"{self.label('craters')} and "
                                         f"{self.label('no_crater_rocks')} contradict each other")

@@ -176,3 +176,10 @@ def test_every_terrain_preset_names_a_rock_model_that_exists():
 
     for p in PRESETS.values():
         assert RockModel.from_spec(f"{p.rock_model}:dmin=0.1").model == p.rock_model
+
+
+def test_the_command_lines_model_names_are_the_libraries():
+    from terrain.stages.specs import ROCK_MODELS
+    from terrain.surface.rocks import MODELS
+
+    assert sorted(ROCK_MODELS) == sorted(MODELS)

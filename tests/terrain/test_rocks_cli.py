@@ -71,6 +71,7 @@ def test_power_law_rocks_follow_their_cumulative_law(tmp_path_factory, seed, b):
 @pytest.mark.parametrize("args, fragment", [
     (["--model", "golombek-rapp-mars", "--k", 1.2], "must lie in (0, 1)"),
     (["--k", 0.1], "'k' is fixed by the viper-nominal rock model"),
+    (["--model", "golombek", "--k", 0.1], "did you mean 'golombek-rapp-mars'"),
     (["--terrain", "mare"], "'mare' is not one of"),
     (["--model", "power", "--a", 3e-4, "--b", 0.1], "b must be negative"),
     (["--model", "power", "--a", 3e-4], "needs a and b"),
