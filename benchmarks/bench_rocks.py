@@ -1,6 +1,6 @@
 """Rocks and centimetre layers: placement speed and memory, extra levels, frame time.
 
-Three measurements, each in its own child process (so peak memory is its own), each with a
+Four measurements, each in its own child process (so peak memory is its own), each with a
 baseline measured in the same run, interleaved with it where the two are separate calls:
 
 ``place``
@@ -12,8 +12,17 @@ baseline measured in the same run, interleaved with it where the two are separat
     (memory).
 ``layers``
     Layers per second of a layer stack built as the demo builds it (1025 x 1025 layers from a
-    1 km base) to 15 levels with rocks: the extra centimetre levels 12-15 against the
-    standard levels 1-11 of the same build (baseline), and the rock pass.
+    1 km base) to 15 levels with the lunar default rocks: the extra centimetre levels 12-15
+    against the standard levels 1-11 of the same build (baseline), and the rock pass.
+``stack``
+    The rock pass of a demo-like stack (1 km per pixel base, 1025 x 1025 layers, 15 levels to
+    3 cm, the demo's crater population): every layer that resolves rocks gets them over its
+    whole extent (:func:`terrain.stack.build._add_layer_rocks`, generation, base levels and
+    rasterising) with the lunar default ``viper-nominal`` and its crater block fields,
+    against, interleaved in the same run, the same pass with the Mars model the demo used
+    before (``golombek-rapp-mars:k=0.02``) and with ``viper-nominal`` without block fields.
+    Also the largest rock, rocks >= 1 m per km^2 of the 1 m layer, and the drawn N(>=D)
+    against the VIPER law on the layers' own area.
 ``frame``
     Frame time at 1024 x 1024 with shadows on the last 100 m of a descent onto a rocky site
     (layers down to 3 cm) against the same views of the same stack without rocks, frame by
@@ -21,7 +30,7 @@ baseline measured in the same run, interleaved with it where the two are separat
 
 Usage::
 
-    .venv/bin/python benchmarks/bench_rocks.py [--quick] [--only place layers frame]
+    .venv/bin/python benchmarks/bench_rocks.py [--quick] [--only place layers stack frame]
 """
 
 from __future__ import annotations
@@ -125,6 +134,60 @@ def child_layers(spec: dict) -> dict:
                 rocks_and_agreement_s=rocks_s, peak_rss_bytes=peak_rss_bytes())
 
 
+def child_stack(spec: dict) -> dict:
+    import numpy as np
+
+    from terrain.core.tile import DEMTile
+    from terrain.craters.population import Population
+    from terrain.fractal.synthetic import synthesize_tile
+    from terrain.stack.build import _add_layer_rocks
+    from terrain.stack.plan import layer_plan
+    from terrain.surface.rocks import RockModel
+
+    size, levels = spec["size"], spec["levels"]
+    base = synthesize_tile(size, resolution=1000.0, relief=2500.0, seed=SEED).tile
+    site = (size * 500.0, size * 500.0)
+    _, _, shapes, transforms = layer_plan(base, site, levels, size)
+    finest = 1000.0 / 2**levels
+    population = Population(dmin=1.0, dmax=15000.0, density=1e5)
+
+    def tiles():  # flat layers: the rock pass costs the same on any ground
+        return [DEMTile(np.zeros(sh, np.float32), np.ones(sh, bool), tr, base.crs, base.nodata)
+                for sh, tr in zip(shapes, transforms, strict=True)]
+
+    models = {name: RockModel.from_spec(text, defaults=dict(dmin=2 * finest))
+              for name, text in spec["models"].items()}
+    small = tiles()[-1:]
+    for model in models.values():  # compile outside the timing
+        _add_layer_rocks(small, model, SEED, population)
+    catalogs = {}
+
+    def call(name):
+        def run():
+            catalogs[name] = _add_layer_rocks(tiles(), models[name], SEED, population)
+        return run
+
+    timed = alternate({name: call(name) for name in models}, spec["repeat"])
+    out: dict = dict(layers=levels + 1, layer_size=size, **timed.timings,
+                     peak_rss_bytes=timed.peak_after_first_bytes)
+    first = list(models)[0]
+    for name, cat in catalogs.items():
+        res = np.array([t.a for t in transforms])
+        one_m = int(np.flatnonzero(2 * res <= 1.0 + 1e-9)[0])  # the widest layer holding 1 m
+        left, top = transforms[one_m].c, transforms[one_m].f
+        side = shapes[one_m][0] * res[one_m]
+        inside = ((cat.x_m >= left) & (cat.x_m <= left + side) & (cat.y_m <= top)
+                  & (cat.y_m >= top - side))
+        out[f"{name}_rocks"] = len(cat)
+        out[f"{name}_largest_m"] = float(cat.diameter_m.max()) if len(cat) else 0.0
+        out[f"{name}_per_km2_ge_1m_in_{res[one_m]:.3g}m_layer"] = float(
+            np.count_nonzero(inside & (cat.diameter_m >= 1.0)) / (side * side) * 1e6)
+        out[f"{name}_per_layer"] = np.bincount(cat.layer, minlength=levels + 1).tolist()
+    out["time_ratio_to_" + "_and_".join(list(models)[1:])] = [
+        timed.ratio(first, other) for other in list(models)[1:]]
+    return out
+
+
 def child_frame(spec: dict) -> dict:
     from render.camera import Intrinsics
     from render.context import create_context, describe
@@ -171,7 +234,8 @@ def child_frame(spec: dict) -> dict:
     return out
 
 
-CHILDREN = {"place": child_place, "layers": child_layers, "frame": child_frame}
+CHILDREN = {"place": child_place, "layers": child_layers, "stack": child_stack,
+            "frame": child_frame}
 
 
 def main(argv=None) -> int:
@@ -185,17 +249,22 @@ def main(argv=None) -> int:
         print(json.dumps(CHILDREN[spec["kind"]](spec)))
         return 0
     q = args.quick
-    rocks = "golombek:k=0.05"
+    rocks = "golombek-rapp-mars:k=0.05"
     specs = {
         "place": [dict(kind="place", name="place", size=513 if q else 4097, resolution=0.05,
                        rocks=rocks, repeat=1 if q else 3),
                   dict(kind="place", name="place_baseline_read_only", size=513 if q else 4097,
                        resolution=0.05, rocks=rocks, repeat=1, baseline=True)],
         "layers": [dict(kind="layers", name="layers", size=129 if q else 1025,
-                        levels=7 if q else 11, extra=4, rocks="golombek:k=0.02", repeat=1)],
+                        levels=7 if q else 11, extra=4, rocks="viper-nominal", repeat=1)],
+        "stack": [dict(kind="stack", name="stack", size=257 if q else 1025,
+                       levels=15, repeat=1 if q else 3, models={
+                           "viper_nominal": "viper-nominal",
+                           "golombek_rapp_mars_k002": "golombek-rapp-mars:k=0.02",
+                           "viper_nominal_no_blocks": "viper-nominal:craters=off"})],
         "frame": [dict(kind="frame", name="frame", layer_size=257 if q else 1025,
                        levels=2 if q else 4, image=256 if q else 1024, frames=3 if q else 8,
-                       rocks="golombek:k=0.05", repeat=1)],
+                       rocks="golombek-rapp-mars:k=0.05", repeat=1)],
     }
     results = {}
     t0 = time.perf_counter()

@@ -48,8 +48,8 @@ stage_command(terrain, "fill", specs.FillSpec, output="store", execution="dem",
               help="Fill DEM gaps with fractal terrain (and craters), keeping every known "
               "height.")
 stage_command(terrain, "rocks", specs.RocksSpec, catalog=True,
-              help="Stand a rock field (Golombek-Rapp or power law) on a DEM, keyed by "
-              "position.")
+              help="Stand a rock field (VIPER lunar laws, Golombek-Rapp for Mars, or a power "
+              "law; block fields on fresh craters) on a DEM, keyed by position.")
 stage_command(terrain, "hazards", specs.HazardsSpec,
               help="Hazard truth: slope of the plane under a lander, height above it, safe or "
               "not. SOURCE is a DEM or a layer-stack folder. Writes a GeoTIFF with three bands "

@@ -219,6 +219,6 @@ def rock_levels(tiles: list, rocks, seed: int, population) -> tuple[list[int], A
         dmin = max(5.0 * rocks.regolith_m, population.dmin)
         if dmin < population.dmax:
             craters = population.generate(seed, tiles[levels[0]].bounds,
-                                          margin=lambda d: rocks.reach * d / 2,
+                                          margin=rocks.crater_margin,
                                           min_diameter=dmin)
     return levels, craters

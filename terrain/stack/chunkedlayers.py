@@ -467,7 +467,7 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
                 dmin = max(5.0 * rocks.regolith_m, population.dmin)
                 if dmin < population.dmax:
                     craters_for_rocks = population.generate(
-                        seed, plan[rock_layers[0]][0], margin=lambda d: rocks.reach * d / 2,
+                        seed, plan[rock_layers[0]][0], margin=rocks.crater_margin,
                         min_diameter=dmin)
             for k in rock_layers:
                 store = _stage(f"r{k}", RockSource(cratered[k], rocks, seed, craters_for_rocks),

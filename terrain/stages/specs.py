@@ -21,7 +21,9 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+from terrain.core import checks
 from terrain.core.errors import InvalidParameterError
+from terrain.core.presets import PRESETS
 from terrain.core.tile import Window
 from terrain.stages.fields import (
     FLAG,
@@ -243,9 +245,9 @@ class EnhanceSpec(_RoughnessFields, _CraterFields):
         number())
     band: int = BAND
     rocks: str | None = option(
-        None, "Rocks on every layer that resolves them, e.g. golombek:k=0.01 or "
-        "power:a=3e-4,b=-2.482 (keys as `terrain rocks`; dmin defaults to two pixels of the "
-        "finest layer).", text())
+        None, "Rocks on every layer that resolves them, e.g. viper-nominal, "
+        "golombek-rapp-mars:k=0.01 or power:a=3e-4,b=-2.482 (keys as `terrain rocks`; dmin "
+        "defaults to two pixels of the finest layer).", text())
     halo: int | None = option(
         None, "Chunked builds: pixels around each chunk that every gap of the base must fit "
         "in (default 256).", integer(low=0))
@@ -259,15 +261,25 @@ class EnhanceSpec(_RoughnessFields, _CraterFields):
                                         f"{self.label('finest_resolution')}")
 
 
+#: The rock models by name (:data:`terrain.surface.rocks.MODELS`, which checks the same names).
+ROCK_MODELS = ("viper-nominal", "viper-low", "viper-high", "golombek-rapp-mars", "power")
+
+
 @_frozen
 class RocksSpec(Spec):
-    """`terrain rocks`: a rock field (Golombek-Rapp or power law) stood on a DEM."""
+    """`terrain rocks`: a rock field (VIPER lunar laws, Golombek-Rapp or a power law) on a DEM."""
 
     STAGE = "rocks"
-    model: str = option("golombek", "Size-frequency model of the rocks.",
-                        choice("golombek", "power"))
+    model: str | None = option(
+        None, "Size-frequency model of the rocks: viper-nominal, viper-low, viper-high (lunar), "
+        "golombek-rapp-mars (Mars) or power (default: the --terrain preset's, else "
+        "viper-nominal).", text())
+    terrain: str | None = option(
+        None, "Terrain preset whose rock model to use (south-polar, highlands, maria); an "
+        "explicit --model wins.", choice(*PRESETS))
     k: float | None = option(
-        None, "golombek: fraction of the area covered by rocks, 0 < k < 1.", number())
+        None, "golombek-rapp-mars: fraction of the area covered by rocks, 0 < k < 1.",
+        number())
     a: float | None = option(None, "power: a of N(>=D) = a D^b per m^2.", number())
     b: float | None = option(None, "power: b of N(>=D) = a D^b (< 0).", number())
     dmin: float | None = option(
@@ -275,15 +287,17 @@ class RocksSpec(Spec):
     dmax: float | None = option(
         None, "Largest rock diameter (m). Default: where the model has run out.", number())
     craters: Path | None = option(
-        None, "Crater catalogue CSV (x_m/x, y_m/y, diameter, age): rocks gather on the fresh "
-        "ones.", PATH)
+        None, "Crater catalogue CSV (x_m/x, y_m/y, diameter, age): fresh craters get block "
+        "fields.", PATH)
     no_crater_rocks: bool = option(
-        False, "Do not raise the rock density on fresh craters.", FLAG)
+        False, "Give fresh craters no block fields.", FLAG)
     seed: int = SEED
     window: Window | None = WINDOW_FIELD
     band: int = BAND
 
     def _check(self) -> None:
+        if self.model is not None:
+            checks.text(self.model, "rock model", choices=ROCK_MODELS)
         if self.craters is not None and self.no_crater_rocks:
             raise InvalidParameterError(f"{self.label('craters')} and "
                                         f"{self.label('no_crater_rocks')} contradict each other")

@@ -56,12 +56,16 @@ def read_crater_list(path: Path) -> Any:
 def rocks(spec: RocksSpec, source: Path, output: Path, execution: Execution, *,
           catalog: Path | None, progress: ProgressFactory) -> Written:
     """`terrain rocks` (:class:`~terrain.stages.specs.RocksSpec`)."""
+    from terrain.core.presets import preset
     from terrain.io import read_dem
-    from terrain.surface.rocks import MIN_ROCK_PIXELS, RockModel, add_rocks
+    from terrain.surface.rocks import DEFAULT_MODEL, MIN_ROCK_PIXELS, RockModel, add_rocks
 
     check_outputs(output, catalog, [source, spec.craters])
     values = {key: getattr(spec, key) for key in ("model", "k", "a", "b", "dmin", "dmax")
               if getattr(spec, key) is not None}
+    if spec.model is None:
+        values["model"] = (preset(spec.terrain).rock_model if spec.terrain is not None
+                           else DEFAULT_MODEL)
     if spec.no_crater_rocks:
         values["craters"] = False
     craters = None if spec.craters is None else read_crater_list(spec.craters)
@@ -76,6 +80,7 @@ def rocks(spec: RocksSpec, source: Path, output: Path, execution: Execution, *,
     out, cat = add_rocks(tile, model, seed=spec.seed, craters=craters, window=spec.window)
 
     params = dict(input=str(source), band=spec.band, seed=spec.seed, rocks=model.as_dict(),
+                  terrain=spec.terrain,
                   craters=str(spec.craters) if spec.craters else None,
                   window=spec.as_dict()["window"])
     done = write_result(SimpleNamespace(tile=out, catalog=cat), output, catalog, [source],

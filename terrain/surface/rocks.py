@@ -2,15 +2,27 @@ r"""Rock fields at lander scale: size-frequency models, shapes, placement and he
 
 Models
 ------
-Two size-frequency models lander teams use, selected by name (:class:`RockModel`):
+The size-frequency models, selected by name (:class:`RockModel`). The lunar default is
+``viper-nominal``.
 
-``golombek``
-    Golombek and Rapp (1997, JGR 102, 4117), eqs. 2-3: the cumulative fractional area covered
-    by rocks of diameter >= D is ``F_k(D) = k exp(-q(k) D)`` with ``q(k) = 1.79 + 0.152 / k``
-    (D in metres), k the total fraction of area covered by rocks (about 0.002 at Chang'E-4's
-    site, up to 0.2 on rocky Mars sites). Differentiating, rocks of diameter D cover
-    ``-dF/dD = q k exp(-q D)`` of the area per metre of D, so their number per m^2 per metre
-    is ``n(D) = (4 q k / pi) exp(-q D) / D^2`` and
+``viper-nominal``, ``viper-low``, ``viper-high``
+    The lunar rock populations of the VIPER environment specification (NASA's VIPER
+    rover; the high case after Haworth), power laws of the cumulative number of rocks per
+    m^2 (D in metres):
+    ``N(>=D) = 3e-4 D^-2.482`` (nominal), ``1e-4 D^-1.755`` (low) and ``2e-3 D^-2.661``
+    (high, Haworth). At 1 m they give 300, 100 and 2,000 rocks per km^2. Their range is
+    ``dmin`` (two pixels of the finest layer, down to centimetres) to :data:`VIPER_DMAX`
+    (5 m): the counts behind the laws reach a few metres, and larger boulders away from
+    fresh craters are rare; the larger ones sit in fresh craters' block fields (below),
+    which the model adds wherever it is given craters.
+``golombek-rapp-mars``
+    Golombek and Rapp (1997, JGR 102, 4117), eqs. 2-3, fitted to Viking and Pathfinder rock
+    counts on Mars: the cumulative fractional area covered by rocks of diameter >= D is
+    ``F_k(D) = k exp(-q(k) D)`` with ``q(k) = 1.79 + 0.152 / k`` (D in metres), k the total
+    fraction of area covered by rocks (about 0.002 at Chang'E-4's site, up to 0.2 on rocky
+    Mars sites). Differentiating, rocks of diameter D cover ``-dF/dD = q k exp(-q D)`` of the
+    area per metre of D, so their number per m^2 per metre is
+    ``n(D) = (4 q k / pi) exp(-q D) / D^2`` and
 
         N(>=D) = (4 q k / pi) (exp(-q D) / D - q E1(q D))
 
@@ -43,23 +55,32 @@ terrain and that top: a height field cannot hold an overhang, so the rock meets 
 with no gap below it (a vertical face down to the ground on its downhill side), and its
 uphill side may be buried in the slope, as real rocks are.
 
-Where rocks gather
-------------------
+Block fields around fresh craters
+---------------------------------
 Rocks are excavated by craters deep enough to reach below the regolith (depth about D/5,
 so D >= 5 regolith thicknesses; Quaide and Oberbeck 1968, JGR 73, 5247) and thrown onto
-their rims and ejecta; they are then ground down by micrometeorites and thermal cycling,
-half of the metre-size boulders within about 40-80 Myr and 99 % within 150-300 Myr
-(Basilevsky et al. 2013, Planet. Space Sci. 89, 118). Rock densities near fresh craters are
-far above the background (Bart and Melosh 2010, Icarus 209, 337). With ``craters`` on, the
-number density at a point is multiplied by
+their rims and ejecta, where boulders are far denser than on the plains (Bart and Melosh
+2010, Icarus 209, 337). Given craters (x, y, diameter, age), each crater of diameter
+``Dc >= 5 regolith_m`` gets its own block field on top of the background:
 
-    m(x, y) = 1 + A sum_c 2^(-t_c / T) g(r_c / R_c)
-
-over craters c of radius R_c and age t_c (Gyr), with g = 1 inside the rim and
-``(R / r)^3`` on the ejecta out to ``reach`` radii (ejecta thickness falls as r^-3,
-McGetchin et al. 1973, EPSL 20, 226), A = ``ejecta_factor`` and T = ``half_life_gyr``.
-Placement is by thinning: a cell draws candidates at its largest multiplier M and keeps each
-with probability m(x, y) / M, which gives exactly density n(D) m(x, y).
+* **Sizes**: a steep power law, ``N_c(>=d) = block_count (d / (Dc / 500))^block_index``
+  blocks per crater. Linne (Dc = 2.2 km, Mare Serenitatis) has 12,000 boulders >= 4.4 m
+  (Dc / 500) with a cumulative index of -4.03 and a largest of 30.8 m (Pajola et al. 2019,
+  Planet. Space Sci. 165, 99); the field scales with the crater (a 100 m crater has 12,000
+  blocks >= 20 cm and about 20 >= 1 m). The law runs from the size at which the blocks
+  would cover ``block_cover`` (10 %) of the field's area (about Dc / 1000: fresh ejecta is
+  bouldery, but not paved) up to the size of which one block is expected (about Dc / 50;
+  Linne's 46 m against its measured 30.8 m).
+* **Places**: uniform inside the rim, and falling as ``(R / r)^3`` outside it out to
+  ``reach`` radii (ejecta thickness falls as r^-3, McGetchin et al. 1973, EPSL 20, 226;
+  Linne's largest boulders lie within about two radii of its centre).
+* **Age**: boulders are ground down by micrometeorites and thermal cycling; half of them
+  survive about 40-80 Myr and 99 % are gone within 150-300 Myr (Basilevsky et al. 2013,
+  Planet. Space Sci. 89, 118; the median survival of 40-80 Myr is confirmed by the
+  boulder counts around young small craters of Watkins et al. 2019, JGR Planets 124,
+  doi:10.1029/2019JE005963). Each block survives a crater's age t with probability
+  ``2^(-t / half_life_gyr)`` (60 Myr), drawn per block, so an older field is a thinned
+  subset of the same blocks.
 
 Seamless placement
 ------------------
@@ -72,7 +93,9 @@ and the heights are a pixel-wise maximum, independent of order.
 
 Examples
 --------
->>> m = RockModel.from_spec("golombek:k=0.02,dmin=0.1")
+>>> round(float(RockModel.from_spec("viper-nominal:dmin=0.05").cumulative(1.0)) * 1e6)
+300
+>>> m = RockModel.from_spec("golombek-rapp-mars:k=0.02,dmin=0.1")
 >>> round(float(m.fractional_area(0.0)), 6), round(m.q, 3)
 (0.02, 9.39)
 >>> RockModel.from_mapping({"model": "power", "a": 3e-4, "b": -2.482, "dmin": 0.5}).b
@@ -95,8 +118,8 @@ from terrain.core.errors import InvalidParameterError
 from terrain.core.rng import check_seed, gaussian, hash64, poisson, stream_id, uniform_scalar
 from terrain.craters.catalog import ROCK_COLUMNS, RockCatalog
 
-__all__ = ["CELL_EXPECTATION", "MIN_ROCK_PIXELS", "ROCK_COLUMNS", "RockModel", "RockTable",
-           "add_rocks", "rock_catalog", "rock_heights"]
+__all__ = ["CELL_EXPECTATION", "DEFAULT_MODEL", "MIN_ROCK_PIXELS", "ROCK_COLUMNS", "VIPER",
+           "VIPER_DMAX", "RockModel", "RockTable", "add_rocks", "rock_catalog", "rock_heights"]
 
 log = logging.getLogger(__name__)
 
@@ -116,50 +139,90 @@ Q0, Q1 = 1.79, 0.152
 B_RATIO = (0.71, 0.1)
 C_RATIO = (0.5, 0.1)
 
+#: The VIPER environment specification's lunar rock laws, N(>=D) = a D^b per m^2 (D in m):
+#: (a, b) by model name; the high case after Haworth.
+VIPER: dict[str, tuple[float, float]] = {
+    "viper-nominal": (3e-4, -2.482),
+    "viper-low": (1e-4, -1.755),
+    "viper-high": (2e-3, -2.661),
+}
+#: Largest background rock of the VIPER laws (m): "several metres"; bigger ones are blocks of
+#: fresh craters' fields (module docstring).
+VIPER_DMAX = 5.0
+#: The lunar default rock model.
+DEFAULT_MODEL = "viper-nominal"
+
+#: Block fields (module docstring): Linne's boulders (Pajola et al. 2019), 12,000 >= Dc / 500
+#: with a cumulative index of -4.03.
+BLOCK_COUNT = 12000.0
+BLOCK_REF_FRACTION = 1.0 / 500.0
+BLOCK_INDEX = -4.03
+#: Largest share of a block field's area its blocks cover (sets the smallest block).
+BLOCK_COVER = 0.1
+#: Block sizes run up to where this many blocks are expected per crater.
+BLOCK_TOP_COUNT = 1.0
+#: Ejecta reach of the block field, crater radii (Linne: about 2).
+BLOCK_REACH = 2.0
+#: Median boulder survival (Gyr): 40-80 Myr (Basilevsky et al. 2013; Watkins et al. 2019).
+BLOCK_HALF_LIFE_GYR = 0.06
+#: Block fields of craters whose blocks survive with less than this probability are skipped.
+BLOCK_MIN_SURVIVAL = 1e-3
+#: Octave bins of a block field (sizes span Dc / 1000 - Dc / 50, about 4.3 octaves).
+_BLOCK_BINS = 8
+
 STREAM_COUNT = stream_id("rocks-count")
 STREAM_ROCK = stream_id("rocks")
 STREAM_UID = stream_id("rocks-uid")
+STREAM_BLOCK_COUNT = stream_id("rock-blocks-count")
+STREAM_BLOCK = stream_id("rock-blocks")
+STREAM_BLOCK_UID = stream_id("rock-blocks-uid")
 
-MODELS = ("golombek", "power")
-
+MODELS = ("golombek-rapp-mars", "power", *VIPER)
 
 
 @dataclass(frozen=True)
 class RockModel:
-    """A rock population: size-frequency model, diameter range, shapes and crater link.
+    """A rock population: size-frequency model, diameter range, shapes and crater block fields.
 
     Parameters
     ----------
-    model : {"golombek", "power"}
+    model : {"viper-nominal", "viper-low", "viper-high", "golombek-rapp-mars", "power"}
     k : float
         Golombek-Rapp total rock fraction, 0 < k < 1.
     a, b : float
-        Power law N(>=D) = a D^b per m^2: a > 0, b < 0.
+        Power law N(>=D) = a D^b per m^2: a > 0, b < 0 (set by the VIPER models).
     dmin, dmax : float
-        Diameter range (m). dmax defaults to the diameter above which fewer than 1e-6 of the
-        model's area (Golombek) or number (power) remains, capped at 30 m.
+        Diameter range (m). dmax defaults to :data:`VIPER_DMAX` for the VIPER models, else to
+        the diameter above which fewer than 1e-6 of the model's area (Golombek-Rapp) or
+        number (power) remains, capped at 30 m.
     craters : bool
-        Raise the density on fresh craters' rims and ejecta (module docstring).
-    ejecta_factor : float
-        A, the multiplier at the rim of a crater of age 0 is 1 + A.
+        Give fresh craters block fields (module docstring) when craters are given.
+    block_count : float
+        Blocks >= Dc / 500 per fresh crater of diameter Dc.
+    block_index : float
+        Cumulative index of the block sizes (< -2).
+    block_cover : float
+        Largest share of a block field's area its blocks cover, 0 < cover < 1.
     half_life_gyr : float
-        T, the boulder half-life on the surface (Gyr).
+        Median survival of a boulder on the surface (Gyr).
     reach : float
-        Ejecta extent in crater radii.
+        Extent of a block field in crater radii (>= 1).
     regolith_m : float
-        Regolith thickness: only craters with D >= 5 regolith_m excavate rocks.
+        Regolith thickness: only craters with D >= 5 regolith_m excavate blocks.
     """
 
-    model: str = "golombek"
+    model: str = DEFAULT_MODEL
     k: float | None = None
     a: float | None = None
     b: float | None = None
     dmin: float | None = None
     dmax: float | None = None
     craters: bool = True
-    ejecta_factor: float = 10.0
-    half_life_gyr: float = 0.06
-    reach: float = 5.0
+    block_count: float = BLOCK_COUNT
+    block_index: float = BLOCK_INDEX
+    block_cover: float = BLOCK_COVER
+    half_life_gyr: float = BLOCK_HALF_LIFE_GYR
+    reach: float = BLOCK_REACH
     regolith_m: float = 5.0
 
     def __post_init__(self):
@@ -179,18 +242,29 @@ class RockModel:
         if not isinstance(self.craters, bool):
             raise InvalidParameterError(f"rock craters must be true or false; got "
                                         f"{self.craters!r}")
-        if self.model == "golombek":
+        if self.model in VIPER:
+            for name in ("a", "b", "k"):
+                if getattr(self, name) is not None:
+                    raise InvalidParameterError(
+                        f"'{name}' is fixed by the {self.model} rock model (use the power "
+                        "model for another law)")
+            a, b = VIPER[self.model]
+            object.__setattr__(self, "a", a)
+            object.__setattr__(self, "b", b)
+            if self.dmax is None:
+                object.__setattr__(self, "dmax", VIPER_DMAX)
+        elif self.model == "golombek-rapp-mars":
             if self.k is None:
-                raise InvalidParameterError("the golombek rock model needs k (rock area "
-                                            "fraction, 0 < k < 1)")
+                raise InvalidParameterError("the golombek-rapp-mars rock model needs k (rock "
+                                            "area fraction, 0 < k < 1)")
             if not 0 < self.k < 1:
                 raise InvalidParameterError(
-                    f"golombek k (fraction of area covered by rocks) must lie in (0, 1); "
-                    f"got {self.k:g}")
+                    f"golombek-rapp-mars k (fraction of area covered by rocks) must lie in "
+                    f"(0, 1); got {self.k:g}")
             for name in ("a", "b"):
                 if getattr(self, name) is not None:
                     raise InvalidParameterError(f"'{name}' belongs to the power rock model, "
-                                                "not golombek")
+                                                "not golombek-rapp-mars")
         else:
             if self.a is None or self.b is None:
                 raise InvalidParameterError("the power rock model needs a and b "
@@ -201,7 +275,8 @@ class RockModel:
                 raise InvalidParameterError(
                     f"power b must be negative (N(>=D) = a D^b falls with D); got {self.b:g}")
             if self.k is not None:
-                raise InvalidParameterError("'k' belongs to the golombek rock model, not power")
+                raise InvalidParameterError("'k' belongs to the golombek-rapp-mars rock "
+                                            "model, not power")
         if self.dmin is None:
             raise InvalidParameterError("rock dmin (smallest diameter, m) is needed")
         if not self.dmin > 0:
@@ -212,21 +287,26 @@ class RockModel:
             raise InvalidParameterError(
                 f"rock dmin must be smaller than dmax; got dmin={self.dmin:g}, "
                 f"dmax={self.dmax:g}")
-        for name in ("ejecta_factor", "half_life_gyr", "reach", "regolith_m"):
-            if getattr(self, name) < 0 or (name in ("half_life_gyr", "reach")
-                                           and getattr(self, name) <= 0):
+        for name in ("block_count", "half_life_gyr", "reach", "regolith_m"):
+            if not getattr(self, name) > 0:
                 raise InvalidParameterError(f"rock {name} must be positive; got "
                                             f"{getattr(self, name):g}")
         if self.reach < 1:
             raise InvalidParameterError(f"rock reach must be >= 1 crater radius; got "
                                         f"{self.reach:g}")
+        if not self.block_index < -2:
+            raise InvalidParameterError(f"rock block_index must be below -2 (blocks cover a "
+                                        f"finite area); got {self.block_index:g}")
+        if not 0 < self.block_cover < 1:
+            raise InvalidParameterError(f"rock block_cover must lie in (0, 1); got "
+                                        f"{self.block_cover:g}")
 
     # ------------------------------------------------------------------ construction
     @classmethod
     def from_mapping(cls, data, *, defaults=None) -> RockModel:
         """Model from a dict (TOML table, parsed spec); unknown keys are refused by name.
 
-        >>> RockModel.from_mapping({"model": "golombek", "kk": 0.1})
+        >>> RockModel.from_mapping({"model": "golombek-rapp-mars", "kk": 0.1})
         Traceback (most recent call last):
         ...
         terrain.core.errors.InvalidParameterError: unknown rock key 'kk' (did you mean 'k'?)
@@ -237,7 +317,7 @@ class RockModel:
 
     @classmethod
     def from_spec(cls, spec: str, *, defaults=None) -> RockModel:
-        """Model from ``NAME:key=value,key=value`` (``golombek:k=0.01``, ``power:a=3e-4,b=-2.5``).
+        """Model from ``NAME:key=value,...`` (``viper-nominal``, ``power:a=3e-4,b=-2.5``).
 
         Values are numbers, or true/false for ``craters``.
         """
@@ -293,7 +373,7 @@ class RockModel:
         return Q0 + Q1 / self._k
 
     def _default_dmax(self) -> float:
-        if self.model == "golombek":
+        if self.model == "golombek-rapp-mars":
             d = -math.log(1e-6) / self.q  # F_k(d) = 1e-6 k
         else:
             d = self._dmin * 1e-6 ** (1.0 / self._b)
@@ -302,7 +382,7 @@ class RockModel:
     def fractional_area(self, diameter):
         """Cumulative fractional area of rocks >= D (untruncated model), dimensionless."""
         d = np.asarray(diameter, dtype=float)
-        if self.model == "golombek":
+        if self.model == "golombek-rapp-mars":
             return self._k * np.exp(-self.q * d)  # Golombek and Rapp 1997, eq. 2
         # power law: F(>=D) = int_D^inf (pi x^2 / 4) (-a b x^(b-1)) dx, finite for b < -2
         if self._b >= -2:
@@ -312,7 +392,7 @@ class RockModel:
     def cumulative(self, diameter):
         """N(>=D), rocks per m^2 (untruncated model)."""
         d = np.asarray(diameter, dtype=float)
-        if self.model == "power":
+        if self.model != "golombek-rapp-mars":
             return self._a * d ** self._b
         from scipy.special import exp1
 
@@ -338,6 +418,58 @@ class RockModel:
             return 0.0
         return self.bin_density(lo, self._dmax) * float(area_m2)
 
+    # ------------------------------------------------------------------ block fields
+    @property
+    def block_fractions(self) -> tuple[float, float]:
+        """Smallest and largest block of a fresh crater's field, as fractions of Dc.
+
+        The smallest is where the blocks >= it cover ``block_cover`` of the field's area
+        ``pi (reach Dc / 2)^2``; the largest is where ``BLOCK_TOP_COUNT`` block is expected.
+        """
+        alpha, f = self.block_index, BLOCK_REF_FRACTION
+        # share of the field's area under blocks >= d:
+        # count (-alpha) / (-alpha - 2) (f / reach)^2 (d / ref)^(alpha + 2)
+        share = self.block_count * -alpha / (-alpha - 2) * (f / self.reach) ** 2
+        lo = f * (self.block_cover / share) ** (1.0 / (alpha + 2))
+        hi = f * (BLOCK_TOP_COUNT / self.block_count) ** (1.0 / alpha)
+        return float(lo), float(max(hi, lo * 1.0001))
+
+    def block_cumulative(self, d, crater_diameter, age_gyr=0.0):
+        """Return the expected blocks >= d (m) in one crater's field (its age's survivors)."""
+        dc = np.asarray(crater_diameter, float)
+        lo, hi = self.block_fractions
+        dd = np.clip(np.asarray(d, float), lo * dc, hi * dc)
+        n = (self.block_count * (dd / (BLOCK_REF_FRACTION * dc)) ** self.block_index
+             - BLOCK_TOP_COUNT)
+        return n * self.block_survival(age_gyr) * (dc >= 5.0 * self.regolith_m)
+
+    def block_survival(self, age_gyr):
+        """Share of a crater's blocks that survive its age (Gyr)."""
+        return 2.0 ** (-np.asarray(age_gyr, float) / self.half_life_gyr)
+
+    def crater_margin(self, crater_diameter: float) -> float:
+        """Distance (m) from a crater's centre beyond which none of its blocks reaches."""
+        return self.reach * crater_diameter / 2 + _half_length(
+            self.block_fractions[1] * crater_diameter)
+
+    def _block_bins(self) -> tuple[np.ndarray, np.ndarray]:
+        """Bin edges (fractions of Dc) and expected blocks per bin of a fresh crater."""
+        lo, hi = self.block_fractions
+        edges = np.geomspace(lo, hi, _BLOCK_BINS + 1)
+        n = self.block_count * (edges / BLOCK_REF_FRACTION) ** self.block_index
+        return edges, n[:-1] - n[1:]
+
+    def _block_sources(self, craters) -> np.ndarray:
+        """(n, 4) x, y, diameter, survival of the craters that have block fields."""
+        if craters is None or not self.craters or not len(craters):
+            return np.empty((0, 4))
+        d = np.asarray(craters.diameter, float)
+        surv = self.block_survival(craters.age)
+        keep = (d >= 5.0 * self.regolith_m) & (surv >= BLOCK_MIN_SURVIVAL)
+        return np.ascontiguousarray(np.column_stack([
+            np.asarray(craters.x, float)[keep], np.asarray(craters.y, float)[keep], d[keep],
+            surv[keep]]))
+
     def _table(self, d_lo, d_hi):
         """(log D, log N(>=D)) table of one bin for inverse-transform sampling."""
         d = np.geomspace(d_lo, d_hi, 4097)
@@ -355,7 +487,8 @@ class RockModel:
         min_diameter : float
             Drop rocks smaller than this (bins wholly below it are never enumerated).
         craters : CraterTable, optional
-            Craters (map metres, ages in Gyr) that raise the density when ``self.craters``.
+            Craters (map metres, ages in Gyr) whose block fields are added when
+            ``self.craters`` (module docstring).
         margin : bool
             Grow the extent by each bin's largest half-length, so rocks centred outside that
             reach into it are included (heights); False: centres inside only (catalogues).
@@ -365,7 +498,6 @@ class RockModel:
         if not (xmax >= xmin and ymax >= ymin):
             raise InvalidParameterError(f"rock extent must have xmin <= xmax and ymin <= ymax; "
                                         f"got {extent}")
-        src = _crater_sources(self, craters)
         bins = self.bins()
         plans = []
         expected = 0.0
@@ -379,11 +511,13 @@ class RockModel:
                 continue
             cell = math.sqrt(CELL_EXPECTATION / n)
             area = (box[2] - box[0] + 2 * cell) * (box[3] - box[1] + 2 * cell)
-            # the crater term adds at most A w pi R^2 (1 + 2 (1 - 1/reach)) rocks' worth of area
-            extra = self.ejecta_factor * float(np.sum(
-                src[:, 3] * math.pi * src[:, 2] ** 2)) * (3.0 - 2.0 / self.reach)
-            expected += n * (area + min(extra, area * (1 + self.ejecta_factor)))
+            expected += n * area
             plans.append((b, d_lo, d_hi, cell, box))
+        src = self._block_sources(craters)
+        edges, per_bin = self._block_bins()
+        if len(src):
+            top = edges[1:][None, :] * src[:, 2:3]
+            expected += float(np.sum(per_bin[None, :] * src[:, 3:4] * (top > min_diameter)))
         memory.require(expected * _BYTES_PER_ROCK,
                        f"a rock field of about {expected:.3g} rocks")
         parts = []
@@ -392,14 +526,21 @@ class RockModel:
             ix0, ix1 = math.floor(box[0] / cell), math.floor(box[2] / cell)
             iy0, iy1 = math.floor(box[1] / cell), math.floor(box[3] / cell)
             lam = self.bin_density(d_lo, d_hi) * cell * cell
-            args = (seed, b, cell, lam, logd, logn, ix0, ix1, iy0, iy1, *box, src,
-                    self.ejecta_factor, self.reach, self.half_life_gyr)
+            args = (seed, b, cell, lam, logd, logn, ix0, ix1, iy0, iy1, *box)
             n = _place(*args, np.empty((0, _OUT)), np.empty(0, np.uint64), True)
             out = np.empty((n, _OUT))
             uid = np.empty(n, np.uint64)
             _place(*args, out, uid, False)
             keep = out[:, 2] >= min_diameter
             parts.append((out[keep], uid[keep]))
+        if len(src):
+            blocks = (seed, src, edges, per_bin, self.block_index, self.reach, xmin, ymin,
+                      xmax, ymax, bool(margin), float(min_diameter))
+            n = _place_blocks(*blocks, np.empty((0, _OUT)), np.empty(0, np.uint64), True)
+            out = np.empty((n, _OUT))
+            uid = np.empty(n, np.uint64)
+            _place_blocks(*blocks, out, uid, False)
+            parts.append((out, uid))
         if parts:
             out = np.concatenate([p[0] for p in parts])
             uid = np.concatenate([p[1] for p in parts])
@@ -423,52 +564,11 @@ def _half_length(d: float) -> float:
     return 0.5 * d / math.sqrt(0.4) * (1 + 3 * SHAPE_PERTURBATION)
 
 
-def _crater_sources(model: RockModel, craters) -> np.ndarray:
-    """(n, 4) x, y, radius, age weight of the craters that raise the rock density."""
-    if craters is None or not model.craters or model.ejecta_factor == 0 or not len(craters):
-        return np.empty((0, 4))
-    x = np.asarray(craters.x, float)
-    y = np.asarray(craters.y, float)
-    d = np.asarray(craters.diameter, float)
-    w = 2.0 ** (-np.asarray(craters.age, float) / model.half_life_gyr)
-    keep = (d >= 5.0 * model.regolith_m) & (w >= 1e-3)
-    return np.column_stack([x[keep], y[keep], d[keep] / 2, w[keep]])
-
-
 # ---------------------------------------------------------------------------- kernels
 
 #: Columns of the generator's output rows.
 _X, _Y, _D, _A, _B, _C, _YAW, _BETA, _H0 = range(9)
 _OUT = 9 + 6  # and three (amplitude, phase) outline harmonics
-
-
-@numba.njit(cache=True)
-def _boost_at(src, x, y, reach):
-    s = 0.0
-    for i in range(src.shape[0]):
-        r = math.hypot(x - src[i, 0], y - src[i, 1])
-        R = src[i, 2]
-        if r <= R:
-            s += src[i, 3]
-        elif r <= reach * R:
-            s += src[i, 3] * (R / r) ** 3
-    return s
-
-
-@numba.njit(cache=True)
-def _boost_box(src, x0, y0, x1, y1, reach):
-    """Upper bound of the crater sum over a rectangle (nearest point of it to each crater)."""
-    s = 0.0
-    for i in range(src.shape[0]):
-        dx = max(x0 - src[i, 0], 0.0, src[i, 0] - x1)
-        dy = max(y0 - src[i, 1], 0.0, src[i, 1] - y1)
-        r = math.hypot(dx, dy)
-        R = src[i, 2]
-        if r <= R:
-            s += src[i, 3]
-        elif r <= reach * R:
-            s += src[i, 3] * (R / r) ** 3
-    return s
 
 
 @numba.njit(cache=True)
@@ -492,54 +592,104 @@ def _clip(v, lo, hi):
 
 
 @numba.njit(cache=True)
+def _shape(out, n, x, y, d, seed, stream, b, ix, iy, k0):
+    """Write rock n's row: centre, diameter and a fragment shape from keys k0 + 4 ... k0 + 13."""
+    rb = _clip(0.71 + 0.1 * gaussian(uniform_scalar(seed, stream, b, ix, iy, k0 + 4)), 0.4, 1.0)
+    rc = _clip(0.5 + 0.1 * gaussian(uniform_scalar(seed, stream, b, ix, iy, k0 + 5)), 0.25, rb)
+    a = d / math.sqrt(rb)
+    out[n, _X] = x
+    out[n, _Y] = y
+    out[n, _D] = d
+    out[n, _A] = a
+    out[n, _B] = a * rb
+    out[n, _C] = a * rc
+    out[n, _YAW] = math.pi * uniform_scalar(seed, stream, b, ix, iy, k0 + 6)
+    out[n, _BETA] = 0.5 * uniform_scalar(seed, stream, b, ix, iy, k0 + 7)
+    out[n, _H0] = 0.0
+    for h in range(3):
+        out[n, 9 + 2 * h] = SHAPE_PERTURBATION * (2.0 * uniform_scalar(
+            seed, stream, b, ix, iy, k0 + 8 + 2 * h) - 1.0)
+        out[n, 10 + 2 * h] = 2.0 * math.pi * uniform_scalar(seed, stream, b, ix, iy,
+                                                             k0 + 9 + 2 * h)
+
+
+@numba.njit(cache=True)
 def _place(seed, b, cell, lam, logd, logn, ix0, ix1, iy0, iy1, lo_x, lo_y, hi_x, hi_y,
-           src, factor, reach, half_life, out, uid, count_only):
+           out, uid, count_only):
     n = 0
     n_lo = math.exp(logn[0])
     n_hi = math.exp(logn[-1])
     for iy in range(iy0, iy1 + 1):
         for ix in range(ix0, ix1 + 1):
-            mult = 1.0
-            if src.shape[0] > 0:
-                mult = 1.0 + factor * _boost_box(src, ix * cell, iy * cell, (ix + 1) * cell,
-                                                 (iy + 1) * cell, reach)
-            count = poisson(uniform_scalar(seed, STREAM_COUNT, b, ix, iy, 0), lam * mult)
+            count = poisson(uniform_scalar(seed, STREAM_COUNT, b, ix, iy, 0), lam)
             for j in range(count):
                 k0 = _NPAR * j
                 x = (ix + uniform_scalar(seed, STREAM_ROCK, b, ix, iy, k0)) * cell
                 y = (iy + uniform_scalar(seed, STREAM_ROCK, b, ix, iy, k0 + 1)) * cell
                 if x < lo_x or x > hi_x or y < lo_y or y > hi_y:
                     continue
-                if mult > 1.0:
-                    m = 1.0 + factor * _boost_at(src, x, y, reach)
-                    if uniform_scalar(seed, STREAM_ROCK, b, ix, iy, k0 + 3) * mult > m:
-                        continue
                 if not count_only:
                     u = uniform_scalar(seed, STREAM_ROCK, b, ix, iy, k0 + 2)
                     # N(>=D) between the bin's ends, inverted through the log table
                     target = math.log(n_lo - u * (n_lo - n_hi))
                     d = math.exp(_interp(target, logd, logn))
-                    rb = _clip(0.71 + 0.1 * gaussian(
-                        uniform_scalar(seed, STREAM_ROCK, b, ix, iy, k0 + 4)), 0.4, 1.0)
-                    rc = _clip(0.5 + 0.1 * gaussian(
-                        uniform_scalar(seed, STREAM_ROCK, b, ix, iy, k0 + 5)), 0.25, rb)
-                    a = d / math.sqrt(rb)
-                    out[n, _X] = x
-                    out[n, _Y] = y
-                    out[n, _D] = d
-                    out[n, _A] = a
-                    out[n, _B] = a * rb
-                    out[n, _C] = a * rc
-                    out[n, _YAW] = math.pi * uniform_scalar(seed, STREAM_ROCK, b, ix, iy,
-                                                            k0 + 6)
-                    out[n, _BETA] = 0.5 * uniform_scalar(seed, STREAM_ROCK, b, ix, iy, k0 + 7)
-                    out[n, _H0] = 0.0
-                    for h in range(3):
-                        out[n, 9 + 2 * h] = SHAPE_PERTURBATION * (2.0 * uniform_scalar(
-                            seed, STREAM_ROCK, b, ix, iy, k0 + 8 + 2 * h) - 1.0)
-                        out[n, 10 + 2 * h] = 2.0 * math.pi * uniform_scalar(
-                            seed, STREAM_ROCK, b, ix, iy, k0 + 9 + 2 * h)
+                    _shape(out, n, x, y, d, seed, STREAM_ROCK, b, ix, iy, k0)
                     uid[n] = hash64(seed, STREAM_UID, b, ix, iy, j)
+                n += 1
+    return n
+
+
+@numba.njit(cache=True)
+def _place_blocks(seed, src, edges, per_bin, alpha, reach, xmin, ymin, xmax, ymax, margin,
+                  min_d, out, uid, count_only):
+    """Blocks of the craters' fields (module docstring) whose outline may touch the extent.
+
+    A block is keyed by its crater's position (millimetres), its size bin and its number in
+    the bin, so every window and layer sees the same blocks of a crater.
+    """
+    n = 0
+    # uniform inside the rim (area pi R^2) and (R / r)^3 out to reach R (2 pi R^2 (1 - 1/reach))
+    inner = 1.0 / (3.0 - 2.0 / reach)
+    for c in range(src.shape[0]):
+        cx, cy, dc, surv = src[c, 0], src[c, 1], src[c, 2], src[c, 3]
+        ix = np.int64(round(cx * 1000.0))
+        iy = np.int64(round(cy * 1000.0))
+        rad = 0.5 * dc
+        for bi in range(per_bin.size):
+            lo = edges[bi] * dc
+            hi = edges[bi + 1] * dc
+            if hi <= min_d:
+                continue
+            grow = 0.5 * hi / math.sqrt(0.4) * (1 + 3 * SHAPE_PERTURBATION) if margin else 0.0
+            lo_x, hi_x, lo_y, hi_y = xmin - grow, xmax + grow, ymin - grow, ymax + grow
+            gx = max(lo_x - cx, 0.0, cx - hi_x)
+            gy = max(lo_y - cy, 0.0, cy - hi_y)
+            if math.hypot(gx, gy) > reach * rad:
+                continue
+            count = poisson(uniform_scalar(seed, STREAM_BLOCK_COUNT, bi, ix, iy, 0),
+                            per_bin[bi])
+            for j in range(count):
+                k0 = _NPAR * j
+                if uniform_scalar(seed, STREAM_BLOCK, bi, ix, iy, k0 + 3) >= surv:
+                    continue  # ground down since the crater formed
+                u = uniform_scalar(seed, STREAM_BLOCK, bi, ix, iy, k0 + 1)
+                if u < inner:
+                    r = rad * math.sqrt(u / inner)
+                else:
+                    r = rad / (1.0 - (u - inner) / (2.0 * inner))
+                theta = 2.0 * math.pi * uniform_scalar(seed, STREAM_BLOCK, bi, ix, iy, k0)
+                x = cx + r * math.cos(theta)
+                y = cy + r * math.sin(theta)
+                if x < lo_x or x > hi_x or y < lo_y or y > hi_y:
+                    continue
+                # N(>=d) ~ d^alpha between the bin's ends
+                v = uniform_scalar(seed, STREAM_BLOCK, bi, ix, iy, k0 + 2)
+                d = (lo ** alpha - v * (lo ** alpha - hi ** alpha)) ** (1.0 / alpha)
+                if d < min_d:
+                    continue
+                if not count_only:
+                    _shape(out, n, x, y, d, seed, STREAM_BLOCK, bi, ix, iy, k0)
+                    uid[n] = hash64(seed, STREAM_BLOCK_UID, bi, ix, iy, j)
                 n += 1
     return n
 

@@ -56,7 +56,7 @@ def test_stage_tables_become_the_stages_specs():
     (its seed, layers as large as the base) fill in the rest."""
     c = load_campaign(DEMO)
     assert c.synth.fractal_dimension == 2.3 and c.synth.size == 1025
-    assert c.enhance.rocks == "golombek:k=0.02" and c.enhance.levels == 15
+    assert c.enhance.rocks == "viper-nominal" and c.enhance.levels == 15
     assert c.synth.seed == c.enhance.seed == 2014
     assert c.enhance.layer_size == c.synth.size and c.enhance.site is None
     assert c.recipe.magnitude == 256 and c.recipe.seed == 433  # examples/eros_like.toml

@@ -37,7 +37,7 @@ def test_rock_sfd_counts_area_and_number_of_rocks_at_least_d():
 
 @pytest.mark.slow
 def test_rock_sfd_of_a_generated_field_follows_its_model():
-    model = RockModel.from_spec("golombek:k=0.1,dmin=0.1")
+    model = RockModel.from_spec("golombek-rapp-mars:k=0.1,dmin=0.1")
     rocks = model.generate(8, (0.0, 0.0, 100.0, 100.0), margin=False)
     cat = rock_catalog(rocks, np.zeros(len(rocks)), np.zeros(len(rocks), int))
     m = rock_sfd(cat, (0.0, 0.0, 100.0, 100.0), 0.1, points=5)
@@ -78,7 +78,7 @@ def test_evaluation_report_takes_a_hazard_map_of_a_rocky_stack(tmp_path):
                3, "--seed", 2).exit_code == 0
     stack = tmp_path / "stack"
     assert run("terrain", "enhance", base, "-o", stack, "--site", "130,130", "--levels", 5,
-               "--layer-size", 65, "--rocks", "golombek:k=0.15").exit_code == 0
+               "--layer-size", 65, "--rocks", "golombek-rapp-mars:k=0.15").exit_code == 0
     hz = tmp_path / "hazards.tif"
     r = run("terrain", "hazards", stack, "-o", hz, "--lander-diameter", 1.5, "--max-slope",
             12, "--max-step", 0.2)

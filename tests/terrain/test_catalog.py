@@ -196,7 +196,7 @@ def rocky():
 
     tile = DEMTile.from_array(np.zeros((129, 129), np.float32),
                               transform=default_transform(0.25, 129))
-    return add_rocks(tile, RockModel.from_spec("golombek:k=0.1,dmin=0.5"), seed=3)
+    return add_rocks(tile, RockModel.from_spec("golombek-rapp-mars:k=0.1,dmin=0.5"), seed=3)
 
 
 def test_a_rock_catalogue_survives_its_csv_and_describes_its_rocks(rocky, tmp_path):

@@ -25,7 +25,7 @@ from tests.cli_helpers import one_line_error
 from tests.cli_helpers import run as cli
 
 POP = Population(dmin=1.0, dmax=60.0, density=3e5, max_age=2.0)
-ROCKS = RockModel.from_spec("golombek:k=0.3,dmin=0.25")
+ROCKS = RockModel.from_spec("golombek-rapp-mars:k=0.3,dmin=0.25")
 SITE = (130.0, 130.0)
 ARGS = dict(levels=3, layer_size=33, seed=3)
 
@@ -134,7 +134,8 @@ def test_an_interrupted_build_resumes_without_computing_a_finished_chunk(in_memo
 def test_enhance_cli_runs_chunked_on_request_and_equals_the_in_memory_stack(base_path,
                                                                             tmp_path):
     common = ["--site", "130,130", "--levels", 2, "--layer-size", 33, "--seed", 3,
-              "--dmin", 1, "--dmax", 60, "--density", 3e5, "--rocks", "golombek:k=0.3,dmin=0.25"]
+              "--dmin", 1, "--dmax", 60, "--density", 3e5, "--rocks",
+              "golombek-rapp-mars:k=0.3,dmin=0.25"]
     mem = tmp_path / "mem"
     r = cli("terrain", "enhance", base_path, "-o", mem, *common)
     assert r.exit_code == 0, r.output

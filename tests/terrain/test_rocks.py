@@ -30,7 +30,7 @@ def _area_fraction_ratio(model, rocks, area, factors):
 @pytest.mark.parametrize("k", [0.02, 0.2])
 def test_golombek_cumulative_fractional_area_matches_model(k):
     # F_k(D) = k exp(-q D), q = 1.79 + 0.152 / k, for D in 2..10 dmin on a large flat area
-    model = RockModel.from_mapping({"model": "golombek", "k": k, "dmin": 0.03 if k < 0.1
+    model = RockModel.from_mapping({"model": "golombek-rapp-mars", "k": k, "dmin": 0.03 if k < 0.1
                                     else 0.1})
     side = 300.0 if k < 0.1 else 150.0  # about 1000 rocks >= 10 dmin
     rocks = model.generate(5, (0.0, 0.0, side, side), margin=False)
@@ -51,7 +51,7 @@ def test_power_law_cumulative_number_matches_model():
 
 
 def test_shapes_follow_fragment_axis_ratios_and_are_partly_buried():
-    model = RockModel.from_spec("golombek:k=0.1,dmin=0.1")
+    model = RockModel.from_spec("golombek-rapp-mars:k=0.1,dmin=0.1")
     rocks = model.generate(3, (0.0, 0.0, 40.0, 40.0))
     a, b, c = rocks.axes.T
     assert np.all((a >= b) & (b >= c) & (c > 0))
@@ -72,7 +72,7 @@ def _tilted(n=257, res=0.05, slope_deg=10.0):
 
 def test_every_rock_rests_on_the_terrain_and_only_rocks_change_heights():
     tile = _tilted()
-    model = RockModel.from_spec("golombek:k=0.1,dmin=0.1")
+    model = RockModel.from_spec("golombek-rapp-mars:k=0.1,dmin=0.1")
     rocky, cat = add_rocks(tile, model, seed=4)
     assert len(cat.id) > 50
     z = rocky.heights.astype(np.float64)
@@ -103,7 +103,7 @@ def test_every_rock_rests_on_the_terrain_and_only_rocks_change_heights():
     # away from every rock the terrain is untouched, bitwise
     from scipy import ndimage
 
-    rocks = RockModel.from_spec("golombek:k=0.1,dmin=0.1").generate(4, tile.bounds)
+    rocks = RockModel.from_spec("golombek-rapp-mars:k=0.1,dmin=0.1").generate(4, tile.bounds)
     near = np.zeros(tile.shape, bool)
     rr, cc = tile.rowcol(rocks.x, rocks.y)
     inside = (rr > -30) & (rr < tile.shape[0] + 30) & (cc > -30) & (cc < tile.shape[1] + 30)
@@ -118,7 +118,7 @@ def test_every_rock_rests_on_the_terrain_and_only_rocks_change_heights():
 
 def test_window_equals_the_same_window_of_the_full_run_bitwise():
     tile = _tilted(n=201)
-    model = RockModel.from_spec("golombek:k=0.15,dmin=0.1")
+    model = RockModel.from_spec("golombek-rapp-mars:k=0.15,dmin=0.1")
     craters = CraterTable.from_craters([])
     full, cat_full = add_rocks(tile, model, seed=9, craters=craters)
     for win in (Window(37, 50, 61, 44), Window(0, 0, 13, 200), Window(150, 120, 51, 81)):
@@ -131,38 +131,15 @@ def test_window_equals_the_same_window_of_the_full_run_bitwise():
         assert sorted(cat.id.tolist()) == sorted(cat_full.id[sel].tolist())
 
 
-def test_rocks_gather_on_fresh_craters_and_fade_with_age():
-    model = RockModel.from_spec("golombek:k=0.01,dmin=0.2")
-    fresh = CraterTable.from_craters([])
-    from terrain.craters.catalog import Crater
-
-    def density(age, on):
-        table = CraterTable.from_craters([Crater(50.0, 50.0, 40.0, age)])
-        m = model if on else RockModel.from_spec("golombek:k=0.01,dmin=0.2,craters=off")
-        rocks = m.generate(2, (0.0, 0.0, 100.0, 100.0), craters=table, margin=False)
-        near = np.hypot(rocks.x - 50, rocks.y - 50) <= 20
-        return near.sum() / (math.pi * 400), (~near).sum() / (1e4 - math.pi * 400)
-
-    bg = RockModel.from_spec("golombek:k=0.01,dmin=0.2").expected_count(1.0)
-    rim, outside = density(0.0, True)
-    assert rim / bg == pytest.approx(11.0, rel=0.15)   # 1 + A on and inside the rim
-    old, _ = density(1.0, True)                        # 2^-(1/0.06): no trace left
-    assert old / bg == pytest.approx(1.0, rel=0.15)
-    off, _ = density(0.0, False)
-    assert off / bg == pytest.approx(1.0, rel=0.15)
-    assert outside > bg                                 # ejecta beyond the rim
-    assert len(fresh) == 0
-
-
 @pytest.mark.parametrize("spec, fragment", [
-    ("golombek:k=1.5,dmin=0.1", "must lie in (0, 1)"),
-    ("golombek:k=0,dmin=0.1", "must lie in (0, 1)"),
+    ("golombek-rapp-mars:k=1.5,dmin=0.1", "must lie in (0, 1)"),
+    ("golombek-rapp-mars:k=0,dmin=0.1", "must lie in (0, 1)"),
     ("power:a=3e-4,b=0.5,dmin=0.1", "b must be negative"),
     ("power:a=-1,b=-2,dmin=0.1", "a must be positive"),
-    ("golomb:k=0.1,dmin=0.1", "did you mean 'golombek'"),
-    ("golombek:kk=0.1,dmin=0.1", "unknown rock key 'kk' (did you mean 'k'?)"),
-    ("golombek:k=0.1", "dmin"),
-    ("golombek:k=x,dmin=0.1", "k must be a number"),
+    ("golombek:k=0.1,dmin=0.1", "did you mean 'golombek-rapp-mars'"),
+    ("golombek-rapp-mars:kk=0.1,dmin=0.1", "unknown rock key 'kk' (did you mean 'k'?)"),
+    ("golombek-rapp-mars:k=0.1", "dmin"),
+    ("golombek-rapp-mars:k=x,dmin=0.1", "k must be a number"),
 ])
 def test_parameters_outside_their_domain_are_refused_by_name(spec, fragment):
     with pytest.raises(InvalidParameterError) as info:
@@ -172,7 +149,7 @@ def test_parameters_outside_their_domain_are_refused_by_name(spec, fragment):
 
 def test_heights_leave_out_rocks_the_tile_cannot_resolve():
     tile = _tilted(n=65, res=0.2)
-    model = RockModel.from_spec("golombek:k=0.2,dmin=0.05")
+    model = RockModel.from_spec("golombek-rapp-mars:k=0.2,dmin=0.05")
     rocks = model.generate(1, tile.bounds)
     z, z0, drawn = rock_heights(tile, rocks)
     assert np.all(rocks.diameter[drawn] >= 0.4) and np.all(np.isnan(z0[~drawn]))
@@ -186,7 +163,7 @@ def test_layer_stack_puts_each_rock_in_every_layer_that_resolves_it(tmp_path):
 
     base = synthesize_tile(65, resolution=4.0, relief=3.0, seed=2).tile
     site = (130.0, 130.0)
-    model = RockModel.from_spec("golombek:k=0.15,dmin=0.25")
+    model = RockModel.from_spec("golombek-rapp-mars:k=0.15,dmin=0.25")
     plain = build_stack(base, site, levels=4, layer_size=65, seed=3)
     rocky = build_stack(base, site, levels=4, layer_size=65, seed=3, rocks=model)
     cat = rocky.rocks
@@ -230,7 +207,7 @@ def _property_tile():
 def test_any_window_equals_the_full_run_bitwise(col, row, w, h, seed):
     tile = _property_tile()
     w, h = min(w, 129 - col), min(h, 129 - row)
-    model = RockModel.from_spec("golombek:k=0.2,dmin=0.1")
+    model = RockModel.from_spec("golombek-rapp-mars:k=0.2,dmin=0.1")
     full, _ = add_rocks(tile, model, seed=seed)
     part, _ = add_rocks(tile, model, seed=seed, window=Window(col, row, w, h))
     np.testing.assert_array_equal(part.heights, full.heights[row:row + h, col:col + w])
@@ -242,7 +219,7 @@ def _rocky_stack(folder):
     from terrain.stack.store import write_stack
 
     base = synthesize_tile(65, resolution=4.0, relief=3.0, seed=2).tile
-    model = RockModel.from_spec("golombek:k=0.15,dmin=0.25")
+    model = RockModel.from_spec("golombek-rapp-mars:k=0.15,dmin=0.25")
     return write_stack(build_stack(base, (130.0, 130.0), levels=4, layer_size=65, seed=3,
                                    rocks=model), folder)
 

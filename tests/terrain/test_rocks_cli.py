@@ -23,7 +23,7 @@ def dem(tmp_path):
 
 def test_rocks_writes_heights_and_catalogue_and_a_window_matches(dem, tmp_path):
     out, cat = tmp_path / "r.tif", tmp_path / "rocks.csv"
-    r = run("terrain", "rocks", dem, "-o", out, "--model", "golombek", "--k", 0.1,
+    r = run("terrain", "rocks", dem, "-o", out, "--model", "golombek-rapp-mars", "--k", 0.1,
             "--seed", 4, "--catalog", cat)
     assert r.exit_code == 0, r.output
     rows = list(csv.DictReader(cat.open()))
@@ -36,7 +36,8 @@ def test_rocks_writes_heights_and_catalogue_and_a_window_matches(dem, tmp_path):
     assert np.all(full.heights >= ground.heights) and np.any(full.heights > ground.heights)
     assert json.loads(full.metadata["CRATERSCAPE_PARAMETERS"])["rocks"]["k"] == 0.1
     win = tmp_path / "w.tif"
-    r = run("terrain", "rocks", dem, "-o", win, "--k", 0.1, "--seed", 4, "--window",
+    r = run("terrain", "rocks", dem, "-o", win, "--model", "golombek-rapp-mars", "--k", 0.1,
+            "--seed", 4, "--window",
             "30,40,50,60")
     assert r.exit_code == 0, r.output
     np.testing.assert_array_equal(read_dem(win).heights, full.heights[40:100, 30:80])
@@ -68,7 +69,10 @@ def test_power_law_rocks_follow_their_cumulative_law(tmp_path_factory, seed, b):
 
 
 @pytest.mark.parametrize("args, fragment", [
-    (["--k", 1.2], "must lie in (0, 1)"),
+    (["--model", "golombek-rapp-mars", "--k", 1.2], "must lie in (0, 1)"),
+    (["--k", 0.1], "'k' is fixed by the viper-nominal rock model"),
+    (["--model", "golombek", "--k", 0.1], "did you mean 'golombek-rapp-mars'"),
+    (["--terrain", "mare"], "'mare' is not one of"),
     (["--model", "power", "--a", 3e-4, "--b", 0.1], "b must be negative"),
     (["--model", "power", "--a", 3e-4], "needs a and b"),
     (["--model", "power", "--a", 500, "--b", -2.482], "rock field of about"),
@@ -87,7 +91,7 @@ def test_enhance_puts_rocks_into_the_stack(tmp_path):
                3, "--seed", 2).exit_code == 0
     out = tmp_path / "stack"
     r = run("terrain", "enhance", base, "-o", out, "--site", "130,130", "--levels", 4,
-            "--layer-size", 65, "--rocks", "golombek:k=0.15")
+            "--layer-size", 65, "--rocks", "golombek-rapp-mars:k=0.15")
     assert r.exit_code == 0, r.output
     rows = list(csv.DictReader((out / "rocks.csv").open()))
     assert len(rows) > 5 and "rocks" in r.output
@@ -95,6 +99,19 @@ def test_enhance_puts_rocks_into_the_stack(tmp_path):
     assert manifest["rocks"]["k"] == 0.15 and manifest["rocks"]["dmin"] == pytest.approx(0.5)
     bad = tmp_path / "bad"
     one_line_error(run("terrain", "enhance", base, "-o", bad, "--site", "130,130", "--levels",
-                       4, "--layer-size", 65, "--rocks", "golombek:q=3"),
+                       4, "--layer-size", 65, "--rocks", "golombek-rapp-mars:q=3"),
                    "unknown rock key 'q'")
     assert not bad.exists()
+
+
+@pytest.mark.parametrize("args, model", [
+    ([], "viper-nominal"),
+    (["--terrain", "maria"], "viper-low"),
+    (["--terrain", "maria", "--model", "viper-high"], "viper-high"),
+])
+def test_the_rock_model_is_the_lunar_default_the_presets_or_the_one_given(dem, tmp_path, args,
+                                                                         model):
+    out = tmp_path / "r.tif"
+    r = run("terrain", "rocks", dem, "-o", out, "--seed", 4, *args)
+    assert r.exit_code == 0, r.output
+    assert json.loads(read_dem(out).metadata["CRATERSCAPE_PARAMETERS"])["rocks"]["model"] == model
