@@ -287,7 +287,7 @@ class Site:
 
 def site_on_map(crs_wkt: str | None, x: float, y: float, *, height: float = 0.0,
                 radius: float = MOON_RADIUS) -> Site:
-    """The site at map point ``x, y`` of a projected map (a layer stack's CRS).
+    """Place the site at map point ``x, y`` of a projected map (a layer stack's CRS).
 
     Parameters
     ----------
@@ -517,7 +517,7 @@ def lunar_sky(et: float, site: Site, *, frame: str = "IAU_MOON", body: str = "MO
 
 def body_sun(et: float, *, orbit: Orbit | None = None, target: str | None = None,
              frame: str = "ECLIPJ2000", kernels: tuple[str, ...] = ()) -> Sky:
-    """The Sun seen from a small body on its orbit (asteroid scenes).
+    """See the Sun from a small body on its orbit (asteroid scenes).
 
     Parameters
     ----------
@@ -672,7 +672,7 @@ class SunEphemeris:
         return replace(self, site=site, _cache={})
 
     def sky(self, seconds: float = 0.0) -> Sky:
-        """The sky ``seconds`` after ``utc`` (memoised per time).
+        """Return the sky ``seconds`` after ``utc`` (memoised per time).
 
         Parameters
         ----------

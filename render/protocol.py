@@ -22,10 +22,9 @@ from enum import IntEnum
 
 from render.errors import ProtocolError
 
-__all__ = ["ERROR", "HEADER", "MAGIC", "MAX_REPLY_BODY", "MAX_REQUEST_BODY", "PROTOCOL_MINOR", "REPLY",
-           "VERSION",
-           "ErrorCode", "MsgType", "error_body", "pack_header", "read_exact", "read_message",
-           "unpack_header"]
+__all__ = ["ERROR", "HEADER", "MAGIC", "MAX_REPLY_BODY", "MAX_REQUEST_BODY", "PROTOCOL_MINOR",
+           "REPLY", "VERSION", "ErrorCode", "MsgType", "error_body", "pack_header", "read_exact",
+           "read_message", "unpack_header"]
 
 MAGIC = b"CSRV"
 VERSION = 1

@@ -362,7 +362,7 @@ class Scenario:
     ephemeris: SunEphemeris | None = None
 
     def sky_at(self, time: float, scene: Any = None) -> Sky | None:
-        """The Sun and Earth at trajectory time ``time`` (s), or None for a hand-set sun.
+        """Return the Sun and Earth at trajectory time ``time`` (s); None for a hand-set sun.
 
         Parameters
         ----------
@@ -386,7 +386,7 @@ class Scenario:
         return eph.sky(time)
 
     def lighting_at(self, time: float, scene: Any = None) -> Lighting:
-        """The lighting at trajectory time ``time`` (s): the scenario's, dated where it is.
+        """Return the lighting at trajectory time ``time`` (s), dated where the sun is.
 
         Parameters
         ----------
@@ -503,7 +503,7 @@ class Scenario:
 
 
 def scene_site(scene: Any):
-    """The site of a terrain scene on its body, from its layer stack's CRS.
+    """Return the site of a terrain scene on its body, from its layer stack's CRS.
 
     Parameters
     ----------
@@ -525,7 +525,7 @@ def scene_site(scene: Any):
 
 def _dated_sun(sun: dict, scene: SceneSpec, path: Path | None,
                extra: dict) -> SunEphemeris | None:
-    """The ``[sun]`` table's dated Sun, or None; refuses hand-set keys mixed with ``utc``."""
+    """Return the ``[sun]`` table's dated Sun or None; refuse hand-set keys with ``utc``."""
     dated = sorted(k for k in sun if k in DATED_KEYS and k != "utc")
     if "utc" not in sun:
         if dated:

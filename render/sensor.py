@@ -402,11 +402,13 @@ class Sensor:
         """Return the sensor with :attr:`exposure_value` set to ``value``."""
         from dataclasses import replace
 
-        return replace(self, **{"exposure_time" if self.physical else "exposure": float(value)})
+        if self.physical:
+            return replace(self, exposure_time=float(value))
+        return replace(self, exposure=float(value))
 
     def metered(self, radiance: np.ndarray, *, intrinsics=None,
                 spectral_irradiance: float = 1.58) -> float:
-        """The exposure that places the lit pixels' percentile at the chosen fraction.
+        """Return the exposure placing the lit pixels' percentile at the chosen fraction.
 
         Parameters
         ----------
