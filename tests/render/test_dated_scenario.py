@@ -96,3 +96,24 @@ def test_a_sequence_under_a_dated_sun_with_auto_exposure(tmp_path, gl):
     lit = image > 0
     p95 = float(np.percentile(image[lit], 95.0))
     assert abs(p95 - 0.7 * 65535) <= 0.01 * 65535  # lit: DN > 0 (sensor noise is off)
+
+
+def test_a_stack_with_a_crs_places_the_site_itself():
+    """Without longitude and latitude, a terrain scene's stack places the site: 100 km from
+    the pole on the map's -y axis of a south polar stereographic map is longitude 180, where
+    the map's +y points at the pole, so the map sees the Sun 180 deg round from true north."""
+    from types import SimpleNamespace
+
+    from terrain.io import polar_crs
+
+    tile = SimpleNamespace(crs=polar_crs(eph.MOON_RADIUS))
+    scene = SimpleNamespace(stack=SimpleNamespace(tiles=[tile]), site=(0.0, -100_000.0),
+                            radius=eph.MOON_RADIUS, height_at=lambda x, y: 0.0)
+    sc = _scenario({"utc": UTC})
+    lat = 2 * math.degrees(math.atan(100_000.0 / (2 * eph.MOON_RADIUS))) - 90.0
+    true = eph.lunar_sky(eph.et_from_utc(UTC) + 60.0, eph.Site(180.0, lat))
+    got = sc.sky_at(60.0, scene)
+    assert (true.sun_angles[0] - got.sun_angles[0]) % 360.0 == pytest.approx(180.0, abs=1e-3)
+    assert got.sun_angles[1] == pytest.approx(true.sun_angles[1], abs=1e-9)
+    with pytest.raises(InvalidParameterError, match="longitude and latitude"):
+        _scenario({"utc": UTC}).sky_at(0.0, SimpleNamespace(stack=None))

@@ -194,3 +194,24 @@ def test_dated_sun_table_refuses_mistakes(tmp_path):
                                       base=tmp_path).sky(0.0)
     with pytest.raises(InvalidParameterError, match="site"):
         eph.SunEphemeris.from_mapping({"utc": "2027-01-15T12:00:00"}).sky(0.0)
+
+
+@pytest.mark.parametrize("x, y, lon, azimuth", [(0.0, -100_000.0, 180.0, 180.0),
+                                                (100_000.0, 0.0, 90.0, 270.0)])
+def test_a_polar_map_places_its_site_and_grid_north(x, y, lon, azimuth):
+    """South polar stereographic (Snyder 1987, eqs. 21-30, 21-31: x = rho sin(lon),
+    y = rho cos(lon), rho = 2 R tan((90 + lat) / 2)): the point 100 km from the pole on the
+    map's -y axis lies on longitude 180, where the map's +y points at the pole (true azimuth
+    180); on the +x axis, longitude 90, where +y points west (270)."""
+    from terrain.io import polar_crs
+
+    site = eph.site_on_map(polar_crs(eph.MOON_RADIUS), x, y)
+    lat = 2 * math.degrees(math.atan(100_000.0 / (2 * eph.MOON_RADIUS))) - 90.0
+    assert (site.longitude - lon) % 360.0 == pytest.approx(0.0, abs=1e-9)
+    assert site.latitude == pytest.approx(lat, abs=1e-9)
+    assert site.grid_north % 360.0 == pytest.approx(azimuth, abs=1e-3)
+
+
+def test_a_map_without_crs_asks_for_the_site():
+    with pytest.raises(InvalidParameterError, match="longitude and latitude"):
+        eph.site_on_map(None, 0.0, 0.0)
