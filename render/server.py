@@ -688,11 +688,11 @@ class RenderServer:
             table = {k: v for k, v in table.items() if k not in DATED_KEYS}
         table.update(settings)
         parsed = parse_scenario(dict(self.scenario.raw, sun=table), self.scenario.path)
-        st.scenario = dataclasses.replace(st.scenario, lighting=parsed.lighting,
-                                          ephemeris=parsed.ephemeris)
-        sky = st.scenario.sky_at(st.time, self.scene)  # an unplaceable site fails here
-        st.lighting, st.sun_table, st.frame = parsed.lighting, table, None
-        lit = st.scenario.lighting_at(st.time, self.scene)
+        scenario = dataclasses.replace(st.scenario, lighting=parsed.lighting,
+                                       ephemeris=parsed.ephemeris)
+        sky = scenario.sky_at(st.time, self.scene)  # an unplaceable site fails here
+        lit = scenario.lighting_at(st.time, self.scene)
+        st.scenario, st.lighting, st.sun_table, st.frame = scenario, parsed.lighting, table, None
         out = dict(sun=list(lit.sun), distance_au=lit.distance, time=st.time)
         if sky is not None:
             out.update(sky.as_dict(), utc=parsed.ephemeris.utc if parsed.ephemeris else None)

