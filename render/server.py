@@ -784,7 +784,8 @@ class RenderServer:
         parsed = parse_scenario(raw, self.scenario.path)  # the scenario's own validation
         base = self.scenario.with_overrides(None, (w, h))
         check_frame_memory(base)  # MemoryRequestError: INVALID_VALUE, before any allocation
-        st.scenario = dataclasses.replace(base, sensor=parsed.sensor, motion=parsed.motion)
+        st.scenario = dataclasses.replace(base, sensor=parsed.sensor, motion=parsed.motion,
+                                          ephemeris=st.scenario.ephemeris)  # SET_LIGHT's
         st.sensor_table, st.noise, st.frame = table, noise, None
         return self._sensor_info(st)
 

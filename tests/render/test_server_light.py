@@ -71,5 +71,7 @@ def test_a_dated_sun_over_the_wire_is_the_ephemeris_sun(tmp_path, gl):
         assert np.allclose(truth["sun"]["direction"], sky.sun, atol=1e-12)
         info = c.info()
         assert info["protocol_minor"] >= 1 and info["utc"] == UTC
+        c.set_sensor(noise=False)  # the sensor changes, the dated sun stays
+        assert np.allclose(c.get_truth()["sun"]["direction"], sky.sun, atol=1e-12)
         c.set_light(azimuth=100.0, elevation=15.0)  # back to a hand-set sun
         assert "utc" not in c.info()
