@@ -63,7 +63,6 @@ def test_an_asteroid_sun_from_its_orbit():
                   scene={"type": "asteroid", "body": "eros.npz"})
 
 
-@pytest.mark.slow
 def test_a_sequence_under_a_dated_sun_with_auto_exposure(tmp_path, gl):
     """A descent over 4 s under the Sun of 2027-01-15 at 80 S: every frame's truth holds the
     ephemeris sky at utc + its time and the exposure the camera used; the last frame's 95th
