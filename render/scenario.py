@@ -52,6 +52,8 @@ trajectory. Paths are relative to the scenario file. Example (``examples/lunar_d
     # temperature, dark_temperature, dark_doubling in C), natural_vignetting, transfer_time (s),
     # prnu, prnu_seed, shot_noise, read_noise (e-), full_well (e-), gain (e-/DN), bias (DN), bits,
     # psf = [[weight, sigma_px], ...] or psf_kernel = "file.npy", line_time (s, rolling)
+    # auto_exposure = true: ae_percentile of lit pixels at ae_fraction of full scale, moving
+    # ae_rate of the way each frame (ae_threshold, ae_max; render.sensor, docs/ephemeris.md)
 
     [motion]                         # optional: blur from motion during the exposure
     blur = true
