@@ -99,7 +99,8 @@ def frame(scenario_file: Path, output: Path, index: int | None,
         if scenario.outputs["normals"]:
             write_float_tiff(fr.normals, companions["normals"], tags={"FRAME": "world"})
         if scenario.outputs.get("radiance"):
-            write_float_tiff(scenario.lighting.radiance(fr.radiance), companions["radiance"],
+            lighting = scenario.lighting_at(samples[index].time, scene)
+            write_float_tiff(lighting.radiance(fr.radiance), companions["radiance"],
                              tags={"UNITS": "W m-2 sr-1 nm-1"})
         with atomic_path(companions["truth"]) as tmp:
             tmp.write_text(json.dumps(truth.as_dict(), indent=2), encoding="utf-8")

@@ -182,6 +182,15 @@ class Client:
         return _json(self.request(MsgType.SET_SENSOR, json.dumps(settings).encode("utf-8")),
                      "SET_SENSOR")
 
+    def set_light(self, **settings) -> dict:
+        """Set the sun as a scenario's ``[sun]`` keys (e.g. ``utc``, ``longitude``, ``latitude``).
+
+        Returns the sun in force at the current pose's time: ``sun``, ``distance_au``, ``time``
+        and, for a dated sun, the sky (:meth:`render.ephemeris.Sky.as_dict`) and ``utc``.
+        """
+        return _json(self.request(MsgType.SET_LIGHT, json.dumps(settings).encode("utf-8")),
+                     "SET_LIGHT")
+
     def get_image(self, bits: int = 0) -> np.ndarray:
         """Return the camera image of the current pose.
 

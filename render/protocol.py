@@ -22,12 +22,15 @@ from enum import IntEnum
 
 from render.errors import ProtocolError
 
-__all__ = ["ERROR", "HEADER", "MAGIC", "MAX_REPLY_BODY", "MAX_REQUEST_BODY", "REPLY", "VERSION",
-           "ErrorCode", "MsgType", "error_body", "pack_header", "read_exact", "read_message",
-           "unpack_header"]
+__all__ = ["ERROR", "HEADER", "MAGIC", "MAX_REPLY_BODY", "MAX_REQUEST_BODY", "PROTOCOL_MINOR",
+           "REPLY", "VERSION", "ErrorCode", "MsgType", "error_body", "pack_header", "read_exact",
+           "read_message", "unpack_header"]
 
 MAGIC = b"CSRV"
 VERSION = 1
+#: Minor version (INFO's ``protocol_minor``): additions a version-1 client may use or ignore.
+#: 1: SET_LIGHT (the sun on a date).
+PROTOCOL_MINOR = 1
 #: Header: magic, version (u16), type (u16), request id (u32), body length (u32).
 HEADER = struct.Struct("<4sHHII")
 #: Largest request body the server reads (bytes); checked before reading the body.
@@ -56,6 +59,7 @@ class MsgType(IntEnum):
     SET_SUN = 0x0011
     SET_SENSOR = 0x0012
     SET_MOTION = 0x0013
+    SET_LIGHT = 0x0014
     GET_IMAGE = 0x0020
     GET_RANGE = 0x0021
     GET_NORMALS = 0x0022
@@ -106,6 +110,7 @@ ERROR_HEAD = struct.Struct("<HH")     # code, 0
 REQUEST_SIZES = {MsgType.HELLO: None, MsgType.INFO: 0, MsgType.PING: 0,
                  MsgType.SET_POSE: POSE.size, MsgType.SET_SUN: SUN.size,
                  MsgType.SET_SENSOR: None, MsgType.SET_MOTION: MOTION.size,
+                 MsgType.SET_LIGHT: None,
                  MsgType.GET_IMAGE: BITS.size, MsgType.GET_RANGE: 0,
                  MsgType.GET_NORMALS: 0, MsgType.GET_TRUTH: 0, MsgType.HEIGHT_AT: XY.size,
                  MsgType.PIXEL_RAY: XY.size, MsgType.RAY: RAY.size}

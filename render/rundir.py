@@ -19,6 +19,11 @@ A truth entry::
      "camera": {"position": [x, y, z], "attitude": [w, x, y, z]},
      "intrinsics": {"width": .., "height": .., "fx": .., "fy": .., "cx": .., "cy": ..},
      "sun": {"direction": [x, y, z]},            # unit vector towards the sun, world frame
+            # a dated sun adds et, azimuth, elevation, distance_au and, on the Moon, earth,
+            # earth_azimuth, earth_elevation, earth_km, earth_phase, earthshine
+            # (render.ephemeris.Sky.as_dict)
+     "exposure": {"auto": true, "exposure": .., "settled": ..},  # auto-exposed frames only
+            # (exposure_time for a physical sensor; render.sensor.ExposureControl)
      "body_rotation": [w, x, y, z],              # R_WB; identity for terrain scenes
      "drawn": {...},                             # layers / patches / boulders drawn
      "motion": {"velocity": [..], "angular_velocity": [..], "body_angular_velocity": [..],
@@ -56,10 +61,14 @@ __all__ = ["FORMAT", "FrameTruth", "RunReader", "RunWriter"]
 FORMAT = "craterscape-render-run"
 #: Keys of a truth entry and of its tables (what :meth:`FrameTruth.as_dict` writes).
 TRUTH_KEYS = frozenset({"index", "time", "image", "range", "normals", "camera", "intrinsics",
-                        "sun", "body_rotation", "drawn", "motion", "radiance"})
+                        "sun", "body_rotation", "drawn", "motion", "radiance", "exposure"})
 TRUTH_TABLE_KEYS = {"camera": frozenset({"position", "attitude"}),
                     "intrinsics": frozenset({"width", "height", "fx", "fy", "cx", "cy"}),
-                    "sun": frozenset({"direction"}),
+                    "sun": frozenset({"direction", "et", "azimuth", "elevation", "distance_au",
+                                      "earth", "earth_azimuth", "earth_elevation", "earth_km",
+                                      "earth_phase", "earthshine"}),
+                    "exposure": frozenset({"auto", "exposure", "exposure_time", "settled",
+                                           "percentile", "fraction", "rate"}),
                     "motion": frozenset({"velocity", "angular_velocity",
                                          "body_angular_velocity", "exposure_time", "line_time",
                                          "samples"})}
@@ -69,7 +78,7 @@ MANIFEST_KEYS = frozenset({"format", "version", "scenario", "scene", "frames", "
                            "seed", "sensor", "lighting", "renderer", "render_seconds",
                            "frames_rendered_this_run", "frames_written"})
 MANIFEST_LIGHTING_KEYS = frozenset({"sun", "albedo", "reflectance", "hapke", "distance_au",
-                                    "spectral_irradiance"})
+                                    "spectral_irradiance", "utc"})
 
 
 def check_manifest(manifest, where: str) -> dict:
@@ -104,13 +113,18 @@ class FrameTruth:
     normals: str | None = None
     motion: dict | None = None
     radiance: str | None = None
+    sky: dict | None = None
+    exposure: dict | None = None
 
     def as_dict(self) -> dict:
         """Return the frame's truth as plain data for the run's truth file."""
         d = dict(index=self.index, time=self.time, image=self.image, range=self.range,
                  normals=self.normals, camera=self.pose.as_dict(),
-                 intrinsics=self.intrinsics.as_dict(), sun={"direction": list(self.sun)},
+                 intrinsics=self.intrinsics.as_dict(),
+                 sun={"direction": list(self.sun), **(self.sky or {})},
                  body_rotation=list(self.body_rotation), drawn=self.drawn)
+        if self.exposure is not None:
+            d["exposure"] = self.exposure
         if self.motion is not None:
             d["motion"] = self.motion
         if self.radiance is not None:
@@ -146,12 +160,13 @@ class FrameTruth:
         for key, allowed in TRUTH_TABLE_KEYS.items():
             if d.get(key) is not None:
                 check_keys(d[key], allowed, f"{where} {key}")
+        sky = {k: v for k, v in d["sun"].items() if k != "direction"}
         return cls(int(d["index"]), float(d.get("time", 0.0)),
                    Pose(tuple(d["camera"]["position"]), tuple(d["camera"]["attitude"])),
                    Intrinsics(**d["intrinsics"]), tuple(d["sun"]["direction"]),
                    tuple(d.get("body_rotation", (1.0, 0.0, 0.0, 0.0))), d.get("drawn", {}),
                    d.get("image"), d.get("range"), d.get("normals"), d.get("motion"),
-                   d.get("radiance"))
+                   d.get("radiance"), sky or None, d.get("exposure"))
 
 
 #: Manifest facts a resumed run must share with the interrupted one.
@@ -239,6 +254,11 @@ class RunWriter:
         """Return indices of frames already written (for resuming)."""
         return {int(f["index"]) for f in self.frames}
 
+    def exposure_before(self, index: int) -> dict | None:
+        """Return the auto-exposure record of the written frame just before ``index``."""
+        before = [f for f in self.frames if int(f["index"]) == index - 1]
+        return before[0].get("exposure") if before else None
+
     def write_frame(self, truth: FrameTruth, image: np.ndarray, range_m: np.ndarray | None,
                     normals: np.ndarray | None, radiance: np.ndarray | None = None) -> None:
         """Write one frame's image and truth rasters and record the frame in ``truth.json``."""
@@ -260,7 +280,7 @@ class RunWriter:
         entry = FrameTruth(truth.index, truth.time, truth.pose, truth.intrinsics, truth.sun,
                            truth.body_rotation, truth.drawn, names["image"],
                            names.get("range"), names.get("normals"), truth.motion,
-                           names.get("radiance")).as_dict()
+                           names.get("radiance"), truth.sky, truth.exposure).as_dict()
         self.frames = [f for f in self.frames if int(f["index"]) != i] + [entry]
         self.frames.sort(key=lambda f: int(f["index"]))
         with atomic_path(self.dir / "truth.json") as tmp:

@@ -19,6 +19,14 @@ trajectory. Paths are relative to the scenario file. Example (``examples/lunar_d
     elevation = 5.0                  # ... above the horizon; or direction = [x, y, z]
     distance = 1.0                   # the body's distance from the Sun (au)
     irradiance = 1.58                # solar spectral irradiance at 1 au (W m^-2 nm^-1)
+    # or the Sun (and Earth) on a date, instead of azimuth, elevation and distance
+    # (render.ephemeris, docs/ephemeris.md): the trajectory's times add to utc
+    # utc = "2027-01-15T12:00:00"
+    # longitude = 0.0                # the site (degrees; terrain: the stack's CRS by default)
+    # latitude = -89.5
+    # height = 0.0                   # m; grid_north (degrees): azimuth of the map's +y
+    # kernels = ["moon_pa_de440_200625.bpc", "moon_de440_250416.tf"]; frame = "MOON_ME"
+    # asteroids: [sun.orbit] a, e, i, node, peri, mean_anomaly, epoch; or target (an SPK)
 
     [surface]
     albedo = 0.12                    # Lambert, Lommel-Seeliger, lunar-Lambert (Hapke: w)
@@ -44,6 +52,8 @@ trajectory. Paths are relative to the scenario file. Example (``examples/lunar_d
     # temperature, dark_temperature, dark_doubling in C), natural_vignetting, transfer_time (s),
     # prnu, prnu_seed, shot_noise, read_noise (e-), full_well (e-), gain (e-/DN), bias (DN), bits,
     # psf = [[weight, sigma_px], ...] or psf_kernel = "file.npy", line_time (s, rolling)
+    # auto_exposure = true: ae_percentile of lit pixels at ae_fraction of full scale, moving
+    # ae_rate of the way each frame (ae_threshold, ae_max; render.sensor, docs/ephemeris.md)
 
     [motion]                         # optional: blur from motion during the exposure
     blur = true
@@ -86,6 +96,7 @@ from pathlib import Path
 from typing import Any
 
 from render.camera import Intrinsics
+from render.ephemeris import DATED_KEYS, Sky, SunEphemeris, site_on_map
 from render.motion import Motion
 from render.reflectance import Hapke, check_brdf
 from render.renderer import MAX_ANTIALIAS, Lighting, RenderOptions
@@ -349,6 +360,51 @@ class Scenario:
     raw: dict = field(default_factory=dict)
     # {"blur": bool, "given": the velocity keys set in [motion], "motion": Motion}
     motion: dict = field(default_factory=dict)
+    #: The Sun on a date ([sun] utc); None for a hand-set sun.
+    ephemeris: SunEphemeris | None = None
+
+    def sky_at(self, time: float, scene: Any = None) -> Sky | None:
+        """Return the Sun and Earth at trajectory time ``time`` (s); None for a hand-set sun.
+
+        Parameters
+        ----------
+        time : float
+            Seconds after ``[sun] utc``.
+        scene : render.scene.Scene, optional
+            A terrain scene places a site the scenario does not give (its stack's CRS).
+
+        Returns
+        -------
+        render.ephemeris.Sky or None
+        """
+        eph = self.ephemeris
+        if eph is None:
+            return None
+        if eph.site is None and eph.orbit is None and eph.target is None:
+            placed = eph._cache.get("placed")  # the site the scene places, found once
+            if placed is None:
+                placed = eph._cache["placed"] = eph.with_site(scene_site(scene))
+            eph = placed
+        return eph.sky(time)
+
+    def lighting_at(self, time: float, scene: Any = None) -> Lighting:
+        """Return the lighting at trajectory time ``time`` (s), dated where the sun is.
+
+        Parameters
+        ----------
+        time : float
+            Seconds after ``[sun] utc``.
+        scene : render.scene.Scene, optional
+            See :meth:`sky_at`.
+
+        Returns
+        -------
+        render.renderer.Lighting
+            The Sun's direction and distance and the Earth at that time; the scenario's own
+            lighting for a hand-set sun.
+        """
+        sky = self.sky_at(time, scene)
+        return self.lighting if sky is None else sky.lighting(self.lighting)
 
     def resolve(self, value: str | Path) -> Path:
         """Resolve a path the scenario names.
@@ -448,6 +504,46 @@ class Scenario:
         raise InvalidParameterError(f"unknown trajectory type {kind!r}")
 
 
+def scene_site(scene: Any):
+    """Return the site of a terrain scene on its body, from its layer stack's CRS.
+
+    Parameters
+    ----------
+    scene : render.terrain_scene.TerrainScene
+        Its stack's CRS, site (map x, y), ground height there and body radius.
+
+    Returns
+    -------
+    render.ephemeris.Site
+    """
+    stack = getattr(scene, "stack", None)
+    if stack is None:
+        raise InvalidParameterError("scenario [sun] utc needs the site: give [sun] longitude "
+                                    "and latitude")
+    x, y = scene.site
+    return site_on_map(stack.tiles[0].crs, x, y, height=float(scene.height_at(x, y)),
+                       radius=float(scene.radius))
+
+
+def _dated_sun(sun: dict, scene: SceneSpec, path: Path | None,
+               extra: dict) -> SunEphemeris | None:
+    """Return the ``[sun]`` table's dated Sun or None; refuse hand-set keys with ``utc``."""
+    dated = sorted(k for k in sun if k in DATED_KEYS and k != "utc")
+    if "utc" not in sun:
+        if dated:
+            raise InvalidParameterError(f"scenario [sun] {dated[0]} places the Sun on a date; "
+                                        "it needs utc")
+        return None
+    mixed = sorted(k for k in ("azimuth", "elevation", "direction", "distance") if k in sun)
+    if mixed:
+        raise InvalidParameterError(f"scenario [sun] {mixed[0]} is hand-set, but utc places "
+                                    "the Sun on a date; give one or the other")
+    extra.pop("distance", None)
+    return SunEphemeris.from_mapping({k: sun[k] for k in DATED_KEYS if k in sun},
+                                     asteroid=scene.type == "asteroid",
+                                     base=path.parent if path else None)
+
+
 def load_scenario(path: str | Path) -> Scenario:
     """Parse and validate a scenario file.
 
@@ -501,7 +597,8 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
     except ValueError as exc:
         raise InvalidParameterError(f"scenario seed: {exc}") from None
     scene = SceneSpec.from_mapping(data.get("scene", {}))
-    sun = _section(data, "sun", {"azimuth", "elevation", "direction", "distance", "irradiance"})
+    sun = _section(data, "sun", {"azimuth", "elevation", "direction", "distance", "irradiance"}
+                   | DATED_KEYS)
     surface = _section(data, "surface", {"albedo", "reflectance", "mcewen", "albedo_map"}
                        | _HAPKE_KEYS)
     brdf = check_brdf(text(surface.get("reflectance", "lunar-lambert"), "reflectance",
@@ -522,7 +619,12 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
     if "albedo_map" in surface:
         scene = replace(scene, albedo_map=text(surface["albedo_map"], "albedo_map",
                                                where=_SURFACE))
-    if "direction" in sun:
+    ephemeris = _dated_sun(sun, scene, path, extra)
+    if ephemeris is not None:  # the sky at time 0 where the site is known; else overhead
+        lighting = Lighting((0.0, 0.0, 1.0), albedo, brdf, **extra)
+        if ephemeris.site is not None or scene.type == "asteroid":
+            lighting = ephemeris.sky(0.0).lighting(lighting)
+    elif "direction" in sun:
         lighting = Lighting(vector(sun["direction"], "direction", 3, where=_SUN), albedo, brdf,
                             **extra)
     else:
@@ -577,4 +679,4 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
 
     trajectory = TrajectorySpec.from_mapping(data.get("trajectory", {}))
     return Scenario(name, path, seed, scene, lighting, intrinsics, sensor, options, outputs,
-                    trajectory, data, motion)
+                    trajectory, data, motion, ephemeris)

@@ -45,6 +45,18 @@ instead selects the physical chain; the two cannot be mixed.
 Rolling shutter: ``line_time`` (s) delays each row's exposure by that much after the row above
 (0: a global shutter); :mod:`render.motion` renders what moves during the exposures.
 
+Auto-exposure (``auto_exposure = true``): before each frame is integrated, the controller
+meters its optical image (after the PSF, vignetting and smear: the mean signal the detector
+would collect) and finds the exposure (``exposure`` of an I/F-calibrated sensor, else
+``exposure_time``) that places the ``ae_percentile`` percentile of the lit pixels (I/F above
+``ae_threshold``) at ``ae_fraction`` of full scale (bias, gain and dark current accounted for;
+exact for a chain linear in the exposure, i.e. all of it but frame-transfer smear). The
+exposure in force then moves ``ae_rate`` of the way there, in logarithm, each frame
+(``exposure *= (settled / exposure)^ae_rate``; 1: every frame settled), the first frame
+settling at once; ``ae_max`` caps it (0: no cap but :data:`MAX_SENSOR_TIME`). A sequence
+records each frame's exposure in its truth (:class:`ExposureControl`); the starting
+``exposure`` or ``exposure_time`` only names the chain.
+
 Every noise draw is keyed by ``(seed, stream, frame index, column, row)``, so a frame's noise
 does not depend on which other frames were rendered, and the same scenario and seed give the
 same bytes.
@@ -65,7 +77,7 @@ from terrain.core.checks import check_keys, number
 from terrain.core.errors import InvalidParameterError, MissingInputError
 from terrain.core.rng import check_seed, normal, stream_id, uniform
 
-__all__ = ["PLANCK", "SPEED_OF_LIGHT", "Sensor"]
+__all__ = ["PLANCK", "SPEED_OF_LIGHT", "ExposureControl", "Sensor"]
 
 STREAM_SHOT = stream_id("sensor-shot")
 STREAM_READ = stream_id("sensor-read")
@@ -133,6 +145,12 @@ class Sensor:
     dark_temperature: float = 20.0
     dark_doubling: float = 6.3
     prnu_seed: int | None = None
+    auto_exposure: bool = False
+    ae_percentile: float = 99.0
+    ae_fraction: float = 0.8
+    ae_rate: float = 0.5
+    ae_threshold: float = 0.0
+    ae_max: float = 0.0
 
     def __post_init__(self):
         if isinstance(self.bits, bool) or not isinstance(self.bits, (int, np.integer)) \
@@ -162,7 +180,16 @@ class Sensor:
             self.dark_temperature, "dark_temperature", low=-273.15, where="sensor"))
         object.__setattr__(self, "dark_doubling", number(
             self.dark_doubling, "dark_doubling", low=0.0, low_open=True, where="sensor"))
-        for name in ("shot_noise", "natural_vignetting"):
+        object.__setattr__(self, "ae_percentile", number(
+            self.ae_percentile, "ae_percentile", low=0.0, high=100.0, low_open=True,
+            where="sensor"))
+        for name in ("ae_fraction", "ae_rate"):
+            object.__setattr__(self, name, number(getattr(self, name), name, low=0.0, high=1.0,
+                                                  low_open=True, where="sensor"))
+        for name in ("ae_threshold", "ae_max"):
+            object.__setattr__(self, name, number(getattr(self, name), name, low=0.0,
+                                                  where="sensor"))
+        for name in ("shot_noise", "natural_vignetting", "auto_exposure"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise InvalidParameterError(
                     f"sensor {name} must be true or false; got {getattr(self, name)!r}")
@@ -335,6 +362,27 @@ class Sensor:
         >>> Sensor(exposure=2.0).expose(np.array([[0.25, 0.5, 1.0]])).tolist()
         [[128, 255, 255]]
         """
+        return self.digitise(self.signal(radiance, intrinsics=intrinsics,
+                                         spectral_irradiance=spectral_irradiance), frame)
+
+    def signal(self, radiance: np.ndarray, *, intrinsics=None,
+               spectral_irradiance: float = 1.58) -> np.ndarray:
+        """Mean signal electrons (steps 1-2 of the chain) of an I/F image (NaN is black).
+
+        Parameters
+        ----------
+        radiance : (h, w) float
+            I/F.
+        intrinsics : render.camera.Intrinsics, optional
+            A physical sensor's pixel solid angle and vignetting.
+        spectral_irradiance : float
+            W m^-2 nm^-1 at the body.
+
+        Returns
+        -------
+        (h, w) float64
+            Electrons, before PRNU, dark current and noise.
+        """
         x = np.nan_to_num(np.asarray(radiance, dtype=np.float64), nan=0.0)
         x = self.blur(x)
         e = np.maximum(x, 0.0) * self.electrons_per_unit_if(intrinsics, spectral_irradiance)
@@ -343,7 +391,55 @@ class Sensor:
         if self.physical and self.transfer_time > 0:
             e = e + self.transfer_time / (e.shape[0] * self.exposure_time) * e.sum(
                 axis=0, keepdims=True)
-        return self.digitise(e, frame)
+        return e
+
+    @property
+    def exposure_value(self) -> float:
+        """The exposure auto-exposure sets: ``exposure`` (I/F-calibrated) or ``exposure_time``."""
+        return self.exposure_time if self.physical else self.exposure
+
+    def with_exposure(self, value: float) -> Sensor:
+        """Return the sensor with :attr:`exposure_value` set to ``value``."""
+        from dataclasses import replace
+
+        if self.physical:
+            return replace(self, exposure_time=float(value))
+        return replace(self, exposure=float(value))
+
+    def metered(self, radiance: np.ndarray, *, intrinsics=None,
+                spectral_irradiance: float = 1.58) -> float:
+        """Return the exposure placing the lit pixels' percentile at the chosen fraction.
+
+        Parameters
+        ----------
+        radiance : (h, w) float
+            The frame's I/F.
+        intrinsics, spectral_irradiance
+            As :meth:`expose`.
+
+        Returns
+        -------
+        float
+            :attr:`exposure_value` placing the ``ae_percentile`` percentile of the mean DN of
+            pixels whose I/F exceeds ``ae_threshold`` at ``ae_fraction`` of full scale (capped
+            by ``ae_max``); the current exposure where no pixel is lit.
+        """
+        x = np.asarray(radiance, dtype=np.float64)
+        lit = np.isfinite(x) & (x > self.ae_threshold)
+        now = self.exposure_value
+        if not lit.any():
+            return now
+        e = self.signal(x, intrinsics=intrinsics, spectral_irradiance=spectral_irradiance)
+        p = float(np.percentile(e[lit], self.ae_percentile))
+        want = (self.ae_fraction * self.full_scale - self.bias) * self._gain()  # electrons
+        if self.physical:  # signal and dark current both grow with the time
+            rate = p / self.exposure_time + self.dark_rate
+            value = want / rate if rate > 0 else now
+            cap = min(self.ae_max or MAX_SENSOR_TIME, MAX_SENSOR_TIME)
+        else:
+            value = now * want / p if p > 0 else now
+            cap = self.ae_max or math.inf
+        return float(min(max(value, 0.0), cap)) if value > 0 else now
 
     def vignetting(self, shape, intrinsics=None) -> np.ndarray:
         """(h, w) cos^4 of each pixel's field angle (needs the intrinsics)."""
@@ -393,6 +489,71 @@ class Sensor:
         if np.any(low):
             out[low] = _poisson_inverse(u[low], e[low])
         return np.maximum(out, 0.0)
+
+
+class ExposureControl:
+    """A camera's auto-exposure loop over a sequence of frames (see the module docstring).
+
+    Parameters
+    ----------
+    sensor : Sensor
+        The sensor (``auto_exposure`` on; off, :meth:`expose` exposes as the sensor is).
+    value : float, optional
+        The exposure in force before the next frame; None settles the next frame at once.
+
+    Examples
+    --------
+    >>> ctl = ExposureControl(Sensor(exposure=1.0, auto_exposure=True, ae_fraction=0.5,
+    ...                              ae_percentile=100.0, ae_rate=0.5))
+    >>> image, record = ctl.expose(np.full((2, 2), 0.25))
+    >>> int(image.max()), record["exposure"]
+    (128, 2.0)
+    """
+
+    def __init__(self, sensor: Sensor, value: float | None = None):
+        self.sensor = sensor
+        self.value = None if value is None else float(value)
+
+    def expose(self, radiance: np.ndarray, frame: int = 0, *, intrinsics=None,
+               spectral_irradiance: float = 1.58) -> tuple[np.ndarray, dict | None]:
+        """Meter the frame, set the exposure, digitise.
+
+        Parameters
+        ----------
+        radiance : (h, w) float
+            The frame's I/F.
+        frame : int
+            The frame index (keys the noise).
+        intrinsics, spectral_irradiance
+            As :meth:`Sensor.expose`.
+
+        Returns
+        -------
+        image : (h, w) uint8 or uint16
+            The digital image.
+        record : dict or None
+            The frame's exposure for its truth: ``auto``, ``exposure`` (or
+            ``exposure_time``), ``settled`` (the value that would place the percentile
+            exactly), ``percentile``, ``fraction``, ``rate``; None without auto-exposure.
+        """
+        s = self.sensor
+        if not s.auto_exposure:
+            return s.expose(radiance, frame, intrinsics=intrinsics,
+                            spectral_irradiance=spectral_irradiance), None
+        if self.value is not None:
+            s = s.with_exposure(self.value)
+        settled = s.metered(radiance, intrinsics=intrinsics,
+                            spectral_irradiance=spectral_irradiance)
+        value = settled if self.value is None else \
+            self.value * (settled / self.value) ** s.ae_rate
+        self.value = value
+        s = s.with_exposure(value)
+        image = s.expose(radiance, frame, intrinsics=intrinsics,
+                         spectral_irradiance=spectral_irradiance)
+        key = "exposure_time" if s.physical else "exposure"
+        return image, {"auto": True, key: value, "settled": settled,
+                       "percentile": s.ae_percentile, "fraction": s.ae_fraction,
+                       "rate": s.ae_rate}
 
 
 def _poisson_inverse(u: np.ndarray, lam: np.ndarray) -> np.ndarray:

@@ -3,7 +3,10 @@
 The run directory layout and the truth entries are those of :mod:`render.rundir`. Frames are
 independent of each other (every random draw is keyed by frame index and pixel), so a run can
 resume after an interruption by skipping the frames its truth file already lists, and the
-same scenario and seed give the same bytes whatever order frames are rendered in.
+same scenario and seed give the same bytes whatever order frames are rendered in. The one
+state carried from frame to frame is an auto-exposing sensor's exposure
+(:class:`render.sensor.ExposureControl`): each frame records it in its truth, and a resumed
+run takes it from the last frame written.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from render.renderer import Frame, Renderer, View
 from render.rundir import FrameTruth, RunWriter
 from render.scenario import Scenario
 from render.scene import Scene
+from render.sensor import ExposureControl
 from render.trajectory import Sample
 from terrain.core.errors import InvalidParameterError
 from terrain.core.progress import Progress
@@ -131,8 +135,13 @@ def frame_motion(scenario: Scenario, samples: Sequence[Sample] | None,
 
 def render_sample(renderer: Renderer, scene: Scene, scenario: Scenario, sample: Sample,
                   index: int, samples: Sequence[Sample] | None = None, *,
-                  motion: Motion | None = None) -> tuple[np.ndarray, Frame, FrameTruth]:
+                  motion: Motion | None = None,
+                  exposure: ExposureControl | None = None) -> tuple[np.ndarray, Frame,
+                                                                    FrameTruth]:
     """Render one trajectory sample through the scenario's sensor.
+
+    The lighting is the scenario's at the sample's time (a dated sun moves:
+    :meth:`render.scenario.Scenario.lighting_at`).
 
     Parameters
     ----------
@@ -150,6 +159,9 @@ def render_sample(renderer: Renderer, scene: Scene, scenario: Scenario, sample: 
         The whole trajectory: the velocities of motion blur (:func:`frame_motion`).
     motion : render.motion.Motion, optional
         Overrides those velocities for this frame.
+    exposure : render.sensor.ExposureControl, optional
+        The auto-exposure loop of a sequence (updated by this frame); without one, an
+        auto-exposed frame settles at once.
 
     Returns
     -------
@@ -163,7 +175,13 @@ def render_sample(renderer: Renderer, scene: Scene, scenario: Scenario, sample: 
     view = View(sample.pose, scenario.intrinsics, sample.time)
     if motion is None:
         motion = frame_motion(scenario, samples, index)
-    sensor, lighting = scenario.sensor, scenario.lighting
+    sky = scenario.sky_at(sample.time, scene)
+    lighting = scenario.lighting if sky is None else sky.lighting(scenario.lighting)
+    if exposure is None:
+        exposure = ExposureControl(scenario.sensor)
+    sensor = scenario.sensor
+    if sensor.auto_exposure and exposure.value is not None:  # what integrates (motion blur)
+        sensor = sensor.with_exposure(exposure.value)
     moving = None
     if motion is None and not sensor.rolling:
         scene.set_body_rotation(sample.body_rotation)
@@ -175,10 +193,11 @@ def render_sample(renderer: Renderer, scene: Scene, scenario: Scenario, sample: 
         frame.radiance = rad
         moving = dict(motion.as_dict(), exposure_time=sensor.integration_time,
                       line_time=sensor.line_time, samples=info["samples"])
-    image = sensor.expose(frame.radiance, frame=index, intrinsics=scenario.intrinsics,
-                          spectral_irradiance=lighting.spectral_irradiance)
+    image, record = exposure.expose(frame.radiance, index, intrinsics=scenario.intrinsics,
+                                    spectral_irradiance=lighting.spectral_irradiance)
     truth = FrameTruth(index, sample.time, sample.pose, scenario.intrinsics,
-                       lighting.sun, tuple(sample.body_rotation), frame.drawn, motion=moving)
+                       lighting.sun, tuple(sample.body_rotation), frame.drawn, motion=moving,
+                       sky=None if sky is None else sky.as_dict(), exposure=record)
     return image, frame, truth
 
 
@@ -210,29 +229,37 @@ def run_sequence(scenario: Scenario, run_dir: str | Path, *, resume: bool = Fals
     samples = scenario.samples(scene)
     if not samples:
         raise InvalidParameterError("the scenario's trajectory has no frames")
+    first = scenario.lighting_at(samples[0].time, scene)  # a dated sun: the first frame's
     manifest = dict(scenario=scenario.name, scene=scenario.scene.type, frames=len(samples),
                     resolution=[scenario.intrinsics.width, scenario.intrinsics.height],
                     seed=scenario.seed, sensor=scenario.sensor.as_dict(),
-                    lighting=dict(sun=list(scenario.lighting.sun),
-                                  albedo=scenario.lighting.albedo,
-                                  reflectance=scenario.lighting.brdf,
-                                  **({"hapke": scenario.lighting.hapke.as_dict()}
-                                     if scenario.lighting.brdf == "hapke" else {}),
-                                  distance_au=scenario.lighting.distance,
-                                  spectral_irradiance=scenario.lighting.spectral_irradiance),
+                    lighting=dict(sun=list(first.sun),
+                                  albedo=first.albedo,
+                                  reflectance=first.brdf,
+                                  **({"hapke": first.hapke.as_dict()}
+                                     if first.brdf == "hapke" else {}),
+                                  distance_au=first.distance,
+                                  spectral_irradiance=first.spectral_irradiance,
+                                  **({"utc": scenario.ephemeris.utc}
+                                     if scenario.ephemeris is not None else {})),
                     renderer=describe())
     writer = RunWriter(run_dir, manifest, scenario.path, resume=resume)
     done = writer.done()
     t0 = time.perf_counter()
     rendered = 0
+    control = ExposureControl(scenario.sensor)
     for i, sample in enumerate(samples):
         if i in done:
             continue
-        image, frame, truth = render_sample(renderer, scene, scenario, sample, i, samples)
+        before = writer.exposure_before(i)  # resuming: the loop goes on where it stopped
+        if before is not None:
+            control.value = before.get("exposure_time", before.get("exposure"))
+        image, frame, truth = render_sample(renderer, scene, scenario, sample, i, samples,
+                                            exposure=control)
         writer.write_frame(truth, image,
                            frame.range if scenario.outputs["range"] else None,
                            frame.normals if scenario.outputs["normals"] else None,
-                           scenario.lighting.radiance(frame.radiance)
+                           scenario.lighting_at(sample.time, scene).radiance(frame.radiance)
                            if scenario.outputs.get("radiance") else None)
         rendered += 1
         if progress is not None:

@@ -70,6 +70,7 @@ from render.protocol import (
     MAX_TOKEN,
     MOTION,
     POSE,
+    PROTOCOL_MINOR,
     RAY,
     RAY_REPLY,
     REPLY,
@@ -164,6 +165,7 @@ class _State:
     index: int = 0
     motion: Motion | None = None  # velocities during the exposure, as the client set them
     frame: tuple | None = None    # (image, Frame, FrameTruth)
+    sun_table: dict | None = None  # the [sun] table SET_LIGHT set (None: the scenario's)
 
     @property
     def sensor(self):
@@ -589,10 +591,13 @@ class RenderServer:
             sun = SUN.unpack(body)
             _finite("sun direction", sun)
             st.lighting = dataclasses.replace(st.lighting, sun=_scaled(sun, "sun direction"))
+            st.scenario = dataclasses.replace(st.scenario, ephemeris=None)  # hand-set now
             st.frame = None
             return b""
         if kind == MsgType.SET_SENSOR:
             return json_body(self._set_sensor(st, body))
+        if kind == MsgType.SET_LIGHT:
+            return json_body(self._set_light(st, body))
         if kind == MsgType.SET_MOTION:
             v = MOTION.unpack(body)
             _finite("motion", v)
@@ -661,6 +666,36 @@ class RenderServer:
                    seed=self.scenario.seed, sensor=self._sensor_info(st))
         if isinstance(self.scene, TerrainScene):
             out["site"] = list(self.scene.site)
+        out["protocol_minor"] = PROTOCOL_MINOR
+        if st.scenario.ephemeris is not None:
+            out["utc"] = st.scenario.ephemeris.utc
+        return out
+
+    def _set_light(self, st: _State, body: bytes) -> dict:
+        """SET_LIGHT: the keys of a scenario's [sun] over those in force (docs/protocol.md)."""
+        from render.ephemeris import DATED_KEYS
+
+        settings = _json_object(body, "SET_LIGHT")
+        if "kernels" in settings:
+            raise ProtocolError(ErrorCode.INVALID_VALUE, "SET_LIGHT kernels: SPICE kernels are "
+                                "named in the scenario file only")
+        table = dict(st.sun_table if st.sun_table is not None
+                     else self.scenario.raw.get("sun", {}))
+        if "utc" in settings:  # a date replaces a hand-set sun, and the other way round
+            for key in ("azimuth", "elevation", "direction", "distance"):
+                table.pop(key, None)
+        if any(k in settings for k in ("azimuth", "elevation", "direction")):
+            table = {k: v for k, v in table.items() if k not in DATED_KEYS}
+        table.update(settings)
+        parsed = parse_scenario(dict(self.scenario.raw, sun=table), self.scenario.path)
+        scenario = dataclasses.replace(st.scenario, lighting=parsed.lighting,
+                                       ephemeris=parsed.ephemeris)
+        sky = scenario.sky_at(st.time, self.scene)  # an unplaceable site fails here
+        lit = scenario.lighting_at(st.time, self.scene)
+        st.scenario, st.lighting, st.sun_table, st.frame = scenario, parsed.lighting, table, None
+        out = dict(sun=list(lit.sun), distance_au=lit.distance, time=st.time)
+        if sky is not None:
+            out.update(sky.as_dict(), utc=parsed.ephemeris.utc if parsed.ephemeris else None)
         return out
 
     def _sensor_info(self, st: _State) -> dict:
@@ -749,7 +784,8 @@ class RenderServer:
         parsed = parse_scenario(raw, self.scenario.path)  # the scenario's own validation
         base = self.scenario.with_overrides(None, (w, h))
         check_frame_memory(base)  # MemoryRequestError: INVALID_VALUE, before any allocation
-        st.scenario = dataclasses.replace(base, sensor=parsed.sensor, motion=parsed.motion)
+        st.scenario = dataclasses.replace(base, sensor=parsed.sensor, motion=parsed.motion,
+                                          ephemeris=st.scenario.ephemeris)  # SET_LIGHT's
         st.sensor_table, st.noise, st.frame = table, noise, None
         return self._sensor_info(st)
 
@@ -881,6 +917,25 @@ def _depth(obj) -> int:
                 break
             todo.extend((v, d + 1) for v in (item.values() if isinstance(item, dict) else item))
     return deepest
+
+
+def _json_object(body: bytes, what: str) -> dict:
+    """Parse a request's JSON object body, nested at most MAX_JSON_DEPTH deep."""
+    too_deep = False
+    settings = None
+    try:
+        settings = json.loads(body.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise ProtocolError(ErrorCode.MALFORMED,
+                            f"{what} body is not UTF-8 JSON: {exc}") from None
+    except RecursionError:  # nested too deeply for the parser itself
+        too_deep = True
+    if too_deep or _depth(settings) > MAX_JSON_DEPTH:
+        raise ProtocolError(ErrorCode.MALFORMED, f"{what} body is nested deeper than "
+                            f"{MAX_JSON_DEPTH} levels")
+    if not isinstance(settings, dict):
+        raise ProtocolError(ErrorCode.MALFORMED, f"{what} body must be a JSON object")
+    return settings
 
 
 def _finite(what: str, values) -> None:

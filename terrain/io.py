@@ -37,7 +37,7 @@ from terrain.core.tile import DEMTile
 __all__ = ["check_output_path", "lonlat_to_xy", "read_dem", "read_dem_exact",
            "read_float_tiff", "same_crs", "write_bands", "write_dem", "write_float_tiff",
            "write_png"]
-__all__ += ["orthographic_crs", "polar_crs", "reproject_polar", "synthetic_crs"]
+__all__ += ["orthographic_crs", "polar_crs", "reproject_polar", "synthetic_crs", "xy_to_lonlat"]
 # chunked runs (terrain.execution.chunked)
 __all__ += ["RasterReader", "raster_layout", "write_cog"]
 
@@ -361,6 +361,41 @@ def lonlat_to_xy(crs_wkt: str | None, lon: float, lat: float) -> tuple[float, fl
         raise InvalidParameterError(f"longitude/latitude {lon}, {lat} has no position in the "
                                     "DEM's projection")
     return float(xs[0]), float(ys[0])
+
+
+def xy_to_lonlat(crs_wkt: str | None, x: float, y: float) -> tuple[float, float]:
+    """Longitude/latitude (degrees, on the CRS's own body) of map coordinates ``x, y``.
+
+    The inverse of :func:`lonlat_to_xy`.
+
+    Parameters
+    ----------
+    crs_wkt : str or None
+        The map's CRS (WKT).
+    x, y : float
+        Map coordinates (the CRS's units).
+
+    Returns
+    -------
+    (float, float)
+        Longitude and latitude, degrees.
+    """
+    from terrain.core.errors import InvalidParameterError
+
+    if not crs_wkt:
+        raise InvalidParameterError("the DEM has no CRS, so its points have no longitude and "
+                                    "latitude; give them")
+    from rasterio.warp import transform
+
+    crs = CRS.from_wkt(crs_wkt)
+    base = crs.to_dict(projjson=True).get("base_crs")
+    if base is None:
+        raise InvalidParameterError("the DEM's CRS has no geographic base CRS")
+    lons, lats = transform(crs, CRS.from_user_input(json.dumps(base)), [x], [y])
+    if not (np.isfinite(lons[0]) and np.isfinite(lats[0])):
+        raise InvalidParameterError(f"map point {x}, {y} has no longitude/latitude in the "
+                                    "DEM's projection")
+    return float(lons[0]), float(lats[0])
 
 
 def write_float_tiff(array: np.ndarray, path, *, tags: dict | None = None, inputs=()) -> Path:

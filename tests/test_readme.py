@@ -102,10 +102,13 @@ def parse_toml_block(body: str, where: Path) -> None:
         from terrain.craters.population import Population
 
         Population.from_toml(path)
-    elif "sensor" in data or "motion" in data:
+    elif "sensor" in data or "motion" in data or "sun" in data:
         from render.scenario import parse_scenario
 
-        parse_scenario({**data, "scene": {"type": "terrain", "stack": "stack"},
+        asteroid = any(k in data.get("sun", {}) for k in ("orbit", "target"))
+        scene = {"type": "asteroid", "body": "body.npz"} if asteroid else \
+            {"type": "terrain", "stack": "stack"}
+        parse_scenario({**data, "scene": scene,
                         "trajectory": {"type": "descent", "start_altitude": 100.0,
                                        "end_altitude": 10.0}}, path)
     else:
