@@ -405,17 +405,23 @@ class _LazyTile:
         return self.heights.shape
 
 
-def estimate_parameters(reader, fractal_dimension=None, height_scale=None, local_box=None):
+def estimate_parameters(reader, fractal_dimension=None, height_scale=None, local_box=None,
+                        regolith=None):
     """Expansion parameters of a DEM read by window, equal to those of the DEM in memory.
 
     Calls :meth:`terrain.fractal.roughness.ExpansionParameters.for_tile` on the input; only the
-    strided rows and columns the roughness fit reads are held in memory.
+    strided rows and columns the roughness fit reads are held in memory. ``regolith``: a
+    :class:`~terrain.fractal.regolith.RegolithLaw` or its ``as_dict()`` (plans are JSON).
     """
+    from terrain.fractal.regolith import RegolithLaw
     from terrain.fractal.roughness import LOCAL_BOX, ExpansionParameters
 
+    if isinstance(regolith, dict):
+        regolith = RegolithLaw(**regolith)
     lazy = _LazyTile(_StridedHeights(reader), float(reader.resolution))
     return ExpansionParameters.for_tile(lazy, fractal_dimension, height_scale,
-                                        local_box=LOCAL_BOX if local_box is None else local_box)
+                                        local_box=LOCAL_BOX if local_box is None else local_box,
+                                        regolith=regolith)
 
 
 @dataclass(frozen=True)
@@ -516,7 +522,7 @@ class ExpandSource:
         for level in range(1, self.times + 1):
             grid = expand_level(grid, origin, rows[level], cols[level], level=level,
                                 sigmas=p.sigmas(level), weights=p.weights(level),
-                                taps=p.taps(), seed=self.seed, amplitude=amp,
+                                taps=p.taps(level), seed=self.seed, amplitude=amp,
                                 amplitude_origin=(r0, c0))
             origin = (rows[level][0], cols[level][0])
         return grid, None

@@ -129,7 +129,7 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
             heights = expand_level(parent.heights, (pr, pc), (r0, r0 + 2 * size - 2),
                                    (c0, c0 + 2 * size - 2), level=k,
                                    sigmas=params.sigmas(k), weights=params.weights(k),
-                                   taps=params.taps(), seed=seed, amplitude=amp,
+                                   taps=params.taps(k), seed=seed, amplitude=amp,
                                    amplitude_origin=(0, 0), amplitude_level=0)
             heights.flags.writeable = False
             tiles.append(DEMTile(heights, np.isfinite(heights),

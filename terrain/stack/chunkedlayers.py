@@ -163,7 +163,7 @@ class StackExpandSource:
             amp_origin = (a0, b0)
         out = expand_level(grid, (pr + q0, pc + p0), (r0, r1), (c0, c1), level=self.level,
                            sigmas=p.sigmas(self.level), weights=p.weights(self.level),
-                           taps=p.taps(), seed=self.seed, amplitude=amp,
+                           taps=p.taps(self.level), seed=self.seed, amplitude=amp,
                            amplitude_origin=amp_origin, amplitude_level=0)
         return out, None
 

@@ -12,6 +12,8 @@ import logging
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from terrain.core import metakeys as mk
 from terrain.core.errors import InvalidParameterError
 from terrain.stages.dems import crater_model, population
@@ -88,7 +90,7 @@ def enhance(spec: EnhanceSpec, source: Path, output: Path, execution: Execution,
     """`terrain enhance` (:class:`~terrain.stages.specs.EnhanceSpec`)."""
     from terrain.fractal.gapfill import despike
     from terrain.fractal.roughness import RoughnessChoice
-    from terrain.io import read_dem
+    from terrain.io import read_dem_exact
     from terrain.stack.build import build_stack
     from terrain.stack.store import prepare_folder, write_stack
 
@@ -98,10 +100,12 @@ def enhance(spec: EnhanceSpec, source: Path, output: Path, execution: Execution,
     if asked or not _fits(spec, source):
         return _chunked(spec, source, output, execution, auto=not asked, progress=progress)
     prepare_folder(output, inputs=[source])
-    tile = read_dem(source, band=spec.band, exact=True)
+    tile, exact = read_dem_exact(source, band=spec.band)
     levels = _levels(spec, tile.resolution)
     if spec.despike is not None:
-        tile, _ = despike(tile, spec.despike)
+        tile, dropped = despike(tile, spec.despike)
+        if exact is not None:
+            exact = np.where(dropped, np.nan, exact)
     rocks, pop, model = _content(spec, tile.resolution, tuple(tile.shape), levels)
     with progress("enhance", "step") as bar:
         stack = build_stack(tile, _site(spec, tile), levels=levels, layer_size=spec.layer_size,
@@ -112,7 +116,7 @@ def enhance(spec: EnhanceSpec, source: Path, output: Path, execution: Execution,
                             rocks=rocks)
     stack = stack.with_info(source=str(source), command="terrain enhance",
                             craterscape_version=mk.version())
-    write_stack(stack, output, inputs=[source])
+    write_stack(stack, output, inputs=[source], known=exact)
     n_rocks = "" if stack.rocks is None else f", {len(stack.rocks)} rocks"
     return Written((output,), f"wrote {len(stack.tiles)} layers to {output} (finest "
                    f"{stack.tiles[-1].resolution:.4g} m/pixel, {len(stack.catalog)} craters"
