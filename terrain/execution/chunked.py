@@ -50,7 +50,7 @@ import time
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 import numpy as np
 from affine import Affine
@@ -286,12 +286,17 @@ class CraterSource(OnReaderGrid):
 
     Each chunk reads the input over its window grown by the crater halo (about 1.5 times the
     largest crater's footprint per size class), so memory per chunk grows with ``dmax``.
+    ``keep_step`` > 1 keeps the heights on that lattice of global pixels (the input's own
+    pixels in an expanded layer whose pixel (0, 0) is global ``origin``), adding only what
+    it does not sample (:func:`terrain.craters.unresolved.keep_lattice`).
     """
 
     reader: DEMReader
     craters: Population
     seed: int = 0
     model: CraterModel | None = None
+    keep_step: int = 1
+    origin: tuple[int, int] = (0, 0)
 
     def __post_init__(self):
         from terrain.core.rng import check_seed
@@ -318,7 +323,11 @@ class CraterSource(OnReaderGrid):
 
     def plan(self) -> dict:
         """Return what decides the output's bytes, to match a resumed run."""
-        return dict(kind="craters", input=input_stamp(self.reader), metadata=self.metadata)
+        plan: dict[str, Any] = dict(kind="craters", input=input_stamp(self.reader),
+                                    metadata=self.metadata)
+        if self.keep_step > 1:
+            plan.update(keep_step=int(self.keep_step), origin=list(self.origin))
+        return plan
 
     def compute(self, window: Window):
         """Compute the cratered heights of one window, equal to the same window of a whole run.
@@ -327,10 +336,29 @@ class CraterSource(OnReaderGrid):
         column arrays (:meth:`CraterCatalog.as_dict`, kept with the chunk).
         """
         from terrain.craters.cratering import crater_heights
+        from terrain.craters.unresolved import keep_lattice, lattice_halo
 
+        step = int(self.keep_step)
+        grown = window
+        if step > 1:
+            ny, nx = self.shape
+            halo = lattice_halo(step)
+            r0, c0 = max(0, window.row - halo), max(0, window.col - halo)
+            r1 = min(ny, window.row + window.height + halo)
+            c1 = min(nx, window.col + window.width + halo)
+            grown = Window(c0, r0, c1 - c0, r1 - r0)
         z, catalog = crater_heights(_read_base(self.reader), self.shape, self.transform,
                                     self.craters, seed=self.seed, model=self.model,
-                                    window=window)
+                                    window=grown)
+        if step > 1:
+            before, _ = self.reader.read(grown)
+            (o_r, o_c), (ny, nx) = self.origin, self.shape
+            # from the float32 heights a whole-layer run stores between the two steps
+            z = keep_lattice(before, z.astype(np.float32), step=step,
+                             origin=(o_r + grown.row, o_c + grown.col),
+                             layer_rows=(o_r, o_r + ny - 1), layer_cols=(o_c, o_c + nx - 1))
+            dr, dc = window.row - grown.row, window.col - grown.col
+            z = z[dr:dr + window.height, dc:dc + window.width]
         _, valid = self.reader.read(window)
         out = z.astype(np.float32)
         out[~(valid & np.isfinite(out))] = np.nan
@@ -405,17 +433,23 @@ class _LazyTile:
         return self.heights.shape
 
 
-def estimate_parameters(reader, fractal_dimension=None, height_scale=None, local_box=None):
+def estimate_parameters(reader, fractal_dimension=None, height_scale=None, local_box=None,
+                        regolith=None):
     """Expansion parameters of a DEM read by window, equal to those of the DEM in memory.
 
     Calls :meth:`terrain.fractal.roughness.ExpansionParameters.for_tile` on the input; only the
-    strided rows and columns the roughness fit reads are held in memory.
+    strided rows and columns the roughness fit reads are held in memory. ``regolith``: a
+    :class:`~terrain.fractal.regolith.RegolithLaw` or its ``as_dict()`` (plans are JSON).
     """
+    from terrain.fractal.regolith import RegolithLaw
     from terrain.fractal.roughness import LOCAL_BOX, ExpansionParameters
 
+    if isinstance(regolith, dict):
+        regolith = RegolithLaw(**regolith)
     lazy = _LazyTile(_StridedHeights(reader), float(reader.resolution))
     return ExpansionParameters.for_tile(lazy, fractal_dimension, height_scale,
-                                        local_box=LOCAL_BOX if local_box is None else local_box)
+                                        local_box=LOCAL_BOX if local_box is None else local_box,
+                                        regolith=regolith)
 
 
 @dataclass(frozen=True)
@@ -516,7 +550,7 @@ class ExpandSource:
         for level in range(1, self.times + 1):
             grid = expand_level(grid, origin, rows[level], cols[level], level=level,
                                 sigmas=p.sigmas(level), weights=p.weights(level),
-                                taps=p.taps(), seed=self.seed, amplitude=amp,
+                                taps=p.taps(level), seed=self.seed, amplitude=amp,
                                 amplitude_origin=(r0, c0))
             origin = (rows[level][0], cols[level][0])
         return grid, None

@@ -54,7 +54,8 @@ from terrain.core.tile import DEMTile, Window
 from terrain.fractal.rmd import NO_ROW, correlated_value, noise_rows, predict
 from terrain.fractal.roughness import ExpansionParameters, local_amplitude
 
-__all__ = ["expand", "expand_level", "expanded_shape", "expanded_transform", "parent_region"]
+__all__ = ["expand", "expand_level", "expanded_known", "expanded_shape", "expanded_transform",
+           "parent_region"]
 
 log = logging.getLogger(__name__)
 
@@ -253,6 +254,60 @@ def expanded_transform(transform: Affine, times: int, row: int = 0, col: int = 0
     return Affine(res, 0.0, x_centre - res / 2, 0.0, -res, y_centre + res / 2)
 
 
+def expanded_known(exact: np.ndarray, shape: tuple[int, int], times: int,
+                   origin: tuple[int, int] = (0, 0), current: np.ndarray | None = None
+                   ) -> np.ndarray:
+    """Place a DEM's exact (float64) heights on the grid of its expansion.
+
+    Expansion keeps every input pixel at the global child pixel ``2^t`` times its index;
+    this puts the input's exact heights there, so a writer can store them bitwise
+    (:func:`terrain.io.write_dem`'s ``known``) where the float32 grid holds them rounded.
+
+    Parameters
+    ----------
+    exact : (ny, nx) float64, metres
+        The input's heights as stored (NaN unknown), e.g. from
+        :func:`terrain.io.read_dem_exact`.
+    shape : (rows, cols)
+        Shape of the expanded grid.
+    times : int
+        Expansions between the input and that grid (0: the input's own grid).
+    origin : (row, col)
+        Global index, at the grid's level, of its pixel (0, 0).
+    current : (rows, cols) float32, optional
+        The grid's heights: a known pixel whose height is no longer the input's height
+        rounded to float32 (a crater was added there on purpose) is left out.
+
+    Returns
+    -------
+    (rows, cols) float64
+        The exact heights on the input's pixels, NaN everywhere else.
+
+    Examples
+    --------
+    >>> k = expanded_known(np.array([[0.1, 0.2], [0.3, 0.4]]), (3, 3), 1)
+    >>> k[::2, ::2].tolist() == [[0.1, 0.2], [0.3, 0.4]], bool(np.isnan(k[1]).all())
+    (True, True)
+    """
+    f = 2**times
+    r0, c0 = (int(v) for v in origin)
+    rows, cols = (int(v) for v in shape)
+    out = np.full((rows, cols), np.nan)
+    i0, j0 = (-r0) % f, (-c0) % f  # first local pixel on the input's lattice
+    b_r, b_c = (r0 + i0) // f, (c0 + j0) // f
+    n_r = min(len(range(i0, rows, f)), exact.shape[0] - b_r)
+    n_c = min(len(range(j0, cols, f)), exact.shape[1] - b_c)
+    if n_r <= 0 or n_c <= 0:
+        return out
+    part = np.asarray(exact[b_r:b_r + n_r, b_c:b_c + n_c], dtype=np.float64)
+    view = (slice(i0, i0 + f * n_r, f), slice(j0, j0 + f * n_c, f))
+    if current is not None:
+        same = np.asarray(current[view], dtype=np.float32) == part.astype(np.float32)
+        part = np.where(same, part, np.nan)
+    out[view] = part
+    return out
+
+
 def expand(tile: DEMTile, times: int = 1, *, seed: int = 0,
            params: ExpansionParameters | None = None, window: Window | None = None,
            progress=None) -> DEMTile:
@@ -323,7 +378,7 @@ def expand(tile: DEMTile, times: int = 1, *, seed: int = 0,
     for level in range(1, times + 1):
         grid = expand_level(grid, origin, rows[level], cols[level], level=level,
                             sigmas=params.sigmas(level), weights=params.weights(level),
-                            taps=params.taps(), seed=seed, amplitude=amp,
+                            taps=params.taps(level), seed=seed, amplitude=amp,
                             amplitude_origin=(r0, c0))
         origin = (rows[level][0], cols[level][0])
         if progress is not None:

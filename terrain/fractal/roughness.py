@@ -16,7 +16,9 @@ RMD adds, at each square phase, the part of a height its four diagonal parents c
 
     sigma(s) = RMS[ z(p) - (z(p + (s, s)) + z(p + (s, -s)) + z(p - (s, s)) + z(p - (s, -s))) / 4 ]
 
-for s = 1, 2, 4 pixels over every valid position, and fits ``sigma(s) = sigma_1 s^h``. These
+for s = 1, 2, 4, 8 pixels over every valid position, and fits ``sigma(s) = sigma_1 s^h``: the
+amplitude sigma_1 at s = 1, the exponent h over s = 2, 4, 8 (:data:`HURST_SPACINGS`; 1, 2, 4
+on a DEM too small for them). These
 second-order increments remove the local trend, so large-scale topography does not inflate h
 the way a first-order variogram does (``docs/roughness.md`` compares the two on the south-pole
 DEM). With the fit, the paper's parameters follow: F = 3 - h, and H from eq. 15 such that the base's
@@ -36,6 +38,7 @@ heights (each value sums its own box in a fixed order), so windows stay exact.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import asdict, dataclass
 
@@ -44,6 +47,7 @@ import numpy as np
 
 from terrain.core.errors import InvalidDEMError, InvalidParameterError
 from terrain.core.tile import DEMTile
+from terrain.fractal.regolith import RegolithLaw
 from terrain.fractal.rmd import (
     DD_WEIGHTS,
     kriging_line_weights,
@@ -57,8 +61,15 @@ __all__ = ["DEFAULT_SPACINGS", "LOCAL_BOX", "ExpansionParameters", "FractalFit",
            "RoughnessChoice", "estimate",
            "local_amplitude", "square_residual"]
 
-#: Square-phase spacings (pixels) of the fit.
-DEFAULT_SPACINGS = (1, 2, 4)
+#: Square-phase spacings (pixels) measured: sigma(1) sets the amplitude, the slope over
+#: :data:`HURST_SPACINGS` the Hurst exponent.
+DEFAULT_SPACINGS = (1, 2, 4, 8)
+#: Spacings (pixels) of the Hurst fit when the DEM has them all. A sampled DEM holds at its
+#: own pixel scale the power aliased from above its Nyquist frequency, which inflates sigma(1)
+#: and lowers a fit through it: the LRO NAC SfS DEM of the south pole decimated 8x measures
+#: h = 0.68 over 1, 2, 4 pixels and 0.92 over 2, 4, 8, and its expansion continues the real
+#: slopes far better with the latter (``docs/roughness.md``).
+HURST_SPACINGS = (2, 4, 8)
 #: Hurst exponent assumed for a perfectly flat DEM (F = 2.2, the paper's choice).
 DEFAULT_HURST = 0.8
 #: Range the estimated Hurst exponent is clipped to (F in [2.05, 2.95]).
@@ -223,8 +234,12 @@ def estimate(tile: DEMTile, spacings=DEFAULT_SPACINGS) -> FractalFit:
         raise InvalidDEMError(
             "cannot estimate roughness: the DEM has too few valid pixels with valid "
             "neighbours; give --fractal-dimension and --height-scale explicitly")
-    if len(sigmas) >= 2:
-        slope = float(np.polyfit(np.log(used), np.log(sigmas), 1)[0])
+    fit_at = [i for i, s in enumerate(used) if s in HURST_SPACINGS]
+    if len(fit_at) < len(HURST_SPACINGS):  # too small for the wide spacings: the narrow ones
+        fit_at = [i for i, s in enumerate(used) if s <= 4]
+    if len(fit_at) >= 2:
+        slope = float(np.polyfit(np.log([used[i] for i in fit_at]),
+                                 np.log([sigmas[i] for i in fit_at]), 1)[0])
     else:
         slope = DEFAULT_HURST
     hurst = float(np.clip(slope, *HURST_RANGE))
@@ -252,6 +267,9 @@ class ExpansionParameters:
         uniform amplitude.
     base_sigma : float
         The base DEM's measured global sigma(1) (m), the reference of the local map.
+    regolith : RegolithLaw, optional
+        A roughness floor for levels finer than its onset (:meth:`sigmas`); None continues the
+        base's own law at every level.
     """
 
     fractal_dimension: float
@@ -261,6 +279,7 @@ class ExpansionParameters:
     estimated: bool = False
     local_box: int = LOCAL_BOX
     base_sigma: float = 0.0
+    regolith: RegolithLaw | None = None
 
     def __post_init__(self):
         f = float(self.fractal_dimension)
@@ -283,6 +302,9 @@ class ExpansionParameters:
             raise InvalidParameterError(f"local roughness box must be >= 0; got {self.local_box}")
         object.__setattr__(self, "local_box", int(self.local_box))
         object.__setattr__(self, "base_sigma", float(self.base_sigma))
+        if self.regolith is not None and not isinstance(self.regolith, RegolithLaw):
+            raise InvalidParameterError(
+                f"regolith must be a RegolithLaw or None; got {type(self.regolith).__name__}")
 
     @staticmethod
     def _base_square(f: float, height_scale: float, resolution: float, size: int) -> float:
@@ -305,12 +327,18 @@ class ExpansionParameters:
 
     @classmethod
     def for_tile(cls, tile: DEMTile, fractal_dimension=None, height_scale=None,
-                 local_box: int = LOCAL_BOX):
+                 local_box: int = LOCAL_BOX, regolith: RegolithLaw | None = None):
         """Parameters for expanding ``tile``: measured from it unless both F and H are given.
 
         Given only F, H is still matched to the DEM's measured sigma(1); given only H, F is
-        measured. ``local_box`` = 0 switches the local roughness map off.
+        measured. ``local_box`` = 0 switches the local roughness map off; ``regolith`` sets
+        the roughness floor of the finest levels (:meth:`sigmas`).
         """
+        params = cls._for_tile(tile, fractal_dimension, height_scale, local_box)
+        return params if regolith is None else dataclasses.replace(params, regolith=regolith)
+
+    @classmethod
+    def _for_tile(cls, tile: DEMTile, fractal_dimension, height_scale, local_box: int):
         from terrain.fractal.rmd import check_fractal_dimension
 
         if fractal_dimension is not None:
@@ -398,11 +426,38 @@ class ExpansionParameters:
 
         ``docs/roughness.md`` gives the measurements behind each correction and the
         alternatives that were tried; ``tests/terrain/test_expand.py`` checks the spectra.
+
+        A :attr:`regolith` law is a floor below its onset: a level whose new pixels lie
+        closer than ``regolith.onset_m`` to their parents displaces by the larger of the
+        base's continuation and the same construction on the regolith's fBm
+        (:meth:`terrain.fractal.regolith.RegolithLaw.variance`), so the roughness steepens
+        below a metre where the base's law would let it fade.
         """
         if level < 1:
             raise InvalidParameterError(f"expansion level must be >= 1; got {level}")
-        return (line_sigmas(self.hurst, self.unit_variance(), self.weights(level))
-                * 2.0 ** (-level * self.hurst) / self.excess)
+        own = (line_sigmas(self.hurst, self.unit_variance(), self.weights(level))
+               * 2.0 ** (-level * self.hurst) / self.excess)
+        floor = self._regolith_sigmas(level)
+        return floor if floor is not None and floor[0] > own[0] else own
+
+    def _regolith_sigmas(self, level: int) -> np.ndarray | None:
+        """Return the regolith law's displacements at ``level`` (None above its onset)."""
+        law = self.regolith
+        if law is None or self.base_resolution / 2.0**level > law.onset_m:
+            return None
+        h = law.hurst
+        excess = float(np.interp(h, CASCADE_HURST, CASCADE_EXCESS))
+        return (line_sigmas(h, law.variance(self.base_resolution), self.weights(level))
+                * 2.0 ** (-level * h) / excess)
+
+    def regolith_governs(self, level: int) -> bool:
+        """Whether the regolith floor sets the displacements of ``level`` (:meth:`sigmas`)."""
+        floor = self._regolith_sigmas(level)
+        if floor is None:
+            return False
+        own = (line_sigmas(self.hurst, self.unit_variance(), self.weights(level))
+               * 2.0 ** (-level * self.hurst) / self.excess)
+        return bool(floor[0] > own[0])
 
     def weights(self, level: int) -> np.ndarray:
         """(outer, u, v, t) line weights of expansion ``level``'s predictors.
@@ -417,8 +472,13 @@ class ExpansionParameters:
             raise InvalidParameterError(f"expansion level must be >= 1; got {level}")
         return kriging_line_weights(self.hurst) if level == 1 else DD_WEIGHTS.copy()
 
-    def taps(self) -> np.ndarray:
-        """Moving-average taps of the correlated displacements (:func:`~.rmd.noise_taps`)."""
+    def taps(self, level: int | None = None) -> np.ndarray:
+        """Moving-average taps of the correlated displacements (:func:`~.rmd.noise_taps`).
+
+        Those of the regolith's Hurst exponent at a ``level`` the regolith floor governs.
+        """
+        if level is not None and self.regolith is not None and self.regolith_governs(level):
+            return noise_taps(self.regolith.hurst)
         return noise_taps(self.hurst)
 
     def as_dict(self) -> dict:
@@ -442,11 +502,14 @@ class RoughnessChoice:
         H of eq. 15; measured from the DEM when None.
     uniform : bool
         One roughness everywhere instead of the DEM's local roughness map.
+    regolith : RegolithLaw, optional
+        The roughness floor of levels finer than its onset (:meth:`ExpansionParameters.sigmas`).
     """
 
     fractal_dimension: float | None = None
     height_scale: float | None = None
     uniform: bool = False
+    regolith: RegolithLaw | None = None
 
     def for_tile(self, tile: DEMTile) -> ExpansionParameters:
         """Return the expansion parameters of ``tile`` under these choices.
@@ -461,4 +524,5 @@ class RoughnessChoice:
         ExpansionParameters
         """
         return ExpansionParameters.for_tile(tile, self.fractal_dimension, self.height_scale,
-                                            local_box=0 if self.uniform else LOCAL_BOX)
+                                            local_box=0 if self.uniform else LOCAL_BOX,
+                                            regolith=self.regolith)

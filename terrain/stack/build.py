@@ -9,6 +9,7 @@ chunk by chunk by :mod:`terrain.stack.chunkedlayers`, bitwise equal.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from typing import Any
 
@@ -22,6 +23,7 @@ from terrain.core.tile import DEMTile
 from terrain.craters.catalog import RockCatalog
 from terrain.craters.cratering import CraterModel, add_craters
 from terrain.craters.population import Population
+from terrain.craters.unresolved import keep_lattice
 from terrain.fractal.expand import expand_level, expanded_transform
 from terrain.fractal.gapfill import fill_gaps
 from terrain.fractal.roughness import ExpansionParameters, RoughnessChoice, local_amplitude
@@ -47,7 +49,7 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
                 params: ExpansionParameters | RoughnessChoice | None = None,
                 min_crater_pixels: float = MIN_CRATER_PIXELS,
                 progress: Progress | None = None,
-                rocks=None) -> LayerStack:
+                rocks=None, keep_known: bool = False) -> LayerStack:
     """Build a nested layer stack around ``site`` (map coordinates of ``base``).
 
     Parameters
@@ -74,6 +76,10 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
         ``progress(step, total, label)`` (:class:`terrain.core.progress.Progress`).
     rocks : terrain.surface.rocks.RockModel, optional
         Rocks on every layer that resolves them (:func:`_add_layer_rocks`).
+    keep_known : bool
+        Craters of the expanded layers leave the base's own pixels as they are, adding only
+        what those samples do not see (:func:`terrain.craters.unresolved.keep_lattice`): a
+        real DEM's known heights stay, bitwise, in every layer.
 
     Returns
     -------
@@ -129,7 +135,7 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
             heights = expand_level(parent.heights, (pr, pc), (r0, r0 + 2 * size - 2),
                                    (c0, c0 + 2 * size - 2), level=k,
                                    sigmas=params.sigmas(k), weights=params.weights(k),
-                                   taps=params.taps(), seed=seed, amplitude=amp,
+                                   taps=params.taps(k), seed=seed, amplitude=amp,
                                    amplitude_origin=(0, 0), amplitude_level=0)
             heights.flags.writeable = False
             tiles.append(DEMTile(heights, np.isfinite(heights),
@@ -141,6 +147,15 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
             table = layer_craters(population, seed, plan, k, factor, min_crater_pixels)
             if len(table):
                 result = add_craters(tiles[k], table, seed=seed, model=model)
+                if keep_known and k > 0:
+                    ny, nx = tiles[k].shape
+                    r0, c0 = origins[k]
+                    kept = keep_lattice(tiles[k].heights, result.tile.heights, step=2**k,
+                                        origin=(r0, c0), layer_rows=(r0, r0 + ny - 1),
+                                        layer_cols=(c0, c0 + nx - 1)).astype(np.float32)
+                    result = dataclasses.replace(
+                        result, tile=result.tile.replace(heights=kept,
+                                                         valid=result.tile.valid))
                 tiles[k] = result.tile
                 catalogs.append(result.catalog.with_layer(k))
             log.info("layer %d: %d craters", k, len(table))

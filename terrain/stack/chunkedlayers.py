@@ -163,7 +163,7 @@ class StackExpandSource:
             amp_origin = (a0, b0)
         out = expand_level(grid, (pr + q0, pc + p0), (r0, r1), (c0, c1), level=self.level,
                            sigmas=p.sigmas(self.level), weights=p.weights(self.level),
-                           taps=p.taps(), seed=self.seed, amplitude=amp,
+                           taps=p.taps(self.level), seed=self.seed, amplitude=amp,
                            amplitude_origin=amp_origin, amplitude_level=0)
         return out, None
 
@@ -349,7 +349,8 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
                         seed: int = 0, population=None, model=None, params=None, estimate=None,
                         min_crater_pixels: float | None = None, rocks=None, chunk: int = 1024,
                         client=None, progress=None, halo: int = 256,
-                        geotiff_pixels: int | None = None, info=None, inputs=()) -> dict:
+                        geotiff_pixels: int | None = None, info=None, inputs=(),
+                        keep_known: bool = False) -> dict:
     """Build a layer stack chunk by chunk into ``outdir`` and commit it (manifest last).
 
     Parameters are those of :func:`terrain.stack.build.build_stack`, with the base given as a
@@ -357,7 +358,8 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
 
     estimate : dict, optional
         Without ``params``: keywords of :func:`terrain.execution.chunked.estimate_parameters`
-        (``fractal_dimension``, ``height_scale``, ``local_box``) for the filled base.
+        (``fractal_dimension``, ``height_scale``, ``local_box``, ``regolith``) for the filled
+        base.
     chunk : int
         Chunk side in pixels of every stage.
     client : dask.distributed.Client, optional
@@ -422,7 +424,8 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
             population=population.as_dict() if population else None, model=model.as_dict(),
             params=params.as_dict() if params else None, estimate=estimate,
             min_crater_pixels=min_crater_pixels,
-            rocks=rocks.as_dict() if rocks else None, chunk=chunk, halo=halo))
+            rocks=rocks.as_dict() if rocks else None, chunk=chunk, halo=halo,
+            **({"keep_known": True} if keep_known else {})))
         common = dict(chunk=chunk, client=client, progress=progress, reports={})
         reports = common["reports"]
 
@@ -448,7 +451,9 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
                 if not len(table):
                     table = None
             if table is not None:
-                store = _stage(f"c{k}", CraterSource(e, table, seed, model), work, **common)
+                keep = 2**k if keep_known and k > 0 else 1
+                store = _stage(f"c{k}", CraterSource(e, table, seed, model, keep, origins[k]),
+                               work, **common)
                 catalogs.append(merge_chunk_catalogs(store).with_layer(k))
                 e = store
             tables.append(table)

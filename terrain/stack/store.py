@@ -182,7 +182,7 @@ def _stack_files(outdir: Path) -> list[Path]:
     return sorted({p for pattern in _STACK_FILE_PATTERNS for p in outdir.glob(pattern)})
 
 
-def write_stack(stack: LayerStack, outdir, *, inputs=()) -> Path:
+def write_stack(stack: LayerStack, outdir, *, inputs=(), known=None) -> Path:
     """Write a new layer stack into ``outdir`` (created; see :func:`prepare_folder`).
 
     The manifest is written last; if writing fails (full disk, interrupt) the files already
@@ -195,6 +195,10 @@ def write_stack(stack: LayerStack, outdir, *, inputs=()) -> Path:
         A missing, empty or killed build's folder.
     inputs : iterable of path
         Files the stack was made from (never written over, never inside ``outdir``).
+    known : (ny, nx) float64, metres, optional
+        The base's exact heights when float32 cannot hold them
+        (:func:`terrain.io.read_dem_exact`): every layer holding them unchanged is written in
+        float64 with them put back bitwise.
 
     Returns
     -------
@@ -228,7 +232,7 @@ def write_stack(stack: LayerStack, outdir, *, inputs=()) -> Path:
                                encoding="utf-8")
             (outdir / READERS_LOCK).touch()  # so that readers never create a file here
             files = [f"layer_{k:02d}.tif" for k in range(len(stack.tiles))]
-            _write_files(stack, outdir, files)
+            _write_files(stack, outdir, files, known=known)
             (outdir / INCOMPLETE).unlink()
         ok = True
     finally:
@@ -244,12 +248,14 @@ def write_stack(stack: LayerStack, outdir, *, inputs=()) -> Path:
 
 
 def _write_files(stack: LayerStack, outdir: Path, files: list[str], only=None,
-                 catalog: str = CATALOG, rocks: bool = False) -> None:
+                 catalog: str = CATALOG, rocks: bool = False, known=None) -> None:
     """Write the layers (``only`` some), the catalogues, then the manifest: the commit point.
 
     An edit (``only``) writes the rock catalogue when ``rocks`` (under the manifest's name).
+    ``known``: the base's exact heights (see :func:`write_stack`).
     """
     from terrain.core.outputs import atomic_path
+    from terrain.fractal.expand import expanded_known
     from terrain.io import write_dem
 
     for k, tile in enumerate(stack.tiles):
@@ -257,7 +263,10 @@ def _write_files(stack: LayerStack, outdir: Path, files: list[str], only=None,
             continue
         meta = dict(tile.metadata)
         meta[mk.LAYER] = str(k)
-        write_dem(tile.replace(metadata=meta), outdir / files[k])
+        exact = None
+        if known is not None:
+            exact = expanded_known(known, tile.shape, k, stack.origins[k], tile.heights)
+        write_dem(tile.replace(metadata=meta), outdir / files[k], known=exact)
     with atomic_path(outdir / catalog) as tmp:
         stack.catalog.to_csv(tmp)
     if stack.rocks is not None and (only is None or rocks):

@@ -253,8 +253,9 @@ def expand(spec: ExpandSpec, source: Path, output: Path, execution: Execution, *
            catalog: Path | None, progress: ProgressFactory) -> Written:
     """`terrain expand` (:class:`~terrain.stages.specs.ExpandSpec`)."""
     from terrain.fractal.expand import expand as run_expand
+    from terrain.fractal.expand import expanded_known
     from terrain.fractal.roughness import LOCAL_BOX, RoughnessChoice
-    from terrain.io import check_output_path, read_dem, write_dem
+    from terrain.io import check_output_path, read_dem_exact, write_dem
 
     if chunked_requested(output, execution, spec.window) or (
             spec.window is None and _expansion_too_large(source, spec.band, spec.times)):
@@ -266,7 +267,7 @@ def expand(spec: ExpandSpec, source: Path, output: Path, execution: Execution, *
         return run_dask(ExpandSource(reader, spec.times, spec.seed, params), output,
                         execution, "expand", progress=progress, inputs=[source])
     check_output_path(output, [source])
-    tile = read_dem(source, band=spec.band, exact=True)
+    tile, exact = read_dem_exact(source, band=spec.band)
     if spec.window is not None:
         spec.window.check_inside(*tile.shape)
     params = RoughnessChoice(spec.fractal_dimension, spec.height_scale,
@@ -277,8 +278,14 @@ def expand(spec: ExpandSpec, source: Path, output: Path, execution: Execution, *
     out = out.with_metadata(**{mk.COMMAND: "terrain expand", mk.VERSION: mk.version(),
                                mk.PARAMETERS: dict(input=str(source), times=spec.times,
                                                    seed=spec.seed, **params.as_dict())})
+    known = None
+    if exact is not None:  # the input's float64 heights go back bitwise, in a float64 file
+        w = spec.window
+        known = expanded_known(exact, out.shape, spec.times,
+                               (0, 0) if w is None else (w.row * 2**spec.times,
+                                                         w.col * 2**spec.times))
     with transaction():
-        write_dem(out, output, inputs=[source])
+        write_dem(out, output, inputs=[source], known=known)
     return Written((output,), f"wrote {output} ({out.shape[1]}x{out.shape[0]} at "
                    f"{out.resolution:.6g} m; F={params.fractal_dimension:.3f}, "
                    f"H={params.height_scale:.4g})")

@@ -12,18 +12,63 @@ import logging
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from terrain.core import metakeys as mk
 from terrain.core.errors import InvalidParameterError
 from terrain.stages.dems import crater_model, population
 from terrain.stages.runner import Execution, ProgressFactory, Written
 from terrain.stages.specs import EnhanceSpec
 
-__all__ = ["enhance"]
+__all__ = ["default_population", "enhance"]
 
 log = logging.getLogger(__name__)
 
 #: Default halo (pixels) of a chunked build.
 DEFAULT_HALO = 256
+#: Empirical crater equilibrium, N(>=D) = c D^-2 per m^2 with D in metres (Trask 1966, in
+#: Melosh 1989 ch. 10), scaled by a preset's ``crater_equilibrium``.
+EQUILIBRIUM_C = 0.0158
+#: Its cumulative size-frequency exponent.
+EQUILIBRIUM_EXPONENT = -2.0
+
+
+def default_population(spec: EnhanceSpec, base_resolution: float, finest: float) -> Any:
+    """Return the small craters a DEM cannot resolve, from the spec's terrain preset.
+
+    Diameters from ``min_crater_pixels`` pixels of the finest layer up to as many pixels of
+    the base (what the DEM resolves, :func:`terrain.stack.plan.layer_craters`), at the
+    preset's multiple of the empirical equilibrium and ages up to the preset's surface age;
+    None when the stack has no finer layer.
+
+    Parameters
+    ----------
+    spec : EnhanceSpec
+    base_resolution, finest : float
+        Metres per pixel of the base and of the finest layer.
+
+    Returns
+    -------
+    Population or None
+    """
+    from terrain.core.presets import preset
+    from terrain.craters.population import Population
+
+    dmin = spec.min_crater_pixels * finest
+    dmax = spec.min_crater_pixels * base_resolution
+    if not dmax > dmin:
+        return None
+    terrain = preset(spec.terrain)
+    per_m2 = terrain.crater_equilibrium * EQUILIBRIUM_C * dmin ** EQUILIBRIUM_EXPONENT
+    return Population(dmin=dmin, dmax=dmax, density=per_m2 * 1e6,
+                      sfd_exponent=EQUILIBRIUM_EXPONENT, max_age=terrain.surface_age_gyr)
+
+
+def _regolith(spec: EnhanceSpec) -> Any:
+    """Return the regolith law below a metre (None with ``no_regolith``)."""
+    from terrain.fractal.regolith import RegolithLaw
+
+    return None if spec.no_regolith else RegolithLaw()
 
 
 def _site(spec: EnhanceSpec, reader: Any) -> tuple[float, float]:
@@ -57,6 +102,8 @@ def _content(spec: EnhanceSpec, resolution: float, shape: tuple, levels: int) ->
 
         rocks = RockModel.from_spec(spec.rocks, defaults=dict(dmin=MIN_ROCK_PIXELS * finest))
     pop = population(spec, resolution=finest, extent=min(shape) * resolution, warn_small=False)
+    if spec.population is None and spec.density is None:
+        pop = default_population(spec, resolution, finest)
     return rocks, pop, crater_model(spec)
 
 
@@ -88,7 +135,7 @@ def enhance(spec: EnhanceSpec, source: Path, output: Path, execution: Execution,
     """`terrain enhance` (:class:`~terrain.stages.specs.EnhanceSpec`)."""
     from terrain.fractal.gapfill import despike
     from terrain.fractal.roughness import RoughnessChoice
-    from terrain.io import read_dem
+    from terrain.io import read_dem_exact
     from terrain.stack.build import build_stack
     from terrain.stack.store import prepare_folder, write_stack
 
@@ -98,21 +145,23 @@ def enhance(spec: EnhanceSpec, source: Path, output: Path, execution: Execution,
     if asked or not _fits(spec, source):
         return _chunked(spec, source, output, execution, auto=not asked, progress=progress)
     prepare_folder(output, inputs=[source])
-    tile = read_dem(source, band=spec.band, exact=True)
+    tile, exact = read_dem_exact(source, band=spec.band)
     levels = _levels(spec, tile.resolution)
     if spec.despike is not None:
-        tile, _ = despike(tile, spec.despike)
+        tile, dropped = despike(tile, spec.despike)
+        if exact is not None:
+            exact = np.where(dropped, np.nan, exact)
     rocks, pop, model = _content(spec, tile.resolution, tuple(tile.shape), levels)
     with progress("enhance", "step") as bar:
         stack = build_stack(tile, _site(spec, tile), levels=levels, layer_size=spec.layer_size,
                             seed=spec.seed, population=pop, model=model,
                             params=RoughnessChoice(spec.fractal_dimension, spec.height_scale,
-                                                   spec.uniform_roughness),
+                                                   spec.uniform_roughness, _regolith(spec)),
                             min_crater_pixels=spec.min_crater_pixels, progress=bar,
-                            rocks=rocks)
+                            rocks=rocks, keep_known=True)
     stack = stack.with_info(source=str(source), command="terrain enhance",
                             craterscape_version=mk.version())
-    write_stack(stack, output, inputs=[source])
+    write_stack(stack, output, inputs=[source], known=exact)
     n_rocks = "" if stack.rocks is None else f", {len(stack.rocks)} rocks"
     return Written((output,), f"wrote {len(stack.tiles)} layers to {output} (finest "
                    f"{stack.tiles[-1].resolution:.4g} m/pixel, {len(stack.catalog)} craters"
@@ -137,8 +186,10 @@ def _chunked(spec: EnhanceSpec, source: Path, output: Path, execution: Execution
     _, _, shapes, _ = layer_plan(GridShape(tuple(reader.shape), reader.transform),
                                  (float(site[0]), float(site[1])), levels, spec.layer_size)
     rocks, pop, model = _content(spec, reader.resolution, tuple(reader.shape), levels)
+    law = _regolith(spec)
     estimate = dict(fractal_dimension=spec.fractal_dimension, height_scale=spec.height_scale,
-                    local_box=0 if spec.uniform_roughness else LOCAL_BOX)
+                    local_box=0 if spec.uniform_roughness else LOCAL_BOX,
+                    regolith=None if law is None else law.as_dict())
     pixels = sum(h * w for h, w in shapes)
     (log.warning if auto else log.info)(
         "enhance: building %d layers (%.3g Mpixel) chunk by chunk in %s%s", levels + 1,
@@ -156,6 +207,7 @@ def _chunked(spec: EnhanceSpec, source: Path, output: Path, execution: Execution
                 chunk=execution.chunk or DEFAULT_CHUNK, client=client,
                 progress=stage_progress,
                 halo=DEFAULT_HALO if spec.halo is None else spec.halo, inputs=[source],
+                keep_known=True,
                 info=dict(source=str(source), command="terrain enhance",
                           craterscape_version=mk.version()))
     computed = sum(s["computed"] for s in result["stages"].values())

@@ -51,6 +51,10 @@ MAX_CRATER_TO_DEM = 100.0
 MAX_Z_FACTOR = 1.0e6
 #: The body a synthetic DEM lies on unless asked otherwise (a local grid on request).
 DEFAULT_BODY = "moon"
+#: The preset `terrain enhance` draws its default small craters from: the lunar south pole,
+#: where the landers go (Artemis, VIPER) and the demo's site; its crater numbers are those of
+#: the highlands (``docs/roughness.md``).
+DEFAULT_ENHANCE_TERRAIN = "south-polar"
 
 _frozen = dataclasses.dataclass(frozen=True, kw_only=True)
 
@@ -251,6 +255,14 @@ class EnhanceSpec(_RoughnessFields, _CraterFields):
     halo: int | None = option(
         None, "Chunked builds: pixels around each chunk that every gap of the base must fit "
         "in (default 256).", integer(low=0))
+    terrain: str = option(
+        DEFAULT_ENHANCE_TERRAIN, "Terrain preset whose small craters are added where neither "
+        "--density nor --population is given: those the DEM cannot resolve (below "
+        "--min-crater-pixels of its pixels), at the preset's equilibrium density, without "
+        "moving a known height.", choice(*PRESETS))
+    no_regolith: bool = option(
+        False, "Continue the DEM's own roughness below 1 m instead of the lunar regolith's "
+        "steeper law.", FLAG)
 
     def _check(self) -> None:
         if self.site is not None and self.site_lonlat is not None:
