@@ -319,8 +319,8 @@ def _scaled_fbm(size, hurst, resolution, baseline_m, target_deg, *, median=True,
     lag = int(round(baseline_m / resolution))
     med, rms = baseline_slopes(tile, lag)
     now = np.tan(np.radians(med if median else rms))
-    return DEMTile.from_array(np.asarray(tile.heights, dtype=np.float64) * np.tan(np.radians(target_deg)) / now,
-                              resolution=resolution)
+    z = np.asarray(tile.heights, dtype=np.float64)
+    return DEMTile.from_array(z * np.tan(np.radians(target_deg)) / now, resolution=resolution)
 
 
 def test_the_law_check_passes_a_surface_of_the_law_and_fails_a_random_walk():
@@ -349,14 +349,15 @@ def test_centimetre_regolith_roughness_is_judged_with_the_tilt_removed():
     smoothed over 8 px (a DEM with no centimetre roughness) fails as too smooth."""
     from types import SimpleNamespace
 
-    from evaluation.validate import _regolith_check, stack_slope_table
     from scipy.ndimage import uniform_filter
+
+    from evaluation.validate import _regolith_check, stack_slope_table
 
     rough = _scaled_fbm(256, 0.6, 0.03, 0.03, 15.0, median=False)
     yy = np.mgrid[0:256, 0:256][0] * 0.03
-    tilted = DEMTile.from_array(np.asarray(rough.heights, dtype=np.float64) + np.tan(np.radians(10.0)) * yy,
-                                resolution=0.03)
-    smooth = DEMTile.from_array(uniform_filter(np.asarray(tilted.heights, dtype=np.float64), 8), resolution=0.03)
+    z = np.asarray(rough.heights, dtype=np.float64) + np.tan(np.radians(10.0)) * yy
+    tilted = DEMTile.from_array(z, resolution=0.03)
+    smooth = DEMTile.from_array(uniform_filter(z, 8), resolution=0.03)
     verdicts = {}
     for name, tile in (("rough", tilted), ("smooth", smooth)):
         table = stack_slope_table(SimpleNamespace(tiles=[tile]), (0.03, 0.3))
