@@ -314,14 +314,14 @@ STATS = (SLOPE_BAND_FACTOR, SLOPE_LAW_DEG, REGOLITH_RMS_SLOPE, HURST_TOLERANCE, 
 
 
 def equilibrium_density(diameter_m) -> float:
-    """Empirical equilibrium N(>=D) per m^2 (Trask 1966: 10^-1.1 D_km^-2 per km^2).
+    """Empirical equilibrium N(>=D) per m^2 (Trask 1966), the generator's own table.
 
     >>> round(equilibrium_density(1000.0) * 1e6, 4)
     0.0794
     """
-    d_km = float(diameter_m) / 1000.0
-    return 10 ** -1.1 * d_km ** -2 / 1e6
+    from terrain.core.presets import equilibrium_density as trask
 
+    return float(trask(diameter_m))
 
 
 def viper_cumulative(model: str, diameter_m):

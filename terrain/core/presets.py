@@ -27,7 +27,28 @@ from dataclasses import dataclass
 
 from terrain.core.checks import text
 
-__all__ = ["PRESETS", "TerrainPreset", "preset"]
+__all__ = ["EQUILIBRIUM_EXPONENT", "PRESETS", "TerrainPreset", "equilibrium_density", "preset"]
+
+
+#: Cumulative size-frequency exponent of the empirical crater equilibrium.
+EQUILIBRIUM_EXPONENT = -2.0
+
+
+def equilibrium_density(diameter_m):
+    """Empirical equilibrium N(>=D) per m^2 (Trask 1966: 10^-1.1 D_km^-2 per km^2).
+
+    The density at which small lunar craters are erased as fast as they form (Trask 1966,
+    Ranger VIII and IX counts; as used by Gault 1970): 0.079 D^-2 per m^2 with D in metres.
+
+    >>> round(float(equilibrium_density(1000.0)) * 1e6, 4)
+    0.0794
+    >>> round(float(equilibrium_density(10.0)) * 1e6)
+    794
+    """
+    import numpy as np
+
+    d_km = np.asarray(diameter_m, dtype=float) / 1000.0
+    return 10 ** -1.1 * d_km ** EQUILIBRIUM_EXPONENT / 1e6
 
 
 @dataclass(frozen=True)

@@ -26,11 +26,6 @@ log = logging.getLogger(__name__)
 
 #: Default halo (pixels) of a chunked build.
 DEFAULT_HALO = 256
-#: Empirical crater equilibrium, N(>=D) = c D^-2 per m^2 with D in metres (Trask 1966, in
-#: Melosh 1989 ch. 10), scaled by a preset's ``crater_equilibrium``.
-EQUILIBRIUM_C = 0.0158
-#: Its cumulative size-frequency exponent.
-EQUILIBRIUM_EXPONENT = -2.0
 
 
 def default_population(spec: EnhanceSpec, base_resolution: float, finest: float) -> Any:
@@ -51,7 +46,7 @@ def default_population(spec: EnhanceSpec, base_resolution: float, finest: float)
     -------
     Population or None
     """
-    from terrain.core.presets import preset
+    from terrain.core.presets import EQUILIBRIUM_EXPONENT, equilibrium_density, preset
     from terrain.craters.population import Population
 
     dmin = spec.min_crater_pixels * finest
@@ -59,7 +54,7 @@ def default_population(spec: EnhanceSpec, base_resolution: float, finest: float)
     if not dmax > dmin:
         return None
     terrain = preset(spec.terrain)
-    per_m2 = terrain.crater_equilibrium * EQUILIBRIUM_C * dmin ** EQUILIBRIUM_EXPONENT
+    per_m2 = terrain.crater_equilibrium * float(equilibrium_density(dmin))
     return Population(dmin=dmin, dmax=dmax, density=per_m2 * 1e6,
                       sfd_exponent=EQUILIBRIUM_EXPONENT, max_age=terrain.surface_age_gyr)
 

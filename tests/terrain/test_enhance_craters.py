@@ -1,8 +1,8 @@
 """`terrain enhance` of a real DEM adds, by default, the small craters the DEM cannot resolve.
 
 The count is checked against the published law the preset names (the empirical equilibrium
-N(>=D) = 0.0158 D^-2 per m^2, Trask 1966, times the preset's multiple), and every known
-height of the input stays, bitwise, in every layer.
+N(>=D) = 10^-1.1 D_km^-2 per km^2 = 0.0794 D^-2 per m^2, Trask 1966, times the preset's
+multiple), and every known height of the input stays, bitwise, in every layer.
 """
 
 import json
@@ -17,8 +17,8 @@ from terrain.craters.cratering import CraterModel
 from terrain.io import write_dem
 from tests.cli_helpers import run
 
-#: Trask (1966) equilibrium: N(>=D) = 0.0158 D^-2 per m^2, D in metres.
-TRASK_C = 0.0158
+#: Trask (1966) equilibrium: N(>=D) = 10^-1.1 D_km^-2 per km^2, i.e. 0.0794 D^-2 per m^2 (D in m).
+TRASK_C = 10 ** -1.1
 
 
 @pytest.fixture
