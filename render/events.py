@@ -311,7 +311,9 @@ def simulate(render: Callable[[float], np.ndarray], t0: float, t1: float, camera
     events : Events
     stats : dict
         ``instants`` rendered (accepted), ``rejected`` steps (rendered, then halved),
-        ``dropped`` events (readout limit), ``largest_crossings`` between two instants.
+        ``forced`` steps accepted at ``min_step`` beyond the crossing limit (a discontinuity
+        in time: an object appearing, a level of detail switching), ``dropped`` events
+        (readout limit), ``largest_crossings`` between two instants.
     """
     cam = camera
 
@@ -325,7 +327,7 @@ def simulate(render: Callable[[float], np.ndarray], t0: float, t1: float, camera
     limit = cam.max_crossings * c_min
     t, dt = float(t0), cam.max_step
     prev = first
-    parts, instants, rejected, largest = [], 1, 0, 0.0
+    parts, instants, rejected, forced, largest = [], 1, 0, 0, 0.0
     while t < t1:
         dt = min(dt, t1 - t)
         nxt = log_of(t + dt)
@@ -336,12 +338,13 @@ def simulate(render: Callable[[float], np.ndarray], t0: float, t1: float, camera
             continue
         parts.append(sim.step(t + dt, nxt))
         instants += 1
+        forced += int(change > limit)
         largest = max(largest, change / c_min)
         t += dt
         prev = nxt
         if change < 0.5 * limit:
             dt = min(dt * 1.5, cam.max_step)
-    stats = dict(instants=instants, rejected=rejected, dropped=sim.dropped,
+    stats = dict(instants=instants, rejected=rejected, forced=forced, dropped=sim.dropped,
                  largest_crossings=largest, events=sum(len(p) for p in parts))
     return Events.concatenate(parts), stats
 

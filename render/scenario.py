@@ -86,6 +86,7 @@ from pathlib import Path
 from typing import Any
 
 from render.camera import Intrinsics
+from render.events import EventCamera
 from render.motion import Motion
 from render.reflectance import Hapke, check_brdf
 from render.renderer import MAX_ANTIALIAS, Lighting, RenderOptions
@@ -100,7 +101,7 @@ from terrain.core.tomlfile import read_toml
 __all__ = ["SceneSpec", "Scenario", "TrajectorySpec", "load_scenario"]
 
 _SECTIONS = {"name", "seed", "scene", "sun", "surface", "camera", "sensor", "render", "output",
-             "trajectory", "description", "motion"}
+             "trajectory", "description", "motion", "events"}
 _HAPKE_KEYS = set(Hapke.__dataclass_fields__)
 #: How each section is named in messages.
 _SCENE, _TRAJECTORY, _SURFACE, _SUN, _CAMERA, _RENDER, _OUTPUT = (
@@ -349,6 +350,8 @@ class Scenario:
     raw: dict = field(default_factory=dict)
     # {"blur": bool, "given": the velocity keys set in [motion], "motion": Motion}
     motion: dict = field(default_factory=dict)
+    #: The event camera of an ``[events]`` table (render.events), None without one.
+    events: EventCamera | None = None
 
     def resolve(self, value: str | Path) -> Path:
         """Resolve a path the scenario names.
@@ -576,5 +579,6 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
                "radiance": boolean(out.get("radiance", False), "radiance", where=_OUTPUT)}
 
     trajectory = TrajectorySpec.from_mapping(data.get("trajectory", {}))
+    events = EventCamera.from_mapping(data["events"]) if "events" in data else None
     return Scenario(name, path, seed, scene, lighting, intrinsics, sensor, options, outputs,
-                    trajectory, data, motion)
+                    trajectory, data, motion, events)

@@ -102,3 +102,39 @@ def test_file_preview_and_refusals(tmp_path):
     sim = EventSimulator(cam, (2, 2))
     with pytest.raises(InvalidParameterError, match="shape"):
         sim.reset(0.0, np.zeros((3, 3)))
+
+
+@pytest.mark.slow
+def test_a_descent_with_an_event_camera_writes_its_events_and_repeats_them(tmp_path, gl):
+    """A scenario's [events] table runs the camera over the whole descent: the events file
+    reads back, the adaptive step kept pixels within their crossing limit but where the
+    rendering itself jumps (levels of detail switching), and the same scenario renders the
+    same events."""
+    from render.scenario import load_scenario
+    from render.sequence import run_sequence
+    from tests.render.scenes import cratered_stack, descent_scenario
+
+    stack = cratered_stack(tmp_path / "stack")
+    text = descent_scenario(stack, "events", frames=2).replace(
+        "end_altitude = 100.0", "end_altitude = 1400.0") + """
+[events]
+contrast_on = 0.3
+contrast_off = 0.3
+max_step = 0.05
+min_step = 0.001
+"""
+    (tmp_path / "s.toml").write_text(text)
+    runs = []
+    for k in range(2):
+        manifest = run_sequence(load_scenario(tmp_path / "s.toml"), tmp_path / f"run{k}")
+        runs.append(manifest["events"])
+    assert runs[0]["forced"] <= 0.15 * runs[0]["instants"]
+    assert runs[0]["events"] > 100 and runs[0]["instants"] > 3
+    a, b = ((tmp_path / f"run{k}" / "events.npz").read_bytes() for k in range(2))
+    with np.load(tmp_path / "run0" / "events.npz") as f:
+        assert f["t"].min() >= 0 and f["t"].max() <= 4_000_000
+        assert set(np.unique(f["p"]).tolist()) <= {-1, 1}
+    with np.load(tmp_path / "run1" / "events.npz") as g, \
+            np.load(tmp_path / "run0" / "events.npz") as f:
+        assert all(np.array_equal(f[k], g[k]) for k in "xytp")
+    assert (tmp_path / "run0" / "events_preview.png").exists() and len(a) == len(b)
