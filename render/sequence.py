@@ -264,6 +264,9 @@ def record_events(renderer: Renderer, scene: Scene, scenario: Scenario,
     """
     from render.events import event_frame, simulate, write_events
 
+    camera = scenario.events
+    if camera is None:
+        raise InvalidParameterError("the scenario has no [events] table")
     times = [s.time for s in samples]
     if len(samples) < 2:
         raise InvalidParameterError("an event camera needs a trajectory of at least two frames")
@@ -277,9 +280,9 @@ def record_events(renderer: Renderer, scene: Scene, scenario: Scenario,
         return renderer.render(scene, view, scenario.lighting, scenario.options).radiance
 
     t0 = time.perf_counter()
-    events, stats = simulate(render_at, times[0], times[-1], scenario.events, seed=scenario.seed)
+    events, stats = simulate(render_at, times[0], times[-1], camera, seed=scenario.seed)
     shape = (scenario.intrinsics.height, scenario.intrinsics.width)
-    write_events(run_dir / "events.npz", events, shape, scenario.events,
+    write_events(run_dir / "events.npz", events, shape, camera,
                  scenario=scenario.name, seed=scenario.seed)
     write_png(event_frame(events, shape)[..., ::-1].copy(), run_dir / "events_preview.png")
     stats.update(file="events.npz", preview="events_preview.png",
