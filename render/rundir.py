@@ -76,7 +76,7 @@ TRUTH_TABLE_KEYS = {"camera": frozenset({"position", "attitude"}),
 #: write), and of its lighting table.
 MANIFEST_KEYS = frozenset({"format", "version", "scenario", "scene", "frames", "resolution",
                            "seed", "sensor", "lighting", "renderer", "render_seconds",
-                           "frames_rendered_this_run", "frames_written"})
+                           "frames_rendered_this_run", "frames_written", "events"})
 MANIFEST_LIGHTING_KEYS = frozenset({"sun", "albedo", "reflectance", "hapke", "distance_au",
                                     "spectral_irradiance", "utc"})
 

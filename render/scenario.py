@@ -97,6 +97,7 @@ from typing import Any
 
 from render.camera import Intrinsics
 from render.ephemeris import DATED_KEYS, Sky, SunEphemeris, site_on_map
+from render.events import EventCamera
 from render.motion import Motion
 from render.reflectance import Hapke, check_brdf
 from render.renderer import MAX_ANTIALIAS, Lighting, RenderOptions
@@ -111,7 +112,7 @@ from terrain.core.tomlfile import read_toml
 __all__ = ["SceneSpec", "Scenario", "TrajectorySpec", "load_scenario"]
 
 _SECTIONS = {"name", "seed", "scene", "sun", "surface", "camera", "sensor", "render", "output",
-             "trajectory", "description", "motion"}
+             "trajectory", "description", "motion", "events"}
 _HAPKE_KEYS = set(Hapke.__dataclass_fields__)
 #: How each section is named in messages.
 _SCENE, _TRAJECTORY, _SURFACE, _SUN, _CAMERA, _RENDER, _OUTPUT = (
@@ -362,6 +363,8 @@ class Scenario:
     motion: dict = field(default_factory=dict)
     #: The Sun on a date ([sun] utc); None for a hand-set sun.
     ephemeris: SunEphemeris | None = None
+    #: The event camera of an ``[events]`` table (render.events), None without one.
+    events: EventCamera | None = None
 
     def sky_at(self, time: float, scene: Any = None) -> Sky | None:
         """Return the Sun and Earth at trajectory time ``time`` (s); None for a hand-set sun.
@@ -678,5 +681,6 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
                "radiance": boolean(out.get("radiance", False), "radiance", where=_OUTPUT)}
 
     trajectory = TrajectorySpec.from_mapping(data.get("trajectory", {}))
+    events = EventCamera.from_mapping(data["events"]) if "events" in data else None
     return Scenario(name, path, seed, scene, lighting, intrinsics, sensor, options, outputs,
-                    trajectory, data, motion, ephemeris)
+                    trajectory, data, motion, ephemeris=ephemeris, events=events)

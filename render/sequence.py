@@ -29,6 +29,7 @@ from render.sensor import ExposureControl
 from render.trajectory import Sample
 from terrain.core.errors import InvalidParameterError
 from terrain.core.progress import Progress
+from terrain.io import write_png
 
 __all__ = ["check_frame_memory", "frame_motion", "load_scene", "render_sample", "run_sequence"]
 
@@ -266,6 +267,52 @@ def run_sequence(scenario: Scenario, run_dir: str | Path, *, resume: bool = Fals
             progress(i + 1, len(samples),
                      f"{rendered / max(time.perf_counter() - t0, 1e-9):.2f} frame/s")
     elapsed = time.perf_counter() - t0
-    writer.finish(render_seconds=elapsed, frames_rendered_this_run=rendered)
+    facts: dict = {}
+    if scenario.events is not None:
+        facts["events"] = record_events(renderer, scene, scenario, samples, run_dir)
+    writer.finish(render_seconds=elapsed, frames_rendered_this_run=rendered, **facts)
     log.info("rendered %d frames in %.1f s", rendered, elapsed)
     return writer.manifest
+
+
+def record_events(renderer: Renderer, scene: Scene, scenario: Scenario,
+                  samples: Sequence[Sample], run_dir: Path) -> dict:
+    """Run the scenario's event camera over the whole trajectory into ``run_dir``.
+
+    Between two frames the camera moves with the trajectory's velocities at the earlier one
+    (:func:`render.motion.trajectory_velocities`, as motion blur does), so the event camera
+    sees the scene at any instant the adaptive stepping asks for. Writes ``events.npz`` (see
+    :mod:`render.events`) and ``events_preview.png`` (the events of the whole run).
+
+    Returns
+    -------
+    dict
+        The event statistics recorded in the manifest.
+    """
+    from render.events import event_frame, simulate, write_events
+
+    camera = scenario.events
+    if camera is None:
+        raise InvalidParameterError("the scenario has no [events] table")
+    times = [s.time for s in samples]
+    if len(samples) < 2:
+        raise InvalidParameterError("an event camera needs a trajectory of at least two frames")
+
+    def render_at(t: float) -> np.ndarray:
+        i = int(np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(samples) - 2))
+        motion = trajectory_velocities(samples, i)
+        dt = t - times[i]
+        scene.set_body_rotation(motion.body_rotation_at(samples[i].body_rotation, dt))
+        view = View(motion.pose_at(samples[i].pose, dt), scenario.intrinsics, t)
+        return renderer.render(scene, view, scenario.lighting_at(t, scene),
+                               scenario.options).radiance
+
+    t0 = time.perf_counter()
+    events, stats = simulate(render_at, times[0], times[-1], camera, seed=scenario.seed)
+    shape = (scenario.intrinsics.height, scenario.intrinsics.width)
+    write_events(run_dir / "events.npz", events, shape, camera,
+                 scenario=scenario.name, seed=scenario.seed)
+    write_png(event_frame(events, shape)[..., ::-1].copy(), run_dir / "events_preview.png")
+    stats.update(file="events.npz", preview="events_preview.png",
+                 seconds=time.perf_counter() - t0)
+    return stats
