@@ -102,6 +102,7 @@ from render.reflectance import Hapke, check_brdf
 from render.renderer import MAX_ANTIALIAS, Lighting, RenderOptions
 from render.scene_build import SceneBuild
 from render.sensor import Sensor
+from render.stars import StarField
 from render.trajectory import Sample, approach, descent, keyframes
 from terrain.core.checks import boolean, check_keys, integer, number, text, vector
 from terrain.core.errors import InvalidParameterError
@@ -111,7 +112,7 @@ from terrain.core.tomlfile import read_toml
 __all__ = ["SceneSpec", "Scenario", "TrajectorySpec", "load_scenario"]
 
 _SECTIONS = {"name", "seed", "scene", "sun", "surface", "camera", "sensor", "render", "output",
-             "trajectory", "description", "motion"}
+             "trajectory", "description", "motion", "stars"}
 _HAPKE_KEYS = set(Hapke.__dataclass_fields__)
 #: How each section is named in messages.
 _SCENE, _TRAJECTORY, _SURFACE, _SUN, _CAMERA, _RENDER, _OUTPUT = (
@@ -362,6 +363,8 @@ class Scenario:
     motion: dict = field(default_factory=dict)
     #: The Sun on a date ([sun] utc); None for a hand-set sun.
     ephemeris: SunEphemeris | None = None
+    #: The star field of a ``[stars]`` table (render.stars), None without one.
+    stars: StarField | None = None
 
     def sky_at(self, time: float, scene: Any = None) -> Sky | None:
         """Return the Sun and Earth at trajectory time ``time`` (s); None for a hand-set sun.
@@ -678,5 +681,6 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
                "radiance": boolean(out.get("radiance", False), "radiance", where=_OUTPUT)}
 
     trajectory = TrajectorySpec.from_mapping(data.get("trajectory", {}))
+    stars = StarField.from_mapping(data["stars"]) if "stars" in data else None
     return Scenario(name, path, seed, scene, lighting, intrinsics, sensor, options, outputs,
-                    trajectory, data, motion, ephemeris)
+                    trajectory, data, motion, ephemeris, stars)
