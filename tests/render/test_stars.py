@@ -88,3 +88,57 @@ def test_the_field_refuses_bad_settings():
         StarField.from_mapping({"magnitude": 6})
     with pytest.raises(InvalidParameterError, match="magnitude_limit"):
         StarField(30.0)
+
+
+@pytest.mark.slow
+def test_a_dated_view_of_the_horizon_shows_stars_in_its_sky(tmp_path, gl):
+    """A camera over the cratered stack looking at the horizon under a dated sun: stars are
+    imaged in the sky (hiding behind surfaces is tested above on a known mask), and the
+    frame's truth holds the rotation to ICRF they were placed with."""
+    from render.rundir import RunReader
+    from render.scenario import load_scenario
+    from render.sequence import run_sequence
+    from tests.render.scenes import cratered_stack
+
+    stack = cratered_stack(tmp_path / "stack")
+    (tmp_path / "s.toml").write_text(f"""
+name = "stars"
+seed = 1
+[scene]
+type = "terrain"
+stack = "{stack}"
+[sun]
+utc = "2027-01-15T12:00:00"
+longitude = 0.0
+latitude = -89.5
+[camera]
+width = 96
+height = 64
+fov = 60.0
+[sensor]
+bits = 16
+exposure = 200000.0
+[render]
+shadow_size = 256
+[stars]
+magnitude_limit = 6.0
+[trajectory]
+type = "keyframes"
+frames = 1
+[[trajectory.keyframe]]
+time = 0.0
+position = [0.0, 0.0, 800.0]
+look_at = [3000.0, 3000.0, 900.0]
+""")
+    run_sequence(load_scenario(tmp_path / "s.toml"), tmp_path / "run")
+    run = RunReader(tmp_path / "run")
+    truth = run.truth[0]
+    stars = truth.drawn["stars"]
+    assert stars["drawn"] > 0
+    assert np.asarray(stars["world_to_icrf"]).shape == (3, 3)
+    image = run.image(0).astype(float)
+    rng = run.range(0)
+    ground = np.isfinite(rng)
+    assert ground.any() and (~ground).any()
+    sky_bright = image[~ground & (image > 1000)]
+    assert sky_bright.size > 0
