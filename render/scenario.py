@@ -103,6 +103,7 @@ from render.reflectance import Hapke, check_brdf
 from render.renderer import MAX_ANTIALIAS, Lighting, RenderOptions
 from render.scene_build import SceneBuild
 from render.sensor import Sensor
+from render.stars import StarField
 from render.trajectory import Sample, approach, descent, keyframes
 from terrain.core.checks import boolean, check_keys, integer, number, text, vector
 from terrain.core.errors import InvalidParameterError
@@ -112,7 +113,7 @@ from terrain.core.tomlfile import read_toml
 __all__ = ["SceneSpec", "Scenario", "TrajectorySpec", "load_scenario"]
 
 _SECTIONS = {"name", "seed", "scene", "sun", "surface", "camera", "sensor", "render", "output",
-             "trajectory", "description", "motion", "events"}
+             "trajectory", "description", "motion", "events", "stars"}
 _HAPKE_KEYS = set(Hapke.__dataclass_fields__)
 #: How each section is named in messages.
 _SCENE, _TRAJECTORY, _SURFACE, _SUN, _CAMERA, _RENDER, _OUTPUT = (
@@ -365,6 +366,8 @@ class Scenario:
     ephemeris: SunEphemeris | None = None
     #: The event camera of an ``[events]`` table (render.events), None without one.
     events: EventCamera | None = None
+    #: The star field of a ``[stars]`` table (render.stars), None without one.
+    stars: StarField | None = None
 
     def sky_at(self, time: float, scene: Any = None) -> Sky | None:
         """Return the Sun and Earth at trajectory time ``time`` (s); None for a hand-set sun.
@@ -682,5 +685,6 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
 
     trajectory = TrajectorySpec.from_mapping(data.get("trajectory", {}))
     events = EventCamera.from_mapping(data["events"]) if "events" in data else None
+    stars = StarField.from_mapping(data["stars"]) if "stars" in data else None
     return Scenario(name, path, seed, scene, lighting, intrinsics, sensor, options, outputs,
-                    trajectory, data, motion, ephemeris=ephemeris, events=events)
+                    trajectory, data, motion, ephemeris=ephemeris, events=events, stars=stars)

@@ -194,6 +194,16 @@ def render_sample(renderer: Renderer, scene: Scene, scenario: Scenario, sample: 
         frame.radiance = rad
         moving = dict(motion.as_dict(), exposure_time=sensor.integration_time,
                       line_time=sensor.line_time, samples=info["samples"])
+    if scenario.stars is not None:
+        from render.stars import add_stars, world_to_icrf
+
+        rotation, et = world_to_icrf(scenario, sample.time, scene)
+        radiance = np.array(frame.radiance, dtype=np.float32, copy=True)
+        stars = add_stars(radiance, ~np.isfinite(frame.range), scenario.stars, rotation, et,
+                          sample.pose, scenario.intrinsics, lighting.spectral_irradiance)
+        frame.radiance = radiance
+        frame.drawn = dict(frame.drawn, stars=dict(stars, world_to_icrf=rotation.tolist(),
+                                                   et=et))
     image, record = exposure.expose(frame.radiance, index, intrinsics=scenario.intrinsics,
                                     spectral_irradiance=lighting.spectral_irradiance)
     truth = FrameTruth(index, sample.time, sample.pose, scenario.intrinsics,
