@@ -64,6 +64,12 @@ trajectory. Paths are relative to the scenario file. Example (``examples/lunar_d
     normals = true
     radiance = false                 # also radiance/radiance_NNNNNN.tif, W m^-2 sr^-1 nm^-1
 
+    [labels]                         # optional: image-space labels (render/labels.py,
+    min_crater_pixels = 8.0          # docs/labels.md); rims, masks and flow on by default
+    lander_diameter = 4.0            # hazards in image space for this lander (m) ...
+    max_slope = 10.0                 # ... degrees
+    max_step = 0.3                   # ... m
+
     [trajectory]
     type = "descent"                 # "descent", "keyframes" or "approach"
     frames = 60
@@ -86,6 +92,7 @@ from pathlib import Path
 from typing import Any
 
 from render.camera import Intrinsics
+from render.labels import LabelSpec
 from render.motion import Motion
 from render.reflectance import Hapke, check_brdf
 from render.renderer import MAX_ANTIALIAS, Lighting, RenderOptions
@@ -100,7 +107,7 @@ from terrain.core.tomlfile import read_toml
 __all__ = ["SceneSpec", "Scenario", "TrajectorySpec", "load_scenario"]
 
 _SECTIONS = {"name", "seed", "scene", "sun", "surface", "camera", "sensor", "render", "output",
-             "trajectory", "description", "motion"}
+             "trajectory", "description", "motion", "labels"}
 _HAPKE_KEYS = set(Hapke.__dataclass_fields__)
 #: How each section is named in messages.
 _SCENE, _TRAJECTORY, _SURFACE, _SUN, _CAMERA, _RENDER, _OUTPUT = (
@@ -349,6 +356,8 @@ class Scenario:
     raw: dict = field(default_factory=dict)
     # {"blur": bool, "given": the velocity keys set in [motion], "motion": Motion}
     motion: dict = field(default_factory=dict)
+    #: Image-space labels to write with each frame (:mod:`render.labels`); None: none.
+    labels: LabelSpec | None = None
 
     def resolve(self, value: str | Path) -> Path:
         """Resolve a path the scenario names.
@@ -576,5 +585,6 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
                "radiance": boolean(out.get("radiance", False), "radiance", where=_OUTPUT)}
 
     trajectory = TrajectorySpec.from_mapping(data.get("trajectory", {}))
+    labels = LabelSpec.from_mapping(data["labels"]) if "labels" in data else None
     return Scenario(name, path, seed, scene, lighting, intrinsics, sensor, options, outputs,
-                    trajectory, data, motion)
+                    trajectory, data, motion, labels)

@@ -1,0 +1,701 @@
+"""Image-space labels of a rendered frame: crater rims, instance and semantic masks, flow, hazards.
+
+What a navigation team trains and scores against, computed from the frame's exact camera, its
+range image and the scene's catalogues (:mod:`terrain.craters.catalog`), never from the
+pixels' brightness alone:
+
+Crater rims
+    Each catalogue crater whose rim spans at least ``min_crater_pixels`` in the image gets its
+    rim's image conic. The 3-D rim is the circle of the catalogue's diameter about its centre,
+    at the rim crest's height (``reference_elevation_m + rim_height_m``), on the plane the
+    scene's planetary curvature tilts it to at its place (the gradient of the drop
+    ``d^2 / (2 R)``, :meth:`render.terrain_scene.TerrainScene.to_world`). With ``H`` the
+    homography from that plane's coordinates ``(s, t)`` (metres east and north of the centre)
+    to pixels, ``H = K R_CW [e_s, e_t, P_0 - C]``, the circle ``s^2 + t^2 = R^2`` maps to the
+    conic ``A = H^-T diag(1, 1, -R^2) H^-1`` (Hartley and Zisserman 2004, sec. 2.2.3; Christian
+    et al. 2021, "Lunar crater identification in digital images", J. Astronaut. Sci. 68, 1056,
+    eq. 9), and its centre, semi-axes and angle follow from ``A``. The angle is the major
+    axis's, in degrees from the image's +u axis towards +v, in [0, 180). Visibility is sampled
+    at :data:`RIM_SAMPLES` points of the 3-D rim: the fraction in the frame, the fraction of
+    those hidden by terrain (the rendered range at the point's pixel shorter than the point's
+    distance), and the fraction of the visible ones lit (not shadowed in the semantic mask).
+Instance mask
+    Each pixel the number of the instance its surface point belongs to (0: none): a crater
+    where the point lies within its rim radius horizontally (smaller craters over larger
+    ones), a rock where it lies within the rock's footprint ellipse (its catalogue semi-axes
+    stretched by the outline's largest harmonic, :data:`ROCK_OUTLINE_STRETCH`) and above its
+    base by :data:`ROCK_BASE_FRACTION` of its height (rocks over craters). The frame's
+    instance table maps each number to its catalogue (``crater``/``rock``) and stable id (the
+    catalogue's 16 hex digits).
+Semantic mask
+    :data:`SKY` (no surface), :data:`TERRAIN`, :data:`ROCK`, and :data:`SHADOWED` for any
+    surface the sun does not reach directly (facing away from it, or its I/F below
+    :data:`SHADOW_FRACTION` of the lit value its incidence would give).
+Flow
+    Forward optical flow to the next frame: each pixel's surface point (its range along its
+    ray) projected with the next frame's pose (an asteroid's point turned with the body),
+    ``(du, dv)`` pixels; the occlusion mask marks pixels whose point leaves the next frame or
+    is hidden there (the next range at the landing pixel shorter than the point's distance by
+    more than :func:`occlusion_tolerance`).
+Hazards
+    The scene's hazard map (:func:`terrain.surface.hazards.hazard_map`, for the lander the
+    ``[labels]`` table names) sampled at each pixel's surface point: :data:`UNSAFE`,
+    :data:`SAFE` or :data:`UNKNOWN` (sky, outside the hazard layer, or an unknown footprint).
+
+Terrain scenes carry the catalogues; an asteroid scene gets the semantic mask, flow and no
+rims, instances or hazards. Labels are computed on request only (a scenario's ``[labels]``
+table, ``--labels``, or the server's ``GET_LABELS``); the dataset they make on disk is
+described in ``docs/labels.md``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from render.camera import Intrinsics, Pose, quat_to_matrix
+from terrain.core.checks import boolean, check_keys, number
+from terrain.core.errors import InvalidParameterError
+
+__all__ = ["LABEL_KEYS", "ROCK", "SAFE", "SHADOWED", "SKY", "TERRAIN", "UNKNOWN", "UNSAFE",
+           "FrameLabels", "LabelSpec", "Labeller", "ellipse_from_conic", "flow_to",
+           "rim_conic", "shadow_mask"]
+
+log = logging.getLogger(__name__)
+
+#: Semantic classes (uint8).
+SKY, TERRAIN, ROCK, SHADOWED = 0, 1, 2, 3
+#: Hazard classes in image space (uint8).
+UNSAFE, SAFE, UNKNOWN = 0, 1, 255
+#: Points sampled on each 3-D rim for its visibility.
+RIM_SAMPLES = 64
+#: A surface is shadowed where its I/F is below this fraction of ``albedo * cos(incidence)``
+#: (Lambert's I/F; lunar-Lambert and Hapke give at least about as much at the incidences a
+#: descent sees), so earthshine or scattered light in a shadow does not count as lit.
+SHADOW_FRACTION = 0.05
+#: A rock's footprint ellipse is stretched by this factor, the largest outline harmonic
+#: sum :mod:`terrain.surface.rocks` draws (its catalogue keeps the mean semi-axes only).
+ROCK_OUTLINE_STRETCH = 1.3
+#: A point belongs to a rock when it stands above the rock's base by this fraction of the
+#: rock's exposed height (the ground at the rock's foot is the base).
+ROCK_BASE_FRACTION = 0.1
+#: The most instances one frame's mask numbers (uint16 PNG); the smallest beyond are dropped.
+MAX_INSTANCES = 65535
+#: Keys of a ``[labels]`` table.
+LABEL_KEYS = frozenset({"craters", "min_crater_pixels", "masks", "flow", "hazards",
+                        "lander_diameter", "max_slope", "max_step"})
+
+
+@dataclass(frozen=True)
+class LabelSpec:
+    """What labels to compute (a scenario's ``[labels]`` table).
+
+    Parameters
+    ----------
+    craters : bool
+        Project crater rims (terrain scenes).
+    min_crater_pixels : float
+        Smallest rim diameter labelled, pixels (> 0).
+    masks : bool
+        Instance and semantic masks.
+    flow : bool
+        Forward optical flow to the next frame, with its occlusion mask.
+    hazards : bool
+        The hazard map in image space (needs ``lander_diameter``).
+    lander_diameter : float or None
+        The lander's footprint diameter, metres.
+    max_slope : float
+        Steepest safe slope, degrees.
+    max_step : float
+        Highest safe step (rock, rim) inside the footprint, metres.
+    """
+
+    craters: bool = True
+    min_crater_pixels: float = 8.0
+    masks: bool = True
+    flow: bool = True
+    hazards: bool = False
+    lander_diameter: float | None = None
+    max_slope: float = 10.0
+    max_step: float = 0.3
+
+    def __post_init__(self):
+        if not (self.min_crater_pixels > 0 and math.isfinite(self.min_crater_pixels)):
+            raise InvalidParameterError(
+                f"labels min_crater_pixels must be positive; got {self.min_crater_pixels}")
+        if self.hazards and self.lander_diameter is None:
+            raise InvalidParameterError("labels hazards need the lander: give lander_diameter "
+                                        "(m), max_slope (degrees) and max_step (m)")
+
+    @classmethod
+    def from_mapping(cls, table: Any) -> LabelSpec:
+        """Build the record of a ``[labels]`` table; an unknown key names the nearest.
+
+        Parameters
+        ----------
+        table : dict
+            The TOML table.
+
+        Returns
+        -------
+        LabelSpec
+
+        Examples
+        --------
+        >>> LabelSpec.from_mapping({"min_crater_pixels": 4}).min_crater_pixels
+        4.0
+        """
+        where = "scenario [labels]"
+        t = check_keys(table, LABEL_KEYS, where)
+        d = cls()
+        values: dict[str, Any] = {}
+        for key in ("craters", "masks", "flow"):
+            values[key] = boolean(t.get(key, getattr(d, key)), key, where=where)
+        values["min_crater_pixels"] = number(t.get("min_crater_pixels", d.min_crater_pixels),
+                                             "min_crater_pixels", low=0.0, where=where)
+        if "lander_diameter" in t:
+            values["lander_diameter"] = number(t["lander_diameter"], "lander_diameter",
+                                               low=0.0, where=where)
+        values["hazards"] = boolean(t.get("hazards", "lander_diameter" in t), "hazards",
+                                    where=where)
+        values["max_slope"] = number(t.get("max_slope", d.max_slope), "max_slope", low=0.0,
+                                     high=90.0, where=where)
+        values["max_step"] = number(t.get("max_step", d.max_step), "max_step", low=0.0,
+                                    where=where)
+        return cls(**values)
+
+    def as_dict(self) -> dict:
+        """Return the spec as plain data (for a run's manifest)."""
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
+# ---------------------------------------------------------------------------- conics
+
+
+def rim_conic(centre, radius: float, gradient, pose: Pose, intrinsics: Intrinsics) -> np.ndarray:
+    """Give the image conic of a rim circle (see the module docstring).
+
+    Parameters
+    ----------
+    centre : (3,) float, metres
+        The rim circle's centre, world frame.
+    radius : float, metres
+        Its radius, measured horizontally.
+    gradient : (2,) float
+        The rim plane's height gradient (dz/dx, dz/dy); (0, 0) for a level rim.
+    pose : render.camera.Pose
+        The camera.
+    intrinsics : render.camera.Intrinsics
+        Its pinhole.
+
+    Returns
+    -------
+    (3, 3) float64
+        The symmetric conic matrix A, normalised to unit Frobenius norm: pixels (u, v) on the
+        rim's image satisfy ``[u, v, 1] A [u, v, 1]^T = 0``.
+
+    Examples
+    --------
+    >>> from render.camera import look_at
+    >>> k = Intrinsics(101, 101, 100.0, 100.0, 50.0, 50.0)
+    >>> a = rim_conic((0, 0, 0), 10.0, (0, 0), look_at((0, 0, 100), (0, 0, 0)), k)
+    >>> [round(v, 6) for v in ellipse_from_conic(a)[:4]]
+    [50.0, 50.0, 10.0, 10.0]
+    """
+    gx, gy = (float(g) for g in gradient)
+    r_cw = pose.rotation.T
+    basis = np.column_stack([[1.0, 0.0, gx], [0.0, 1.0, gy],
+                             np.asarray(centre, np.float64) - np.asarray(pose.position)])
+    h = intrinsics.matrix @ r_cw @ basis
+    hinv = np.linalg.inv(h)
+    a = hinv.T @ np.diag([1.0, 1.0, -float(radius) ** 2]) @ hinv
+    a = 0.5 * (a + a.T)
+    return a / np.linalg.norm(a)
+
+
+def ellipse_from_conic(a: np.ndarray) -> tuple[float, float, float, float, float] | None:
+    """Give centre, semi-axes and angle of an ellipse conic; None if it is no real ellipse.
+
+    Parameters
+    ----------
+    a : (3, 3) float
+        A symmetric conic matrix.
+
+    Returns
+    -------
+    (u, v, major, minor, angle) or None
+        Centre (pixels), semi-major and semi-minor axes (pixels), and the major axis's angle
+        (degrees from +u towards +v, in [0, 180)).
+    """
+    m = a[:2, :2]
+    if np.linalg.det(m) <= 0:  # a parabola or hyperbola: the rim reaches behind the camera
+        return None
+    x0 = -np.linalg.solve(m, a[:2, 2])
+    g = -(a[2, 2] + x0 @ a[:2, 2])
+    lam, vec = np.linalg.eigh(m)  # ascending: the first is the major axis's
+    if not (g / lam[0] > 0 and g / lam[1] > 0):
+        return None
+    major, minor = math.sqrt(g / lam[0]), math.sqrt(g / lam[1])
+    angle = math.degrees(math.atan2(vec[1, 0], vec[0, 0])) % 180.0
+    return float(x0[0]), float(x0[1]), major, minor, angle
+
+
+def _rim_points(centre, radius, gradient, n: int = RIM_SAMPLES) -> np.ndarray:
+    """(n, 3) world points of a rim circle (see :func:`rim_conic`)."""
+    th = np.linspace(0.0, 2 * math.pi, n, endpoint=False)
+    s, t = radius * np.cos(th), radius * np.sin(th)
+    c = np.asarray(centre, np.float64)
+    return np.stack([c[0] + s, c[1] + t, c[2] + gradient[0] * s + gradient[1] * t], axis=1)
+
+
+# ---------------------------------------------------------------------------- per pixel
+
+
+def surface_points(range_m: np.ndarray, pose: Pose, intrinsics: Intrinsics) -> np.ndarray:
+    """(h, w, 3) float64 world points of every pixel's surface (NaN where none)."""
+    rays = intrinsics.rays() @ pose.rotation.T
+    return np.asarray(pose.position) + rays * range_m.astype(np.float64)[:, :, None]
+
+
+def shadow_mask(radiance: np.ndarray, normals: np.ndarray, lighting: Any) -> np.ndarray:
+    """Give the pixels the sun does not reach directly (see the module docstring).
+
+    Parameters
+    ----------
+    radiance : (h, w) float32
+        I/F under a unit sun.
+    normals : (h, w, 3) float32
+        World-frame normals (NaN: no surface).
+    lighting : render.renderer.Lighting
+        The sun and the surface's albedo (Hapke's single-scattering albedo w for ``hapke``).
+
+    Returns
+    -------
+    (h, w) bool
+        True on shadowed surface; False on lit surface and where there is none.
+    """
+    mu0 = normals.astype(np.float64) @ np.asarray(lighting.sun, np.float64)
+    albedo = lighting.hapke.w if lighting.brdf == "hapke" else lighting.albedo
+    hit = np.isfinite(mu0)
+    with np.errstate(invalid="ignore"):
+        dark = (mu0 <= 0) | (radiance < SHADOW_FRACTION * albedo * mu0)
+    return hit & dark
+
+
+def occlusion_tolerance(distance: np.ndarray, focal: float) -> np.ndarray:
+    """Give the range shortfall (m) that counts as hidden at ``distance`` m.
+
+    Three pixel footprints (a range image's slope across a pixel at grazing incidence) plus
+    0.2 % of the distance (the level of detail's geometric error, within ``lod_pixels``).
+    """
+    return 3.0 * distance / focal + 2e-3 * distance
+
+
+def flow_to(range_m: np.ndarray, pose: Pose, next_pose: Pose, intrinsics: Intrinsics,
+            next_range: np.ndarray | None = None, *,
+            turn: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Give the forward optical flow of a frame to the next, and its occlusion mask.
+
+    Parameters
+    ----------
+    range_m : (h, w) float32, metres
+        This frame's range (NaN: nothing).
+    pose, next_pose : render.camera.Pose
+        The two frames' cameras.
+    intrinsics : render.camera.Intrinsics
+        Both frames' pinhole.
+    next_range : (h, w) float32, optional
+        The next frame's range: points hidden there are marked occluded.
+    turn : (3, 3) float, optional
+        The rotation carrying a world point of this frame to the next (a spinning body,
+        ``R_WB(t1) R_WB(t0)^T``); identity by default.
+
+    Returns
+    -------
+    flow : (h, w, 2) float32, pixels
+        ``(du, dv)``: where each pixel's surface point lands in the next frame, less its
+        own pixel; NaN where there is no surface.
+    occluded : (h, w) bool
+        The point leaves the next frame, falls behind its camera, or is hidden there.
+    """
+    k = intrinsics
+    p = surface_points(range_m, pose, k).reshape(-1, 3)
+    if turn is not None:
+        p = p @ np.asarray(turn, np.float64).T
+    uv = next_pose.project(p, k)
+    v, u = np.mgrid[0:k.height, 0:k.width]
+    flow = np.stack([uv[:, 0].reshape(k.height, k.width) - u,
+                     uv[:, 1].reshape(k.height, k.width) - v], axis=-1).astype(np.float32)
+    hit = np.isfinite(range_m)
+    flow[~hit] = np.nan
+    with np.errstate(invalid="ignore"):
+        ui, vi = np.rint(uv[:, 0]), np.rint(uv[:, 1])
+        inside = (ui >= 0) & (ui < k.width) & (vi >= 0) & (vi < k.height)
+    occluded = ~inside
+    if next_range is not None:
+        idx = np.flatnonzero(inside)
+        dist = np.linalg.norm(p[idx] - np.asarray(next_pose.position), axis=1)
+        seen = next_range[vi[idx].astype(np.intp), ui[idx].astype(np.intp)].astype(np.float64)
+        with np.errstate(invalid="ignore"):
+            hidden = ~(seen >= dist - occlusion_tolerance(dist, k.fx))
+        occluded[idx[hidden]] = True
+    occluded = occluded.reshape(k.height, k.width) & hit
+    return flow, occluded
+
+
+# ---------------------------------------------------------------------------- records
+
+
+@dataclass(eq=False)
+class FrameLabels:
+    """The labels of one frame (see the module docstring).
+
+    Parameters
+    ----------
+    craters : list of dict
+        One record per labelled rim: ``id`` (16 hex digits), ``layer``, ``diameter_m``,
+        ``centre_world`` (m), ``ellipse`` ``{"centre": [u, v], "axes": [major, minor],
+        "angle_deg": ..}``, ``conic`` (the 3 x 3 matrix, row by row), ``in_frame``,
+        ``occluded`` (of the in-frame samples), ``lit`` (of the visible samples) fractions,
+        and ``instance`` (its number in the instance mask, 0 if it covers no pixel).
+    instances : list of dict
+        ``{"instance": n, "kind": "crater" | "rock", "id": hex, "pixels": count}``.
+    instance_mask : (h, w) uint16 or None
+    semantic : (h, w) uint8 or None
+    hazard : (h, w) uint8 or None
+    flow : (h, w, 2) float32 or None
+    occluded : (h, w) bool or None
+    """
+
+    craters: list = field(default_factory=list)
+    instances: list = field(default_factory=list)
+    instance_mask: np.ndarray | None = None
+    semantic: np.ndarray | None = None
+    hazard: np.ndarray | None = None
+    flow: np.ndarray | None = None
+    occluded: np.ndarray | None = None
+
+    def as_dict(self) -> dict:
+        """Return the craters and instances as plain data (the frame's labels JSON)."""
+        return {"craters": self.craters, "instances": self.instances}
+
+
+def _hex(uid) -> str:
+    return f"{int(uid):016x}"
+
+
+class Labeller:
+    """Computes the labels of frames of one scene (see the module docstring).
+
+    Parameters
+    ----------
+    scene : render.scene.Scene
+        The frames' scene (a :class:`render.terrain_scene.TerrainScene` carries catalogues).
+    spec : LabelSpec
+        What to compute.
+    """
+
+    def __init__(self, scene: Any, spec: LabelSpec) -> None:
+        self.scene = scene
+        self.spec = spec
+        stack = getattr(scene, "stack", None)
+        self.catalog = stack.catalog if stack is not None else None
+        self.rocks = stack.rocks if stack is not None else None
+        self._hazard: Any = None
+        if spec.hazards and stack is None:
+            raise InvalidParameterError("labels hazards need a terrain scene (a layer stack)")
+
+    # ------------------------------------------------------------------ craters
+    def _crater_geometry(self):
+        """World centres (n, 3), radii (n,) and rim gradients (n, 2) of the catalogue."""
+        c = self.catalog
+        z = c.reference_elevation_m + c.rim_height_m
+        pts = np.stack([c.x_m, c.y_m, z], axis=1)
+        centres = self.scene.to_world(pts) if len(c) else pts
+        grad = np.zeros((len(c), 2))
+        if getattr(self.scene, "curvature", False):
+            grad[:, 0] = -(c.x_m - self.scene.site[0]) / self.scene.radius
+            grad[:, 1] = -(c.y_m - self.scene.site[1]) / self.scene.radius
+        return centres, 0.5 * c.diameter_m, grad
+
+    def rims(self, pose: Pose, k: Intrinsics, range_m: np.ndarray,
+             shadowed: np.ndarray | None) -> list[dict]:
+        """Label the rims of the catalogue's craters large enough in this view.
+
+        Parameters
+        ----------
+        pose : render.camera.Pose
+            The frame's camera.
+        k : render.camera.Intrinsics
+            Its pinhole.
+        range_m : (h, w) float32, metres
+            The frame's range (the occlusion test).
+        shadowed : (h, w) bool, optional
+            The frame's shadows (the lit fraction; None: not computed).
+
+        Returns
+        -------
+        list of dict
+            The rim records (:class:`FrameLabels`), largest first.
+        """
+        if self.catalog is None or not len(self.catalog):
+            return []
+        centres, radii, grad = self._crater_geometry()
+        cam = pose.to_camera(centres)
+        dist = np.linalg.norm(cam, axis=1)
+        # a rim's image spans at most f D / (distance - R); nearer than that it may reach
+        # behind the camera, and farther than f D / min px it is too small
+        near = dist - radii
+        with np.errstate(divide="ignore"):
+            span = np.where(near > 0, 2 * radii * max(k.fx, k.fy) / np.maximum(near, 1e-9),
+                            np.inf)
+        half_fov = math.hypot(k.width, k.height) / min(k.fx, k.fy)
+        ahead = cam[:, 2] > -radii
+        lateral = np.hypot(cam[:, 0], cam[:, 1]) - radii
+        in_cone = lateral <= half_fov * np.maximum(cam[:, 2] + radii, 0.0) + radii
+        pick = np.flatnonzero((span >= self.spec.min_crater_pixels) & ahead & in_cone)
+        out = []
+        c = self.catalog
+        for i in pick[np.argsort(-radii[pick], kind="stable")]:
+            if near[i] <= 0:
+                continue  # the camera is within the rim's sphere: no closed image
+            a = rim_conic(centres[i], radii[i], grad[i], pose, k)
+            ell = ellipse_from_conic(a)
+            if ell is None or 2 * ell[2] < self.spec.min_crater_pixels:
+                continue
+            pts = _rim_points(centres[i], radii[i], grad[i])
+            uv = pose.project(pts, k)
+            with np.errstate(invalid="ignore"):
+                ui, vi = np.rint(uv[:, 0]), np.rint(uv[:, 1])
+                inside = (ui >= 0) & (ui < k.width) & (vi >= 0) & (vi < k.height)
+            if not inside.any():
+                continue
+            idx = np.flatnonzero(inside)
+            d = np.linalg.norm(pts[idx] - np.asarray(pose.position), axis=1)
+            seen = range_m[vi[idx].astype(np.intp), ui[idx].astype(np.intp)]
+            with np.errstate(invalid="ignore"):
+                hidden = seen < d - occlusion_tolerance(d, k.fx)
+            vis = idx[~hidden]
+            lit = None
+            if shadowed is not None and len(vis):
+                lit = float(np.mean(~shadowed[vi[vis].astype(np.intp),
+                                              ui[vis].astype(np.intp)]))
+            out.append({
+                "id": _hex(c.id[i]), "layer": int(c.layer[i]) if c.layer is not None else 0,
+                "diameter_m": float(c.diameter_m[i]),
+                "centre_world": [float(v) for v in centres[i]],
+                "ellipse": {"centre": [ell[0], ell[1]], "axes": [ell[2], ell[3]],
+                            "angle_deg": ell[4]},
+                "conic": [float(v) for v in a.reshape(-1)],
+                "in_frame": float(inside.mean()),
+                "occluded": float(hidden.mean()),
+                "lit": lit, "instance": 0})
+        return out
+
+    # ------------------------------------------------------------------ masks
+    def instance_mask(self, points: np.ndarray, rims: list[dict],
+                      pose: Pose, k: Intrinsics) -> tuple[np.ndarray, list[dict]]:
+        """Number each pixel's crater or rock (see the module docstring).
+
+        Parameters
+        ----------
+        points : (h, w, 3) float64
+            The pixels' world points (NaN: none).
+        rims : list of dict
+            The frame's rim records (their ``instance`` is filled in).
+        pose : render.camera.Pose
+            The camera.
+        k : render.camera.Intrinsics
+            Its pinhole.
+
+        Returns
+        -------
+        mask : (h, w) uint16
+        instances : list of dict
+        """
+        h, w = points.shape[:2]
+        mask = np.zeros((h, w), np.uint16)
+        table: list[dict] = []
+        order: list[tuple[str, Any]] = []
+        for rec in rims:  # largest first, so smaller craters are painted over them
+            order.append(("crater", rec))
+        rocks = self._visible_rocks(pose, k)
+        order.extend(("rock", i) for i in rocks)
+        for kind, item in order[:MAX_INSTANCES]:
+            if kind == "crater":
+                u, v = item["ellipse"]["centre"]
+                ext = item["ellipse"]["axes"][0] + 1.0
+                cx, cy = item["centre_world"][:2]
+                box = _box(u - ext, u + ext, v - ext, v + ext, w, h)
+                if box is None:
+                    continue
+                r0, r1, c0, c1 = box
+                p = points[r0:r1, c0:c1]
+                with np.errstate(invalid="ignore"):
+                    on = np.hypot(p[..., 0] - cx, p[..., 1] - cy) < 0.5 * item["diameter_m"]
+                ident = item["id"]
+            else:
+                on, box = self._rock_pixels(points, item, pose, k)
+                if box is None:
+                    continue
+                r0, r1, c0, c1 = box
+                ident = _hex(self.rocks.id[item])
+            if not on.any():
+                continue
+            n = len(table) + 1
+            mask[r0:r1, c0:c1][on] = n
+            table.append({"instance": n, "kind": kind, "id": ident})
+            if kind == "crater":
+                item["instance"] = n
+        if len(order) > MAX_INSTANCES:
+            log.warning("frame has %d instances; the smallest beyond %d are not numbered",
+                        len(order), MAX_INSTANCES)
+        counts = np.bincount(mask.reshape(-1), minlength=len(table) + 1)
+        for rec in table:
+            rec["pixels"] = int(counts[rec["instance"]])
+        for rec in rims:  # a crater painted over entirely by smaller ones keeps no pixels
+            if rec["instance"] and counts[rec["instance"]] == 0:
+                rec["instance"] = 0
+        kept = [rec for rec in table if rec["pixels"] > 0]
+        return mask, kept
+
+    def _visible_rocks(self, pose: Pose, k: Intrinsics) -> np.ndarray:
+        """Indices of catalogue rocks at least a pixel wide ahead of the camera."""
+        r = self.rocks
+        if r is None or not len(r):
+            return np.zeros(0, np.intp)
+        base = self.scene.to_world(np.stack([r.x_m, r.y_m, r.z_base_m], axis=1))
+        cam = pose.to_camera(base)
+        reach = ROCK_OUTLINE_STRETCH * r.axis_a_m
+        with np.errstate(divide="ignore", invalid="ignore"):
+            span = 2 * reach * k.fx / cam[:, 2]
+            u = k.fx * cam[:, 0] / cam[:, 2] + k.cx
+            v = k.fy * cam[:, 1] / cam[:, 2] + k.cy
+        ok = (cam[:, 2] > reach) & (span >= 1.0) & (u > -span) & (u < k.width + span) \
+            & (v > -span) & (v < k.height + span)
+        pick = np.flatnonzero(ok)
+        return pick[np.argsort(-r.diameter_m[pick], kind="stable")]
+
+    def _rock_pixels(self, points, i, pose, k):
+        r = self.rocks
+        reach = ROCK_OUTLINE_STRETCH * float(r.axis_a_m[i])
+        base = self.scene.to_world([[r.x_m[i], r.y_m[i], r.z_base_m[i]]])[0]
+        top = base[2] + float(r.height_m[i])
+        corners = np.array([[base[0] + sx * reach, base[1] + sy * reach, z]
+                            for sx in (-1, 1) for sy in (-1, 1) for z in (base[2], top)])
+        uv = pose.project(corners, k)
+        if not np.all(np.isfinite(uv)):
+            return None, None
+        box = _box(uv[:, 0].min() - 1, uv[:, 0].max() + 1, uv[:, 1].min() - 1,
+                   uv[:, 1].max() + 1, k.width, k.height)
+        if box is None:
+            return None, None
+        r0, r1, c0, c1 = box
+        p = points[r0:r1, c0:c1]
+        th = math.radians(float(r.orientation_deg[i]))
+        dx, dy = p[..., 0] - base[0], p[..., 1] - base[1]
+        along = dx * math.cos(th) + dy * math.sin(th)
+        across = -dx * math.sin(th) + dy * math.cos(th)
+        a = ROCK_OUTLINE_STRETCH * float(r.axis_a_m[i])
+        b = ROCK_OUTLINE_STRETCH * float(r.axis_b_m[i])
+        with np.errstate(invalid="ignore"):
+            on = ((along / a) ** 2 + (across / b) ** 2 < 1.0) \
+                & (p[..., 2] > base[2] + ROCK_BASE_FRACTION * float(r.height_m[i]))
+        return on, box
+
+    # ------------------------------------------------------------------ hazards
+    def hazard_image(self, points: np.ndarray) -> np.ndarray:
+        """Sample the scene's hazard map at each pixel's surface point (see the docstring)."""
+        from terrain.surface.hazards import hazard_map, pick_layer
+
+        spec = self.spec
+        assert spec.lander_diameter is not None  # required of hazards by LabelSpec
+        if self._hazard is None:
+            tiles = self.scene.stack.tiles
+            kl = pick_layer([t.resolution for t in tiles], spec.lander_diameter)
+            tile = tiles[kl]
+            self._hazard = (tile, hazard_map(tile, lander_diameter=spec.lander_diameter,
+                                             max_slope=spec.max_slope,
+                                             max_step=spec.max_step).safe)
+        tile, safe = self._hazard
+        h, w = points.shape[:2]
+        out = np.full((h, w), UNKNOWN, np.uint8)
+        x, y = points[..., 0], points[..., 1]
+        hit = np.isfinite(x)
+        row, col = tile.rowcol(np.where(hit, x, 0.0), np.where(hit, y, 0.0))
+        row, col = np.rint(row), np.rint(col)
+        ok = hit & (row >= 0) & (row < tile.shape[0]) & (col >= 0) & (col < tile.shape[1])
+        s = safe[row[ok].astype(np.intp), col[ok].astype(np.intp)]
+        vals = np.where(np.isnan(s), UNKNOWN, np.where(s > 0.5, SAFE, UNSAFE)).astype(np.uint8)
+        out[ok] = vals
+        return out
+
+    # ------------------------------------------------------------------ a frame
+    def label(self, frame: Any, pose: Pose, k: Intrinsics, lighting: Any) -> FrameLabels:
+        """Label one rendered frame (everything but the flow, :meth:`add_flow`).
+
+        Parameters
+        ----------
+        frame : render.renderer.Frame
+            Its radiance, range and normals.
+        pose : render.camera.Pose
+            Its camera.
+        k : render.camera.Intrinsics
+            Its pinhole.
+        lighting : render.renderer.Lighting
+            Its sun.
+
+        Returns
+        -------
+        FrameLabels
+        """
+        spec = self.spec
+        shadowed = shadow_mask(frame.radiance, frame.normals, lighting)
+        out = FrameLabels()
+        if spec.craters:
+            out.craters = self.rims(pose, k, frame.range, shadowed)
+        need_points = spec.masks or spec.hazards
+        points = surface_points(frame.range, pose, k) if need_points else None
+        if spec.masks:
+            assert points is not None
+            if self.catalog is not None:
+                out.instance_mask, out.instances = self.instance_mask(points, out.craters,
+                                                                      pose, k)
+            else:
+                out.instance_mask = np.zeros(frame.range.shape, np.uint16)
+            sem = np.where(np.isfinite(frame.range), TERRAIN, SKY).astype(np.uint8)
+            rock_ids = {r["instance"] for r in out.instances if r["kind"] == "rock"}
+            if rock_ids:
+                sem[np.isin(out.instance_mask, sorted(rock_ids))] = ROCK
+            sem[shadowed] = SHADOWED
+            out.semantic = sem
+        if spec.hazards:
+            assert points is not None
+            out.hazard = self.hazard_image(points)
+        return out
+
+    @staticmethod
+    def add_flow(labels: FrameLabels, range_m: np.ndarray, pose: Pose, body_rotation,
+                 next_range: np.ndarray, next_pose: Pose, next_body_rotation,
+                 k: Intrinsics) -> None:
+        """Fill in a frame's flow to the next frame (:func:`flow_to`)."""
+        r0 = quat_to_matrix(body_rotation)
+        r1 = quat_to_matrix(next_body_rotation)
+        turn = r1 @ r0.T
+        turn = None if np.allclose(turn, np.eye(3)) else turn
+        labels.flow, labels.occluded = flow_to(range_m, pose, next_pose, k, next_range,
+                                               turn=turn)
+
+
+def _box(u0, u1, v0, v1, w, h):
+    """Pixel rows/cols (r0, r1, c0, c1) of an image box, clipped; None when empty."""
+    c0, c1 = max(int(math.floor(u0)), 0), min(int(math.ceil(u1)) + 1, w)
+    r0, r1 = max(int(math.floor(v0)), 0), min(int(math.ceil(v1)) + 1, h)
+    if c0 >= c1 or r0 >= r1:
+        return None
+    return r0, r1, c0, c1
+
