@@ -123,7 +123,7 @@ def frame(scenario_file: Path, output: Path, index: int | None,
 
 
 def _with_labels(scenario, labels: bool):
-    """The scenario, with default labels switched on by ``--labels`` where it has none."""
+    """Return the scenario, with default labels switched on by ``--labels`` where it has none."""
     from dataclasses import replace
 
     from render.labels import LabelSpec

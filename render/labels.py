@@ -499,7 +499,7 @@ class Labeller:
     # ------------------------------------------------------------------ masks
     def instance_mask(self, points: np.ndarray, rims: list[dict],
                       pose: Pose, k: Intrinsics) -> tuple[np.ndarray, list[dict]]:
-        """Number each pixel's crater or rock (see the module docstring).
+        """Give each pixel the number of its crater or rock (see the module docstring).
 
         Parameters
         ----------
@@ -564,7 +564,7 @@ class Labeller:
         return mask, kept
 
     def _visible_rocks(self, pose: Pose, k: Intrinsics) -> np.ndarray:
-        """Indices of catalogue rocks at least a pixel wide ahead of the camera."""
+        """Return the catalogue rocks at least a pixel wide ahead of the camera, largest first."""
         r = self.rocks
         if r is None or not len(r):
             return np.zeros(0, np.intp)
