@@ -410,7 +410,7 @@ class Labeller:
             raise InvalidParameterError("labels hazards need a terrain scene (a layer stack)")
 
     # ------------------------------------------------------------------ craters
-    def _crater_geometry(self):
+    def crater_geometry(self):
         """World centres (n, 3), radii (n,) and rim gradients (n, 2) of the catalogue."""
         c = self.catalog
         z = c.reference_elevation_m + c.rim_height_m
@@ -444,7 +444,7 @@ class Labeller:
         """
         if self.catalog is None or not len(self.catalog):
             return []
-        centres, radii, grad = self._crater_geometry()
+        centres, radii, grad = self.crater_geometry()
         cam = pose.to_camera(centres)
         dist = np.linalg.norm(cam, axis=1)
         # a rim's image spans at most f D / (distance - R); nearer than that it may reach

@@ -22,12 +22,14 @@ from enum import IntEnum
 
 from render.errors import ProtocolError
 
-__all__ = ["ERROR", "HEADER", "MAGIC", "MAX_REPLY_BODY", "MAX_REQUEST_BODY", "REPLY", "VERSION",
-           "ErrorCode", "MsgType", "error_body", "pack_header", "read_exact", "read_message",
+__all__ = ["ERROR", "HEADER", "MAGIC", "MAX_REPLY_BODY", "MAX_REQUEST_BODY", "MINOR_VERSION",
+           "REPLY", "VERSION", "ErrorCode", "MsgType", "error_body", "pack_header", "read_exact", "read_message",
            "unpack_header"]
 
 MAGIC = b"CSRV"
 VERSION = 1
+#: Minor version: requests added since 1.0 that a 1.0 client never sends (``INFO`` says it).
+MINOR_VERSION = 1
 #: Header: magic, version (u16), type (u16), request id (u32), body length (u32).
 HEADER = struct.Struct("<4sHHII")
 #: Largest request body the server reads (bytes); checked before reading the body.
@@ -60,6 +62,8 @@ class MsgType(IntEnum):
     GET_RANGE = 0x0021
     GET_NORMALS = 0x0022
     GET_TRUTH = 0x0023
+    GET_LABELS = 0x0024
+    GET_MASKS = 0x0025
     HEIGHT_AT = 0x0030
     PIXEL_RAY = 0x0031
     RAY = 0x0032
@@ -107,7 +111,8 @@ REQUEST_SIZES = {MsgType.HELLO: None, MsgType.INFO: 0, MsgType.PING: 0,
                  MsgType.SET_POSE: POSE.size, MsgType.SET_SUN: SUN.size,
                  MsgType.SET_SENSOR: None, MsgType.SET_MOTION: MOTION.size,
                  MsgType.GET_IMAGE: BITS.size, MsgType.GET_RANGE: 0,
-                 MsgType.GET_NORMALS: 0, MsgType.GET_TRUTH: 0, MsgType.HEIGHT_AT: XY.size,
+                 MsgType.GET_NORMALS: 0, MsgType.GET_TRUTH: 0, MsgType.GET_LABELS: 0,
+                 MsgType.GET_MASKS: 0, MsgType.HEIGHT_AT: XY.size,
                  MsgType.PIXEL_RAY: XY.size, MsgType.RAY: RAY.size}
 
 

@@ -295,3 +295,38 @@ def test_a_rim_seen_from_straight_above_is_its_circle():
     u, v, a, b, _ = ellipse_from_conic(rim_conic((30.0, 20.0, 0.0), 25.0, (0, 0), pose, k))
     assert (u, v) == pytest.approx((250.0 + 800.0 * 20.0 / 500.0, 200.0))
     assert (a, b) == pytest.approx((40.0, 40.0))
+
+
+def test_labels_over_the_server_equal_render_frame_labels(tmp_path):
+    import subprocess
+
+    import cv2
+
+    from render.client import Client
+    from tests.render.scenes import descent_scenario
+    from tests.render.server_helpers import CRATERSCAPE, served
+
+    stack = cratered_stack(tmp_path / "stack")
+    scenario = tmp_path / "s.toml"
+    scenario.write_text(descent_scenario(stack, "lab", frames=3)
+                        + "[labels]\nmin_crater_pixels = 3.0\n")
+    out = tmp_path / "one.png"
+    done = subprocess.run([*CRATERSCAPE, "render", "frame", str(scenario), "-o", str(out),
+                           "--index", "1"], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    truth = json.loads((tmp_path / "one_truth.json").read_text())
+    names = truth["labels"]
+    assert {"rims", "instances", "semantic", "flow", "occlusion"} <= set(names)
+    rims = json.loads((tmp_path / names["rims"]).read_text())
+    with served(scenario) as (_proc, port), Client("127.0.0.1", port) as c:
+        assert c.info()["protocol_minor"] >= 1
+        c.set_pose(truth["camera"]["position"], truth["camera"]["attitude"],
+                   time=truth["time"], frame=truth["index"])
+        wire = c.get_labels()
+        inst, sem, haz = c.get_masks()
+    assert wire == json.loads(json.dumps(rims))
+    assert np.array_equal(inst, cv2.imread(str(tmp_path / names["instances"]),
+                                           cv2.IMREAD_UNCHANGED))
+    assert np.array_equal(sem, cv2.imread(str(tmp_path / names["semantic"]),
+                                          cv2.IMREAD_UNCHANGED))
+    assert np.all(haz == 255)  # no lander in the scenario: hazards unknown everywhere
