@@ -195,7 +195,8 @@ def write_exports(run_dir: str | Path) -> dict:
 
     run_dir = Path(run_dir)
     frames = json.loads((run_dir / "truth.json").read_text(encoding="utf-8"))
-    images, anns = [], []
+    images: list[dict] = []
+    anns: list[dict] = []
     buf = io.StringIO()
     out = csv.writer(buf, lineterminator="\n")
     out.writerow(CAMERA_COLUMNS)

@@ -543,6 +543,7 @@ class Labeller:
                 if box is None:
                     continue
                 r0, r1, c0, c1 = box
+                assert self.rocks is not None  # rocks are listed only where there are some
                 ident = _hex(self.rocks.id[item])
             if not on.any():
                 continue

@@ -23,8 +23,8 @@ from enum import IntEnum
 from render.errors import ProtocolError
 
 __all__ = ["ERROR", "HEADER", "MAGIC", "MAX_REPLY_BODY", "MAX_REQUEST_BODY", "MINOR_VERSION",
-           "REPLY", "VERSION", "ErrorCode", "MsgType", "error_body", "pack_header", "read_exact", "read_message",
-           "unpack_header"]
+           "REPLY", "VERSION", "ErrorCode", "MsgType", "error_body", "pack_header", "read_exact",
+           "read_message", "unpack_header"]
 
 MAGIC = b"CSRV"
 VERSION = 1

@@ -52,6 +52,7 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -68,13 +69,13 @@ from render.protocol import (
     IMAGE_HEAD,
     MAX_REQUEST_BODY,
     MAX_TOKEN,
+    MINOR_VERSION,
     MOTION,
     POSE,
     RAY,
     RAY_REPLY,
     REPLY,
     REQUEST_SIZES,
-    MINOR_VERSION,
     SUN,
     VERSION,
     XY,
@@ -378,7 +379,7 @@ class RenderServer:
         self._count = 0
         self._listener: socket.socket | None = None
         self._cached: dict[int, _State] = {}   # insertion order = render order
-        self._labeller = None  # render.labels.Labeller, made at the first GET_LABELS/GET_MASKS
+        self._labeller: Any = None  # render.labels.Labeller, made at the first GET_LABELS
         self.renderer: Renderer | None = None
         # The loaded scene (render.sequence.load_scene): a terrain or an asteroid scene.
         self._scene: Scene | None = None
