@@ -157,7 +157,7 @@ def coco_frame(image_id: int, file_name: str, width: int, height: int, rims: dic
             bbox = [float(v) for v in cocomask.toBbox(rle_or_poly)]
             rle_or_poly = dict(rle_or_poly, counts=rle_or_poly["counts"].decode("ascii"))
         else:
-            xs, ys = rle_or_poly[0::2], rle_or_poly[1::2]
+            xs, ys = rle_or_poly[0][0::2], rle_or_poly[0][1::2]
             bbox = [min(xs), min(ys), max(xs) - min(xs), max(ys) - min(ys)]
             area = 0.0
         anns.append(dict(id=first_id + len(anns), image_id=image_id, category_id=category,

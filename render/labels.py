@@ -6,10 +6,10 @@ pixels' brightness alone:
 
 Crater rims
     Each catalogue crater whose rim spans at least ``min_crater_pixels`` in the image gets its
-    rim's image conic. The 3-D rim is the circle of the catalogue's diameter about its centre,
-    at the rim crest's height (``reference_elevation_m + rim_height_m``), on the plane the
-    scene's planetary curvature tilts it to at its place (the gradient of the drop
-    ``d^2 / (2 R)``, :meth:`render.terrain_scene.TerrainScene.to_world`). With ``H`` the
+    rim's image conic. The 3-D rim is the circle of the catalogue's diameter about its centre
+    (horizontally), on the plane fitted to the rendered heights along it
+    (:meth:`Labeller.crater_geometry`: level at the crest height for a crater on level ground,
+    tilted with the ground on a slope and with the planetary curvature's drop). With ``H`` the
     homography from that plane's coordinates ``(s, t)`` (metres east and north of the centre)
     to pixels, ``H = K R_CW [e_s, e_t, P_0 - C]``, the circle ``s^2 + t^2 = R^2`` maps to the
     conic ``A = H^-T diag(1, 1, -R^2) H^-1`` (Hartley and Zisserman 2004, sec. 2.2.3; Christian
@@ -406,21 +406,64 @@ class Labeller:
         self.catalog = stack.catalog if stack is not None else None
         self.rocks = stack.rocks if stack is not None else None
         self._hazard: Any = None
+        self._geometry: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         if spec.hazards and stack is None:
             raise InvalidParameterError("labels hazards need a terrain scene (a layer stack)")
 
     # ------------------------------------------------------------------ craters
-    def crater_geometry(self):
-        """World centres (n, 3), radii (n,) and rim gradients (n, 2) of the catalogue."""
+    def crater_geometry(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Give the catalogue's 3-D rim circles, fitted to the terrain once per labeller.
+
+        A crater's rim circle lies on the plane ``z = z0 + gx s + gy t`` fitted (least
+        squares) to the rendered heights at :data:`RIM_SAMPLES` points of its rim, the circle
+        of its catalogue radius about its centre, in the finest layer that holds the whole
+        rim (curvature drop included): the rim crest of a fresh crater on level ground, and
+        the tilted rim of one on a slope. With evenly spaced samples the fit is closed form:
+        ``z0`` the mean height, ``(gx, gy) = 2 / (n R) sum z (cos, sin)``.
+
+        Returns
+        -------
+        centres : (n, 3) float64, metres
+            The rim circles' centres, world frame.
+        radii : (n,) float64, metres
+            Their radii (horizontal).
+        gradients : (n, 2) float64
+            Their planes' slopes dz/dx, dz/dy.
+        """
+        if self._geometry is not None:
+            return self._geometry
+        from scipy.ndimage import map_coordinates
+
         c = self.catalog
-        z = c.reference_elevation_m + c.rim_height_m
-        pts = np.stack([c.x_m, c.y_m, z], axis=1)
-        centres = self.scene.to_world(pts) if len(c) else pts
-        grad = np.zeros((len(c), 2))
-        if getattr(self.scene, "curvature", False):
-            grad[:, 0] = -(c.x_m - self.scene.site[0]) / self.scene.radius
-            grad[:, 1] = -(c.y_m - self.scene.site[1]) / self.scene.radius
-        return centres, 0.5 * c.diameter_m, grad
+        n = len(c)
+        radii = 0.5 * c.diameter_m
+        # the catalogue's level rim where no layer holds it whole
+        pts = np.stack([c.x_m, c.y_m, c.reference_elevation_m + c.rim_height_m], axis=1)
+        centres = self.scene.to_world(pts) if n else pts.reshape(0, 3)
+        grad = np.zeros((n, 2))
+        th = np.linspace(0.0, 2 * math.pi, RIM_SAMPLES, endpoint=False)
+        cos, sin = np.cos(th), np.sin(th)
+        todo = np.ones(n, bool)
+        for tile in reversed(self.scene.stack.tiles):
+            left, bottom, right, top = tile.bounds
+            inside = todo & (c.x_m - radii >= left) & (c.x_m + radii <= right) \
+                & (c.y_m - radii >= bottom) & (c.y_m + radii <= top)
+            idx = np.flatnonzero(inside)
+            if not len(idx):
+                continue
+            x = c.x_m[idx, None] + radii[idx, None] * cos
+            y = c.y_m[idx, None] + radii[idx, None] * sin
+            row, col = tile.rowcol(x, y)
+            z = map_coordinates(tile.heights.astype(np.float64), [row.ravel(), col.ravel()],
+                                order=1, mode="nearest").reshape(x.shape)
+            z = self.scene.to_world(np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1))[:, 2] \
+                .reshape(x.shape)
+            centres[idx, 2] = z.mean(axis=1)
+            grad[idx, 0] = 2.0 / (RIM_SAMPLES * radii[idx]) * (z @ cos)
+            grad[idx, 1] = 2.0 / (RIM_SAMPLES * radii[idx]) * (z @ sin)
+            todo[idx] = False
+        self._geometry = (centres, radii, grad)
+        return self._geometry
 
     def rims(self, pose: Pose, k: Intrinsics, range_m: np.ndarray,
              shadowed: np.ndarray | None) -> list[dict]:
