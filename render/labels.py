@@ -62,8 +62,8 @@ from terrain.core.checks import boolean, check_keys, number
 from terrain.core.errors import InvalidParameterError
 
 __all__ = ["LABEL_KEYS", "ROCK", "SAFE", "SHADOWED", "SKY", "TERRAIN", "UNKNOWN", "UNSAFE",
-           "FrameLabels", "LabelSpec", "Labeller", "ellipse_from_conic", "flow_to",
-           "rim_conic", "shadow_mask"]
+           "FrameLabels", "LabelSpec", "Labeller", "ellipse_from_conic", "ellipses_from_conics",
+           "flow_to", "rim_conic", "rim_conics", "shadow_mask"]
 
 log = logging.getLogger(__name__)
 
@@ -206,15 +206,72 @@ def rim_conic(centre, radius: float, gradient, pose: Pose, intrinsics: Intrinsic
     >>> [round(v, 6) for v in ellipse_from_conic(a)[:4]]
     [50.0, 50.0, 10.0, 10.0]
     """
-    gx, gy = (float(g) for g in gradient)
-    r_cw = pose.rotation.T
-    basis = np.column_stack([[1.0, 0.0, gx], [0.0, 1.0, gy],
-                             np.asarray(centre, np.float64) - np.asarray(pose.position)])
-    h = intrinsics.matrix @ r_cw @ basis
+    return rim_conics(np.reshape(centre, (1, 3)), np.reshape(radius, 1),
+                      np.reshape(gradient, (1, 2)), pose, intrinsics)[0]
+
+
+def rim_conics(centres: np.ndarray, radii: np.ndarray, gradients: np.ndarray, pose: Pose,
+               intrinsics: Intrinsics) -> np.ndarray:
+    """Give the image conics of many rim circles at once (:func:`rim_conic`).
+
+    Parameters
+    ----------
+    centres : (n, 3) float, metres
+    radii : (n,) float, metres
+    gradients : (n, 2) float
+    pose : render.camera.Pose
+    intrinsics : render.camera.Intrinsics
+
+    Returns
+    -------
+    (n, 3, 3) float64
+        Each rim's conic matrix, unit Frobenius norm.
+    """
+    centres = np.asarray(centres, np.float64).reshape(-1, 3)
+    n = len(centres)
+    basis = np.zeros((n, 3, 3))
+    basis[:, 0, 0] = basis[:, 1, 1] = 1.0
+    basis[:, 2, 0], basis[:, 2, 1] = gradients[:, 0], gradients[:, 1]
+    basis[:, :, 2] = centres - np.asarray(pose.position)
+    h = (intrinsics.matrix @ pose.rotation.T) @ basis
     hinv = np.linalg.inv(h)
-    a = hinv.T @ np.diag([1.0, 1.0, -float(radius) ** 2]) @ hinv
-    a = 0.5 * (a + a.T)
-    return a / np.linalg.norm(a)
+    q = np.zeros((n, 3, 3))
+    q[:, 0, 0] = q[:, 1, 1] = 1.0
+    q[:, 2, 2] = -np.asarray(radii, np.float64) ** 2
+    a = np.transpose(hinv, (0, 2, 1)) @ q @ hinv
+    a = 0.5 * (a + np.transpose(a, (0, 2, 1)))
+    return a / np.linalg.norm(a, axis=(1, 2))[:, None, None]
+
+
+def ellipses_from_conics(a: np.ndarray) -> np.ndarray:
+    """Give ``(u, v, major, minor, angle)`` of many conics (:func:`ellipse_from_conic`).
+
+    Parameters
+    ----------
+    a : (n, 3, 3) float
+        Symmetric conic matrices.
+
+    Returns
+    -------
+    (n, 5) float64
+        One row per conic; NaN where it is no real ellipse.
+    """
+    out = np.full((len(a), 5), np.nan)
+    m = a[:, :2, :2]
+    ok = np.linalg.det(m) > 0  # else a parabola or hyperbola: the rim reaches behind the camera
+    if not ok.any():
+        return out
+    a, m = a[ok], m[ok]
+    x0 = -np.linalg.solve(m, a[:, :2, 2:3])[:, :, 0]
+    g = -(a[:, 2, 2] + np.einsum("ni,ni->n", x0, a[:, :2, 2]))
+    lam, vec = np.linalg.eigh(m)  # ascending: the first is the major axis's
+    with np.errstate(divide="ignore", invalid="ignore"):
+        major, minor = np.sqrt(g / lam[:, 0]), np.sqrt(g / lam[:, 1])
+    angle = np.degrees(np.arctan2(vec[:, 1, 0], vec[:, 0, 0])) % 180.0
+    rows = np.column_stack([x0, major, minor, angle])
+    rows[~(np.isfinite(major) & np.isfinite(minor) & (g / lam[:, 0] > 0))] = np.nan
+    out[ok] = rows
+    return out
 
 
 def ellipse_from_conic(a: np.ndarray) -> tuple[float, float, float, float, float] | None:
@@ -231,25 +288,11 @@ def ellipse_from_conic(a: np.ndarray) -> tuple[float, float, float, float, float
         Centre (pixels), semi-major and semi-minor axes (pixels), and the major axis's angle
         (degrees from +u towards +v, in [0, 180)).
     """
-    m = a[:2, :2]
-    if np.linalg.det(m) <= 0:  # a parabola or hyperbola: the rim reaches behind the camera
+    row = ellipses_from_conics(np.asarray(a, np.float64)[None])[0]
+    if not np.all(np.isfinite(row)):
         return None
-    x0 = -np.linalg.solve(m, a[:2, 2])
-    g = -(a[2, 2] + x0 @ a[:2, 2])
-    lam, vec = np.linalg.eigh(m)  # ascending: the first is the major axis's
-    if not (g / lam[0] > 0 and g / lam[1] > 0):
-        return None
-    major, minor = math.sqrt(g / lam[0]), math.sqrt(g / lam[1])
-    angle = math.degrees(math.atan2(vec[1, 0], vec[0, 0])) % 180.0
-    return float(x0[0]), float(x0[1]), major, minor, angle
-
-
-def _rim_points(centre, radius, gradient, n: int = RIM_SAMPLES) -> np.ndarray:
-    """(n, 3) world points of a rim circle (see :func:`rim_conic`)."""
-    th = np.linspace(0.0, 2 * math.pi, n, endpoint=False)
-    s, t = radius * np.cos(th), radius * np.sin(th)
-    c = np.asarray(centre, np.float64)
-    return np.stack([c[0] + s, c[1] + t, c[2] + gradient[0] * s + gradient[1] * t], axis=1)
+    u, v, major, minor, angle = (float(x) for x in row)
+    return u, v, major, minor, angle
 
 
 # ---------------------------------------------------------------------------- per pixel
@@ -407,6 +450,9 @@ class Labeller:
         self.rocks = stack.rocks if stack is not None else None
         self._hazard: Any = None
         self._geometry: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        #: The catalogue ids as written (16 hex digits), once.
+        self._crater_ids = [] if self.catalog is None else [
+            f"{v:016x}" for v in self.catalog.id.tolist()]
         if spec.hazards and stack is None:
             raise InvalidParameterError("labels hazards need a terrain scene (a layer stack)")
 
@@ -501,42 +547,55 @@ class Labeller:
         lateral = np.hypot(cam[:, 0], cam[:, 1]) - radii
         in_cone = lateral <= half_fov * np.maximum(cam[:, 2] + radii, 0.0) + radii
         pick = np.flatnonzero((span >= self.spec.min_crater_pixels) & ahead & in_cone)
-        out = []
+        pick = pick[near[pick] > 0]  # within the rim's sphere the rim has no closed image
+        pick = pick[np.argsort(-radii[pick], kind="stable")]
+        conics = rim_conics(centres[pick], radii[pick], grad[pick], pose, k)
+        ells = ellipses_from_conics(conics)
+        ok = np.isfinite(ells[:, 0]) & (2 * ells[:, 2] >= self.spec.min_crater_pixels)
+        pick, conics, ells = pick[ok], conics[ok], ells[ok]
+        # the rims' sample points, (n, RIM_SAMPLES, 3), projected at once
+        th = np.linspace(0.0, 2 * math.pi, RIM_SAMPLES, endpoint=False)
+        ds = radii[pick, None] * np.cos(th)
+        dt = radii[pick, None] * np.sin(th)
+        pts = np.stack([centres[pick, 0, None] + ds, centres[pick, 1, None] + dt,
+                        centres[pick, 2, None] + grad[pick, 0, None] * ds
+                        + grad[pick, 1, None] * dt], axis=-1)
+        rel = pts - np.asarray(pose.position)
+        cam_pts = rel @ pose.rotation
+        dist_pts = np.linalg.norm(rel, axis=-1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ui = np.rint(k.fx * cam_pts[..., 0] / cam_pts[..., 2] + k.cx)
+            vi = np.rint(k.fy * cam_pts[..., 1] / cam_pts[..., 2] + k.cy)
+            inside = (cam_pts[..., 2] > 0) & (ui >= 0) & (ui < k.width) & (vi >= 0) \
+                & (vi < k.height)
+        ui = np.where(inside, ui, 0).astype(np.intp)
+        vi = np.where(inside, vi, 0).astype(np.intp)
+        with np.errstate(invalid="ignore"):
+            hidden = inside & ~(range_m[vi, ui] >= dist_pts
+                                - occlusion_tolerance(dist_pts, k.fx))
+        visible = inside & ~hidden
+        n_in = inside.sum(axis=1)
+        n_vis = visible.sum(axis=1)
+        lit = None
+        if shadowed is not None:
+            lit = (visible & ~shadowed[vi, ui]).sum(axis=1) / np.maximum(n_vis, 1)
         c = self.catalog
-        for i in pick[np.argsort(-radii[pick], kind="stable")]:
-            if near[i] <= 0:
-                continue  # the camera is within the rim's sphere: no closed image
-            a = rim_conic(centres[i], radii[i], grad[i], pose, k)
-            ell = ellipse_from_conic(a)
-            if ell is None or 2 * ell[2] < self.spec.min_crater_pixels:
-                continue
-            pts = _rim_points(centres[i], radii[i], grad[i])
-            uv = pose.project(pts, k)
-            with np.errstate(invalid="ignore"):
-                ui, vi = np.rint(uv[:, 0]), np.rint(uv[:, 1])
-                inside = (ui >= 0) & (ui < k.width) & (vi >= 0) & (vi < k.height)
-            if not inside.any():
-                continue
-            idx = np.flatnonzero(inside)
-            d = np.linalg.norm(pts[idx] - np.asarray(pose.position), axis=1)
-            seen = range_m[vi[idx].astype(np.intp), ui[idx].astype(np.intp)]
-            with np.errstate(invalid="ignore"):
-                hidden = seen < d - occlusion_tolerance(d, k.fx)
-            vis = idx[~hidden]
-            lit = None
-            if shadowed is not None and len(vis):
-                lit = float(np.mean(~shadowed[vi[vis].astype(np.intp),
-                                              ui[vis].astype(np.intp)]))
+        out = []
+        for j in np.flatnonzero(n_in > 0):
+            i = pick[j]
+            e = ells[j]
             out.append({
-                "id": _hex(c.id[i]), "layer": int(c.layer[i]) if c.layer is not None else 0,
+                "id": self._crater_ids[i],
+                "layer": int(c.layer[i]) if c.layer is not None else 0,
                 "diameter_m": float(c.diameter_m[i]),
-                "centre_world": [float(v) for v in centres[i]],
-                "ellipse": {"centre": [ell[0], ell[1]], "axes": [ell[2], ell[3]],
-                            "angle_deg": ell[4]},
-                "conic": [float(v) for v in a.reshape(-1)],
-                "in_frame": float(inside.mean()),
-                "occluded": float(hidden.mean()),
-                "lit": lit, "instance": 0})
+                "centre_world": centres[i].tolist(),
+                "ellipse": {"centre": [float(e[0]), float(e[1])],
+                            "axes": [float(e[2]), float(e[3])], "angle_deg": float(e[4])},
+                "conic": conics[j].reshape(-1).tolist(),
+                "in_frame": float(n_in[j] / RIM_SAMPLES),
+                "occluded": float((n_in[j] - n_vis[j]) / n_in[j]),
+                "lit": float(lit[j]) if lit is not None and n_vis[j] else None,
+                "instance": 0})
         return out
 
     # ------------------------------------------------------------------ masks
