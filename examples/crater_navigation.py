@@ -15,6 +15,7 @@ The reference pipeline a navigation team would build on craterscape's labels
    the range in position and ``--prior-attitude`` degrees (what an inertial propagation
    gives between fixes). Each detection takes the nearest predicted crater whose size agrees
    within 30 %, gated at 5 % of the image; a predicted crater claimed twice keeps neither.
+   A frame with fewer than six matches (or RANSAC inliers) gets no fix.
 3. **Solve.** The 3-D rim centres of the matches and their detected ellipse centres go to
    OpenCV's ``solvePnPRansac`` (EPnP inside RANSAC, then Levenberg-Marquardt), started
    from the prior. An ellipse's centre is not the image of the rim's centre (perspective
@@ -58,6 +59,8 @@ TRON_PERCENT = (1.0, 3.0)
 GATE = 0.05
 #: ... whose semi-major axis agrees within this factor.
 SIZE_TOLERANCE = 1.3
+#: Fewest matches a pose is solved from (four fix it exactly, leaving RANSAC nothing to test).
+MIN_MATCHES = 6
 
 
 def _rotvec(rng, degrees: float) -> np.ndarray:
@@ -123,7 +126,7 @@ def solve_frame(detections, catalog_xyz, radii, gradient_fn, prior, truth_pose, 
         if dist[j] < GATE * k.width:
             claims.setdefault(j, []).append(d_i)
     pairs = [(j, ds[0]) for j, ds in claims.items() if len(ds) == 1]
-    if len(pairs) < 4:
+    if len(pairs) < MIN_MATCHES:
         return None, len(pairs), 0
     world = catalog_xyz[idx[[j for j, _ in pairs]]]
     seen = np.array([detections[d]["centre"] for _, d in pairs])
@@ -136,7 +139,7 @@ def solve_frame(detections, catalog_xyz, radii, gradient_fn, prior, truth_pose, 
             world, seen - offset, k.matrix, None, rvec=rvec.copy(), tvec=tvec.copy(),
             useExtrinsicGuess=True, reprojectionError=3.0, iterationsCount=200,
             flags=cv2.SOLVEPNP_ITERATIVE)
-        if not ok or inliers is None or len(inliers) < 4:
+        if not ok or inliers is None or len(inliers) < MIN_MATCHES:
             return None, len(pairs), 0
         r = cv2.Rodrigues(rvec)[0]
         est = Pose(tuple((-r.T @ tvec).ravel()), tuple(quat_from_matrix(r.T)))
@@ -157,6 +160,8 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("source", type=Path, help="a labelled run directory, or a scenario to render")
     p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--scenario", type=Path, default=None,
+                   help="the run's scenario file (default: the source, or RUN/scenario.toml)")
     p.add_argument("--frames", type=int, default=None, help="frames to render (scenario only)")
     p.add_argument("--resolution", type=int, default=512, help="image side (scenario only)")
     p.add_argument("--seed", type=int, default=7)
@@ -179,7 +184,9 @@ def main(argv=None) -> int:
         run_dir = args.out / "run"
         run_sequence(sc, run_dir, resume=run_dir.exists())
     run = RunReader(run_dir)
-    sc = load_scenario(run_dir / "scenario.toml")
+    # the scenario as given: a run's copy of it names its stack relative to its old folder
+    sc = load_scenario(args.scenario or (args.source if args.source.suffix == ".toml"
+                                         else run_dir / "scenario.toml"))
     scene = load_scene(sc)
     lab = Labeller(scene, LabelSpec())
     xyz, radii, grad = lab.crater_geometry()  # the onboard map: the scene's catalogue
