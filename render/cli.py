@@ -97,8 +97,8 @@ def frame(scenario_file: Path, output: Path, index: int | None,
     index = 0 if index is None else index
     if not 0 <= index < len(samples):
         raise InvalidParameterError(f"--index must lie in [0, {len(samples) - 1}]; got {index}")
-    renderer = Renderer()
     with keep_current():
+        renderer = Renderer()
         image, fr, truth = render_sample(renderer, scene, scenario, samples[index], index,
                                          samples)
     stale = [companions[k] for k in ("range", "normals", "radiance")
