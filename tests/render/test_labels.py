@@ -330,3 +330,24 @@ def test_labels_over_the_server_equal_render_frame_labels(tmp_path):
     assert np.array_equal(sem, cv2.imread(str(tmp_path / names["semantic"]),
                                           cv2.IMREAD_UNCHANGED))
     assert np.all(haz == 255)  # no lander in the scenario: hazards unknown everywhere
+
+
+def test_labels_flag_and_a_bad_labels_table_on_the_command_line(tmp_path):
+    from tests.cli_helpers import one_line_error, run
+    from tests.render.scenes import descent_scenario
+
+    stack = cratered_stack(tmp_path / "stack")
+    plain = tmp_path / "plain.toml"
+    plain.write_text(descent_scenario(stack, "plain", frames=2))
+    r = run("render", "sequence", plain, "-o", tmp_path / "off", "--resolution", "32x24")
+    assert r.exit_code == 0, r.output
+    assert not (tmp_path / "off/labels").exists()  # off unless asked
+    assert "labels" not in json.loads((tmp_path / "off/truth.json").read_text())[0]
+    r = run("render", "frame", plain, "-o", tmp_path / "one.png", "--labels", "--index", "0")
+    assert r.exit_code == 0, r.output
+    names = json.loads((tmp_path / "one_truth.json").read_text())["labels"]
+    assert all((tmp_path / p).is_file() for p in names.values())
+    assert names["flow"].startswith("one_labels/")
+    bad = tmp_path / "bad.toml"
+    bad.write_text(descent_scenario(stack, "bad") + "[labels]\nmasks = true\nflows = false\n")
+    one_line_error(run("render", "sequence", bad, "-o", tmp_path / "bad"), "flows", "flow")
