@@ -481,6 +481,9 @@ class Labeller:
         from scipy.ndimage import map_coordinates
 
         c = self.catalog
+        if c is None:
+            raise InvalidParameterError("crater rims need a terrain scene with a crater "
+                                        "catalogue")
         n = len(c)
         radii = 0.5 * c.diameter_m
         # the catalogue's level rim where no layer holds it whole
