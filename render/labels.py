@@ -55,6 +55,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+import numba
 import numpy as np
 
 from render.camera import Intrinsics, Pose, quat_to_matrix
@@ -623,51 +624,43 @@ class Labeller:
         instances : list of dict
         """
         h, w = points.shape[:2]
-        mask = np.zeros((h, w), np.uint16)
-        table: list[dict] = []
-        order: list[tuple[str, Any]] = []
-        for rec in rims:  # largest first, so smaller craters are painted over them
-            order.append(("crater", rec))
-        rocks = self._visible_rocks(pose, k)
-        order.extend(("rock", i) for i in rocks)
-        for kind, item in order[:MAX_INSTANCES]:
-            if kind == "crater":
-                u, v = item["ellipse"]["centre"]
-                ext = item["ellipse"]["axes"][0] + 1.0
-                cx, cy = item["centre_world"][:2]
-                box = _box(u - ext, u + ext, v - ext, v + ext, w, h)
-                if box is None:
-                    continue
-                r0, r1, c0, c1 = box
-                p = points[r0:r1, c0:c1]
-                with np.errstate(invalid="ignore"):
-                    on = np.hypot(p[..., 0] - cx, p[..., 1] - cy) < 0.5 * item["diameter_m"]
-                ident = item["id"]
-            else:
-                on, box = self._rock_pixels(points, item, pose, k)
-                if box is None:
-                    continue
-                r0, r1, c0, c1 = box
-                assert self.rocks is not None  # rocks are listed only where there are some
-                ident = _hex(self.rocks.id[item])
-            if not on.any():
+        # provisional numbers: craters 1..m (largest first, so smaller ones paint over them),
+        # then rocks; compacted to 1..K over what covers pixels at the end
+        draft = np.zeros((h, w), np.int32)
+        boxes = np.zeros((len(rims), 4), np.int64)
+        for j, rec in enumerate(rims):
+            u, v = rec["ellipse"]["centre"]
+            ext = rec["ellipse"]["axes"][0] + 1.0
+            boxes[j] = _box(u - ext, u + ext, v - ext, v + ext, w, h) or (0, 0, 0, 0)
+        if len(rims):
+            centre = np.array([rec["centre_world"][:2] for rec in rims], np.float64)
+            r2 = (0.5 * np.array([rec["diameter_m"] for rec in rims])) ** 2
+            _paint_discs(np.ascontiguousarray(points[..., 0]),
+                         np.ascontiguousarray(points[..., 1]), draft, boxes,
+                         centre[:, 0].copy(), centre[:, 1].copy(), r2)
+        kinds: list[tuple[str, str]] = [("crater", rec["id"]) for rec in rims]
+        for i in self._visible_rocks(pose, k):
+            on, box = self._rock_pixels(points, i, pose, k)
+            if box is None or not on.any():
                 continue
-            n = len(table) + 1
-            mask[r0:r1, c0:c1][on] = n
-            table.append({"instance": n, "kind": kind, "id": ident})
-            if kind == "crater":
-                item["instance"] = n
-        if len(order) > MAX_INSTANCES:
+            assert self.rocks is not None  # rocks are listed only where there are some
+            r0, r1, c0, c1 = box
+            draft[r0:r1, c0:c1][on] = len(kinds) + 1
+            kinds.append(("rock", _hex(self.rocks.id[i])))
+        counts = np.bincount(draft.reshape(-1), minlength=len(kinds) + 1)
+        kept = np.flatnonzero(counts[1:]) + 1
+        if len(kept) > MAX_INSTANCES:
             log.warning("frame has %d instances; the smallest beyond %d are not numbered",
-                        len(order), MAX_INSTANCES)
-        counts = np.bincount(mask.reshape(-1), minlength=len(table) + 1)
-        for rec in table:
-            rec["pixels"] = int(counts[rec["instance"]])
-        for rec in rims:  # a crater painted over entirely by smaller ones keeps no pixels
-            if rec["instance"] and counts[rec["instance"]] == 0:
-                rec["instance"] = 0
-        kept = [rec for rec in table if rec["pixels"] > 0]
-        return mask, kept
+                        len(kept), MAX_INSTANCES)
+            kept = kept[:MAX_INSTANCES]
+        lut = np.zeros(len(kinds) + 1, np.uint16)
+        lut[kept] = np.arange(1, len(kept) + 1)
+        mask = lut[draft]
+        table = [{"instance": int(lut[p]), "kind": kinds[p - 1][0], "id": kinds[p - 1][1],
+                  "pixels": int(counts[p])} for p in kept]
+        for j, rec in enumerate(rims):  # 0: painted over entirely by smaller craters, or hidden
+            rec["instance"] = int(lut[j + 1])
+        return mask, table
 
     def _visible_rocks(self, pose: Pose, k: Intrinsics) -> np.ndarray:
         """Return the catalogue rocks at least a pixel wide ahead of the camera, largest first."""
@@ -795,6 +788,21 @@ class Labeller:
         turn = None if np.allclose(turn, np.eye(3)) else turn
         labels.flow, labels.occluded = flow_to(range_m, pose, next_pose, k, next_range,
                                                turn=turn)
+
+
+@numba.njit(cache=True)
+def _paint_discs(px, py, mask, boxes, cx, cy, r2):  # pragma: no cover - compiled
+    """Set ``mask`` to i + 1 where a pixel's point lies within disc i (in its image box)."""
+    for i in range(boxes.shape[0]):
+        for r in range(boxes[i, 0], boxes[i, 1]):
+            for c in range(boxes[i, 2], boxes[i, 3]):
+                x = px[r, c]
+                if x != x:  # no surface
+                    continue
+                dx = x - cx[i]
+                dy = py[r, c] - cy[i]
+                if dx * dx + dy * dy < r2[i]:
+                    mask[r, c] = i + 1
 
 
 def _box(u0, u1, v0, v1, w, h):
