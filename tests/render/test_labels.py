@@ -297,6 +297,7 @@ def test_a_rim_seen_from_straight_above_is_its_circle():
     assert (a, b) == pytest.approx((40.0, 40.0))
 
 
+@pytest.mark.slow
 def test_labels_over_the_server_equal_render_frame_labels(tmp_path):
     import subprocess
 
