@@ -352,3 +352,30 @@ def test_labels_flag_and_a_bad_labels_table_on_the_command_line(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text(descent_scenario(stack, "bad") + "[labels]\nmasks = true\nflows = false\n")
     one_line_error(run("render", "sequence", bad, "-o", tmp_path / "bad"), "flows", "flow")
+
+
+def test_an_asteroid_frame_gets_sky_surface_shadow_and_flow_but_no_catalogue_labels(renderer):
+    from asteroid.body import Body
+    from asteroid.sphere import SphereMesh
+    from render.asteroid_scene import AsteroidScene
+    from render.camera import quat_from_matrix
+    from render.labels import SKY, TERRAIN
+
+    scene = AsteroidScene(Body.sphere(SphereMesh(64), 1000.0), boulders=False)
+    k = Intrinsics.from_fov(96, 96, 40.0)
+    pose = look_at((0.0, -5000.0, 0.0), (0.0, 0.0, 0.0))
+    sun = Lighting((1.0, -0.3, 0.0))
+    frame = renderer.render(scene, View(pose, k), sun, RenderOptions(shadow_size=256))
+    lab = Labeller(scene, LabelSpec())
+    labels = lab.label(frame, pose, k, sun)
+    assert labels.craters == [] and labels.instances == []
+    assert {SKY, TERRAIN, SHADOWED} <= set(np.unique(labels.semantic).tolist())
+    # the body turns 5 degrees about z between frames: the flow follows the surface
+    a = math.radians(5.0)
+    turn = np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1]])
+    lab.add_flow(labels, frame.range, pose, (1, 0, 0, 0), frame.range, pose,
+                 tuple(quat_from_matrix(turn)), k)
+    centre = labels.flow[48, 48]
+    # the sub-camera point moves 5 degrees of the 1000 m sphere across the image
+    expected = k.fx * 1000.0 * math.sin(a) / (5000.0 - 1000.0 * math.cos(a))
+    assert abs(centre[0]) == pytest.approx(expected, rel=0.02) and abs(centre[1]) < 0.05
