@@ -285,6 +285,11 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     if summary_path.exists():
         sections.append(closed_loop_section(summary_path.parent, stage.dir))
 
+    # -- crater-based navigation on the descent (examples/crater_navigation.py)
+    nav_path = out / "lunar" / "crater_navigation" / "summary.json"
+    if nav_path.exists():
+        sections.append(crater_navigation_section(nav_path.parent, stage.dir))
+
     # -- campaign overview: timings, gallery, links
     overview = campaign_section(c, out, stage.dir, lunar_facts, asteroid_facts, tracked,
                                 summary_name)
@@ -578,4 +583,60 @@ def closed_loop_section(folder: Path, report_dir: Path):
                                       "trajectory.csv"),
                                      ("closed-loop camera frames", "frames"),
                                      ("closed-loop summary (JSON)", "summary.json"))]
+    return sec
+
+
+def crater_navigation_section(folder: Path, report_dir: Path):
+    """Return crater-based navigation on the descent: position error per frame against truth.
+
+    Parameters
+    ----------
+    folder : pathlib.Path
+        What ``examples/crater_navigation.py --out`` wrote (``summary.json``, ``frames.csv``).
+    report_dir : pathlib.Path
+        The evaluation folder (links are relative to it).
+
+    Returns
+    -------
+    evaluation.report.Section
+        The crater-navigation section.
+    """
+    from evaluation.report import Section
+
+    s = json.loads((folder / "summary.json").read_text())
+    lo, hi = s["tron_percent"]
+    det, prior = s["detector"], s["prior"]
+    sec = Section("crater-navigation", "Crater-based navigation against truth")
+    median = s.get("median_error_percent")
+    if median is None:
+        where = "solved no frame"
+    elif median < lo:
+        where = f"lands below that band (median {median:.2f} %)"
+    elif median <= hi:
+        where = f"lands inside that band (median {median:.2f} %)"
+    else:
+        where = f"lands above that band (median {median:.2f} %)"
+    sec.paragraphs.append(
+        "examples/crater_navigation.py detected craters in the labelled descent (the truth "
+        f"rims perturbed by {det['sigma_px']:g} px plus {100 * det['sigma_rel']:g} % of the "
+        f"rim's semi-major axis, {100 * det['miss']:g} % missed, lit rims only), matched them "
+        "to the catalogue through a prior pose "
+        f"({100 * prior['position_fraction_of_range']:g} % of range, "
+        f"{prior['attitude_deg']:g} degrees off), and solved the camera pose by PnP on the "
+        f"matched rim centres. Field-tested feature TRN reaches {lo:g}-{hi:g} % of "
+        f"line-of-sight range (DLR's TRON laboratory); this reference {where} over "
+        f"{s['solved']} of {s['frames']} frames. Its detector is an idealised one: exact "
+        "matching identities, no false detections, and an error that is white, where a real "
+        "detector's is correlated with the lighting; so its figure bounds what the geometry "
+        "allows, not what a flight detector achieves.")
+    sec.tables.append(("Position error per frame", [
+        "frame", "range (m)", "detected", "matched", "inliers", "error (m)", "error (% range)",
+        "prior (% range)"], [
+        [r["frame"], f"{r['range_m']:.0f}", r["detected"], r["matched"], r["inliers"],
+         f"{r['error_m']:.2f}", f"{r['error_percent']:.2f}", f"{r['prior_error_percent']:.1f}"]
+        for r in s["per_frame"]]))
+    sec.data = {k: v for k, v in s.items() if k != "per_frame"}
+    sec.links = [(label, Path(os.path.relpath(folder / name, report_dir)).as_posix())
+                 for label, name in (("per-frame navigation errors (CSV)", "frames.csv"),
+                                     ("crater-navigation summary (JSON)", "summary.json"))]
     return sec

@@ -38,14 +38,18 @@ def render() -> None:
 @click.option("--resolution", type=RESOLUTION, default=None,
               help="Override the image size (field of view kept).")
 @click.option("--resume", is_flag=True, help="Continue an interrupted run in the same folder.")
+@click.option("--labels", is_flag=True,
+              help="Write image-space labels (docs/labels.md), default settings unless the "
+                   "scenario has a [labels] table.")
 def sequence(scenario_file: Path, output: Path, frames: int | None,
-             resolution: tuple[int, int] | None, resume: bool) -> None:
+             resolution: tuple[int, int] | None, resume: bool, labels: bool) -> None:
     """Render every frame of a scenario: frames/, range/, normals/, truth.json, manifest."""
     from render.context import keep_current
     from render.scenario import load_scenario
     from render.sequence import run_sequence
 
-    scenario = load_scenario(scenario_file).with_overrides(frames, resolution)
+    scenario = _with_labels(load_scenario(scenario_file).with_overrides(frames, resolution),
+                            labels)
     with keep_current(), progress_bar("render", "frame",
                                       total=scenario.trajectory.frames) as progress:
         manifest = run_sequence(scenario, output, resume=resume, progress=progress)
@@ -59,13 +63,18 @@ def sequence(scenario_file: Path, output: Path, frames: int | None,
               help="Image file (PNG); range, normals and truth go beside it.")
 @click.option("--index", type=int, default=None, help="Trajectory frame to render (default 0).")
 @click.option("--resolution", type=RESOLUTION, default=None, help="Override the image size.")
+@click.option("--labels", is_flag=True,
+              help="Write image-space labels into OUT_labels/ (docs/labels.md).")
 def frame(scenario_file: Path, output: Path, index: int | None,
-          resolution: tuple[int, int] | None) -> None:
+          resolution: tuple[int, int] | None, labels: bool) -> None:
     """Render one view of a scenario.
 
     Writes OUT.png, OUT_range.tif, OUT_normals.tif, OUT_truth.json (and OUT_radiance.tif
-    where [output] radiance is on).
+    where [output] radiance is on; OUT_labels/ with labels, its flow to the next trajectory
+    frame where there is one).
     """
+    from dataclasses import replace
+
     from render.context import keep_current
     from render.renderer import Renderer
     from render.scenario import load_scenario
@@ -80,7 +89,8 @@ def frame(scenario_file: Path, output: Path, index: int | None,
                   "radiance": Path(f"{stem}_radiance.tif"), "truth": Path(f"{stem}_truth.json")}
     for p in (output, *companions.values()):
         check_output_path(p, [scenario_file])
-    scenario = load_scenario(scenario_file).with_overrides(None, resolution)
+    scenario = _with_labels(load_scenario(scenario_file).with_overrides(None, resolution),
+                            labels)
     check_frame_memory(scenario)
     scene = load_scene(scenario)
     samples = scenario.samples(scene)
@@ -88,7 +98,8 @@ def frame(scenario_file: Path, output: Path, index: int | None,
     if not 0 <= index < len(samples):
         raise InvalidParameterError(f"--index must lie in [0, {len(samples) - 1}]; got {index}")
     with keep_current():
-        image, fr, truth = render_sample(Renderer(), scene, scenario, samples[index], index,
+        renderer = Renderer()
+        image, fr, truth = render_sample(renderer, scene, scenario, samples[index], index,
                                          samples)
     stale = [companions[k] for k in ("range", "normals", "radiance")
              if not scenario.outputs.get(k)]
@@ -102,10 +113,48 @@ def frame(scenario_file: Path, output: Path, index: int | None,
             lighting = scenario.lighting_at(samples[index].time, scene)
             write_float_tiff(lighting.radiance(fr.radiance), companions["radiance"],
                              tags={"UNITS": "W m-2 sr-1 nm-1"})
+        if scenario.labels is not None:
+            with keep_current():
+                truth = replace(truth, labels=_frame_labels(renderer, scenario, scene, samples,
+                                                            index, fr, truth, output))
         with atomic_path(companions["truth"]) as tmp:
             tmp.write_text(json.dumps(truth.as_dict(), indent=2), encoding="utf-8")
     click.echo(f"wrote {output} (frame {index}, {fr.drawn.get('triangles', 0)} triangles)",
                err=True)
+
+
+def _with_labels(scenario, labels: bool):
+    """Return the scenario, with default labels switched on by ``--labels`` where it has none."""
+    from dataclasses import replace
+
+    from render.labels import LabelSpec
+
+    if labels and scenario.labels is None:
+        return replace(scenario, labels=LabelSpec())
+    return scenario
+
+
+def _frame_labels(renderer, scenario, scene, samples, index, fr, truth, output: Path) -> dict:
+    """Write ``render frame``'s labels beside its image (flow: to the next sample, if any)."""
+    from render.dataset import write_flow, write_frame_labels
+    from render.labels import Labeller
+
+    spec = scenario.labels
+    labeller = Labeller(scene, spec)
+    lab = labeller.label(fr, truth.pose, truth.intrinsics, scenario.lighting)
+    prefix = f"{output.with_suffix('').name}_labels/"
+    names = write_frame_labels(output.parent, index, lab, prefix)
+    if spec.flow and index + 1 < len(samples):
+        from render.renderer import View
+
+        nxt = samples[index + 1]
+        scene.set_body_rotation(nxt.body_rotation)
+        nfr = renderer.render(scene, View(nxt.pose, scenario.intrinsics, nxt.time),
+                                scenario.lighting, scenario.options)
+        labeller.add_flow(lab, fr.range, truth.pose, truth.body_rotation, nfr.range, nxt.pose,
+                          nxt.body_rotation, truth.intrinsics)
+        names.update(write_flow(output.parent, index, lab, prefix))
+    return names
 
 
 @render.command()

@@ -250,6 +250,30 @@ class Client:
         """Return the frame's ground truth (a run's truth.json entry, without file names)."""
         return _json(self.request(MsgType.GET_TRUTH), "GET_TRUTH")
 
+    def get_labels(self) -> dict:
+        """Return the frame's crater rims and instance table (``GET_LABELS``, docs/labels.md)."""
+        return _json(self.request(MsgType.GET_LABELS), "GET_LABELS")
+
+    def get_masks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Return the frame's instance, semantic and hazard masks (``GET_MASKS``).
+
+        Returns
+        -------
+        instances : (height, width) uint16
+            Instance numbers (0: none), as :meth:`get_labels` lists them.
+        semantic : (height, width) uint8
+            0 sky, 1 terrain, 2 rock, 3 shadowed.
+        hazard : (height, width) uint8
+            0 unsafe, 1 safe, 255 unknown (or no lander in the scenario's ``[labels]``).
+        """
+        body = self.request(MsgType.GET_MASKS)
+        w, h = _unpack(ARRAY_HEAD, body, "GET_MASKS", exact=False)
+        n, o = w * h, ARRAY_HEAD.size
+        inst = _array(body[o:o + 2 * n], np.dtype("<u2"), (h, w)).astype(np.uint16)
+        sem = _array(body[o + 2 * n:o + 3 * n], np.dtype("u1"), (h, w))
+        haz = _array(body[o + 3 * n:o + 4 * n], np.dtype("u1"), (h, w))
+        return inst, sem, haz
+
     def height_at(self, x: float, y: float) -> tuple[float, np.ndarray]:
         """Terrain height and normal at a map point (terrain scenes).
 

@@ -22,15 +22,18 @@ from enum import IntEnum
 
 from render.errors import ProtocolError
 
-__all__ = ["ERROR", "HEADER", "MAGIC", "MAX_REPLY_BODY", "MAX_REQUEST_BODY", "PROTOCOL_MINOR",
+__all__ = ["ERROR", "HEADER", "MAGIC", "MAX_REPLY_BODY", "MAX_REQUEST_BODY", "MINOR_VERSION",
+           "PROTOCOL_MINOR",
            "REPLY", "VERSION", "ErrorCode", "MsgType", "error_body", "pack_header", "read_exact",
            "read_message", "unpack_header"]
 
 MAGIC = b"CSRV"
 VERSION = 1
 #: Minor version (INFO's ``protocol_minor``): additions a version-1 client may use or ignore.
-#: 1: SET_LIGHT (the sun on a date).
-PROTOCOL_MINOR = 1
+#: 1: SET_LIGHT (the sun on a date); 2: GET_LABELS and GET_MASKS (image-space labels).
+PROTOCOL_MINOR = 2
+#: The same (the name the label requests' code uses).
+MINOR_VERSION = PROTOCOL_MINOR
 #: Header: magic, version (u16), type (u16), request id (u32), body length (u32).
 HEADER = struct.Struct("<4sHHII")
 #: Largest request body the server reads (bytes); checked before reading the body.
@@ -64,6 +67,8 @@ class MsgType(IntEnum):
     GET_RANGE = 0x0021
     GET_NORMALS = 0x0022
     GET_TRUTH = 0x0023
+    GET_LABELS = 0x0024
+    GET_MASKS = 0x0025
     HEIGHT_AT = 0x0030
     PIXEL_RAY = 0x0031
     RAY = 0x0032
@@ -112,7 +117,8 @@ REQUEST_SIZES = {MsgType.HELLO: None, MsgType.INFO: 0, MsgType.PING: 0,
                  MsgType.SET_SENSOR: None, MsgType.SET_MOTION: MOTION.size,
                  MsgType.SET_LIGHT: None,
                  MsgType.GET_IMAGE: BITS.size, MsgType.GET_RANGE: 0,
-                 MsgType.GET_NORMALS: 0, MsgType.GET_TRUTH: 0, MsgType.HEIGHT_AT: XY.size,
+                 MsgType.GET_NORMALS: 0, MsgType.GET_TRUTH: 0, MsgType.GET_LABELS: 0,
+                 MsgType.GET_MASKS: 0, MsgType.HEIGHT_AT: XY.size,
                  MsgType.PIXEL_RAY: XY.size, MsgType.RAY: RAY.size}
 
 

@@ -10,6 +10,8 @@ Layout (``craterscape render sequence`` writes it; :mod:`evaluation` reads it)::
       range/range_NNNNNN.tif      LIDAR range (float32 metres along the ray; NaN = no return)
       normals/normals_NNNNNN.tif  surface normals (3 bands, float32, world frame; NaN = none)
       radiance/radiance_NNNNNN.tif  spectral radiance (float32, W m^-2 sr^-1 nm^-1), on request
+      labels/...            image-space labels and the dataset exports, on request
+                            (:mod:`render.labels`, :mod:`render.dataset`, docs/labels.md)
 
 A truth entry::
 
@@ -27,7 +29,8 @@ A truth entry::
      "body_rotation": [w, x, y, z],              # R_WB; identity for terrain scenes
      "drawn": {...},                             # layers / patches / boulders drawn
      "motion": {"velocity": [..], "angular_velocity": [..], "body_angular_velocity": [..],
-                "exposure_time": .., "line_time": .., "samples": ..}}   # blurred frames only
+                "exposure_time": .., "line_time": .., "samples": ..},   # blurred frames only
+     "labels": {"rims": "labels/rims_000000.json", ...}}   # labelled runs only
 
 ``time`` is when the exposure of the first row starts and ``camera`` the pose then. With
 motion, :meth:`FrameTruth.pose_at` gives the pose at any time and :meth:`FrameTruth.row_pose`
@@ -61,7 +64,8 @@ __all__ = ["FORMAT", "FrameTruth", "RunReader", "RunWriter"]
 FORMAT = "craterscape-render-run"
 #: Keys of a truth entry and of its tables (what :meth:`FrameTruth.as_dict` writes).
 TRUTH_KEYS = frozenset({"index", "time", "image", "range", "normals", "camera", "intrinsics",
-                        "sun", "body_rotation", "drawn", "motion", "radiance", "exposure"})
+                        "sun", "body_rotation", "drawn", "motion", "radiance", "exposure",
+                        "labels"})
 TRUTH_TABLE_KEYS = {"camera": frozenset({"position", "attitude"}),
                     "intrinsics": frozenset({"width", "height", "fx", "fy", "cx", "cy"}),
                     "sun": frozenset({"direction", "et", "azimuth", "elevation", "distance_au",
@@ -69,6 +73,8 @@ TRUTH_TABLE_KEYS = {"camera": frozenset({"position", "attitude"}),
                                       "earth_phase", "earthshine"}),
                     "exposure": frozenset({"auto", "exposure", "exposure_time", "settled",
                                            "percentile", "fraction", "rate"}),
+                    "labels": frozenset({"rims", "instances", "semantic", "hazard", "flow",
+                                         "occlusion"}),
                     "motion": frozenset({"velocity", "angular_velocity",
                                          "body_angular_velocity", "exposure_time", "line_time",
                                          "samples"})}
@@ -76,7 +82,7 @@ TRUTH_TABLE_KEYS = {"camera": frozenset({"position", "attitude"}),
 #: write), and of its lighting table.
 MANIFEST_KEYS = frozenset({"format", "version", "scenario", "scene", "frames", "resolution",
                            "seed", "sensor", "lighting", "renderer", "render_seconds",
-                           "frames_rendered_this_run", "frames_written", "events"})
+                           "frames_rendered_this_run", "frames_written", "events", "labels"})
 MANIFEST_LIGHTING_KEYS = frozenset({"sun", "albedo", "reflectance", "hapke", "distance_au",
                                     "spectral_irradiance", "utc"})
 
@@ -115,6 +121,7 @@ class FrameTruth:
     radiance: str | None = None
     sky: dict | None = None
     exposure: dict | None = None
+    labels: dict | None = None
 
     def as_dict(self) -> dict:
         """Return the frame's truth as plain data for the run's truth file."""
@@ -129,6 +136,8 @@ class FrameTruth:
             d["motion"] = self.motion
         if self.radiance is not None:
             d["radiance"] = self.radiance
+        if self.labels:
+            d["labels"] = self.labels
         return d
 
     def pose_at(self, t: float) -> Pose:
@@ -166,7 +175,7 @@ class FrameTruth:
                    Intrinsics(**d["intrinsics"]), tuple(d["sun"]["direction"]),
                    tuple(d.get("body_rotation", (1.0, 0.0, 0.0, 0.0))), d.get("drawn", {}),
                    d.get("image"), d.get("range"), d.get("normals"), d.get("motion"),
-                   d.get("radiance"), sky or None, d.get("exposure"))
+                   d.get("radiance"), sky or None, d.get("exposure"), d.get("labels"))
 
 
 #: Manifest facts a resumed run must share with the interrupted one.
@@ -280,9 +289,28 @@ class RunWriter:
         entry = FrameTruth(truth.index, truth.time, truth.pose, truth.intrinsics, truth.sun,
                            truth.body_rotation, truth.drawn, names["image"],
                            names.get("range"), names.get("normals"), truth.motion,
-                           names.get("radiance"), truth.sky, truth.exposure).as_dict()
+                           names.get("radiance"), truth.sky, truth.exposure,
+                           truth.labels).as_dict()
         self.frames = [f for f in self.frames if int(f["index"]) != i] + [entry]
         self.frames.sort(key=lambda f: int(f["index"]))
+        self._write_truth()
+
+    def add_labels(self, index: int, names: dict) -> None:
+        """Record label files (paths relative to the run directory) in a frame's truth entry.
+
+        Parameters
+        ----------
+        index : int
+            A frame already written.
+        names : dict
+            ``{"rims": .., "instances": .., ...}`` (:data:`TRUTH_TABLE_KEYS` ``labels``).
+        """
+        for f in self.frames:
+            if int(f["index"]) == index:
+                f["labels"] = dict(f.get("labels") or {}, **names)
+        self._write_truth()
+
+    def _write_truth(self) -> None:
         with atomic_path(self.dir / "truth.json") as tmp:
             tmp.write_text(json.dumps(self.frames, indent=1), encoding="utf-8")
 

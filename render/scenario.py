@@ -74,6 +74,12 @@ trajectory. Paths are relative to the scenario file. Example (``examples/lunar_d
     normals = true
     radiance = false                 # also radiance/radiance_NNNNNN.tif, W m^-2 sr^-1 nm^-1
 
+    [labels]                         # optional: image-space labels (render/labels.py,
+    min_crater_pixels = 8.0          # docs/labels.md); rims, masks and flow on by default
+    lander_diameter = 4.0            # hazards in image space for this lander (m) ...
+    max_slope = 10.0                 # ... degrees
+    max_step = 0.3                   # ... m
+
     [trajectory]
     type = "descent"                 # "descent", "keyframes" or "approach"
     frames = 60
@@ -98,6 +104,7 @@ from typing import Any
 from render.camera import Intrinsics
 from render.ephemeris import DATED_KEYS, Sky, SunEphemeris, site_on_map
 from render.events import EventCamera
+from render.labels import LabelSpec
 from render.motion import Motion
 from render.reflectance import Hapke, check_brdf
 from render.renderer import MAX_ANTIALIAS, Lighting, RenderOptions
@@ -113,7 +120,7 @@ from terrain.core.tomlfile import read_toml
 __all__ = ["SceneSpec", "Scenario", "TrajectorySpec", "load_scenario"]
 
 _SECTIONS = {"name", "seed", "scene", "sun", "surface", "camera", "sensor", "render", "output",
-             "trajectory", "description", "motion", "events", "stars"}
+             "trajectory", "description", "motion", "events", "stars", "labels"}
 _HAPKE_KEYS = set(Hapke.__dataclass_fields__)
 #: How each section is named in messages.
 _SCENE, _TRAJECTORY, _SURFACE, _SUN, _CAMERA, _RENDER, _OUTPUT = (
@@ -369,6 +376,8 @@ class Scenario:
     #: The star field of a ``[stars]`` table (render.stars), None without one.
     stars: StarField | None = None
 
+    #: Image-space labels to write with each frame (:mod:`render.labels`); None: none.
+    labels: LabelSpec | None = None
     def sky_at(self, time: float, scene: Any = None) -> Sky | None:
         """Return the Sun and Earth at trajectory time ``time`` (s); None for a hand-set sun.
 
@@ -686,5 +695,7 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
     trajectory = TrajectorySpec.from_mapping(data.get("trajectory", {}))
     events = EventCamera.from_mapping(data["events"]) if "events" in data else None
     stars = StarField.from_mapping(data["stars"]) if "stars" in data else None
+    labels = LabelSpec.from_mapping(data["labels"]) if "labels" in data else None
     return Scenario(name, path, seed, scene, lighting, intrinsics, sensor, options, outputs,
-                    trajectory, data, motion, ephemeris=ephemeris, events=events, stars=stars)
+                    trajectory, data, motion, ephemeris=ephemeris, events=events, stars=stars,
+                    labels=labels)

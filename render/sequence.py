@@ -212,6 +212,27 @@ def render_sample(renderer: Renderer, scene: Scene, scenario: Scenario, sample: 
     return image, frame, truth
 
 
+def _label_frame(writer: RunWriter, labeller, scenario: Scenario, frame: Frame,
+                 truth: FrameTruth, pending: tuple | None) -> tuple | None:
+    """Write a frame's labels, and the previous frame's flow to it (see :mod:`render.labels`).
+
+    Returns what the next frame needs to give this one its flow (None without flow).
+    """
+    from render.dataset import write_flow, write_frame_labels
+
+    labels = labeller.label(frame, truth.pose, truth.intrinsics, scenario.lighting)
+    writer.add_labels(truth.index, write_frame_labels(writer.dir, truth.index, labels))
+    if pending is not None and pending[0] == truth.index - 1:
+        index, prev, range_m, pose, rotation = pending
+        labeller.add_flow(prev, range_m, pose, rotation, frame.range, truth.pose,
+                          truth.body_rotation, truth.intrinsics)
+        writer.add_labels(index, write_flow(writer.dir, index, prev))
+    assert scenario.labels is not None  # the caller labels only where it asks for labels
+    if not scenario.labels.flow:
+        return None
+    return (truth.index, labels, frame.range, truth.pose, truth.body_rotation)
+
+
 def run_sequence(scenario: Scenario, run_dir: str | Path, *, resume: bool = False,
                  progress: Progress | None = None) -> dict:
     """Render every frame of ``scenario`` into ``run_dir`` (see :mod:`render.rundir`).
@@ -254,13 +275,22 @@ def run_sequence(scenario: Scenario, run_dir: str | Path, *, resume: bool = Fals
                                   **({"utc": scenario.ephemeris.utc}
                                      if scenario.ephemeris is not None else {})),
                     renderer=describe())
+    if scenario.labels is not None:
+        manifest["labels"] = scenario.labels.as_dict()
     writer = RunWriter(run_dir, manifest, scenario.path, resume=resume)
     done = writer.done()
+    labeller = None
+    if scenario.labels is not None:
+        from render.labels import Labeller
+
+        labeller = Labeller(scene, scenario.labels)
+    pending = None  # the previous frame, waiting for this one to give its flow
     t0 = time.perf_counter()
     rendered = 0
     control = ExposureControl(scenario.sensor)
     for i, sample in enumerate(samples):
         if i in done:
+            pending = None
             continue
         before = writer.exposure_before(i)  # resuming: the loop goes on where it stopped
         if before is not None:
@@ -272,6 +302,8 @@ def run_sequence(scenario: Scenario, run_dir: str | Path, *, resume: bool = Fals
                            frame.normals if scenario.outputs["normals"] else None,
                            scenario.lighting_at(sample.time, scene).radiance(frame.radiance)
                            if scenario.outputs.get("radiance") else None)
+        if labeller is not None:
+            pending = _label_frame(writer, labeller, scenario, frame, truth, pending)
         rendered += 1
         if progress is not None:
             progress(i + 1, len(samples),
@@ -280,6 +312,10 @@ def run_sequence(scenario: Scenario, run_dir: str | Path, *, resume: bool = Fals
     facts: dict = {}
     if scenario.events is not None:
         facts["events"] = record_events(renderer, scene, scenario, samples, run_dir)
+    if labeller is not None:
+        from render.dataset import write_exports
+
+        write_exports(run_dir)
     writer.finish(render_seconds=elapsed, frames_rendered_this_run=rendered, **facts)
     log.info("rendered %d frames in %.1f s", rendered, elapsed)
     return writer.manifest

@@ -52,6 +52,7 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -68,6 +69,7 @@ from render.protocol import (
     IMAGE_HEAD,
     MAX_REQUEST_BODY,
     MAX_TOKEN,
+    MINOR_VERSION,
     MOTION,
     POSE,
     PROTOCOL_MINOR,
@@ -379,6 +381,7 @@ class RenderServer:
         self._count = 0
         self._listener: socket.socket | None = None
         self._cached: dict[int, _State] = {}   # insertion order = render order
+        self._labeller: Any = None  # render.labels.Labeller, made at the first GET_LABELS
         self.renderer: Renderer | None = None
         # The loaded scene (render.sequence.load_scene): a terrain or an asteroid scene.
         self._scene: Scene | None = None
@@ -578,7 +581,8 @@ class RenderServer:
     def _reply_size(st: _State, kind: MsgType) -> int:
         """Bytes of the reply to ``kind`` at the client's image size (small ones: 0)."""
         k = st.scenario.intrinsics
-        per_pixel = {MsgType.GET_IMAGE: 2, MsgType.GET_RANGE: 4, MsgType.GET_NORMALS: 12}
+        per_pixel = {MsgType.GET_IMAGE: 2, MsgType.GET_RANGE: 4, MsgType.GET_NORMALS: 12,
+                     MsgType.GET_MASKS: 4}
         return k.width * k.height * per_pixel.get(kind, 0)
 
     def _handle(self, st: _State, kind: MsgType, body: bytes) -> bytes:
@@ -637,6 +641,8 @@ class RenderServer:
             for key in ("image", "range", "normals"):
                 d.pop(key, None)
             return json_body(d)
+        if kind in (MsgType.GET_LABELS, MsgType.GET_MASKS):
+            return self._labels(st, kind)
         if kind == MsgType.HEIGHT_AT:
             x, y = XY.unpack(body)
             _finite("map point", (x, y))
@@ -661,7 +667,8 @@ class RenderServer:
 
     def _info(self, st: _State) -> dict:
         lo, hi = self.scene.bounds()
-        out = dict(protocol=VERSION, scenario=self.scenario.name, scene=self.scene.kind,
+        out = dict(protocol=VERSION, protocol_minor=MINOR_VERSION,
+                   scenario=self.scenario.name, scene=self.scene.kind,
                    bounds=[lo.tolist(), hi.tolist()], sun=list(st.lighting.sun),
                    seed=self.scenario.seed, sensor=self._sensor_info(st))
         if isinstance(self.scene, TerrainScene):
@@ -832,6 +839,26 @@ class RenderServer:
                                      motion=moving)
             self._remember(st)
         return st.frame
+
+    def _labels(self, st: _State, kind: MsgType) -> bytes:
+        """GET_LABELS (rims and instances, JSON) or GET_MASKS (instances, semantic, hazard)."""
+        from render.labels import UNKNOWN, Labeller, LabelSpec
+
+        _, frame, truth = self._frame(st)
+        if self._labeller is None:
+            spec = dataclasses.replace(self.scenario.labels or LabelSpec(), flow=False)
+            self._labeller = Labeller(self.scene, spec)
+        labels = self._labeller.label(frame, truth.pose, truth.intrinsics, st.lighting)
+        if kind == MsgType.GET_LABELS:
+            return json_body(labels.as_dict())
+        h, w = frame.range.shape
+        none8 = np.zeros((h, w), np.uint8)
+        parts = [labels.instance_mask if labels.instance_mask is not None
+                 else np.zeros((h, w), np.uint16),
+                 labels.semantic if labels.semantic is not None else none8,
+                 labels.hazard if labels.hazard is not None else none8 + UNKNOWN]
+        return ARRAY_HEAD.pack(w, h) + parts[0].astype("<u2").tobytes() \
+            + parts[1].tobytes() + parts[2].tobytes()
 
     def _remember(self, st: _State) -> None:
         """Keep ``st``'s frame; drop the oldest other frames beyond FRAME_CACHE_BYTES."""
