@@ -36,7 +36,7 @@ from terrain.stack.plan import (
 )
 from terrain.stack.store import ROCK_CATALOG
 
-__all__ = ["build_stack", "rock_levels"]
+__all__ = ["build_stack", "relax_layer", "rock_levels"]
 
 log = logging.getLogger(__name__)
 
@@ -47,7 +47,7 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
                 params: ExpansionParameters | RoughnessChoice | None = None,
                 min_crater_pixels: float = MIN_CRATER_PIXELS,
                 progress: Progress | None = None,
-                rocks=None) -> LayerStack:
+                rocks=None, repose=None) -> LayerStack:
     """Build a nested layer stack around ``site`` (map coordinates of ``base``).
 
     Parameters
@@ -74,6 +74,9 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
         ``progress(step, total, label)`` (:class:`terrain.core.progress.Progress`).
     rocks : terrain.surface.rocks.RockModel, optional
         Rocks on every layer that resolves them (:func:`_add_layer_rocks`).
+    repose : terrain.surface.repose.Repose, optional
+        Relax every layer's slopes above the angle of repose after its craters
+        (:func:`relax_layer`): synthesized cells only, outside fresh craters.
 
     Returns
     -------
@@ -104,6 +107,7 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
             progress(step, total, label)
 
     info: dict[str, Any] = {"base_filled_pixels": 0}
+    known = base.valid.copy()  # the base's known heights, which no layer may change
     if not base.valid.all():
         filled = fill_gaps(base, seed=seed)
         info["base_filled_pixels"] = int(filled.filled.sum())
@@ -144,6 +148,9 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
                 tiles[k] = result.tile
                 catalogs.append(result.catalog.with_layer(k))
             log.info("layer %d: %d craters", k, len(table))
+        if repose is not None:
+            tiles[k], moved = relax_layer(tiles[k], k, origins[k], known, repose, catalogs)
+            log.info("layer %d: %d cells relaxed to repose", k, moved)
         tick(f"craters {k}")
 
     rock_catalog = None
@@ -166,8 +173,59 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
     info.update(seed=seed, site=[x, y], levels=levels, layer_size=layer_size,
                 expansion=params.as_dict(), min_crater_pixels=min_crater_pixels,
                 population=population.as_dict() if population else None,
-                crater_model=model.as_dict())
+                crater_model=model.as_dict(),
+                **({"repose": repose.as_dict()} if repose is not None else {}))
     return LayerStack(layer_records(tiles, windows, origins), catalog, info, rock_catalog)
+
+
+def relax_layer(tile: DEMTile, level: int, origin: tuple[int, int], known: np.ndarray,
+                repose, catalogs: list) -> tuple[DEMTile, int]:
+    """Relax one layer's synthesized slopes to the angle of repose.
+
+    Parameters
+    ----------
+    tile : DEMTile
+        The layer after its craters.
+    level : int
+        Its level (0 the base).
+    origin : (row, col)
+        Its global pixel origin at its level.
+    known : (ny, nx) bool
+        The base's known pixels: the layer's cells co-located with them keep their heights
+        (a real DEM's heights never change), as do cells inside fresh craters of any layer.
+    repose : terrain.surface.repose.Repose
+    catalogs : list of CraterCatalog
+        The catalogues of the layers built so far (this one included).
+
+    Returns
+    -------
+    tile : DEMTile
+    moved : int
+        Cells changed.
+    """
+    from terrain.surface.repose import relax_to_repose
+
+    ny, nx = tile.shape
+    step = 2 ** level
+    rows = origin[0] + np.arange(ny)
+    cols = origin[1] + np.arange(nx)
+    on_r = (rows % step == 0) & (rows // step < known.shape[0])
+    on_c = (cols % step == 0) & (cols // step < known.shape[1])
+    fixed = np.zeros((ny, nx), dtype=bool)
+    ri, ci = np.flatnonzero(on_r), np.flatnonzero(on_c)
+    if ri.size and ci.size:
+        fixed[np.ix_(ri, ci)] = known[np.ix_(rows[ri] // step, cols[ci] // step)]
+    fresh = np.zeros((ny, nx), dtype=bool)
+    for c in catalogs:
+        if len(c.x_m):
+            fresh |= repose.fresh_mask((ny, nx), tile.transform, c.x_m, c.y_m, c.diameter_m,
+                                       c.age_gyr)
+    z, changed = relax_to_repose(tile.heights, tile.resolution, repose.angle_deg,
+                                 movable=~(fixed | fresh), iterations=repose.iterations)
+    if not changed.any():
+        return tile, 0
+    heights = z.astype(tile.heights.dtype)
+    return tile.replace(heights=heights, valid=tile.valid), int(changed.sum())
 
 
 def _add_layer_rocks(tiles: list, rocks, seed: int, population) -> RockCatalog:
