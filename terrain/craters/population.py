@@ -19,7 +19,12 @@ craters erased by topographic diffusion (:mod:`terrain.craters.diffusion`): at a
 cratering rate the visible craters of diameter D have ages uniform over
 ``[0, min(max_age, c D^2)]``, and those older have gone. The density is then the visible
 density, the one crater counts measure (the equilibrium, for sizes whose lifetime is shorter
-than the surface's age).
+than the surface's age). Larger craters are as many as the surface received: given
+``production_n1`` (N(>=1 km) per km^2 produced over the surface's age,
+:func:`terrain.craters.chronology.neukum_n1`), a crater of diameter D is kept with probability
+``min(1, N_prod(>=D) / N(>=D))`` (:func:`terrain.craters.chronology.production_cumulative`
+over this population's cumulative density), a draw keyed like the others, so the visible
+density follows the smaller of the two.
 
 Seamless generation
 -------------------
@@ -46,6 +51,7 @@ from terrain.core.errors import InvalidParameterError
 from terrain.core.rng import check_seed, hash64, poisson, stream_id, uniform_scalar
 from terrain.core.tomlfile import read_toml
 from terrain.craters.catalog import CraterTable
+from terrain.craters.chronology import SLOPE_ABOVE_1KM, SLOPE_BELOW_1KM
 
 __all__ = ["CELL_EXPECTATION", "Population"]
 
@@ -57,6 +63,7 @@ _BYTES_PER_CRATER = 96
 STREAM_COUNT = stream_id("crater-count")
 STREAM_CRATER = stream_id("crater")
 STREAM_UID = stream_id("crater-uid")
+STREAM_KEEP = stream_id("crater-keep")
 
 
 #: Steepest size-frequency exponent accepted (observed lunar populations lie in -1.5..-4).
@@ -80,6 +87,9 @@ class Population:
     lifetime_coefficient : float
         c of a crater's lifetime ``c D^2`` (Gyr, D in metres): ages are uniform in
         ``[0, min(max_age, c D^2)]``. 0 (the default): every crater lives ``max_age``.
+    production_n1 : float
+        Craters >= 1 km per km^2 the surface received; where the production falls below the
+        density, craters are thinned to it. 0 (the default): no thinning.
 
     Examples
     --------
@@ -99,6 +109,7 @@ class Population:
     sfd_exponent: float = -2.0
     max_age: float = 3.5
     lifetime_coefficient: float = 0.0
+    production_n1: float = 0.0
 
     def __post_init__(self):
         for f in fields(self):
@@ -119,6 +130,9 @@ class Population:
         if self.lifetime_coefficient < 0:
             raise InvalidParameterError(
                 f"lifetime_coefficient must be >= 0 Gyr per m^2; got {self.lifetime_coefficient}")
+        if self.production_n1 < 0:
+            raise InvalidParameterError(
+                f"production_n1 must be >= 0 per km^2; got {self.production_n1}")
 
     @classmethod
     def from_toml(cls, path, defaults=None, **overrides) -> Population:
@@ -229,7 +243,8 @@ class Population:
             iy0, iy1 = math.floor(lo_y / cell), math.floor(hi_y / cell)
             lam = self.bin_density(d_lo, d_hi) * cell * cell
             args = (seed, b, cell, lam, d_lo, d_hi, self.sfd_exponent, self.max_age,
-                    self.lifetime_coefficient, ix0, ix1, iy0, iy1, lo_x, hi_x, lo_y, hi_y)
+                    self.lifetime_coefficient, self.production_n1, self.sfd_constant,
+                    SLOPE_BELOW_1KM, SLOPE_ABOVE_1KM, ix0, ix1, iy0, iy1, lo_x, hi_x, lo_y, hi_y)
             n = _generate(*args, np.empty((0, 5)), np.empty(0, np.uint64), True)
             out = np.empty((n, 5))
             uid = np.empty(n, np.uint64)
@@ -241,8 +256,8 @@ class Population:
 
 
 @numba.njit(cache=True)
-def _generate(seed, b, cell, lam, d_lo, d_hi, k, max_age, lifetime, ix0, ix1, iy0, iy1,
-              lo_x, hi_x, lo_y, hi_y, out, uid, count_only):
+def _generate(seed, b, cell, lam, d_lo, d_hi, k, max_age, lifetime, n1, c_eq, below, above,
+              ix0, ix1, iy0, iy1, lo_x, hi_x, lo_y, hi_y, out, uid, count_only):
     n = 0
     lo_k = d_lo**k
     span_k = d_hi**k - lo_k
@@ -255,11 +270,17 @@ def _generate(seed, b, cell, lam, d_lo, d_hi, k, max_age, lifetime, ix0, ix1, iy
                 y = (iy + uniform_scalar(seed, STREAM_CRATER, b, ix, iy, 4 * j + 1)) * cell
                 if x < lo_x or x > hi_x or y < lo_y or y > hi_y:
                     continue
+                u = uniform_scalar(seed, STREAM_CRATER, b, ix, iy, 4 * j + 2)
+                d = (lo_k + u * span_k) ** inv_k
+                if n1 > 0.0:
+                    km = d / 1000.0
+                    prod = n1 * km ** (below if km < 1.0 else above)
+                    keep = prod / (c_eq * d**k)
+                    if keep < 1.0 and uniform_scalar(seed, STREAM_KEEP, b, ix, iy, j) >= keep:
+                        continue
                 if not count_only:
-                    u = uniform_scalar(seed, STREAM_CRATER, b, ix, iy, 4 * j + 2)
                     out[n, 0] = x
                     out[n, 1] = y
-                    d = (lo_k + u * span_k) ** inv_k
                     span = max_age if lifetime <= 0.0 else min(max_age, lifetime * d * d)
                     out[n, 2] = d
                     out[n, 3] = span * uniform_scalar(seed, STREAM_CRATER, b, ix, iy, 4 * j + 3)

@@ -43,6 +43,9 @@ from terrain.stages.specs import (
 __all__ = ["add_crater", "crater_model", "craters", "expand", "fill", "hillshade",
            "population", "preset_relief", "repose", "synth", "terrain_preset"]
 
+#: RMD fractal dimension and relief (m) of `terrain synth` without a preset.
+DEFAULT_FRACTAL_DIMENSION = 2.2
+DEFAULT_RELIEF = 30.0
 #: Median |N(0, 1)|: the median of a Gaussian height difference over its standard deviation.
 _MEDIAN_ABS_GAUSSIAN = 0.6744897501960817
 #: Hurst exponent of a base above the preset's self-affine range: there LOLA's slopes fall
@@ -131,7 +134,10 @@ def crater_model(spec: Any) -> Any:
     transition = DEFAULT_TRANSITION_DIAMETER if transition is None else transition
     morphology = Morphology(transition, max(DEFAULT_PEAK_RING_DIAMETER, 2.0 * transition),
                             enabled=not spec.simple_craters_only)
-    slope = SlopeDegradation(enabled=not spec.no_slope_degradation,
+    # A preset's diffusivity is measured on real, sloping ground, and its equilibrium is the
+    # density counted there: faster degradation on slopes would count the slopes twice (and
+    # thin the visible craters below the equilibrium); slopes above repose are relaxed instead.
+    slope = SlopeDegradation(enabled=not spec.no_slope_degradation and p is None,
                              critical_slope_deg=DEFAULT_CRITICAL_SLOPE_DEG if p is None
                              else p.repose_deg)
     model = CraterModel(erosion=erosion, morphology=morphology, slope=slope,
@@ -155,6 +161,7 @@ def population(spec: Any, *, resolution: float, extent: float, warn_small: bool 
         Warn when ``dmin`` is below two pixels.
     """
     from terrain.core.presets import TRASK_EQUILIBRIUM
+    from terrain.craters.chronology import neukum_n1
     from terrain.craters.diffusion import DiffusionModel
     from terrain.craters.population import Population
 
@@ -166,13 +173,14 @@ def population(spec: Any, *, resolution: float, extent: float, warn_small: bool 
     defaults: dict[str, Any] = dict(dmin=3.0 * resolution, dmax=extent / 4.0)
     if p is not None:
         # the visible population: equilibrium density, each size living until diffusion
-        # takes it below the visible d/D
+        # takes it below the visible d/D, and no more than the surface's age produced
         dmin = defaults["dmin"] if spec.dmin is None else spec.dmin
         defaults.update(
             density=p.crater_equilibrium * TRASK_EQUILIBRIUM * 1e6 * float(dmin) ** -2,
             max_age=p.surface_age_gyr,
             lifetime_coefficient=DiffusionModel(
-                p.diffusivity_m2_per_myr, p.visible_depth_ratio).lifetime_coefficient)
+                p.diffusivity_m2_per_myr, p.visible_depth_ratio).lifetime_coefficient,
+            production_n1=neukum_n1(p.surface_age_gyr))
     if spec.population is not None:
         pop = Population.from_toml(spec.population, defaults=defaults, **overrides)
     else:
@@ -236,10 +244,10 @@ def synth(spec: SynthSpec, source: None, output: Path, execution: Execution, *,
         raise InvalidParameterError("--catalog needs craters: give --density or --population")
     model = crater_model(spec)
     p = terrain_preset(spec)
-    fd, relief = (2.2, 30.0) if p is None else preset_relief(p, spec.size, spec.resolution)
-    spec = dataclasses.replace(
-        spec, fractal_dimension=fd if spec.fractal_dimension is None else spec.fractal_dimension,
-        relief=relief if spec.relief is None else spec.relief)
+    fd, relief = ((DEFAULT_FRACTAL_DIMENSION, DEFAULT_RELIEF) if p is None
+                  else preset_relief(p, spec.size, spec.resolution))
+    fd = fd if spec.fractal_dimension is None else spec.fractal_dimension
+    relief = relief if spec.relief is None else spec.relief
     relax = repose(spec)
     if chunked or (spec.window is None
                    and not fits_in_memory(spec.size ** 2 * WORKING_BYTES_PER_PIXEL)):
@@ -249,16 +257,16 @@ def synth(spec: SynthSpec, source: None, output: Path, execution: Execution, *,
             raise InvalidParameterError(
                 "--terrain relaxes slopes to repose, which chunked synth runs do not do yet; "
                 "drop the chunked options (or give --window) or drop --terrain")
-        return run_dask(SynthSource(spec.size, spec.resolution, spec.fractal_dimension,
-                                    spec.relief, spec.seed, pop, model, crs), output,
+        return run_dask(SynthSource(spec.size, spec.resolution, fd, relief, spec.seed, pop,
+                                    model, crs), output,
                         execution, "synth", progress=progress, catalog=catalog)
     with progress("craters", "class") as update:
         result = synthesize_tile(spec.size, resolution=spec.resolution,
-                                 fractal_dimension=spec.fractal_dimension, relief=spec.relief,
+                                 fractal_dimension=fd, relief=relief,
                                  seed=spec.seed, craters=pop, model=model, window=spec.window,
                                  progress=update, crs=crs, repose=relax)
     params = dict(size=spec.size, resolution=spec.resolution, terrain=spec.terrain,
-                  fractal_dimension=spec.fractal_dimension, relief=spec.relief, seed=spec.seed,
+                  fractal_dimension=fd, relief=relief, seed=spec.seed,
                   population=pop.as_dict() if pop else None,
                   **({"body": spec.body, "crs": spec.crs or "south-polar"} if crs else {}),
                   window=_window_list(spec.window))

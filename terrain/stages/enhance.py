@@ -14,7 +14,7 @@ from typing import Any
 
 from terrain.core import metakeys as mk
 from terrain.core.errors import InvalidParameterError
-from terrain.stages.dems import crater_model, population
+from terrain.stages.dems import crater_model, population, repose
 from terrain.stages.runner import Execution, ProgressFactory, Written
 from terrain.stages.specs import EnhanceSpec
 
@@ -109,7 +109,7 @@ def enhance(spec: EnhanceSpec, source: Path, output: Path, execution: Execution,
                             params=RoughnessChoice(spec.fractal_dimension, spec.height_scale,
                                                    spec.uniform_roughness),
                             min_crater_pixels=spec.min_crater_pixels, progress=bar,
-                            rocks=rocks)
+                            rocks=rocks, repose=repose(spec))
     stack = stack.with_info(source=str(source), command="terrain enhance",
                             craterscape_version=mk.version())
     write_stack(stack, output, inputs=[source])
@@ -131,6 +131,9 @@ def _chunked(spec: EnhanceSpec, source: Path, output: Path, execution: Execution
     if spec.despike is not None:
         raise InvalidParameterError("a chunked enhance takes no --despike; run `terrain fill "
                                     "--despike` on the DEM first")
+    if repose(spec) is not None:
+        raise InvalidParameterError("a chunked enhance does not relax slopes to repose yet; "
+                                    "build this stack in memory or drop --terrain")
     prepare_folder(output, inputs=[source], keep=(".craterscape.work",))
     reader = open_reader(source, spec.band)
     site, levels = _site(spec, reader), _levels(spec, reader.resolution)

@@ -47,7 +47,7 @@ __all__ = ["DEFAULT_FRESH_AGE_GYR", "DEFAULT_ITERATIONS", "RELAXATION", "Repose"
            "horn_tangent", "relax_to_repose"]
 
 #: Most Jacobi iterations (and the halo a window needs).
-DEFAULT_ITERATIONS = 48
+DEFAULT_ITERATIONS = 96
 #: Share of a pair's excess height difference moved per iteration (a cell has eight pairs).
 RELAXATION = 0.25
 #: Craters younger than this (Gyr) keep their walls: fresh walls stand above repose.
