@@ -37,9 +37,6 @@ SEED = 2014
 
 
 def _stack(spec: dict):
-    import numpy as np
-
-    from terrain.core.tile import DEMTile, default_transform
     from terrain.fractal.roughness import RoughnessChoice
     from terrain.fractal.synthetic import synthesize_tile
     from terrain.stack.build import build_stack
@@ -49,8 +46,6 @@ def _stack(spec: dict):
     size = spec["size"]
     base = synthesize_tile(size, resolution=1000.0, fractal_dimension=2.5, relief=5000.0,
                            seed=SEED).tile
-    base = DEMTile(base.heights, np.isfinite(base.heights),
-                   default_transform(1000.0, size), None, None)
     if spec["name"] == "preset":
         table = dict(terrain="south-polar", dmin=1.0, dmax=4000.0)
     else:

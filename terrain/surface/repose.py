@@ -39,6 +39,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from terrain.core.errors import InvalidParameterError
@@ -54,8 +55,6 @@ RELAXATION = 0.25
 DEFAULT_FRESH_AGE_GYR = 0.1
 #: The pair limit as a fraction of Sc (see the module docstring).
 _PAIR_FACTOR = math.cos(math.pi / 8.0)
-#: Neighbour pairs: (row step, column step, distance in pixels).
-_PAIRS = ((0, 1, 1.0), (1, 0, 1.0), (1, 1, math.sqrt(2.0)), (1, -1, math.sqrt(2.0)))
 
 
 @dataclass(frozen=True)
@@ -155,6 +154,55 @@ def horn_tangent(heights: np.ndarray, resolution: float) -> np.ndarray:
     return np.hypot(gx, gy)
 
 
+@numba.njit(cache=True)
+def _relax(z, free, limit, iterations):
+    """Jacobi sweeps of the pair rule in place (see the module docstring)."""
+    ny, nx = z.shape
+    dz = np.zeros_like(z)
+    di = (0, 1, 1, 1)
+    dj = (1, 0, 1, -1)
+    dist = (1.0, 1.0, math.sqrt(2.0), math.sqrt(2.0))
+    for _ in range(iterations):
+        steep_any = False
+        dz[:, :] = 0.0
+        for i in range(ny):
+            for j in range(nx):
+                za = z[i, j]
+                if math.isnan(za):
+                    continue
+                fa = free[i, j]
+                for p in range(4):
+                    bi = i + di[p]
+                    bj = j + dj[p]
+                    if bi >= ny or bj < 0 or bj >= nx:
+                        continue
+                    zb = z[bi, bj]
+                    if math.isnan(zb):
+                        continue
+                    fb = free[bi, bj]
+                    if not (fa or fb):
+                        continue
+                    diff = za - zb
+                    excess = abs(diff) - limit * dist[p]
+                    if not excess > 0.0:
+                        continue
+                    steep_any = True
+                    move = RELAXATION * excess * (1.0 if diff > 0.0 else -1.0)
+                    if fa and fb:
+                        dz[i, j] -= 0.5 * move
+                        dz[bi, bj] += 0.5 * move
+                    elif fa:
+                        dz[i, j] -= move
+                    else:
+                        dz[bi, bj] += move
+        if not steep_any:
+            break
+        for i in range(ny):
+            for j in range(nx):
+                if free[i, j]:
+                    z[i, j] += dz[i, j]
+
+
 def relax_to_repose(heights: np.ndarray, resolution: float, angle_deg: float, *,
                     movable: np.ndarray | None = None,
                     iterations: int = DEFAULT_ITERATIONS) -> tuple[np.ndarray, np.ndarray]:
@@ -188,42 +236,14 @@ def relax_to_repose(heights: np.ndarray, resolution: float, angle_deg: float, *,
         raise InvalidParameterError(f"resolution must be positive metres; got {resolution}")
     if not 0.0 < angle_deg < 90.0:
         raise InvalidParameterError(f"angle of repose must lie in (0, 90); got {angle_deg}")
-    known = np.isfinite(z0)
-    free = known if movable is None else (np.asarray(movable, dtype=bool) & known)
     if movable is not None and np.shape(movable) != z0.shape:
         raise InvalidParameterError(
             f"movable must match heights {z0.shape}; got {np.shape(movable)}")
-    z = z0.copy()
+    known = np.isfinite(z0)
+    free = known if movable is None else (np.asarray(movable, dtype=bool) & known)
     limit = math.tan(math.radians(angle_deg)) * _PAIR_FACTOR * resolution
-    ny, nx = z.shape
-    for _ in range(int(iterations)):
-        dz = np.zeros_like(z)
-        any_steep = False
-        for di, dj, dist in _PAIRS:
-            a_rows = slice(0, ny - di)
-            b_rows = slice(di, ny)
-            a_cols = slice(0, nx - dj) if dj >= 0 else slice(-dj, nx)
-            b_cols = slice(dj, nx) if dj >= 0 else slice(0, nx + dj)
-            za, zb = z[a_rows, a_cols], z[b_rows, b_cols]
-            with np.errstate(invalid="ignore"):
-                diff = za - zb
-                excess = np.abs(diff) - limit * dist
-                steep = excess > 0.0
-            fa, fb = free[a_rows, a_cols], free[b_rows, b_cols]
-            steep &= fa | fb
-            if not steep.any():
-                continue
-            any_steep = True
-            move = np.where(steep, RELAXATION * excess * np.sign(diff), 0.0)
-            both = fa & fb
-            # shares: half each when both may move, the whole move to the free one otherwise
-            share_a = np.where(both, 0.5, np.where(fa, 1.0, 0.0))
-            share_b = np.where(both, 0.5, np.where(fb, 1.0, 0.0))
-            dz[a_rows, a_cols] -= move * share_a
-            dz[b_rows, b_cols] += move * share_b
-        if not any_steep:
-            break
-        z = np.where(free, z + dz, z)
+    z = z0.copy()
+    _relax(z, np.ascontiguousarray(free), limit, int(iterations))
     changed = free & (z != z0)
     z[~free] = z0[~free]
     return z, changed
