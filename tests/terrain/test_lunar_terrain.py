@@ -169,3 +169,25 @@ def test_large_craters_are_as_many_as_the_surface_received():
     assert n1 == pytest.approx(3.3e-2, rel=0.1)
     n200 = np.count_nonzero(t.diameter >= 200.0) / area_km2
     assert n200 == pytest.approx(TRASK * 200.0 ** -2 * 1e6, rel=0.15)
+
+
+def test_synth_terrain_option(tmp_path):
+    from terrain.io import read_dem
+    from tests.cli_helpers import one_line_error, run
+
+    out, cat = tmp_path / "t.tif", tmp_path / "c.csv"
+    r = run("terrain", "synth", "-o", out, "--size", 129, "--resolution", 2.0,
+            "--terrain", "maria", "--seed", 1, "--catalog", cat)
+    assert r.exit_code == 0, r.output
+    meta = read_dem(out).metadata
+    assert '"terrain": "maria"' in meta["CRATERSCAPE_PARAMETERS"]
+    assert '"angle_deg": 35.0' in meta["CRATERSCAPE_REPOSE"]
+    assert cat.exists()
+    # a window of the preset's tile is the same pixels of the full run
+    win = tmp_path / "w.tif"
+    assert run("terrain", "synth", "-o", win, "--size", 129, "--resolution", 2.0,
+               "--terrain", "maria", "--seed", 1, "--window", "30,20,40,50").exit_code == 0
+    np.testing.assert_array_equal(read_dem(win).heights, read_dem(out).heights[20:70, 30:70])
+    bad = run("terrain", "synth", "-o", tmp_path / "b.tif", "--terrain", "mare")
+    assert bad.exit_code == 2
+    one_line_error(bad, "--terrain", "mare")
