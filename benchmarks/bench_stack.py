@@ -1,8 +1,8 @@
 """Benchmark of a layer stack's build with a terrain preset against today's: one JSON document.
 
-Two configurations build the same nested stack (a synthetic 1 km base, the demo's expansion
-roughness, craters from 1 m) in child processes, alternating in rounds so that the baseline
-is measured interleaved with what it is compared with:
+Two configurations build the same nested stack (a synthetic 1 km base with the south-polar
+roughness, the demo's expansion roughness, craters from 1 m) in child processes, alternating
+in rounds so that the baseline is measured interleaved with what it is compared with:
 
 * ``today``: the Ross/Soderblom degradation, ages uniform over 3.5 Gyr, the demo's crater
   density (N(>=D) = 0.1 D^-2 per m^2), no relaxation;
@@ -37,14 +37,16 @@ SEED = 2014
 
 
 def _stack(spec: dict):
+    from terrain.core.presets import preset
     from terrain.fractal.roughness import RoughnessChoice
     from terrain.fractal.synthetic import synthesize_tile
     from terrain.stack.build import build_stack
-    from terrain.stages.dems import crater_model, population, repose
+    from terrain.stages.dems import crater_model, population, preset_relief, repose
     from terrain.stages.specs import SynthSpec
 
     size = spec["size"]
-    base = synthesize_tile(size, resolution=1000.0, fractal_dimension=2.5, relief=5000.0,
+    fd, relief = preset_relief(preset("south-polar"), size, 1000.0)
+    base = synthesize_tile(size, resolution=1000.0, fractal_dimension=fd, relief=relief,
                            seed=SEED).tile
     if spec["name"] == "preset":
         table = dict(terrain="south-polar", dmin=1.0, dmax=4000.0)

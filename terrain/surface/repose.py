@@ -36,6 +36,7 @@ True
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
@@ -43,6 +44,8 @@ import numba
 import numpy as np
 
 from terrain.core.errors import InvalidParameterError
+
+log = logging.getLogger(__name__)
 
 __all__ = ["DEFAULT_FRESH_AGE_GYR", "DEFAULT_ITERATIONS", "RELAXATION", "Repose",
            "horn_tangent", "relax_to_repose"]
@@ -53,6 +56,8 @@ DEFAULT_ITERATIONS = 96
 RELAXATION = 0.25
 #: Craters younger than this (Gyr) keep their walls: fresh walls stand above repose.
 DEFAULT_FRESH_AGE_GYR = 0.1
+#: Sweeps stop once no pair exceeds its limit by more than this fraction of the limit.
+_SETTLED = 1e-3
 #: The pair limit as a fraction of Sc (see the module docstring).
 _PAIR_FACTOR = math.cos(math.pi / 8.0)
 
@@ -156,14 +161,17 @@ def horn_tangent(heights: np.ndarray, resolution: float) -> np.ndarray:
 
 @numba.njit(cache=True)
 def _relax(z, free, limit, iterations):
-    """Jacobi sweeps of the pair rule in place (see the module docstring)."""
+    """Jacobi sweeps of the pair rule in place; return the sweeps made and the pairs left."""
     ny, nx = z.shape
     dz = np.zeros_like(z)
     di = (0, 1, 1, 1)
     dj = (1, 0, 1, -1)
     dist = (1.0, 1.0, math.sqrt(2.0), math.sqrt(2.0))
+    sweeps = 0
+    left = 0
     for _ in range(iterations):
         steep_any = False
+        left = 0
         dz[:, :] = 0.0
         for i in range(ny):
             for j in range(nx):
@@ -186,7 +194,9 @@ def _relax(z, free, limit, iterations):
                     excess = abs(diff) - limit * dist[p]
                     if not excess > 0.0:
                         continue
-                    steep_any = True
+                    if excess > _SETTLED * limit:
+                        steep_any = True
+                        left += 1
                     move = RELAXATION * excess * (1.0 if diff > 0.0 else -1.0)
                     if fa and fb:
                         dz[i, j] -= 0.5 * move
@@ -197,10 +207,12 @@ def _relax(z, free, limit, iterations):
                         dz[bi, bj] += move
         if not steep_any:
             break
+        sweeps += 1
         for i in range(ny):
             for j in range(nx):
                 if free[i, j]:
                     z[i, j] += dz[i, j]
+    return sweeps, left
 
 
 def relax_to_repose(heights: np.ndarray, resolution: float, angle_deg: float, *,
@@ -220,7 +232,8 @@ def relax_to_repose(heights: np.ndarray, resolution: float, angle_deg: float, *,
         Cells that may change (default: every known cell). Others keep their heights
         bitwise: pass False for known heights of a real DEM and fresh crater walls.
     iterations : int
-        Most Jacobi iterations (it stops early once no pair is too steep).
+        Most Jacobi iterations (it stops early once no pair is steeper than its limit by more
+        than a thousandth of it).
 
     Returns
     -------
@@ -243,7 +256,8 @@ def relax_to_repose(heights: np.ndarray, resolution: float, angle_deg: float, *,
     free = known if movable is None else (np.asarray(movable, dtype=bool) & known)
     limit = math.tan(math.radians(angle_deg)) * _PAIR_FACTOR * resolution
     z = z0.copy()
-    _relax(z, np.ascontiguousarray(free), limit, int(iterations))
+    sweeps, left = _relax(z, np.ascontiguousarray(free), limit, int(iterations))
+    log.debug("repose: %d sweeps, %d pairs still above the limit", sweeps, left)
     changed = free & (z != z0)
     z[~free] = z0[~free]
     return z, changed
