@@ -191,3 +191,36 @@ def test_synth_terrain_option(tmp_path):
     bad = run("terrain", "synth", "-o", tmp_path / "b.tif", "--terrain", "mare")
     assert bad.exit_code == 2
     one_line_error(bad, "--terrain", "mare")
+
+
+def test_stack_relaxation_never_moves_known_heights(tmp_path):
+    from terrain.fractal.roughness import RoughnessChoice
+    from terrain.stack.build import build_stack
+    from terrain.stack.store import read_stack, write_stack
+
+    # a rough real-like base with a gap: relaxation may touch only what the stack synthesizes
+    base = synthesize_tile(33, resolution=8.0, fractal_dimension=2.6, relief=60.0, seed=2).tile
+    heights = base.heights.copy()
+    heights[10:14, 12:18] = np.nan
+    base = base.replace(heights=heights, valid=np.isfinite(heights))
+    stack = build_stack(base, (132.0, 132.0), levels=3, layer_size=33, seed=1,
+                        params=RoughnessChoice(2.3, 0.3), repose=Repose())
+    known = np.isfinite(heights)
+    for k, layer in enumerate(stack.layers):
+        r0, c0 = layer.origin
+        step = 2 ** k
+        tile = layer.tile
+        rows = np.arange(tile.shape[0]) + r0
+        cols = np.arange(tile.shape[1]) + c0
+        on = np.ix_(np.flatnonzero(rows % step == 0), np.flatnonzero(cols % step == 0))
+        base_idx = np.ix_(rows[rows % step == 0] // step, cols[cols % step == 0] // step)
+        colocated = tile.heights[on]
+        mask = known[base_idx]
+        np.testing.assert_array_equal(colocated[mask], heights[base_idx][mask])
+    plain = build_stack(base, (132.0, 132.0), levels=3, layer_size=33, seed=1,
+                        params=RoughnessChoice(2.3, 0.3))
+    assert any(not np.array_equal(a.tile.heights, b.tile.heights)
+               for a, b in zip(stack.layers, plain.layers, strict=True))  # it did relax
+    assert stack.info["repose"]["angle_deg"] == 35.0
+    write_stack(stack, tmp_path / "s")
+    assert read_stack(tmp_path / "s").info["repose"] == stack.info["repose"]
