@@ -22,7 +22,9 @@ degrees of one of the four pair directions), so the Horn slope of the relaxed gr
 at or below the angle of repose.
 
 A cell depends only on cells within ``iterations`` of it, so a window grown by that halo
-gives bitwise the same heights as the whole tile (:data:`DEFAULT_ITERATIONS`).
+gives bitwise the same heights as the whole tile (:data:`DEFAULT_ITERATIONS`); the sweeps stop
+early once no pair exceeds its limit by more than a thousandth of it (such pairs never move,
+which keeps the early stop window-exact).
 
 Examples
 --------
@@ -56,7 +58,10 @@ DEFAULT_ITERATIONS = 96
 RELAXATION = 0.25
 #: Craters younger than this (Gyr) keep their walls: fresh walls stand above repose.
 DEFAULT_FRESH_AGE_GYR = 0.1
-#: Sweeps stop once no pair exceeds its limit by more than this fraction of the limit.
+#: A pair moves only when it exceeds its limit by more than this fraction of the limit, and
+#: the sweeps stop once none does. Sub-threshold pairs never move, so a sweep that moves
+#: nothing in a window would move nothing there in the whole tile either, and a window grown
+#: by ``iterations`` cells still equals the whole tile's result.
 _SETTLED = 1e-3
 #: The pair limit as a fraction of Sc (see the module docstring).
 _PAIR_FACTOR = math.cos(math.pi / 8.0)
@@ -192,11 +197,10 @@ def _relax(z, free, limit, iterations):
                         continue
                     diff = za - zb
                     excess = abs(diff) - limit * dist[p]
-                    if not excess > 0.0:
+                    if not excess > _SETTLED * limit:
                         continue
-                    if excess > _SETTLED * limit:
-                        steep_any = True
-                        left += 1
+                    steep_any = True
+                    left += 1
                     move = RELAXATION * excess * (1.0 if diff > 0.0 else -1.0)
                     if fa and fb:
                         dz[i, j] -= 0.5 * move

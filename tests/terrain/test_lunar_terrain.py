@@ -229,3 +229,19 @@ def test_stack_relaxation_never_moves_known_heights(tmp_path):
     assert stack.info["repose"]["angle_deg"] == 35.0
     write_stack(stack, tmp_path / "s")
     assert read_stack(tmp_path / "s").info["repose"] == stack.info["repose"]
+
+
+@pytest.mark.parametrize("win", [(0, 0, 20, 30), (17, 23, 25, 19), (40, 41, 25, 24)])
+def test_relaxation_of_a_grown_window_equals_the_whole_tile(win):
+    z = synthesize(65, fractal_dimension=2.6, relief=6.0, seed=9)
+    movable = np.ones(z.shape, bool)
+    movable[::5, ::7] = False
+    full, _ = relax_to_repose(z, 1.0, 35.0, movable=movable, iterations=30)
+    c, r, w, h = win
+    halo = 31
+    r0, c0 = max(0, r - halo), max(0, c - halo)
+    r1, c1 = min(65, r + h + halo), min(65, c + w + halo)
+    part, _ = relax_to_repose(z[r0:r1, c0:c1], 1.0, 35.0, movable=movable[r0:r1, c0:c1],
+                              iterations=30)
+    np.testing.assert_array_equal(part[r - r0:r - r0 + h, c - c0:c - c0 + w],
+                                  full[r:r + h, c:c + w])
