@@ -36,7 +36,7 @@ from terrain.stack.plan import (
 )
 from terrain.stack.store import ROCK_CATALOG
 
-__all__ = ["build_stack", "relax_layer", "rock_levels"]
+__all__ = ["build_stack", "fixed_cells", "relax_layer", "rock_levels"]
 
 log = logging.getLogger(__name__)
 
@@ -178,6 +178,40 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
     return LayerStack(layer_records(tiles, windows, origins), catalog, info, rock_catalog)
 
 
+def fixed_cells(shape: tuple[int, int], level: int, origin: tuple[int, int],
+                known: np.ndarray, known_origin: tuple[int, int]) -> np.ndarray:
+    """Cells of a layer co-located with a known pixel of the base.
+
+    Parameters
+    ----------
+    shape : (rows, cols)
+        The part of the layer asked about.
+    level : int
+        The layer's level (0 the base).
+    origin : (row, col)
+        Global pixel index, at the layer's level, of the part's cell (0, 0).
+    known : (m, n) bool
+        Known pixels of a part of the base ...
+    known_origin : (row, col)
+        ... whose cell (0, 0) is this base pixel.
+
+    Returns
+    -------
+    (rows, cols) bool
+    """
+    ny, nx = shape
+    step = 2 ** level
+    rows = origin[0] + np.arange(ny) - known_origin[0] * step
+    cols = origin[1] + np.arange(nx) - known_origin[1] * step
+    on_r = (rows >= 0) & (rows % step == 0) & (rows // step < known.shape[0])
+    on_c = (cols >= 0) & (cols % step == 0) & (cols // step < known.shape[1])
+    fixed = np.zeros((ny, nx), dtype=bool)
+    ri, ci = np.flatnonzero(on_r), np.flatnonzero(on_c)
+    if ri.size and ci.size:
+        fixed[np.ix_(ri, ci)] = known[np.ix_(rows[ri] // step, cols[ci] // step)]
+    return fixed
+
+
 def relax_layer(tile: DEMTile, level: int, origin: tuple[int, int], known: np.ndarray,
                 repose, catalogs: list) -> tuple[DEMTile, int]:
     """Relax one layer's synthesized slopes to the angle of repose.
@@ -206,15 +240,7 @@ def relax_layer(tile: DEMTile, level: int, origin: tuple[int, int], known: np.nd
     from terrain.surface.repose import relax_to_repose
 
     ny, nx = tile.shape
-    step = 2 ** level
-    rows = origin[0] + np.arange(ny)
-    cols = origin[1] + np.arange(nx)
-    on_r = (rows % step == 0) & (rows // step < known.shape[0])
-    on_c = (cols % step == 0) & (cols // step < known.shape[1])
-    fixed = np.zeros((ny, nx), dtype=bool)
-    ri, ci = np.flatnonzero(on_r), np.flatnonzero(on_c)
-    if ri.size and ci.size:
-        fixed[np.ix_(ri, ci)] = known[np.ix_(rows[ri] // step, cols[ci] // step)]
+    fixed = fixed_cells((ny, nx), level, origin, known, (0, 0))
     fresh = np.zeros((ny, nx), dtype=bool)
     for c in catalogs:
         if len(c.x_m):

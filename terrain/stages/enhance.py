@@ -131,9 +131,6 @@ def _chunked(spec: EnhanceSpec, source: Path, output: Path, execution: Execution
     if spec.despike is not None:
         raise InvalidParameterError("a chunked enhance takes no --despike; run `terrain fill "
                                     "--despike` on the DEM first")
-    if repose(spec) is not None:
-        raise InvalidParameterError("a chunked enhance does not relax slopes to repose yet; "
-                                    "build this stack in memory or drop --terrain")
     prepare_folder(output, inputs=[source], keep=(".craterscape.work",))
     reader = open_reader(source, spec.band)
     site, levels = _site(spec, reader), _levels(spec, reader.resolution)
@@ -159,6 +156,7 @@ def _chunked(spec: EnhanceSpec, source: Path, output: Path, execution: Execution
                 chunk=execution.chunk or DEFAULT_CHUNK, client=client,
                 progress=stage_progress,
                 halo=DEFAULT_HALO if spec.halo is None else spec.halo, inputs=[source],
+                repose=repose(spec),
                 info=dict(source=str(source), command="terrain enhance",
                           craterscape_version=mk.version()))
     computed = sum(s["computed"] for s in result["stages"].values())

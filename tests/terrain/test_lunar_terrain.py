@@ -245,3 +245,36 @@ def test_relaxation_of_a_grown_window_equals_the_whole_tile(win):
                               iterations=30)
     np.testing.assert_array_equal(part[r - r0:r - r0 + h, c - c0:c - c0 + w],
                                   full[r:r + h, c:c + w])
+
+
+def test_chunked_stack_relaxes_as_the_in_memory_stack(tmp_path):
+    import rasterio
+
+    from terrain.craters.population import Population
+    from terrain.execution.chunked import open_reader
+    from terrain.fractal.roughness import ExpansionParameters
+    from terrain.io import read_dem, write_dem
+    from terrain.stack.build import build_stack
+    from terrain.stack.chunkedlayers import build_stack_chunked
+    from terrain.stack.store import read_stack
+
+    tile = synthesize_tile(65, resolution=4.0, fractal_dimension=2.6, relief=40.0, seed=2).tile
+    h = tile.heights.copy()
+    h[40:44, 10:15] = np.nan
+    tile = DEMTile(h, np.isfinite(h), tile.transform,
+                   rasterio.crs.CRS.from_epsg(32633).to_wkt(), -9999.0, {})
+    write_dem(tile, tmp_path / "base.tif")
+    pop = Population(dmin=2.0, dmax=40.0, density=2e5, max_age=0.3)
+    params = ExpansionParameters(2.3, 0.3, 4.0, 64)
+    args = dict(levels=2, layer_size=33, seed=3, population=pop, params=params,
+                repose=Repose(iterations=20))
+    mem = build_stack(read_dem(tmp_path / "base.tif", exact=True), (130.0, 130.0), **args)
+    plain = build_stack(read_dem(tmp_path / "base.tif", exact=True), (130.0, 130.0),
+                        **{**args, "repose": None})
+    assert any(not np.array_equal(a, b) for a, b in zip(
+        [t.heights for t in mem.tiles], [t.heights for t in plain.tiles], strict=True))
+    build_stack_chunked(open_reader(tmp_path / "base.tif"), tmp_path / "chunked",
+                        (130.0, 130.0), chunk=16, **args)
+    chunked = read_stack(tmp_path / "chunked")
+    for a, b in zip(mem.tiles, chunked.tiles, strict=True):
+        np.testing.assert_array_equal(a.heights, b.heights)
