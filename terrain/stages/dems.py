@@ -253,12 +253,8 @@ def synth(spec: SynthSpec, source: None, output: Path, execution: Execution, *,
                    and not fits_in_memory(spec.size ** 2 * WORKING_BYTES_PER_PIXEL)):
         from terrain.execution.chunked import SynthSource
 
-        if relax is not None:
-            raise InvalidParameterError(
-                "--terrain relaxes slopes to repose, which chunked synth runs do not do yet; "
-                "drop the chunked options (or give --window) or drop --terrain")
         return run_dask(SynthSource(spec.size, spec.resolution, fd, relief, spec.seed, pop,
-                                    model, crs), output,
+                                    model, crs, relax), output,
                         execution, "synth", progress=progress, catalog=catalog)
     with progress("craters", "class") as update:
         result = synthesize_tile(spec.size, resolution=spec.resolution,

@@ -278,3 +278,16 @@ def test_chunked_stack_relaxes_as_the_in_memory_stack(tmp_path):
     chunked = read_stack(tmp_path / "chunked")
     for a, b in zip(mem.tiles, chunked.tiles, strict=True):
         np.testing.assert_array_equal(a.heights, b.heights)
+
+
+def test_chunked_synth_with_a_preset_equals_the_whole_tile(tmp_path):
+    from terrain.io import read_dem
+    from tests.cli_helpers import run
+
+    args = ["terrain", "synth", "--size", 129, "--resolution", 2.0, "--terrain", "highlands",
+            "--seed", 4]
+    assert run(*args, "-o", tmp_path / "whole.tif").exit_code == 0
+    r = run(*args, "-o", tmp_path / "chunked.zarr", "--chunk", 48)
+    assert r.exit_code == 0, r.output
+    np.testing.assert_array_equal(read_dem(tmp_path / "chunked.zarr").heights,
+                                  read_dem(tmp_path / "whole.tif").heights)
