@@ -47,6 +47,10 @@ WINDOW = "CRATERSCAPE_WINDOW"
 CRATERS = "CRATERSCAPE_CRATERS"
 #: The crater morphology and erosion model (JSON).
 CRATER_MODEL = "CRATERSCAPE_CRATER_MODEL"
+#: Relaxation to the angle of repose (JSON, :class:`terrain.surface.repose.Repose`).
+REPOSE = "CRATERSCAPE_REPOSE"
+#: The terrain preset a DEM was made with (:mod:`terrain.core.presets`).
+TERRAIN_PRESET = "CRATERSCAPE_TERRAIN_PRESET"
 #: Fractal expansion parameters and level count (JSON).
 EXPANSION = "CRATERSCAPE_EXPANSION"
 #: Gap filling record (JSON): roughness used and pixels filled.

@@ -27,7 +27,8 @@ from dataclasses import dataclass
 
 from terrain.core.checks import text
 
-__all__ = ["EQUILIBRIUM_EXPONENT", "PRESETS", "TerrainPreset", "equilibrium_density", "preset"]
+__all__ = ["EQUILIBRIUM_EXPONENT", "PRESETS", "TRASK_EQUILIBRIUM", "TerrainPreset",
+           "equilibrium_density", "preset"]
 
 
 #: Cumulative size-frequency exponent of the empirical crater equilibrium.
@@ -50,6 +51,11 @@ def equilibrium_density(diameter_m):
     d_km = np.asarray(diameter_m, dtype=float) / 1000.0
     return 10 ** -1.1 * d_km ** EQUILIBRIUM_EXPONENT / 1e6
 
+#: The empirical crater equilibrium ``N(>=D) = c D^-2`` per m^2 with D in metres: Trask (1966,
+#: Ranger VIII and IX) found log N = 10.9 - 2 log D per 10^6 km^2, i.e. c = 10^-1.1 = 0.079
+#: (Gault 1970; Melosh 1989, ch. 10; the same number :mod:`evaluation.lunar_stats` judges by).
+TRASK_EQUILIBRIUM = 10.0 ** -1.1
+
 
 @dataclass(frozen=True)
 class TerrainPreset:
@@ -69,11 +75,15 @@ class TerrainPreset:
         Largest baseline (m) over which the surface stays self-affine.
     crater_equilibrium : float
         Density of small craters as a multiple of the empirical equilibrium
-        ``N(>=D) = 10^-1.1 D_km^-2`` per km^2 (Trask 1966; 0.079 D^-2 per m^2 with D in m).
+        ``N(>=D) = 10^-1.1 D^-2`` per m^2, D in metres (:data:`TRASK_EQUILIBRIUM`).
     surface_age_gyr : float
         Age of the surface (Gyr): the oldest crater it keeps.
     repose_deg : float
         Angle of repose of the regolith (degrees): old slopes relax to it.
+    diffusivity_m2_per_myr : float
+        Topographic diffusivity (m^2/Myr) that degrades craters (Fassett and Thomson 2014).
+    visible_depth_ratio : float
+        d/D below which a degraded crater is no longer seen (Stopar et al. 2017).
     rock_model : str
         Rock model name (the VIPER environment specification's ``viper-low``,
         ``viper-nominal`` or ``viper-high``).
@@ -91,6 +101,8 @@ class TerrainPreset:
     repose_deg: float
     rock_model: str
     sources: tuple[str, ...]
+    diffusivity_m2_per_myr: float = 5.5
+    visible_depth_ratio: float = 0.04
 
 
 #: The presets by name. Numbers: LOLA slopes and Hurst exponents from Rosenburg et al. (2011,
@@ -111,6 +123,8 @@ PRESETS: dict[str, TerrainPreset] = {
             rock_model="viper-nominal",
             sources=("Rosenburg et al. 2011 (LOLA slopes and Hurst exponent, polar)",
                      "Trask 1966 (crater equilibrium)",
+                     "Fassett and Thomson 2014 (topographic diffusivity)",
+                     "Stopar et al. 2017 (d/D of counted small craters)",
                      "Carrier et al. 1991 (angle of repose)",
                      "VIPER environment specification (rock SFD, nominal)")),
         TerrainPreset(
@@ -121,6 +135,8 @@ PRESETS: dict[str, TerrainPreset] = {
             rock_model="viper-nominal",
             sources=("Rosenburg et al. 2011 (LOLA highlands slopes and Hurst exponent)",
                      "Trask 1966 (crater equilibrium)",
+                     "Fassett and Thomson 2014 (topographic diffusivity)",
+                     "Stopar et al. 2017 (d/D of counted small craters)",
                      "Carrier et al. 1991 (angle of repose)",
                      "VIPER environment specification (rock SFD, nominal)")),
         TerrainPreset(
@@ -131,6 +147,8 @@ PRESETS: dict[str, TerrainPreset] = {
             rock_model="viper-low",
             sources=("Rosenburg et al. 2011 (LOLA maria slopes and Hurst exponent)",
                      "Trask 1966 (crater equilibrium)",
+                     "Fassett and Thomson 2014 (topographic diffusivity)",
+                     "Stopar et al. 2017 (d/D of counted small craters)",
                      "Hiesinger et al. 2011 (mare ages)",
                      "Carrier et al. 1991 (angle of repose)",
                      "VIPER environment specification (rock SFD, low)")),

@@ -61,6 +61,7 @@ from terrain.core.rng import check_seed
 from terrain.core.tile import DEMTile, Window
 from terrain.craters.catalog import CraterCatalog, CraterTable
 from terrain.craters.crater import Morphology, crater_interior, exterior_height, shape_arrays
+from terrain.craters.diffusion import DiffusionModel
 from terrain.craters.erosion import ErosionModel, SlopeDegradation
 from terrain.craters.overlay import (
     MAX_PATCH_LEVEL,
@@ -100,17 +101,27 @@ RIM_TERRAIN_SMOOTHING = 4
 class CraterModel:
     """Everything about how a crater looks besides where it is.
 
-    Erosion with age (:class:`terrain.craters.erosion.ErosionModel`), roughness and irregular rim
-    (:mod:`terrain.craters.overlay`), which craters are complex
-    (:class:`terrain.craters.crater.Morphology`)
-    and faster degradation on steep ground (:class:`terrain.craters.erosion.SlopeDegradation`).
+    Erosion with age (the Ross/Soderblom :class:`terrain.craters.erosion.ErosionModel`, or
+    topographic diffusion, :class:`terrain.craters.diffusion.DiffusionModel`), roughness and
+    irregular rim (:mod:`terrain.craters.overlay`), which craters are complex
+    (:class:`terrain.craters.crater.Morphology`),
+    faster degradation on steep ground (:class:`terrain.craters.erosion.SlopeDegradation`),
+    and ``min_depth_ratio``: a simple crater eroded below this d/D is gone (not drawn, not
+    catalogued), as craters degraded past visibility are on the Moon (0: every crater stays).
     """
 
-    erosion: ErosionModel = field(default_factory=ErosionModel.default)
+    erosion: ErosionModel | DiffusionModel = field(default_factory=ErosionModel.default)
     roughness: Roughness = field(default_factory=Roughness)
     rim: RimIrregularity = field(default_factory=RimIrregularity)
     morphology: Morphology = field(default_factory=Morphology)
     slope: SlopeDegradation = field(default_factory=SlopeDegradation)
+    min_depth_ratio: float = 0.0
+
+    def __post_init__(self):
+        v = float(self.min_depth_ratio)
+        if not 0.0 <= v < 1.0:
+            raise InvalidParameterError(f"min_depth_ratio must lie in [0, 1); got {v}")
+        object.__setattr__(self, "min_depth_ratio", v)
 
     def smooth(self, **changes) -> CraterModel:
         """Return the same model with the fractal overlay and the irregular rim switched off.
@@ -155,7 +166,9 @@ class CraterModel:
         """Return the model as plain data for metadata (``CRATERSCAPE_CRATER_MODEL``)."""
         return dict(erosion=self.erosion.as_dict(), roughness=asdict(self.roughness),
                     rim=asdict(self.rim), morphology=self.morphology.as_dict(),
-                    slope_degradation=self.slope.as_dict())
+                    slope_degradation=self.slope.as_dict(),
+                    **({"min_depth_ratio": self.min_depth_ratio} if self.min_depth_ratio
+                       else {}))
 
 
 @dataclass(frozen=True, eq=False)
@@ -694,6 +707,12 @@ def crater_heights(base, shape, transform, craters, *, seed, model=None, window=
             slope = np.arctan(np.hypot(planes[:, 1], planes[:, 2]))
             depth_f, rim_f = model.factors(table.age, table.diameter, slope)
             s = shape_arrays(table.diameter, depth_f, rim_f, model.morphology)
+            if model.min_depth_ratio > 0:
+                # degraded past visibility: gone, skipped by the kernel and the catalogue
+                gone = ((s["depth"] < model.min_depth_ratio * table.diameter)
+                        & (s["complex"][:, 0] <= -1.0))
+                planes[gone, 0] = np.nan
+                planes[gone, 3] = 0.0
             craters = ClassCraters(
                 table.x, table.y, table.diameter, s["depth"], s["rim_height"],
                 s["fresh_rim_height"], s["ejecta"], s["beta"], s["a"], s["b"], s["c2"],

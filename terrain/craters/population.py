@@ -14,6 +14,17 @@ Within a range, diameters are drawn by inverse-transform sampling of the truncat
 
 Ages follow the paper's linear age distribution: a constant cratering rate, so ages are
 uniform between 0 and ``max_age`` (Gyr) and the cumulative count grows linearly with time.
+A population of the craters that *survive* gives each size its lifetime, ``c D^2`` Gyr for
+craters erased by topographic diffusion (:mod:`terrain.craters.diffusion`): at a constant
+cratering rate the visible craters of diameter D have ages uniform over
+``[0, min(max_age, c D^2)]``, and those older have gone. The density is then the visible
+density, the one crater counts measure (the equilibrium, for sizes whose lifetime is shorter
+than the surface's age). Larger craters are as many as the surface received: given
+``production_n1`` (N(>=1 km) per km^2 produced over the surface's age,
+:func:`terrain.craters.chronology.neukum_n1`), a crater of diameter D is kept with probability
+``min(1, N_prod(>=D) / N(>=D))`` (:func:`terrain.craters.chronology.production_cumulative`
+over this population's cumulative density), a draw keyed like the others, so the visible
+density follows the smaller of the two.
 
 Seamless generation
 -------------------
@@ -40,6 +51,7 @@ from terrain.core.errors import InvalidParameterError
 from terrain.core.rng import check_seed, hash64, poisson, stream_id, uniform_scalar
 from terrain.core.tomlfile import read_toml
 from terrain.craters.catalog import CraterTable
+from terrain.craters.chronology import SLOPE_ABOVE_1KM, SLOPE_BELOW_1KM
 
 __all__ = ["CELL_EXPECTATION", "Population"]
 
@@ -51,6 +63,7 @@ _BYTES_PER_CRATER = 96
 STREAM_COUNT = stream_id("crater-count")
 STREAM_CRATER = stream_id("crater")
 STREAM_UID = stream_id("crater-uid")
+STREAM_KEEP = stream_id("crater-keep")
 
 
 #: Steepest size-frequency exponent accepted (observed lunar populations lie in -1.5..-4).
@@ -71,6 +84,12 @@ class Population:
         k of N_cum = c D^k (negative; -2 by default, -1.8 for mare).
     max_age : float
         Oldest crater age in Gyr; ages are uniform in [0, max_age].
+    lifetime_coefficient : float
+        c of a crater's lifetime ``c D^2`` (Gyr, D in metres): ages are uniform in
+        ``[0, min(max_age, c D^2)]``. 0 (the default): every crater lives ``max_age``.
+    production_n1 : float
+        Craters >= 1 km per km^2 the surface received; where the production falls below the
+        density, craters are thinned to it. 0 (the default): no thinning.
 
     Examples
     --------
@@ -79,6 +98,9 @@ class Population:
     [[10.0, 20.0], [20.0, 40.0], [40.0, 80.0]]
     >>> round(p.expected_count(1.0), 6)    # per km^2, D in [10, 80)
     98.4375
+    >>> t = Population(10, 80, 100.0, lifetime_coefficient=1e-5).generate(1, (0, 0, 500, 500))
+    >>> bool((t.age <= 1e-5 * t.diameter**2).all())
+    True
     """
 
     dmin: float
@@ -86,6 +108,8 @@ class Population:
     density: float
     sfd_exponent: float = -2.0
     max_age: float = 3.5
+    lifetime_coefficient: float = 0.0
+    production_n1: float = 0.0
 
     def __post_init__(self):
         for f in fields(self):
@@ -103,6 +127,12 @@ class Population:
                 f"(N_cum = c D^k; -2 for highlands, -1.8 for mare); got {self.sfd_exponent}")
         if self.max_age < 0:
             raise InvalidParameterError(f"max_age must be >= 0 Gyr; got {self.max_age}")
+        if self.lifetime_coefficient < 0:
+            raise InvalidParameterError(
+                f"lifetime_coefficient must be >= 0 Gyr per m^2; got {self.lifetime_coefficient}")
+        if self.production_n1 < 0:
+            raise InvalidParameterError(
+                f"production_n1 must be >= 0 per km^2; got {self.production_n1}")
 
     @classmethod
     def from_toml(cls, path, defaults=None, **overrides) -> Population:
@@ -213,7 +243,8 @@ class Population:
             iy0, iy1 = math.floor(lo_y / cell), math.floor(hi_y / cell)
             lam = self.bin_density(d_lo, d_hi) * cell * cell
             args = (seed, b, cell, lam, d_lo, d_hi, self.sfd_exponent, self.max_age,
-                    ix0, ix1, iy0, iy1, lo_x, hi_x, lo_y, hi_y)
+                    self.lifetime_coefficient, self.production_n1, self.sfd_constant,
+                    SLOPE_BELOW_1KM, SLOPE_ABOVE_1KM, ix0, ix1, iy0, iy1, lo_x, hi_x, lo_y, hi_y)
             n = _generate(*args, np.empty((0, 5)), np.empty(0, np.uint64), True)
             out = np.empty((n, 5))
             uid = np.empty(n, np.uint64)
@@ -225,8 +256,8 @@ class Population:
 
 
 @numba.njit(cache=True)
-def _generate(seed, b, cell, lam, d_lo, d_hi, k, max_age, ix0, ix1, iy0, iy1,
-              lo_x, hi_x, lo_y, hi_y, out, uid, count_only):
+def _generate(seed, b, cell, lam, d_lo, d_hi, k, max_age, lifetime, n1, c_eq, below, above,
+              ix0, ix1, iy0, iy1, lo_x, hi_x, lo_y, hi_y, out, uid, count_only):
     n = 0
     lo_k = d_lo**k
     span_k = d_hi**k - lo_k
@@ -239,13 +270,20 @@ def _generate(seed, b, cell, lam, d_lo, d_hi, k, max_age, ix0, ix1, iy0, iy1,
                 y = (iy + uniform_scalar(seed, STREAM_CRATER, b, ix, iy, 4 * j + 1)) * cell
                 if x < lo_x or x > hi_x or y < lo_y or y > hi_y:
                     continue
+                u = uniform_scalar(seed, STREAM_CRATER, b, ix, iy, 4 * j + 2)
+                d = (lo_k + u * span_k) ** inv_k
+                if n1 > 0.0:
+                    km = d / 1000.0
+                    prod = n1 * km ** (below if km < 1.0 else above)
+                    keep = prod / (c_eq * d**k)
+                    if keep < 1.0 and uniform_scalar(seed, STREAM_KEEP, b, ix, iy, j) >= keep:
+                        continue
                 if not count_only:
-                    u = uniform_scalar(seed, STREAM_CRATER, b, ix, iy, 4 * j + 2)
                     out[n, 0] = x
                     out[n, 1] = y
-                    out[n, 2] = (lo_k + u * span_k) ** inv_k
-                    out[n, 3] = max_age * uniform_scalar(seed, STREAM_CRATER, b, ix, iy,
-                                                         4 * j + 3)
+                    span = max_age if lifetime <= 0.0 else min(max_age, lifetime * d * d)
+                    out[n, 2] = d
+                    out[n, 3] = span * uniform_scalar(seed, STREAM_CRATER, b, ix, iy, 4 * j + 3)
                     uid[n] = hash64(seed, STREAM_UID, b, ix, iy, j)
                 n += 1
     return n

@@ -212,6 +212,7 @@ class SynthSource:
     craters: Population | None = None
     model: CraterModel | None = None
     crs: str | None = None  # WKT (terrain.io.synthetic_crs); heights do not depend on it
+    repose: Any = None  # terrain.surface.repose.Repose, or None
 
     def __post_init__(self):
         from terrain.core.rng import check_seed
@@ -258,6 +259,8 @@ class SynthSource:
                                                      sort_keys=True)
             meta[mk.CRATER_MODEL] = json.dumps(filled_field(self.model).as_dict(),
                                                          sort_keys=True)
+        if self.repose is not None:
+            meta[mk.REPOSE] = json.dumps(self.repose.as_dict(), sort_keys=True)
         return meta
 
     def plan(self) -> dict:
@@ -275,7 +278,7 @@ class SynthSource:
         result = synthesize_tile(self.size, resolution=self.resolution,
                                  fractal_dimension=self.fractal_dimension, relief=self.relief,
                                  seed=self.seed, craters=self.craters, model=self.model,
-                                 window=window)
+                                 window=window, repose=self.repose)
         rows = result.catalog.as_dict() if self.has_catalog else None
         return np.asarray(result.tile.heights), rows
 

@@ -26,7 +26,7 @@ __all__ = ["synthesize_tile"]
 def synthesize_tile(size: int, *, resolution: float = 1.0, fractal_dimension: float = 2.2,
                     relief: float = 30.0, seed: int = 0, craters=None,
                     model: CraterModel | None = None, window: Window | None = None,
-                    progress=None, crs: str | None = None) -> CraterResult:
+                    progress=None, crs: str | None = None, repose=None) -> CraterResult:
     """Return a (size x size) RMD tile with optional craters, or a window of it.
 
     Parameters
@@ -46,6 +46,10 @@ def synthesize_tile(size: int, *, resolution: float = 1.0, fractal_dimension: fl
     crs : str, optional
         WKT of the tile's CRS (e.g. :func:`terrain.io.synthetic_crs`); the heights and map
         coordinates do not depend on it.
+    repose : terrain.surface.repose.Repose, optional
+        Relax slopes above the angle of repose outside fresh craters
+        (:func:`terrain.surface.repose.relax_to_repose`); a window is computed with the
+        relaxation's halo, so it still equals the same window of the full tile.
 
     Returns
     -------
@@ -72,13 +76,33 @@ def synthesize_tile(size: int, *, resolution: float = 1.0, fractal_dimension: fl
 
     params = dict(size=size, resolution=float(resolution),
                   fractal_dimension=float(fractal_dimension), relief=float(relief))
+    work = window
+    if repose is not None:
+        halo = repose.iterations + 1
+        r0, c0 = max(0, window.row - halo), max(0, window.col - halo)
+        r1 = min(size, window.row + window.height + halo)
+        c1 = min(size, window.col + window.width + halo)
+        work = Window(c0, r0, c1 - c0, r1 - r0)
     if craters is None:
-        z = base(window.row, window.row + window.height, window.col, window.col + window.width)
+        z = base(work.row, work.row + work.height, work.col, work.col + work.width)
         catalog = CraterCatalog.empty()
     else:
         model = model or CraterModel()
         z, catalog = crater_heights(base, (size, size), transform, craters, seed=seed,
-                                    model=model, window=window, progress=progress)
+                                    model=model, window=work, progress=progress)
+    if repose is not None:
+        from terrain.surface.repose import relax_to_repose
+
+        work_transform = transform @ Affine.translation(work.col, work.row)
+        fresh = repose.fresh_mask(z.shape, work_transform, catalog.x_m, catalog.y_m,
+                                  catalog.diameter_m, catalog.age_gyr)
+        z, _ = relax_to_repose(z, float(resolution), repose.angle_deg, movable=~fresh,
+                               iterations=repose.iterations)
+        a, b = window.row - work.row, window.col - work.col
+        z = z[a:a + window.height, b:b + window.width]
+        if len(catalog):
+            catalog = _window_catalog(catalog, window, work, float(resolution),
+                                      (model or CraterModel()).footprint_factor)
     sub_transform = transform @ Affine.translation(window.col, window.row)
     tile = DEMTile.from_array(z.astype(np.float32), transform=sub_transform, crs=crs)
     meta = {mk.SEED: str(seed), mk.RMD: json.dumps(params, sort_keys=True)}
@@ -87,4 +111,23 @@ def synthesize_tile(size: int, *, resolution: float = 1.0, fractal_dimension: fl
     if craters is not None and model is not None:  # model is set whenever craters are
         meta[mk.CRATERS] = json.dumps(describe_craters(craters), sort_keys=True)
         meta[mk.CRATER_MODEL] = json.dumps(model.as_dict(), sort_keys=True)
+    if repose is not None:
+        meta[mk.REPOSE] = json.dumps(repose.as_dict(), sort_keys=True)
     return CraterResult(tile.replace(metadata=meta), catalog)
+
+
+
+def _window_catalog(catalog: CraterCatalog, window: Window, work: Window,
+                    resolution: float, factor: float) -> CraterCatalog:
+    """Rows of the catalogue of ``work`` whose footprint touches ``window``, in its pixels.
+
+    The same rows, in the same order, as a run over ``window`` alone gives
+    (:func:`terrain.craters.cratering.crater_heights`).
+    """
+    rows = catalog.row - (window.row - work.row)
+    cols = catalog.col - (window.col - work.col)
+    gr = (np.clip(rows, -0.5, window.height - 0.5) - rows) * resolution
+    gc = (np.clip(cols, -0.5, window.width - 0.5) - cols) * resolution
+    touch = np.hypot(gr, gc) <= catalog.diameter_m * factor
+    idx = np.flatnonzero(touch)
+    return catalog.take(idx).with_columns(row=rows[idx], col=cols[idx])

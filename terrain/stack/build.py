@@ -38,7 +38,7 @@ from terrain.stack.plan import (
 )
 from terrain.stack.store import ROCK_CATALOG
 
-__all__ = ["build_stack", "rock_levels"]
+__all__ = ["build_stack", "fixed_cells", "relax_layer", "rock_levels"]
 
 log = logging.getLogger(__name__)
 
@@ -49,7 +49,7 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
                 params: ExpansionParameters | RoughnessChoice | None = None,
                 min_crater_pixels: float = MIN_CRATER_PIXELS,
                 progress: Progress | None = None,
-                rocks=None, keep_known: bool = False) -> LayerStack:
+                rocks=None, keep_known: bool = False, repose=None) -> LayerStack:
     """Build a nested layer stack around ``site`` (map coordinates of ``base``).
 
     Parameters
@@ -80,6 +80,9 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
         Craters of the expanded layers leave the base's own pixels as they are, adding only
         what those samples do not see (:func:`terrain.craters.unresolved.keep_lattice`): a
         real DEM's known heights stay, bitwise, in every layer.
+    repose : terrain.surface.repose.Repose, optional
+        Relax every layer's slopes above the angle of repose after its craters
+        (:func:`relax_layer`): synthesized cells only, outside fresh craters.
 
     Returns
     -------
@@ -110,6 +113,7 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
             progress(step, total, label)
 
     info: dict[str, Any] = {"base_filled_pixels": 0}
+    known = base.valid.copy()  # the base's known heights, which no layer may change
     if not base.valid.all():
         filled = fill_gaps(base, seed=seed)
         info["base_filled_pixels"] = int(filled.filled.sum())
@@ -159,6 +163,9 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
                 tiles[k] = result.tile
                 catalogs.append(result.catalog.with_layer(k))
             log.info("layer %d: %d craters", k, len(table))
+        if repose is not None:
+            tiles[k], moved = relax_layer(tiles[k], k, origins[k], known, repose, catalogs)
+            log.info("layer %d: %d cells relaxed to repose", k, moved)
         tick(f"craters {k}")
 
     rock_catalog = None
@@ -181,8 +188,85 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
     info.update(seed=seed, site=[x, y], levels=levels, layer_size=layer_size,
                 expansion=params.as_dict(), min_crater_pixels=min_crater_pixels,
                 population=population.as_dict() if population else None,
-                crater_model=model.as_dict())
+                crater_model=model.as_dict(),
+                **({"repose": repose.as_dict()} if repose is not None else {}))
     return LayerStack(layer_records(tiles, windows, origins), catalog, info, rock_catalog)
+
+
+def fixed_cells(shape: tuple[int, int], level: int, origin: tuple[int, int],
+                known: np.ndarray, known_origin: tuple[int, int]) -> np.ndarray:
+    """Cells of a layer co-located with a known pixel of the base.
+
+    Parameters
+    ----------
+    shape : (rows, cols)
+        The part of the layer asked about.
+    level : int
+        The layer's level (0 the base).
+    origin : (row, col)
+        Global pixel index, at the layer's level, of the part's cell (0, 0).
+    known : (m, n) bool
+        Known pixels of a part of the base ...
+    known_origin : (row, col)
+        ... whose cell (0, 0) is this base pixel.
+
+    Returns
+    -------
+    (rows, cols) bool
+    """
+    ny, nx = shape
+    step = 2 ** level
+    rows = origin[0] + np.arange(ny) - known_origin[0] * step
+    cols = origin[1] + np.arange(nx) - known_origin[1] * step
+    on_r = (rows >= 0) & (rows % step == 0) & (rows // step < known.shape[0])
+    on_c = (cols >= 0) & (cols % step == 0) & (cols // step < known.shape[1])
+    fixed = np.zeros((ny, nx), dtype=bool)
+    ri, ci = np.flatnonzero(on_r), np.flatnonzero(on_c)
+    if ri.size and ci.size:
+        fixed[np.ix_(ri, ci)] = known[np.ix_(rows[ri] // step, cols[ci] // step)]
+    return fixed
+
+
+def relax_layer(tile: DEMTile, level: int, origin: tuple[int, int], known: np.ndarray,
+                repose, catalogs: list) -> tuple[DEMTile, int]:
+    """Relax one layer's synthesized slopes to the angle of repose.
+
+    Parameters
+    ----------
+    tile : DEMTile
+        The layer after its craters.
+    level : int
+        Its level (0 the base).
+    origin : (row, col)
+        Its global pixel origin at its level.
+    known : (ny, nx) bool
+        The base's known pixels: the layer's cells co-located with them keep their heights
+        (a real DEM's heights never change), as do cells inside fresh craters of any layer.
+    repose : terrain.surface.repose.Repose
+    catalogs : list of CraterCatalog
+        The catalogues of the layers built so far (this one included).
+
+    Returns
+    -------
+    tile : DEMTile
+    moved : int
+        Cells changed.
+    """
+    from terrain.surface.repose import relax_to_repose
+
+    ny, nx = tile.shape
+    fixed = fixed_cells((ny, nx), level, origin, known, (0, 0))
+    fresh = np.zeros((ny, nx), dtype=bool)
+    for c in catalogs:
+        if len(c.x_m):
+            fresh |= repose.fresh_mask((ny, nx), tile.transform, c.x_m, c.y_m, c.diameter_m,
+                                       c.age_gyr)
+    z, changed = relax_to_repose(tile.heights, tile.resolution, repose.angle_deg,
+                                 movable=~(fixed | fresh), iterations=repose.iterations)
+    if not changed.any():
+        return tile, 0
+    heights = z.astype(tile.heights.dtype)
+    return tile.replace(heights=heights, valid=tile.valid), int(changed.sum())
 
 
 def _add_layer_rocks(tiles: list, rocks, seed: int, population) -> RockCatalog:

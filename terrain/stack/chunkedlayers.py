@@ -38,10 +38,11 @@ import math
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numba
 import numpy as np
+from affine import Affine
 
 from terrain.core import memory
 from terrain.core import metakeys as mk
@@ -52,8 +53,6 @@ from terrain.stack.store import WORK
 from terrain.surface.rocks import bilinear_at
 
 if TYPE_CHECKING:
-    from affine import Affine
-
     from terrain.craters.catalog import CraterTable, RockCatalog
     from terrain.execution.chunked import DEMReader
     from terrain.fractal.roughness import ExpansionParameters
@@ -243,6 +242,63 @@ class RockSource(OnReaderGrid):
 
 
 @dataclass(frozen=True)
+class ReposeSource(OnReaderGrid):
+    """A layer's slopes relaxed to the angle of repose (:func:`terrain.stack.build.relax_layer`).
+
+    Each chunk relaxes its window grown by the relaxation's halo (one cell per sweep, so the
+    window equals the whole layer's result) with the same fixed cells as the in-memory build:
+    those co-located with a known pixel of the input base, and those inside fresh craters.
+    """
+
+    reader: DEMReader  # the layer after its craters
+    base: DEMReader  # the input base, whose valid pixels are the known heights
+    level: int
+    origin: tuple  # global (row, col) of the layer's pixel (0, 0)
+    repose: Any  # terrain.surface.repose.Repose
+    craters: tuple  # (x, y, diameter, age) arrays of the craters of every layer so far
+
+    has_catalog = False
+    metadata: dict = field(default_factory=dict)
+
+    def plan(self) -> dict:
+        """Return what decides the layer's bytes, to match a resumed build."""
+        digest = hashlib.sha256(b"".join(np.ascontiguousarray(a, dtype=np.float64).tobytes()
+                                         for a in self.craters)).hexdigest()
+        return dict(kind="stack-repose", input=_stamp(self.reader), base=_stamp(self.base),
+                    level=self.level, origin=list(self.origin),
+                    repose=self.repose.as_dict(), craters=digest)
+
+    def compute(self, window: Window):
+        """Relax one window of the layer, equal to the same pixels of the whole layer."""
+        from terrain.stack.build import fixed_cells
+        from terrain.surface.repose import relax_to_repose
+
+        ny, nx = self.shape
+        halo = self.repose.iterations + 1
+        r0, c0 = max(0, window.row - halo), max(0, window.col - halo)
+        r1 = min(ny, window.row + window.height + halo)
+        c1 = min(nx, window.col + window.width + halo)
+        grown = Window(c0, r0, c1 - c0, r1 - r0)
+        heights, valid = self.reader.read(grown)
+        step = 2 ** self.level
+        g0, g1 = (self.origin[0] + r0) // step, (self.origin[0] + r1 - 1) // step + 1
+        h0, h1 = (self.origin[1] + c0) // step, (self.origin[1] + c1 - 1) // step + 1
+        bny, bnx = self.base.shape
+        g1, h1 = min(g1, bny), min(h1, bnx)
+        _, known = self.base.read(Window(h0, g0, max(1, h1 - h0), max(1, g1 - g0)))
+        fixed = fixed_cells(heights.shape, self.level, (self.origin[0] + r0, self.origin[1] + c0),
+                            known, (g0, h0))
+        t = self.transform @ Affine.translation(c0, r0)
+        fresh = self.repose.fresh_mask(heights.shape, t, *self.craters)
+        z, _ = relax_to_repose(heights, float(self.transform.a), self.repose.angle_deg,
+                               movable=~(fixed | fresh), iterations=self.repose.iterations)
+        a, b = window.row - r0, window.col - c0
+        out = z[a:a + window.height, b:b + window.width].astype(heights.dtype)
+        out[~valid[a:a + window.height, b:b + window.width]] = np.nan
+        return out, None
+
+
+@dataclass(frozen=True)
 class AgreeSource(OnReaderGrid):
     """The agreement step of a layer.
 
@@ -350,7 +406,7 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
                         min_crater_pixels: float | None = None, rocks=None, chunk: int = 1024,
                         client=None, progress=None, halo: int = 256,
                         geotiff_pixels: int | None = None, info=None, inputs=(),
-                        keep_known: bool = False) -> dict:
+                        keep_known: bool = False, repose=None) -> dict:
     """Build a layer stack chunk by chunk into ``outdir`` and commit it (manifest last).
 
     Parameters are those of :func:`terrain.stack.build.build_stack`, with the base given as a
@@ -425,7 +481,8 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
             params=params.as_dict() if params else None, estimate=estimate,
             min_crater_pixels=min_crater_pixels,
             rocks=rocks.as_dict() if rocks else None, chunk=chunk, halo=halo,
-            **({"keep_known": True} if keep_known else {})))
+            **({"keep_known": True} if keep_known else {}),
+            **({"repose": repose.as_dict()} if repose is not None else {})))
         common = dict(chunk=chunk, client=client, progress=progress, reports={})
         reports = common["reports"]
 
@@ -458,6 +515,12 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
                 e = store
             tables.append(table)
             log.info("layer %d: %d craters", k, 0 if table is None else len(table))
+            if repose is not None:
+                parts = [c for c in catalogs if len(c.x_m)]
+                craters = tuple(np.concatenate([getattr(c, n) for c in parts]) if parts
+                                else np.empty(0) for n in ("x_m", "y_m", "diameter_m", "age_gyr"))
+                e = _stage(f"p{k}", ReposeSource(e, reader, k, origins[k], repose, craters),
+                           work, **common)
             cratered.append(e)
 
         rock_rows: dict = {}
@@ -529,7 +592,8 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
         info.update(seed=seed, site=[x, y], levels=levels, layer_size=layer_size,
                     expansion=params.as_dict(), min_crater_pixels=min_crater_pixels,
                     population=population.as_dict() if population else None,
-                    crater_model=model.as_dict(), chunked=dict(chunk=chunk, halo=halo))
+                    crater_model=model.as_dict(), chunked=dict(chunk=chunk, halo=halo),
+                    **({"repose": repose.as_dict()} if repose is not None else {}))
         layers = [_Layer(sh, tr, reader.crs) for sh, tr in zip(shapes, transforms, strict=True)]
         stack = LayerStack(layer_records(layers, windows, origins), catalog, info, rock_catalog)
         with atomic_path(outdir / CATALOG) as tmp:

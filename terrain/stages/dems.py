@@ -41,7 +41,70 @@ from terrain.stages.specs import (
 )
 
 __all__ = ["add_crater", "crater_model", "craters", "expand", "fill", "hillshade",
-           "population", "synth"]
+           "population", "preset_relief", "repose", "synth", "terrain_preset"]
+
+#: RMD fractal dimension and relief (m) of `terrain synth` without a preset.
+DEFAULT_FRACTAL_DIMENSION = 2.2
+DEFAULT_RELIEF = 30.0
+#: Median |N(0, 1)|: the median of a Gaussian height difference over its standard deviation.
+_MEDIAN_ABS_GAUSSIAN = 0.6744897501960817
+#: Hurst exponent of a base above the preset's self-affine range: there LOLA's slopes fall
+#: faster than the law (Rosenburg et al. 2011, Figs. 5-8); 0.5 (independent increments) puts
+#: a 1024 km tile's corner heights at ~5 km, the Moon's km-scale relief.
+HURST_ABOVE_SELF_AFFINE = 0.5
+
+
+def terrain_preset(spec: Any) -> Any:
+    """Return the :class:`~terrain.core.presets.TerrainPreset` a spec names (None without one).
+
+    Any stage spec with a ``terrain`` field (synth, craters; enhance and rocks where they have
+    one) is read the same way.
+    """
+    from terrain.core.presets import preset
+
+    name = getattr(spec, "terrain", None)
+    return None if name is None else preset(name)
+
+
+def repose(spec: Any) -> Any:
+    """Return the :class:`~terrain.surface.repose.Repose` of a spec's preset (None without)."""
+    from terrain.surface.repose import Repose
+
+    p = terrain_preset(spec)
+    return None if p is None else Repose(angle_deg=p.repose_deg)
+
+
+def preset_relief(p: Any, size: int, resolution: float) -> tuple[float, float]:
+    """RMD fractal dimension and relief whose median slope at one pixel follows the preset.
+
+    The median bidirectional slope of the LOLA law at baseline L (up to the preset's
+    self-affine range) is ``atan(tan(s17) (L / 17 m)^(H - 1))``; beyond the range the base
+    uses :data:`HURST_ABOVE_SELF_AFFINE`. An RMD tile of W = size - 1 pixels has the
+    variogram ``2 c^2 (L / W)^(2h)`` (:mod:`terrain.fractal.rmd`, ``c = R sqrt(1 -
+    2^(2h - 2))``), so a height difference over one pixel is Gaussian with standard deviation
+    ``sqrt(2) c W^-h`` and median absolute value 0.6745 times that: R follows.
+
+    Parameters
+    ----------
+    p : TerrainPreset
+    size : int
+        Tile side (2^n + 1 pixels).
+    resolution : float
+        Metres per pixel.
+
+    Returns
+    -------
+    fractal_dimension, relief : float
+        F = 3 - h and R (metres).
+    """
+    law_top = min(resolution, p.self_affine_max_m)
+    tan_s = math.tan(math.radians(p.slope_17m_deg)) * (law_top / 17.0) ** (p.hurst - 1.0)
+    h = p.hurst if resolution <= p.self_affine_max_m else HURST_ABOVE_SELF_AFFINE
+    if resolution > p.self_affine_max_m:
+        tan_s *= (resolution / p.self_affine_max_m) ** (h - 1.0)
+    sigma = tan_s * resolution / _MEDIAN_ABS_GAUSSIAN
+    c = sigma * (size - 1) ** h / math.sqrt(2.0)
+    return 3.0 - h, c / math.sqrt(1.0 - 2.0 ** (2.0 * h - 2.0))
 
 log = logging.getLogger(__name__)
 
@@ -54,19 +117,31 @@ def crater_model(spec: Any) -> Any:
         Morphology,
     )
     from terrain.craters.cratering import CraterModel
-    from terrain.craters.erosion import ErosionModel, SlopeDegradation
+    from terrain.craters.diffusion import DiffusionModel
+    from terrain.craters.erosion import DEFAULT_CRITICAL_SLOPE_DEG, ErosionModel, SlopeDegradation
 
+    p = terrain_preset(spec)
     kwargs = {} if spec.erosion_exponent is None else {"exponent": spec.erosion_exponent}
+    erosion: Any
     if spec.erosion_profile is not None:
         erosion = ErosionModel.from_csv(spec.erosion_profile, **kwargs)
+    elif p is not None and not kwargs:
+        erosion = DiffusionModel(p.diffusivity_m2_per_myr, p.visible_depth_ratio)
     else:
         erosion = ErosionModel.default(**kwargs)
+    visible = erosion.visible_depth_ratio if isinstance(erosion, DiffusionModel) else 0.0
     transition = spec.transition_diameter
     transition = DEFAULT_TRANSITION_DIAMETER if transition is None else transition
     morphology = Morphology(transition, max(DEFAULT_PEAK_RING_DIAMETER, 2.0 * transition),
                             enabled=not spec.simple_craters_only)
-    slope = SlopeDegradation(enabled=not spec.no_slope_degradation)
-    model = CraterModel(erosion=erosion, morphology=morphology, slope=slope)
+    # A preset's diffusivity is measured on real, sloping ground, and its equilibrium is the
+    # density counted there: faster degradation on slopes would count the slopes twice (and
+    # thin the visible craters below the equilibrium); slopes above repose are relaxed instead.
+    slope = SlopeDegradation(enabled=not spec.no_slope_degradation and p is None,
+                             critical_slope_deg=DEFAULT_CRITICAL_SLOPE_DEG if p is None
+                             else p.repose_deg)
+    model = CraterModel(erosion=erosion, morphology=morphology, slope=slope,
+                        min_depth_ratio=visible)
     return model.smooth() if spec.no_roughness else model
 
 
@@ -85,13 +160,27 @@ def population(spec: Any, *, resolution: float, extent: float, warn_small: bool 
     warn_small : bool
         Warn when ``dmin`` is below two pixels.
     """
+    from terrain.core.presets import TRASK_EQUILIBRIUM
+    from terrain.craters.chronology import neukum_n1
+    from terrain.craters.diffusion import DiffusionModel
     from terrain.craters.population import Population
 
-    if spec.population is None and spec.density is None:
+    p = terrain_preset(spec)
+    if spec.population is None and spec.density is None and p is None:
         return None
     overrides = dict(dmin=spec.dmin, dmax=spec.dmax, density=spec.density,
                      sfd_exponent=spec.sfd_exponent, max_age=spec.max_age)
-    defaults = dict(dmin=3.0 * resolution, dmax=extent / 4.0)
+    defaults: dict[str, Any] = dict(dmin=3.0 * resolution, dmax=extent / 4.0)
+    if p is not None:
+        # the visible population: equilibrium density, each size living until diffusion
+        # takes it below the visible d/D, and no more than the surface's age produced
+        dmin = defaults["dmin"] if spec.dmin is None else spec.dmin
+        defaults.update(
+            density=p.crater_equilibrium * TRASK_EQUILIBRIUM * 1e6 * float(dmin) ** -2,
+            max_age=p.surface_age_gyr,
+            lifetime_coefficient=DiffusionModel(
+                p.diffusivity_m2_per_myr, p.visible_depth_ratio).lifetime_coefficient,
+            production_n1=neukum_n1(p.surface_age_gyr))
     if spec.population is not None:
         pop = Population.from_toml(spec.population, defaults=defaults, **overrides)
     else:
@@ -154,20 +243,26 @@ def synth(spec: SynthSpec, source: None, output: Path, execution: Execution, *,
     if pop is None and catalog is not None:
         raise InvalidParameterError("--catalog needs craters: give --density or --population")
     model = crater_model(spec)
+    p = terrain_preset(spec)
+    fd, relief = ((DEFAULT_FRACTAL_DIMENSION, DEFAULT_RELIEF) if p is None
+                  else preset_relief(p, spec.size, spec.resolution))
+    fd = fd if spec.fractal_dimension is None else spec.fractal_dimension
+    relief = relief if spec.relief is None else spec.relief
+    relax = repose(spec)
     if chunked or (spec.window is None
                    and not fits_in_memory(spec.size ** 2 * WORKING_BYTES_PER_PIXEL)):
         from terrain.execution.chunked import SynthSource
 
-        return run_dask(SynthSource(spec.size, spec.resolution, spec.fractal_dimension,
-                                    spec.relief, spec.seed, pop, model, crs), output,
+        return run_dask(SynthSource(spec.size, spec.resolution, fd, relief, spec.seed, pop,
+                                    model, crs, relax), output,
                         execution, "synth", progress=progress, catalog=catalog)
     with progress("craters", "class") as update:
         result = synthesize_tile(spec.size, resolution=spec.resolution,
-                                 fractal_dimension=spec.fractal_dimension, relief=spec.relief,
+                                 fractal_dimension=fd, relief=relief,
                                  seed=spec.seed, craters=pop, model=model, window=spec.window,
-                                 progress=update, crs=crs)
-    params = dict(size=spec.size, resolution=spec.resolution,
-                  fractal_dimension=spec.fractal_dimension, relief=spec.relief, seed=spec.seed,
+                                 progress=update, crs=crs, repose=relax)
+    params = dict(size=spec.size, resolution=spec.resolution, terrain=spec.terrain,
+                  fractal_dimension=fd, relief=relief, seed=spec.seed,
                   population=pop.as_dict() if pop else None,
                   **({"body": spec.body, "crs": spec.crs or "south-polar"} if crs else {}),
                   window=_window_list(spec.window))

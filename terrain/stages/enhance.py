@@ -16,7 +16,7 @@ import numpy as np
 
 from terrain.core import metakeys as mk
 from terrain.core.errors import InvalidParameterError
-from terrain.stages.dems import crater_model, population
+from terrain.stages.dems import crater_model, population, repose
 from terrain.stages.runner import Execution, ProgressFactory, Written
 from terrain.stages.specs import EnhanceSpec
 
@@ -153,7 +153,7 @@ def enhance(spec: EnhanceSpec, source: Path, output: Path, execution: Execution,
                             params=RoughnessChoice(spec.fractal_dimension, spec.height_scale,
                                                    spec.uniform_roughness, _regolith(spec)),
                             min_crater_pixels=spec.min_crater_pixels, progress=bar,
-                            rocks=rocks, keep_known=True)
+                            rocks=rocks, keep_known=True, repose=repose(spec))
     stack = stack.with_info(source=str(source), command="terrain enhance",
                             craterscape_version=mk.version())
     write_stack(stack, output, inputs=[source], known=exact)
@@ -203,6 +203,7 @@ def _chunked(spec: EnhanceSpec, source: Path, output: Path, execution: Execution
                 progress=stage_progress,
                 halo=DEFAULT_HALO if spec.halo is None else spec.halo, inputs=[source],
                 keep_known=True,
+                repose=repose(spec),
                 info=dict(source=str(source), command="terrain enhance",
                           craterscape_version=mk.version()))
     computed = sum(s["computed"] for s in result["stages"].values())

@@ -62,6 +62,11 @@ SEED = option(0, "Keys every random draw.", integer(low=0, high=2**63 - 1))
 BAND = option(1, "Band of the input.", integer(low=1))
 WINDOW_FIELD = option(None, "Compute only this window (pixels); bitwise equal to the same "
                       "window of a full run.", WINDOW)
+#: ``--terrain``: a preset of :mod:`terrain.core.presets` (south-polar, highlands, maria).
+TERRAIN = option(None, "Terrain preset (south-polar, highlands, maria): crater density, ages "
+                 "and degradation, the roughness law and the angle of repose, from published "
+                 "lunar measurements (docs/presets.md); flags override.",
+                 choice(*PRESETS))
 
 
 @_frozen
@@ -126,11 +131,14 @@ class SynthSpec(_CraterFields):
     STAGE = "synth"
     size: int = option(1025, "Tile side in pixels, 2^n + 1.", integer())
     resolution: float = option(1.0, "Metres per pixel.", number(low=0.0, low_open=True))
-    fractal_dimension: float = option(2.2, "RMD fractal dimension F in [2, 3) (eq. 14).",
-                                      number())
-    relief: float = option(
-        30.0, "Tile-scale relief R = H * D_r * W of eq. 15 (m): the standard deviation of the "
-        "corner heights.", number(low=0.0, high=MAX_RELIEF))
+    terrain: str | None = TERRAIN
+    fractal_dimension: float | None = option(
+        None, "RMD fractal dimension F in [2, 3) (eq. 14). Default 2.2, or 3 - H of the "
+        "terrain preset.", number())
+    relief: float | None = option(
+        None, "Tile-scale relief R = H * D_r * W of eq. 15 (m): the standard deviation of the "
+        "corner heights. Default 30, or what gives the terrain preset's median slope at one "
+        "pixel.", number(low=0.0, high=MAX_RELIEF))
     body: str = option(DEFAULT_BODY, "Body the DEM lies on (moon, mars, mercury): the DEM "
                        "gets a CRS on its sphere, centred on the tile.", text())
     crs: str | None = option(None, "Projection on the body: south-polar (default), "
@@ -146,7 +154,8 @@ class SynthSpec(_CraterFields):
         from terrain.fractal.rmd import check_fractal_dimension, check_tile_size
 
         check_tile_size(self.size)
-        check_fractal_dimension(self.fractal_dimension)
+        if self.fractal_dimension is not None:
+            check_fractal_dimension(self.fractal_dimension)
         if self.window is not None:
             self.window.check_inside(self.size, self.size)
         if self.local_grid and self.crs is not None:
@@ -165,14 +174,16 @@ class CratersSpec(_CraterFields):
     """`terrain craters`: a power-law crater population added to a DEM."""
 
     STAGE = "craters"
+    terrain: str | None = TERRAIN
     seed: int = SEED
     window: Window | None = WINDOW_FIELD
     band: int = BAND
 
     def _check(self) -> None:
-        if self.population is None and self.density is None:
-            raise InvalidParameterError(f"give {self.label('density')} (craters per km^2) or "
-                                        f"{self.label('population')} FILE")
+        if self.population is None and self.density is None and self.terrain is None:
+            raise InvalidParameterError(f"give {self.label('density')} (craters per km^2), "
+                                        f"{self.label('population')} FILE or "
+                                        f"{self.label('terrain')} PRESET")
 
 
 @_frozen
