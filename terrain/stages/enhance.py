@@ -47,6 +47,8 @@ def default_population(spec: EnhanceSpec, base_resolution: float, finest: float)
     Population or None
     """
     from terrain.core.presets import EQUILIBRIUM_EXPONENT, equilibrium_density, preset
+    from terrain.craters.chronology import neukum_n1
+    from terrain.craters.diffusion import DiffusionModel
     from terrain.craters.population import Population
 
     dmin = spec.min_crater_pixels * finest
@@ -55,8 +57,14 @@ def default_population(spec: EnhanceSpec, base_resolution: float, finest: float)
         return None
     terrain = preset(spec.terrain)
     per_m2 = terrain.crater_equilibrium * float(equilibrium_density(dmin))
+    # the visible population, as synth's (terrain.stages.dems.population): each size lives
+    # until diffusion takes it below the visible d/D, no more than the surface produced
     return Population(dmin=dmin, dmax=dmax, density=per_m2 * 1e6,
-                      sfd_exponent=EQUILIBRIUM_EXPONENT, max_age=terrain.surface_age_gyr)
+                      sfd_exponent=EQUILIBRIUM_EXPONENT, max_age=terrain.surface_age_gyr,
+                      lifetime_coefficient=DiffusionModel(
+                          terrain.diffusivity_m2_per_myr,
+                          terrain.visible_depth_ratio).lifetime_coefficient,
+                      production_n1=neukum_n1(terrain.surface_age_gyr))
 
 
 def _regolith(spec: EnhanceSpec) -> Any:
