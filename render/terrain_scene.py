@@ -784,15 +784,33 @@ def _coarse_cells(n: int, s: int):
     return cells(np.flatnonzero(levels == s)), cells(np.flatnonzero(levels >= 2 * s))
 
 
-def _index(idx: np.ndarray) -> np.ndarray | slice:
-    """``idx`` as a slice where it is an evenly spaced increasing run (a view, not a copy)."""
-    if idx.size > 1:
-        step = int(idx[1] - idx[0])
-        if step > 0 and np.all(np.diff(idx) == step):
-            return slice(int(idx[0]), int(idx[-1]) + 1, step)
-    elif idx.size == 1:
+def _runs(lines, a, b, t):
+    """Split lines and their cells into runs where line, a and b are each evenly spaced.
+
+    Yields ``(lines, a, b, t)`` with slices for the first three (views into a grid, never
+    copies) and the run's part of ``t``.
+    """
+    i, n = 0, len(lines)
+    while i < n:
+        j = i + 1
+        if j < n:
+            step = (lines[j] - lines[i], a[j] - a[i], b[j] - b[i])
+            while (j + 1 < n and step[0] > 0 and lines[j + 1] - lines[j] == step[0]
+                   and a[j + 1] - a[j] == step[1] and b[j + 1] - b[j] == step[2]):
+                j += 1
+            j += 1
+        yield (_slice(lines[i:j]), _slice(a[i:j]), _slice(b[i:j]), t[i:j])
+        i = j
+
+
+def _slice(idx: np.ndarray) -> slice | np.ndarray:
+    """Return an evenly spaced run of indices as a slice (a constant run stays an array)."""
+    if len(idx) == 1:
         return slice(int(idx[0]), int(idx[0]) + 1)
-    return idx
+    step = int(idx[1] - idx[0])
+    if step <= 0:
+        return idx
+    return slice(int(idx[0]), int(idx[-1]) + 1, step)
 
 
 def _morph_targets(z: np.ndarray, normals: np.ndarray):
@@ -821,10 +839,11 @@ def _morph_targets(z: np.ndarray, normals: np.ndarray):
     -----
     A vertex's level is the smaller of its row's and its column's, and where it lies in a
     cell of level 2s depends on its row and its column separately. The vertices of level s
-    are two products of lines: rows of level s exactly with columns of level s or coarser,
-    and rows of level 2s or coarser with columns of level s exactly. Each product is
-    computed at once from per-line cells (slices where the lines are evenly spaced), with
-    the same arithmetic per vertex as one vertex at a time, so with the same results.
+    are three products of lines: rows of level s exactly with columns of level s exactly
+    or of level 2s or coarser, and rows of level 2s or coarser with columns of level s
+    exactly. Each product is computed at once, over runs of evenly spaced lines (strided
+    views of the grid), with the same arithmetic per vertex as one vertex at a time, so
+    with the same results.
     """
     h, w = z.shape
     rl, cl = _levels_1d(h), _levels_1d(w)
@@ -834,32 +853,25 @@ def _morph_targets(z: np.ndarray, normals: np.ndarray):
     for s in _lods()[:-1]:
         rows_s, rows_2s = _coarse_cells(h, s)
         cols_s, cols_2s = _coarse_cells(w, s)
-        cols_ge = tuple(np.concatenate(parts) for parts in zip(cols_s, cols_2s, strict=True))
-        order = np.argsort(cols_ge[0], kind="stable")
-        cols_ge = tuple(part[order] for part in cols_ge)
-        for (rows, ra, rb, ti), (cols, ca, cb, tj) in ((rows_s, cols_ge), (rows_2s, cols_s)):
-            if not rows.size or not cols.size:
+        for rows, cols in ((rows_s, cols_s), (rows_s, cols_2s), (rows_2s, cols_s)):
+            if not rows[0].size or not cols[0].size:
                 continue
-            r, c = _index(rows), _index(cols)
-            ra_, rb_, ca_, cb_ = _index(ra), _index(rb), _index(ca), _index(cb)
-            t_i, t_j = ti[:, None], tj[None, :]
-            upper = (t_i + t_j) <= 1.0  # triangle (a, c, b); else (b, c, d)
-            for src, dst in ((z, target), (normals, tnormal)):
-                top, bottom = src[ra_], src[rb_]
-                za, zb = top[:, ca_], top[:, cb_]
-                zc, zd = bottom[:, ca_], bottom[:, cb_]
-                if src.ndim == 3:
-                    ti3, tj3, up = t_i[..., None], t_j[..., None], upper[..., None]
-                else:
-                    ti3, tj3, up = t_i, t_j, upper
-                value = _on_triangle(za, zb, zc, ti3, tj3)
-                if not upper.all():
-                    second = _on_triangle(zd, zc, zb, 1.0 - ti3, 1.0 - tj3)
-                    value = np.where(up, value, second)
-                if isinstance(r, slice) and isinstance(c, slice):
-                    dst[r, c] = value
-                else:
-                    dst[np.ix_(rows, cols)] = value
+            for r, ra, rb, ti in _runs(*rows):
+                for c, ca, cb, tj in _runs(*cols):
+                    t_i, t_j = ti[:, None], tj[None, :]
+                    upper = (t_i + t_j) <= 1.0  # triangle (a, c, b); else (b, c, d)
+                    for src, dst in ((z, target), (normals, tnormal)):
+                        za, zb = src[ra][:, ca], src[ra][:, cb]
+                        zc, zd = src[rb][:, ca], src[rb][:, cb]
+                        if src.ndim == 3:
+                            ti3, tj3, up = t_i[..., None], t_j[..., None], upper[..., None]
+                        else:
+                            ti3, tj3, up = t_i, t_j, upper
+                        value = _on_triangle(za, zb, zc, ti3, tj3)
+                        if not upper.all():
+                            second = _on_triangle(zd, zc, zb, 1.0 - ti3, 1.0 - tj3)
+                            value = np.where(up, value, second)
+                        dst[r, c] = value
     return target, level, tnormal
 
 
