@@ -215,6 +215,8 @@ class TerrainScene:
             raise InvalidParameterError(f"body radius must be positive; got {radius}")
         self.radius = float(radius)
         self._layers: list[_Layer] = []
+        self._bounds: tuple | None = None
+        self._index_cache: dict = {}
         self._ctx: object = None  # the context the layers were uploaded to
         self._shadow_cache: dict = {}
         self.triangles_full = 0
@@ -317,6 +319,16 @@ class TerrainScene:
         lo, hi : (3,) float64, metres
             Its smallest and largest corner (the curvature drop included).
         """
+        # the heights never change, so neither does the box: computed once (it is asked
+        # every frame), for the stack, curvature and radius it was computed with
+        key = (id(self.stack), self.curvature, self.radius)
+        cached = self._bounds
+        if cached is None or cached[0] != key:
+            cached = (key, *self._compute_bounds())
+            self._bounds = cached
+        return cached[1].copy(), cached[2].copy()
+
+    def _compute_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         lo = np.array([math.inf] * 3)
         hi = -lo
         for tile in self.stack.tiles:
@@ -343,7 +355,7 @@ class TerrainScene:
             return
         self._ctx = gpu.context
         self._layers = []
-        self._index_cache: dict = {}
+        self._index_cache = {}
         tiles = self.stack.tiles
         total = 0
         parent = None
