@@ -176,29 +176,11 @@ def pair_residual(image0, image1, range0, range1, truth0, truth1, *, normals0=No
             f"occlusion_tolerance must be > 0 and edge_px >= 0; got {occlusion_tolerance}, "
             f"{edge_px}")
     variance, dark_dn = _sensor_noise(sensor)
-    v, u = np.mgrid[0:h, 0:w]
-    r0 = range0.reshape(-1).astype(np.float64)
-    have = np.isfinite(r0) & (r0 > 0)
-    uv = np.stack([u.reshape(-1), v.reshape(-1)], axis=1).astype(np.float64)[have]
     rot0 = quat_to_matrix(truth0.body_rotation)
     rot1 = quat_to_matrix(truth1.body_rotation)
-    world0 = truth0.pose.unproject(uv, r0[have], truth0.intrinsics)
-    world1 = (world0 @ rot0) @ rot1.T
-    uv1 = truth1.pose.project(world1, truth1.intrinsics)
-    dist1 = np.linalg.norm(world1 - np.asarray(truth1.pose.position), axis=1)
-    map_u = np.full(h * w, -10.0, dtype=np.float32)
-    map_v = np.full(h * w, -10.0, dtype=np.float32)
-    finite = np.isfinite(uv1).all(axis=1)
-    idx = np.flatnonzero(have)
-    map_u[idx[finite]] = uv1[finite, 0]
-    map_v[idx[finite]] = uv1[finite, 1]
-    map_u = map_u.reshape(h, w)
-    map_v = map_v.reshape(h, w)
+    map_u, map_v, seen = _warp_maps(range0, truth0, truth1, rot0, rot1)
     inside = (map_u >= 0) & (map_u <= w - 1) & (map_v >= 0) & (map_v <= h - 1)
     # seen in both: frame t+1's range at the projection (nearest return) against the distance
-    seen = np.full(h * w, np.nan)
-    seen[idx] = dist1
-    seen = seen.reshape(h, w)
     r1_at = cv2.remap(np.nan_to_num(range1, nan=-1.0).astype(np.float32), map_u, map_v,
                       cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0)
     with np.errstate(invalid="ignore"):
@@ -240,6 +222,45 @@ def pair_residual(image0, image1, range0, range1, truth0, truth1, *, normals0=No
         floor = float(np.sqrt(np.mean(variance(i0[mask]) + w2 * variance(warped[mask]))))
     return PairResidual(residual, mask, rms, mean, noise, float(mask.mean()), floor,
                         _worst_tile(residual, mask))
+
+
+def _warp_maps(range0, truth0, truth1, rot0, rot1):
+    """Where each pixel of frame t lands in frame t+1, and its distance from camera t+1.
+
+    A pixel's ray in camera t, scaled by its range, carried through the body rotations into
+    camera t+1, in one affine map of camera frames (``c1 = t + r d A``, the world
+    coordinates never formed, so no precision is lost to their size), over the whole image
+    at once.
+
+    Returns
+    -------
+    map_u, map_v : (h, w) float32, pixels
+        The projection in frame t+1 (-10 without a return or behind camera t+1).
+    distance : (h, w) float64, metres
+        From camera t+1 (NaN without a return).
+    """
+    h, w = range0.shape
+    k0, k1 = truth0.intrinsics, truth1.intrinsics
+    r_wc0, r_wc1 = truth0.pose.rotation, truth1.pose.rotation
+    # row vectors: world1 = world0 @ rot0 @ rot1.T, camera = (world - position) @ R_WC
+    body = rot0 @ rot1.T
+    a = r_wc0.T @ body @ r_wc1  # camera-t directions to camera-t+1 axes (row vectors)
+    t = (np.asarray(truth0.pose.position) @ body - np.asarray(truth1.pose.position)) @ r_wc1
+    x = (np.arange(w, dtype=np.float64) - k0.cx) / k0.fx
+    y = (np.arange(h, dtype=np.float64) - k0.cy) / k0.fy
+    r = np.asarray(range0, dtype=np.float64)
+    have = np.isfinite(r) & (r > 0)
+    scale = np.where(have, r, np.nan) / np.sqrt(x[None, :] ** 2 + y[:, None] ** 2 + 1.0)
+    c = [t[i] + scale * (x[None, :] * a[0, i] + y[:, None] * a[1, i] + a[2, i])
+         for i in range(3)]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u1 = k1.fx * c[0] / c[2] + k1.cx
+        v1 = k1.fy * c[1] / c[2] + k1.cy
+    ok = have & (c[2] > 0) & np.isfinite(u1) & np.isfinite(v1)
+    map_u = np.where(ok, u1, -10.0).astype(np.float32)
+    map_v = np.where(ok, v1, -10.0).astype(np.float32)
+    distance = np.sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2])
+    return map_u, map_v, distance
 
 
 def _worst_tile(residual: np.ndarray, mask: np.ndarray) -> float | None:
