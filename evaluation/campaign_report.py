@@ -330,12 +330,13 @@ def consistency_report(run, scored, tracking_sec, folder: Path, limits, key, fac
     """
     import numpy as np
 
-    from evaluation.consistency import consistency, save_consistency
+    from evaluation.consistency import consistency, sampling_stride, save_consistency
     from evaluation.report import consistency_section
     from evaluation.tracking import ideal_one_step
 
     say(f"evaluation: frame-to-frame consistency of the {key}")
-    result = consistency(run)
+    # large frames are measured on a grid of pixels (docs/evaluation.md: the uncertainty)
+    result = consistency(run, stride=sampling_stride(run.image(0).shape))
     summary = save_consistency(result, folder)
     ideal = ideal_one_step(scored, run)
     ideal = ideal[np.isfinite(ideal)]
