@@ -335,7 +335,7 @@ def consistency_report(run, scored, tracking_sec, folder: Path, limits, key, fac
     from evaluation.tracking import ideal_one_step
 
     say(f"evaluation: frame-to-frame consistency of the {key}")
-    # large frames are measured on a grid of pixels (docs/evaluation.md: the uncertainty)
+    # large frames are measured on a grid of pixels (docs/speed.md: the uncertainty)
     result = consistency(run, stride=sampling_stride(run.image(0).shape))
     summary = save_consistency(result, folder)
     ideal = ideal_one_step(scored, run)

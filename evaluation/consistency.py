@@ -80,7 +80,7 @@ SUN_STILL_RAD = 1e-7
 TILE = 32
 #: Pixels per frame a sampled measurement keeps at least (:func:`sampling_stride`): at
 #: 2^18, a frame's rms moves by about 0.4 % and its worst tile by about 2 % against every
-#: pixel (docs/evaluation.md, "Sampled consistency").
+#: pixel (docs/speed.md, "Sampled consistency").
 SAMPLED_PIXELS = 2**18
 
 
@@ -437,7 +437,7 @@ def consistency(run, *, edge_px: int = 2, occlusion_tolerance: float = 0.002,
         Needs truth and range images.
     edge_px, occlusion_tolerance, stride :
         As in :func:`pair_residual` (``stride`` 2 measures a quarter of the pixels; the
-        uncertainty this adds to each figure is worked out in ``docs/evaluation.md``).
+        uncertainty this adds to each figure is measured in ``docs/speed.md``).
     progress : callable, optional
         ``progress(done, total)`` after each pair.
 
