@@ -65,7 +65,8 @@ from render.rundir import RunReader
 from terrain.core.errors import InvalidParameterError
 
 __all__ = ["DARK_SIGMAS", "SAMPLED_PIXELS", "SILHOUETTE_JUMP", "SPIKE_BOUND", "Consistency",
-           "PairResidual", "change_marks", "consistency", "pair_residual", "sampling_stride",
+           "PairResidual", "camera_map", "change_marks", "consistency", "pair_residual",
+           "sampling_stride",
            "save_consistency"]
 
 log = logging.getLogger(__name__)
@@ -216,7 +217,7 @@ def pair_residual(image0, image1, range0, range1, truth0, truth1, *, normals0=No
     variance, dark_dn = _sensor_noise(sensor)
     rot0 = quat_to_matrix(truth0.body_rotation)
     rot1 = quat_to_matrix(truth1.body_rotation)
-    map_u, map_v, seen = _warp_maps(range0, truth0, truth1, rot0, rot1, s)
+    map_u, map_v, seen = _warp_maps(range0, truth0, truth1, s)
     inside = (map_u >= 0) & (map_u <= w - 1) & (map_v >= 0) & (map_v <= h - 1)
     # seen in both: frame t+1's range at the projection (nearest return) against the distance
     r1_at = cv2.remap(np.nan_to_num(range1, nan=-1.0).astype(np.float32), map_u, map_v,
@@ -264,13 +265,8 @@ def pair_residual(image0, image1, range0, range1, truth0, truth1, *, normals0=No
                         _worst_tile(residual, mask, TILE // s))
 
 
-def _warp_maps(range0, truth0, truth1, rot0, rot1, stride=1):
+def _warp_maps(range0, truth0, truth1, stride=1):
     """Where each pixel of frame t lands in frame t+1, and its distance from camera t+1.
-
-    A pixel's ray in camera t, scaled by its range, carried through the body rotations into
-    camera t+1, in one affine map of camera frames (``c1 = t + r d A``, the world
-    coordinates never formed, so no precision is lost to their size), over the whole image
-    at once.
 
     Returns
     -------
@@ -280,12 +276,44 @@ def _warp_maps(range0, truth0, truth1, rot0, rot1, stride=1):
     distance : (h, w) float64, metres
         From camera t+1 (NaN without a return).
     """
+    u1, v1, distance, ok = camera_map(range0, truth0, truth1, stride)
+    map_u = np.where(ok, u1, -10.0).astype(np.float32)
+    map_v = np.where(ok, v1, -10.0).astype(np.float32)
+    return map_u, map_v, distance
+
+
+def camera_map(range0: np.ndarray, truth0, truth1, stride: int = 1):
+    """Carry every pixel of one frame, lifted by its range, into another frame's image.
+
+    A pixel's ray in camera 0, scaled by its range, carried through the body rotations
+    (frame 0's R_WB back to the body, frame 1's out of it) into camera 1, in one affine map
+    of camera frames (``c1 = t + r d A``): the world coordinates are never formed, so no
+    precision is lost to their size, and the whole image goes at once.
+
+    Parameters
+    ----------
+    range0 : (h, w) float32, metres
+        Frame 0's range (NaN: no return).
+    truth0, truth1 : render.rundir.FrameTruth
+        The two frames' pose, intrinsics and body rotation.
+    stride : int, pixels
+        Carry the pixels every ``stride`` rows and columns.
+
+    Returns
+    -------
+    u1, v1 : (ceil(h / stride), ceil(w / stride)) float64, pixels
+        The projection in frame 1 (NaN where ``ok`` is False).
+    distance : same shape, float64, metres
+        From camera 1 (NaN without a return).
+    ok : same shape, bool
+        A return, in front of camera 1.
+    """
     h, w = range0.shape
     k0, k1 = truth0.intrinsics, truth1.intrinsics
     r_wc0, r_wc1 = truth0.pose.rotation, truth1.pose.rotation
     # row vectors: world1 = world0 @ rot0 @ rot1.T, camera = (world - position) @ R_WC
-    body = rot0 @ rot1.T
-    a = r_wc0.T @ body @ r_wc1  # camera-t directions to camera-t+1 axes (row vectors)
+    body = quat_to_matrix(truth0.body_rotation) @ quat_to_matrix(truth1.body_rotation).T
+    a = r_wc0.T @ body @ r_wc1  # camera-0 directions to camera-1 axes (row vectors)
     t = (np.asarray(truth0.pose.position) @ body - np.asarray(truth1.pose.position)) @ r_wc1
     x = (np.arange(0, w, stride, dtype=np.float64) - k0.cx) / k0.fx
     y = (np.arange(0, h, stride, dtype=np.float64) - k0.cy) / k0.fy
@@ -298,10 +326,8 @@ def _warp_maps(range0, truth0, truth1, rot0, rot1, stride=1):
         u1 = k1.fx * c[0] / c[2] + k1.cx
         v1 = k1.fy * c[1] / c[2] + k1.cy
     ok = have & (c[2] > 0) & np.isfinite(u1) & np.isfinite(v1)
-    map_u = np.where(ok, u1, -10.0).astype(np.float32)
-    map_v = np.where(ok, v1, -10.0).astype(np.float32)
     distance = np.sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2])
-    return map_u, map_v, distance
+    return np.where(ok, u1, np.nan), np.where(ok, v1, np.nan), distance, ok
 
 
 def _worst_tile(residual: np.ndarray, mask: np.ndarray, tile: int = TILE) -> float | None:

@@ -887,13 +887,28 @@ def truth_warped_frame(run, k0: int, k1: int, image0=None, image1=None) -> np.nd
     range0, range1 = run.range(k0), run.range(k1)
     if range0 is None or range1 is None:
         raise InvalidParameterError("truth-warped frames need range images")
+    from evaluation.consistency import camera_map
+
     h, w = range1.shape
-    v, u = np.mgrid[0:h, 0:w]
-    uv = np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64)
-    q = _carry(run, k1, k0, uv, range1, range0, 0.002)
-    ok = np.isfinite(q).all(axis=1)
-    mu = np.where(ok, q[:, 0], -10.0).astype(np.float32).reshape(h, w)
-    mv = np.where(ok, q[:, 1], -10.0).astype(np.float32).reshape(h, w)
+    # what _carry does for every pixel of frame k1 at once (at a pixel centre the range
+    # sampled is the pixel's own): lift, carry into frame k0, keep what frame k0 sees
+    tolerance = 0.002
+    u, v, dist, lifted = camera_map(range1, run.truth[k1], run.truth[k0])
+    idx = np.flatnonzero(lifted)
+    q = np.stack([u.ravel()[idx], v.ravel()[idx]], axis=1)
+    seen = _sample_range(range0, q, tolerance)
+    h0, w0 = range0.shape
+    with np.errstate(invalid="ignore"):
+        good = ((q[:, 0] >= -0.5) & (q[:, 0] <= w0 - 0.5) & (q[:, 1] >= -0.5)
+                & (q[:, 1] <= h0 - 0.5) & np.isfinite(seen)
+                & (seen >= dist.ravel()[idx] * (1.0 - tolerance)))
+    ok = np.zeros(h * w, dtype=bool)
+    ok[idx[good]] = True
+    mu = np.full(h * w, -10.0, dtype=np.float32)
+    mv = np.full(h * w, -10.0, dtype=np.float32)
+    mu[idx[good]] = q[good, 0]
+    mv[idx[good]] = q[good, 1]
+    mu, mv = mu.reshape(h, w), mv.reshape(h, w)
     src = img0.astype(np.float32)
     warped = cv2.remap(src, mu, mv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     okm = ok.reshape(h, w)
