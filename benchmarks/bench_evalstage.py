@@ -56,7 +56,7 @@ def evaluate_run(folder: Path) -> dict:
     from evaluation.consistency import consistency, sampling_stride
     from evaluation.tracking import (
         TrackerSettings,
-        ideal_one_step,
+        ideal_one_steps,
         load_run,
         score,
         track,
@@ -77,9 +77,7 @@ def evaluate_run(folder: Path) -> dict:
     timed("round_trip", lambda: truth_round_trip(run))
     stride = sampling_stride(run.image(0).shape)
     timed("consistency", lambda: consistency(run, stride=stride))
-    timed("ideal_one_step", lambda: ideal_one_step(scored, run))
-    timed("ideal_one_step_noisy", lambda: ideal_one_step(scored, run, sensor_noise=True,
-                                                         seed=2014))
+    timed("ideal_one_step", lambda: ideal_one_steps(scored, run, noises=(None, 2014)))
     return dict(seconds=sum(steps.values()), steps=steps, stride=stride)
 
 

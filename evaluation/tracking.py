@@ -96,8 +96,8 @@ from render.rundir import RunReader
 from terrain.core import memory
 from terrain.core.errors import InvalidParameterError
 
-__all__ = ["ScoredTracks", "TrackerSettings", "Tracks", "ideal_one_step", "load_run",
-           "save_tracks", "score", "track", "truth_round_trip", "truth_warped_frame"]
+__all__ = ["ScoredTracks", "TrackerSettings", "Tracks", "ideal_one_step", "ideal_one_steps",
+           "load_run", "save_tracks", "score", "track", "truth_round_trip", "truth_warped_frame"]
 
 log = logging.getLogger(__name__)
 
@@ -966,6 +966,28 @@ def ideal_one_step(scored: ScoredTracks, run, *, sensor_noise: bool = False,
     (n_tracks, n_frames) float64, pixels; NaN where the real one-step error is NaN or the
     tracker lost the point.
     """
+    return ideal_one_steps(scored, run, noises=(seed if sensor_noise else None,))[0]
+
+
+def ideal_one_steps(scored: ScoredTracks, run, *,
+                    noises: tuple[int | None, ...] = (None,)) -> list[np.ndarray]:
+    """:func:`ideal_one_step` for several noise settings, each truth-warped frame made once.
+
+    Parameters
+    ----------
+    scored : ScoredTracks
+        Tracks scored against truth.
+    run : RunReader or path
+        The run.
+    noises : tuple of (int or None)
+        Per result: None for the warped frames as they are, or the seed of their fresh
+        sensor noise.
+
+    Returns
+    -------
+    list of (n_tracks, n_frames) float64, pixels
+        One per entry of ``noises``, each what :func:`ideal_one_step` returns.
+    """
     import cv2
 
     if scored.one_step is None:
@@ -975,35 +997,36 @@ def ideal_one_step(scored: ScoredTracks, run, *, sensor_noise: bool = False,
     tracks = scored.tracks
     s = tracks.settings
     sensor = run.manifest.get("sensor") or {}
-    if sensor_noise and not sensor:
+    if any(seed is not None for seed in noises) and not sensor:
         raise InvalidParameterError(
             f"run directory '{run.dir}' records no sensor: no noise to add to ideal frames")
     lk = dict(winSize=(s.win_size, s.win_size), maxLevel=s.levels,
               criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
     grey = _Grey()
-    out = np.full((tracks.n_tracks, tracks.n_frames), np.nan)
+    outs = [np.full((tracks.n_tracks, tracks.n_frames), np.nan) for _ in noises]
     prev_img = run.image(0)
     grey(prev_img)  # the sequence's scale comes from frame 0, as in track()
     for k in range(1, tracks.n_frames):
         img = run.image(k)
         sel = np.flatnonzero(np.isfinite(scored.one_step[:, k]))
         if sel.size:
-            ideal = truth_warped_frame(run, k - 1, k, prev_img, img)
-            if sensor_noise:
-                ideal = _fresh_noise(ideal, sensor, seed, k)
+            warped = truth_warped_frame(run, k - 1, k, prev_img, img)
             p0 = tracks.positions[sel, k - 1].astype(np.float32).reshape(-1, 1, 2)
-            a, b = grey(prev_img), grey(ideal)
-            # nextPts None: see track() on OpenCV's stubs
-            p1, st, _ = cv2.calcOpticalFlowPyrLK(a, b, p0, None, **lk)  # type: ignore[call-overload]
-            if s.prewarp:  # the same tracker: its homography from these tracks
-                _, _, p1, st = _prewarped(a, b, p0, p1, st, lk)
             p0_64 = p0.reshape(-1, 2).astype(np.float64)
             q = _carry(run, k - 1, k, p0_64, run.range(k - 1), run.range(k), 0.02)
-            err = np.linalg.norm(p1.reshape(-1, 2).astype(np.float64) - q, axis=1)
-            err[st.reshape(-1) != 1] = np.nan
-            out[sel, k] = err
+            a = grey(prev_img)
+            for out, seed in zip(outs, noises, strict=True):
+                ideal = warped if seed is None else _fresh_noise(warped, sensor, seed, k)
+                b = grey(ideal)
+                # nextPts None: see track() on OpenCV's stubs
+                p1, st, _ = cv2.calcOpticalFlowPyrLK(a, b, p0, None, **lk)  # type: ignore[call-overload]
+                if s.prewarp:  # the same tracker: its homography from these tracks
+                    _, _, p1, st = _prewarped(a, b, p0, p1, st, lk)
+                err = np.linalg.norm(p1.reshape(-1, 2).astype(np.float64) - q, axis=1)
+                err[st.reshape(-1) != 1] = np.nan
+                out[sel, k] = err
         prev_img = img
-    return out
+    return outs
 
 
 def save_tracks(scored: ScoredTracks, run, folder, *, inputs=()) -> dict:
