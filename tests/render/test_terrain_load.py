@@ -18,7 +18,6 @@ from __future__ import annotations
 import hashlib
 
 import numpy as np
-import pytest
 from affine import Affine
 
 #: sha256 of every layer's uploaded buffers, with the loader before vectorisation.
@@ -37,7 +36,8 @@ def _stack():
         x = x0 + (np.arange(n) + 0.5) * res
         y = y0 - (np.arange(n) + 0.5) * res
         h = (40.0 * np.sin(x[None, :] / 97.0) * np.cos(y[:, None] / 61.0)
-             + 0.002 * (x[None, :] - 700.0) ** 2 / 10.0 + 3.0 * np.sin(x[None, :] * y[:, None] / 5e3))
+             + 0.002 * (x[None, :] - 700.0) ** 2 / 10.0
+             + 3.0 * np.sin(x[None, :] * y[:, None] / 5e3))
         h = h.astype(np.float32)
         valid = np.ones(h.shape, bool)
         if hole:
