@@ -560,12 +560,14 @@ def _sample_range(range_m: np.ndarray, uv: np.ndarray, tolerance: float) -> np.n
     v0 = np.clip(np.floor(vi).astype(np.int64), 0, h - 2) if h > 1 else np.zeros(vi.size, int)
     u1, v1 = np.minimum(u0 + 1, w - 1), np.minimum(v0 + 1, h - 1)
     fu, fv = np.clip(ui - u0, 0, 1), np.clip(vi - v0, 0, 1)
-    c = np.stack([range_m[v0, u0], range_m[v0, u1], range_m[v1, u0], range_m[v1, u1]], axis=1)
-    bil = (c[:, 0] * (1 - fu) * (1 - fv) + c[:, 1] * fu * (1 - fv) + c[:, 2] * (1 - fu) * fv
-           + c[:, 3] * fu * fv)
+    c0, c1, c2, c3 = range_m[v0, u0], range_m[v0, u1], range_m[v1, u0], range_m[v1, u1]
+    bil = (c0 * (1 - fu) * (1 - fv) + c1 * fu * (1 - fv) + c2 * (1 - fu) * fv
+           + c3 * fu * fv)
+    # elementwise over the four (a reduction along an axis of 4 is many times slower)
+    low = np.minimum(np.minimum(c0, c1), np.minimum(c2, c3))
     with np.errstate(invalid="ignore"):
-        spread = c.max(axis=1) - c.min(axis=1)  # NaN when a return is missing
-        agree = np.isfinite(spread) & (spread <= tolerance * c.min(axis=1))
+        spread = np.maximum(np.maximum(c0, c1), np.maximum(c2, c3)) - low  # NaN: no return
+        agree = np.isfinite(spread) & (spread <= tolerance * low)
     nearest = range_m[np.clip(np.rint(vi).astype(np.int64), 0, h - 1),
                   np.clip(np.rint(ui).astype(np.int64), 0, w - 1)]
     out[inside] = np.where(agree, bil, nearest)
