@@ -9,8 +9,9 @@ Which device: EGL lists the devices its drivers offer (``eglQueryDevicesEXT``; l
 every vendor's driver, e.g. NVIDIA's and Mesa's). :func:`choose_device` takes the first
 hardware device, one whose extensions do not include ``EGL_MESA_device_software``, and else
 the software rasteriser; the environment variable :data:`DEVICE_ENV` asks for one by index,
-or for ``software`` (``auto`` is the default). A hardware device whose context cannot be
-made falls back to the software one, with a warning; no GPU is ever required. The renderer
+or for ``software`` (``auto`` is the default). A device whose context cannot be made falls
+back to the software one, then to EGL's default display, with a warning
+(:func:`fallbacks`); no GPU is ever required. The renderer
 string of the context (e.g. ``NVIDIA H200/PCIe/SSE2`` or ``llvmpipe (LLVM 15.0.6, 256
 bits)``) is logged, and :func:`describe` gives it with the device to run manifests and
 benchmark reports. glcontext's own ``GLCONTEXT_DEVICE_INDEX``, where set, still wins.
@@ -30,7 +31,7 @@ from dataclasses import dataclass
 from render.errors import RenderUnavailableError
 
 __all__ = ["APT_PACKAGES", "DEVICE_ENV", "EglDevice", "choose_device", "create_context",
-           "describe", "egl_devices", "keep_current"]
+           "describe", "egl_devices", "fallbacks", "keep_current"]
 
 log = logging.getLogger(__name__)
 
@@ -130,6 +131,39 @@ def choose_device(devices: Sequence[EglDevice], request: str | None = None) -> E
         f"{len(devices) - 1})")
 
 
+def fallbacks(devices: Sequence[EglDevice],
+              chosen: EglDevice | None) -> list[EglDevice | None]:
+    """Return the devices to try in turn: the chosen one, the CPU, EGL's default display.
+
+    A GPU is never required, and the result is never worse than asking EGL for its default
+    (None stands for EGL's default display).
+
+    Parameters
+    ----------
+    devices : sequence of EglDevice
+        What EGL lists.
+    chosen : EglDevice or None
+        What :func:`choose_device` chose.
+
+    Returns
+    -------
+    list of (EglDevice or None)
+
+    Examples
+    --------
+    >>> gpu, cpu = EglDevice(0, ("EGL_EXT_device_drm",)), EglDevice(1, (SOFTWARE_EXTENSION,))
+    >>> [d.index if d else None for d in fallbacks([gpu, cpu], gpu)]
+    [0, 1, None]
+    """
+    attempts: list[EglDevice | None] = [chosen]
+    software = next((d for d in devices if d.software), None)
+    if chosen is not None and not chosen.software and software is not None:
+        attempts.append(software)
+    if chosen is not None:
+        attempts.append(None)
+    return attempts
+
+
 def egl_devices() -> list[EglDevice]:
     """List the EGL devices of this machine (empty where EGL cannot enumerate them).
 
@@ -170,6 +204,19 @@ def egl_devices() -> list[EglDevice]:
         drm = text(_EGL_DRM_DEVICE_FILE) if "EGL_EXT_device_drm" in extensions else None
         out.append(EglDevice(i, extensions, name, drm))
     return out
+
+
+def _device_words(device: EglDevice | None) -> str:
+    """Name a device in a log line."""
+    if device is None:
+        return "EGL's default display"
+    kind = "software" if device.software else "hardware"
+    return f"EGL device {device.index} ({device.name or kind})"
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
 
 
 #: EGL's ``eglGetCurrentSurface`` selectors.
@@ -213,32 +260,36 @@ def _new_context():
         raise RenderUnavailableError(f"moderngl is not installed ({exc}); run `make setup`") \
             from exc
     devices = egl_devices()
-    device = choose_device(devices, os.environ.get(DEVICE_ENV))
-    try:
+    chosen = choose_device(devices, os.environ.get(DEVICE_ENV))
+    attempts = fallbacks(devices, chosen)
+    first_error: Exception | None = None
+    ctx = None
+    device: EglDevice | None = None
+    for device in attempts:
         try:
             ctx = moderngl.create_context(
                 standalone=True, backend="egl",
                 **({"device_index": device.index} if device is not None else {}))
+            break
         except Exception as exc:
-            fallback = next((d for d in devices if d.software), None)
-            if device is None or device.software or fallback is None:
-                raise
-            log.warning("cannot make an OpenGL context on EGL device %d (%s): %s; "
-                        "rendering on the CPU instead", device.index, device.name or "hardware",
-                        str(exc).strip().splitlines()[0] if str(exc).strip() else exc)
-            device = fallback
-            ctx = moderngl.create_context(standalone=True, backend="egl",
-                                          device_index=device.index)
-    except Exception as exc:
+            first_error = first_error or exc
+            if device is not attempts[-1]:
+                log.warning("cannot make an OpenGL context on %s: %s; trying %s",
+                            _device_words(device), _first_line(exc),
+                            _device_words(attempts[attempts.index(device) + 1]))
+    if ctx is None:
         raise RenderUnavailableError(
             "cannot create a headless OpenGL context through EGL "
-            f"({str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__});"
+            f"({_first_line(first_error) if first_error else 'no device'});"
             f" install {' '.join(APT_PACKAGES)} (Debian: apt-get install -y "
-            f"--no-install-recommends {' '.join(APT_PACKAGES)}) or run `make setup`") from exc
+            f"--no-install-recommends {' '.join(APT_PACKAGES)}) or run `make setup`") \
+            from first_error
     if ctx.version_code < REQUIRED_VERSION:
         raise RenderUnavailableError(
             f"OpenGL {ctx.version_code} is too old (need {REQUIRED_VERSION}); install "
             f"{' '.join(APT_PACKAGES)}")
+    if device is not chosen:
+        log.warning("rendering on %s, not on %s", _device_words(device), _device_words(chosen))
     _device.clear()
     _device.update(egl_device=device.index if device is not None else None,
                    egl_devices=len(devices),

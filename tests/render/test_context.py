@@ -54,3 +54,15 @@ def test_the_context_says_which_device_it_renders_on(gl):
         assert "llvmpipe" in facts["renderer"] or "softpipe" in facts["renderer"]
     # the automatic choice is never the CPU while a GPU is listed
     assert chosen.software == all(d.software for d in devices)
+
+
+@pytest.mark.parametrize(("devices", "chosen", "tried"), [
+    ([NVIDIA, LLVMPIPE], NVIDIA, [0, 1, None]),   # a failing GPU: the CPU, then EGL's default
+    ([NVIDIA, LLVMPIPE], LLVMPIPE, [1, None]),
+    ([NVIDIA], NVIDIA, [0, None]),                # no software device listed
+    ([], None, [None]),                           # no enumeration: EGL's default only
+])
+def test_a_device_that_fails_falls_back_to_the_cpu_then_the_default(devices, chosen, tried):
+    from render.context import fallbacks
+
+    assert [d.index if d is not None else None for d in fallbacks(devices, chosen)] == tried
