@@ -340,16 +340,17 @@ def consistency_report(run, scored, tracking_sec, folder: Path, limits, key, fac
     """
     import numpy as np
 
-    from evaluation.consistency import consistency, save_consistency
+    from evaluation.consistency import consistency, sampling_stride, save_consistency
     from evaluation.report import consistency_section
-    from evaluation.tracking import ideal_one_step
+    from evaluation.tracking import ideal_one_steps
 
     say(f"evaluation: frame-to-frame consistency of the {key}")
-    result = consistency(run)
+    # large frames are measured on a grid of pixels (docs/speed.md: the uncertainty)
+    result = consistency(run, stride=sampling_stride(run.image(0).shape))
     summary = save_consistency(result, folder)
-    ideal = ideal_one_step(scored, run)
+    # without and with fresh sensor noise, each truth-warped frame made once for both
+    ideal, noisy = ideal_one_steps(scored, run, noises=(None, seed))
     ideal = ideal[np.isfinite(ideal)]
-    noisy = ideal_one_step(scored, run, sensor_noise=True, seed=seed)
     noisy = noisy[np.isfinite(noisy)]
     errors = scored.error_summary() or {}
     one = (errors.get("one_step") or {}).get("median_px")

@@ -53,6 +53,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -63,8 +64,10 @@ from render.camera import quat_to_matrix
 from render.rundir import RunReader
 from terrain.core.errors import InvalidParameterError
 
-__all__ = ["DARK_SIGMAS", "SILHOUETTE_JUMP", "SPIKE_BOUND", "Consistency", "PairResidual",
-           "change_marks", "consistency", "pair_residual", "save_consistency"]
+__all__ = ["DARK_SIGMAS", "SAMPLED_PIXELS", "SILHOUETTE_JUMP", "SPIKE_BOUND", "Consistency",
+           "PairResidual", "camera_map", "change_marks", "consistency", "pair_residual",
+           "sampling_stride",
+           "save_consistency"]
 
 log = logging.getLogger(__name__)
 
@@ -76,6 +79,10 @@ SPIKE_BOUND = 1.5
 SUN_STILL_RAD = 1e-7
 #: Side (pixels) of the tiles of :attr:`PairResidual.worst_tile_dn`.
 TILE = 32
+#: Pixels per frame a sampled measurement keeps at least (:func:`sampling_stride`): at
+#: 2^18, a frame's rms moves by about 0.4 % and its worst tile by about 2 % against every
+#: pixel (docs/speed.md, "Sampled consistency").
+SAMPLED_PIXELS = 2**18
 
 
 @dataclass(frozen=True, eq=False)
@@ -136,9 +143,34 @@ def _sensor_noise(sensor: dict | None):
     return variance, DARK_SIGMAS * math.sqrt(floor)
 
 
+def sampling_stride(shape: tuple[int, ...], pixels: int = SAMPLED_PIXELS) -> int:
+    """Return the largest pixel spacing (1, 2 or 4) that still measures ``pixels`` a frame.
+
+    Parameters
+    ----------
+    shape : (h, w, ...) of int
+        The frames' shape.
+    pixels : int
+        The fewest pixels to measure per frame.
+
+    Returns
+    -------
+    int
+        The ``stride`` of :func:`pair_residual` and :func:`consistency`.
+
+    >>> sampling_stride((1024, 1024)), sampling_stride((256, 256))
+    (2, 1)
+    """
+    h, w = int(shape[0]), int(shape[1])
+    stride = 1
+    while stride < 4 and -(-h // (2 * stride)) * -(-w // (2 * stride)) >= pixels:
+        stride *= 2
+    return stride
+
+
 def pair_residual(image0, image1, range0, range1, truth0, truth1, *, normals0=None,
                   normals1=None, sensor: dict | None = None, edge_px: int = 2,
-                  occlusion_tolerance: float = 0.002) -> PairResidual:
+                  occlusion_tolerance: float = 0.002, stride: int = 1) -> PairResidual:
     """Photometric residual of frame t+1 warped into frame t through the truth.
 
     Parameters
@@ -158,6 +190,11 @@ def pair_residual(image0, image1, range0, range1, truth0, truth1, *, normals0=No
         Margin around silhouettes, occlusion edges and moving shadow edges.
     occlusion_tolerance : float
         Relative range disagreement above which a point counts as hidden in frame t+1.
+    stride : int, pixels
+        Measure the pixels of frame t on a grid of this spacing (1: every pixel); the
+        residual and mask are then that grid's, ``(ceil(h / stride), ceil(w / stride))``,
+        and the tiles of ``worst_tile_dn`` keep their side in frame t's pixels. Frame t+1
+        is sampled at full resolution either way.
 
     Returns
     -------
@@ -171,48 +208,34 @@ def pair_residual(image0, image1, range0, range1, truth0, truth1, *, normals0=No
         raise InvalidParameterError(
             f"frames, range images must share one shape; got {i0.shape}, {i1.shape}, "
             f"{range0.shape}, {range1.shape}")
-    if not (occlusion_tolerance > 0 and edge_px >= 0):
+    if not (occlusion_tolerance > 0 and edge_px >= 0 and stride >= 1
+            and stride == int(stride) and TILE % int(stride) == 0):
         raise InvalidParameterError(
-            f"occlusion_tolerance must be > 0 and edge_px >= 0; got {occlusion_tolerance}, "
-            f"{edge_px}")
+            f"occlusion_tolerance must be > 0, edge_px >= 0 and stride a divisor of {TILE};"
+            f" got {occlusion_tolerance}, {edge_px}, {stride}")
+    s = int(stride)
     variance, dark_dn = _sensor_noise(sensor)
-    v, u = np.mgrid[0:h, 0:w]
-    r0 = range0.reshape(-1).astype(np.float64)
-    have = np.isfinite(r0) & (r0 > 0)
-    uv = np.stack([u.reshape(-1), v.reshape(-1)], axis=1).astype(np.float64)[have]
     rot0 = quat_to_matrix(truth0.body_rotation)
     rot1 = quat_to_matrix(truth1.body_rotation)
-    world0 = truth0.pose.unproject(uv, r0[have], truth0.intrinsics)
-    world1 = (world0 @ rot0) @ rot1.T
-    uv1 = truth1.pose.project(world1, truth1.intrinsics)
-    dist1 = np.linalg.norm(world1 - np.asarray(truth1.pose.position), axis=1)
-    map_u = np.full(h * w, -10.0, dtype=np.float32)
-    map_v = np.full(h * w, -10.0, dtype=np.float32)
-    finite = np.isfinite(uv1).all(axis=1)
-    idx = np.flatnonzero(have)
-    map_u[idx[finite]] = uv1[finite, 0]
-    map_v[idx[finite]] = uv1[finite, 1]
-    map_u = map_u.reshape(h, w)
-    map_v = map_v.reshape(h, w)
+    map_u, map_v, seen = _warp_maps(range0, truth0, truth1, s)
     inside = (map_u >= 0) & (map_u <= w - 1) & (map_v >= 0) & (map_v <= h - 1)
     # seen in both: frame t+1's range at the projection (nearest return) against the distance
-    seen = np.full(h * w, np.nan)
-    seen[idx] = dist1
-    seen = seen.reshape(h, w)
     r1_at = cv2.remap(np.nan_to_num(range1, nan=-1.0).astype(np.float32), map_u, map_v,
                       cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0)
     with np.errstate(invalid="ignore"):
         visible = inside & (r1_at > 0) & (np.abs(r1_at - seen) <= occlusion_tolerance * seen)
     edges1 = cv2.remap(near_contours(range1, edge_px).astype(np.uint8), map_u, map_v,
                        cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=1) > 0
-    mask = visible & ~near_contours(range0, edge_px) & ~edges1
+    mask = visible & ~near_contours(range0, edge_px)[::s, ::s] & ~edges1
+    i0 = i0[::s, ::s]
     warped = cv2.remap(i1, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     # lit in both
     sun = np.asarray(truth0.sun, dtype=np.float64)
     sun1 = np.asarray(truth1.sun, dtype=np.float64)
     if normals0 is not None and normals1 is not None:
         with np.errstate(invalid="ignore"):
-            facing0 = np.nan_to_num(normals0 @ sun.astype(np.float32), nan=-1.0) > 0
+            facing0 = np.nan_to_num(normals0[::s, ::s] @ sun.astype(np.float32),
+                                    nan=-1.0) > 0
             facing1 = cv2.remap(np.nan_to_num(normals1 @ sun1.astype(np.float32), nan=-1.0)
                                 .astype(np.float32), map_u, map_v, cv2.INTER_NEAREST,
                                 borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0) > 0
@@ -225,7 +248,7 @@ def pair_residual(image0, image1, range0, range1, truth0, truth1, *, normals0=No
     turn = math.acos(min(1.0, float(float(np.dot(sun_body0, sun_body1))
                                     / (np.linalg.norm(sun_body0) * np.linalg.norm(sun_body1)))))
     if turn > SUN_STILL_RAD:  # shadows move on the surface: drop their edges
-        mask &= ~dilate(dark0 | dark1, edge_px)
+        mask &= ~dilate(dark0 | dark1, -(-edge_px // s))
     residual = np.where(mask, i0 - warped, np.nan).astype(np.float32)
     vals = residual[mask].astype(np.float64)
     rms = float(np.sqrt(np.mean(vals * vals))) if vals.size else float("nan")
@@ -239,20 +262,85 @@ def pair_residual(image0, image1, range0, range1, truth0, truth1, *, normals0=No
         w2 = ((1 - fu) ** 2 + fu**2) * ((1 - fv) ** 2 + fv**2)
         floor = float(np.sqrt(np.mean(variance(i0[mask]) + w2 * variance(warped[mask]))))
     return PairResidual(residual, mask, rms, mean, noise, float(mask.mean()), floor,
-                        _worst_tile(residual, mask))
+                        _worst_tile(residual, mask, TILE // s))
 
 
-def _worst_tile(residual: np.ndarray, mask: np.ndarray) -> float | None:
-    """Return the largest rms (DN) over TILE x TILE pixel tiles at least half counted."""
+def _warp_maps(range0, truth0, truth1, stride=1):
+    """Where each pixel of frame t lands in frame t+1, and its distance from camera t+1.
+
+    Returns
+    -------
+    map_u, map_v : (h, w) float32, pixels
+        The projection in frame t+1 (-10 without a return or behind camera t+1), for the
+        pixels of frame t every ``stride`` rows and columns.
+    distance : (h, w) float64, metres
+        From camera t+1 (NaN without a return).
+    """
+    u1, v1, distance, ok = camera_map(range0, truth0, truth1, stride)
+    map_u = np.where(ok, u1, -10.0).astype(np.float32)
+    map_v = np.where(ok, v1, -10.0).astype(np.float32)
+    return map_u, map_v, distance
+
+
+def camera_map(range0: np.ndarray, truth0, truth1, stride: int = 1):
+    """Carry every pixel of one frame, lifted by its range, into another frame's image.
+
+    A pixel's ray in camera 0, scaled by its range, carried through the body rotations
+    (frame 0's R_WB back to the body, frame 1's out of it) into camera 1, in one affine map
+    of camera frames (``c1 = t + r d A``): the world coordinates are never formed, so no
+    precision is lost to their size, and the whole image goes at once.
+
+    Parameters
+    ----------
+    range0 : (h, w) float32, metres
+        Frame 0's range (NaN: no return).
+    truth0, truth1 : render.rundir.FrameTruth
+        The two frames' pose, intrinsics and body rotation.
+    stride : int, pixels
+        Carry the pixels every ``stride`` rows and columns.
+
+    Returns
+    -------
+    u1, v1 : (ceil(h / stride), ceil(w / stride)) float64, pixels
+        The projection in frame 1 (NaN where ``ok`` is False).
+    distance : same shape, float64, metres
+        From camera 1 (NaN without a return).
+    ok : same shape, bool
+        A return, in front of camera 1.
+    """
+    h, w = range0.shape
+    k0, k1 = truth0.intrinsics, truth1.intrinsics
+    r_wc0, r_wc1 = truth0.pose.rotation, truth1.pose.rotation
+    # row vectors: world1 = world0 @ rot0 @ rot1.T, camera = (world - position) @ R_WC
+    body = quat_to_matrix(truth0.body_rotation) @ quat_to_matrix(truth1.body_rotation).T
+    a = r_wc0.T @ body @ r_wc1  # camera-0 directions to camera-1 axes (row vectors)
+    t = (np.asarray(truth0.pose.position) @ body - np.asarray(truth1.pose.position)) @ r_wc1
+    x = (np.arange(0, w, stride, dtype=np.float64) - k0.cx) / k0.fx
+    y = (np.arange(0, h, stride, dtype=np.float64) - k0.cy) / k0.fy
+    r = np.asarray(range0[::stride, ::stride], dtype=np.float64)
+    have = np.isfinite(r) & (r > 0)
+    scale = np.where(have, r, np.nan) / np.sqrt(x[None, :] ** 2 + y[:, None] ** 2 + 1.0)
+    c = [t[i] + scale * (x[None, :] * a[0, i] + y[:, None] * a[1, i] + a[2, i])
+         for i in range(3)]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u1 = k1.fx * c[0] / c[2] + k1.cx
+        v1 = k1.fy * c[1] / c[2] + k1.cy
+    ok = have & (c[2] > 0) & np.isfinite(u1) & np.isfinite(v1)
+    distance = np.sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2])
+    return np.where(ok, u1, np.nan), np.where(ok, v1, np.nan), distance, ok
+
+
+def _worst_tile(residual: np.ndarray, mask: np.ndarray, tile: int = TILE) -> float | None:
+    """Return the largest rms (DN) over tile x tile tiles at least half counted."""
     h, w = residual.shape
-    ny, nx = h // TILE, w // TILE
+    ny, nx = h // tile, w // tile
     if ny == 0 or nx == 0:
         return None
-    r = np.where(mask, residual, 0.0)[:ny * TILE, :nx * TILE].astype(np.float64)
-    m = mask[:ny * TILE, :nx * TILE]
-    sq = (r * r).reshape(ny, TILE, nx, TILE).sum(axis=(1, 3))
-    n = m.reshape(ny, TILE, nx, TILE).sum(axis=(1, 3))
-    ok = n >= TILE * TILE // 2
+    r = np.where(mask, residual, 0.0)[:ny * tile, :nx * tile].astype(np.float64)
+    m = mask[:ny * tile, :nx * tile]
+    sq = (r * r).reshape(ny, tile, nx, tile).sum(axis=(1, 3))
+    n = m.reshape(ny, tile, nx, tile).sum(axis=(1, 3))
+    ok = n >= tile * tile // 2
     return float(np.sqrt(sq[ok] / n[ok]).max()) if ok.any() else None
 
 
@@ -366,15 +454,16 @@ class Consistency:
 
 
 def consistency(run, *, edge_px: int = 2, occlusion_tolerance: float = 0.002,
-                progress=None) -> Consistency:
+                stride: int = 1, progress=None) -> Consistency:
     """Measure every consecutive pair of a run (see the module docstring).
 
     Parameters
     ----------
     run : RunReader or path
         Needs truth and range images.
-    edge_px, occlusion_tolerance :
-        As in :func:`pair_residual`.
+    edge_px, occlusion_tolerance, stride :
+        As in :func:`pair_residual` (``stride`` 2 measures a quarter of the pixels; the
+        uncertainty this adds to each figure is measured in ``docs/speed.md``).
     progress : callable, optional
         ``progress(done, total)`` after each pair.
 
@@ -401,13 +490,39 @@ def consistency(run, *, edge_px: int = 2, occlusion_tolerance: float = 0.002,
         notes.append("the run's manifest records no sensor: noise levels are omitted")
     layer, lod = change_marks([t.drawn for t in run.truth])
     frames = []
-    image0, range0, normals0 = run.image(0), run.range(0), run.normals(0)
-    for k in range(len(run) - 1):
-        image1, range1, normals1 = run.image(k + 1), run.range(k + 1), run.normals(k + 1)
-        pr = pair_residual(image0, image1, range0, range1, run.truth[k], run.truth[k + 1],
-                           normals0=normals0, normals1=normals1, sensor=sensor,
-                           edge_px=edge_px, occlusion_tolerance=occlusion_tolerance)
-        frames.append(dict(
+
+    def load(k):
+        return run.image(k), run.range(k), run.normals(k)
+
+    # the next frame is read (and decompressed, without the GIL) while a pair is measured
+    with ThreadPoolExecutor(max_workers=1) as reader:
+        image0, range0, normals0 = load(0)
+        ahead = reader.submit(load, 1)
+        for k in range(len(run) - 1):
+            image1, range1, normals1 = ahead.result()
+            if k + 2 < len(run):
+                ahead = reader.submit(load, k + 2)
+            frames.append(_pair_record(k, pair_residual(
+                image0, image1, range0, range1, run.truth[k], run.truth[k + 1],
+                normals0=normals0, normals1=normals1, sensor=sensor, edge_px=edge_px,
+                occlusion_tolerance=occlusion_tolerance, stride=stride), layer, lod))
+            image0, range0, normals0 = image1, range1, normals1
+            if progress is not None:
+                progress(k + 1, len(run) - 1)
+    result = Consistency(str(run.dir), frames,
+                         dict(edge_px=int(edge_px), occlusion_tolerance=occlusion_tolerance,
+                              dark_sigmas=DARK_SIGMAS, silhouette_jump=SILHOUETTE_JUMP,
+                              stride=int(stride)),
+                         notes)
+    s = result.summary()
+    log.info("consistency of %d pairs: median rms %s DN, spike ratio %s", s["pairs"],
+             s["rms_dn_median"], s["spike_ratio"])
+    return result
+
+
+def _pair_record(k: int, pr: PairResidual, layer, lod) -> dict:
+    """Return one pair's row of :attr:`Consistency.frames`."""
+    return dict(
             frame=k, next=k + 1,
             rms_dn=pr.rms_dn if math.isfinite(pr.rms_dn) else None,
             mean_dn=pr.mean_dn if math.isfinite(pr.mean_dn) else None,
@@ -417,18 +532,7 @@ def consistency(run, *, edge_px: int = 2, occlusion_tolerance: float = 0.002,
                        if pr.noise_floor_dn is not None and math.isfinite(pr.rms_dn) else None),
             worst_tile_dn=pr.worst_tile_dn,
             fraction=pr.fraction, layer_change=bool(layer[k + 1]),
-            lod_change=bool(lod[k + 1])))
-        image0, range0, normals0 = image1, range1, normals1
-        if progress is not None:
-            progress(k + 1, len(run) - 1)
-    result = Consistency(str(run.dir), frames,
-                         dict(edge_px=int(edge_px), occlusion_tolerance=occlusion_tolerance,
-                              dark_sigmas=DARK_SIGMAS, silhouette_jump=SILHOUETTE_JUMP),
-                         notes)
-    s = result.summary()
-    log.info("consistency of %d pairs: median rms %s DN, spike ratio %s", s["pairs"],
-             s["rms_dn_median"], s["spike_ratio"])
-    return result
+            lod_change=bool(lod[k + 1]))
 
 
 def save_consistency(result: Consistency, folder, *, inputs=()) -> dict:

@@ -96,8 +96,8 @@ from render.rundir import RunReader
 from terrain.core import memory
 from terrain.core.errors import InvalidParameterError
 
-__all__ = ["ScoredTracks", "TrackerSettings", "Tracks", "ideal_one_step", "load_run",
-           "save_tracks", "score", "track", "truth_round_trip", "truth_warped_frame"]
+__all__ = ["ScoredTracks", "TrackerSettings", "Tracks", "ideal_one_step", "ideal_one_steps",
+           "load_run", "save_tracks", "score", "track", "truth_round_trip", "truth_warped_frame"]
 
 log = logging.getLogger(__name__)
 
@@ -560,12 +560,14 @@ def _sample_range(range_m: np.ndarray, uv: np.ndarray, tolerance: float) -> np.n
     v0 = np.clip(np.floor(vi).astype(np.int64), 0, h - 2) if h > 1 else np.zeros(vi.size, int)
     u1, v1 = np.minimum(u0 + 1, w - 1), np.minimum(v0 + 1, h - 1)
     fu, fv = np.clip(ui - u0, 0, 1), np.clip(vi - v0, 0, 1)
-    c = np.stack([range_m[v0, u0], range_m[v0, u1], range_m[v1, u0], range_m[v1, u1]], axis=1)
-    bil = (c[:, 0] * (1 - fu) * (1 - fv) + c[:, 1] * fu * (1 - fv) + c[:, 2] * (1 - fu) * fv
-           + c[:, 3] * fu * fv)
+    c0, c1, c2, c3 = range_m[v0, u0], range_m[v0, u1], range_m[v1, u0], range_m[v1, u1]
+    bil = (c0 * (1 - fu) * (1 - fv) + c1 * fu * (1 - fv) + c2 * (1 - fu) * fv
+           + c3 * fu * fv)
+    # elementwise over the four (a reduction along an axis of 4 is many times slower)
+    low = np.minimum(np.minimum(c0, c1), np.minimum(c2, c3))
     with np.errstate(invalid="ignore"):
-        spread = c.max(axis=1) - c.min(axis=1)  # NaN when a return is missing
-        agree = np.isfinite(spread) & (spread <= tolerance * c.min(axis=1))
+        spread = np.maximum(np.maximum(c0, c1), np.maximum(c2, c3)) - low  # NaN: no return
+        agree = np.isfinite(spread) & (spread <= tolerance * low)
     nearest = range_m[np.clip(np.rint(vi).astype(np.int64), 0, h - 1),
                   np.clip(np.rint(ui).astype(np.int64), 0, w - 1)]
     out[inside] = np.where(agree, bil, nearest)
@@ -887,13 +889,28 @@ def truth_warped_frame(run, k0: int, k1: int, image0=None, image1=None) -> np.nd
     range0, range1 = run.range(k0), run.range(k1)
     if range0 is None or range1 is None:
         raise InvalidParameterError("truth-warped frames need range images")
+    from evaluation.consistency import camera_map
+
     h, w = range1.shape
-    v, u = np.mgrid[0:h, 0:w]
-    uv = np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64)
-    q = _carry(run, k1, k0, uv, range1, range0, 0.002)
-    ok = np.isfinite(q).all(axis=1)
-    mu = np.where(ok, q[:, 0], -10.0).astype(np.float32).reshape(h, w)
-    mv = np.where(ok, q[:, 1], -10.0).astype(np.float32).reshape(h, w)
+    # what _carry does for every pixel of frame k1 at once (at a pixel centre the range
+    # sampled is the pixel's own): lift, carry into frame k0, keep what frame k0 sees
+    tolerance = 0.002
+    u, v, dist, lifted = camera_map(range1, run.truth[k1], run.truth[k0])
+    idx = np.flatnonzero(lifted)
+    q = np.stack([u.ravel()[idx], v.ravel()[idx]], axis=1)
+    seen = _sample_range(range0, q, tolerance)
+    h0, w0 = range0.shape
+    with np.errstate(invalid="ignore"):
+        good = ((q[:, 0] >= -0.5) & (q[:, 0] <= w0 - 0.5) & (q[:, 1] >= -0.5)
+                & (q[:, 1] <= h0 - 0.5) & np.isfinite(seen)
+                & (seen >= dist.ravel()[idx] * (1.0 - tolerance)))
+    ok = np.zeros(h * w, dtype=bool)
+    ok[idx[good]] = True
+    mu = np.full(h * w, -10.0, dtype=np.float32)
+    mv = np.full(h * w, -10.0, dtype=np.float32)
+    mu[idx[good]] = q[good, 0]
+    mv[idx[good]] = q[good, 1]
+    mu, mv = mu.reshape(h, w), mv.reshape(h, w)
     src = img0.astype(np.float32)
     warped = cv2.remap(src, mu, mv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     okm = ok.reshape(h, w)
@@ -951,6 +968,28 @@ def ideal_one_step(scored: ScoredTracks, run, *, sensor_noise: bool = False,
     (n_tracks, n_frames) float64, pixels; NaN where the real one-step error is NaN or the
     tracker lost the point.
     """
+    return ideal_one_steps(scored, run, noises=(seed if sensor_noise else None,))[0]
+
+
+def ideal_one_steps(scored: ScoredTracks, run, *,
+                    noises: tuple[int | None, ...] = (None,)) -> list[np.ndarray]:
+    """:func:`ideal_one_step` for several noise settings, each truth-warped frame made once.
+
+    Parameters
+    ----------
+    scored : ScoredTracks
+        Tracks scored against truth.
+    run : RunReader or path
+        The run.
+    noises : tuple of (int or None)
+        Per result: None for the warped frames as they are, or the seed of their fresh
+        sensor noise.
+
+    Returns
+    -------
+    list of (n_tracks, n_frames) float64, pixels
+        One per entry of ``noises``, each what :func:`ideal_one_step` returns.
+    """
     import cv2
 
     if scored.one_step is None:
@@ -960,35 +999,36 @@ def ideal_one_step(scored: ScoredTracks, run, *, sensor_noise: bool = False,
     tracks = scored.tracks
     s = tracks.settings
     sensor = run.manifest.get("sensor") or {}
-    if sensor_noise and not sensor:
+    if any(seed is not None for seed in noises) and not sensor:
         raise InvalidParameterError(
             f"run directory '{run.dir}' records no sensor: no noise to add to ideal frames")
     lk = dict(winSize=(s.win_size, s.win_size), maxLevel=s.levels,
               criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
     grey = _Grey()
-    out = np.full((tracks.n_tracks, tracks.n_frames), np.nan)
+    outs = [np.full((tracks.n_tracks, tracks.n_frames), np.nan) for _ in noises]
     prev_img = run.image(0)
     grey(prev_img)  # the sequence's scale comes from frame 0, as in track()
     for k in range(1, tracks.n_frames):
         img = run.image(k)
         sel = np.flatnonzero(np.isfinite(scored.one_step[:, k]))
         if sel.size:
-            ideal = truth_warped_frame(run, k - 1, k, prev_img, img)
-            if sensor_noise:
-                ideal = _fresh_noise(ideal, sensor, seed, k)
+            warped = truth_warped_frame(run, k - 1, k, prev_img, img)
             p0 = tracks.positions[sel, k - 1].astype(np.float32).reshape(-1, 1, 2)
-            a, b = grey(prev_img), grey(ideal)
-            # nextPts None: see track() on OpenCV's stubs
-            p1, st, _ = cv2.calcOpticalFlowPyrLK(a, b, p0, None, **lk)  # type: ignore[call-overload]
-            if s.prewarp:  # the same tracker: its homography from these tracks
-                _, _, p1, st = _prewarped(a, b, p0, p1, st, lk)
             p0_64 = p0.reshape(-1, 2).astype(np.float64)
             q = _carry(run, k - 1, k, p0_64, run.range(k - 1), run.range(k), 0.02)
-            err = np.linalg.norm(p1.reshape(-1, 2).astype(np.float64) - q, axis=1)
-            err[st.reshape(-1) != 1] = np.nan
-            out[sel, k] = err
+            a = grey(prev_img)
+            for out, seed in zip(outs, noises, strict=True):
+                ideal = warped if seed is None else _fresh_noise(warped, sensor, seed, k)
+                b = grey(ideal)
+                # nextPts None: see track() on OpenCV's stubs
+                p1, st, _ = cv2.calcOpticalFlowPyrLK(a, b, p0, None, **lk)  # type: ignore[call-overload]
+                if s.prewarp:  # the same tracker: its homography from these tracks
+                    _, _, p1, st = _prewarped(a, b, p0, p1, st, lk)
+                err = np.linalg.norm(p1.reshape(-1, 2).astype(np.float64) - q, axis=1)
+                err[st.reshape(-1) != 1] = np.nan
+                out[sel, k] = err
         prev_img = img
-    return out
+    return outs
 
 
 def save_tracks(scored: ScoredTracks, run, folder, *, inputs=()) -> dict:

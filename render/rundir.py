@@ -48,6 +48,8 @@ from __future__ import annotations
 
 import json
 import shutil
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -324,10 +326,17 @@ class RunWriter:
             tmp.write_text(json.dumps(self.manifest, indent=2, sort_keys=True), encoding="utf-8")
 
 
+#: Decoded range images a :class:`RunReader` keeps (the evaluation reads a frame's range
+#: once for each pair it belongs to, and again in each pass over the run).
+RANGE_CACHE = 4
+
+
 class RunReader:
     """Reads a run directory; frames without truth are allowed (``truth`` is then empty)."""
 
     def __init__(self, run_dir):
+        self._ranges: OrderedDict[int, np.ndarray] = OrderedDict()
+        self._ranges_lock = threading.Lock()
         self.dir = Path(run_dir)
         if not self.dir.is_dir():
             raise MissingInputError(f"run directory '{self.dir}' does not exist")
@@ -381,7 +390,17 @@ class RunReader:
         """Return frame ``k``'s range in metres, (h, w), or None without truth."""
         if not self.truth or not self.truth[k].range:
             return None
-        return read_float_tiff(self.dir / self.truth[k].range)
+        with self._ranges_lock:
+            cached = self._ranges.get(k)
+            if cached is not None:
+                self._ranges.move_to_end(k)
+                return cached.copy()  # callers may change theirs
+        a = read_float_tiff(self.dir / self.truth[k].range)
+        with self._ranges_lock:
+            self._ranges[k] = a.copy()
+            while len(self._ranges) > RANGE_CACHE:
+                self._ranges.popitem(last=False)
+        return a
 
     def normals(self, k: int) -> np.ndarray | None:
         """Return frame ``k``'s world-frame surface normals, (h, w, 3), or None without truth."""

@@ -215,6 +215,8 @@ class TerrainScene:
             raise InvalidParameterError(f"body radius must be positive; got {radius}")
         self.radius = float(radius)
         self._layers: list[_Layer] = []
+        self._bounds: tuple | None = None
+        self._index_cache: dict = {}
         self._ctx: object = None  # the context the layers were uploaded to
         self._shadow_cache: dict = {}
         self.triangles_full = 0
@@ -317,6 +319,16 @@ class TerrainScene:
         lo, hi : (3,) float64, metres
             Its smallest and largest corner (the curvature drop included).
         """
+        # the heights never change, so neither does the box: computed once (it is asked
+        # every frame), for the stack, curvature and radius it was computed with
+        key = (id(self.stack), self.curvature, self.radius)
+        cached = self._bounds
+        if cached is None or cached[0] != key:
+            cached = (key, *self._compute_bounds())
+            self._bounds = cached
+        return cached[1].copy(), cached[2].copy()
+
+    def _compute_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         lo = np.array([math.inf] * 3)
         hi = -lo
         for tile in self.stack.tiles:
@@ -343,6 +355,7 @@ class TerrainScene:
             return
         self._ctx = gpu.context
         self._layers = []
+        self._index_cache = {}
         tiles = self.stack.tiles
         total = 0
         parent = None
@@ -388,91 +401,64 @@ class TerrainScene:
         # detail, module docstring): texel (i, j) at pixel centre (xs[j], ys[i])
         normal_tex = gpu.texture((w, h), 3, n.astype("f2").tobytes(), dtype="f2")
         normal_rect = (xs[0] - 0.5 * res, ys[0] + 0.5 * res, 1.0 / (w * res), 1.0 / (h * res))
-        xx = np.broadcast_to(xs[None, :], (h, w))
-        yy = np.broadcast_to(ys[:, None], (h, w))
-        main = np.stack([xx, yy, z], axis=-1).reshape(-1, 3)
-        normals = n.reshape(-1, 3)
         # skirt vertices: lowered copies of every block-boundary row and column
         brows = _samples(0, h - 1, BLOCK)
         bcols = _samples(0, w - 1, BLOCK)
         depth = SKIRT_PIXELS * res
-        sk_rows = main.reshape(h, w, 3)[brows].reshape(-1, 3).copy()
-        sk_rows[:, 2] -= depth
-        sk_cols = main.reshape(h, w, 3)[:, bcols].transpose(1, 0, 2).reshape(-1, 3).copy()
-        sk_cols[:, 2] -= depth
-        n_main = h * w
-        row_base = n_main
-        col_base = n_main + len(brows) * w
-        pos = np.concatenate([main, sk_rows, sk_cols]).astype(np.float32)
-        nor = np.concatenate([normals, normals.reshape(h, w, 3)[brows].reshape(-1, 3),
-                              normals.reshape(h, w, 3)[:, bcols].transpose(1, 0, 2)
-                              .reshape(-1, 3)]).astype(np.float32)
-        vbo = gpu.buffer(np.hstack([pos, nor]).tobytes())
-        # geomorphing targets (module docstring); skirts follow their edge vertex
         target, level, tnormal = _morph_targets(z, n)
-        m = np.zeros((h, w, 7), dtype=np.float64)
-        m[..., 0] = xx
-        m[..., 1] = yy
-        m[..., 2] = target
-        m[..., 3] = level
-        m[..., 4:] = tnormal
-        sk_m_rows = m[brows].reshape(-1, 7).copy()
-        sk_m_cols = m[:, bcols].transpose(1, 0, 2).reshape(-1, 7).copy()
-        sk_m_rows[:, 2] -= depth
-        sk_m_cols[:, 2] -= depth
-        morph_vbo = gpu.buffer(np.concatenate([m.reshape(-1, 7), sk_m_rows, sk_m_cols])
-                               .astype(np.float32).tobytes())
-        row_index = {int(r): i for i, r in enumerate(brows)}
-        col_index = {int(c): i for i, c in enumerate(bcols)}
-
+        # vertices: every pixel centre, then the skirt rows, then the skirt columns; the
+        # vertex buffer interleaves position and normal (3f 3f), the geomorphing buffer the
+        # target position, the level and the target normal (4f 3f; module docstring), skirts
+        # following their edge vertex. Filled in float32 straight from the float64 values.
+        n_main = h * w
+        n_rows = len(brows) * w
+        vert = np.empty((n_main + n_rows + len(bcols) * h, 6), dtype=np.float32)
+        morph = np.empty((len(vert), 7), dtype=np.float32)
+        for out, height, normal in ((vert, z, n), (morph, target, tnormal)):
+            main = out[:n_main].reshape(h, w, -1)
+            main[..., 0] = xs[None, :]
+            main[..., 1] = ys[:, None]
+            main[..., 2] = height
+            rows = out[n_main:n_main + n_rows].reshape(len(brows), w, -1)
+            rows[..., 0] = xs[None, :]
+            rows[..., 1] = ys[brows][:, None]
+            rows[..., 2] = height[brows] - depth
+            cols = out[n_main + n_rows:].reshape(len(bcols), h, -1)
+            cols[..., 0] = xs[bcols][:, None]
+            cols[..., 1] = ys[None, :]
+            cols[..., 2] = height[:, bcols].T - depth
+            first = 3 if out is vert else 4
+            main[..., first:] = normal
+            rows[..., first:] = normal[brows]
+            cols[..., first:] = normal[:, bcols].transpose(1, 0, 2)
+        morph_main = morph[:n_main].reshape(h, w, 7)
+        morph_main[..., 3] = level
+        morph[n_main:n_main + n_rows].reshape(len(brows), w, 7)[..., 3] = level[brows]
+        morph[n_main + n_rows:].reshape(len(bcols), h, 7)[..., 3] = level[:, bcols].T
+        vbo = gpu.buffer(vert)
+        morph_vbo = gpu.buffer(morph)
         nby, nbx = len(brows) - 1, len(bcols) - 1
         lo = np.empty((nby * nbx, 3))
         hi = np.empty((nby * nbx, 3))
-        offsets, counts, ibos, vaos = {}, {}, {}, {}
-        for s in _lods():
-            chunks = []
-            off = np.zeros(nby * nbx, dtype=np.int64)
-            cnt = np.zeros(nby * nbx, dtype=np.int64)
-            pos_in = 0
-            for bi in range(nby):
-                for bj in range(nbx):
-                    b = bi * nbx + bj
-                    r0, r1 = int(brows[bi]), int(brows[bi + 1])
-                    c0, c1 = int(bcols[bj]), int(bcols[bj + 1])
-                    if s == 1:
-                        block = z[r0:r1 + 1, c0:c1 + 1]
-                        lo[b] = (xs[c0], ys[r1], block.min() - depth)
-                        hi[b] = (xs[c1], ys[r0], block.max())
-                    rs = _samples(r0, r1, s)
-                    cs = _samples(c0, c1, s)
-                    grid = rs[:, None] * w + cs[None, :]
-                    a = grid[:-1, :-1].ravel()
-                    bb = grid[:-1, 1:].ravel()
-                    c = grid[1:, :-1].ravel()
-                    d = grid[1:, 1:].ravel()
-                    tri = [np.stack([a, c, bb, bb, c, d], axis=1).ravel()]
-                    # skirts on the four edges
-                    top = grid[0]
-                    bottom = grid[-1]
-                    left = grid[:, 0]
-                    right = grid[:, -1]
-                    top_l = row_base + row_index[r0] * w + cs
-                    bot_l = row_base + row_index[r1] * w + cs
-                    left_l = col_base + col_index[c0] * h + rs
-                    right_l = col_base + col_index[c1] * h + rs
-                    for edge, low in ((top, top_l), (bottom, bot_l), (left, left_l),
-                                      (right, right_l)):
-                        e0, e1, l0, l1 = edge[:-1], edge[1:], low[:-1], low[1:]
-                        tri.append(np.stack([e0, e1, l1, e0, l1, l0], axis=1).ravel())
-                    idx = np.concatenate(tri)
-                    chunks.append(idx)
-                    off[b] = pos_in
-                    cnt[b] = idx.size
-                    pos_in += idx.size
-            ibo = gpu.buffer(np.concatenate(chunks).astype(np.uint32).tobytes())
-            ibos[s] = ibo
-            offsets[s] = off
-            counts[s] = cnt
+        if nby and nbx:
+            zmin, zmax = _block_extremes(z, brows, bcols)
+            lo[:, 0] = np.tile(xs[bcols[:-1]], nby)
+            lo[:, 1] = np.repeat(ys[brows[1:]], nbx)
+            lo[:, 2] = zmin.ravel() - depth
+            hi[:, 0] = np.tile(xs[bcols[1:]], nby)
+            hi[:, 1] = np.repeat(ys[brows[:-1]], nbx)
+            hi[:, 2] = zmax.ravel()
+        # every layer of one shape draws with the same indices: built and uploaded once
+        key = (h, w)
+        if key not in self._index_cache:
+            built = {s: _block_indices(h, w, s) for s in _lods()}
+            self._index_cache[key] = {s: (gpu.buffer(idx), off, cnt)
+                                      for s, (idx, off, cnt) in built.items()}
+        shared = self._index_cache[key]
+        ibos = {s: shared[s][0] for s in shared}
+        offsets = {s: shared[s][1] for s in shared}
+        counts = {s: shared[s][2] for s in shared}
+        vaos: dict = {}
         discard = None
         if finer is not None:
             # The finer layer covers exactly this rectangle of its pixel centres; this layer
@@ -693,6 +679,88 @@ class TerrainScene:
         return batches
 
 
+def _block_extremes(z: np.ndarray, brows: np.ndarray, bcols: np.ndarray):
+    """(nby, nbx) lowest and highest height of each block, its edge lines included."""
+    def per_segment(a, lines, axis, ufunc):
+        # lines[i] .. lines[i + 1] inclusive: reduce the half-open runs, then the closing line
+        out = ufunc.reduceat(a, lines[:-1], axis=axis)
+        closing = np.take(a, lines[1:-1], axis=axis)
+        idx = [slice(None)] * a.ndim
+        idx[axis] = slice(0, len(lines) - 2)
+        out[tuple(idx)] = ufunc(out[tuple(idx)], closing)
+        return out
+
+    zmin = per_segment(per_segment(z, brows, 0, np.minimum), bcols, 1, np.minimum)
+    zmax = per_segment(per_segment(z, brows, 0, np.maximum), bcols, 1, np.maximum)
+    return zmin, zmax
+
+
+def _block_indices(h: int, w: int, s: int):
+    """Index buffer of a layer of (h, w) vertices at level s, with every block's range.
+
+    Blocks in row-major order, each its cells' two triangles (a, c, b), (b, c, d) row by
+    row, then the skirts of its top, bottom, left and right edges; the skirt vertices
+    follow the layer's main vertices (rows of block-boundary lines, then columns).
+
+    Returns
+    -------
+    indices : (n,) uint32
+    offsets, counts : (n_blocks,) int64
+        Each block's first index and number of indices.
+    """
+    brows = _samples(0, h - 1, BLOCK)
+    bcols = _samples(0, w - 1, BLOCK)
+    nby, nbx = len(brows) - 1, len(bcols) - 1
+    row_base = h * w
+    col_base = row_base + len(brows) * w
+    rel_r = [_samples(0, int(brows[i + 1] - brows[i]), s) for i in range(nby)]
+    rel_c = [_samples(0, int(bcols[j + 1] - bcols[j]), s) for j in range(nbx)]
+    nr = np.array([len(r) for r in rel_r], dtype=np.int64)
+    nc = np.array([len(c) for c in rel_c], dtype=np.int64)
+    per = (6 * (nr[:, None] - 1) * (nc[None, :] - 1) + 12 * (nc[None, :] - 1)
+           + 12 * (nr[:, None] - 1)).ravel()
+    offsets = np.zeros(nby * nbx, dtype=np.int64)
+    if per.size:
+        offsets[1:] = np.cumsum(per)[:-1]
+    out = np.empty(int(per.sum()), dtype=np.int64)
+    # blocks whose rows (columns) are sampled alike, at most two kinds per axis: one go each
+    kinds_r: dict = {}
+    for i, r in enumerate(rel_r):
+        kinds_r.setdefault(tuple(r), []).append(i)
+    kinds_c: dict = {}
+    for j, c in enumerate(rel_c):
+        kinds_c.setdefault(tuple(c), []).append(j)
+    for rr, bis in kinds_r.items():
+        for cc, bjs in kinds_c.items():
+            bi = np.array(bis)[:, None, None]
+            bj = np.array(bjs)[None, :, None]
+            rs = brows[bi] + np.array(rr)        # (nbi, 1, nr)
+            cs = bcols[bj] + np.array(cc)        # (1, nbj, nc)
+            grid = rs[..., :, None] * w + cs[..., None, :]  # (nbi, nbj, nr, nc)
+            a = grid[..., :-1, :-1]
+            b = grid[..., :-1, 1:]
+            c = grid[..., 1:, :-1]
+            d = grid[..., 1:, 1:]
+            shape = grid.shape[:2]
+            parts = [np.stack(np.broadcast_arrays(a, c, b, b, c, d), axis=-1)
+                     .reshape(*shape, -1)]
+            edges = (
+                (grid[..., 0, :], row_base + bi * w + cs),
+                (grid[..., -1, :], row_base + (bi + 1) * w + cs),
+                (grid[..., :, 0], col_base + bj * h + rs),
+                (grid[..., :, -1], col_base + (bj + 1) * h + rs),
+            )
+            for edge, low in edges:
+                edge, low = np.broadcast_arrays(edge, low)
+                e0, e1, l0, l1 = edge[..., :-1], edge[..., 1:], low[..., :-1], low[..., 1:]
+                parts.append(np.stack([e0, e1, l1, e0, l1, l0], axis=-1).reshape(*shape, -1))
+            tri = np.concatenate(parts, axis=-1)  # (nbi, nbj, count)
+            blocks = (bi[..., 0] * nbx + bj[..., 0]).ravel()
+            where = offsets[blocks][:, None] + np.arange(tri.shape[-1])
+            out[where] = tri.reshape(len(blocks), -1)
+    return out.astype(np.uint32), offsets, per.astype(np.int64)
+
+
 def _levels_1d(n: int) -> np.ndarray:
     """(n,) float64: the coarsest level of detail whose samples include each grid line.
 
@@ -706,6 +774,55 @@ def _levels_1d(n: int) -> np.ndarray:
         out[i % s == 0] = s
     out[_samples(0, n - 1, BLOCK)] = BLOCK
     return out
+
+
+def _coarse_cells(n: int, s: int):
+    """Give the grid lines of level s exactly and of level 2s or coarser, with their cells.
+
+    Returns ``(exact, coarse)``, each ``(lines, a, b, t)``: the lines, and for each the
+    first and last line of the level-2s cell that holds it and its fraction t of the way
+    from a to b (0 on a line of level 2s).
+    """
+    levels = _levels_1d(n)
+    grid = np.union1d(np.arange(0, n, 2 * s), [n - 1])
+
+    def cells(lines):
+        k = np.searchsorted(grid, lines, side="right") - 1
+        a = grid[k]
+        b = grid[np.minimum(k + 1, len(grid) - 1)]
+        t = np.where(b > a, (lines - a) / np.maximum(b - a, 1), 0.0)
+        return lines, a, np.where(b > a, b, a), t
+
+    return cells(np.flatnonzero(levels == s)), cells(np.flatnonzero(levels >= 2 * s))
+
+
+def _runs(lines, a, b, t):
+    """Split lines and their cells into runs where line, a and b are each evenly spaced.
+
+    Yields ``(lines, a, b, t)`` with slices for the first three (views into a grid, never
+    copies) and the run's part of ``t``.
+    """
+    i, n = 0, len(lines)
+    while i < n:
+        j = i + 1
+        if j < n:
+            step = (lines[j] - lines[i], a[j] - a[i], b[j] - b[i])
+            while (j + 1 < n and step[0] > 0 and lines[j + 1] - lines[j] == step[0]
+                   and a[j + 1] - a[j] == step[1] and b[j + 1] - b[j] == step[2]):
+                j += 1
+            j += 1
+        yield (_slice(lines[i:j]), _slice(a[i:j]), _slice(b[i:j]), t[i:j])
+        i = j
+
+
+def _slice(idx: np.ndarray) -> slice | np.ndarray:
+    """Return an evenly spaced run of indices as a slice (a constant run stays an array)."""
+    if len(idx) == 1:
+        return slice(int(idx[0]), int(idx[0]) + 1)
+    step = int(idx[1] - idx[0])
+    if step <= 0:
+        return idx
+    return slice(int(idx[0]), int(idx[-1]) + 1, step)
 
 
 def _morph_targets(z: np.ndarray, normals: np.ndarray):
@@ -729,6 +846,16 @@ def _morph_targets(z: np.ndarray, normals: np.ndarray):
         The vertex's coarsest level s (1, 2, 4, ... BLOCK).
     target_normal : (h, w, 3) float64
         The coarser level's normal, interpolated the same way (not normalised).
+
+    Notes
+    -----
+    A vertex's level is the smaller of its row's and its column's, and where it lies in a
+    cell of level 2s depends on its row and its column separately. The vertices of level s
+    are three products of lines: rows of level s exactly with columns of level s exactly
+    or of level 2s or coarser, and rows of level 2s or coarser with columns of level s
+    exactly. Each product is computed at once, over runs of evenly spaced lines (strided
+    views of the grid), with the same arithmetic per vertex as one vertex at a time, so
+    with the same results.
     """
     h, w = z.shape
     rl, cl = _levels_1d(h), _levels_1d(w)
@@ -736,34 +863,39 @@ def _morph_targets(z: np.ndarray, normals: np.ndarray):
     target = z.copy()
     tnormal = normals.copy()
     for s in _lods()[:-1]:
-        rows, cols = np.nonzero(level == s)
-        if not rows.size:
-            continue
-        coarse = 2 * s
-        rset = np.union1d(np.arange(0, h, coarse), [h - 1])
-        cset = np.union1d(np.arange(0, w, coarse), [w - 1])
-
-        def cell(idx, grid):
-            k = np.searchsorted(grid, idx, side="right") - 1
-            a = grid[k]
-            b = grid[np.minimum(k + 1, len(grid) - 1)]
-            t = np.where(b > a, (idx - a) / np.maximum(b - a, 1), 0.0)
-            return a, np.where(b > a, b, a), t
-
-        ra, rb, ti = cell(rows, rset)
-        ca, cb, tj = cell(cols, cset)
-        upper = (ti + tj) <= 1.0  # triangle (a, c, b); else (b, c, d)
-        for src, dst in ((z, target), (normals, tnormal)):
-            za, zb = src[ra, ca], src[ra, cb]
-            zc, zd = src[rb, ca], src[rb, cb]
-            if src.ndim == 3:
-                t_i, t_j, up = ti[:, None], tj[:, None], upper[:, None]
-            else:
-                t_i, t_j, up = ti, tj, upper
-            first = za + t_i * (zc - za) + t_j * (zb - za)
-            second = zd + (1.0 - t_i) * (zb - zd) + (1.0 - t_j) * (zc - zd)
-            dst[rows, cols] = np.where(up, first, second)
+        rows_s, rows_2s = _coarse_cells(h, s)
+        cols_s, cols_2s = _coarse_cells(w, s)
+        for rows, cols in ((rows_s, cols_s), (rows_s, cols_2s), (rows_2s, cols_s)):
+            if not rows[0].size or not cols[0].size:
+                continue
+            for r, ra, rb, ti in _runs(*rows):
+                for c, ca, cb, tj in _runs(*cols):
+                    t_i, t_j = ti[:, None], tj[None, :]
+                    upper = (t_i + t_j) <= 1.0  # triangle (a, c, b); else (b, c, d)
+                    for src, dst in ((z, target), (normals, tnormal)):
+                        za, zb = src[ra][:, ca], src[ra][:, cb]
+                        zc, zd = src[rb][:, ca], src[rb][:, cb]
+                        if src.ndim == 3:
+                            ti3, tj3, up = t_i[..., None], t_j[..., None], upper[..., None]
+                        else:
+                            ti3, tj3, up = t_i, t_j, upper
+                        value = _on_triangle(za, zb, zc, ti3, tj3)
+                        if not upper.all():
+                            second = _on_triangle(zd, zc, zb, 1.0 - ti3, 1.0 - tj3)
+                            value = np.where(up, value, second)
+                        dst[r, c] = value
     return target, level, tnormal
+
+
+def _on_triangle(za, zb, zc, ti, tj):
+    """``za + ti (zc - za) + tj (zb - za)``, evaluated in that order (in place, no copies)."""
+    out = np.subtract(zc, za)
+    out *= ti
+    out += za
+    step = np.subtract(zb, za)
+    step *= tj
+    out += step
+    return out
 
 
 def _fade_in(z: np.ndarray, xs: np.ndarray, ys: np.ndarray, parent) -> np.ndarray:

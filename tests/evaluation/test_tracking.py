@@ -104,6 +104,13 @@ def test_ideal_tracker_tells_the_trackers_share_from_the_images(scored, planar_r
     noisy = ideal_one_step(scored, noisy_run, sensor_noise=True)
     again_noisy = ideal_one_step(scored, noisy_run, sensor_noise=True)
     assert np.array_equal(noisy, again_noisy, equal_nan=True)  # keyed: the same noise
+    # both at once (each warped frame made once) are each of them alone
+    from evaluation.tracking import ideal_one_steps
+
+    plain_and_noisy = ideal_one_steps(scored, noisy_run, noises=(None, 0))
+    assert np.array_equal(plain_and_noisy[1], noisy, equal_nan=True)
+    assert np.array_equal(plain_and_noisy[0], ideal_one_step(scored, noisy_run),
+                          equal_nan=True)
     both = np.isfinite(noisy) & np.isfinite(ideal)
     assert np.median(noisy[both]) > 1.2 * np.median(ideal[both])
     # a frame shifted by 2 px (its content jumps under the features)

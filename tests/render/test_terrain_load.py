@@ -1,0 +1,100 @@
+"""Loading a terrain scene: what reaches the GPU, and the frame drawn from it, never change.
+
+The golden hashes below were computed with the loader that built every layer's geomorphing
+targets vertex by vertex and its index buffers block by block (before they were vectorised
+and shared between layers of one shape). The loader is an optimisation target; its output is
+not, so the buffers it uploads and a frame drawn from them must stay the same bytes. The stack
+is built here from closed-form heights (no crater or fractal code, whose own changes must not
+move these hashes), with sides that are not 2^k + 1 so that the irregular last cells of the
+levels of detail are covered, an invalid pixel (filled from its neighbour), and a finer layer
+that fades into its parent.
+
+The frame hash also depends on the shaders and on Mesa's llvmpipe: after a deliberate change
+of either, recompute it with the loader of the commit before and the shaders of the new one.
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+from affine import Affine
+
+#: sha256 of every layer's uploaded buffers, with the loader before vectorisation.
+GOLDEN_BUFFERS = "f55e2f2dc651e7eccaf2297bb6bfa37a94397362414b37621060f2eca3d48b9b"
+#: sha256 of the image, range and normals of one frame, with the loader before vectorisation.
+GOLDEN_FRAME = "d87addfdfceefc6035568db3d0d201e640f40b28acea0e30359f3e9dad314799"
+
+
+def _stack():
+    """Three layers of 150, 90 and 70 px (10, 5, 2.5 m) of closed-form heights."""
+    from terrain.core.tile import DEMTile
+    from terrain.craters.catalog import CraterCatalog
+    from terrain.stack.model import Layer, LayerStack
+
+    def tile(n, res, x0, y0, *, hole=False):
+        x = x0 + (np.arange(n) + 0.5) * res
+        y = y0 - (np.arange(n) + 0.5) * res
+        h = (40.0 * np.sin(x[None, :] / 97.0) * np.cos(y[:, None] / 61.0)
+             + 0.002 * (x[None, :] - 700.0) ** 2 / 10.0
+             + 3.0 * np.sin(x[None, :] * y[:, None] / 5e3))
+        h = h.astype(np.float32)
+        valid = np.ones(h.shape, bool)
+        if hole:
+            valid[17, 23] = False
+            h[17, 23] = np.nan
+        return DEMTile(h, valid, Affine(res, 0.0, x0, 0.0, -res, y0), None, float("nan"), {})
+
+    base = tile(150, 10.0, 0.0, 1500.0, hole=True)
+    mid = tile(90, 5.0, 525.0, 975.0)
+    fine = tile(70, 2.5, 662.5, 837.5)
+    catalog = CraterCatalog.empty(optional=("layer",))
+    layers = (Layer(base, None, (0, 0)), Layer(mid, (52, 52, 45, 45), (104, 104)),
+              Layer(fine, (27, 27, 35, 35), (262, 262)))
+    return LayerStack(layers, catalog, {"site": [750.0, 750.0]})
+
+
+def _buffers_hash(scene) -> str:
+    digest = hashlib.sha256()
+    for layer in scene._layers:
+        digest.update(layer.vbo.read())
+        digest.update(layer.morph_vbo.read())
+        for s in sorted(layer.ibos):
+            digest.update(layer.ibos[s].read())
+            digest.update(np.asarray(layer.offsets[s], np.int64).tobytes())
+            digest.update(np.asarray(layer.counts[s], np.int64).tobytes())
+        digest.update(np.ascontiguousarray(layer.lo, np.float64).tobytes())
+        digest.update(np.ascontiguousarray(layer.hi, np.float64).tobytes())
+        digest.update(np.asarray(layer.covered, bool).tobytes())
+    return digest.hexdigest()
+
+
+def _frame(renderer, scene):
+    from render.camera import Intrinsics, look_at
+    from render.renderer import Lighting, RenderOptions, View
+
+    pose = look_at((600.0, 400.0, 420.0), (760.0, 760.0, 0.0))
+    k = Intrinsics.from_fov(96, 64, 55.0)
+    return renderer.render(scene, View(pose, k), Lighting.from_angles(120.0, 20.0),
+                           RenderOptions(shadows=True, shadow_size=256, lod_pixels=6.0))
+
+
+def test_uploaded_buffers_are_the_golden_bytes(renderer):
+    from render.terrain_scene import TerrainScene
+
+    scene = TerrainScene(_stack())
+    scene.upload(renderer.gpu)
+    assert _buffers_hash(scene) == GOLDEN_BUFFERS
+
+
+def test_a_frame_is_the_golden_bytes(renderer):
+    from render.terrain_scene import TerrainScene
+
+    scene = TerrainScene(_stack())
+    frame = _frame(renderer, scene)
+    levels = {s for d in frame.drawn["layers"] for s in d["lod"]}
+    assert len(levels) > 1, "the frame should draw several levels of detail (morphing)"
+    digest = hashlib.sha256()
+    for a in (frame.radiance, frame.range, frame.normals):
+        digest.update(np.ascontiguousarray(a).tobytes())
+    assert digest.hexdigest() == GOLDEN_FRAME
