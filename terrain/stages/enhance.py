@@ -31,10 +31,11 @@ DEFAULT_HALO = 256
 def default_population(spec: EnhanceSpec, base_resolution: float, finest: float) -> Any:
     """Return the small craters a DEM cannot resolve, from the spec's terrain preset.
 
-    Diameters from ``min_crater_pixels`` pixels of the finest layer up to as many pixels of
-    the base (what the DEM resolves, :func:`terrain.stack.plan.layer_craters`), at the
-    preset's multiple of the empirical equilibrium and ages up to the preset's surface age;
-    None when the stack has no finer layer.
+    Diameters from ``min_crater_pixels`` pixels of the finest layer (or ``dmin``) up to as
+    many pixels of the base (or ``dmax``; what the DEM resolves,
+    :func:`terrain.stack.plan.layer_craters`), at the preset's multiple of the empirical
+    equilibrium and ages up to the preset's surface age; None when the stack has no finer
+    layer.
 
     Parameters
     ----------
@@ -51,8 +52,8 @@ def default_population(spec: EnhanceSpec, base_resolution: float, finest: float)
     from terrain.craters.diffusion import DiffusionModel
     from terrain.craters.population import Population
 
-    dmin = spec.min_crater_pixels * finest
-    dmax = spec.min_crater_pixels * base_resolution
+    dmin = spec.min_crater_pixels * finest if spec.dmin is None else spec.dmin
+    dmax = spec.min_crater_pixels * base_resolution if spec.dmax is None else spec.dmax
     if not dmax > dmin:
         return None
     terrain = preset(spec.terrain)
