@@ -98,7 +98,7 @@ def _flatten(table: Mapping, where: str, *, rules: bool = False) -> dict[str, An
         prefix, t = todo.pop()
         for k, v in t.items():
             name = f"{prefix}{k}"
-            if isinstance(v, Mapping) and not (rules and v and set(v) <= set(RULES)):
+            if isinstance(v, Mapping) and not (rules and name in KEYS):
                 todo.append((f"{name}.", v))
             elif name in _VECTORS and isinstance(v, list) and not rules:
                 if len(v) != 3:
