@@ -291,7 +291,8 @@ def run_campaign(scenario_file: str | Path, dispersions_file: str | Path, out: s
     -------
     dict
         The campaign's record (also ``campaign.json``): ``cases``, ``cases_rendered``,
-        ``seconds``, ``cases_per_second`` of this run, and the workers.
+        ``seconds`` (with ``start_seconds``, the pool's or the client's start),
+        ``cases_per_second`` of this run, and the workers.
     """
     from render.scene_build import ensure_scene
     from terrain.execution.chunked import dask_client
@@ -334,6 +335,7 @@ def run_campaign(scenario_file: str | Path, dispersions_file: str | Path, out: s
     t0 = time.perf_counter()
     with dask_client(workers, scheduler) as client:
         n_workers = 1 if client is None else len(client.scheduler_info()["workers"])
+        started = time.perf_counter() - t0
         for k, row in _render_all(client, todo, key):
             rendered[k] = row
             if progress is not None:
@@ -342,7 +344,8 @@ def run_campaign(scenario_file: str | Path, dispersions_file: str | Path, out: s
     seconds = time.perf_counter() - t0
     _write_summary(out / "summary.csv", _summary_rows(out, dispersions, scenario, rendered),
                    _summary_order(dispersions))
-    record.update(cases_rendered=len(rendered), seconds=seconds, workers=n_workers,
+    record.update(cases_rendered=len(rendered), seconds=seconds, start_seconds=started,
+                  workers=max(n_workers, len({r["worker"] for r in rendered.values()})),
                   cases_per_second=len(rendered) / seconds if rendered else 0.0)
     with atomic_path(out / "campaign.json") as tmp:
         tmp.write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
