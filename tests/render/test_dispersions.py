@@ -118,3 +118,17 @@ def test_a_scenario_dispersion_table_is_checked_by_name():
         == (1.0, 2.0, 3.0)
     with pytest.raises(InvalidParameterError, match="did you mean 'attitude'"):
         parse_scenario(dict(base, dispersion={"atitude": [1, 2, 3]}))
+
+
+def test_the_example_dispersions_give_every_case_of_the_example_scenario():
+    from pathlib import Path
+
+    from render.montecarlo import case_scenarios
+    from render.scenario import load_scenario
+
+    examples = Path(__file__).resolve().parents[2] / "examples"
+    d = read_dispersions(examples / "descent_dispersions.toml")
+    texts = case_scenarios(load_scenario(examples / "lunar_descent.toml"), d)
+    assert len(texts) == len(d.cases) == 100
+    elevations = [c["sun.elevation"] for c in d.cases]
+    assert 3.0 <= min(elevations) and max(elevations) <= 12.0
