@@ -12,7 +12,9 @@ configurations alternating between rounds (:func:`_common.run_rounds`):
   (``--workers N``; the pool's start, paid once per campaign, is reported apart).
 
 Reported: cases per second of each (the pool's start excluded and included), the speed-up
-of 2 workers over 1, and of the campaign over the baseline. Usage::
+of 2 workers over 1, and of the campaign over the baseline; for the campaigns, the median
+and largest seconds one case took on its worker (the largest is a worker's first case,
+which loads the scene and makes its GL context). Usage::
 
     .venv/bin/python benchmarks/bench_campaign.py            # 256^2 frames, 12 cases, 3 rounds
     .venv/bin/python benchmarks/bench_campaign.py --quick    # 64x48, 4 cases, 1 round
@@ -23,6 +25,7 @@ Progress goes to stderr. Timings taken on a shared machine vary; compare ratios.
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import shutil
 import sys
@@ -119,8 +122,13 @@ def child(spec: dict) -> dict:
     else:
         workers = None if spec["mode"] == "inprocess" else spec["workers"]
         record = run_campaign(work / "s.toml", work / "d.toml", out, workers=workers)
+        with open(out / "summary.csv", newline="") as f:
+            rows = list(csv.DictReader(f))
+        per_case = sorted(float(r["render_seconds"]) for r in rows)
         result = dict(cases=record["cases_rendered"], seconds=record["seconds"],
-                      start_seconds=record["start_seconds"])
+                      start_seconds=record["start_seconds"],
+                      case_seconds_median=per_case[len(per_case) // 2],
+                      case_seconds_max=per_case[-1], workers_used=record["workers"])
     shutil.rmtree(out)
     steady = result["seconds"] - result["start_seconds"]
     return dict(result, wall=summary([result["seconds"]]),
