@@ -45,7 +45,6 @@ from __future__ import annotations
 
 import copy
 import csv
-import json
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -199,11 +198,6 @@ class Dispersions:
         """Return the cases as plain data (the campaign's record of what it renders)."""
         return {"keys": list(self.keys), "source": self.source,
                 "cases": [dict(c) for c in self.cases]}
-
-    def key(self) -> str:
-        """Return a canonical JSON text of the cases (what a resumed campaign must match)."""
-        return json.dumps([[c.get(k) for k in self.keys] for c in self.cases],
-                          separators=(",", ":")) + json.dumps(self.keys)
 
 
 def _rule(key: str, rule: Any):

@@ -25,8 +25,9 @@ writes at the same path, and every worker must run the same craterscape.
 
 ``summary.csv`` columns: ``case``, ``name``, ``seed``, each dispersion key (empty where the
 case keeps the scenario's value), ``frames``, ``render_seconds`` (the case's frames, on its
-worker), ``start_x/y/z`` and ``end_x/y/z`` (camera position of the first and last frame,
-m, world), ``worker`` (host and process that rendered it) and ``run`` (its folder).
+worker; empty, as is ``worker``, for a case an earlier run finished), ``start_x/y/z`` and
+``end_x/y/z`` (camera position of the first and last frame, m, world), ``worker`` (host and
+process that rendered it) and ``run`` (its folder).
 """
 
 from __future__ import annotations
