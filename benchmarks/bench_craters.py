@@ -15,8 +15,8 @@ Each benchmark compares against a baseline measured in the same run:
 * ``tile``: the RMD base alone (baseline) vs base + craters with the default model
   (roughness overlay and irregular rims on) and with ``CraterModel().smooth()``; the crater
   cost is the difference of the medians, divided by the number of craters touching the tile.
-* ``craters_one_thread``: the default model on one numba thread, the baseline of the
-  parallel composition (its heights must sum to the same value, bit for bit).
+* ``craters_one_thread``: the default model on one thread (:mod:`terrain.core.parallel`),
+  the baseline of the parallel composition (its heights must sum to the same value).
 * ``window``: a window of the same cratered tile vs the full tile (the default-model
   configuration above); the first round's child also checks that the window equals the same
   pixels of a full tile it computes once, bitwise.
@@ -101,10 +101,15 @@ def _synth(spec: dict, window=None):
 
 def child_tile(spec: dict) -> dict:
     """Time ``spec["repeat"]`` calls of one tile configuration; peak RSS around them."""
-    if spec.get("threads"):
-        import numba
+    import contextlib
 
-        numba.set_num_threads(int(spec["threads"]))
+    from terrain.core.parallel import limited
+
+    with limited(spec["threads"]) if spec.get("threads") else contextlib.nullcontext():
+        return _child_tile(spec)
+
+
+def _child_tile(spec: dict) -> dict:
     warmup_s = _warm_up(spec["model"])
     rss_after_warmup = peak_rss_bytes()
     times, n_craters, checksum = [], None, None

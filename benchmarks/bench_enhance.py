@@ -5,7 +5,7 @@ Targets (the DEM-enhancement issue), each against a baseline measured in the sam
 * ``expand``: one 2x fractal expansion of a 4097^2 DEM (roughness measured from it, local
   roughness map on) in <= 3 s and <= 2 GiB, and at most 15x the baseline: copying the
   8193^2 float32 result into freshly allocated memory; with it, the same expansion on one
-  numba thread (and whether its bytes are the same).
+  thread (and whether its bytes are the same).
 * ``enhance``: the 11-level enhancement of a 1025^2 base at 1 km down to about 0.5 m with
   1025^2 layers and a lunar crater population, written to disk, in <= 60 s; baseline: the
   same stack with no craters, the two built in alternating rounds (one child each a round;
@@ -76,11 +76,12 @@ def child_expand(spec):
     warm = warm_up()
     size = spec["size"]
     tile = DEMTile.from_array(synthesize(size, relief=200.0, seed=SEED), resolution=2.0)
-    import numba
+    from terrain.core.parallel import limited
+    from terrain.core.parallel import threads as thread_count
 
     rss0 = peak_rss()
     times, copies, single = [], [], []
-    threads = numba.get_num_threads()
+    threads = thread_count()
     first = None
     for i in range(spec["repeat"]):
         t0 = time.perf_counter()
@@ -93,11 +94,10 @@ def child_expand(spec):
         shape = out.shape
         first = out.heights if first is None else first
         del out, copy
-        numba.set_num_threads(1)  # the one-core baseline, interleaved
-        t0 = time.perf_counter()
-        one = expand(tile, 1, seed=SEED)
-        single.append(time.perf_counter() - t0)
-        numba.set_num_threads(threads)
+        with limited(1):  # the one-core baseline, interleaved
+            t0 = time.perf_counter()
+            one = expand(tile, 1, seed=SEED)
+            single.append(time.perf_counter() - t0)
         same = bool(np.array_equal(one.heights, first, equal_nan=True))
         del one
         log(f"  expand {size}^2 run {i + 1}: {times[-1]:.3f} s on {threads} threads, "

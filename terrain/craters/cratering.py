@@ -57,6 +57,7 @@ import numpy as np
 from terrain.core import memory
 from terrain.core import metakeys as mk
 from terrain.core.errors import InvalidParameterError
+from terrain.core.parallel import run_blocks
 from terrain.core.rng import check_seed
 from terrain.core.tile import DEMTile, Window
 from terrain.craters.catalog import CraterCatalog, CraterTable
@@ -487,9 +488,8 @@ def _patch_level(d, res, footprint_factor):
     return min(MAX_PATCH_LEVEL, max(1, level))
 
 
-@numba.njit(cache=True, parallel=True)
 def _apply_class(T, tr0, tc0, out, or0, oc0, nrows, ncols, x0, y0, res,
-                 craters: ClassCraters, settings: ClassSettings):
+                 craters: ClassCraters, settings: ClassSettings) -> None:
     """Compose one size class of craters (already in age order) onto ``out``.
 
     ``T`` is the terrain before this class (origin tr0, tc0 in DEM pixels); ``out`` starts as
@@ -497,60 +497,81 @@ def _apply_class(T, tr0, tc0, out, or0, oc0, nrows, ncols, x0, y0, res,
     ``craters`` holds the class's craters (:class:`ClassCraters`), ``settings`` what they
     share (:class:`ClassSettings`).
 
-    On every core numba has, and bitwise the same on any number: what each crater needs
-    besides the pixels (its rim tables and roughness patch, functions of ``T`` and its key
-    alone) is prepared for a group of craters in parallel, then bands of :data:`BAND_ROWS`
-    output rows are composed in parallel, each applying the group's craters in age order to
-    its own rows, so every pixel sees its craters in the same order as on one thread.
+    On every core, and bitwise the same on any number (:mod:`terrain.core.parallel`): what
+    each crater needs besides the pixels (its rim tables and roughness patch, functions of
+    ``T`` and its key alone) is prepared for a group of craters in parallel, then bands of
+    :data:`BAND_ROWS` output rows are composed in parallel, each applying the group's
+    craters in age order to its own rows, so every pixel sees its craters in the same order
+    as on one thread.
     """
     n_all = craters.x.size
-    rough = settings.rough
+    size, reach_rows = _class_extents(craters, settings, y0, res)
+    bands = (out.shape[0] + BAND_ROWS - 1) // BAND_ROWS
+    first = 0
+    while first < n_all:
+        total = np.cumsum(size[first:])
+        last = first + max(1, int(np.searchsorted(total, PATCH_BUDGET, side="right")))
+        offsets = np.zeros(last - first + 1, dtype=np.int64)
+        np.cumsum(size[first:last], out=offsets[1:])
+        patches = np.empty(int(offsets[-1]))
+        tables = np.zeros((last - first, RIM_SAMPLES))
+        rim_tables = np.zeros((last - first, RIM_TERRAIN_SAMPLES))
+        n_azimuths = np.zeros(last - first, dtype=np.int64)
+        run_blocks(_prepare_craters, last - first, T, tr0, tc0, nrows, ncols, x0, y0, res,
+                   craters, settings, first, tables, rim_tables, n_azimuths, patches, offsets)
+        run_blocks(_stamp_bands, bands, T, tr0, tc0, out, or0, oc0, x0, y0, res, craters,
+                   settings, first, last, size, reach_rows, tables, rim_tables, n_azimuths,
+                   patches, offsets)
+        first = last
+
+
+@numba.njit(cache=True)
+def _class_extents(craters, settings, y0, res):
+    """Return each crater's patch size (values) and the output rows it can reach."""
+    n_all = craters.x.size
     size = np.zeros(n_all, dtype=np.int64)
-    reach_rows = np.zeros((n_all, 2), dtype=np.int64)  # output rows each crater can reach
+    reach_rows = np.zeros((n_all, 2), dtype=np.int64)
     for n in range(n_all):
         rc = (y0 - craters.y[n]) / res - 0.5
         rpix = craters.diameter[n] * settings.footprint_factor / res
         reach_rows[n, 0] = int(math.ceil(rc - rpix))
         reach_rows[n, 1] = int(math.floor(rc + rpix))
-        if rough:
+        if settings.rough:
             k = 2 ** _patch_level(craters.diameter[n], res, settings.footprint_factor) + 1
             size[n] = k * k
         else:
             size[n] = 4
-    first = 0
-    while first < n_all:
-        last = first
-        total = 0
-        while last < n_all and (last == first or total + size[last] <= PATCH_BUDGET):
-            total += size[last]
-            last += 1
-        m_all = last - first
-        offsets = np.zeros(m_all + 1, dtype=np.int64)
-        for m in range(m_all):
-            offsets[m + 1] = offsets[m] + size[first + m]
-        patches = np.empty(offsets[m_all])
-        tables = np.zeros((m_all, RIM_SAMPLES))
-        rim_tables = np.zeros((m_all, RIM_TERRAIN_SAMPLES))
-        n_azimuths = np.zeros(m_all, dtype=np.int64)
-        for m in numba.prange(m_all):
-            _prepare_crater(T, tr0, tc0, nrows, ncols, x0, y0, res, craters, settings,
-                            first + m, tables[m], rim_tables[m], n_azimuths[m:m + 1],
-                            patches[offsets[m]:offsets[m + 1]])
-        bands = (out.shape[0] + BAND_ROWS - 1) // BAND_ROWS
-        for band in numba.prange(bands):
-            row_first = or0 + band * BAND_ROWS
-            row_last = min(or0 + out.shape[0], or0 + (band + 1) * BAND_ROWS) - 1
-            for m in range(m_all):
-                n = first + m
-                if (reach_rows[n, 1] < row_first or reach_rows[n, 0] > row_last
-                        or craters.planes[n, 3] < 3.0):
-                    continue
-                k = int(round(math.sqrt(size[n])))
-                _stamp_crater(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, n,
-                              tables[m], rim_tables[m, :n_azimuths[m]],
-                              patches[offsets[m]:offsets[m + 1]].reshape((k, k)),
-                              row_first, row_last)
-        first = last
+    return size, reach_rows
+
+
+@numba.njit(cache=True, nogil=True)
+def _prepare_craters(T, tr0, tc0, nrows, ncols, x0, y0, res, craters, settings, first, tables,
+                     rim_tables, n_azimuths, patches, offsets, m_first, m_last):
+    """Prepare the group's craters ``first + m_first .. first + m_last - 1``."""
+    for m in range(m_first, m_last):
+        _prepare_crater(T, tr0, tc0, nrows, ncols, x0, y0, res, craters, settings, first + m,
+                        tables[m], rim_tables[m], n_azimuths[m:m + 1],
+                        patches[offsets[m]:offsets[m + 1]])
+
+
+@numba.njit(cache=True, nogil=True)
+def _stamp_bands(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, first, last,
+                 size, reach_rows, tables, rim_tables, n_azimuths, patches, offsets,
+                 band_first, band_last):
+    """Compose the group's craters, in age order, onto the bands ``band_first .. last - 1``."""
+    for band in range(band_first, band_last):
+        row_first = or0 + band * BAND_ROWS
+        row_last = min(or0 + out.shape[0], or0 + (band + 1) * BAND_ROWS) - 1
+        for n in range(first, last):
+            if (reach_rows[n, 1] < row_first or reach_rows[n, 0] > row_last
+                    or craters.planes[n, 3] < 3.0):
+                continue
+            m = n - first
+            k = int(round(math.sqrt(size[n])))
+            _stamp_crater(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, n,
+                          tables[m], rim_tables[m, :n_azimuths[m]],
+                          patches[offsets[m]:offsets[m + 1]].reshape((k, k)),
+                          row_first, row_last)
 
 
 @numba.njit(cache=True)

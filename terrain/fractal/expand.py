@@ -49,6 +49,7 @@ from affine import Affine
 from terrain.core import memory
 from terrain.core import metakeys as mk
 from terrain.core.errors import InvalidParameterError
+from terrain.core.parallel import run_blocks
 from terrain.core.rng import check_seed, key_prefix, stream_id
 from terrain.core.tile import DEMTile, Window
 from terrain.fractal.rmd import NO_ROW, correlated_value, noise_rows, predict
@@ -95,24 +96,31 @@ def _amplitude_col(buf, ac0, scale, c):
 BLOCK_ROWS = 64
 
 
-@numba.njit(cache=True, parallel=True)
 def _expand_pass(grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis, sig, wts, taps, key, amp,
                  ar0, ac0, scale, rmin, rmax, cmin, cmax):
-    """Run :func:`_expand_rows` over blocks of output rows, on every core numba has.
+    """Run :func:`_expand_rows` over blocks of output rows, on every core.
 
     Every pixel is a function of its global position and the inputs alone (the noise is
     keyed by position, and a block computes its own noise rows), so the result is the same,
-    bit for bit, on any number of threads.
+    bit for bit, on any number of threads (:mod:`terrain.core.parallel`).
     """
+    blocks = (out.shape[0] + BLOCK_ROWS - 1) // BLOCK_ROWS
+    run_blocks(_expand_blocks, blocks, grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis,
+               sig, wts, taps, key, amp, ar0, ac0, scale, rmin, rmax, cmin, cmax)
+
+
+@numba.njit(cache=True, nogil=True)
+def _expand_blocks(grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis, sig, wts, taps, key,
+                   amp, ar0, ac0, scale, rmin, rmax, cmin, cmax, b_first, b_last):
+    """Run :func:`_expand_rows` on the blocks ``b_first .. b_last - 1`` of output rows."""
     ny = out.shape[0]
-    blocks = (ny + BLOCK_ROWS - 1) // BLOCK_ROWS
-    for b in numba.prange(blocks):
+    for b in range(b_first, b_last):
         _expand_rows(grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis, sig, wts, taps, key,
                      amp, ar0, ac0, scale, rmin, rmax, cmin, cmax, b * BLOCK_ROWS,
                      min(ny, (b + 1) * BLOCK_ROWS))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _expand_rows(grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis, sig, wts, taps, key, amp,
                  ar0, ac0, scale, rmin, rmax, cmin, cmax, i_first, i_last):
     """One refinement pass of an expansion level over output rows ``i_first:i_last``.
