@@ -265,6 +265,35 @@ def _write_summary(path: Path, cols: dict[str, list], order: list[str]) -> None:
                         for v in (cols[c][i] for c in order)])
 
 
+def _prepare_folder(out: Path, texts: list[str], key: str, scenario: Scenario,
+                    dispersions: Dispersions, inputs: list[Path]) -> tuple[list, dict]:
+    """Make the campaign's folder, record it, and write the scenarios of the cases to do."""
+    cases_dir = out / "cases"
+    make_output_folder(cases_dir, inputs)
+    record = dict(format=FORMAT, version=1, key=key, scenario=scenario.name,
+                  scenario_file=str(inputs[0]), dispersions_file=str(inputs[1]),
+                  dispersions=dispersions.source, keys=list(dispersions.keys),
+                  cases=len(texts))
+    with atomic_path(out / "campaign.json") as tmp:
+        tmp.write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
+    for stale in cases_dir.glob(f".*{_WORKING}"):  # cases an interrupted run left half done
+        shutil.rmtree(stale)
+    todo = []
+    for k, text in enumerate(texts):
+        name = _case_name(k)
+        run_dir = cases_dir / name
+        if _finished(run_dir) is not None:
+            continue
+        if run_dir.exists():  # not a finished case: never renamed into place by a case
+            raise InvalidParameterError(f"'{run_dir}' is not a finished case; remove it")
+        case_file = cases_dir / f"{name}.toml"
+        if not (case_file.is_file() and case_file.read_text(encoding="utf-8") == text):
+            with atomic_path(case_file) as tmp:
+                tmp.write_text(text, encoding="utf-8")
+        todo.append((k, str(case_file.absolute()), str(run_dir.absolute())))
+    return todo, record
+
+
 def run_campaign(scenario_file: str | Path, dispersions_file: str | Path, out: str | Path, *,
                  workers: int | None = None, scheduler: str | None = None,
                  resume: bool = False, progress: Progress | None = None) -> dict:
@@ -307,36 +336,15 @@ def run_campaign(scenario_file: str | Path, dispersions_file: str | Path, out: s
     _check_folder(out, key, resume, [scenario_file, dispersions_file])
     if workers is not None and scheduler is not None:
         raise InvalidParameterError("give --workers or --scheduler, not both")
-    ensure_scene(scenario)  # once, here: workers never build
-    cases_dir = out / "cases"
-    make_output_folder(cases_dir, [scenario_file, dispersions_file])
-    record = dict(format=FORMAT, version=1, key=key, scenario=scenario.name,
-                  scenario_file=str(scenario_file), dispersions_file=str(dispersions_file),
-                  dispersions=dispersions.source, keys=list(dispersions.keys),
-                  cases=len(texts))
-    with atomic_path(out / "campaign.json") as tmp:
-        tmp.write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
-    for stale in cases_dir.glob(f".*{_WORKING}"):  # cases an interrupted run left half done
-        shutil.rmtree(stale)
-    todo = []
-    for k, text in enumerate(texts):
-        name = _case_name(k)
-        run_dir = cases_dir / name
-        if _finished(run_dir) is not None:
-            continue
-        if run_dir.exists():  # not a finished case: never renamed into place by a case
-            raise InvalidParameterError(f"'{run_dir}' is not a finished case; remove it")
-        case_file = cases_dir / f"{name}.toml"
-        if not (case_file.is_file() and case_file.read_text(encoding="utf-8") == text):
-            with atomic_path(case_file) as tmp:
-                tmp.write_text(text, encoding="utf-8")
-        todo.append((k, str(case_file.absolute()), str(run_dir.absolute())))
-    log.info("campaign %s: %d cases, %d to render", scenario.name, len(texts), len(todo))
-    rendered: dict[int, dict] = {}
     t0 = time.perf_counter()
-    with dask_client(workers, scheduler) as client:
-        n_workers = 1 if client is None else len(client.scheduler_info()["workers"])
+    with dask_client(workers, scheduler) as client:  # reach the cluster before writing
         started = time.perf_counter() - t0
+        ensure_scene(scenario)  # once, here: workers never build
+        todo, record = _prepare_folder(out, texts, key, scenario, dispersions,
+                                       [scenario_file, dispersions_file])
+        log.info("campaign %s: %d cases, %d to render", scenario.name, len(texts), len(todo))
+        rendered: dict[int, dict] = {}
+        n_workers = 1 if client is None else len(client.scheduler_info()["workers"])
         for k, row in _render_all(client, todo, key):
             rendered[k] = row
             if progress is not None:

@@ -149,3 +149,17 @@ def test_a_case_on_a_dask_cluster_equals_it_rendered_alone(files, tmp_path):
     assert all(r["worker"].rsplit(":", 1)[1] != str(os.getpid()) for r in rows)  # not here
     assert _run_bytes(out / "cases" / "000001") == _alone(out / "cases" / "000001.toml",
                                                           tmp_path / "alone")
+
+
+@pytest.mark.slow
+def test_an_unreachable_scheduler_is_one_line_and_writes_nothing(files, tmp_path):
+    import socket
+
+    scenario, table = files
+    with socket.socket() as s:  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    result = run("render", "campaign", scenario, table, "-o", tmp_path / "out",
+                 "--scheduler", f"tcp://127.0.0.1:{port}")
+    one_line_error(result, "cannot reach the Dask scheduler")
+    assert not (tmp_path / "out").exists()
