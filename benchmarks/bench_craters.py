@@ -15,6 +15,8 @@ Each benchmark compares against a baseline measured in the same run:
 * ``tile``: the RMD base alone (baseline) vs base + craters with the default model
   (roughness overlay and irregular rims on) and with ``CraterModel().smooth()``; the crater
   cost is the difference of the medians, divided by the number of craters touching the tile.
+* ``craters_one_thread``: the default model on one thread (:mod:`terrain.core.parallel`),
+  the baseline of the parallel composition (its heights must sum to the same value).
 * ``window``: a window of the same cratered tile vs the full tile (the default-model
   configuration above); the first round's child also checks that the window equals the same
   pixels of a full tile it computes once, bitwise.
@@ -47,6 +49,8 @@ PEER_US_PER_CRATER = 220.0
 TARGET_WALL_S = 20.0
 TARGET_PEAK_BYTES = 3 * 1024**3
 TARGET_US_PER_CRATER = 100.0
+#: The later issue's target on every core (2 here), the default model, 100k craters.
+TARGET_US_PER_CRATER_CORES = 25.0
 
 #: Fixed terrain parameters of every configuration.
 RESOLUTION = 1.0
@@ -97,6 +101,15 @@ def _synth(spec: dict, window=None):
 
 def child_tile(spec: dict) -> dict:
     """Time ``spec["repeat"]`` calls of one tile configuration; peak RSS around them."""
+    import contextlib
+
+    from terrain.core.parallel import limited
+
+    with limited(spec["threads"]) if spec.get("threads") else contextlib.nullcontext():
+        return _child_tile(spec)
+
+
+def _child_tile(spec: dict) -> dict:
     warmup_s = _warm_up(spec["model"])
     rss_after_warmup = peak_rss_bytes()
     times, n_craters, checksum = [], None, None
@@ -169,11 +182,13 @@ def benchmark(quick: bool, repeat: int, timeout: float) -> dict:
         base_rmd=dict(common, name="base_rmd", kind="tile", model=None),
         craters_default=dict(common, name="craters_default", kind="tile", model="default"),
         craters_smooth=dict(common, name="craters_smooth", kind="tile", model="smooth"),
+        craters_one_thread=dict(common, name="craters_one_thread", kind="tile",
+                                model="default", threads=1),
         window=dict(common, name="window", kind="window", model="default",
                     window=[corner, corner, win, win]),
     )
     runs = run_rounds(__file__, specs, repeat, timeout, log)
-    base, default, smooth, window = (pool(runs[name]) for name in specs)
+    base, default, smooth, one_thread, window = (pool(runs[name]) for name in specs)
 
     base_med = base["wall"]["median_s"]
 
@@ -185,6 +200,7 @@ def benchmark(quick: bool, repeat: int, timeout: float) -> dict:
                     speedup_vs_peer=PEER_US_PER_CRATER / us if us else None)
 
     cost_default, cost_smooth = crater_cost(default), crater_cost(smooth)
+    cost_one = crater_cost(one_thread)
     full_med = default["wall"]["median_s"]
 
     def flag(ok: bool) -> bool | None:
@@ -199,11 +215,16 @@ def benchmark(quick: bool, repeat: int, timeout: float) -> dict:
         peak_memory_ok=flag(peak <= TARGET_PEAK_BYTES),
         us_per_crater_default_ok=flag(cost_default["us_per_crater"] < TARGET_US_PER_CRATER),
         us_per_crater_smooth_ok=flag(cost_smooth["us_per_crater"] < TARGET_US_PER_CRATER),
+        us_per_crater_every_core_max=TARGET_US_PER_CRATER_CORES,
+        us_per_crater_every_core_ok=flag(
+            cost_default["us_per_crater"] <= TARGET_US_PER_CRATER_CORES),
+        same_heights_on_one_thread=one_thread["height_sum"] == default["height_sum"],
     )
     targets["all_ok"] = (None if quick else all(
         targets[k] for k in ("wall_default_ok", "peak_memory_ok", "us_per_crater_default_ok")))
 
-    configs = dict(base_rmd=base, craters_default=default, craters_smooth=smooth)
+    configs = dict(base_rmd=base, craters_default=default, craters_smooth=smooth,
+                   craters_one_thread=one_thread)
     for cfg in configs.values():
         cfg["peak_rss_mib"] = _mib(cfg["peak_rss_bytes"])
         cfg["peak_rss_after_warmup_mib"] = _mib(cfg["peak_rss_after_warmup_bytes"])
@@ -223,7 +244,9 @@ def benchmark(quick: bool, repeat: int, timeout: float) -> dict:
                                "largest over rounds"),
         tile=dict(
             configs=configs,
-            crater_cost=dict(default=cost_default, smooth=cost_smooth),
+            crater_cost=dict(default=cost_default, smooth=cost_smooth, one_thread=cost_one),
+            speedup_over_one_thread=(cost_one["crater_time_s"] / cost_default["crater_time_s"]
+                                     if cost_default["crater_time_s"] > 0 else None),
             roughness_overhead=(default["wall"]["median_s"] / smooth["wall"]["median_s"]
                                 if smooth["wall"]["median_s"] else None),
             peer_us_per_crater=PEER_US_PER_CRATER,

@@ -22,7 +22,8 @@ comparison alternating between rounds (baseline first, then the reverse order, a
 each reports the median over its rounds. A worker's peak memory is read inside the worker
 process (its own high-water mark, not the ``ru_maxrss`` it inherits from its parent). Usage::
 
-    .venv/bin/python benchmarks/bench_dask.py            # full benchmark (~15 minutes)
+    .venv/bin/python benchmarks/bench_dask.py            # full benchmark (~15 minutes;
+                                                         # chunks of the default side)
     .venv/bin/python benchmarks/bench_dask.py --quick    # 513^2, one round, no cluster1
 
 Progress goes to stderr. Timings taken on a shared machine vary; compare ratios.
@@ -340,7 +341,9 @@ def main(argv=None) -> int:
         return 0
 
     # --quick is a smoke test: one round, no 1-worker cluster (a cluster's start costs seconds)
-    size, chunk, rounds = (513, 128, 1) if args.quick else (4097, 1024, 3)
+    from terrain.execution.chunked import DEFAULT_CHUNK
+
+    size, chunk, rounds = (513, 128, 1) if args.quick else (4097, DEFAULT_CHUNK, 3)
     work = Path(tempfile.mkdtemp(prefix="bench-dask-"))
     results = dict(machine=machine_facts(note="shared machine: other jobs ran concurrently"))
     try:

@@ -59,6 +59,34 @@ def sequence(scenario_file: Path, output: Path, frames: int | None,
 
 @render.command()
 @click.argument("scenario_file", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("dispersions_file", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Campaign folder (new or empty; with --resume, an interrupted campaign).")
+@click.option("--workers", type=click.IntRange(1, 4096), default=None,
+              help="Render on a local pool of N worker processes.")
+@click.option("--scheduler", default=None, metavar="ADDRESS",
+              help="Render on the Dask cluster at ADDRESS (tcp://HOST:PORT).")
+@click.option("--resume", is_flag=True, help="Skip the cases an interrupted campaign finished.")
+def campaign(scenario_file: Path, dispersions_file: Path, output: Path, workers: int | None,
+             scheduler: str | None, resume: bool) -> None:
+    """Render a scenario once per case of DISPERSIONS_FILE (CSV or TOML; docs/campaigns.md).
+
+    Writes OUT/cases/NNNNNN.toml (each case's scenario), OUT/cases/NNNNNN/ (its run
+    directory), OUT/summary.csv and OUT/campaign.json.
+    """
+    from render.dispersions import read_dispersions
+    from render.montecarlo import run_campaign
+
+    total = len(read_dispersions(dispersions_file).cases)
+    with progress_bar("campaign", "case", total=total) as progress:
+        record = run_campaign(scenario_file, dispersions_file, output, workers=workers,
+                              scheduler=scheduler, resume=resume, progress=progress)
+    click.echo(f"rendered {record['cases_rendered']} of {record['cases']} cases into {output} "
+               f"({record['seconds']:.1f} s, {record['workers']} worker(s))", err=True)
+
+
+@render.command()
+@click.argument("scenario_file", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help="Image file (PNG); range, normals and truth go beside it.")
 @click.option("--index", type=int, default=None, help="Trajectory frame to render (default 0).")

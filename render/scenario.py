@@ -89,6 +89,11 @@ trajectory. Paths are relative to the scenario file. Example (``examples/lunar_d
     ground_track = [3000.0, -2000.0] # start offset from the site (m)
     look = "site"                    # or "nadir"
 
+    [dispersion]                     # optional: the trajectory as flown, dispersed
+    position = [0.0, 0.0, 0.0]       # m, world: added to every frame's position
+    velocity = [0.0, 0.0, 0.0]       # m/s, world: adds velocity * (t - t_first)
+    attitude = [0.0, 0.0, 0.0]       # degrees: rotation vector in the camera frame
+
 Keyframes: ``[[trajectory.keyframe]]`` tables with ``time``, ``position`` and ``attitude``
 (quaternion [w, x, y, z], R_WC) or ``look_at``. Approach (asteroids): ``start_distance``,
 ``end_distance``, ``direction``, and under ``[scene]`` ``spin_axis``, ``spin_period`` (s),
@@ -117,10 +122,10 @@ from terrain.core.errors import InvalidParameterError
 from terrain.core.rng import check_seed
 from terrain.core.tomlfile import read_toml
 
-__all__ = ["SceneSpec", "Scenario", "TrajectorySpec", "load_scenario"]
+__all__ = ["Dispersion", "SceneSpec", "Scenario", "TrajectorySpec", "load_scenario"]
 
 _SECTIONS = {"name", "seed", "scene", "sun", "surface", "camera", "sensor", "render", "output",
-             "trajectory", "description", "motion", "events", "stars", "labels"}
+             "trajectory", "description", "motion", "events", "stars", "labels", "dispersion"}
 _HAPKE_KEYS = set(Hapke.__dataclass_fields__)
 #: How each section is named in messages.
 _SCENE, _TRAJECTORY, _SURFACE, _SUN, _CAMERA, _RENDER, _OUTPUT = (
@@ -352,6 +357,96 @@ class TrajectorySpec:
         return cls(**values)
 
 
+#: Keys of a scenario's [dispersion] table.
+DISPERSION_KEYS = frozenset({"position", "velocity", "attitude"})
+
+
+@dataclass(frozen=True)
+class Dispersion:
+    """A scenario's ``[dispersion]``: how the flown trajectory departs from the nominal one.
+
+    Monte Carlo campaigns (:mod:`render.montecarlo`) write one per case; a scenario without
+    the table flies the nominal trajectory. The attitude rule of the trajectory (``look``)
+    is not solved again: the camera keeps the nominal attitude, turned by ``attitude``.
+
+    Parameters
+    ----------
+    position : (3,) float, metres
+        Added to every frame's camera position (world frame).
+    velocity : (3,) float, m/s
+        Adds ``velocity * (t - t_first)`` to each frame's position (world frame).
+    attitude : (3,) float, degrees
+        Rotation vector (axis times angle) in the camera frame: ``R_WC' = R_WC R(attitude)``.
+    """
+
+    position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    attitude: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    @classmethod
+    def from_mapping(cls, table: dict) -> Dispersion:
+        """Build the record of a ``[dispersion]`` table; an unknown key names the nearest.
+
+        Parameters
+        ----------
+        table : dict
+            The TOML table.
+
+        Returns
+        -------
+        Dispersion
+
+        Examples
+        --------
+        >>> Dispersion.from_mapping({"velocity": [1, 0, 0]}).velocity
+        (1.0, 0.0, 0.0)
+        """
+        d = check_keys(table, DISPERSION_KEYS, "scenario [dispersion]")
+        values: dict[str, Any] = {k: vector(v, k, 3, where="scenario [dispersion]")
+                                   for k, v in d.items()}
+        return cls(**values)
+
+    @property
+    def nominal(self) -> bool:
+        """Whether the trajectory is flown as given (every offset zero)."""
+        return not any(any(v) for v in (self.position, self.velocity, self.attitude))
+
+    def apply(self, samples: list[Sample]) -> list[Sample]:
+        """Return the samples as flown: shifted, drifting and turned (see the class).
+
+        Parameters
+        ----------
+        samples : list of render.trajectory.Sample
+            The nominal trajectory.
+
+        Returns
+        -------
+        list of render.trajectory.Sample
+            The same times and body rotations; the samples themselves when nominal.
+        """
+        if self.nominal or not samples:
+            return samples
+        import math
+
+        import numpy as np
+
+        from render.camera import Pose, quat_from_matrix, quat_to_matrix
+        from render.motion import rotation_vector_matrix
+
+        turn = rotation_vector_matrix(np.radians(np.asarray(self.attitude, dtype=np.float64)))
+        p0, v = np.asarray(self.position, np.float64), np.asarray(self.velocity, np.float64)
+        t0 = samples[0].time
+        out = []
+        for s in samples:
+            pos = np.asarray(s.pose.position, np.float64) + p0 + v * (s.time - t0)
+            att = quat_from_matrix(quat_to_matrix(s.pose.attitude) @ turn)
+            if not np.all(np.isfinite(pos)) or not math.isfinite(float(att[0])):
+                raise InvalidParameterError(f"scenario [dispersion] gives a non-finite pose at "
+                                            f"t = {s.time} s")
+            out.append(replace(s, pose=Pose(tuple(pos.tolist()), tuple(att.tolist()))))
+        return out
+
+
 @dataclass(frozen=True)
 class Scenario:
     """A parsed scenario (see the module docstring)."""
@@ -375,9 +470,11 @@ class Scenario:
     events: EventCamera | None = None
     #: The star field of a ``[stars]`` table (render.stars), None without one.
     stars: StarField | None = None
-
     #: Image-space labels to write with each frame (:mod:`render.labels`); None: none.
     labels: LabelSpec | None = None
+    #: The dispersion of a Monte Carlo case (render.dispersions); none by default.
+    dispersion: Dispersion = field(default_factory=Dispersion)
+
     def sky_at(self, time: float, scene: Any = None) -> Sky | None:
         """Return the Sun and Earth at trajectory time ``time`` (s); None for a hand-set sun.
 
@@ -471,7 +568,7 @@ class Scenario:
         return replace(self, intrinsics=k, trajectory=traj)
 
     def samples(self, scene: Any) -> list[Sample]:
-        """Sample the trajectory's frames for a loaded scene.
+        """Sample the trajectory's frames for a loaded scene, as flown (``[dispersion]``).
 
         Parameters
         ----------
@@ -484,6 +581,9 @@ class Scenario:
         list of render.trajectory.Sample
             One pose, time and body rotation per frame.
         """
+        return self.dispersion.apply(self._nominal_samples(scene))
+
+    def _nominal_samples(self, scene: Any) -> list[Sample]:
         t = self.trajectory
         kind = t.type
         frames = int(t.frames)
@@ -696,6 +796,7 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
     events = EventCamera.from_mapping(data["events"]) if "events" in data else None
     stars = StarField.from_mapping(data["stars"]) if "stars" in data else None
     labels = LabelSpec.from_mapping(data["labels"]) if "labels" in data else None
+    dispersion = Dispersion.from_mapping(data.get("dispersion", {}))
     return Scenario(name, path, seed, scene, lighting, intrinsics, sensor, options, outputs,
                     trajectory, data, motion, ephemeris=ephemeris, events=events, stars=stars,
-                    labels=labels)
+                    labels=labels, dispersion=dispersion)

@@ -234,7 +234,8 @@ def _label_frame(writer: RunWriter, labeller, scenario: Scenario, frame: Frame,
 
 
 def run_sequence(scenario: Scenario, run_dir: str | Path, *, resume: bool = False,
-                 progress: Progress | None = None) -> dict:
+                 progress: Progress | None = None, renderer: Renderer | None = None,
+                 scene: Scene | None = None) -> dict:
     """Render every frame of ``scenario`` into ``run_dir`` (see :mod:`render.rundir`).
 
     Parameters
@@ -247,6 +248,11 @@ def run_sequence(scenario: Scenario, run_dir: str | Path, *, resume: bool = Fals
         Skip the frames the run directory's truth file already lists.
     progress : terrain.core.progress.Progress, optional
         Called as ``progress(done, total, detail)`` after every frame.
+    renderer : render.renderer.Renderer, optional
+        Renders the frames (default: a new one).
+    scene : render.scene.Scene, optional
+        The scenario's scene, already loaded (default: :func:`load_scene`); a campaign's
+        worker loads it once for all its cases.
 
     Returns
     -------
@@ -256,8 +262,8 @@ def run_sequence(scenario: Scenario, run_dir: str | Path, *, resume: bool = Fals
     run_dir = Path(run_dir)
     check_frame_memory(scenario)
     RunWriter.check(run_dir, resume=resume)
-    renderer = Renderer()
-    scene = load_scene(scenario)
+    renderer = Renderer() if renderer is None else renderer
+    scene = load_scene(scenario) if scene is None else scene
     samples = scenario.samples(scene)
     if not samples:
         raise InvalidParameterError("the scenario's trajectory has no frames")

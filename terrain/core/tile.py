@@ -160,6 +160,36 @@ class DEMTile:
 
     # --- construction -----------------------------------------------------------------
     @classmethod
+    def from_trusted(cls, heights: np.ndarray, transform: Affine, crs: str | None = None,
+                     nodata: float = float("nan"),
+                     metadata: Mapping[str, str] | None = None) -> DEMTile:
+        """Wrap heights a stage has just computed, without checking them once more.
+
+        For a stage's own output, whose invariants hold by construction: ``heights`` is a
+        C-contiguous float32 array, NaN where unknown and nowhere infinite, and
+        ``transform`` is that of a valid tile, scaled. The valid mask is derived
+        (``isfinite``); the heights are made read-only and shared. Building a tile of
+        8193^2 pixels through the checking constructor costs as much as several passes
+        over it, for nothing a stage's output could fail.
+
+        >>> t = DEMTile.from_trusted(np.zeros((2, 2), np.float32), Affine(1, 0, 0, 0, -1, 2))
+        >>> t.valid.all(), t.heights.flags.writeable
+        (np.True_, False)
+        """
+        if heights.dtype != np.float32 or not heights.flags.c_contiguous or heights.ndim != 2:
+            raise InvalidDEMError("DEMTile.from_trusted takes C-contiguous 2-D float32 heights; "
+                                  f"got {heights.dtype} {heights.shape}")
+        tile = object.__new__(cls)
+        heights.flags.writeable = False
+        valid = np.isfinite(heights)
+        valid.flags.writeable = False
+        meta = MappingProxyType({str(k): str(v) for k, v in dict(metadata or {}).items()})
+        for name, value in (("heights", heights), ("valid", valid), ("transform", transform),
+                            ("crs", crs), ("nodata", float(nodata)), ("metadata", meta)):
+            object.__setattr__(tile, name, value)
+        return tile
+
+    @classmethod
     def from_array(cls, heights, *, resolution: float = 1.0, valid=None, transform=None,
                    crs=None, nodata=float("nan"), metadata=None) -> DEMTile:
         """Tile from an array; NaN heights become invalid.

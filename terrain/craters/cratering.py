@@ -57,6 +57,7 @@ import numpy as np
 from terrain.core import memory
 from terrain.core import metakeys as mk
 from terrain.core.errors import InvalidParameterError
+from terrain.core.parallel import run_blocks
 from terrain.core.rng import check_seed
 from terrain.core.tile import DEMTile, Window
 from terrain.craters.catalog import CraterCatalog, CraterTable
@@ -484,128 +485,219 @@ class ClassSettings(NamedTuple):
     footprint_factor: float
 
 
+#: Output rows of one parallel band of a size class: each band composes, in age order, the
+#: craters that reach it, writing its own rows only.
+BAND_ROWS = 32
+#: Most patch values (float64) prepared at once: the class's craters are composed in groups
+#: whose roughness patches together stay under this (8 MiB, to be read back from cache).
+PATCH_BUDGET = 1 << 20
+
+
 @numba.njit(cache=True)
+def _patch_level(d, res, footprint_factor):
+    """Return the roughness patch level of a crater of diameter ``d`` (its side 2^level + 1)."""
+    reach = d * footprint_factor
+    level = int(round(math.log2(max(2.0, 2.0 * (reach + res) / res))))
+    return min(MAX_PATCH_LEVEL, max(1, level))
+
+
 def _apply_class(T, tr0, tc0, out, or0, oc0, nrows, ncols, x0, y0, res,
-                 craters: ClassCraters, settings: ClassSettings):
+                 craters: ClassCraters, settings: ClassSettings) -> None:
     """Compose one size class of craters (already in age order) onto ``out``.
 
     ``T`` is the terrain before this class (origin tr0, tc0 in DEM pixels); ``out`` starts as
     a copy of T over the class's region (origin or0, oc0) and is updated in place.
     ``craters`` holds the class's craters (:class:`ClassCraters`), ``settings`` what they
     share (:class:`ClassSettings`).
+
+    On every core, and bitwise the same on any number (:mod:`terrain.core.parallel`): what
+    each crater needs besides the pixels (its rim tables and roughness patch, functions of
+    ``T`` and its key alone) is prepared for a group of craters in parallel, then bands of
+    :data:`BAND_ROWS` output rows are composed in parallel, each applying the group's
+    craters in age order to its own rows, so every pixel sees its craters in the same order
+    as on one thread.
     """
-    cx = craters.x
-    cy = craters.y
-    diam = craters.diameter
-    depth = craters.depth
-    rim_h = craters.rim_height
-    rim_h0 = craters.fresh_rim_height
-    ejecta = craters.ejecta
-    beta = craters.beta
-    ca = craters.a
-    cb = craters.b
-    c2 = craters.c2
-    c3 = craters.c3
-    alpha = craters.alpha
-    depth_fraction = craters.depth_fraction
-    uid = craters.uid
-    planes = craters.planes
-    cplx = craters.complex
-    seed = settings.seed
-    irr_amp = settings.rim_amplitude
-    irr_hurst = settings.rim_hurst
-    rough = settings.rough
-    rough_params = settings.rough_params
-    footprint_factor = settings.footprint_factor
-    table = np.zeros(RIM_SAMPLES)
-    rim_terrain_buffer = np.zeros(RIM_TERRAIN_SAMPLES)
-    params = np.zeros(7)
-    oy1 = or0 + out.shape[0] - 1
-    ox1 = oc0 + out.shape[1] - 1
-    for n in range(cx.size):
-        d = diam[n]
-        radius = 0.5 * d
-        xc = cx[n]
-        yc = cy[n]
-        p0 = planes[n, 0]
-        px = planes[n, 1]
-        py = planes[n, 2]
-        nvalid = planes[n, 3]
-        rms = planes[n, 4]
-        pix = planes[n, 5]
-        if nvalid < 3.0:
-            continue
-        row = cplx[n]
-        irregular = irr_amp > 0.0
-        if irregular:
-            rim_table(seed, uid[n], irr_amp, irr_hurst, table)
-        n_az = RIM_TERRAIN_MIN
-        while n_az < RIM_TERRAIN_SAMPLES and n_az * 2.0 * res < math.pi * d:
-            n_az *= 2
-        rim_terrain_table = rim_terrain_buffer[:n_az]
-        rim_terrain(T, tr0, tc0, nrows, ncols, x0, y0, res, xc, yc, radius, d, p0, px, py,
-                    irregular, table, rim_terrain_table)
-        reach = d * footprint_factor
-        if rough:
-            level = int(round(math.log2(max(2.0, 2.0 * (reach + res) / res))))
-            level = min(MAX_PATCH_LEVEL, max(1, level))
-            half_extent = reach + res
-            spacing = 2.0 * half_extent / 2**level
-            patch = np.empty((2**level + 1, 2**level + 1))
-            crater_params(rough_params, d, depth_fraction[n], rms, pix, level, params)
-            # the overlay's floor region ends where the flat floor does on a complex crater
-            region = row[0] if row[0] > -1.0 else alpha[n]
-            overlay_patch(seed, uid[n], level, spacing, d, region, params, patch)
+    n_all = craters.x.size
+    size, reach_rows = _class_extents(craters, settings, y0, res)
+    bands = (out.shape[0] + BAND_ROWS - 1) // BAND_ROWS
+    first = 0
+    while first < n_all:
+        total = np.cumsum(size[first:])
+        last = first + max(1, int(np.searchsorted(total, PATCH_BUDGET, side="right")))
+        offsets = np.zeros(last - first + 1, dtype=np.int64)
+        np.cumsum(size[first:last], out=offsets[1:])
+        patches = np.empty(int(offsets[-1]))
+        tables = np.zeros((last - first, RIM_SAMPLES))
+        rim_tables = np.zeros((last - first, RIM_TERRAIN_SAMPLES))
+        n_azimuths = np.zeros(last - first, dtype=np.int64)
+        run_blocks(_prepare_craters, last - first, T, tr0, tc0, nrows, ncols, x0, y0, res,
+                   craters, settings, first, tables, rim_tables, n_azimuths, patches, offsets)
+        run_blocks(_stamp_bands, bands, T, tr0, tc0, out, or0, oc0, x0, y0, res, craters,
+                   settings, first, last, size, reach_rows, tables, rim_tables, n_azimuths,
+                   patches, offsets)
+        first = last
+
+
+@numba.njit(cache=True)
+def _class_extents(craters, settings, y0, res):
+    """Return each crater's patch size (values) and the output rows it can reach."""
+    n_all = craters.x.size
+    size = np.zeros(n_all, dtype=np.int64)
+    reach_rows = np.zeros((n_all, 2), dtype=np.int64)
+    for n in range(n_all):
+        rc = (y0 - craters.y[n]) / res - 0.5
+        rpix = craters.diameter[n] * settings.footprint_factor / res
+        reach_rows[n, 0] = int(math.ceil(rc - rpix))
+        reach_rows[n, 1] = int(math.floor(rc + rpix))
+        if settings.rough:
+            k = 2 ** _patch_level(craters.diameter[n], res, settings.footprint_factor) + 1
+            size[n] = k * k
         else:
-            half_extent = 0.0
-            spacing = 1.0
-            patch = np.zeros((2, 2))
-        curvature = rim_h0[n] - rim_h[n] + depth[n]
-        floor = rim_h[n] - depth[n]
-        hr = rim_h[n]
-        rc = (y0 - yc) / res - 0.5
-        cc = (xc - x0) / res - 0.5
-        rpix = reach / res
-        i_lo = max(or0, int(math.ceil(rc - rpix)))
-        i_hi = min(oy1, int(math.floor(rc + rpix)))
-        j_lo = max(oc0, int(math.ceil(cc - rpix)))
-        j_hi = min(ox1, int(math.floor(cc + rpix)))
-        for i in range(i_lo, i_hi + 1):
-            dy = (y0 - (i + 0.5) * res) - yc
-            for j in range(j_lo, j_hi + 1):
-                dx = (x0 + (j + 0.5) * res) - xc
-                r = math.sqrt(dx * dx + dy * dy)
-                if r > reach:
-                    continue
-                theta = 0.0
-                if irregular:
+            size[n] = 4
+    return size, reach_rows
+
+
+@numba.njit(cache=True, nogil=True)
+def _prepare_craters(T, tr0, tc0, nrows, ncols, x0, y0, res, craters, settings, first, tables,
+                     rim_tables, n_azimuths, patches, offsets, m_first, m_last):
+    """Prepare the group's craters ``first + m_first .. first + m_last - 1``."""
+    for m in range(m_first, m_last):
+        _prepare_crater(T, tr0, tc0, nrows, ncols, x0, y0, res, craters, settings, first + m,
+                        tables[m], rim_tables[m], n_azimuths[m:m + 1],
+                        patches[offsets[m]:offsets[m + 1]])
+
+
+@numba.njit(cache=True, nogil=True)
+def _stamp_bands(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, first, last,
+                 size, reach_rows, tables, rim_tables, n_azimuths, patches, offsets,
+                 band_first, band_last):
+    """Compose the group's craters, in age order, onto the bands ``band_first .. last - 1``."""
+    for band in range(band_first, band_last):
+        row_first = or0 + band * BAND_ROWS
+        row_last = min(or0 + out.shape[0], or0 + (band + 1) * BAND_ROWS) - 1
+        for n in range(first, last):
+            if (reach_rows[n, 1] < row_first or reach_rows[n, 0] > row_last
+                    or craters.planes[n, 3] < 3.0):
+                continue
+            m = n - first
+            k = int(round(math.sqrt(size[n])))
+            _stamp_crater(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, n,
+                          tables[m], rim_tables[m, :n_azimuths[m]],
+                          patches[offsets[m]:offsets[m + 1]].reshape((k, k)),
+                          row_first, row_last)
+
+
+@numba.njit(cache=True)
+def _prepare_crater(T, tr0, tc0, nrows, ncols, x0, y0, res, craters, settings, n, table,
+                    rim_terrain_table, n_azimuth, patch):
+    """Fill crater ``n``'s rim tables and roughness patch (functions of ``T`` and its key).
+
+    The rim-terrain table's length goes to ``n_azimuth[0]``; the patch is flat.
+    """
+    if craters.planes[n, 3] < 3.0:
+        return
+    d = craters.diameter[n]
+    irregular = settings.rim_amplitude > 0.0
+    if irregular:
+        rim_table(settings.seed, craters.uid[n], settings.rim_amplitude, settings.rim_hurst,
+                  table)
+    n_az = RIM_TERRAIN_MIN
+    while n_az < RIM_TERRAIN_SAMPLES and n_az * 2.0 * res < math.pi * d:
+        n_az *= 2
+    n_azimuth[0] = n_az
+    rim_terrain(T, tr0, tc0, nrows, ncols, x0, y0, res, craters.x[n], craters.y[n], 0.5 * d, d,
+                craters.planes[n, 0], craters.planes[n, 1], craters.planes[n, 2], irregular,
+                table, rim_terrain_table[:n_az])
+    if settings.rough:
+        level = _patch_level(d, res, settings.footprint_factor)
+        half_extent = d * settings.footprint_factor + res
+        spacing = 2.0 * half_extent / 2**level
+        params = np.zeros(7)
+        crater_params(settings.rough_params, d, craters.depth_fraction[n], craters.planes[n, 4],
+                      craters.planes[n, 5], level, params)
+        # the overlay's floor region ends where the flat floor does on a complex crater
+        row = craters.complex[n]
+        region = row[0] if row[0] > -1.0 else craters.alpha[n]
+        k = 2**level + 1
+        overlay_patch(settings.seed, craters.uid[n], level, spacing, d, region, params,
+                      patch.reshape((k, k)))
+
+
+@numba.njit(cache=True)
+def _stamp_crater(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, n, table,
+                  rim_terrain_table, patch, row_first, row_last):
+    """Compose crater ``n`` onto the output rows ``row_first..row_last`` (DEM pixels)."""
+    d = craters.diameter[n]
+    radius = 0.5 * d
+    xc = craters.x[n]
+    yc = craters.y[n]
+    p0 = craters.planes[n, 0]
+    px = craters.planes[n, 1]
+    py = craters.planes[n, 2]
+    row = craters.complex[n]
+    irregular = settings.rim_amplitude > 0.0
+    rough = settings.rough
+    reach = d * settings.footprint_factor
+    if rough:
+        level = _patch_level(d, res, settings.footprint_factor)
+        half_extent = reach + res
+        spacing = 2.0 * half_extent / 2**level
+    else:
+        half_extent = 0.0
+        spacing = 1.0
+    rim_h = craters.rim_height[n]
+    curvature = craters.fresh_rim_height[n] - rim_h + craters.depth[n]
+    floor = rim_h - craters.depth[n]
+    hr = rim_h
+    ejecta = craters.ejecta[n]
+    beta = craters.beta[n]
+    ca = craters.a[n]
+    cb = craters.b[n]
+    c2 = craters.c2[n]
+    c3 = craters.c3[n]
+    rc = (y0 - yc) / res - 0.5
+    cc = (xc - x0) / res - 0.5
+    rpix = reach / res
+    i_lo = max(row_first, int(math.ceil(rc - rpix)))
+    i_hi = min(row_last, int(math.floor(rc + rpix)))
+    j_lo = max(oc0, int(math.ceil(cc - rpix)))
+    j_hi = min(oc0 + out.shape[1] - 1, int(math.floor(cc + rpix)))
+    for i in range(i_lo, i_hi + 1):
+        dy = (y0 - (i + 0.5) * res) - yc
+        for j in range(j_lo, j_hi + 1):
+            dx = (x0 + (j + 0.5) * res) - xc
+            r = math.sqrt(dx * dx + dy * dy)
+            if r > reach:
+                continue
+            theta = 0.0
+            if irregular:
+                theta = math.atan2(dy, dx)
+                rt = radius + periodic_sample(table, theta) * d
+            else:
+                rt = radius
+            x = r / rt - 1.0
+            if x > 1.0:
+                continue
+            t = T[i - tr0, j - tc0]
+            if math.isnan(t):
+                continue
+            cur = out[i - or0, j - oc0]
+            ov = patch_value(patch, spacing, half_extent, dx, dy) if rough else 0.0
+            if x <= 0.0:
+                if not irregular:
                     theta = math.atan2(dy, dx)
-                    rt = radius + periodic_sample(table, theta) * d
-                else:
-                    rt = radius
-                x = r / rt - 1.0
-                if x > 1.0:
-                    continue
-                t = T[i - tr0, j - tc0]
-                if math.isnan(t):
-                    continue
-                cur = out[i - or0, j - oc0]
-                ov = patch_value(patch, spacing, half_extent, dx, dy) if rough else 0.0
-                if x <= 0.0:
-                    if not irregular:
-                        theta = math.atan2(dy, dx)
-                    offset = periodic_sample(rim_terrain_table, theta)
-                    h = crater_interior(x, curvature, floor, hr + offset, row)
-                    plane = p0 + px * dx + py * dy
-                    # What the smoothed rim terrain and the plane leave out, here: the class's
-                    # older changes (cur - t) and the terrain's own deviation from the smoothed
-                    # rim level (t - plane - offset). It fades out down the upper inner wall, so
-                    # the bowl meets the exterior (cur + Hr at the rim) without a step.
-                    residual = cur - plane - offset
-                    out[i - or0, j - oc0] = plane + h + ov + residual * (1.0 - obliteration(x))
-                else:
-                    out[i - or0, j - oc0] = cur + exterior_height(
-                        x, hr, ejecta[n], beta[n], ca[n], cb[n], c2[n], c3[n]) + ov * (1.0 - x)
+                offset = periodic_sample(rim_terrain_table, theta)
+                h = crater_interior(x, curvature, floor, hr + offset, row)
+                plane = p0 + px * dx + py * dy
+                # What the smoothed rim terrain and the plane leave out, here: the class's
+                # older changes (cur - t) and the terrain's own deviation from the smoothed
+                # rim level (t - plane - offset). It fades out down the upper inner wall, so
+                # the bowl meets the exterior (cur + Hr at the rim) without a step.
+                residual = cur - plane - offset
+                out[i - or0, j - oc0] = plane + h + ov + residual * (1.0 - obliteration(x))
+            else:
+                out[i - or0, j - oc0] = cur + exterior_height(
+                    x, hr, ejecta, beta, ca, cb, c2, c3) + ov * (1.0 - x)
 
 
 # ----------------------------------------------------------------------------------------

@@ -79,8 +79,10 @@ __all__ = ["DEFAULT_CHUNK", "CraterSource", "ExpandSource", "FillSource", "GapTo
 
 log = logging.getLogger(__name__)
 
-#: Default chunk side in pixels (4 MiB of float32 per chunk).
-DEFAULT_CHUNK = 1024
+#: Default chunk side in pixels (16 MiB of float32 per chunk): a task's fixed costs (the
+#: scheduler's round trip, reading its window and halo, the Zarr write and its marker) are
+#: then a small share of its compute (docs/scaling.md).
+DEFAULT_CHUNK = 2048
 #: Smallest chunk side accepted (smaller chunks cost more in scheduling than they compute).
 MIN_CHUNK = 16
 

@@ -49,6 +49,7 @@ from affine import Affine
 from terrain.core import memory
 from terrain.core import metakeys as mk
 from terrain.core.errors import InvalidParameterError
+from terrain.core.parallel import run_blocks
 from terrain.core.rng import check_seed, key_prefix, stream_id
 from terrain.core.tile import DEMTile, Window
 from terrain.fractal.rmd import NO_ROW, correlated_value, noise_rows, predict
@@ -91,10 +92,39 @@ def _amplitude_col(buf, ac0, scale, c):
     return buf[j] * (1.0 - tj) + buf[min(j + 1, n - 1)] * tj
 
 
-@numba.njit(cache=True)
+#: Output rows of one parallel block of a pass: a block draws its first noise rows afresh
+#: (three rows, then one per row), so blocks of 64 rows repeat about 3 % of the draws.
+BLOCK_ROWS = 64
+
+
 def _expand_pass(grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis, sig, wts, taps, key, amp,
                  ar0, ac0, scale, rmin, rmax, cmin, cmax):
-    """One refinement pass of an expansion level, in global child pixels.
+    """Run :func:`_expand_rows` over blocks of output rows, on every core.
+
+    Every pixel is a function of its global position and the inputs alone (the noise is
+    keyed by position, and a block computes its own noise rows), so the result is the same,
+    bit for bit, on any number of threads (:mod:`terrain.core.parallel`).
+    """
+    blocks = (out.shape[0] + BLOCK_ROWS - 1) // BLOCK_ROWS
+    run_blocks(_expand_blocks, blocks, grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis,
+               sig, wts, taps, key, amp, ar0, ac0, scale, rmin, rmax, cmin, cmax)
+
+
+@numba.njit(cache=True, nogil=True)
+def _expand_blocks(grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis, sig, wts, taps, key,
+                   amp, ar0, ac0, scale, rmin, rmax, cmin, cmax, b_first, b_last):
+    """Run :func:`_expand_rows` on the blocks ``b_first .. b_last - 1`` of output rows."""
+    ny = out.shape[0]
+    for b in range(b_first, b_last):
+        _expand_rows(grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis, sig, wts, taps, key,
+                     amp, ar0, ac0, scale, rmin, rmax, cmin, cmax, b * BLOCK_ROWS,
+                     min(ny, (b + 1) * BLOCK_ROWS))
+
+
+@numba.njit(cache=True, nogil=True)
+def _expand_rows(grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis, sig, wts, taps, key, amp,
+                 ar0, ac0, scale, rmin, rmax, cmin, cmax, i_first, i_last):
+    """One refinement pass of an expansion level over output rows ``i_first:i_last``.
 
     ``grid`` (origin g_r0, g_c0; spacings sr, sc) holds the points the pass reads; ``out``
     (origin o_r0, o_c0; row spacing ``tr``, column spacing 1) is filled: points already on
@@ -105,7 +135,7 @@ def _expand_pass(grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis, sig, wts, 
     (:func:`terrain.fractal.rmd.noise_rows` with the moving-average ``taps``) keyed at
     (column, row); results are rounded to float32.
     """
-    ny, nx = out.shape
+    nx = out.shape[1]
     buf = np.empty(amp.shape[1], dtype=np.float64)
     nan = math.nan
     if axis == 1:  # new points at the odd columns of every (even) row
@@ -120,7 +150,7 @@ def _expand_pass(grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis, sig, wts, 
     g = np.empty(n_new + 2)
     noise = np.empty((3, n_new))
     held = NO_ROW
-    for i in range(ny):
+    for i in range(i_first, i_last):
         r = o_r0 + i * tr
         _amplitude_row(amp, ar0, scale, r, buf)
         if axis == 1:  # along the row: copies at even columns, predictions at odd ones
@@ -383,12 +413,11 @@ def expand(tile: DEMTile, times: int = 1, *, seed: int = 0,
         origin = (rows[level][0], cols[level][0])
         if progress is not None:
             progress(level, times)
-    heights = grid
-    heights.flags.writeable = False  # hand the array to the tile without a copy
     meta = dict(tile.metadata)
     meta[mk.SEED] = str(seed)
     meta[mk.EXPANSION] = json.dumps(dict(params.as_dict(), times=times),
                                                sort_keys=True)
-    return DEMTile(heights, np.isfinite(heights),
-                   expanded_transform(tile.transform, times, window.row, window.col),
-                   tile.crs, tile.nodata, meta)
+    # the passes write float32 heights, NaN only where a parent is unknown: nothing to check
+    return DEMTile.from_trusted(grid, expanded_transform(tile.transform, times, window.row,
+                                                         window.col),
+                                tile.crs, tile.nodata, meta)

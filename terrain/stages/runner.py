@@ -56,7 +56,7 @@ class Execution(Spec):
                            "processes.", FLAG)
     scheduler: str | None = option(None, "Run chunk by chunk on the Dask cluster at this "
                                    "address (tcp://HOST:PORT).", text())
-    chunk: int | None = option(None, "Chunk side in pixels (default 1024); implies a chunked "
+    chunk: int | None = option(None, "Chunk side in pixels (default 2048); implies a chunked "
                                "run.", integer(low=16))
     cog: Path | None = option(None, "After a chunked run, also convert the Zarr output into "
                               "this Cloud Optimized GeoTIFF.", OUTPUT_PATH)
