@@ -110,6 +110,7 @@ from render.camera import Intrinsics
 from render.ephemeris import DATED_KEYS, Sky, SunEphemeris, site_on_map
 from render.events import EventCamera
 from render.labels import LabelSpec
+from render.lamp import Lamp
 from render.motion import Motion
 from render.reflectance import Hapke, check_brdf
 from render.renderer import MAX_ANTIALIAS, Lighting, RenderOptions
@@ -125,7 +126,8 @@ from terrain.core.tomlfile import read_toml
 __all__ = ["Dispersion", "SceneSpec", "Scenario", "TrajectorySpec", "load_scenario"]
 
 _SECTIONS = {"name", "seed", "scene", "sun", "surface", "camera", "sensor", "render", "output",
-             "trajectory", "description", "motion", "events", "stars", "labels", "dispersion"}
+             "trajectory", "description", "motion", "events", "stars", "labels", "dispersion",
+             "lamp"}
 _HAPKE_KEYS = set(Hapke.__dataclass_fields__)
 #: How each section is named in messages.
 _SCENE, _TRAJECTORY, _SURFACE, _SUN, _CAMERA, _RENDER, _OUTPUT = (
@@ -474,6 +476,8 @@ class Scenario:
     labels: LabelSpec | None = None
     #: The dispersion of a Monte Carlo case (render.dispersions); none by default.
     dispersion: Dispersion = field(default_factory=Dispersion)
+    #: The spacecraft's lamp of a ``[lamp]`` table (render.lamp), None without one.
+    lamp: Lamp | None = None
 
     def sky_at(self, time: float, scene: Any = None) -> Sky | None:
         """Return the Sun and Earth at trajectory time ``time`` (s); None for a hand-set sun.
@@ -797,6 +801,7 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
     stars = StarField.from_mapping(data["stars"]) if "stars" in data else None
     labels = LabelSpec.from_mapping(data["labels"]) if "labels" in data else None
     dispersion = Dispersion.from_mapping(data.get("dispersion", {}))
+    lamp = Lamp.from_mapping(data["lamp"]) if "lamp" in data else None
     return Scenario(name, path, seed, scene, lighting, intrinsics, sensor, options, outputs,
                     trajectory, data, motion, ephemeris=ephemeris, events=events, stars=stars,
-                    labels=labels, dispersion=dispersion)
+                    labels=labels, dispersion=dispersion, lamp=lamp)

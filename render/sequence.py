@@ -194,6 +194,12 @@ def render_sample(renderer: Renderer, scene: Scene, scenario: Scenario, sample: 
         frame.radiance = rad
         moving = dict(motion.as_dict(), exposure_time=sensor.integration_time,
                       line_time=sensor.line_time, samples=info["samples"])
+    if scenario.lamp is not None:
+        from render.lamp import lamp_if
+
+        frame.radiance = np.asarray(frame.radiance, dtype=np.float32) + lamp_if(
+            scenario.lamp, frame.range, frame.normals, sample.pose, scenario.intrinsics,
+            lighting)
     if scenario.stars is not None:
         from render.stars import add_stars, world_to_icrf
 
