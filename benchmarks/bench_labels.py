@@ -61,7 +61,7 @@ def main(argv=None) -> int:
     site = (513.0, 513.0)
     stack = build_stack(base, site, levels=1, layer_size=513, seed=SEED,
                         population=Population(dmin=2.0, dmax=300.0, density=1e5),
-                        rocks=RockModel.from_spec("golombek:k=0.05,dmin=1.5"))
+                        rocks=RockModel.from_spec("golombek-rapp-mars:k=0.05,dmin=1.5"))
     scene = TerrainScene(stack, curvature=False)
     renderer = Renderer()
     k = Intrinsics.from_fov(size, size, 45.0)

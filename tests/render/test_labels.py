@@ -126,7 +126,7 @@ def test_rim_ellipse_lies_on_the_crest_seen_in_the_range_image(renderer, off_nad
 def test_instance_masks_hold_every_rock_range_discontinuity(renderer):
     from terrain.surface.rocks import RockModel
 
-    scene, (cx, cy) = _flat_scene(RockModel.from_spec("golombek:k=0.15,dmin=0.3"), n=201,
+    scene, (cx, cy) = _flat_scene(RockModel.from_spec("golombek-rapp-mars:k=0.15,dmin=0.3"), n=201,
                                   res=0.05)
     k = Intrinsics.from_fov(200, 200, 50.0)
     pose = look_at((cx + 4.0, cy - 5.0, 6.0), (cx, cy, 0.0))
