@@ -27,7 +27,15 @@ sun, computed once per sun direction and reused by every frame (the terrain does
 The maps' light-space projections depend on the sun and the stack alone, never on the
 camera, so for a fixed sun every shadow texel stays on the same patch of ground through a
 whole sequence (no swimming), and the casters are drawn at one level of detail per layer,
-chosen from the texel size, whatever the camera does.
+chosen from the texel size, whatever the camera does. Each map is sized to resolve its
+layer's pixels on the ground (``RenderOptions.shadow_detail`` texels per pixel, at most
+``RenderOptions.shadow_size`` a side): across the sun's azimuth a texel is a pixel; along
+it a texel of light-space y covers ``1 / sin(elevation)`` of ground, so that side has
+``sin(elevation)`` times finer texels. The layer is the finest the camera sees where it is
+drawn (the planner never draws a layer where a finer one lies), so every relief of two of its
+pixels reaches the map. A layer's map draws the ground once: the layer itself whole and each
+coarser layer outside the next finer one, culled to the map's window, so the maps' cost
+grows with the layers, not with their square.
 
 Geomorphing: levels of detail change continuously, never from one frame to the next. With
 ``lambda(d) = log2(target * d / (cell * focal))`` the continuous level at distance d (the
@@ -70,7 +78,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -91,6 +99,7 @@ from render.scene import (
     far_plane,
     frustum_visible,
     light_basis,
+    ortho_light,
     render_shadow_map,
 )
 from terrain.core import metakeys as mk
@@ -110,8 +119,15 @@ log = logging.getLogger(__name__)
 BLOCK = 64
 #: Skirt depth in pixels of the layer.
 SKIRT_PIXELS = 8.0
-#: Caster cells in a shadow map may be this many texels wide.
-SHADOW_CELL_TEXELS = 2.0
+#: Caster cells in a shadow map may be this many texels wide (along the map's coarser axis).
+SHADOW_CELL_TEXELS = 1.0
+#: Smallest side of a layer's shadow map, texels.
+MIN_SHADOW_SIDE = 64
+#: Sines of sun elevations below this one size terrain maps as this one (0.57 degrees): the
+#: map's side along the sun's azimuth is capped by ``RenderOptions.shadow_size`` anyway.
+MIN_SIN_ELEVATION = 0.01
+#: Sets of layer maps kept at once (two suns, or two map settings, without redrawing).
+SHADOW_CACHE_SETS = 2
 #: A layer's shadow map covers its extent and this many of its pixels around it, so the
 #: skirts and the receivers at its edge still find texels of their own.
 SHADOW_MARGIN_PIXELS = 2.0
@@ -643,53 +659,80 @@ class TerrainScene:
         return plan, total
 
     def _shadow_maps(self, gpu, lighting, options):
-        key = (gpu.token, tuple(np.round(lighting.sun, 12)), options.shadow_size)
+        """One map per layer for this sun, shared by every renderer on the context."""
+        key = (gpu.context, tuple(np.round(lighting.sun, 12)), options.shadow_size,
+               float(options.shadow_detail))
         if key in self._shadow_cache:
             return self._shadow_cache[key]
-        for maps in self._shadow_cache.values():
-            for m in maps:
+        while len(self._shadow_cache) >= SHADOW_CACHE_SETS:
+            for m in self._shadow_cache.pop(next(iter(self._shadow_cache))):
                 m.release()
-        self._shadow_cache.clear()
-        size = options.shadow_size
-        lo, hi = self.bounds()
-        casters = box_corners(lo - self.origin, hi - self.origin)[0]
         basis = light_basis(lighting.sun)
+        # light-space y runs up the sun's azimuth: a texel of y covers 1 / sin(elevation)
+        # of ground there (module docstring)
+        sin_e = min(max(abs(float(lighting.sun[2])), MIN_SIN_ELEVATION), 1.0)
         maps = []
         for layer in self._layers:
             receivers = box_corners(layer.lo.min(axis=0), layer.hi.max(axis=0))[0]
+            margin = SHADOW_MARGIN_PIXELS * layer.resolution
+            *_, window = ortho_light(lighting.sun, receivers, receivers, margin=margin)
+            casters = self._casters(layer.level, basis, window)
+            corners = np.concatenate(
+                [box_corners(self._layers[k].lo[b], self._layers[k].hi[b]).reshape(-1, 3)
+                 for k, b in casters] + [receivers])
+            texel = layer.resolution / float(options.shadow_detail)
+            cap = int(options.shadow_size)
+            size = (min(max(math.ceil((window[2] - window[0]) / texel), MIN_SHADOW_SIDE), cap),
+                    min(max(math.ceil((window[3] - window[1]) / (texel * sin_e)),
+                            MIN_SHADOW_SIDE), cap))
+            tx = (window[2] - window[0]) / size[0]
 
-            def draw(extent, window, size=size):
-                return self._depth_batches(gpu, extent / size, basis, window)
+            def draw(extent, window, casters=casters, tx=tx):
+                return self._depth_batches(gpu, casters, tx)
 
-            maps.append(render_shadow_map(gpu, None, size, lighting.sun, receivers, casters,
-                                          margin=SHADOW_MARGIN_PIXELS * layer.resolution,
-                                          bias=TERRAIN_SHADOW_BIAS, draw=draw))
+            maps.append(render_shadow_map(gpu, None, size, lighting.sun, receivers, corners,
+                                          margin=margin, bias=TERRAIN_SHADOW_BIAS, draw=draw))
         self._shadow_cache[key] = maps
         return maps
 
-    def _depth_batches(self, gpu, texel, basis, window):
-        """Give the blocks that can cast into a shadow map, at the detail its texel resolves.
+    def _casters(self, level, basis, window):
+        """``[(layer, blocks)]`` that can shade a layer through its map's light-space window.
 
-        An orthographic map sees a caster only where the caster's light-space x-y overlaps
-        the map's window, so every other block is culled exactly.
+        The ground is drawn once: the layer itself whole (its own heights also where finer
+        layers lie: its map resolves no more than its pixels), and each coarser layer outside
+        the next finer one (the blocks a finer layer covers left out, the rest discarded
+        there). An orthographic map sees a caster only where the caster's light-space x-y
+        overlaps the window, so every other block is culled exactly; the cost of a layer's
+        map is one layer's blocks plus the few coarser ones up the sun's azimuth.
         """
-        batches = []
+        out = []
         x0, y0, x1, y1 = window
-        for layer in self._layers:
-            # cells up to two texels: finer caster detail than the map resolves is wasted
-            s = int(min(BLOCK, 2 ** max(0, math.floor(math.log2(
-                max(SHADOW_CELL_TEXELS * texel / layer.resolution, 1.0))))))
+        for layer in self._layers[:level + 1]:
             light_xy = box_corners(layer.lo, layer.hi) @ basis[:2].T  # (n, 8, 2)
             overlap = ((light_xy[..., 0].max(axis=1) >= x0)
                        & (light_xy[..., 0].min(axis=1) <= x1)
                        & (light_xy[..., 1].max(axis=1) >= y0)
                        & (light_xy[..., 1].min(axis=1) <= y1))
-            blocks = np.flatnonzero(~layer.covered & overlap)
-            if not blocks.size:
-                continue
+            if layer.level < level:
+                overlap &= ~layer.covered
+            blocks = np.flatnonzero(overlap)
+            if blocks.size:
+                out.append((layer.level, blocks))
+        return out
+
+    def _depth_batches(self, gpu, casters, texel):
+        """The casters' depth batches, each layer at the detail a texel of ``texel`` m resolves."""
+        batches = []
+        for k, blocks in casters:
+            layer = self._layers[k]
+            # cells up to SHADOW_CELL_TEXELS: finer caster detail than the map resolves is
+            # wasted
+            s = int(min(BLOCK, 2 ** max(0, math.floor(math.log2(
+                max(SHADOW_CELL_TEXELS * texel / layer.resolution, 1.0))))))
             vao, dvao = self._vaos(gpu, layer, s)
             ranges = _merge_ranges(layer.offsets[s][blocks], layer.counts[s][blocks])
-            batches.append(DrawBatch(vao, dvao, ranges, discard=layer.discard))
+            last = k == casters[-1][0]
+            batches.append(DrawBatch(vao, dvao, ranges, discard=None if last else layer.discard))
         return batches
 
 
@@ -817,6 +860,4 @@ def _merge_ranges(offsets, counts) -> list[tuple[int, int]]:
 
 
 def _with_extra_bias(shadow: ShadowMap, metres: float) -> ShadowMap:
-    return ShadowMap(shadow.texture, shadow.size, shadow.light_from_world,
-                     shadow.normal_offset, shadow.bias + metres / shadow.depth_range_m,
-                     shadow.slope_bias, shadow.texel_m, shadow.depth_range_m, None)
+    return replace(shadow, bias=shadow.bias + metres / shadow.depth_range_m, framebuffer=None)
