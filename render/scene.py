@@ -283,7 +283,8 @@ def render_shadow_map(gpu: Gpu, current: ShadowMap | None, size: int | tuple[int
         ``current`` updated in place, or a new map.
     """
     clip, light, _, depth, window = ortho_light(sun, receivers, casters, margin=margin)
-    w, h = (int(size), int(size)) if np.ndim(size) == 0 else (int(size[0]), int(size[1]))
+    w, h = (size, size) if isinstance(size, (int, np.integer)) else size
+    w, h = int(w), int(h)
     if current is None or current.shape != (w, h):
         if current is not None:
             current.release()

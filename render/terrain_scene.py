@@ -128,6 +128,9 @@ MIN_SHADOW_SIDE = 64
 MIN_SIN_ELEVATION = 0.01
 #: Sets of layer maps kept at once (two suns, or two map settings, without redrawing).
 SHADOW_CACHE_SETS = 2
+#: Cells of a layer's side in its grid of scattered light (:mod:`render.scattering`); the
+#: grid spans the layer and half its side around it.
+SCATTER_CELLS = 32
 #: A layer's shadow map covers its extent and this many of its pixels around it, so the
 #: skirts and the receivers at its edge still find texels of their own.
 SHADOW_MARGIN_PIXELS = 2.0
@@ -233,6 +236,7 @@ class TerrainScene:
         self._layers: list[_Layer] = []
         self._ctx: object = None  # the context the layers were uploaded to
         self._shadow_cache: dict = {}
+        self._scatter_cache: dict = {}
         self.triangles_full = 0
         self.albedo_map: DEMTile | None = None
         self._albedo_gpu: tuple | None = None
@@ -585,6 +589,10 @@ class TerrainScene:
         shadows = None
         if options.shadows and lighting is not None:
             shadows = self._shadow_maps(gpu, lighting, options)
+        scatter = None
+        if lighting is not None and (options.scattering or (
+                options.earthshine and lighting.earth is not None and lighting.earthshine > 0)):
+            scatter = self._scatter_maps(gpu, lighting)
         batches: list[DrawBatch] = []
         drawn_layers: list[dict[str, Any]] = []
         for layer, (lods, blocks) in zip(self._layers, plan, strict=True):
@@ -599,9 +607,12 @@ class TerrainScene:
                 ranges = _merge_ranges(layer.offsets[s][bl], layer.counts[s][bl])
                 n = int(layer.counts[s][bl].sum()) // 3
                 tris += n
-                shadow = shadows[layer.level] if shadows else None
+                shadow = (self._layer_shadow(gpu, shadows, lighting, options, layer)
+                          if shadows is not None else None)
                 batch = DrawBatch(vao, dvao, ranges, discard=layer.discard, shadow=shadow,
-                                  triangles=n)
+                                  triangles=n,
+                                  scatter=(self._layer_scatter(gpu, scatter, lighting, layer)
+                                           if scatter is not None else None))
                 if options.geomorph:
                     # coarser visible geometry than the shadow map saw: the shader widens
                     # the bias with the continuous level (module docstring)
@@ -659,41 +670,121 @@ class TerrainScene:
         return plan, total
 
     def _shadow_maps(self, gpu, lighting, options):
-        """One map per layer for this sun, shared by every renderer on the context."""
+        """Give the maps of this sun, level -> map, drawn as frames first need them.
+
+        Shared by every renderer on the context; a layer no frame has shown has no map.
+        """
         key = (gpu.context, tuple(np.round(lighting.sun, 12)), options.shadow_size,
                float(options.shadow_detail))
         if key in self._shadow_cache:
             return self._shadow_cache[key]
         while len(self._shadow_cache) >= SHADOW_CACHE_SETS:
-            for m in self._shadow_cache.pop(next(iter(self._shadow_cache))):
+            for m in self._shadow_cache.pop(next(iter(self._shadow_cache))).values():
                 m.release()
+        self._shadow_cache[key] = {}
+        return self._shadow_cache[key]
+
+    def _layer_shadow(self, gpu, maps, lighting, options, layer):
+        """Give the layer's map in ``maps``, drawn first if it is not there."""
+        if layer.level in maps:
+            return maps[layer.level]
         basis = light_basis(lighting.sun)
         # light-space y runs up the sun's azimuth: a texel of y covers 1 / sin(elevation)
         # of ground there (module docstring)
         sin_e = min(max(abs(float(lighting.sun[2])), MIN_SIN_ELEVATION), 1.0)
-        maps = []
-        for layer in self._layers:
-            receivers = box_corners(layer.lo.min(axis=0), layer.hi.max(axis=0))[0]
-            margin = SHADOW_MARGIN_PIXELS * layer.resolution
-            *_, window = ortho_light(lighting.sun, receivers, receivers, margin=margin)
-            casters = self._casters(layer.level, basis, window)
-            corners = np.concatenate(
-                [box_corners(self._layers[k].lo[b], self._layers[k].hi[b]).reshape(-1, 3)
-                 for k, b in casters] + [receivers])
-            texel = layer.resolution / float(options.shadow_detail)
-            cap = int(options.shadow_size)
-            size = (min(max(math.ceil((window[2] - window[0]) / texel), MIN_SHADOW_SIDE), cap),
-                    min(max(math.ceil((window[3] - window[1]) / (texel * sin_e)),
-                            MIN_SHADOW_SIDE), cap))
-            tx = (window[2] - window[0]) / size[0]
+        receivers = box_corners(layer.lo.min(axis=0), layer.hi.max(axis=0))[0]
+        margin = SHADOW_MARGIN_PIXELS * layer.resolution
+        *_, window = ortho_light(lighting.sun, receivers, receivers, margin=margin)
+        casters = self._casters(layer.level, basis, window)
+        corners = np.concatenate(
+            [box_corners(self._layers[k].lo[b], self._layers[k].hi[b]).reshape(-1, 3)
+             for k, b in casters] + [receivers])
+        texel = layer.resolution / float(options.shadow_detail)
+        cap = int(options.shadow_size)
+        size = (min(max(math.ceil((window[2] - window[0]) / texel), MIN_SHADOW_SIDE), cap),
+                min(max(math.ceil((window[3] - window[1]) / (texel * sin_e)),
+                        MIN_SHADOW_SIDE), cap))
+        tx = (window[2] - window[0]) / size[0]
 
-            def draw(extent, window, casters=casters, tx=tx):
-                return self._depth_batches(gpu, casters, tx)
+        def draw(extent, window):
+            return self._depth_batches(gpu, casters, tx)
 
-            maps.append(render_shadow_map(gpu, None, size, lighting.sun, receivers, corners,
-                                          margin=margin, bias=TERRAIN_SHADOW_BIAS, draw=draw))
-        self._shadow_cache[key] = maps
-        return maps
+        maps[layer.level] = render_shadow_map(gpu, None, size, lighting.sun, receivers,
+                                              corners, margin=margin,
+                                              bias=TERRAIN_SHADOW_BIAS, draw=draw)
+        return maps[layer.level]
+
+    def _scatter_maps(self, gpu, lighting):
+        """Give level -> (texture, rect) of the scattered light and the Earth's visibility.
+
+        Computed for a layer when a frame first draws it (:meth:`_layer_scatter`), kept for
+        :data:`SHADOW_CACHE_SETS` lightings at a time.
+        """
+        earth = lighting.earth if lighting.earthshine > 0 else None
+        key = (gpu.context, tuple(np.round(lighting.sun, 12)),
+               None if earth is None else tuple(np.round(earth, 12)), lighting.albedo,
+               lighting.distance)
+        if key not in self._scatter_cache:
+            while len(self._scatter_cache) >= SHADOW_CACHE_SETS:
+                for tex, _ in self._scatter_cache.pop(next(iter(self._scatter_cache))).values():
+                    tex.release()
+            self._scatter_cache[key] = {}
+        return self._scatter_cache[key]
+
+    def _layer_scatter(self, gpu, maps, lighting, layer):
+        """Give the layer's grid in ``maps`` (:mod:`render.scattering`), computed if missing."""
+        from render.scattering import horizon_light
+
+        if layer.level in maps:
+            return maps[layer.level]
+        x0, y0, x1, y1 = layer.extent
+        spacing = max(x1 - x0, y1 - y0) / SCATTER_CELLS
+        n = 2 * SCATTER_CELLS + 1
+        steps = (np.arange(n) - (n - 1) / 2) * spacing
+        xs = (x0 + x1) / 2 + steps
+        ys = (y0 + y1) / 2 - steps  # row 0 north
+        earth = lighting.earth if lighting.earthshine > 0 else None
+        light = horizon_light(self._local_heights(xs, ys), spacing, lighting.sun,
+                              albedo=lighting.albedo, sun_radius=lighting.sun_angular_radius,
+                              earth=earth)
+        data = np.stack([light["scattered"], light["earth"]], axis=-1).astype("f4")
+        tex = gpu.texture((n, n), 2, np.ascontiguousarray(data).tobytes(), dtype="f4")
+        rect = (xs[0] - 0.5 * spacing, ys[0] + 0.5 * spacing, 1.0 / (n * spacing),
+                1.0 / (n * spacing))
+        maps[layer.level] = (tex, rect)
+        return maps[layer.level]
+
+    def _local_heights(self, xs, ys):
+        """(len(ys), len(xs)) world heights at scene-local points, from the finest layer there.
+
+        Bilinear in each layer's own heights (invalid pixels at the layer's mean); beyond the
+        base, its edge values repeat.
+        """
+        gx = xs[None, :] + self.site[0] + np.zeros((len(ys), 1))
+        gy = ys[:, None] + self.site[1] + np.zeros((1, len(xs)))
+        z = np.zeros(gx.shape)
+        for k, tile in enumerate(self.stack.tiles):
+            left, bottom, right, top = tile.bounds
+            res = tile.resolution
+            h, w = tile.shape
+            col = (gx - left) / res - 0.5
+            row = (top - gy) / res - 0.5
+            inside = np.ones(gx.shape, bool) if k == 0 else (
+                (col >= 0) & (col <= w - 1) & (row >= 0) & (row <= h - 1))
+            if not inside.any():
+                continue
+            heights = np.where(tile.valid, tile.heights, np.mean(tile.heights[tile.valid]))
+            r = np.clip(row[inside], 0.0, h - 1.0)
+            c = np.clip(col[inside], 0.0, w - 1.0)
+            i0 = np.minimum(r.astype(np.int64), max(h - 2, 0))
+            j0 = np.minimum(c.astype(np.int64), max(w - 2, 0))
+            i1, j1 = np.minimum(i0 + 1, h - 1), np.minimum(j0 + 1, w - 1)
+            ti, tj = r - i0, c - j0
+            z[inside] = ((heights[i0, j0] * (1 - tj) + heights[i0, j1] * tj) * (1 - ti)
+                         + (heights[i1, j0] * (1 - tj) + heights[i1, j1] * tj) * ti)
+        if self.curvature:
+            z -= (xs[None, :] ** 2 + ys[:, None] ** 2) / (2.0 * self.radius)
+        return z
 
     def _casters(self, level, basis, window):
         """``[(layer, blocks)]`` that can shade a layer through its map's light-space window.
@@ -721,7 +812,7 @@ class TerrainScene:
         return out
 
     def _depth_batches(self, gpu, casters, texel):
-        """The casters' depth batches, each layer at the detail a texel of ``texel`` m resolves."""
+        """Give the casters' depth batches, each layer at the detail ``texel`` (m) resolves."""
         batches = []
         for k, blocks in casters:
             layer = self._layers[k]
