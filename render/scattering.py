@@ -118,7 +118,7 @@ class _Shifter:
                              mode="edge")
 
     def at(self, rows: float, cols: float) -> np.ndarray:
-        """Samples at every point's (row + ``rows``, col + ``cols``), cells."""
+        """Sample every point's (row + ``rows``, col + ``cols``), offsets in cells."""
         h, w = self.shape
         i0, j0 = math.floor(rows), math.floor(cols)
         ti, tj = rows - i0, cols - j0
