@@ -103,19 +103,25 @@ def _steps(spacing: float, reach: float) -> np.ndarray:
 
 
 class _Shifter:
-    """Bilinear samples of grids at every point plus one fixed offset, edges repeated.
+    """Bilinear samples of grids at every point plus one fixed offset, beyond the edges too.
 
     Along one azimuth, every point's sample at distance d is the grid shifted by the same
     (fractional) number of cells, so a sample of the whole grid is four slices of it padded
     once, weighted: no per-point indices.
     """
 
-    def __init__(self, grids: np.ndarray, reach_cells: float) -> None:
+    def __init__(self, grids: np.ndarray, reach_cells: float, heights: bool = True) -> None:
         self.pad = int(math.ceil(reach_cells)) + 2
         p = self.pad
         self.shape = grids.shape[-2:]
-        self.padded = np.pad(grids, [(0, 0)] * (grids.ndim - 2) + [(p, p), (p, p)],
-                             mode="edge")
+        if grids.ndim == 2:
+            grids = grids[None]
+        # heights (the first grid) continue their slope beyond the edges (an odd
+        # reflection: a plane stays a plane, with no terrace at the edge for the points
+        # below it to see); the other grids repeat their edges
+        padded = [np.pad(g, p, mode="reflect", reflect_type="odd") if heights and i == 0
+                  else np.pad(g, p, mode="edge") for i, g in enumerate(grids)]
+        self.padded = np.stack(padded) if len(padded) > 1 else padded[0]
 
     def at(self, rows: float, cols: float) -> np.ndarray:
         """Sample every point's (row + ``rows``, col + ``cols``), offsets in cells."""

@@ -469,10 +469,11 @@ class Imposter:
 class ShadowMap:
     """An orthographic depth map from the sun and how to look it up.
 
-    The lookup's depth bias is ``bias`` plus, per unit of the receiver's depth gradient
-    along each light-space axis (its tilt from the light, from its normal), ``slope_texels``
-    times that axis's texel (:attr:`texel_xy`): a map whose texels differ along x and y is
-    biased by what each axis cannot resolve, never by the coarser one alone.
+    The lookup's depth bias is ``bias`` plus ``slope_texels`` times the length of the
+    receiver's depth gradient in light space (its tilt from the light, from its normal),
+    each component times the texel along its axis (:attr:`texel_xy`): a map whose texels
+    differ along x and y is biased by what each axis cannot resolve, never by the coarser
+    one alone (a square map's bias is the texel times the tangent of the incidence).
 
     Parameters
     ----------

@@ -758,7 +758,7 @@ class TerrainScene:
         """(len(ys), len(xs)) world heights at scene-local points, from the finest layer there.
 
         Bilinear in each layer's own heights (invalid pixels at the layer's mean); beyond the
-        base, its edge values repeat.
+        base, its edge cells extrapolate linearly.
         """
         gx = xs[None, :] + self.site[0] + np.zeros((len(ys), 1))
         gy = ys[:, None] + self.site[1] + np.zeros((1, len(xs)))
@@ -774,10 +774,10 @@ class TerrainScene:
             if not inside.any():
                 continue
             heights = np.where(tile.valid, tile.heights, np.mean(tile.heights[tile.valid]))
-            r = np.clip(row[inside], 0.0, h - 1.0)
-            c = np.clip(col[inside], 0.0, w - 1.0)
-            i0 = np.minimum(r.astype(np.int64), max(h - 2, 0))
-            j0 = np.minimum(c.astype(np.int64), max(w - 2, 0))
+            r, c = row[inside], col[inside]
+            # beyond the base, its edge cells' planes continue (no terrace at its edge)
+            i0 = np.clip(np.floor(r), 0, max(h - 2, 0)).astype(np.int64)
+            j0 = np.clip(np.floor(c), 0, max(w - 2, 0)).astype(np.int64)
             i1, j1 = np.minimum(i0 + 1, h - 1), np.minimum(j0 + 1, w - 1)
             ti, tj = r - i0, c - j0
             z[inside] = ((heights[i0, j0] * (1 - tj) + heights[i0, j1] * tj) * (1 - ti)

@@ -148,10 +148,10 @@ float albedo_scale(vec3 world) {
     return a;
 }
 
-// The slope-scaled bias grows with the receiver's depth gradient in light space (the tangent
-// of the sun's incidence, split along the map's two axes), each component at most
-// MAX_TAN_INCIDENCE (the sun 2.9 degrees above the surface): closer to grazing it would
-// outgrow the map's depth range and light everything. MIN_MU0 keeps the division finite (at
+// The slope-scaled bias grows with the receiver's depth gradient in light space (its length
+// the tangent of the sun's incidence, at most MAX_TAN_INCIDENCE: the sun 2.9 degrees above
+// the surface; closer to grazing it would outgrow the map's depth range and light
+// everything), each component times the map's texel along that axis. MIN_MU0 keeps the division finite (at
 // mu0 = 0.05 the tangent is 19.97, so the two limits agree).
 const float MAX_TAN_INCIDENCE = 20.0;
 const float MIN_MU0 = 0.05;
@@ -163,7 +163,7 @@ const float MIN_MU0 = 0.05;
 // blockers cover, exact for one blocker edge. The blocker search looks at most
 // SEARCH_TEXELS of the map's coarser axis away (a receiver farther from every blocker is
 // lit by all of the disk unless a penumbra is wider than that).
-const int BLOCKER_SAMPLES = 12;
+const int BLOCKER_SAMPLES = 8;
 const int FILTER_SAMPLES = 24;
 const float SEARCH_TEXELS = 24.0;
 const float GOLDEN_ANGLE = 2.39996323;
@@ -180,9 +180,10 @@ float visibility(vec3 n, float mu0) {
     vec3 c = lc.xyz / lc.w;
     if (c.x < 0.0 || c.x > 1.0 || c.y < 0.0 || c.y > 1.0 || c.z > 1.0) return 1.0;
     vec3 nl = u_light_axes * n;
-    vec2 grad = min(abs(nl.xy) / max(abs(nl.z), MIN_MU0), vec2(MAX_TAN_INCIDENCE));
+    vec2 grad = nl.xy / max(abs(nl.z), MIN_MU0);   // |grad| = tan(incidence)
+    grad *= min(1.0, MAX_TAN_INCIDENCE / max(length(grad), 1e-30));
     float ref = c.z - u_bias - v_shadow_bias
-              - u_slope_texels * dot(grad, u_texel) / u_depth_range;
+              - u_slope_texels * length(grad * u_texel) / u_depth_range;
     if (u_sun_tan <= 0.0)  // a point sun: one bilinear comparison (2x2 percentage-closer)
         return texture(u_shadow_map, vec3(c.xy, ref));
     // the receiver's plane in light space: depth (m) per metre of light-space x and y, so
