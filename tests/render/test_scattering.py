@@ -69,3 +69,29 @@ def test_disk_fraction_and_bad_input():
         horizon_light(np.zeros(5), 1.0, (0, 0, 1), albedo=0.1)
     with pytest.raises(InvalidParameterError, match="spacing"):
         horizon_light(np.zeros((4, 4)), 0.0, (0, 0, 1), albedo=0.1)
+
+
+def test_earthshine_adds_the_earths_light_where_it_is_up(renderer):
+    """Flat Lambertian ground: I/F = A (mu0 + earthshine mu_e), and the Earth switches off."""
+    from render.camera import Intrinsics, look_at
+    from render.renderer import Lighting, RenderOptions, View
+    from render.terrain_scene import TerrainScene
+    from terrain.core.tile import DEMTile
+    from terrain.craters.catalog import CraterCatalog
+    from terrain.stack.model import Layer, LayerStack
+
+    tile = DEMTile.from_array(np.zeros((65, 65)), resolution=1.0)
+    stack = LayerStack((Layer(tile, None, (0, 0)),), CraterCatalog.empty(layered=True),
+                       {"site": [32.5, 32.5]})
+    scene = TerrainScene(stack, curvature=False)
+    earth = sun_vector(200.0, 30.0)
+    light = Lighting.from_angles(90.0, 60.0, albedo=0.2, brdf="lambert", earth=earth,
+                                 earthshine=0.01)
+    view = View(look_at((32.5, 20.0, 40.0), (32.5, 32.5, 0.0)), Intrinsics.from_fov(32, 32, 30.0))
+    on = renderer.render(scene, view, light, RenderOptions()).radiance
+    off = renderer.render(scene, view, light, RenderOptions(earthshine=False)).radiance
+    ok = on > 0
+    assert ok.mean() > 0.9
+    mu0, mu_e = math.sin(math.radians(60.0)), math.sin(math.radians(30.0))
+    assert np.allclose(on[ok], 0.2 * (mu0 + 0.01 * mu_e), rtol=1e-4)
+    assert np.allclose(off[ok], 0.2 * mu0, rtol=1e-4)
