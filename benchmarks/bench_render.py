@@ -1,5 +1,10 @@
 """Rendering benchmark: frame time of the default lunar descent scene at 1024 x 1024.
 
+Each lighting effect is timed off and on in the same run: shadow maps with a point sun
+("shadows"), then the extended sun's soft shadows, the light the terrain scatters into
+shadows, earthshine, and the defaults (all of them but earthshine, whose lighting has no
+Earth); ``effect_cost_s`` is each one's median frame time less the point sun's.
+
 Builds the descent scene the demo uses (a 1025^2 base at 1 km, 11 nested 1025^2 layers down
 to about 0.5 m, a lunar crater population), renders frames along a 10 km -> 20 m descent with
 and without shadows, and reports median frame time and triangles per frame. Baseline in the
@@ -146,11 +151,23 @@ def main(argv=None) -> int:
                           end_altitude=20.0, duration=100.0, ground_track=(4000.0, -3000.0),
                           height_at=scene.height_at)
         light = Lighting.from_angles(60.0, 6.0)
-        options = {"no_shadows": RenderOptions(shadows=False),
-                   "shadows": RenderOptions(shadows=True)}
-        t0 = time.perf_counter()
-        renderer.render(scene, View(samples[0].pose, k), light, options["shadows"])
-        first_shadow_s = time.perf_counter() - t0
+        # the Earth low in the north-west at full phase: ~1e-4 of the sun's irradiance
+        earthlit = Lighting.from_angles(60.0, 6.0, earth=(-0.6, 0.78, 0.17), earthshine=1e-4)
+        point = dict(soft_shadows=False, scattering=False, earthshine=False)
+        options = {"no_shadows": RenderOptions(shadows=False, **point),
+                   "shadows": RenderOptions(shadows=True, **point),
+                   "soft_shadows": RenderOptions(shadows=True, scattering=False),
+                   "scattering": RenderOptions(shadows=True, soft_shadows=False),
+                   "earthshine": RenderOptions(shadows=True, soft_shadows=False,
+                                               scattering=False),
+                   "defaults": RenderOptions()}
+        lights = {name: earthlit if name == "earthshine" else light for name in options}
+        first_s = {}
+        for name in ("shadows", "scattering"):  # the maps, then the scattered light, once
+            t0 = time.perf_counter()
+            renderer.render(scene, View(samples[0].pose, k), lights[name], options[name])
+            first_s[name] = time.perf_counter() - t0
+        first_shadow_s = first_s["shadows"]
         # one untimed pass: warms every view's vertex arrays and gives the triangle counts
         # the plain baseline is sized by
         tris = [renderer.render(scene, View(s.pose, k), light, options["no_shadows"])
@@ -159,7 +176,9 @@ def main(argv=None) -> int:
         plain, release = plain_render(renderer.ctx, renderer, median_tris, size)
         plain()  # warm
         log(f"{frames} frames x (plain, no shadows, shadows), interleaved")
-        names = ["plain_single_mesh", "no_shadows", "shadows"]
+        names = ["plain_single_mesh", *options]
+        for name in names[1:]:  # warm each setting's one-off work (earthshine's grids)
+            renderer.render(scene, View(samples[0].pose, k), lights[name], options[name])
         times = {name: [] for name in names}
         drawn = {name: [] for name in names[1:]}
         for i, s in enumerate(samples):
@@ -168,7 +187,8 @@ def main(argv=None) -> int:
                 if name == "plain_single_mesh":
                     plain()
                 else:
-                    frame = renderer.render(scene, View(s.pose, k), light, options[name])
+                    frame = renderer.render(scene, View(s.pose, k), lights[name],
+                                            options[name])
                 times[name].append(time.perf_counter() - t0)
                 if name != "plain_single_mesh":
                     drawn[name].append(frame.drawn["triangles"])
@@ -185,7 +205,11 @@ def main(argv=None) -> int:
             benchmark="render", quick=quick, image=[size, size], frames=frames,
             scene=dict(layers=len(scene.stack.tiles), full_triangles=scene.triangles_full,
                        stack_build_s=build_s, load_and_upload_s=upload_s),
-            first_frame_with_shadow_maps_s=first_shadow_s, **result,
+            first_frame_with_shadow_maps_s=first_shadow_s,
+            scattered_light_grids_s=first_s["scattering"], **result,
+            effect_cost_s={name: result[name]["median_s"] - result["shadows"]["median_s"]
+                           for name in ("soft_shadows", "scattering", "earthshine",
+                                        "defaults")},
             ratio_to_plain=ratio,
             shadows_ratio_to_plain=(result["shadows"]["median_s"]
                                     / result["plain_single_mesh"]["median_s"]),

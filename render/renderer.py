@@ -233,6 +233,21 @@ class RenderOptions:
         tracker follows on them jitter by tenths of a pixel between frames). Range and
         normals stay the centre sample's, the pixel centre's own ray, so they stay exact;
         levels of detail are chosen for the output pixels, so the scene drawn is the same.
+    soft_shadows : bool
+        The sun is its disk (:attr:`Lighting.sun_angular_radius`): shadows have the penumbrae
+        it casts (percentage-closer soft shadows, ``render/shaders/scene.frag``); off, a point.
+    scattering : bool
+        Add the sunlight that terrain scatters once into other terrain (shadowed ground
+        included), where the scene computes it (:mod:`render.scattering`).
+    earthshine : bool
+        Add the Earth's light (:attr:`Lighting.earth`, :attr:`Lighting.earthshine`).
+    shadow_detail : float
+        Terrain shadow maps' texels per layer pixel (0.25 to 8): each layer's map is sized so
+        that its texels resolve the layer's pixels on the ground, up to ``shadow_size`` texels
+        a side (:mod:`render.terrain_scene`); bodies' maps are ``shadow_size`` square. Two
+        hold the shadow of every relief two pixels across (``tests/render/
+        test_shadow_maps.py``: one loses a fifth of a rock field's shadows under a 20 degree
+        sun, two none).
 
     Notes
     -----
@@ -247,8 +262,15 @@ class RenderOptions:
     triangle_budget: int = 3_000_000
     geomorph: bool = True
     antialias: int = 1
+    soft_shadows: bool = True
+    scattering: bool = True
+    earthshine: bool = True
+    shadow_detail: float = 2.0
 
     def __post_init__(self):
+        if not 0.25 <= float(self.shadow_detail) <= 8.0:
+            raise InvalidParameterError(
+                f"shadow_detail must lie in [0.25, 8] texels per pixel; got {self.shadow_detail}")
         a = self.antialias
         if isinstance(a, bool) or not isinstance(a, (int, np.integer)) \
                 or not 1 <= a <= MAX_ANTIALIAS or a % 2 == 0:
@@ -459,13 +481,13 @@ class SceneGpu:
                                       ibo)
         return vao, dvao
 
-    def shadow_target(self, size: int) -> tuple[Any, Any]:
+    def shadow_target(self, size: tuple[int, int]) -> tuple[Any, Any]:
         """Allocate a depth texture and framebuffer for one shadow map (caller owns them).
 
         Parameters
         ----------
-        size : int
-            Side of the map, texels.
+        size : (int, int)
+            Width and height of the map, texels.
 
         Returns
         -------
@@ -475,7 +497,7 @@ class SceneGpu:
         """
         import moderngl
 
-        tex = self._ctx.depth_texture((size, size))
+        tex = self._ctx.depth_texture((int(size[0]), int(size[1])))
         tex.compare_func = "<="
         tex.filter = (moderngl.LINEAR, moderngl.LINEAR)  # 2x2 percentage-closer filtering
         tex.repeat_x = False
@@ -483,7 +505,7 @@ class SceneGpu:
         fbo = self._ctx.framebuffer(depth_attachment=tex)
         return tex, fbo
 
-    def draw_depth(self, framebuffer: Any, size: int, light_clip: np.ndarray,
+    def draw_depth(self, framebuffer: Any, size: tuple[int, int], light_clip: np.ndarray,
                    batches: Sequence[DrawBatch]) -> None:
         """Draw the depth of ``batches`` into a shadow map with the orthographic ``light_clip``.
 
@@ -491,8 +513,8 @@ class SceneGpu:
         ----------
         framebuffer : moderngl.Framebuffer
             The map's framebuffer (:meth:`shadow_target`).
-        size : int
-            Side of the map, texels.
+        size : (int, int)
+            Width and height of the map, texels.
         light_clip : (4, 4) float64
             Clip-from-scene-local matrix of the sun's orthographic view.
         batches : sequence of DrawBatch
@@ -503,7 +525,7 @@ class SceneGpu:
 
         ctx = self._ctx
         framebuffer.use()
-        ctx.viewport = (0, 0, size, size)
+        ctx.viewport = (0, 0, int(size[0]), int(size[1]))
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE)
         ctx.depth_func = "<"
@@ -534,6 +556,8 @@ class Renderer:
     """
 
     def __init__(self, ctx: Any = None) -> None:
+        import moderngl
+
         self.ctx = ctx or create_context()
         self.scene_program = self.ctx.program(vertex_shader=_shader("scene.vert"),
                                               fragment_shader=_shader("scene.frag"))
@@ -544,6 +568,12 @@ class Renderer:
         self._fbos: dict = {}
         self._dummy_shadow = self.ctx.depth_texture((1, 1))
         self._dummy_shadow.compare_func = "<="
+        # the raw depths of the bound shadow map (blocker search): a sampler on its own unit
+        self._depth_sampler = self.ctx.sampler(
+            filter=(moderngl.NEAREST, moderngl.NEAREST), compare_func="", repeat_x=False,
+            repeat_y=False, texture=self._dummy_shadow)
+        self._dummy_scatter = self.ctx.texture((1, 1), 2, np.array([0, 1], "f4").tobytes(),
+                                               dtype="f4")
         self._dummy_albedo = self.ctx.texture((1, 1), 1, np.ones(1, "f4").tobytes(), dtype="f4")
         self._dummy_normals = self.ctx.texture((1, 1), 3, np.array([0, 0, 1], "f2").tobytes(),
                                                dtype="f2")
@@ -659,6 +689,14 @@ class Renderer:
         prog["u_log_near"].value = math.log(LOG_NEAR)
         prog["u_log_scale"].value = 1.0 / math.log(far / LOG_NEAR)
         prog["u_shadow_map"].value = 0
+        prog["u_shadow_depth"].value = 4
+        prog["u_scatter"].value = 5
+        prog["u_sun_tan"].value = (math.tan(lighting.sun_angular_radius)
+                                   if options.soft_shadows else 0.0)
+        prog["u_scattering"].value = 1 if options.scattering else 0
+        earth = lighting.earth if options.earthshine and lighting.earthshine > 0 else None
+        prog["u_earth"].value = tuple(earth) if earth is not None else (0.0, 0.0, 1.0)
+        prog["u_earthshine"].value = lighting.earthshine if earth is not None else 0.0
 
         fbo = self._target((ka.width, ka.height))
         fbo.use()
@@ -755,10 +793,26 @@ class Renderer:
             prog["u_light_from_world"].write(light.T.astype("f4").tobytes())
             prog["u_normal_offset"].value = shadow.normal_offset
             prog["u_bias"].value = shadow.bias
-            prog["u_slope_bias"].value = shadow.slope_bias
+            prog["u_slope_texels"].value = shadow.slope_texels
+            prog["u_texel"].value = tuple(float(t) for t in shadow.texel_xy)
+            prog["u_shadow_extent"].value = (shadow.texel_xy[0] * shadow.shape[0],
+                                             shadow.texel_xy[1] * shadow.shape[1])
+            prog["u_depth_range"].value = shadow.depth_range_m
+            prog["u_light_axes"].write(np.asarray(shadow.axes, "f4").T.tobytes())
+            self._depth_sampler.texture = shadow.texture
         else:
             prog["u_shadows"].value = 0
             self._dummy_shadow.use(location=0)
+            self._depth_sampler.texture = self._dummy_shadow
+        self._depth_sampler.use(location=4)
+        if batch.scatter is not None:
+            texture, rect = batch.scatter
+            texture.use(location=5)
+            prog["u_scatter_map"].value = 1
+            prog["u_scatter_rect"].value = tuple(float(v) for v in rect)
+        else:
+            prog["u_scatter_map"].value = 0
+            self._dummy_scatter.use(location=5)
 
 
 def _translation(t) -> np.ndarray:

@@ -68,6 +68,10 @@ trajectory. Paths are relative to the scenario file. Example (``examples/lunar_d
     triangle_budget = 3000000
     geomorph = true                  # levels of detail morph instead of switching
     antialias = 1                    # samples per pixel side (odd): radiance is their mean
+    soft_shadows = true              # the sun's disk casts penumbrae (false: a point sun)
+    scattering = true                # terrain scatters sunlight into shadows (single)
+    earthshine = true                # the Earth lights the surface where [sun] gives it
+    shadow_detail = 2.0              # terrain shadow-map texels per layer pixel
 
     [output]
     range = true
@@ -778,7 +782,8 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
                                                       "body_angular_velocity")),
               "motion": Motion.from_mapping(mot)}
     ren = _section(data, "render", {"shadows", "shadow_size", "lod_pixels", "triangle_budget",
-                                    "geomorph", "antialias"})
+                                    "geomorph", "antialias", "soft_shadows", "scattering",
+                                    "earthshine", "shadow_detail"})
     defaults = RenderOptions()  # the one place render defaults live
     options = RenderOptions(
         shadows=boolean(ren.get("shadows", defaults.shadows), "shadows", where=_RENDER),
@@ -790,7 +795,15 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
                                 "triangle_budget", low=1, where=_RENDER),
         geomorph=boolean(ren.get("geomorph", defaults.geomorph), "geomorph", where=_RENDER),
         antialias=integer(ren.get("antialias", defaults.antialias), "antialias", low=1,
-                          high=MAX_ANTIALIAS, where=_RENDER))
+                          high=MAX_ANTIALIAS, where=_RENDER),
+        soft_shadows=boolean(ren.get("soft_shadows", defaults.soft_shadows), "soft_shadows",
+                             where=_RENDER),
+        scattering=boolean(ren.get("scattering", defaults.scattering), "scattering",
+                           where=_RENDER),
+        earthshine=boolean(ren.get("earthshine", defaults.earthshine), "earthshine",
+                           where=_RENDER),
+        shadow_detail=number(ren.get("shadow_detail", defaults.shadow_detail),
+                             "shadow_detail", low=0.25, high=8.0, where=_RENDER))
     out = _section(data, "output", {"range", "normals", "radiance"})
     outputs = {"range": boolean(out.get("range", True), "range", where=_OUTPUT),
                "normals": boolean(out.get("normals", True), "normals", where=_OUTPUT),

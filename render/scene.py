@@ -210,13 +210,13 @@ class Gpu(Protocol):
         """
         ...
 
-    def shadow_target(self, size: int) -> tuple[Any, Any]:
-        """Allocate a ``size`` x ``size`` depth texture and its framebuffer (caller owns them).
+    def shadow_target(self, size: tuple[int, int]) -> tuple[Any, Any]:
+        """Allocate a depth texture of ``size`` texels and its framebuffer (caller owns them).
 
         Parameters
         ----------
-        size : int
-            Side of the map, texels.
+        size : (int, int)
+            Width and height of the map, texels.
 
         Returns
         -------
@@ -225,7 +225,7 @@ class Gpu(Protocol):
         """
         ...
 
-    def draw_depth(self, framebuffer: Any, size: int, light_clip: np.ndarray,
+    def draw_depth(self, framebuffer: Any, size: tuple[int, int], light_clip: np.ndarray,
                    batches: Sequence[DrawBatch]) -> None:
         """Draw the depth of ``batches`` into a shadow map's framebuffer.
 
@@ -233,8 +233,8 @@ class Gpu(Protocol):
         ----------
         framebuffer : moderngl.Framebuffer
             From :meth:`shadow_target`.
-        size : int
-            Side of the map, texels.
+        size : (int, int)
+            Width and height of the map, texels.
         light_clip : (4, 4) float64
             Orthographic clip-from-scene-local matrix of the sun.
         batches : sequence of DrawBatch
@@ -243,8 +243,8 @@ class Gpu(Protocol):
         ...
 
 
-def render_shadow_map(gpu: Gpu, current: ShadowMap | None, size: int, sun: Any,
-                      receivers: np.ndarray, casters: np.ndarray, *, margin: float,
+def render_shadow_map(gpu: Gpu, current: ShadowMap | None, size: int | tuple[int, int],
+                      sun: Any, receivers: np.ndarray, casters: np.ndarray, *, margin: float,
                       bias: ShadowBias,
                       draw: Callable[[float, tuple[float, float, float, float]],
                                      Sequence[DrawBatch]]) -> ShadowMap:
@@ -252,8 +252,8 @@ def render_shadow_map(gpu: Gpu, current: ShadowMap | None, size: int, sun: Any,
 
     The map is orthographic from the sun (:func:`ortho_light`): its footprint covers the
     ``receivers``, its depth runs from the ``casters`` nearest the sun to the receiver
-    farthest from it. Its biases are ``bias`` times its texel (depth biases as fractions of
-    its depth range).
+    farthest from it. Its biases are ``bias`` times its texel (depth biases in metres, see
+    :class:`ShadowMap`).
 
     Parameters
     ----------
@@ -261,8 +261,8 @@ def render_shadow_map(gpu: Gpu, current: ShadowMap | None, size: int, sun: Any,
         Allocates the map and draws its depth.
     current : ShadowMap or None
         A map to draw into again: reused when its size matches, released when not.
-    size : int
-        Map side, texels.
+    size : int or (int, int)
+        Map side, texels, or its (width, height) along light-space x and y.
     sun : (3,) float
         Unit vector towards the sun, world frame.
     receivers, casters : (n, 3) float64, metres, scene-local
@@ -273,29 +273,37 @@ def render_shadow_map(gpu: Gpu, current: ShadowMap | None, size: int, sun: Any,
         The lookup's biases in texels.
     draw : callable
         ``draw(extent, window)``: what casts shadows (a sequence of :class:`DrawBatch` with
-        depth vertex arrays), given the map's extent (m) and its light-space window
-        ``(x0, y0, x1, y1)`` (m, see :func:`ortho_light`), so a scene may pick the level of
-        detail the map's texels resolve and cull what the map cannot see.
+        depth vertex arrays), given the map's larger texel times its larger side (m) and its
+        light-space window ``(x0, y0, x1, y1)`` (m, see :func:`ortho_light`), so a scene may
+        pick the level of detail the map's texels resolve and cull what the map cannot see.
 
     Returns
     -------
     ShadowMap
         ``current`` updated in place, or a new map.
     """
-    clip, light, extent, depth, window = ortho_light(sun, receivers, casters, margin=margin)
-    if current is None or current.size != size:
+    clip, light, _, depth, window = ortho_light(sun, receivers, casters, margin=margin)
+    w, h = (size, size) if isinstance(size, (int, np.integer)) else size
+    w, h = int(w), int(h)
+    if current is None or current.shape != (w, h):
         if current is not None:
             current.release()
-        tex, fbo = gpu.shadow_target(size)
-        current = ShadowMap(tex, size, light, 0.0, 0.0, 0.0, framebuffer=fbo)
-    gpu.draw_depth(current.framebuffer, size, clip, draw(extent, window))
-    texel = extent / size
+        tex, fbo = gpu.shadow_target((w, h))
+        current = ShadowMap(tex, max(w, h), light, 0.0, 0.0, 0.0, framebuffer=fbo,
+                            shape=(w, h))
+    sx, sy = window[2] - window[0], window[3] - window[1]
+    tx, ty = sx / w, sy / h
+    gpu.draw_depth(current.framebuffer, (w, h), clip, draw(max(tx, ty) * max(w, h), window))
+    texel = min(tx, ty)
     current.light_from_world = light
     current.normal_offset = bias.normal_offset * texel
     current.bias = bias.constant * texel / depth
     current.slope_bias = bias.slope * texel / depth
-    current.texel_m = texel
+    current.texel_m = max(tx, ty)
     current.depth_range_m = depth
+    current.texel_xy = (tx, ty)
+    current.slope_texels = bias.slope
+    current.axes = light_basis(sun)
     return current
 
 
@@ -461,25 +469,40 @@ class Imposter:
 class ShadowMap:
     """An orthographic depth map from the sun and how to look it up.
 
+    The lookup's depth bias is ``bias`` plus ``slope_texels`` times the length of the
+    receiver's depth gradient in light space (its tilt from the light, from its normal),
+    each component times the texel along its axis (:attr:`texel_xy`): a map whose texels
+    differ along x and y is biased by what each axis cannot resolve, never by the coarser
+    one alone (a square map's bias is the texel times the tangent of the incidence).
+
     Parameters
     ----------
     texture : moderngl.Texture
-        The ``size`` x ``size`` depth texture (compares ``<=``, bilinear).
+        The depth texture (compares ``<=``, bilinear), :attr:`shape` texels.
     size : int
-        Its side, texels.
+        Its larger side, texels.
     light_from_world : (4, 4) float64
         Scene-local coordinates (world minus the scene origin, metres) to texture
         coordinates and depth, each in [0, 1].
     normal_offset : float
         Metres along the receiver's normal the lookup moves.
     bias, slope_bias : float
-        Constant and slope-scaled depth bias, in depth units (fractions of the depth range).
+        Constant depth bias and the slope bias of the map's finer texel, in depth units
+        (fractions of the depth range).
     texel_m : float
-        Side of a texel, metres.
+        Larger side of a texel, metres.
     depth_range_m : float
         Depth the map spans, metres.
     framebuffer : moderngl.Framebuffer, optional
         The framebuffer it is drawn through (None for a copy that shares the texture).
+    shape : (int, int), optional
+        (width, height) in texels along light-space x and y (default: ``size`` square).
+    texel_xy : (float, float)
+        Texel side along light-space x and y, metres.
+    slope_texels : float
+        Texels of depth allowed per unit of the receiver's depth gradient.
+    axes : (3, 3) float64
+        The light-space axes (:func:`light_basis`).
     """
 
     texture: Any
@@ -491,6 +514,16 @@ class ShadowMap:
     texel_m: float = 0.0
     depth_range_m: float = 1.0
     framebuffer: Any = None
+    shape: tuple = ()
+    texel_xy: tuple = (0.0, 0.0)
+    slope_texels: float = 0.0
+    axes: np.ndarray = field(default_factory=lambda: np.eye(3))
+
+    def __post_init__(self):
+        if not self.shape:
+            self.shape = (int(self.size), int(self.size))
+        if self.texel_xy == (0.0, 0.0):
+            self.texel_xy = (self.texel_m, self.texel_m)
 
     def release(self) -> None:
         """Release the map's texture and framebuffer on the GPU."""
@@ -566,6 +599,10 @@ class DrawBatch:
     normal_cube : moderngl.TextureCube, optional
         Shading normals from a cube map looked up by model-frame direction from the model
         origin (a star-shaped body's finest normals).
+    scatter : tuple, optional
+        Light from elsewhere than the sun (:mod:`render.scattering`): ``(texture, rect)``,
+        ``rect`` as for ``normal_map``; a two-channel float texture of the irradiance the
+        terrain scatters (over the solar irradiance) and the Earth's visibility.
     """
 
     vao: Any
@@ -580,6 +617,7 @@ class DrawBatch:
     morph: Morph | None = None
     normal_map: tuple | None = None
     normal_cube: Any = None
+    scatter: tuple | None = None
 
 
 @dataclass(eq=False)

@@ -27,7 +27,15 @@ sun, computed once per sun direction and reused by every frame (the terrain does
 The maps' light-space projections depend on the sun and the stack alone, never on the
 camera, so for a fixed sun every shadow texel stays on the same patch of ground through a
 whole sequence (no swimming), and the casters are drawn at one level of detail per layer,
-chosen from the texel size, whatever the camera does.
+chosen from the texel size, whatever the camera does. Each map is sized to resolve its
+layer's pixels on the ground (``RenderOptions.shadow_detail`` texels per pixel, at most
+``RenderOptions.shadow_size`` a side): across the sun's azimuth a texel is a pixel; along
+it a texel of light-space y covers ``1 / sin(elevation)`` of ground, so that side has
+``sin(elevation)`` times finer texels. The layer is the finest the camera sees where it is
+drawn (the planner never draws a layer where a finer one lies), so every relief of two of its
+pixels reaches the map. A layer's map draws the ground once: the layer itself whole and each
+coarser layer outside the next finer one, culled to the map's window, so the maps' cost
+grows with the layers, not with their square.
 
 Geomorphing: levels of detail change continuously, never from one frame to the next. With
 ``lambda(d) = log2(target * d / (cell * focal))`` the continuous level at distance d (the
@@ -70,7 +78,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -91,6 +99,7 @@ from render.scene import (
     far_plane,
     frustum_visible,
     light_basis,
+    ortho_light,
     render_shadow_map,
 )
 from terrain.core import metakeys as mk
@@ -110,8 +119,18 @@ log = logging.getLogger(__name__)
 BLOCK = 64
 #: Skirt depth in pixels of the layer.
 SKIRT_PIXELS = 8.0
-#: Caster cells in a shadow map may be this many texels wide.
-SHADOW_CELL_TEXELS = 2.0
+#: Caster cells in a shadow map may be this many texels wide (along the map's coarser axis).
+SHADOW_CELL_TEXELS = 1.0
+#: Smallest side of a layer's shadow map, texels.
+MIN_SHADOW_SIDE = 64
+#: Sines of sun elevations below this one size terrain maps as this one (0.57 degrees): the
+#: map's side along the sun's azimuth is capped by ``RenderOptions.shadow_size`` anyway.
+MIN_SIN_ELEVATION = 0.01
+#: Sets of layer maps kept at once (two suns, or two map settings, without redrawing).
+SHADOW_CACHE_SETS = 2
+#: Cells of a layer's side in its grid of scattered light (:mod:`render.scattering`); the
+#: grid spans the layer and half its side around it.
+SCATTER_CELLS = 32
 #: A layer's shadow map covers its extent and this many of its pixels around it, so the
 #: skirts and the receivers at its edge still find texels of their own.
 SHADOW_MARGIN_PIXELS = 2.0
@@ -219,6 +238,7 @@ class TerrainScene:
         self._index_cache: dict = {}
         self._ctx: object = None  # the context the layers were uploaded to
         self._shadow_cache: dict = {}
+        self._scatter_cache: dict = {}
         self.triangles_full = 0
         self.albedo_map: DEMTile | None = None
         self._albedo_gpu: tuple | None = None
@@ -555,6 +575,10 @@ class TerrainScene:
         shadows = None
         if options.shadows and lighting is not None:
             shadows = self._shadow_maps(gpu, lighting, options)
+        scatter = None
+        if lighting is not None and (options.scattering or (
+                options.earthshine and lighting.earth is not None and lighting.earthshine > 0)):
+            scatter = self._scatter_maps(gpu, lighting)
         batches: list[DrawBatch] = []
         drawn_layers: list[dict[str, Any]] = []
         for layer, (lods, blocks) in zip(self._layers, plan, strict=True):
@@ -569,9 +593,12 @@ class TerrainScene:
                 ranges = _merge_ranges(layer.offsets[s][bl], layer.counts[s][bl])
                 n = int(layer.counts[s][bl].sum()) // 3
                 tris += n
-                shadow = shadows[layer.level] if shadows else None
+                shadow = (self._layer_shadow(gpu, shadows, lighting, options, layer)
+                          if shadows is not None else None)
                 batch = DrawBatch(vao, dvao, ranges, discard=layer.discard, shadow=shadow,
-                                  triangles=n)
+                                  triangles=n,
+                                  scatter=(self._layer_scatter(gpu, scatter, lighting, layer)
+                                           if scatter is not None else None))
                 if options.geomorph:
                     # coarser visible geometry than the shadow map saw: the shader widens
                     # the bias with the continuous level (module docstring)
@@ -629,53 +656,160 @@ class TerrainScene:
         return plan, total
 
     def _shadow_maps(self, gpu, lighting, options):
-        key = (gpu.token, tuple(np.round(lighting.sun, 12)), options.shadow_size)
+        """Give the maps of this sun, level -> map, drawn as frames first need them.
+
+        Shared by every renderer on the context; a layer no frame has shown has no map.
+        """
+        key = (gpu.context, tuple(np.round(lighting.sun, 12)), options.shadow_size,
+               float(options.shadow_detail))
         if key in self._shadow_cache:
             return self._shadow_cache[key]
-        for maps in self._shadow_cache.values():
-            for m in maps:
+        while len(self._shadow_cache) >= SHADOW_CACHE_SETS:
+            for m in self._shadow_cache.pop(next(iter(self._shadow_cache))).values():
                 m.release()
-        self._shadow_cache.clear()
-        size = options.shadow_size
-        lo, hi = self.bounds()
-        casters = box_corners(lo - self.origin, hi - self.origin)[0]
+        self._shadow_cache[key] = {}
+        return self._shadow_cache[key]
+
+    def _layer_shadow(self, gpu, maps, lighting, options, layer):
+        """Give the layer's map in ``maps``, drawn first if it is not there."""
+        if layer.level in maps:
+            return maps[layer.level]
         basis = light_basis(lighting.sun)
-        maps = []
-        for layer in self._layers:
-            receivers = box_corners(layer.lo.min(axis=0), layer.hi.max(axis=0))[0]
+        # light-space y runs up the sun's azimuth: a texel of y covers 1 / sin(elevation)
+        # of ground there (module docstring)
+        sin_e = min(max(abs(float(lighting.sun[2])), MIN_SIN_ELEVATION), 1.0)
+        receivers = box_corners(layer.lo.min(axis=0), layer.hi.max(axis=0))[0]
+        margin = SHADOW_MARGIN_PIXELS * layer.resolution
+        *_, window = ortho_light(lighting.sun, receivers, receivers, margin=margin)
+        casters = self._casters(layer.level, basis, window)
+        corners = np.concatenate(
+            [box_corners(self._layers[k].lo[b], self._layers[k].hi[b]).reshape(-1, 3)
+             for k, b in casters] + [receivers])
+        texel = layer.resolution / float(options.shadow_detail)
+        cap = int(options.shadow_size)
+        size = (min(max(math.ceil((window[2] - window[0]) / texel), MIN_SHADOW_SIDE), cap),
+                min(max(math.ceil((window[3] - window[1]) / (texel * sin_e)),
+                        MIN_SHADOW_SIDE), cap))
+        tx = (window[2] - window[0]) / size[0]
 
-            def draw(extent, window, size=size):
-                return self._depth_batches(gpu, extent / size, basis, window)
+        def draw(extent, window):
+            return self._depth_batches(gpu, casters, tx)
 
-            maps.append(render_shadow_map(gpu, None, size, lighting.sun, receivers, casters,
-                                          margin=SHADOW_MARGIN_PIXELS * layer.resolution,
-                                          bias=TERRAIN_SHADOW_BIAS, draw=draw))
-        self._shadow_cache[key] = maps
-        return maps
+        maps[layer.level] = render_shadow_map(gpu, None, size, lighting.sun, receivers,
+                                              corners, margin=margin,
+                                              bias=TERRAIN_SHADOW_BIAS, draw=draw)
+        return maps[layer.level]
 
-    def _depth_batches(self, gpu, texel, basis, window):
-        """Give the blocks that can cast into a shadow map, at the detail its texel resolves.
+    def _scatter_maps(self, gpu, lighting):
+        """Give level -> (texture, rect) of the scattered light and the Earth's visibility.
 
-        An orthographic map sees a caster only where the caster's light-space x-y overlaps
-        the map's window, so every other block is culled exactly.
+        Computed for a layer when a frame first draws it (:meth:`_layer_scatter`), kept for
+        :data:`SHADOW_CACHE_SETS` lightings at a time.
         """
-        batches = []
+        earth = lighting.earth if lighting.earthshine > 0 else None
+        key = (gpu.context, tuple(np.round(lighting.sun, 12)),
+               None if earth is None else tuple(np.round(earth, 12)), lighting.albedo,
+               lighting.distance)
+        if key not in self._scatter_cache:
+            while len(self._scatter_cache) >= SHADOW_CACHE_SETS:
+                for tex, _ in self._scatter_cache.pop(next(iter(self._scatter_cache))).values():
+                    tex.release()
+            self._scatter_cache[key] = {}
+        return self._scatter_cache[key]
+
+    def _layer_scatter(self, gpu, maps, lighting, layer):
+        """Give the layer's grid in ``maps`` (:mod:`render.scattering`), computed if missing."""
+        from render.scattering import horizon_light
+
+        if layer.level in maps:
+            return maps[layer.level]
+        x0, y0, x1, y1 = layer.extent
+        spacing = max(x1 - x0, y1 - y0) / SCATTER_CELLS
+        n = 2 * SCATTER_CELLS + 1
+        steps = (np.arange(n) - (n - 1) / 2) * spacing
+        xs = (x0 + x1) / 2 + steps
+        ys = (y0 + y1) / 2 - steps  # row 0 north
+        earth = lighting.earth if lighting.earthshine > 0 else None
+        light = horizon_light(self._local_heights(xs, ys), spacing, lighting.sun,
+                              albedo=lighting.albedo, sun_radius=lighting.sun_angular_radius,
+                              earth=earth)
+        data = np.stack([light["scattered"], light["earth"]], axis=-1).astype("f4")
+        tex = gpu.texture((n, n), 2, np.ascontiguousarray(data).tobytes(), dtype="f4")
+        rect = (xs[0] - 0.5 * spacing, ys[0] + 0.5 * spacing, 1.0 / (n * spacing),
+                1.0 / (n * spacing))
+        maps[layer.level] = (tex, rect)
+        return maps[layer.level]
+
+    def _local_heights(self, xs, ys):
+        """(len(ys), len(xs)) world heights at scene-local points, from the finest layer there.
+
+        Bilinear in each layer's own heights (invalid pixels at the layer's mean); beyond the
+        base, its edge cells extrapolate linearly.
+        """
+        gx = xs[None, :] + self.site[0] + np.zeros((len(ys), 1))
+        gy = ys[:, None] + self.site[1] + np.zeros((1, len(xs)))
+        z = np.zeros(gx.shape)
+        for k, tile in enumerate(self.stack.tiles):
+            left, bottom, right, top = tile.bounds
+            res = tile.resolution
+            h, w = tile.shape
+            col = (gx - left) / res - 0.5
+            row = (top - gy) / res - 0.5
+            inside = np.ones(gx.shape, bool) if k == 0 else (
+                (col >= 0) & (col <= w - 1) & (row >= 0) & (row <= h - 1))
+            if not inside.any():
+                continue
+            heights = np.where(tile.valid, tile.heights, np.mean(tile.heights[tile.valid]))
+            r, c = row[inside], col[inside]
+            # beyond the base, its edge cells' planes continue (no terrace at its edge)
+            i0 = np.clip(np.floor(r), 0, max(h - 2, 0)).astype(np.int64)
+            j0 = np.clip(np.floor(c), 0, max(w - 2, 0)).astype(np.int64)
+            i1, j1 = np.minimum(i0 + 1, h - 1), np.minimum(j0 + 1, w - 1)
+            ti, tj = r - i0, c - j0
+            z[inside] = ((heights[i0, j0] * (1 - tj) + heights[i0, j1] * tj) * (1 - ti)
+                         + (heights[i1, j0] * (1 - tj) + heights[i1, j1] * tj) * ti)
+        if self.curvature:
+            z -= (xs[None, :] ** 2 + ys[:, None] ** 2) / (2.0 * self.radius)
+        return z
+
+    def _casters(self, level, basis, window):
+        """``[(layer, blocks)]`` that can shade a layer through its map's light-space window.
+
+        The ground is drawn once: the layer itself whole (its own heights also where finer
+        layers lie: its map resolves no more than its pixels), and each coarser layer outside
+        the next finer one (the blocks a finer layer covers left out, the rest discarded
+        there). An orthographic map sees a caster only where the caster's light-space x-y
+        overlaps the window, so every other block is culled exactly; the cost of a layer's
+        map is one layer's blocks plus the few coarser ones up the sun's azimuth.
+        """
+        out = []
         x0, y0, x1, y1 = window
-        for layer in self._layers:
-            # cells up to two texels: finer caster detail than the map resolves is wasted
-            s = int(min(BLOCK, 2 ** max(0, math.floor(math.log2(
-                max(SHADOW_CELL_TEXELS * texel / layer.resolution, 1.0))))))
+        for layer in self._layers[:level + 1]:
             light_xy = box_corners(layer.lo, layer.hi) @ basis[:2].T  # (n, 8, 2)
             overlap = ((light_xy[..., 0].max(axis=1) >= x0)
                        & (light_xy[..., 0].min(axis=1) <= x1)
                        & (light_xy[..., 1].max(axis=1) >= y0)
                        & (light_xy[..., 1].min(axis=1) <= y1))
-            blocks = np.flatnonzero(~layer.covered & overlap)
-            if not blocks.size:
-                continue
+            if layer.level < level:
+                overlap &= ~layer.covered
+            blocks = np.flatnonzero(overlap)
+            if blocks.size:
+                out.append((layer.level, blocks))
+        return out
+
+    def _depth_batches(self, gpu, casters, texel):
+        """Give the casters' depth batches, each layer at the detail ``texel`` (m) resolves."""
+        batches = []
+        for k, blocks in casters:
+            layer = self._layers[k]
+            # cells up to SHADOW_CELL_TEXELS: finer caster detail than the map resolves is
+            # wasted
+            s = int(min(BLOCK, 2 ** max(0, math.floor(math.log2(
+                max(SHADOW_CELL_TEXELS * texel / layer.resolution, 1.0))))))
             vao, dvao = self._vaos(gpu, layer, s)
             ranges = _merge_ranges(layer.offsets[s][blocks], layer.counts[s][blocks])
-            batches.append(DrawBatch(vao, dvao, ranges, discard=layer.discard))
+            last = k == casters[-1][0]
+            batches.append(DrawBatch(vao, dvao, ranges, discard=None if last else layer.discard))
         return batches
 
 
@@ -949,6 +1083,4 @@ def _merge_ranges(offsets, counts) -> list[tuple[int, int]]:
 
 
 def _with_extra_bias(shadow: ShadowMap, metres: float) -> ShadowMap:
-    return ShadowMap(shadow.texture, shadow.size, shadow.light_from_world,
-                     shadow.normal_offset, shadow.bias + metres / shadow.depth_range_m,
-                     shadow.slope_bias, shadow.texel_m, shadow.depth_range_m, None)
+    return replace(shadow, bias=shadow.bias + metres / shadow.depth_range_m, framebuffer=None)

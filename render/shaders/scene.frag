@@ -31,11 +31,24 @@ uniform sampler2D u_normals;    // normals (texture of unit normals, one texel p
 uniform vec4 u_normal_rect;     // whatever the level of detail: (x0, y0, 1/width, 1/height)
 
 uniform int u_shadows;
-uniform sampler2DShadow u_shadow_map;
+uniform sampler2DShadow u_shadow_map;  // the map, compared <= with 2x2 bilinear filtering
+uniform sampler2D u_shadow_depth;      // the same map, its raw depths (blocker search)
 uniform mat4 u_light_from_world;  // world (camera-relative) -> shadow texture [0,1]^3
+uniform mat3 u_light_axes;        // world -> light-space axes (x, y, direction light travels)
+uniform vec2 u_texel;             // m: a texel's side along light-space x and y
+uniform vec2 u_shadow_extent;     // m: the map's side along light-space x and y
+uniform float u_depth_range;      // m: the depth the map spans
 uniform float u_normal_offset;    // m, along the normal before the lookup
 uniform float u_bias;             // depth units, constant
-uniform float u_slope_bias;       // depth units per unit tan(incidence)
+uniform float u_slope_texels;     // texels of depth per unit of the receiver's depth gradient
+uniform float u_sun_tan;          // tangent of the solar disk's angular radius (0: a point)
+
+uniform int u_scatter_map;        // 1: u_scatter holds light scattered from the terrain
+uniform sampler2D u_scatter;      // r: scattered irradiance / solar irradiance; g: Earth seen
+uniform vec4 u_scatter_rect;      // (x0, y0, 1/width, 1/height) as u_normal_rect
+uniform int u_scattering;         // 1: add r (Lambertian, the surface's albedo)
+uniform vec3 u_earth;             // unit vector towards the Earth (world)
+uniform float u_earthshine;       // Earth's irradiance / the Sun's (0: none)
 
 layout(location = 0) out float out_radiance;
 layout(location = 1) out float out_range;
@@ -135,22 +148,90 @@ float albedo_scale(vec3 world) {
     return a;
 }
 
-// The slope-scaled bias grows with the tangent of the sun's incidence, up to MAX_TAN_INCIDENCE
-// (the sun 2.9 degrees above the surface): closer to grazing it would outgrow the map's depth
-// range and light everything. MIN_MU0 keeps the division finite (at mu0 = 0.05 the tangent is
-// 19.97, so the two limits agree).
+// The slope-scaled bias grows with the receiver's depth gradient in light space (its length
+// the tangent of the sun's incidence, at most MAX_TAN_INCIDENCE: the sun 2.9 degrees above
+// the surface; closer to grazing it would outgrow the map's depth range and light
+// everything), each component times the map's texel along that axis. MIN_MU0 keeps the division finite (at
+// mu0 = 0.05 the tangent is 19.97, so the two limits agree).
 const float MAX_TAN_INCIDENCE = 20.0;
 const float MIN_MU0 = 0.05;
+
+// The extended sun (percentage-closer soft shadows, Fernando 2005): the blockers' mean depth
+// within the disk a ray can be tilted through (the solar disk's angular radius) gives the
+// penumbra's light-space radius, (receiver depth - blocker depth) tan(radius), over which
+// the map's comparisons are averaged on a disk of points: the fraction of the solar disk the
+// blockers cover, exact for one blocker edge. The blocker search looks at most
+// SEARCH_TEXELS of the map's coarser axis away (a receiver farther from every blocker is
+// lit by all of the disk unless a penumbra is wider than that).
+const int BLOCKER_SAMPLES = 8;
+const int FILTER_SAMPLES = 24;
+const float SEARCH_TEXELS = 24.0;
+const float GOLDEN_ANGLE = 2.39996323;
+
+vec2 vogel(int i, int count) {                 // Vogel (1979) spiral: even cover of the disk
+    float r = sqrt((float(i) + 0.5) / float(count));
+    float a = float(i) * GOLDEN_ANGLE;
+    return r * vec2(cos(a), sin(a));
+}
 
 float visibility(vec3 n, float mu0) {
     if (u_shadows == 0 || mu0 <= 0.0) return 1.0;
     vec4 lc = u_light_from_world * vec4(v_rel + n * u_normal_offset, 1.0);
     vec3 c = lc.xyz / lc.w;
     if (c.x < 0.0 || c.x > 1.0 || c.y < 0.0 || c.y > 1.0 || c.z > 1.0) return 1.0;
-    float tan_i = sqrt(max(1.0 - mu0 * mu0, 0.0)) / max(mu0, MIN_MU0);
-    float ref = c.z - u_bias - v_shadow_bias - u_slope_bias * min(tan_i, MAX_TAN_INCIDENCE);
-    // one bilinear comparison (the map's LINEAR filter gives 2x2 percentage-closer filtering)
-    return texture(u_shadow_map, vec3(c.xy, ref));
+    vec3 nl = u_light_axes * n;
+    vec2 grad = nl.xy / max(abs(nl.z), MIN_MU0);   // |grad| = tan(incidence)
+    grad *= min(1.0, MAX_TAN_INCIDENCE / max(length(grad), 1e-30));
+    float ref = c.z - u_bias - v_shadow_bias
+              - u_slope_texels * length(grad * u_texel) / u_depth_range;
+    if (u_sun_tan <= 0.0)  // a point sun: one bilinear comparison (2x2 percentage-closer)
+        return texture(u_shadow_map, vec3(c.xy, ref));
+    // the receiver's plane in light space: depth (m) per metre of light-space x and y, so
+    // that samples beside the receiver compare with its plane there, not with its own depth
+    // (the lit ground up the sun is nearer the sun than the receiver, not in front of it)
+    vec2 plane = clamp(nl.xy / max(-nl.z, MIN_MU0), -MAX_TAN_INCIDENCE, MAX_TAN_INCIDENCE)
+               / u_depth_range;
+    float reach = min(c.z * u_depth_range * u_sun_tan,
+                      SEARCH_TEXELS * max(u_texel.x, u_texel.y));
+    vec2 to_tex = 1.0 / u_shadow_extent;
+    float blockers = 0.0;
+    float distance_sum = 0.0;
+    for (int i = 0; i <= BLOCKER_SAMPLES; ++i) {   // the last sample: the receiver's texel
+        vec2 off = i < BLOCKER_SAMPLES ? vogel(i, BLOCKER_SAMPLES) * reach : vec2(0.0);
+        float r = ref + dot(plane, off);
+        float d = texture(u_shadow_depth, c.xy + off * to_tex).r;
+        if (d < r) {
+            blockers += 1.0;
+            distance_sum += r - d;
+        }
+    }
+    if (blockers == 0.0) return 1.0;
+    float penumbra = distance_sum / blockers * u_depth_range * u_sun_tan;  // m
+    if (penumbra < 0.5 * min(u_texel.x, u_texel.y))
+        return texture(u_shadow_map, vec3(c.xy, ref));
+    float lit = 0.0;
+    for (int i = 0; i < FILTER_SAMPLES; ++i) {
+        vec2 off = vogel(i, FILTER_SAMPLES) * penumbra;
+        lit += texture(u_shadow_map, vec3(c.xy + off * to_tex, ref + dot(plane, off)));
+    }
+    return lit / float(FILTER_SAMPLES);
+}
+
+// Light from elsewhere than the sun's disk (render.scattering): the terrain's single
+// scattering, Lambertian, where the scene holds it; the Earth's, by the surface's own law.
+float secondary(vec3 n, vec3 world, vec3 e, float mu, float scale) {
+    vec2 s = vec2(0.0, 1.0);
+    if (u_scatter_map == 1)
+        s = texture(u_scatter, vec2((world.x - u_scatter_rect.x) * u_scatter_rect.z,
+                                    (u_scatter_rect.y - world.y) * u_scatter_rect.w)).rg;
+    float out_f = u_scattering == 1 ? u_albedo * scale * s.r : 0.0;
+    if (u_earthshine > 0.0) {
+        float mu_e = dot(n, u_earth);
+        float g_e = degrees(acos(clamp(dot(u_earth, e), -1.0, 1.0)));
+        float r_e = u_brdf == 3 ? hapke(n, u_earth, e, scale) : reflectance(mu_e, mu, g_e, scale);
+        out_f += u_earthshine * s.g * r_e;
+    }
+    return out_f;
 }
 
 void main() {
@@ -172,7 +253,7 @@ void main() {
     float g = degrees(acos(clamp(dot(u_sun, e), -1.0, 1.0)));
     float scale = albedo_scale(world);
     float refl = u_brdf == 3 ? hapke(n, u_sun, e, scale) : reflectance(mu0, mu, g, scale);
-    out_radiance = refl * visibility(n, mu0);
+    out_radiance = refl * visibility(n, mu0) + secondary(n, world, e, mu, scale);
     out_range = r;
     out_normal = vec4(n, 1.0);
     float z = max(dot(v_rel, u_axis), 1e-6);

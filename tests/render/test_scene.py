@@ -125,7 +125,7 @@ def test_one_shadow_map_setup_covers_receivers_and_holds_casters(sun, spread, ma
     # shade a receiver is in the map (casters behind all receivers need not be)
     assert np.all(_light_coords(m.light_from_world, casters)[:, 2] > 0)
     assert len(gpu.draws) == 1 and gpu.draws[0][3] == ["batch"]
-    assert gpu.draws[0][0] is m.framebuffer and gpu.draws[0][1] == 256
+    assert gpu.draws[0][0] is m.framebuffer and gpu.draws[0][1] == (256, 256)
     assert seen["extent"] == pytest.approx(m.texel_m * 256)
     x0, y0, x1, y1 = seen["window"]
     light_xy = receivers @ light_basis(sun)[:2].T
