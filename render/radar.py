@@ -21,8 +21,9 @@ Outputs of a measurement (:class:`RadarReturn`):
 - ``range``: the nearest surface inside the half-power beam (``theta <= width / 2``), metres;
   NaN when that part of the beam meets nothing. This is the leading edge an altimeter tracks.
 - ``histogram``: returned power binned by range (``range_bins`` of ``range_resolution`` m from
-  ``range``) and by radial velocity (``doppler_bins`` across ``[-max_velocity,
-  max_velocity]`` m/s), normalised to a total of 1. The radial velocity of a ray is
+  the bin holding the nearest return of the whole sampled beam) and by radial velocity (``doppler_bins`` across ``[-max_velocity,
+  max_velocity]`` m/s), normalised so that the whole sampled beam sums to 1 (what falls
+  outside the bins is ``power_outside``). The radial velocity of a ray is
   ``v_r = (v - v_s) . u``, ``u`` the ray's unit direction, ``v`` the platform velocity and
   ``v_s`` the surface's (``omega x p`` of a turning body): positive while closing. With a
   ``wavelength`` the Doppler shift is ``2 v_r / wavelength`` Hz.
