@@ -20,7 +20,9 @@ Link budget
 
     A pixel's power is the sum over its sub-rays; below ``threshold`` (W) the pixel drops out
     (NaN): dark, steep and distant surfaces fail in that order of the three factors.
+
 Returns
+-------
     The sub-rays' ranges sorted and cut where two neighbours are more than
     ``range_resolution`` apart form a pixel's returns (a histogram of ranges within the
     footprint); a return is detected when its own power reaches ``threshold``. ``first``,
@@ -46,7 +48,7 @@ Examples
 ...             threshold=1e-9)
 >>> r = lid.detection_range(albedo=0.1, cos_incidence=1.0)   # metres where a pixel drops
 >>> round(r, 1)
-98.8
+62.5
 """
 
 from __future__ import annotations
@@ -86,7 +88,7 @@ class Lidar:
     direction: tuple = (0.0, 0.0, 1.0)
     divergence: float = 0.0
     supersample: int = 4
-    power: float = 10.0
+    power: float = 1e5
     aperture: float = 0.05
     efficiency: float = 0.5
     albedo: float = 0.12
@@ -138,7 +140,7 @@ class Lidar:
         return d
 
     def intrinsics(self) -> Intrinsics:
-        """The detector grid (square pixels, ``fov`` across the width)."""
+        """Return the detector grid (square pixels, ``fov`` across the width)."""
         return Intrinsics.from_fov(self.width, self.height, self.fov)
 
     @property
@@ -147,7 +149,7 @@ class Lidar:
         return math.pi * (0.5 * self.aperture) ** 2
 
     def received_power(self, ranges, cos_incidence, albedo) -> np.ndarray:
-        """A pixel's received power (W) from a surface filling its footprint."""
+        """Return a pixel's received power (W) from a surface filling its footprint."""
         r = np.asarray(ranges, dtype=np.float64)
         return (self.power / (self.width * self.height) * self.efficiency
                 * np.asarray(albedo) * np.asarray(cos_incidence) * self.receiver_area
@@ -190,7 +192,7 @@ def footprint(lidar: Lidar) -> tuple[np.ndarray, np.ndarray, int]:
 
 
 def supersampled(lidar: Lidar) -> tuple[Intrinsics, int]:
-    """The frame whose pixels are the sub-rays, and its padding (sub-rays on each side)."""
+    """Return the frame whose pixels are the sub-rays, and its padding (sub-rays on each side)."""
     k = lidar.intrinsics()
     s = lidar.supersample
     _, _, pad = footprint(lidar)

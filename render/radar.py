@@ -21,10 +21,10 @@ Outputs of a measurement (:class:`RadarReturn`):
 - ``range``: the nearest surface inside the half-power beam (``theta <= width / 2``), metres;
   NaN when that part of the beam meets nothing. This is the leading edge an altimeter tracks.
 - ``histogram``: returned power binned by range (``range_bins`` of ``range_resolution`` m from
-  the bin holding the nearest return of the whole sampled beam) and by radial velocity (``doppler_bins`` across ``[-max_velocity,
-  max_velocity]`` m/s), normalised so that the whole sampled beam sums to 1 (what falls
-  outside the bins is ``power_outside``). The radial velocity of a ray is
-  ``v_r = (v - v_s) . u``, ``u`` the ray's unit direction, ``v`` the platform velocity and
+  the bin holding the nearest return of the whole sampled beam) and by radial velocity
+  (``doppler_bins`` across ``[-max_velocity, max_velocity]`` m/s), normalised so that the
+  whole sampled beam sums to 1 (what falls outside the bins is ``power_outside``). The
+  radial velocity of a ray is ``v_r = (v - v_s) . u``, ``u`` the ray's unit direction, ``v`` the platform velocity and
   ``v_s`` the surface's (``omega x p`` of a turning body): positive while closing. With a
   ``wavelength`` the Doppler shift is ``2 v_r / wavelength`` Hz.
 - ``velocity``: the power-weighted mean radial velocity, and ``boresight_velocity`` the
@@ -149,7 +149,7 @@ class RadarBeam:
         return (x <= 0.5).astype(np.float64)
 
     def intrinsics(self) -> Intrinsics:
-        """The square frame that samples the beam."""
+        """Return the square frame that samples the beam."""
         return Intrinsics.from_fov(self.pixels, self.pixels, self.width * self.field)
 
 
@@ -167,7 +167,7 @@ class RadarReturn:
     direction: tuple
 
     def as_dict(self) -> dict:
-        """The scalars as plain data (NaN as None)."""
+        """Return the scalars as plain data (NaN as None)."""
         def f(x):
             return None if not math.isfinite(x) else float(x)
         return dict(range=f(self.range), velocity=f(self.velocity),

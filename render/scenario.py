@@ -51,6 +51,11 @@ trajectory. Paths are relative to the scenario file. Example (``examples/lunar_d
     # angular_velocity = [wx, wy, wz]  # rad/s, world; default: from the trajectory
     # samples = 0                    # sub-frames per exposure (0: automatic)
 
+    [radar]                          # optional, or [[radar]] for several beams (render.radar)
+    direction = [0.0, 0.0, 1.0]      # camera frame; width (deg), pattern, range/doppler bins
+    [lidar]                          # optional (render.lidar): mode = "flash" or "scan"
+    width = 64
+
     [render]
     shadows = true
     shadow_size = 2048
@@ -87,7 +92,9 @@ from typing import Any
 
 from render.camera import Intrinsics
 from render.events import EventCamera
+from render.lidar import Lidar
 from render.motion import Motion
+from render.radar import RadarBeam
 from render.reflectance import Hapke, check_brdf
 from render.renderer import MAX_ANTIALIAS, Lighting, RenderOptions
 from render.scene_build import SceneBuild
@@ -101,7 +108,7 @@ from terrain.core.tomlfile import read_toml
 __all__ = ["SceneSpec", "Scenario", "TrajectorySpec", "load_scenario"]
 
 _SECTIONS = {"name", "seed", "scene", "sun", "surface", "camera", "sensor", "render", "output",
-             "trajectory", "description", "motion", "events"}
+             "trajectory", "description", "motion", "events", "radar", "lidar"}
 _HAPKE_KEYS = set(Hapke.__dataclass_fields__)
 #: How each section is named in messages.
 _SCENE, _TRAJECTORY, _SURFACE, _SUN, _CAMERA, _RENDER, _OUTPUT = (
@@ -352,6 +359,10 @@ class Scenario:
     motion: dict = field(default_factory=dict)
     #: The event camera of an ``[events]`` table (render.events), None without one.
     events: EventCamera | None = None
+    #: The radar beams of a ``[radar]`` table or ``[[radar]]`` tables (render.radar).
+    radar: tuple[RadarBeam, ...] = ()
+    #: The LIDAR of a ``[lidar]`` table (render.lidar), None without one.
+    lidar: Lidar | None = None
 
     def resolve(self, value: str | Path) -> Path:
         """Resolve a path the scenario names.
@@ -492,7 +503,7 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
         The validated scenario.
     """
     check_keys(data, _SECTIONS, "scenario")
-    for section in _SECTIONS - {"name", "seed", "description"}:
+    for section in _SECTIONS - {"name", "seed", "description", "radar"}:
         if section in data and not isinstance(data[section], dict):
             raise InvalidParameterError(f"scenario [{section}] must be a table; got "
                                         f"{data[section]!r}")
@@ -580,5 +591,12 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
 
     trajectory = TrajectorySpec.from_mapping(data.get("trajectory", {}))
     events = EventCamera.from_mapping(data["events"]) if "events" in data else None
+    beams = data.get("radar", [])
+    if isinstance(beams, dict):
+        beams = [beams]
+    if not isinstance(beams, list) or not all(isinstance(b, dict) for b in beams):
+        raise InvalidParameterError("scenario [radar] must be a table or an array of tables")
+    radar = tuple(RadarBeam.from_mapping(b) for b in beams)
+    lidar = Lidar.from_mapping(data["lidar"]) if "lidar" in data else None
     return Scenario(name, path, seed, scene, lighting, intrinsics, sensor, options, outputs,
-                    trajectory, data, motion, events)
+                    trajectory, data, motion, events, radar, lidar)

@@ -127,7 +127,7 @@ def test_a_scan_during_motion_measures_each_point_from_its_own_time():
 def test_patterns_visit_every_pixel_once_and_keys_are_checked():
     for pattern in ("raster", "spiral"):
         rows, cols = scan_order(Lidar(width=7, height=5, pattern=pattern))
-        assert len(set(zip(rows.tolist(), cols.tolist()))) == 35
+        assert len(set(zip(rows.tolist(), cols.tolist(), strict=True))) == 35
     rows, cols = scan_order(Lidar(width=7, height=5, pattern="spiral"))
     assert (rows[0], cols[0]) == (2, 3)
     dy, dx, pad = footprint(Lidar(supersample=4))
