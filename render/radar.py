@@ -24,9 +24,9 @@ Outputs of a measurement (:class:`RadarReturn`):
   the bin holding the nearest return of the whole sampled beam) and by radial velocity
   (``doppler_bins`` across ``[-max_velocity, max_velocity]`` m/s), normalised so that the
   whole sampled beam sums to 1 (what falls outside the bins is ``power_outside``). The
-  radial velocity of a ray is ``v_r = (v - v_s) . u``, ``u`` the ray's unit direction, ``v`` the platform velocity and
-  ``v_s`` the surface's (``omega x p`` of a turning body): positive while closing. With a
-  ``wavelength`` the Doppler shift is ``2 v_r / wavelength`` Hz.
+  radial velocity of a ray is ``v_r = (v - v_s) . u``, ``u`` the ray's unit direction,
+  ``v`` the platform velocity and ``v_s`` the surface's (``omega x p`` of a turning body):
+  positive while closing. With a ``wavelength`` the Doppler shift is ``2 v_r / wavelength`` Hz.
 - ``velocity``: the power-weighted mean radial velocity, and ``boresight_velocity`` the
   platform's ``v . n`` along the beam direction n (what a velocimeter's beam estimates).
 
