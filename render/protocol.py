@@ -22,12 +22,15 @@ from enum import IntEnum
 
 from render.errors import ProtocolError
 
-__all__ = ["ERROR", "HEADER", "MAGIC", "MAX_REPLY_BODY", "MAX_REQUEST_BODY", "REPLY", "VERSION",
+__all__ = ["ERROR", "HEADER", "MAGIC", "MAX_REPLY_BODY", "MAX_REQUEST_BODY", "MINOR_VERSION",
+           "REPLY", "VERSION",
            "ErrorCode", "MsgType", "error_body", "pack_header", "read_exact", "read_message",
            "unpack_header"]
 
 MAGIC = b"CSRV"
 VERSION = 1
+#: Minor version: requests added within version 1 (reported by INFO; see docs/protocol.md).
+MINOR_VERSION = 2
 #: Header: magic, version (u16), type (u16), request id (u32), body length (u32).
 HEADER = struct.Struct("<4sHHII")
 #: Largest request body the server reads (bytes); checked before reading the body.
@@ -60,6 +63,9 @@ class MsgType(IntEnum):
     GET_RANGE = 0x0021
     GET_NORMALS = 0x0022
     GET_TRUTH = 0x0023
+    GET_RADAR = 0x0024
+    GET_LIDAR = 0x0025
+    GET_EVENTS = 0x0026
     HEIGHT_AT = 0x0030
     PIXEL_RAY = 0x0031
     RAY = 0x0032
@@ -101,6 +107,13 @@ RAY_REPLY = struct.Struct("<7d")      # range, point, normal
 IMAGE_HEAD = struct.Struct("<IIHH")   # width, height, bits, 0
 ARRAY_HEAD = struct.Struct("<II")     # width, height
 ERROR_HEAD = struct.Struct("<HH")     # code, 0
+#: GET_RADAR reply head: range bins, Doppler bins, then range, mean radial velocity, boresight
+#: velocity, power outside the bins, first range edge, range bin, lowest and highest velocity.
+RADAR_HEAD = struct.Struct("<II8d")
+#: GET_EVENTS request: duration (s), most events wanted (0: as many as fit a reply).
+EVENTS_REQUEST = struct.Struct("<dI")
+#: GET_EVENTS reply head: count, width, height, events dropped by max_events, start time (s).
+EVENTS_HEAD = struct.Struct("<IIIId")
 
 #: Body length of each fixed-size request (None: variable).
 REQUEST_SIZES = {MsgType.HELLO: None, MsgType.INFO: 0, MsgType.PING: 0,
@@ -108,7 +121,9 @@ REQUEST_SIZES = {MsgType.HELLO: None, MsgType.INFO: 0, MsgType.PING: 0,
                  MsgType.SET_SENSOR: None, MsgType.SET_MOTION: MOTION.size,
                  MsgType.GET_IMAGE: BITS.size, MsgType.GET_RANGE: 0,
                  MsgType.GET_NORMALS: 0, MsgType.GET_TRUTH: 0, MsgType.HEIGHT_AT: XY.size,
-                 MsgType.PIXEL_RAY: XY.size, MsgType.RAY: RAY.size}
+                 MsgType.PIXEL_RAY: XY.size, MsgType.RAY: RAY.size,
+                 MsgType.GET_RADAR: None, MsgType.GET_LIDAR: None,
+                 MsgType.GET_EVENTS: EVENTS_REQUEST.size}
 
 
 def pack_header(msg_type: int, request_id: int, length: int) -> bytes:

@@ -68,6 +68,7 @@ from render.protocol import (
     IMAGE_HEAD,
     MAX_REQUEST_BODY,
     MAX_TOKEN,
+    MINOR_VERSION,
     MOTION,
     POSE,
     RAY,
@@ -88,6 +89,8 @@ from render.renderer import Lighting, Renderer, View
 from render.scenario import Scenario, parse_scenario
 from render.scene import Scene
 from render.sequence import check_frame_memory, load_scene, render_sample
+from render.server_sensors import SENSOR_REQUESTS
+from render.server_sensors import answer as answer_sensor
 from render.terrain_scene import TerrainScene
 from render.trajectory import Sample, spin_rotation
 from terrain.core.checks import number
@@ -626,6 +629,8 @@ class RenderServer:
             a = frame.range if kind == MsgType.GET_RANGE else frame.normals
             return ARRAY_HEAD.pack(a.shape[1], a.shape[0]) + a.astype(
                 "<f4", copy=False).tobytes()
+        if kind in SENSOR_REQUESTS:
+            return answer_sensor(self, st, kind, body)
         if kind == MsgType.GET_TRUTH:
             _, _, truth = self._frame(st)
             d = truth.as_dict()
@@ -656,7 +661,8 @@ class RenderServer:
 
     def _info(self, st: _State) -> dict:
         lo, hi = self.scene.bounds()
-        out = dict(protocol=VERSION, scenario=self.scenario.name, scene=self.scene.kind,
+        out = dict(protocol=VERSION, protocol_minor=MINOR_VERSION, scenario=self.scenario.name,
+                   scene=self.scene.kind,
                    bounds=[lo.tolist(), hi.tolist()], sun=list(st.lighting.sun),
                    seed=self.scenario.seed, sensor=self._sensor_info(st))
         if isinstance(self.scene, TerrainScene):
