@@ -72,6 +72,10 @@ __all__ = ["MODES", "SCAN_PATTERNS", "Lidar", "LidarImage", "LidarScan", "flash"
 MODES = ("flash", "scan")
 SCAN_PATTERNS = ("raster", "spiral")
 STREAM_RANGE_NOISE = stream_id("lidar-range-noise")
+#: Peak bytes per sub-ray of a flash: the rendered frame and its read-backs (as a camera
+#: frame), the world rays and incidence cosines (float64), and the footprint gathers (about
+#: ten float64 arrays of pixels x sub-rays a footprint).
+FLASH_BYTES_PER_SUB_RAY = 96 + 32 + 10 * 8
 #: Frames of a look: (pose, intrinsics) -> an object with ``range`` (h, w), ``normals``
 #: (h, w, 3) and optionally ``albedo`` (h, w), the surface's albedo relative to the scene's.
 Look = Callable[[Pose, Intrinsics], Any]
@@ -307,7 +311,13 @@ def flash(lidar: Lidar, look: Look, pose: Pose, *, seed: int = 0, frame: int = 0
     seed, frame : int
         Key the range noise.
     """
+    from terrain.core import memory
+
     k, _ = supersampled(lidar)
+    dy, _, _ = footprint(lidar)
+    memory.require(max(k.width * k.height, lidar.width * lidar.height * len(dy))
+                   * FLASH_BYTES_PER_SUB_RAY,
+                   f"a {lidar.width}x{lidar.height} flash of {len(dy)} sub-rays a pixel")
     lp = beam_frame(pose, lidar.direction)
     fr = look(lp, k)
     rays = k.rays() @ lp.rotation.T

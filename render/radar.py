@@ -56,6 +56,9 @@ __all__ = ["PATTERNS", "RadarBeam", "RadarReturn", "beam_frame", "measure", "rad
 PATTERNS = ("gaussian", "sinc2", "uniform")
 #: x at which ``sinc(x)^2 = 1/2`` (normalised sinc): the half-power point of a uniform aperture.
 SINC2_HALF_POWER = 0.442946470689452
+#: Peak bytes per sampled ray: the rendered frame and its read-backs, and about twenty
+#: float64 values a ray (rays, points, velocities, weights).
+RADAR_BYTES_PER_RAY = 96 + 20 * 8
 #: Frames of a look: (pose, intrinsics) -> an object with ``range`` (h, w) and ``normals``
 #: (h, w, 3) (render.renderer.Frame, or an analytic stand-in).
 Look = Callable[[Pose, Intrinsics], Any]
@@ -276,6 +279,11 @@ def measure(beam: RadarBeam, look: Look, pose: Pose, velocity, **surface) -> Rad
     **surface
         ``body_angular_velocity`` and ``centre`` of :func:`radar_response`.
     """
+    from terrain.core import memory
+
+    memory.require(beam.pixels ** 2 * RADAR_BYTES_PER_RAY
+                   + beam.range_bins * beam.doppler_bins * 8,
+                   f"a radar beam of {beam.pixels}x{beam.pixels} rays")
     bp = beam_frame(pose, beam.direction)
     frame = look(bp, beam.intrinsics())
     return radar_response(beam, bp, frame.range, frame.normals, velocity, **surface)

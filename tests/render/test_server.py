@@ -283,6 +283,21 @@ def test_radar_lidar_and_events_over_the_server_agree_with_the_range_image(serve
             c.get_events(0.0)
         with pytest.raises(ServerError, match="scan"):
             c.get_lidar(mode="scan")
+        with pytest.raises(ServerError, match="too large"):
+            c.get_radar(range_bins=65536, doppler_bins=65536)
+        with pytest.raises(ServerError, match="sub-rays a side"):
+            c.get_lidar(width=4096, supersample=4)
+        with pytest.raises(ServerError, match="duration"):
+            c.get_events(math.nan)
+        for code, body in ((0x0024, b"[1, 2"), (0x0025, b"\xff"), (0x0026, b"\x00" * 5)):
+            with pytest.raises(ServerError) as err:
+                c.request(code, body)
+            assert err.value.code == E_MALFORMED, err.value
+        assert c.get_radar(width=6.0, pixels=64)["range"] == radar["range"]
+    with Client("127.0.0.1", server[1]) as fresh:
+        for call in (fresh.get_radar, fresh.get_lidar, lambda: fresh.get_events(0.01)):
+            with pytest.raises(ServerError, match="SET_POSE"):
+                call()
 
 
 # ---------------------------------------------------------------- surface queries
