@@ -98,6 +98,24 @@ range_noise = 0.02
         assert np.nanmedian(f["range"][1]) < np.nanmedian(f["range"][0])
 
 
+def test_a_scan_through_the_renderer_follows_a_descent_point_by_point(renderer):
+    from render.instruments import renderer_look
+    from render.lidar import scan
+    from render.motion import Motion
+
+    scene = plane_mesh((0.0, 0.0, 1.0))
+    look = renderer_look(renderer, scene, Lighting((0.3, 0.2, 1.0)), RenderOptions(), 0.0,
+                         albedo=True)
+    pose = look_at((0.0, 0.0, 300.0), (0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0))
+    lid = Lidar(mode="scan", width=8, height=8, fov=6.0, point_rate=64.0, supersample=1,
+                threshold=0.0, tolerance=0.05, pattern="spiral")
+    sc = scan(lid, look, pose, 0.0, Motion(velocity=(0.0, 0.0, -50.0)))
+    # numpy: each point's ray, from where the sensor was at its time, meets z = 0 at
+    want = sc.position[:, 2] / -sc.direction[:, 2]
+    assert np.max(np.abs(sc.range - want)) < 0.3        # within the slices' tolerance
+    assert sc.range[-1] < sc.range[0] - 40.0            # 50 m lower after 63/64 s
+
+
 def test_unknown_keys_in_the_new_tables_are_refused(tmp_path):
     import tomllib
 
