@@ -416,10 +416,19 @@ def scan(lidar: Lidar, look: Look, pose: Pose, t0: float, motion, *, seed: int =
         for name in ("range", "first", "last", "strongest", "power"):
             out[name][sel] = getattr(img, name)[r, c]
         ret[sel] = img.returns[r, c]
-    for i in range(n):
-        p = motion.pose_at(pose, times[i])
-        bp = beam_frame(p, lidar.direction)
-        pos[i] = p.position
-        dirs[i] = bp.rotation @ rays_c[rows[i], cols[i]]
+    # each point's pose at its own time (Motion.pose_at, vectorised: Rodrigues' formula)
+    pos[:] = np.asarray(pose.position) + np.outer(times, motion.velocity)
+    beam_c = beam_frame(Pose((0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0)), lidar.direction).rotation
+    d0 = pose.rotation @ (beam_c @ rays_c[rows, cols].T)          # (3, n) at t0, world
+    d0 = d0.T
+    w = np.asarray(motion.angular_velocity, dtype=np.float64)
+    rate = float(np.linalg.norm(w))
+    if rate > 0:
+        axis = w / rate
+        a = (rate * times)[:, None]
+        dirs[:] = (d0 * np.cos(a) + np.cross(axis, d0) * np.sin(a)
+                   + axis * (d0 @ axis)[:, None] * (1 - np.cos(a)))
+    else:
+        dirs[:] = d0
     return LidarScan(t0 + times, rows, cols, pos, dirs, out["range"], out["first"],
                      out["last"], out["strongest"], ret, out["power"], slices)
