@@ -87,6 +87,12 @@ range_noise = 0.02
 """
     (tmp_path / "s.toml").write_text(text)
     manifest = run_sequence(load_scenario(tmp_path / "s.toml"), tmp_path / "run")
+    run_sequence(load_scenario(tmp_path / "s.toml"), tmp_path / "again")
+    for name in ("radar.npz", "lidar.npz"):   # the same scenario and seed, the same arrays
+        with np.load(tmp_path / "run" / name) as f, np.load(tmp_path / "again" / name) as g:
+            assert sorted(f.files) == sorted(g.files)
+            assert all(np.array_equal(f[k], g[k], equal_nan=f[k].dtype.kind == "f")
+                       for k in f.files)
     assert manifest["radar"]["measurements"] == 4
     assert manifest["lidar"]["measurements"] == 2 * 16 * 12
     with np.load(tmp_path / "run" / "radar.npz") as f:
