@@ -10,7 +10,8 @@ The beam is a cone about a direction fixed in the camera (body) frame, with a ga
 
 The beam is sampled by rays: a small square frame rendered from the platform along the
 boresight (``pixels`` x ``pixels``, ``field`` beam widths across), whose range and normal
-images give every sampled ray's range R, incidence i and surface point. A ray's returned power follows the radar equation for a distributed target,
+images give every sampled ray's range R, incidence i and surface point. A ray's returned
+power follows the radar equation for a distributed target,
 ``dP ~ G^2 sigma0(i) dA / R^4`` with the illuminated area ``dA = R^2 dOmega / cos i`` and
 Lambert's law for the backscatter, ``sigma0 = cos^2 i`` (Ulaby, Moore & Fung 1982, vol. II,
 ch. 12), so ``dP ~ G^2 cos(i) dOmega / R^2``, ``dOmega`` being the ray's pixel solid angle.
