@@ -102,7 +102,7 @@ def parse_toml_block(body: str, where: Path) -> None:
         from terrain.craters.population import Population
 
         Population.from_toml(path)
-    elif "sensor" in data or "motion" in data:
+    elif {"sensor", "motion", "radar", "lidar", "events"} & set(data):
         from render.scenario import parse_scenario
 
         parse_scenario({**data, "scene": {"type": "terrain", "stack": "stack"},
