@@ -66,11 +66,11 @@ def renderer_look(renderer: Renderer, scene: Scene, lighting: Lighting, options:
 
 def record_radar(renderer: Renderer, scene: Scene, beams: Sequence[RadarBeam],
                  lighting: Lighting, options: RenderOptions, samples: Sequence[Sample],
-                 run_dir: Path, **meta) -> dict:
-    """Measure every beam at every frame of a trajectory into ``run_dir / "radar.npz"``.
+                 path: Path, *, frames: Sequence[int] | None = None, **meta) -> dict:
+    """Measure every beam at frames of a trajectory (all by default) into ``path`` (npz).
 
-    The platform's velocity (and an asteroid's spin) at a frame come from the trajectory
-    (:func:`render.motion.trajectory_velocities`).
+    The platform's velocity (and an asteroid's spin) at a frame come from the whole
+    trajectory (:func:`render.motion.trajectory_velocities`).
 
     Returns
     -------
@@ -79,14 +79,16 @@ def record_radar(renderer: Renderer, scene: Scene, beams: Sequence[RadarBeam],
     """
     t0 = time.perf_counter()
     out: list[list[RadarReturn]] = []
-    for i, s in enumerate(samples):
+    frames = range(len(samples)) if frames is None else frames
+    for i in frames:
+        s = samples[i]
         motion = trajectory_velocities(samples, i)
         scene.set_body_rotation(s.body_rotation)
         look = renderer_look(renderer, scene, lighting, options, s.time)
         out.append([measure(b, look, s.pose, motion.velocity,
                             body_angular_velocity=_spin(scene, motion)) for b in beams])
-    write_radar(run_dir / "radar.npz", out, beams, [s.time for s in samples], **meta)
-    return dict(file="radar.npz", beams=len(beams), measurements=len(samples) * len(beams),
+    write_radar(path, out, beams, [samples[i].time for i in frames], **meta)
+    return dict(file=Path(path).name, beams=len(beams), measurements=len(frames) * len(beams),
                 seconds=time.perf_counter() - t0)
 
 
@@ -118,9 +120,9 @@ def write_radar(path: Path, returns: list[list[RadarReturn]], beams: Sequence[Ra
 
 
 def record_lidar(renderer: Renderer, scene: Scene, lidar: Lidar, lighting: Lighting,
-                 options: RenderOptions, samples: Sequence[Sample], run_dir: Path, *,
-                 seed: int = 0, **meta) -> dict:
-    """Flash (or scan, from each frame's time) at every frame into ``run_dir / "lidar.npz"``.
+                 options: RenderOptions, samples: Sequence[Sample], path: Path, *,
+                 frames: Sequence[int] | None = None, seed: int = 0, **meta) -> dict:
+    """Flash (or scan, from each frame's time) at frames (all by default) into ``path`` (npz).
 
     Returns
     -------
@@ -130,7 +132,9 @@ def record_lidar(renderer: Renderer, scene: Scene, lidar: Lidar, lighting: Light
     t0 = time.perf_counter()
     flashes: list[LidarImage] = []
     scans: list[LidarScan] = []
-    for i, s in enumerate(samples):
+    frames = range(len(samples)) if frames is None else frames
+    for i in frames:
+        s = samples[i]
         scene.set_body_rotation(s.body_rotation)
         look = renderer_look(renderer, scene, lighting, options, s.time, albedo=True)
         if lidar.mode == "flash":
@@ -142,20 +146,19 @@ def record_lidar(renderer: Renderer, scene: Scene, lidar: Lidar, lighting: Light
     if flashes:
         arrays = {name: np.stack([getattr(f, name) for f in flashes])
                   for name in ("range", "first", "last", "strongest", "returns", "power")}
-        arrays["time"] = np.array([s.time for s in samples])
+        arrays["time"] = np.array([samples[i].time for i in frames])
         valid = np.isfinite(arrays["range"])
     else:
         arrays = {name: np.concatenate([getattr(c, name) for c in scans])
                   for name in ("time", "row", "col", "position", "direction", "range", "first",
                                "last", "strongest", "returns", "power")}
         arrays["frame"] = np.concatenate([np.full(len(c.time), i, np.int64)
-                                          for i, c in enumerate(scans)])
+                                          for i, c in zip(frames, scans, strict=True)])
         valid = np.isfinite(arrays["range"])
     arrays["lidar"] = settings
-    path = run_dir / "lidar.npz"
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:
             np.savez_compressed(fh, **arrays)  # type: ignore[arg-type]
-    return dict(file="lidar.npz", mode=lidar.mode, measurements=int(valid.size),
+    return dict(file=Path(path).name, mode=lidar.mode, measurements=int(valid.size),
                 dropout_fraction=float(1.0 - valid.mean()) if valid.size else 0.0,
                 slices=sum(c.slices for c in scans), seconds=time.perf_counter() - t0)

@@ -102,6 +102,15 @@ range_noise = 0.02
     with np.load(tmp_path / "run" / "lidar.npz") as f:
         assert f["range"].shape == (2, 12, 16)
         assert np.nanmedian(f["range"][1]) < np.nanmedian(f["range"][0])
+    # `render frame` writes the same measurements for its one frame
+    from tests.cli_helpers import run
+
+    r = run("render", "frame", tmp_path / "s.toml", "-o", tmp_path / "one.png", "--index", 1)
+    assert r.exit_code == 0, r.output
+    for name in ("radar", "lidar"):
+        with np.load(tmp_path / f"one_{name}.npz") as f, \
+                np.load(tmp_path / "run" / f"{name}.npz") as g:
+            assert np.array_equal(f["range"][0], g["range"][1], equal_nan=True)
 
 
 def test_a_scan_through_the_renderer_follows_a_descent_point_by_point(renderer):
