@@ -5,8 +5,11 @@
  *
  * Sends HELLO (with TOKEN, if given), SET_POSE and GET_IMAGE (the sensor's bit depth), writes
  * the image as a binary PGM (8 or 16 bit, big-endian samples as PGM requires) and prints the
- * laser-altimeter range straight down (RAY) on stdout. Exit status 0, or 1 with the server's
- * error reason on stderr.
+ * laser-altimeter range straight down (RAY) on stdout. Then, still at that pose, it measures
+ * with the scenario's radar beam (GET_RADAR: its range and mean radial velocity), flashes the
+ * LIDAR (GET_LIDAR: the range of the centre pixel) and, turning at 1 rad/s about the world x
+ * axis (SET_MOTION), runs the event camera for 0.05 s (GET_EVENTS: the number of events and of ON events),
+ * printing one line each. Exit status 0, or 1 with the server's error reason on stderr.
  */
 #include <arpa/inet.h>
 #include <netdb.h>
@@ -121,6 +124,34 @@ int main(int argc, char **argv) {
     uint8_t *hit = request(0x0032, ray, 48, &n);
     printf("%.6f\n", get_f64(hit));
     free(hit);
+
+    uint8_t *radar = request(0x0026, NULL, 0, &n);  /* empty body: the scenario's beam */
+    uint32_t nr = get_u32(radar), nd = get_u32(radar + 4);
+    if (n != 72 + 4 * (size_t)nr * nd) { fprintf(stderr, "bad radar size\n"); return 1; }
+    printf("%.6f %.6f\n", get_f64(radar + 8), get_f64(radar + 16));  /* range, velocity */
+    free(radar);
+
+    uint8_t *lidar = request(0x0027, NULL, 0, &n);  /* empty body: the scenario's LIDAR */
+    uint32_t lw = get_u32(lidar), lh = get_u32(lidar + 4);
+    if (n != 8 + 21 * (size_t)lw * lh) { fprintf(stderr, "bad lidar size\n"); return 1; }
+    float centre;
+    uint32_t bits32 = get_u32(lidar + 8 + 4 * ((size_t)(lh / 2) * lw + lw / 2));
+    memcpy(&centre, &bits32, 4);
+    printf("%.6f\n", (double)centre);
+    free(lidar);
+
+    uint8_t motion[72] = {0};
+    put_f64(motion + 24, 1.0);    /* angular velocity (1, 0, 0) rad/s */
+    free(request(0x0013, motion, 72, &n));
+    uint8_t ev[12] = {0};
+    put_f64(ev, 0.05);            /* duration (s); max events 0: as many as fit */
+    uint8_t *events = request(0x0028, ev, 12, &n);
+    uint32_t count = get_u32(events);
+    if (n != 24 + 13 * (size_t)count) { fprintf(stderr, "bad events size\n"); return 1; }
+    uint32_t on = 0;
+    for (uint32_t i = 0; i < count; i++) on += (int8_t)events[24 + 12 * (size_t)count + i] > 0;
+    printf("%u %u\n", count, on);
+    free(events);
     close(fd);
     return 0;
 }

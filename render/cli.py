@@ -99,7 +99,8 @@ def frame(scenario_file: Path, output: Path, index: int | None,
 
     Writes OUT.png, OUT_range.tif, OUT_normals.tif, OUT_truth.json (and OUT_radiance.tif
     where [output] radiance is on; OUT_labels/ with labels, its flow to the next trajectory
-    frame where there is one).
+    frame where there is one; OUT_radar.npz and OUT_lidar.npz where the scenario has [radar]
+    and [lidar] tables: the run files of docs/sensors.md for this one frame).
     """
     from dataclasses import replace
 
@@ -114,7 +115,8 @@ def frame(scenario_file: Path, output: Path, index: int | None,
         raise InvalidParameterError(f"frame output must be a .png file; got '{output}'")
     stem = output.with_suffix("")
     companions = {"range": Path(f"{stem}_range.tif"), "normals": Path(f"{stem}_normals.tif"),
-                  "radiance": Path(f"{stem}_radiance.tif"), "truth": Path(f"{stem}_truth.json")}
+                  "radiance": Path(f"{stem}_radiance.tif"), "truth": Path(f"{stem}_truth.json"),
+                  "radar": Path(f"{stem}_radar.npz"), "lidar": Path(f"{stem}_lidar.npz")}
     for p in (output, *companions.values()):
         check_output_path(p, [scenario_file])
     scenario = _with_labels(load_scenario(scenario_file).with_overrides(None, resolution),
@@ -131,6 +133,8 @@ def frame(scenario_file: Path, output: Path, index: int | None,
                                          samples)
     stale = [companions[k] for k in ("range", "normals", "radiance")
              if not scenario.outputs.get(k)]
+    stale += [companions[k] for k, on in (("radar", bool(scenario.radar)),
+                                          ("lidar", scenario.lidar is not None)) if not on]
     with transaction(stale=stale, folders=[output.parent]):  # image and truth as one set
         write_png(image, output, inputs=[scenario_file])
         if scenario.outputs["range"]:
@@ -147,6 +151,18 @@ def frame(scenario_file: Path, output: Path, index: int | None,
                                                             index, fr, truth, output))
         with atomic_path(companions["truth"]) as tmp:
             tmp.write_text(json.dumps(truth.as_dict(), indent=2), encoding="utf-8")
+        if scenario.radar or scenario.lidar is not None:
+            from render.instruments import record_lidar, record_radar
+
+            with keep_current():
+                if scenario.radar:
+                    record_radar(renderer, scene, scenario.radar, scenario.lighting,
+                                 scenario.options, samples, companions["radar"],
+                                 frames=[index], scenario=scenario.name, seed=scenario.seed)
+                if scenario.lidar is not None:
+                    record_lidar(renderer, scene, scenario.lidar, scenario.lighting,
+                                 scenario.options, samples, companions["lidar"],
+                                 frames=[index], seed=scenario.seed, scenario=scenario.name)
     click.echo(f"wrote {output} (frame {index}, {fr.drawn.get('triangles', 0)} triangles)",
                err=True)
 

@@ -30,11 +30,14 @@ from render.protocol import (
     BITS,
     DEFAULT_PORT,
     ERROR,
+    EVENTS_HEAD,
+    EVENTS_REQUEST,
     HEIGHT_REPLY,
     IMAGE_HEAD,
     MAX_REPLY_BODY,
     MOTION,
     POSE,
+    RADAR_HEAD,
     RAY,
     RAY_REPLY,
     REPLY,
@@ -245,6 +248,81 @@ class Client:
         body = self.request(MsgType.GET_NORMALS)
         w, h = _unpack(ARRAY_HEAD, body, "GET_NORMALS", exact=False)
         return _array(body[ARRAY_HEAD.size:], np.dtype("<f4"), (h, w, 3)).astype(np.float32)
+
+    def get_radar(self, **beam) -> dict:
+        """Measure with a radar beam from the current pose and motion (GET_RADAR).
+
+        Parameters
+        ----------
+        **beam
+            ``[radar]`` keys (render.radar.RadarBeam) over the scenario's first beam.
+
+        Returns
+        -------
+        dict
+            ``range`` (m, NaN: nothing in the half-power beam), ``velocity`` (mean radial,
+            m/s), ``boresight_velocity``, ``power_outside``, ``histogram`` ((range bins,
+            Doppler bins) float32, sums to 1 - power_outside), ``range_edges`` and
+            ``velocity_edges``.
+        """
+        body = self.request(MsgType.GET_RADAR, json.dumps(beam).encode("utf-8") if beam else b"")
+        nr, nd, rng, vel, vb, out, r0, dr, v0, v1 = _unpack(RADAR_HEAD, body, "GET_RADAR",
+                                                              exact=False)
+        hist = _array(body[RADAR_HEAD.size:], np.dtype("<f4"), (nr, nd)).astype(np.float32)
+        return dict(range=rng, velocity=vel, boresight_velocity=vb, power_outside=out,
+                    histogram=hist, range_edges=r0 + dr * np.arange(nr + 1),
+                    velocity_edges=np.linspace(v0, v1, nd + 1))
+
+    def get_lidar(self, **lidar) -> dict:
+        """Flash the LIDAR from the current pose (GET_LIDAR).
+
+        Parameters
+        ----------
+        **lidar
+            ``[lidar]`` keys (render.lidar.Lidar) over the scenario's table.
+
+        Returns
+        -------
+        dict
+            ``range``, ``first``, ``last``, ``strongest`` ((height, width) float32 metres,
+            NaN: no return), ``power`` (W) and ``returns`` (uint8).
+        """
+        body = self.request(MsgType.GET_LIDAR, json.dumps(lidar).encode("utf-8")
+                            if lidar else b"")
+        w, h = _unpack(ARRAY_HEAD, body, "GET_LIDAR", exact=False)
+        n = w * h
+        data = body[ARRAY_HEAD.size:]
+        if len(data) != 21 * n:
+            raise ProtocolError(ErrorCode.MALFORMED, f"GET_LIDAR reply holds {len(data)} bytes;"
+                                f" expected {21 * n}")
+        out: dict[str, np.ndarray] = {
+            name: _array(data[4 * n * i:4 * n * (i + 1)], np.dtype("<f4"), (h, w))
+               .astype(np.float32)
+               for i, name in enumerate(("range", "first", "last", "strongest", "power"))}
+        out["returns"] = np.frombuffer(data[20 * n:], np.uint8).reshape(h, w).copy()
+        return out
+
+    def get_events(self, duration: float, max_events: int = 0) -> dict:
+        """Run the event camera from the current pose over ``duration`` s (GET_EVENTS).
+
+        Returns
+        -------
+        dict
+            ``x``, ``y`` (uint16), ``t`` (int64 microseconds after ``start``), ``p`` (int8),
+            ``width``, ``height``, ``start`` (s) and ``dropped`` (events beyond max_events).
+        """
+        body = self.request(MsgType.GET_EVENTS, EVENTS_REQUEST.pack(float(duration),
+                                                                     int(max_events)))
+        n, w, h, dropped, start = _unpack(EVENTS_HEAD, body, "GET_EVENTS", exact=False)
+        data = body[EVENTS_HEAD.size:]
+        if len(data) != 13 * n:
+            raise ProtocolError(ErrorCode.MALFORMED, f"GET_EVENTS reply holds {len(data)} "
+                                f"bytes; expected {13 * n}")
+        return dict(x=np.frombuffer(data[:2 * n], "<u2").astype(np.uint16),
+                    y=np.frombuffer(data[2 * n:4 * n], "<u2").astype(np.uint16),
+                    t=np.frombuffer(data[4 * n:12 * n], "<i8").astype(np.int64),
+                    p=np.frombuffer(data[12 * n:], "i1").astype(np.int8),
+                    width=w, height=h, start=start, dropped=dropped)
 
     def get_truth(self) -> dict:
         """Return the frame's ground truth (a run's truth.json entry, without file names)."""

@@ -30,9 +30,10 @@ __all__ = ["ERROR", "HEADER", "MAGIC", "MAX_REPLY_BODY", "MAX_REQUEST_BODY", "MI
 MAGIC = b"CSRV"
 VERSION = 1
 #: Minor version (INFO's ``protocol_minor``): additions a version-1 client may use or ignore.
-#: 1: SET_LIGHT (the sun on a date); 2: GET_LABELS and GET_MASKS (image-space labels).
-PROTOCOL_MINOR = 2
-#: The same (the name the label requests' code uses).
+#: 1: SET_LIGHT (the sun on a date); 2: GET_LABELS and GET_MASKS (image-space labels);
+#: 3: GET_RADAR, GET_LIDAR and GET_EVENTS (instruments).
+PROTOCOL_MINOR = 3
+#: The same (the name the label and instrument requests' code uses).
 MINOR_VERSION = PROTOCOL_MINOR
 #: Header: magic, version (u16), type (u16), request id (u32), body length (u32).
 HEADER = struct.Struct("<4sHHII")
@@ -69,6 +70,9 @@ class MsgType(IntEnum):
     GET_TRUTH = 0x0023
     GET_LABELS = 0x0024
     GET_MASKS = 0x0025
+    GET_RADAR = 0x0026
+    GET_LIDAR = 0x0027
+    GET_EVENTS = 0x0028
     HEIGHT_AT = 0x0030
     PIXEL_RAY = 0x0031
     RAY = 0x0032
@@ -110,6 +114,13 @@ RAY_REPLY = struct.Struct("<7d")      # range, point, normal
 IMAGE_HEAD = struct.Struct("<IIHH")   # width, height, bits, 0
 ARRAY_HEAD = struct.Struct("<II")     # width, height
 ERROR_HEAD = struct.Struct("<HH")     # code, 0
+#: GET_RADAR reply head: range bins, Doppler bins, then range, mean radial velocity, boresight
+#: velocity, power outside the bins, first range edge, range bin, lowest and highest velocity.
+RADAR_HEAD = struct.Struct("<II8d")
+#: GET_EVENTS request: duration (s), most events wanted (0: as many as fit a reply).
+EVENTS_REQUEST = struct.Struct("<dI")
+#: GET_EVENTS reply head: count, width, height, events dropped by max_events, start time (s).
+EVENTS_HEAD = struct.Struct("<IIIId")
 
 #: Body length of each fixed-size request (None: variable).
 REQUEST_SIZES = {MsgType.HELLO: None, MsgType.INFO: 0, MsgType.PING: 0,
@@ -119,7 +130,9 @@ REQUEST_SIZES = {MsgType.HELLO: None, MsgType.INFO: 0, MsgType.PING: 0,
                  MsgType.GET_IMAGE: BITS.size, MsgType.GET_RANGE: 0,
                  MsgType.GET_NORMALS: 0, MsgType.GET_TRUTH: 0, MsgType.GET_LABELS: 0,
                  MsgType.GET_MASKS: 0, MsgType.HEIGHT_AT: XY.size,
-                 MsgType.PIXEL_RAY: XY.size, MsgType.RAY: RAY.size}
+                 MsgType.PIXEL_RAY: XY.size, MsgType.RAY: RAY.size,
+                 MsgType.GET_RADAR: None, MsgType.GET_LIDAR: None,
+                 MsgType.GET_EVENTS: EVENTS_REQUEST.size}
 
 
 def pack_header(msg_type: int, request_id: int, length: int) -> bytes:

@@ -61,6 +61,11 @@ trajectory. Paths are relative to the scenario file. Example (``examples/lunar_d
     # angular_velocity = [wx, wy, wz]  # rad/s, world; default: from the trajectory
     # samples = 0                    # sub-frames per exposure (0: automatic)
 
+    [radar]                          # optional, or [[radar]] for several beams (render.radar)
+    direction = [0.0, 0.0, 1.0]      # camera frame; width (deg), pattern, range/doppler bins
+    [lidar]                          # optional (render.lidar): mode = "flash" or "scan"
+    width = 64
+
     [render]
     shadows = true
     shadow_size = 2048
@@ -115,7 +120,9 @@ from render.ephemeris import DATED_KEYS, Sky, SunEphemeris, site_on_map
 from render.events import EventCamera
 from render.labels import LabelSpec
 from render.lamp import Lamp
+from render.lidar import Lidar
 from render.motion import Motion
+from render.radar import RadarBeam
 from render.reflectance import Hapke, check_brdf
 from render.renderer import MAX_ANTIALIAS, Lighting, RenderOptions
 from render.scene_build import SceneBuild
@@ -131,7 +138,7 @@ __all__ = ["Dispersion", "SceneSpec", "Scenario", "TrajectorySpec", "load_scenar
 
 _SECTIONS = {"name", "seed", "scene", "sun", "surface", "camera", "sensor", "render", "output",
              "trajectory", "description", "motion", "events", "stars", "labels", "dispersion",
-             "lamp"}
+             "lamp", "radar", "lidar"}
 _HAPKE_KEYS = set(Hapke.__dataclass_fields__)
 #: How each section is named in messages.
 _SCENE, _TRAJECTORY, _SURFACE, _SUN, _CAMERA, _RENDER, _OUTPUT = (
@@ -482,6 +489,10 @@ class Scenario:
     dispersion: Dispersion = field(default_factory=Dispersion)
     #: The spacecraft's lamp of a ``[lamp]`` table (render.lamp), None without one.
     lamp: Lamp | None = None
+    #: The radar beams of a ``[radar]`` table or ``[[radar]]`` tables (render.radar).
+    radar: tuple[RadarBeam, ...] = ()
+    #: The LIDAR of a ``[lidar]`` table (render.lidar), None without one.
+    lidar: Lidar | None = None
 
     def sky_at(self, time: float, scene: Any = None) -> Sky | None:
         """Return the Sun and Earth at trajectory time ``time`` (s); None for a hand-set sun.
@@ -708,7 +719,7 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
         The validated scenario.
     """
     check_keys(data, _SECTIONS, "scenario")
-    for section in _SECTIONS - {"name", "seed", "description"}:
+    for section in _SECTIONS - {"name", "seed", "description", "radar"}:
         if section in data and not isinstance(data[section], dict):
             raise InvalidParameterError(f"scenario [{section}] must be a table; got "
                                         f"{data[section]!r}")
@@ -815,6 +826,14 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
     labels = LabelSpec.from_mapping(data["labels"]) if "labels" in data else None
     dispersion = Dispersion.from_mapping(data.get("dispersion", {}))
     lamp = Lamp.from_mapping(data["lamp"]) if "lamp" in data else None
+    beams = data.get("radar", [])
+    if isinstance(beams, dict):
+        beams = [beams]
+    if not isinstance(beams, list) or not all(isinstance(b, dict) for b in beams):
+        raise InvalidParameterError("scenario [radar] must be a table or an array of tables")
+    radar = tuple(RadarBeam.from_mapping(b) for b in beams)
+    lidar = Lidar.from_mapping(data["lidar"]) if "lidar" in data else None
     return Scenario(name, path, seed, scene, lighting, intrinsics, sensor, options, outputs,
                     trajectory, data, motion, ephemeris=ephemeris, events=events, stars=stars,
-                    labels=labels, dispersion=dispersion, lamp=lamp)
+                    labels=labels, dispersion=dispersion, lamp=lamp,
+                    radar=radar, lidar=lidar)

@@ -328,6 +328,17 @@ def run_sequence(scenario: Scenario, run_dir: str | Path, *, resume: bool = Fals
         from render.dataset import write_exports
 
         write_exports(run_dir)
+    if scenario.radar or scenario.lidar is not None:
+        from render.instruments import record_lidar, record_radar
+
+        if scenario.radar:
+            facts["radar"] = record_radar(renderer, scene, scenario.radar, scenario.lighting,
+                                          scenario.options, samples, run_dir / "radar.npz",
+                                          scenario=scenario.name, seed=scenario.seed)
+        if scenario.lidar is not None:
+            facts["lidar"] = record_lidar(renderer, scene, scenario.lidar, scenario.lighting,
+                                          scenario.options, samples, run_dir / "lidar.npz",
+                                          seed=scenario.seed, scenario=scenario.name)
     writer.finish(render_seconds=elapsed, frames_rendered_this_run=rendered, **facts)
     log.info("rendered %d frames in %.1f s", rendered, elapsed)
     return writer.manifest

@@ -91,6 +91,8 @@ from render.renderer import Lighting, Renderer, View
 from render.scenario import Scenario, parse_scenario
 from render.scene import Scene
 from render.sequence import check_frame_memory, load_scene, render_sample
+from render.server_sensors import SENSOR_REQUESTS
+from render.server_sensors import answer as answer_sensor
 from render.terrain_scene import TerrainScene
 from render.trajectory import Sample, spin_rotation
 from terrain.core.checks import number
@@ -635,6 +637,8 @@ class RenderServer:
             a = frame.range if kind == MsgType.GET_RANGE else frame.normals
             return ARRAY_HEAD.pack(a.shape[1], a.shape[0]) + a.astype(
                 "<f4", copy=False).tobytes()
+        if kind in SENSOR_REQUESTS:
+            return answer_sensor(self, st, kind, body)
         if kind == MsgType.GET_TRUTH:
             _, _, truth = self._frame(st)
             d = truth.as_dict()

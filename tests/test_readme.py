@@ -102,7 +102,8 @@ def parse_toml_block(body: str, where: Path) -> None:
         from terrain.craters.population import Population
 
         Population.from_toml(path)
-    elif "sensor" in data or "motion" in data or "sun" in data or "labels" in data:
+    elif {"sensor", "motion", "sun", "labels", "radar", "lidar", "events", "stars",
+          "lamp"} & set(data):
         from render.scenario import parse_scenario
 
         asteroid = any(k in data.get("sun", {}) for k in ("orbit", "target"))

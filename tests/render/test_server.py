@@ -225,9 +225,79 @@ def test_a_c_client_written_from_the_spec(server, reference, tmp_path):
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
     assert cv2.imread(str(out), cv2.IMREAD_UNCHANGED).tobytes() == reference["image"].tobytes()
+    lines = done.stdout.split("\n")
     with Client("127.0.0.1", server[1]) as c:
         expected = c.ray(t["camera"]["position"], (0.0, 0.0, -1.0)).range
-    assert float(done.stdout) == pytest.approx(expected, abs=1e-6)
+        set_reference_pose(c, t)
+        radar, lidar = c.get_radar(), c.get_lidar()
+        c.set_motion((0.0, 0.0, 0.0), (1.0, 0.0, 0.0))
+        events = c.get_events(0.05)
+    assert float(lines[0]) == pytest.approx(expected, abs=1e-6)
+    rng, vel = map(float, lines[1].split())
+    assert rng == pytest.approx(radar["range"], abs=1e-5) and vel == radar["velocity"] == 0.0
+    h, w = lidar["range"].shape
+    assert float(lines[2]) == pytest.approx(float(lidar["range"][h // 2, w // 2]), abs=1e-5)
+    count, on = map(int, lines[3].split())
+    assert count == len(events["t"]) > 0 and on == int(np.sum(events["p"] > 0))
+
+
+def test_radar_lidar_and_events_over_the_server_agree_with_the_range_image(server, reference):
+    from render.client import Client
+    from render.errors import ServerError
+
+    t = reference["truth"]
+    with Client("127.0.0.1", server[1]) as c:
+        assert c.info()["protocol_minor"] >= 2
+        set_reference_pose(c, t)
+        image_range = c.get_range()
+        h, w = image_range.shape
+        # a LIDAR with the camera's own pixels and no footprint reads the ideal range image
+        fov = math.degrees(2 * math.atan(0.5 * w / t["intrinsics"]["fx"]))
+        lid = c.get_lidar(width=w, height=h, fov=fov, supersample=1, threshold=0.0)
+        ok = np.isfinite(image_range)
+        assert np.allclose(lid["range"][ok], image_range[ok], rtol=1e-5)
+        # the radar's nearest range in a beam along the boresight is the nearest surface the
+        # camera's own pixels see within the half-power cone (3 degrees)
+        radar = c.get_radar(width=6.0, pixels=64)
+        k = t["intrinsics"]
+        v, u = np.mgrid[0:h, 0:w]
+        off = np.hypot((u - k["cx"]) / k["fx"], (v - k["cy"]) / k["fy"])
+        cone = ok & (off <= math.tan(math.radians(3.0)))
+        assert cone.sum() >= 4
+        assert radar["range"] == pytest.approx(float(image_range[cone].min()), rel=5e-3)
+        assert radar["range"] <= float(image_range[cone].min()) * (1 + 1e-5)
+        assert radar["histogram"].sum() == pytest.approx(1.0 - radar["power_outside"], abs=1e-4)
+        c.set_motion((5.0, 0.0, -20.0), (1.0, 0.0, 0.0))
+        moving = c.get_radar(width=6.0, pixels=64)
+        from render.camera import quat_to_matrix
+
+        axis = quat_to_matrix(np.array(t["camera"]["attitude"]))[:, 2]
+        assert moving["boresight_velocity"] == pytest.approx(float(axis @ [5.0, 0.0, -20.0]))
+        ev = c.get_events(0.05, max_events=10)
+        assert len(ev["t"]) == 10 and ev["dropped"] > 0
+        assert ev["t"].min() >= 0 and ev["t"].max() <= 50_000
+        assert ev["start"] == t["time"] and (ev["width"], ev["height"]) == (w, h)
+        with pytest.raises(ServerError, match="unknown radar key 'widht'"):
+            c.get_radar(widht=3.0)
+        with pytest.raises(ServerError, match="duration"):
+            c.get_events(0.0)
+        with pytest.raises(ServerError, match="scan"):
+            c.get_lidar(mode="scan")
+        with pytest.raises(ServerError, match="too large"):
+            c.get_radar(range_bins=65536, doppler_bins=65536)
+        with pytest.raises(ServerError, match="sub-rays a side"):
+            c.get_lidar(width=4096, supersample=4)
+        with pytest.raises(ServerError, match="duration"):
+            c.get_events(math.nan)
+        for code, body in ((0x0026, b"[1, 2"), (0x0027, b"\xff"), (0x0028, b"\x00" * 5)):
+            with pytest.raises(ServerError) as err:
+                c.request(code, body)
+            assert err.value.code == E_MALFORMED, err.value
+        assert c.get_radar(width=6.0, pixels=64)["range"] == radar["range"]
+    with Client("127.0.0.1", server[1]) as fresh:
+        for call in (fresh.get_radar, fresh.get_lidar, lambda: fresh.get_events(0.01)):
+            with pytest.raises(ServerError, match="SET_POSE"):
+                call()
 
 
 # ---------------------------------------------------------------- surface queries
