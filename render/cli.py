@@ -64,7 +64,7 @@ def frame(scenario_file: Path, output: Path, index: int | None,
     """Render one view of a scenario.
 
     Writes OUT.png, OUT_range.tif, OUT_normals.tif, OUT_truth.json (and OUT_radiance.tif
-    where [output] radiance is on).
+    where [output] radiance is on, OUT_bodies.png for a binary scene).
     """
     from render.context import keep_current
     from render.renderer import Renderer
@@ -77,7 +77,8 @@ def frame(scenario_file: Path, output: Path, index: int | None,
         raise InvalidParameterError(f"frame output must be a .png file; got '{output}'")
     stem = output.with_suffix("")
     companions = {"range": Path(f"{stem}_range.tif"), "normals": Path(f"{stem}_normals.tif"),
-                  "radiance": Path(f"{stem}_radiance.tif"), "truth": Path(f"{stem}_truth.json")}
+                  "radiance": Path(f"{stem}_radiance.tif"), "truth": Path(f"{stem}_truth.json"),
+                  "body_ids": Path(f"{stem}_bodies.png")}
     for p in (output, *companions.values()):
         check_output_path(p, [scenario_file])
     scenario = load_scenario(scenario_file).with_overrides(None, resolution)
@@ -90,8 +91,9 @@ def frame(scenario_file: Path, output: Path, index: int | None,
     with keep_current():
         image, fr, truth = render_sample(Renderer(), scene, scenario, samples[index], index,
                                          samples)
+    ids = fr.body_ids if scenario.outputs.get("body_ids", True) else None
     stale = [companions[k] for k in ("range", "normals", "radiance")
-             if not scenario.outputs.get(k)]
+             if not scenario.outputs.get(k)] + ([companions["body_ids"]] if ids is None else [])
     with transaction(stale=stale, folders=[output.parent]):  # image and truth as one set
         write_png(image, output, inputs=[scenario_file])
         if scenario.outputs["range"]:
@@ -102,6 +104,8 @@ def frame(scenario_file: Path, output: Path, index: int | None,
             lighting = scenario.lighting_at(samples[index].time, scene)
             write_float_tiff(lighting.radiance(fr.radiance), companions["radiance"],
                              tags={"UNITS": "W m-2 sr-1 nm-1"})
+        if ids is not None:
+            write_png(ids, companions["body_ids"], inputs=[scenario_file])
         with atomic_path(companions["truth"]) as tmp:
             tmp.write_text(json.dumps(truth.as_dict(), indent=2), encoding="utf-8")
     click.echo(f"wrote {output} (frame {index}, {fr.drawn.get('triangles', 0)} triangles)",

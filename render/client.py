@@ -246,6 +246,18 @@ class Client:
         w, h = _unpack(ARRAY_HEAD, body, "GET_NORMALS", exact=False)
         return _array(body[ARRAY_HEAD.size:], np.dtype("<f4"), (h, w, 3)).astype(np.float32)
 
+    def get_body_ids(self) -> np.ndarray:
+        """Return which body each pixel of the current pose shows (binary scenes).
+
+        Returns
+        -------
+        body_ids : (height, width) uint8
+            0 sky, 1 primary, 2 secondary.
+        """
+        body = self.request(MsgType.GET_BODY_IDS)
+        w, h = _unpack(ARRAY_HEAD, body, "GET_BODY_IDS", exact=False)
+        return _array(body[ARRAY_HEAD.size:], np.dtype("<u1"), (h, w)).astype(np.uint8)
+
     def get_truth(self) -> dict:
         """Return the frame's ground truth (a run's truth.json entry, without file names)."""
         return _json(self.request(MsgType.GET_TRUTH), "GET_TRUTH")

@@ -29,8 +29,8 @@ __all__ = ["ERROR", "HEADER", "MAGIC", "MAX_REPLY_BODY", "MAX_REQUEST_BODY", "PR
 MAGIC = b"CSRV"
 VERSION = 1
 #: Minor version (INFO's ``protocol_minor``): additions a version-1 client may use or ignore.
-#: 1: SET_LIGHT (the sun on a date).
-PROTOCOL_MINOR = 1
+#: 1: SET_LIGHT (the sun on a date). 2: GET_BODY_IDS (binary scenes).
+PROTOCOL_MINOR = 2
 #: Header: magic, version (u16), type (u16), request id (u32), body length (u32).
 HEADER = struct.Struct("<4sHHII")
 #: Largest request body the server reads (bytes); checked before reading the body.
@@ -64,6 +64,7 @@ class MsgType(IntEnum):
     GET_RANGE = 0x0021
     GET_NORMALS = 0x0022
     GET_TRUTH = 0x0023
+    GET_BODY_IDS = 0x0024
     HEIGHT_AT = 0x0030
     PIXEL_RAY = 0x0031
     RAY = 0x0032
@@ -112,7 +113,8 @@ REQUEST_SIZES = {MsgType.HELLO: None, MsgType.INFO: 0, MsgType.PING: 0,
                  MsgType.SET_SENSOR: None, MsgType.SET_MOTION: MOTION.size,
                  MsgType.SET_LIGHT: None,
                  MsgType.GET_IMAGE: BITS.size, MsgType.GET_RANGE: 0,
-                 MsgType.GET_NORMALS: 0, MsgType.GET_TRUTH: 0, MsgType.HEIGHT_AT: XY.size,
+                 MsgType.GET_NORMALS: 0, MsgType.GET_TRUTH: 0, MsgType.GET_BODY_IDS: 0,
+                 MsgType.HEIGHT_AT: XY.size,
                  MsgType.PIXEL_RAY: XY.size, MsgType.RAY: RAY.size}
 
 

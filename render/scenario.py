@@ -11,6 +11,10 @@ trajectory. Paths are relative to the scenario file. Example (``examples/lunar_d
     stack = "../demo-output/stack"   # a layer-stack folder (craterscape terrain enhance)
     curvature = true
     # asteroid scenes: body = "eros.npz", boulders = true
+    # binary scenes (render.binary_scene): type = "binary", primary = "didymos.npz",
+    # secondary = "dimorphos.npz" (native bodies or shape files), [scene.orbit] semi_major_axis,
+    # eccentricity, inclination, node, periapsis, mean_anomaly, period, mass_ratio;
+    # [scene.primary_spin] / [scene.secondary_spin] axis, period, phase (none: tidally locked)
     # [scene.build]: the scene's recipe, built where the scene is missing
     # (render.scene_build: [scene.build.base] and [scene.build.stack], or [scene.build.body])
 
@@ -73,6 +77,7 @@ trajectory. Paths are relative to the scenario file. Example (``examples/lunar_d
     range = true
     normals = true
     radiance = false                 # also radiance/radiance_NNNNNN.tif, W m^-2 sr^-1 nm^-1
+    body_ids = true                  # binary scenes: bodies/bodies_NNNNNN.png, 0 sky, 1, 2
 
     [trajectory]
     type = "descent"                 # "descent", "keyframes" or "approach"
@@ -98,6 +103,7 @@ from typing import Any
 from render.camera import Intrinsics
 from render.ephemeris import DATED_KEYS, Sky, SunEphemeris, site_on_map
 from render.motion import Motion
+from render.orbit import MutualOrbit, Spin
 from render.reflectance import Hapke, check_brdf
 from render.renderer import MAX_ANTIALIAS, Lighting, RenderOptions
 from render.scene_build import SceneBuild
@@ -134,7 +140,12 @@ MAX_IMAGE_SIDE = 32768
 DEFAULT_IMPOSTER_PIXELS = 24.0
 #: Keys of a scenario's [scene] table.
 SCENE_KEYS = frozenset({"type", "stack", "curvature", "radius", "body", "boulders", "spin_axis",
-                        "spin_period", "spin_phase", "imposter_pixels", "build"})
+                        "spin_period", "spin_phase", "imposter_pixels", "build", "primary",
+                        "secondary", "orbit", "primary_spin", "secondary_spin"})
+#: Keys of [scene] that only a binary scene takes, and those a binary scene refuses.
+BINARY_KEYS = frozenset({"primary", "secondary", "orbit", "primary_spin", "secondary_spin"})
+NOT_BINARY_KEYS = frozenset({"stack", "curvature", "radius", "body", "spin_axis", "spin_period",
+                             "spin_phase", "imposter_pixels", "build"})
 #: Keys of a scenario's [trajectory] table.
 TRAJECTORY_KEYS = frozenset({"type", "frames", "duration", "start_altitude", "end_altitude",
                              "ground_track", "look", "site", "keyframe", "start_distance",
@@ -147,7 +158,7 @@ class SceneSpec:
 
     Parameters
     ----------
-    type : {"terrain", "asteroid"}
+    type : {"terrain", "asteroid", "binary"}
     stack : str, optional
         Layer-stack folder (terrain), relative to the scenario file.
     body : str, optional
@@ -171,6 +182,12 @@ class SceneSpec:
     build : render.scene_build.SceneBuild, optional
         ``[scene.build]``: the recipe the scene is built from where it is missing
         (:func:`render.scene_build.ensure_scene`).
+    primary, secondary : str, optional
+        Binary: the two bodies (native ``.npz`` or shape files), relative to the scenario.
+    orbit : render.orbit.MutualOrbit, optional
+        Binary: ``[scene.orbit]`` (Didymos-Dimorphos where not given).
+    primary_spin, secondary_spin : render.orbit.Spin, optional
+        Binary: each body's spin; a secondary without one is tidally locked.
     """
 
     type: str
@@ -185,6 +202,11 @@ class SceneSpec:
     imposter_pixels: float = DEFAULT_IMPOSTER_PIXELS
     albedo_map: str | None = None
     build: SceneBuild | None = None
+    primary: str | None = None
+    secondary: str | None = None
+    orbit: MutualOrbit | None = None
+    primary_spin: Spin | None = None
+    secondary_spin: Spin | None = None
 
     @classmethod
     def from_mapping(cls, table: dict) -> SceneSpec:
@@ -201,9 +223,15 @@ class SceneSpec:
         """
         scene = check_keys(table, SCENE_KEYS, _SCENE)
         kind = scene.get("type")
-        if kind not in ("terrain", "asteroid"):
+        if kind not in ("terrain", "asteroid", "binary"):
             raise InvalidParameterError(
-                f"scenario [scene] type must be 'terrain' or 'asteroid'; got {kind!r}")
+                f"scenario [scene] type must be 'terrain', 'asteroid' or 'binary'; got {kind!r}")
+        if kind == "binary":
+            return cls._binary(scene)
+        extra = sorted(BINARY_KEYS & set(scene))
+        if extra:
+            raise InvalidParameterError(f"scenario [scene] {extra[0]} belongs to a binary scene "
+                                        f"(type = \"binary\"), not a {kind} scene")
         if kind == "terrain" and "stack" not in scene:
             raise InvalidParameterError("scenario [scene] needs 'stack' (a layer-stack folder)")
         if kind == "asteroid" and "body" not in scene:
@@ -234,6 +262,37 @@ class SceneSpec:
             values["build"] = SceneBuild.from_mapping(scene["build"], kind)
         return cls(**values)
 
+    @classmethod
+    def _binary(cls, scene: dict) -> SceneSpec:
+        """The record of a binary ``[scene]`` (see :meth:`from_mapping`)."""
+        wrong = sorted(NOT_BINARY_KEYS & set(scene))
+        if wrong:
+            hint = (" (give each body's spin in [scene.primary_spin] and "
+                    "[scene.secondary_spin])" if wrong[0].startswith("spin") else "")
+            raise InvalidParameterError(f"scenario [scene] {wrong[0]} does not apply to a "
+                                        f"binary scene{hint}")
+        values: dict = {"type": "binary"}
+        for key in ("primary", "secondary"):
+            if key not in scene:
+                raise InvalidParameterError(f"scenario [scene] needs '{key}' (a native body "
+                                            "or a shape file) for a binary scene")
+            values[key] = text(scene[key], key, where=_SCENE)
+            if Path(values[key]).name in ("", ".", ".."):
+                raise InvalidParameterError(f"scenario [scene] {key} must name a body file; "
+                                            f"got {values[key]!r}")
+        if "boulders" in scene:
+            values["boulders"] = boolean(scene["boulders"], "boulders", where=_SCENE)
+        orbit = scene.get("orbit", {})
+        if not isinstance(orbit, dict):
+            raise InvalidParameterError(f"scenario [scene.orbit] must be a table; got {orbit!r}")
+        values["orbit"] = MutualOrbit.from_mapping(orbit)
+        values["primary_spin"] = Spin.from_mapping(scene.get("primary_spin", {}),
+                                                   "scenario [scene.primary_spin]")
+        if "secondary_spin" in scene:
+            values["secondary_spin"] = Spin.from_mapping(scene["secondary_spin"],
+                                                         "scenario [scene.secondary_spin]")
+        return cls(**values)
+
     def inputs(self) -> tuple[str, ...]:
         """List the files and folders the scene reads (relative to the scenario file).
 
@@ -241,7 +300,8 @@ class SceneSpec:
         -------
         tuple of str
         """
-        return tuple(v for v in (self.stack, self.body) if v is not None)
+        return tuple(v for v in (self.stack, self.body, self.primary, self.secondary)
+                     if v is not None)
 
 
 @dataclass(frozen=True)
@@ -540,7 +600,7 @@ def _dated_sun(sun: dict, scene: SceneSpec, path: Path | None,
                                     "the Sun on a date; give one or the other")
     extra.pop("distance", None)
     return SunEphemeris.from_mapping({k: sun[k] for k in DATED_KEYS if k in sun},
-                                     asteroid=scene.type == "asteroid",
+                                     asteroid=scene.type in ("asteroid", "binary"),
                                      base=path.parent if path else None)
 
 
@@ -617,12 +677,15 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
         if key in sun:
             extra[key] = number(sun.get(key), key, **_POSITIVE, where=_SUN)
     if "albedo_map" in surface:
+        if scene.type == "binary":
+            raise InvalidParameterError("scenario [surface] albedo_map does not apply to a "
+                                        "binary scene")
         scene = replace(scene, albedo_map=text(surface["albedo_map"], "albedo_map",
                                                where=_SURFACE))
     ephemeris = _dated_sun(sun, scene, path, extra)
     if ephemeris is not None:  # the sky at time 0 where the site is known; else overhead
         lighting = Lighting((0.0, 0.0, 1.0), albedo, brdf, **extra)
-        if ephemeris.site is not None or scene.type == "asteroid":
+        if ephemeris.site is not None or scene.type in ("asteroid", "binary"):
             lighting = ephemeris.sky(0.0).lighting(lighting)
     elif "direction" in sun:
         lighting = Lighting(vector(sun["direction"], "direction", 3, where=_SUN), albedo, brdf,
@@ -672,8 +735,9 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
         geomorph=boolean(ren.get("geomorph", defaults.geomorph), "geomorph", where=_RENDER),
         antialias=integer(ren.get("antialias", defaults.antialias), "antialias", low=1,
                           high=MAX_ANTIALIAS, where=_RENDER))
-    out = _section(data, "output", {"range", "normals", "radiance"})
+    out = _section(data, "output", {"range", "normals", "radiance", "body_ids"})
     outputs = {"range": boolean(out.get("range", True), "range", where=_OUTPUT),
+               "body_ids": boolean(out.get("body_ids", True), "body_ids", where=_OUTPUT),
                "normals": boolean(out.get("normals", True), "normals", where=_OUTPUT),
                "radiance": boolean(out.get("radiance", False), "radiance", where=_OUTPUT)}
 

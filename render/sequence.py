@@ -90,6 +90,13 @@ def load_scene(scenario: Scenario) -> Scene:
 
     ensure_scene(scenario)
     spec = scenario.scene
+    if spec.type == "binary":
+        from render.binary_scene import BinaryScene
+
+        assert spec.primary is not None and spec.secondary is not None  # SceneSpec requires
+        return BinaryScene(scenario.resolve(spec.primary), scenario.resolve(spec.secondary),
+                           orbit=spec.orbit, primary_spin=spec.primary_spin,
+                           secondary_spin=spec.secondary_spin, boulders=spec.boulders)
     albedo = None if spec.albedo_map is None else scenario.resolve(spec.albedo_map)
     if spec.type == "terrain":
         from render.terrain_scene import TerrainScene
@@ -195,9 +202,16 @@ def render_sample(renderer: Renderer, scene: Scene, scenario: Scenario, sample: 
                       line_time=sensor.line_time, samples=info["samples"])
     image, record = exposure.expose(frame.radiance, index, intrinsics=scenario.intrinsics,
                                     spectral_irradiance=lighting.spectral_irradiance)
+    from render.binary_scene import BinaryScene
+
+    bodies = None
+    if isinstance(scene, BinaryScene):  # several bodies: which pixel shows which, and where
+        frame.body_ids = scene.body_ids(view, frame)
+        bodies = scene.bodies_truth(sample.time)
     truth = FrameTruth(index, sample.time, sample.pose, scenario.intrinsics,
                        lighting.sun, tuple(sample.body_rotation), frame.drawn, motion=moving,
-                       sky=None if sky is None else sky.as_dict(), exposure=record)
+                       sky=None if sky is None else sky.as_dict(), exposure=record,
+                       bodies=bodies)
     return image, frame, truth
 
 
@@ -260,7 +274,9 @@ def run_sequence(scenario: Scenario, run_dir: str | Path, *, resume: bool = Fals
                            frame.range if scenario.outputs["range"] else None,
                            frame.normals if scenario.outputs["normals"] else None,
                            scenario.lighting_at(sample.time, scene).radiance(frame.radiance)
-                           if scenario.outputs.get("radiance") else None)
+                           if scenario.outputs.get("radiance") else None,
+                           body_ids=frame.body_ids if scenario.outputs.get("body_ids", True)
+                           else None)
         rendered += 1
         if progress is not None:
             progress(i + 1, len(samples),
