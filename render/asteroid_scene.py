@@ -565,7 +565,7 @@ class AsteroidScene:
         _, dvao = self._vaos(gpu, body_lod)
         batches = [DrawBatch(None, dvao, [(0, body_lod.triangles * 3)],
                              world_from_model=self.rotation)]
-        if levels:
+        if levels and self.boulders is not None:
             lv = levels[min(1, len(levels) - 1)]
             _, bdvao = self._vaos(gpu, lv)
             batches.append(DrawBatch(None, bdvao, [(0, lv.faces_per * 3 * len(self.boulders))],

@@ -161,7 +161,6 @@ class BinaryScene:
         rel = np.linalg.norm(self.orbit.relative(t), axis=1).max()
         q = self.orbit.mass_ratio
         self.reach = float(max(q / (1 + q) * rel + r1, rel / (1 + q) + r2))
-        self._time = 0.0
         self._shadows: list[ShadowMap | None] = [None, None]
 
     # ------------------------------------------------------------------ geometry
@@ -187,7 +186,7 @@ class BinaryScene:
                 for c, q in zip(centres, quats, strict=True)]
 
     def bodies_truth(self, t: float) -> list[dict]:
-        """The bodies' truth at time ``t``: id, name, centre and attitude of each.
+        """Give the bodies' truth at time ``t``: id, name, centre and attitude of each.
 
         Returns
         -------
@@ -381,9 +380,10 @@ class BinaryScene:
         maps = []
         for i, body in enumerate(self.bodies):
             r = float(body.reach)
-            self._shadows[i] = render_shadow_map(
+            shadow = render_shadow_map(
                 gpu, self._shadows[i], size, lighting.sun, cubes[i], both,
                 margin=BODY_SHADOW_MARGIN * r, bias=BODY_SHADOW_BIAS,
                 draw=lambda extent, window: casters(extent))
-            maps.append(self._shadows[i])
+            self._shadows[i] = shadow
+            maps.append(shadow)
         return maps

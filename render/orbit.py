@@ -235,7 +235,7 @@ class MutualOrbit:
         return quat_from_matrix(self.orbit_rotation() @ _rz(angle))
 
     def as_dict(self) -> dict:
-        """The elements as plain data (the names of :data:`ORBIT_KEYS`)."""
+        """Return the elements as plain data (the names of :data:`ORBIT_KEYS`)."""
         return {f.name: float(getattr(self, f.name)) for f in fields(self)}
 
 
@@ -296,5 +296,5 @@ class Spin:
         return spin_rotation(float(t), self.axis, float(self.period), float(self.phase))
 
     def as_dict(self) -> dict:
-        """The spin as plain data."""
+        """Return the spin as plain data."""
         return {"axis": list(self.axis), "period": self.period, "phase": self.phase}

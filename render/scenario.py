@@ -264,7 +264,7 @@ class SceneSpec:
 
     @classmethod
     def _binary(cls, scene: dict) -> SceneSpec:
-        """The record of a binary ``[scene]`` (see :meth:`from_mapping`)."""
+        """Build the record of a binary ``[scene]`` (see :meth:`from_mapping`)."""
         wrong = sorted(NOT_BINARY_KEYS & set(scene))
         if wrong:
             hint = (" (give each body's spin in [scene.primary_spin] and "
