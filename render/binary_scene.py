@@ -13,7 +13,9 @@ one depth buffer, so each hides the other where it is in front.
 Shadows: one map per body, fitted to that body (so each keeps the resolution a single body's
 map has) and drawn with both bodies as casters, so the secondary's shadow falls on the primary
 (an eclipse of the primary's surface) and the primary's on the secondary (the secondary in
-eclipse) through the ordinary shadow-map lookup (:func:`render.scene.render_shadow_map`).
+eclipse) through the ordinary shadow-map lookup (:func:`render.scene.render_shadow_map`). The
+other body is left out of a map whose window its bounding sphere misses, or which it lies
+wholly behind as seen from the sun: it can cast nothing there.
 
 Truth: :meth:`BinaryScene.body_poses` gives each body's centre and rotation at a time, and
 :meth:`BinaryScene.body_ids` which body each pixel of a frame shows (0 sky, 1 primary, 2
@@ -45,6 +47,7 @@ from render.scene import (
     Imposter,
     ShadowMap,
     far_plane,
+    light_basis,
     render_shadow_map,
 )
 from terrain.core.errors import InvalidParameterError
@@ -363,10 +366,21 @@ class BinaryScene:
 
     def _shadow_maps(self, gpu, lighting, options, poses) -> list[ShadowMap]:
         size = options.shadow_size
+        basis = light_basis(lighting.sun)  # rows: light-space x, y and the light's direction
+        spheres = [(basis @ c, float(b.reach))
+                   for b, (c, _) in zip(self.bodies, poses, strict=True)]
 
-        def casters(extent):
+        def casters(receiver, extent, window):
+            # a body casts into the receiver's map where its sphere meets the map's window
+            # and it is not wholly behind the receiver from the sun
+            x0, y0, x1, y1 = window
+            zr = spheres[receiver][0][2] + spheres[receiver][1]
             out = []
-            for body, (c, _) in zip(self.bodies, poses, strict=True):
+            for j, (body, (c, _)) in enumerate(zip(self.bodies, poses, strict=True)):
+                (x, y, z), r = spheres[j]
+                if j != receiver and (x + r < x0 or x - r > x1 or y + r < y0 or y - r > y1
+                                      or z - r > zr):
+                    continue
                 for batch in body.shadow_casters(gpu, extent, size):
                     batch.model_offset = np.asarray(batch.model_offset, dtype=np.float64) + c
                     out.append(batch)
@@ -383,7 +397,7 @@ class BinaryScene:
             shadow = render_shadow_map(
                 gpu, self._shadows[i], size, lighting.sun, cubes[i], both,
                 margin=BODY_SHADOW_MARGIN * r, bias=BODY_SHADOW_BIAS,
-                draw=lambda extent, window: casters(extent))
+                draw=lambda extent, window, i=i: casters(i, extent, window))
             self._shadows[i] = shadow
             maps.append(shadow)
         return maps

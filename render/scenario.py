@@ -225,7 +225,7 @@ class SceneSpec:
         kind = scene.get("type")
         if kind not in ("terrain", "asteroid", "binary"):
             raise InvalidParameterError(
-                f"scenario [scene] type must be 'terrain', 'asteroid' or 'binary'; got {kind!r}")
+                f"scenario [scene] type must be 'terrain' or 'asteroid' or 'binary'; got {kind!r}")
         if kind == "binary":
             return cls._binary(scene)
         extra = sorted(BINARY_KEYS & set(scene))
