@@ -42,7 +42,7 @@ def main(argv=None) -> int:
     from render.asteroid_scene import AsteroidScene
     from render.binary_scene import BinaryScene
     from render.camera import Intrinsics, look_at
-    from render.renderer import Lighting, RenderOptions, Renderer, View
+    from render.renderer import Lighting, Renderer, RenderOptions, View
 
     single_m, primary_m, secondary_m = (40, 36, 17) if args.quick else (128, 120, 44)
     size, frames = (256, 3) if args.quick else (1024, 9)
@@ -65,8 +65,8 @@ def main(argv=None) -> int:
             frame = renderer.render(scenes[name], views[name], light, options)
             out["triangles"][name] = int(frame.drawn["triangles"])
         log(f"timing {frames} frames each, {tag}")
-        timed = alternate({name: (lambda n=name: renderer.render(scenes[n], views[n], light,
-                                                                 options))
+        timed = alternate({name: (lambda n=name, o=options: renderer.render(scenes[n], views[n],
+                                                                      light, o))
                            for name in scenes}, frames)
         out["frame_s"][tag] = {name: timed.timings[name] for name in scenes}
         out["frame_s"][tag]["ratio"] = round(timed.timings["binary"]["median_s"]

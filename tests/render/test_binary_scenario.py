@@ -141,3 +141,12 @@ def test_the_server_serves_a_binary(binary_files, tmp_path, gl):
         inside = s + np.array([10.0, 0.0, 0.0])  # within the secondary at that time
         with pytest.raises(ServerError, match="inside"):
             c.set_pose(tuple(inside), pose.attitude, time=t)
+
+
+def test_the_example_scenario_parses():
+    from pathlib import Path
+
+    from render.scenario import load_scenario
+
+    s = load_scenario(Path(__file__).resolve().parents[2] / "examples" / "didymos_binary.toml")
+    assert s.scene.type == "binary" and s.scene.orbit.semi_major_axis == 1190.0
