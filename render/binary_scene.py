@@ -25,11 +25,15 @@ the point's direction; for a mesh, the distance to its bounding sphere).
 
 The world frame is inertial; the binary ignores a trajectory's body rotation
 (:meth:`set_body_rotation`): time alone moves and turns its bodies. Imposters are not used: a
-distant binary is drawn as geometry at its coarsest levels of detail.
+distant binary is drawn as geometry at its coarsest levels of detail. Bodies are shaded with
+the normals of the level drawn, not a single body's cube map of its finest normals
+(``render/shaders/scene.frag`` looks that cube up by the direction from the scene origin,
+which is not an orbiting body's centre).
 """
 
 from __future__ import annotations
 
+import functools
 import logging
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
@@ -201,6 +205,19 @@ class BinaryScene:
                  "attitude": q.tolist(), "reach": float(self.bodies[i].reach)}
                 for i, (c, q) in enumerate(self.body_poses(t))]
 
+    def describe(self) -> dict:
+        """Return the orbit and the spins as plain data (a run's manifest records them).
+
+        Returns
+        -------
+        dict
+            ``orbit`` (:meth:`render.orbit.MutualOrbit.as_dict`), ``primary_spin`` and
+            ``secondary_spin`` (:meth:`render.orbit.Spin.as_dict`, or ``"tidally locked"``).
+        """
+        second = self.spins[1]
+        return {"orbit": self.orbit.as_dict(), "primary_spin": self.spins[0].as_dict(),
+                "secondary_spin": "tidally locked" if second is None else second.as_dict()}
+
     def set_body_rotation(self, quaternion: Any) -> None:
         """Ignored: each body turns by its own spin at the view's time (module docstring).
 
@@ -353,6 +370,9 @@ class BinaryScene:
             state = body.frame_state(local, lighting, own, gpu, None)
             for batch in state.batches:
                 batch.model_offset = np.asarray(batch.model_offset, dtype=np.float64) + c
+                # the fragment stage looks a normal cube up by the direction from the scene
+                # origin, which is not this body's centre: shade with the drawn level's normals
+                batch.normal_cube = None
             batches.extend(state.batches)
             owner.extend([i] * len(state.batches))
             drawn[BODY_NAMES[i]] = state.drawn
@@ -397,7 +417,12 @@ class BinaryScene:
             shadow = render_shadow_map(
                 gpu, self._shadows[i], size, lighting.sun, cubes[i], both,
                 margin=BODY_SHADOW_MARGIN * r, bias=BODY_SHADOW_BIAS,
-                draw=lambda extent, window, i=i: casters(i, extent, window))
+                draw=functools.partial(_casters_of, casters, i))
             self._shadows[i] = shadow
             maps.append(shadow)
         return maps
+
+
+def _casters_of(casters, receiver: int, extent: float, window) -> list[DrawBatch]:
+    """Give what casts into receiver's map: ``casters(receiver, extent, window)``."""
+    return casters(receiver, extent, window)

@@ -4,6 +4,7 @@ Layout (``craterscape render sequence`` writes it; :mod:`evaluation` reads it)::
 
     RUN_DIR/
       manifest.json         run-level facts: format, scene, frame count, resolution, seed
+                            (a binary scene: its orbit and spins under "binary")
       scenario.toml         a copy of the scenario that produced the run
       truth.json            one entry per frame (below), rewritten atomically after each frame
       frames/frame_NNNNNN.png     camera image, 8- or 16-bit grey, linear in radiance
@@ -82,7 +83,7 @@ TRUTH_TABLE_KEYS = {"camera": frozenset({"position", "attitude"}),
 #: write), and of its lighting table.
 MANIFEST_KEYS = frozenset({"format", "version", "scenario", "scene", "frames", "resolution",
                            "seed", "sensor", "lighting", "renderer", "render_seconds",
-                           "frames_rendered_this_run", "frames_written"})
+                           "frames_rendered_this_run", "frames_written", "binary"})
 MANIFEST_LIGHTING_KEYS = frozenset({"sun", "albedo", "reflectance", "hapke", "distance_au",
                                     "spectral_irradiance", "utc"})
 

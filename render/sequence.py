@@ -257,6 +257,10 @@ def run_sequence(scenario: Scenario, run_dir: str | Path, *, resume: bool = Fals
                                   **({"utc": scenario.ephemeris.utc}
                                      if scenario.ephemeris is not None else {})),
                     renderer=describe())
+    from render.binary_scene import BinaryScene
+
+    if isinstance(scene, BinaryScene):
+        manifest["binary"] = scene.describe()
     writer = RunWriter(run_dir, manifest, scenario.path, resume=resume)
     done = writer.done()
     t0 = time.perf_counter()

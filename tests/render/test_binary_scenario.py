@@ -117,6 +117,8 @@ def test_a_run_records_each_bodys_pose_and_labels_its_pixels(binary_files, tmp_p
         assert (ids == 1).sum() > 100
     manifest = json.loads((tmp_path / "run" / "manifest.json").read_text())
     assert manifest["scene"] == "binary"
+    assert manifest["binary"]["orbit"]["semi_major_axis"] == 1190.0
+    assert manifest["binary"]["secondary_spin"] == "tidally locked"
 
 
 def test_the_server_serves_a_binary(binary_files, tmp_path, gl):

@@ -122,6 +122,12 @@ def test_the_body_id_image_and_mutual_occlusion_match_the_spheres(renderer, bina
     err = np.abs(frame.range[both] - rng[both])
     assert err.max() < 0.15, f"range off by up to {err.max():.3f} m where occluded"
     assert np.all(frame.range[both] < t1.reshape(label.shape)[both] - 100.0)
+    # each body's normals point out of its own centre (the sphere's normal at the hit)
+    hit = (np.asarray(cam) + rays * rng.reshape(-1)[:, None]).reshape(*label.shape, 3)
+    for body, centre, radius in ((1, c1, R1), (2, c2, R2)):
+        sel = judged & (label == body)
+        expected = (hit[sel] - centre) / radius
+        assert np.einsum("ij,ij->i", frame.normals[sel], expected).min() > 0.995
 
 
 def test_the_secondary_moves_on_its_orbit_between_frames(renderer, binary):
@@ -134,3 +140,24 @@ def test_the_secondary_moves_on_its_orbit_between_frames(renderer, binary):
     label, _, limb, *_ = _analytic(binary, pose, k, t)
     assert (label == 2).sum() > 20
     assert np.array_equal(ids[~limb], label[~limb])
+
+
+def test_the_primary_eclipses_the_secondary(renderer, binary):
+    """With the primary between the Sun and the secondary, the secondary lies in its shadow."""
+    (c1, _), (c2, _) = binary.body_poses(0.0)
+    sun = (c1 - c2) / np.linalg.norm(c1 - c2)
+    side = np.cross(sun, [0.0, 0.0, 1.0])
+    # from the sunward side and off the line of centres, so the lit face is in view
+    cam = c2 + 600.0 * (0.5 * sun + side / np.linalg.norm(side))
+    pose = look_at(cam, c2)
+    k = Intrinsics.from_fov(96, 96, 30.0)
+    light = Lighting(tuple(sun), albedo=0.2, brdf="lommel-seeliger")
+    view = View(pose, k, 0.0)
+    frame = renderer.render(binary, view, light, RenderOptions())
+    ids = binary.body_ids(view, frame)
+    facing = np.einsum("ijk,k->ij", np.nan_to_num(frame.normals), sun) > 0.1
+    lit_face = (ids == 2) & facing
+    assert lit_face.sum() > 200
+    assert np.all(frame.radiance[lit_face] < 1e-6)  # total eclipse: 390 m hides 80 m
+    bright = renderer.render(binary, view, light, RenderOptions(shadows=False))
+    assert np.all(bright.radiance[lit_face] > 0.01)
