@@ -161,3 +161,24 @@ def test_the_primary_eclipses_the_secondary(renderer, binary):
     assert np.all(frame.radiance[lit_face] < 1e-6)  # total eclipse: 390 m hides 80 m
     bright = renderer.render(binary, view, light, RenderOptions(shadows=False))
     assert np.all(bright.radiance[lit_face] > 0.01)
+
+
+def test_a_shape_file_can_be_the_secondary(renderer, binary, tmp_path):
+    """A closed mesh file stands for a body: drawn, labelled and shadowed like a native one."""
+    from asteroid.meshio.export import write_mesh
+    from asteroid.sphere import SphereMesh
+    from render.binary_scene import BinaryScene
+
+    mesh = SphereMesh(32)
+    write_mesh(tmp_path / "moon.ply", [("body", mesh.directions() * R2, mesh.faces())])
+    mixed = BinaryScene(binary.bodies[0], tmp_path / "moon.ply", orbit=binary.orbit)
+    assert mixed.bodies[1].kind == "mesh"
+    c1, c2, _ = _geometry(mixed)
+    away = (c2 - c1) / np.linalg.norm(c2 - c1)
+    up = np.cross(away, [0.0, 0.0, 1.0])
+    pose = look_at(c2 + 900.0 * away + 150.0 * up / np.linalg.norm(up), c1)
+    k = Intrinsics.from_fov(96, 96, 40.0)
+    _, ids = _render(renderer, mixed, pose, k, 0.0, lod_pixels=0.1)
+    label, _, limb, *_ = _analytic(mixed, pose, k, 0.0)
+    assert (label[~limb] == 2).sum() > 100
+    assert np.array_equal(ids[~limb], label[~limb])
