@@ -634,9 +634,10 @@ class RenderServer:
             return ARRAY_HEAD.pack(a.shape[1], a.shape[0]) + a.astype(
                 "<f4", copy=False).tobytes()
         if kind == MsgType.GET_BODY_IDS:
-            if self.scene.kind != "binary":
+            kind_of = self.scenario.scene.type
+            if kind_of != "binary":
                 raise ProtocolError(ErrorCode.UNSUPPORTED, "GET_BODY_IDS needs a binary scene "
-                                    f"(this one is {self.scene.kind})")
+                                    f"(this one is {kind_of})")
             _, frame, _ = self._frame(st)
             ids = frame.body_ids
             return ARRAY_HEAD.pack(ids.shape[1], ids.shape[0]) + ids.astype("<u1").tobytes()

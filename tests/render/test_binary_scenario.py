@@ -152,3 +152,39 @@ def test_the_example_scenario_parses():
 
     s = load_scenario(Path(__file__).resolve().parents[2] / "examples" / "didymos_binary.toml")
     assert s.scene.type == "binary" and s.scene.orbit.semi_major_axis == 1190.0
+
+
+def test_body_ids_over_the_wire_need_a_binary(tmp_path):
+    """GET_BODY_IDS of a single-body or terrain scene is UNSUPPORTED; the connection lives."""
+    import struct
+
+    from render import server as mod
+    from render.protocol import ErrorCode, MsgType
+    from render.scenario import load_scenario
+    from tests.render.scenes import descent_scenario
+
+    path = tmp_path / "s.toml"
+    path.write_text(descent_scenario(tmp_path / "stack", "ids"))
+    srv = mod.RenderServer(load_scenario(path), port=0)
+    sc = srv.scenario
+
+    class _Conn:
+        state = mod._State(sc, sc.lighting, {})
+
+    rtype, reply = srv._reply(_Conn(), MsgType.GET_BODY_IDS, b"")
+    code, _ = struct.unpack_from("<HH", reply)
+    assert rtype == 0xFFFF and code == ErrorCode.UNSUPPORTED
+    assert "binary" in reply[4:].decode()
+
+
+def test_a_missing_body_is_one_line_and_exit_2(tmp_path):
+    from click.testing import CliRunner
+
+    from terrain.cli.commands import main
+
+    path = tmp_path / "b.toml"
+    path.write_text(_scenario(primary="nowhere.npz"))
+    r = CliRunner().invoke(main, ["render", "frame", str(path), "-o", str(tmp_path / "f.png")])
+    assert r.exit_code == 2
+    lines = [ln for ln in r.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "nowhere.npz" in lines[0], r.output
