@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 from scipy.integrate import solve_ivp
 
 from render.camera import quat_to_matrix
@@ -74,3 +76,15 @@ def test_a_spin_turns_once_per_period_about_its_axis():
 def test_bad_orbits_are_refused_by_name(table, message):
     with pytest.raises(InvalidParameterError, match=message):
         MutualOrbit.from_mapping(table)
+
+
+@given(a=st.floats(10.0, 1e5), e=st.floats(0.0, 0.95), inc=st.floats(0.0, 180.0),
+       node=st.floats(-360.0, 360.0), peri=st.floats(-360.0, 360.0),
+       m0=st.floats(-720.0, 720.0), q=st.floats(1e-4, 1.0), t=st.floats(-1e7, 1e7))
+def test_any_orbit_keeps_its_barycentre_and_its_separation_bounds(a, e, inc, node, peri, m0,
+                                                                   q, t):
+    orbit = MutualOrbit(a, e, inc, node, peri, m0, 3600.0, q)
+    p, s = orbit.positions(t)
+    assert np.allclose(p + q * s, 0.0, atol=1e-9 * a)  # m1 p + m2 s = 0
+    d = np.linalg.norm(s - p)
+    assert a * (1 - e) * (1 - 1e-9) <= d <= a * (1 + e) * (1 + 1e-9)
