@@ -536,29 +536,46 @@ class AsteroidScene:
         return DrawBatch(vao, dvao, [(0, faces.size)], world_from_model=self.rotation,
                          shadow=shadow, triangles=len(faces))
 
+    def shadow_casters(self, gpu: Gpu, extent: float, size: int) -> list[DrawBatch]:
+        """Give the depth batches that cast the body's shadows into a map of ``extent``.
+
+        The body at the coarsest level the map's texels resolve, fixed by the map and never
+        by where the camera is (module docstring), and the boulders at their second level;
+        model frame about the body's centre, turned by the current rotation.
+
+        Parameters
+        ----------
+        gpu : render.scene.Gpu
+            Uploads and vertex arrays.
+        extent : float
+            The map's side, metres.
+        size : int
+            The map's side, texels.
+
+        Returns
+        -------
+        list of render.scene.DrawBatch
+            Depth-only batches (``vao`` None).
+        """
+        lods, levels = self._upload(gpu)
+        body_lod = lods[0]
+        for lod in lods:
+            if lod.spacing <= SHADOW_CELL_TEXELS * extent / size:
+                body_lod = lod
+        _, dvao = self._vaos(gpu, body_lod)
+        batches = [DrawBatch(None, dvao, [(0, body_lod.triangles * 3)],
+                             world_from_model=self.rotation)]
+        if levels and self.boulders is not None:
+            lv = levels[min(1, len(levels) - 1)]
+            _, bdvao = self._vaos(gpu, lv)
+            batches.append(DrawBatch(None, bdvao, [(0, lv.faces_per * 3 * len(self.boulders))],
+                                     world_from_model=self.rotation))
+        return batches
+
     def _shadow_map(self, gpu, lighting, options, lods, levels) -> ShadowMap:
         size = options.shadow_size
-
-        def casters(extent):
-            # casters at the coarsest level the map's texels resolve: fixed by the map, not
-            # by where the camera is (module docstring)
-            body_lod = lods[0]
-            for lod in lods:
-                if lod.spacing <= SHADOW_CELL_TEXELS * extent / size:
-                    body_lod = lod
-            _, dvao = self._vaos(gpu, body_lod)
-            batches = [DrawBatch(None, dvao, [(0, body_lod.triangles * 3)],
-                                 world_from_model=self.rotation)]
-            if levels:
-                lv = levels[min(1, len(levels) - 1)]
-                _, bdvao = self._vaos(gpu, lv)
-                batches.append(DrawBatch(None, bdvao,
-                                         [(0, lv.faces_per * 3 * len(self.boulders))],
-                                         world_from_model=self.rotation))
-            return batches
-
         self._shadow = body_shadow_map(gpu, self._shadow, size, lighting.sun, self.reach,
-                                       casters)
+                                       lambda extent: self.shadow_casters(gpu, extent, size))
         return self._shadow
 
 

@@ -100,7 +100,8 @@ def frame(scenario_file: Path, output: Path, index: int | None,
     Writes OUT.png, OUT_range.tif, OUT_normals.tif, OUT_truth.json (and OUT_radiance.tif
     where [output] radiance is on; OUT_labels/ with labels, its flow to the next trajectory
     frame where there is one; OUT_radar.npz and OUT_lidar.npz where the scenario has [radar]
-    and [lidar] tables: the run files of docs/sensors.md for this one frame).
+    and [lidar] tables: the run files of docs/sensors.md for this one frame; OUT_bodies.png
+    for a binary scene).
     """
     from dataclasses import replace
 
@@ -116,7 +117,8 @@ def frame(scenario_file: Path, output: Path, index: int | None,
     stem = output.with_suffix("")
     companions = {"range": Path(f"{stem}_range.tif"), "normals": Path(f"{stem}_normals.tif"),
                   "radiance": Path(f"{stem}_radiance.tif"), "truth": Path(f"{stem}_truth.json"),
-                  "radar": Path(f"{stem}_radar.npz"), "lidar": Path(f"{stem}_lidar.npz")}
+                  "radar": Path(f"{stem}_radar.npz"), "lidar": Path(f"{stem}_lidar.npz"),
+                  "body_ids": Path(f"{stem}_bodies.png")}
     for p in (output, *companions.values()):
         check_output_path(p, [scenario_file])
     scenario = _with_labels(load_scenario(scenario_file).with_overrides(None, resolution),
@@ -131,8 +133,9 @@ def frame(scenario_file: Path, output: Path, index: int | None,
         renderer = Renderer()
         image, fr, truth = render_sample(renderer, scene, scenario, samples[index], index,
                                          samples)
+    ids = fr.body_ids if scenario.outputs.get("body_ids", True) else None
     stale = [companions[k] for k in ("range", "normals", "radiance")
-             if not scenario.outputs.get(k)]
+             if not scenario.outputs.get(k)] + ([companions["body_ids"]] if ids is None else [])
     stale += [companions[k] for k, on in (("radar", bool(scenario.radar)),
                                           ("lidar", scenario.lidar is not None)) if not on]
     with transaction(stale=stale, folders=[output.parent]):  # image and truth as one set
@@ -149,6 +152,8 @@ def frame(scenario_file: Path, output: Path, index: int | None,
             with keep_current():
                 truth = replace(truth, labels=_frame_labels(renderer, scenario, scene, samples,
                                                             index, fr, truth, output))
+        if ids is not None:
+            write_png(ids, companions["body_ids"], inputs=[scenario_file])
         with atomic_path(companions["truth"]) as tmp:
             tmp.write_text(json.dumps(truth.as_dict(), indent=2), encoding="utf-8")
         if scenario.radar or scenario.lidar is not None:

@@ -323,6 +323,17 @@ class Client:
                     t=np.frombuffer(data[4 * n:12 * n], "<i8").astype(np.int64),
                     p=np.frombuffer(data[12 * n:], "i1").astype(np.int8),
                     width=w, height=h, start=start, dropped=dropped)
+    def get_body_ids(self) -> np.ndarray:
+        """Return which body each pixel of the current pose shows (binary scenes).
+
+        Returns
+        -------
+        body_ids : (height, width) uint8
+            0 sky, 1 primary, 2 secondary.
+        """
+        body = self.request(MsgType.GET_BODY_IDS)
+        w, h = _unpack(ARRAY_HEAD, body, "GET_BODY_IDS", exact=False)
+        return _array(body[ARRAY_HEAD.size:], np.dtype("<u1"), (h, w)).astype(np.uint8)
 
     def get_truth(self) -> dict:
         """Return the frame's ground truth (a run's truth.json entry, without file names)."""

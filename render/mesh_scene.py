@@ -43,6 +43,9 @@ __all__ = ["CHUNK", "MeshScene", "vertex_normals"]
 
 #: Triangles per culling chunk.
 CHUNK = 4096
+#: Shadow casters of a map drawn on its own (:meth:`MeshScene.shadow_casters`) use the
+#: coarsest level whose edges stay below this many of the map's texels.
+SHADOW_CELL_TEXELS = 2.0
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -299,6 +302,35 @@ class MeshScene:
         drawn = {"triangles": tris, "chunks": int(chunks.size), "lod_edge_m": chosen.edge,
                  "lod_triangles": chosen.triangles}
         return FrameState([batch], far, drawn)
+
+    def shadow_casters(self, gpu: Gpu, extent: float, size: int) -> list[DrawBatch]:
+        """Give the depth batch that casts the body's shadows into a map of ``extent``.
+
+        The coarsest level whose edges stay below two of the map's texels (the finest where
+        none does), model frame about the body's centre, turned by the current rotation.
+
+        Parameters
+        ----------
+        gpu : render.scene.Gpu
+            Uploads and vertex arrays.
+        extent : float
+            The map's side, metres.
+        size : int
+            The map's side, texels.
+
+        Returns
+        -------
+        list of render.scene.DrawBatch
+            One depth-only batch (``vao`` None).
+        """
+        lods = self._upload(gpu)
+        chosen = lods[0]
+        for lod in lods:
+            if lod.edge <= SHADOW_CELL_TEXELS * extent / size:
+                chosen = lod
+        _, dvao = self._vaos(gpu, chosen)
+        return [DrawBatch(None, dvao, [(0, chosen.triangles * 3)],
+                          world_from_model=self.rotation, model_offset=np.zeros(3))]
 
     def _shadow_map(self, gpu, lighting, options, lod) -> ShadowMap:
         _, dvao = self._vaos(gpu, lod)

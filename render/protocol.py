@@ -31,8 +31,8 @@ MAGIC = b"CSRV"
 VERSION = 1
 #: Minor version (INFO's ``protocol_minor``): additions a version-1 client may use or ignore.
 #: 1: SET_LIGHT (the sun on a date); 2: GET_LABELS and GET_MASKS (image-space labels);
-#: 3: GET_RADAR, GET_LIDAR and GET_EVENTS (instruments).
-PROTOCOL_MINOR = 3
+#: 3: GET_RADAR, GET_LIDAR and GET_EVENTS (instruments); 4: GET_BODY_IDS (binary scenes).
+PROTOCOL_MINOR = 4
 #: The same (the name the label and instrument requests' code uses).
 MINOR_VERSION = PROTOCOL_MINOR
 #: Header: magic, version (u16), type (u16), request id (u32), body length (u32).
@@ -73,6 +73,7 @@ class MsgType(IntEnum):
     GET_RADAR = 0x0026
     GET_LIDAR = 0x0027
     GET_EVENTS = 0x0028
+    GET_BODY_IDS = 0x0029
     HEIGHT_AT = 0x0030
     PIXEL_RAY = 0x0031
     RAY = 0x0032
@@ -129,7 +130,7 @@ REQUEST_SIZES = {MsgType.HELLO: None, MsgType.INFO: 0, MsgType.PING: 0,
                  MsgType.SET_LIGHT: None,
                  MsgType.GET_IMAGE: BITS.size, MsgType.GET_RANGE: 0,
                  MsgType.GET_NORMALS: 0, MsgType.GET_TRUTH: 0, MsgType.GET_LABELS: 0,
-                 MsgType.GET_MASKS: 0, MsgType.HEIGHT_AT: XY.size,
+                 MsgType.GET_MASKS: 0, MsgType.GET_BODY_IDS: 0, MsgType.HEIGHT_AT: XY.size,
                  MsgType.PIXEL_RAY: XY.size, MsgType.RAY: RAY.size,
                  MsgType.GET_RADAR: None, MsgType.GET_LIDAR: None,
                  MsgType.GET_EVENTS: EVENTS_REQUEST.size}

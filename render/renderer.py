@@ -301,12 +301,16 @@ class Frame:
         World-frame unit surface normals; NaN where nothing was hit.
     drawn : dict
         What the scene drew (levels of detail, triangles, imposter state).
+    body_ids : (h, w) uint8, optional
+        Which body each pixel shows (0 sky) in a scene of several bodies
+        (:meth:`render.binary_scene.BinaryScene.body_ids`); None for a single body or terrain.
     """
 
     radiance: np.ndarray
     range: np.ndarray
     normals: np.ndarray
     drawn: dict = field(default_factory=dict)
+    body_ids: np.ndarray | None = None
 
 
 def clip_from_camera(intrinsics: Intrinsics, near: float, far: float) -> np.ndarray:

@@ -4,6 +4,7 @@ Layout (``craterscape render sequence`` writes it; :mod:`evaluation` reads it)::
 
     RUN_DIR/
       manifest.json         run-level facts: format, scene, frame count, resolution, seed
+                            (a binary scene: its orbit and spins under "binary")
       scenario.toml         a copy of the scenario that produced the run
       truth.json            one entry per frame (below), rewritten atomically after each frame
       frames/frame_NNNNNN.png     camera image, 8- or 16-bit grey, linear in radiance
@@ -12,6 +13,8 @@ Layout (``craterscape render sequence`` writes it; :mod:`evaluation` reads it)::
       radiance/radiance_NNNNNN.tif  spectral radiance (float32, W m^-2 sr^-1 nm^-1), on request
       labels/...            image-space labels and the dataset exports, on request
                             (:mod:`render.labels`, :mod:`render.dataset`, docs/labels.md)
+      bodies/bodies_NNNNNN.png    binary scenes: which body each pixel shows (uint8; 0 sky,
+                                  1 primary, 2 secondary)
 
 A truth entry::
 
@@ -31,6 +34,9 @@ A truth entry::
      "motion": {"velocity": [..], "angular_velocity": [..], "body_angular_velocity": [..],
                 "exposure_time": .., "line_time": .., "samples": ..},   # blurred frames only
      "labels": {"rims": "labels/rims_000000.json", ...}}   # labelled runs only
+     "bodies": [{"id": 1, "name": "primary", "position": [x, y, z], "attitude": [w, x, y, z],
+                 "reach": ..}, ...],             # binary scenes: each body's centre and R_WB
+     "body_ids": "bodies/bodies_000000.png"}     # binary scenes
 
 ``time`` is when the exposure of the first row starts and ``camera`` the pose then. With
 motion, :meth:`FrameTruth.pose_at` gives the pose at any time and :meth:`FrameTruth.row_pose`
@@ -67,7 +73,7 @@ FORMAT = "craterscape-render-run"
 #: Keys of a truth entry and of its tables (what :meth:`FrameTruth.as_dict` writes).
 TRUTH_KEYS = frozenset({"index", "time", "image", "range", "normals", "camera", "intrinsics",
                         "sun", "body_rotation", "drawn", "motion", "radiance", "exposure",
-                        "labels"})
+                        "labels", "bodies", "body_ids"})
 TRUTH_TABLE_KEYS = {"camera": frozenset({"position", "attitude"}),
                     "intrinsics": frozenset({"width", "height", "fx", "fy", "cx", "cy"}),
                     "sun": frozenset({"direction", "et", "azimuth", "elevation", "distance_au",
@@ -84,7 +90,8 @@ TRUTH_TABLE_KEYS = {"camera": frozenset({"position", "attitude"}),
 #: write), and of its lighting table.
 MANIFEST_KEYS = frozenset({"format", "version", "scenario", "scene", "frames", "resolution",
                            "seed", "sensor", "lighting", "renderer", "render_seconds",
-                           "frames_rendered_this_run", "frames_written", "events", "labels"})
+                           "frames_rendered_this_run", "frames_written", "events", "labels",
+                           "binary"})
 MANIFEST_LIGHTING_KEYS = frozenset({"sun", "albedo", "reflectance", "hapke", "distance_au",
                                     "spectral_irradiance", "utc"})
 
@@ -124,6 +131,8 @@ class FrameTruth:
     sky: dict | None = None
     exposure: dict | None = None
     labels: dict | None = None
+    bodies: list | None = None
+    body_ids: str | None = None
 
     def as_dict(self) -> dict:
         """Return the frame's truth as plain data for the run's truth file."""
@@ -140,6 +149,10 @@ class FrameTruth:
             d["radiance"] = self.radiance
         if self.labels:
             d["labels"] = self.labels
+        if self.bodies is not None:
+            d["bodies"] = self.bodies
+        if self.body_ids is not None:
+            d["body_ids"] = self.body_ids
         return d
 
     def pose_at(self, t: float) -> Pose:
@@ -177,7 +190,8 @@ class FrameTruth:
                    Intrinsics(**d["intrinsics"]), tuple(d["sun"]["direction"]),
                    tuple(d.get("body_rotation", (1.0, 0.0, 0.0, 0.0))), d.get("drawn", {}),
                    d.get("image"), d.get("range"), d.get("normals"), d.get("motion"),
-                   d.get("radiance"), sky or None, d.get("exposure"), d.get("labels"))
+                   d.get("radiance"), sky or None, d.get("exposure"), d.get("labels"),
+                   d.get("bodies"), d.get("body_ids"))
 
 
 #: Manifest facts a resumed run must share with the interrupted one.
@@ -271,7 +285,8 @@ class RunWriter:
         return before[0].get("exposure") if before else None
 
     def write_frame(self, truth: FrameTruth, image: np.ndarray, range_m: np.ndarray | None,
-                    normals: np.ndarray | None, radiance: np.ndarray | None = None) -> None:
+                    normals: np.ndarray | None, radiance: np.ndarray | None = None, *,
+                    body_ids: np.ndarray | None = None) -> None:
         """Write one frame's image and truth rasters and record the frame in ``truth.json``."""
         i = truth.index
         names = dict(image=f"frames/frame_{i:06d}.png")
@@ -288,11 +303,15 @@ class RunWriter:
             (self.dir / "radiance").mkdir(exist_ok=True)
             write_float_tiff(radiance, self.dir / names["radiance"],
                              tags={"UNITS": "W m-2 sr-1 nm-1"})
+        if body_ids is not None:
+            names["body_ids"] = f"bodies/bodies_{i:06d}.png"
+            (self.dir / "bodies").mkdir(exist_ok=True)
+            write_png(np.asarray(body_ids, dtype=np.uint8), self.dir / names["body_ids"])
         entry = FrameTruth(truth.index, truth.time, truth.pose, truth.intrinsics, truth.sun,
                            truth.body_rotation, truth.drawn, names["image"],
                            names.get("range"), names.get("normals"), truth.motion,
                            names.get("radiance"), truth.sky, truth.exposure,
-                           truth.labels).as_dict()
+                           truth.labels, truth.bodies, names.get("body_ids")).as_dict()
         self.frames = [f for f in self.frames if int(f["index"]) != i] + [entry]
         self.frames.sort(key=lambda f: int(f["index"]))
         self._write_truth()
@@ -401,6 +420,17 @@ class RunReader:
             while len(self._ranges) > RANGE_CACHE:
                 self._ranges.popitem(last=False)
         return a
+
+    def body_ids(self, k: int) -> np.ndarray | None:
+        """Return frame ``k``'s body-id image (uint8, 0 sky), or None where it has none."""
+        if not self.truth or not self.truth[k].body_ids:
+            return None
+        import cv2
+
+        img = cv2.imread(str(self.dir / self.truth[k].body_ids), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise MissingInputError(f"cannot read body ids '{self.truth[k].body_ids}'")
+        return img
 
     def normals(self, k: int) -> np.ndarray | None:
         """Return frame ``k``'s world-frame surface normals, (h, w, 3), or None without truth."""

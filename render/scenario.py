@@ -11,6 +11,10 @@ trajectory. Paths are relative to the scenario file. Example (``examples/lunar_d
     stack = "../demo-output/stack"   # a layer-stack folder (craterscape terrain enhance)
     curvature = true
     # asteroid scenes: body = "eros.npz", boulders = true
+    # binary scenes (render.binary_scene): type = "binary", primary = "didymos.npz",
+    # secondary = "dimorphos.npz" (native bodies or shape files), [scene.orbit] semi_major_axis,
+    # eccentricity, inclination, node, periapsis, mean_anomaly, period, mass_ratio;
+    # [scene.primary_spin] / [scene.secondary_spin] axis, period, phase (none: tidally locked)
     # [scene.build]: the scene's recipe, built where the scene is missing
     # (render.scene_build: [scene.build.base] and [scene.build.stack], or [scene.build.body])
 
@@ -82,6 +86,7 @@ trajectory. Paths are relative to the scenario file. Example (``examples/lunar_d
     range = true
     normals = true
     radiance = false                 # also radiance/radiance_NNNNNN.tif, W m^-2 sr^-1 nm^-1
+    body_ids = true                  # binary scenes: bodies/bodies_NNNNNN.png, 0 sky, 1, 2
 
     [labels]                         # optional: image-space labels (render/labels.py,
     min_crater_pixels = 8.0          # docs/labels.md); rims, masks and flow on by default
@@ -122,6 +127,7 @@ from render.labels import LabelSpec
 from render.lamp import Lamp
 from render.lidar import Lidar
 from render.motion import Motion
+from render.orbit import MutualOrbit, Spin
 from render.radar import RadarBeam
 from render.reflectance import Hapke, check_brdf
 from render.renderer import MAX_ANTIALIAS, Lighting, RenderOptions
@@ -161,7 +167,12 @@ MAX_IMAGE_SIDE = 32768
 DEFAULT_IMPOSTER_PIXELS = 24.0
 #: Keys of a scenario's [scene] table.
 SCENE_KEYS = frozenset({"type", "stack", "curvature", "radius", "body", "boulders", "spin_axis",
-                        "spin_period", "spin_phase", "imposter_pixels", "build"})
+                        "spin_period", "spin_phase", "imposter_pixels", "build", "primary",
+                        "secondary", "orbit", "primary_spin", "secondary_spin"})
+#: Keys of [scene] that only a binary scene takes, and those a binary scene refuses.
+BINARY_KEYS = frozenset({"primary", "secondary", "orbit", "primary_spin", "secondary_spin"})
+NOT_BINARY_KEYS = frozenset({"stack", "curvature", "radius", "body", "spin_axis", "spin_period",
+                             "spin_phase", "imposter_pixels", "build"})
 #: Keys of a scenario's [trajectory] table.
 TRAJECTORY_KEYS = frozenset({"type", "frames", "duration", "start_altitude", "end_altitude",
                              "ground_track", "look", "site", "keyframe", "start_distance",
@@ -174,7 +185,7 @@ class SceneSpec:
 
     Parameters
     ----------
-    type : {"terrain", "asteroid"}
+    type : {"terrain", "asteroid", "binary"}
     stack : str, optional
         Layer-stack folder (terrain), relative to the scenario file.
     body : str, optional
@@ -198,6 +209,12 @@ class SceneSpec:
     build : render.scene_build.SceneBuild, optional
         ``[scene.build]``: the recipe the scene is built from where it is missing
         (:func:`render.scene_build.ensure_scene`).
+    primary, secondary : str, optional
+        Binary: the two bodies (native ``.npz`` or shape files), relative to the scenario.
+    orbit : render.orbit.MutualOrbit, optional
+        Binary: ``[scene.orbit]`` (Didymos-Dimorphos where not given).
+    primary_spin, secondary_spin : render.orbit.Spin, optional
+        Binary: each body's spin; a secondary without one is tidally locked.
     """
 
     type: str
@@ -212,6 +229,11 @@ class SceneSpec:
     imposter_pixels: float = DEFAULT_IMPOSTER_PIXELS
     albedo_map: str | None = None
     build: SceneBuild | None = None
+    primary: str | None = None
+    secondary: str | None = None
+    orbit: MutualOrbit | None = None
+    primary_spin: Spin | None = None
+    secondary_spin: Spin | None = None
 
     @classmethod
     def from_mapping(cls, table: dict) -> SceneSpec:
@@ -228,9 +250,15 @@ class SceneSpec:
         """
         scene = check_keys(table, SCENE_KEYS, _SCENE)
         kind = scene.get("type")
-        if kind not in ("terrain", "asteroid"):
+        if kind not in ("terrain", "asteroid", "binary"):
             raise InvalidParameterError(
-                f"scenario [scene] type must be 'terrain' or 'asteroid'; got {kind!r}")
+                f"scenario [scene] type must be 'terrain' or 'asteroid' or 'binary'; got {kind!r}")
+        if kind == "binary":
+            return cls._binary(scene)
+        extra = sorted(BINARY_KEYS & set(scene))
+        if extra:
+            raise InvalidParameterError(f"scenario [scene] {extra[0]} belongs to a binary scene "
+                                        f"(type = \"binary\"), not a {kind} scene")
         if kind == "terrain" and "stack" not in scene:
             raise InvalidParameterError("scenario [scene] needs 'stack' (a layer-stack folder)")
         if kind == "asteroid" and "body" not in scene:
@@ -261,6 +289,37 @@ class SceneSpec:
             values["build"] = SceneBuild.from_mapping(scene["build"], kind)
         return cls(**values)
 
+    @classmethod
+    def _binary(cls, scene: dict) -> SceneSpec:
+        """Build the record of a binary ``[scene]`` (see :meth:`from_mapping`)."""
+        wrong = sorted(NOT_BINARY_KEYS & set(scene))
+        if wrong:
+            hint = (" (give each body's spin in [scene.primary_spin] and "
+                    "[scene.secondary_spin])" if wrong[0].startswith("spin") else "")
+            raise InvalidParameterError(f"scenario [scene] {wrong[0]} does not apply to a "
+                                        f"binary scene{hint}")
+        values: dict = {"type": "binary"}
+        for key in ("primary", "secondary"):
+            if key not in scene:
+                raise InvalidParameterError(f"scenario [scene] needs '{key}' (a native body "
+                                            "or a shape file) for a binary scene")
+            values[key] = text(scene[key], key, where=_SCENE)
+            if Path(values[key]).name in ("", ".", ".."):
+                raise InvalidParameterError(f"scenario [scene] {key} must name a body file; "
+                                            f"got {values[key]!r}")
+        if "boulders" in scene:
+            values["boulders"] = boolean(scene["boulders"], "boulders", where=_SCENE)
+        orbit = scene.get("orbit", {})
+        if not isinstance(orbit, dict):
+            raise InvalidParameterError(f"scenario [scene.orbit] must be a table; got {orbit!r}")
+        values["orbit"] = MutualOrbit.from_mapping(orbit)
+        values["primary_spin"] = Spin.from_mapping(scene.get("primary_spin", {}),
+                                                   "scenario [scene.primary_spin]")
+        if "secondary_spin" in scene:
+            values["secondary_spin"] = Spin.from_mapping(scene["secondary_spin"],
+                                                         "scenario [scene.secondary_spin]")
+        return cls(**values)
+
     def inputs(self) -> tuple[str, ...]:
         """List the files and folders the scene reads (relative to the scenario file).
 
@@ -268,7 +327,8 @@ class SceneSpec:
         -------
         tuple of str
         """
-        return tuple(v for v in (self.stack, self.body) if v is not None)
+        return tuple(v for v in (self.stack, self.body, self.primary, self.secondary)
+                     if v is not None)
 
 
 @dataclass(frozen=True)
@@ -674,7 +734,7 @@ def _dated_sun(sun: dict, scene: SceneSpec, path: Path | None,
                                     "the Sun on a date; give one or the other")
     extra.pop("distance", None)
     return SunEphemeris.from_mapping({k: sun[k] for k in DATED_KEYS if k in sun},
-                                     asteroid=scene.type == "asteroid",
+                                     asteroid=scene.type in ("asteroid", "binary"),
                                      base=path.parent if path else None)
 
 
@@ -751,12 +811,15 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
         if key in sun:
             extra[key] = number(sun.get(key), key, **_POSITIVE, where=_SUN)
     if "albedo_map" in surface:
+        if scene.type == "binary":
+            raise InvalidParameterError("scenario [surface] albedo_map does not apply to a "
+                                        "binary scene")
         scene = replace(scene, albedo_map=text(surface["albedo_map"], "albedo_map",
                                                where=_SURFACE))
     ephemeris = _dated_sun(sun, scene, path, extra)
     if ephemeris is not None:  # the sky at time 0 where the site is known; else overhead
         lighting = Lighting((0.0, 0.0, 1.0), albedo, brdf, **extra)
-        if ephemeris.site is not None or scene.type == "asteroid":
+        if ephemeris.site is not None or scene.type in ("asteroid", "binary"):
             lighting = ephemeris.sky(0.0).lighting(lighting)
     elif "direction" in sun:
         lighting = Lighting(vector(sun["direction"], "direction", 3, where=_SUN), albedo, brdf,
@@ -815,8 +878,9 @@ def parse_scenario(data: dict, path: Path | None = None) -> Scenario:
                            where=_RENDER),
         shadow_detail=number(ren.get("shadow_detail", defaults.shadow_detail),
                              "shadow_detail", low=0.25, high=8.0, where=_RENDER))
-    out = _section(data, "output", {"range", "normals", "radiance"})
+    out = _section(data, "output", {"range", "normals", "radiance", "body_ids"})
     outputs = {"range": boolean(out.get("range", True), "range", where=_OUTPUT),
+               "body_ids": boolean(out.get("body_ids", True), "body_ids", where=_OUTPUT),
                "normals": boolean(out.get("normals", True), "normals", where=_OUTPUT),
                "radiance": boolean(out.get("radiance", False), "radiance", where=_OUTPUT)}
 

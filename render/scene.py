@@ -352,7 +352,7 @@ class Scene(Protocol):
     Attributes
     ----------
     kind : str
-        ``"terrain"``, ``"asteroid"`` or ``"mesh"``.
+        ``"terrain"``, ``"asteroid"``, ``"mesh"`` or ``"binary"``.
     origin : (3,) float64, metres
         World point subtracted before anything reaches the GPU.
     reach : float, metres

@@ -91,6 +91,13 @@ def load_scene(scenario: Scenario) -> Scene:
 
     ensure_scene(scenario)
     spec = scenario.scene
+    if spec.type == "binary":
+        from render.binary_scene import BinaryScene
+
+        assert spec.primary is not None and spec.secondary is not None  # SceneSpec requires
+        return BinaryScene(scenario.resolve(spec.primary), scenario.resolve(spec.secondary),
+                           orbit=spec.orbit, primary_spin=spec.primary_spin,
+                           secondary_spin=spec.secondary_spin, boulders=spec.boulders)
     albedo = None if spec.albedo_map is None else scenario.resolve(spec.albedo_map)
     if spec.type == "terrain":
         from render.terrain_scene import TerrainScene
@@ -212,9 +219,16 @@ def render_sample(renderer: Renderer, scene: Scene, scenario: Scenario, sample: 
                                                    et=et))
     image, record = exposure.expose(frame.radiance, index, intrinsics=scenario.intrinsics,
                                     spectral_irradiance=lighting.spectral_irradiance)
+    from render.binary_scene import BinaryScene
+
+    bodies = None
+    if isinstance(scene, BinaryScene):  # several bodies: which pixel shows which, and where
+        frame.body_ids = scene.body_ids(view, frame)
+        bodies = scene.bodies_truth(sample.time)
     truth = FrameTruth(index, sample.time, sample.pose, scenario.intrinsics,
                        lighting.sun, tuple(sample.body_rotation), frame.drawn, motion=moving,
-                       sky=None if sky is None else sky.as_dict(), exposure=record)
+                       sky=None if sky is None else sky.as_dict(), exposure=record,
+                       bodies=bodies)
     return image, frame, truth
 
 
@@ -289,6 +303,9 @@ def run_sequence(scenario: Scenario, run_dir: str | Path, *, resume: bool = Fals
                     renderer=describe())
     if scenario.labels is not None:
         manifest["labels"] = scenario.labels.as_dict()
+    from render.binary_scene import BinaryScene
+    if isinstance(scene, BinaryScene):
+        manifest["binary"] = scene.describe()
     writer = RunWriter(run_dir, manifest, scenario.path, resume=resume)
     done = writer.done()
     labeller = None
@@ -313,7 +330,9 @@ def run_sequence(scenario: Scenario, run_dir: str | Path, *, resume: bool = Fals
                            frame.range if scenario.outputs["range"] else None,
                            frame.normals if scenario.outputs["normals"] else None,
                            scenario.lighting_at(sample.time, scene).radiance(frame.radiance)
-                           if scenario.outputs.get("radiance") else None)
+                           if scenario.outputs.get("radiance") else None,
+                           body_ids=frame.body_ids if scenario.outputs.get("body_ids", True)
+                           else None)
         if labeller is not None:
             pending = _label_frame(writer, labeller, scenario, frame, truth, pending)
         rendered += 1

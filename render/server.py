@@ -57,6 +57,7 @@ from typing import Any
 import numpy as np
 
 from render.asteroid_scene import AsteroidScene
+from render.binary_scene import BinaryScene
 from render.camera import Intrinsics, Pose, look_at
 from render.errors import ProtocolError
 from render.motion import Motion
@@ -584,7 +585,7 @@ class RenderServer:
         """Bytes of the reply to ``kind`` at the client's image size (small ones: 0)."""
         k = st.scenario.intrinsics
         per_pixel = {MsgType.GET_IMAGE: 2, MsgType.GET_RANGE: 4, MsgType.GET_NORMALS: 12,
-                     MsgType.GET_MASKS: 4}
+                     MsgType.GET_MASKS: 4, MsgType.GET_BODY_IDS: 1}
         return k.width * k.height * per_pixel.get(kind, 0)
 
     def _handle(self, st: _State, kind: MsgType, body: bytes) -> bytes:
@@ -639,10 +640,18 @@ class RenderServer:
                 "<f4", copy=False).tobytes()
         if kind in SENSOR_REQUESTS:
             return answer_sensor(self, st, kind, body)
+        if kind == MsgType.GET_BODY_IDS:
+            kind_of = self.scenario.scene.type
+            if kind_of != "binary":
+                raise ProtocolError(ErrorCode.UNSUPPORTED, "GET_BODY_IDS needs a binary scene "
+                                    f"(this one is {kind_of})")
+            _, frame, _ = self._frame(st)
+            ids = frame.body_ids
+            return ARRAY_HEAD.pack(ids.shape[1], ids.shape[0]) + ids.astype("<u1").tobytes()
         if kind == MsgType.GET_TRUTH:
             _, _, truth = self._frame(st)
             d = truth.as_dict()
-            for key in ("image", "range", "normals"):
+            for key in ("image", "range", "normals", "body_ids"):
                 d.pop(key, None)
             return json_body(d)
         if kind in (MsgType.GET_LABELS, MsgType.GET_MASKS):
@@ -732,6 +741,11 @@ class RenderServer:
     def _check_outside(self, pose: Pose, t: float) -> None:
         p = np.asarray(pose.position)
         scene = self.scene
+        if isinstance(scene, BinaryScene):
+            if scene.contains(p, t):
+                raise ProtocolError(ErrorCode.INSIDE_SURFACE,
+                                    "camera is inside a body of the binary at that time")
+            return
         if isinstance(scene, TerrainScene):
             try:
                 ground = scene.height_at(p[0], p[1])

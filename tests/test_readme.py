@@ -112,6 +112,10 @@ def parse_toml_block(body: str, where: Path) -> None:
         parse_scenario({**data, "scene": scene,
                         "trajectory": {"type": "descent", "start_altitude": 100.0,
                                        "end_altitude": 10.0}}, path)
+    elif "scene" in data:
+        from render.scenario import SceneSpec
+
+        SceneSpec.from_mapping(data["scene"])
     else:
         raise AssertionError(f"no parser known for this TOML block:\n{body}")
 

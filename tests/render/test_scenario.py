@@ -6,6 +6,7 @@ from pathlib import Path
 import pytest
 
 from render.scenario import (
+    NOT_BINARY_KEYS,
     SCENE_KEYS,
     TRAJECTORY_KEYS,
     SceneSpec,
@@ -29,9 +30,14 @@ def _table(record) -> dict:
         if key == "build":  # [scene.build], the scene's recipe
             out[key] = value.to_mapping()
             continue
+        if hasattr(value, "as_dict"):  # a binary's [scene.orbit] and [scene.*_spin]
+            out[key] = value.as_dict()
+            continue
         if isinstance(value, tuple):
             value = [dict(v) if isinstance(v, dict) else v for v in value]
         out[key] = value
+    if out.get("type") == "binary":  # the single-body fields' defaults are not its keys
+        out = {k: v for k, v in out.items() if k not in NOT_BINARY_KEYS}
     return out
 
 
