@@ -658,3 +658,69 @@ def place_mesh_boulders(body: MeshBody, population: Population, *, seed: int,
                roll_deg=np.degrees(roll))
     log.info("placed %d boulders on the mesh", n)
     return MeshBoulders(cat, out_v.reshape(-1, 3), faces_out.astype(np.int64))
+
+
+# ----------------------------------------------------------------------------------------
+# files
+
+#: Format tag of a mesh body's native file.
+MESH_FORMAT = "craterscape-mesh-asteroid/1"
+
+
+def save_mesh_native(path, body: MeshBody, tables=None, *, inputs=()):
+    """Write a mesh body (vertices, faces, metadata, catalogues) as ``.npz``, atomically.
+
+    Same content, same bytes (fixed member order and zip dates, as
+    :func:`asteroid.body.save_native`).
+    """
+    import json
+    import zipfile
+    from pathlib import Path
+
+    from asteroid.body import _member
+    from terrain.core.outputs import atomic_path
+
+    path = Path(path)
+    with atomic_path(path, inputs) as tmp, zipfile.ZipFile(tmp, "w", allowZip64=True) as zf:
+        _member(zf, "format", np.array(MESH_FORMAT))
+        _member(zf, "vertices", body.vertices)
+        _member(zf, "faces", body.faces)
+        _member(zf, "metadata", np.array(json.dumps(dict(body.metadata), sort_keys=True,
+                                                    default=float)))
+        for table, columns in (tables or {}).items():
+            for column, values in columns.items():
+                _member(zf, f"{table}/{column}", np.asarray(values))
+    return path
+
+
+def load_mesh_native(path) -> tuple[MeshBody, dict]:
+    """Read a mesh body written by :func:`save_mesh_native`: the body and its catalogues."""
+    import json
+
+    with np.load(path, allow_pickle=False) as z:
+        if str(z["format"]) != MESH_FORMAT:
+            raise InvalidShapeError(f"'{path}' is not a mesh body ({MESH_FORMAT})")
+        body = MeshBody(z["vertices"], z["faces"], json.loads(str(z["metadata"])))
+        tables: dict = {}
+        for name in z.files:
+            if "/" in name:
+                table, column = name[:-4].split("/", 1)
+                tables.setdefault(table, {})[column] = z[name]
+    return body, tables
+
+
+def save_columns(path, columns: dict, *, inputs=()):
+    """Write catalogue columns as CSV atomically (identities as integers, the rest %.10g)."""
+    from pathlib import Path
+
+    from terrain.core.outputs import atomic_path
+
+    names = list(columns)
+    with atomic_path(path, inputs) as tmp, open(tmp, "w", encoding="utf-8") as fh:
+        fh.write(",".join(names) + "\n")
+        n = len(columns[names[0]]) if names else 0
+        cols = [np.asarray(columns[k]) for k in names]
+        for i in range(n):
+            fh.write(",".join(str(int(c[i])) if c.dtype.kind in "iu" else f"{c[i]:.10g}"
+                              for c in cols) + "\n")
+    return Path(path)
