@@ -99,6 +99,7 @@ from asteroid.boulders import BoulderSettings
 from asteroid.craters import DEFAULT_MAX_EXTENT_DEG, CraterSettings, SlopeErosion, max_diameter
 from asteroid.faulting import FIG8_FAULTING, Faulting
 from asteroid.noise import FIG5_PRESETS, PerlinNoise
+from asteroid.boulder_presets import BOULDER_PRESETS
 from asteroid.shape import UNITS
 from asteroid.sphere import check_magnitude
 from terrain.core.checks import check_keys, number
@@ -258,6 +259,9 @@ def parse_spec(text: str, what: str) -> dict | None:
         return dict(PAPER_CRATERS)
     out: dict = {}
     for part in filter(None, (p.strip() for p in text.split(","))):
+        if "=" not in part and what == "boulders" and part.lower() in BOULDER_PRESETS:
+            out.update(copy.deepcopy(BOULDER_PRESETS[part.lower()]))
+            continue
         if "=" not in part:
             raise InvalidParameterError(
                 f"--{what} expects key=value pairs separated by commas, 'paper' or 'none'; "

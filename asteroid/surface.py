@@ -60,7 +60,7 @@ from terrain.craters.crater import crater_interior, exterior_height, shape_array
 from terrain.craters.cratering import obliteration
 from terrain.craters.population import Population
 
-__all__ = ["POSITION_QUANTUM", "MeshBody", "MeshBoulders", "MeshCraters", "Sites",
+__all__ = ["BOULDER_SITE_STREAM", "CRATER_SITE_STREAM", "POSITION_QUANTUM", "MeshBody", "MeshBoulders", "MeshCraters", "Sites",
            "add_mesh_craters", "place_mesh_boulders", "refine", "sample_sites"]
 
 log = logging.getLogger(__name__)
@@ -375,12 +375,16 @@ def refine(vertices: np.ndarray, faces: np.ndarray, centres: np.ndarray,
         if not need.any():
             return vertices, faces, rounds - 1
         tree = cKDTree(centroid)
+        top = float(longest.max())
         marked = np.zeros(len(faces), bool)
         for c, d in zip(centres[need], diameters[need], strict=True):
-            near = tree.query_ball_point(c, reach * d + longest.max())
+            near = tree.query_ball_point(c, reach * d + top)
             if near:
                 near = np.asarray(near)
-                marked[near[longest[near] > d / edges_per_diameter]] = True
+                # a triangle is within reach when its centroid is within reach plus its size
+                close = np.sum((centroid[near] - c) ** 2, axis=1) \
+                    <= (reach * d + longest[near]) ** 2
+                marked[near[close & (longest[near] > d / edges_per_diameter)]] = True
         if not marked.any():
             return vertices, faces, rounds - 1
         vertices, faces = split(vertices, faces, marked)
@@ -650,7 +654,7 @@ def place_mesh_boulders(body: MeshBody, population: Population, *, seed: int,
         centres[sl] = sites.points[sl] + normals[sl] * (-lowest - depth[sl])[:, None]
         out_v[sl] = world + centres[sl, None, :]
     faces_out = (fb[None, :, :] + (np.arange(n) * nv)[:, None, None]).reshape(-1, 3)
-    cat = dict(id=sites.uid, x_m=centres[:, 0], y_m=centres[:, 1], z_m=centres[:, 2],
+    cat = dict(id=sites.uid, face=sites.face, x_m=centres[:, 0], y_m=centres[:, 1], z_m=centres[:, 2],
                nx=normals[:, 0], ny=normals[:, 1], nz=normals[:, 2],
                diameter_m=sites.diameters, height_m=height, flattening=flattening,
                elongation=elongation, burial_fraction=burial, burial_depth_m=depth,
