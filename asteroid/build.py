@@ -40,6 +40,7 @@ from asteroid.meshio.export import MESH_FORMATS, mesh_format, write_mesh
 from asteroid.recipe import KEEP_NON_STAR_FRACTION, Recipe
 from asteroid.shape import ShapeModel
 from asteroid.sphere import SphereMesh
+from asteroid.surface import MeshBody, MeshBoulders
 from terrain.core import memory
 from terrain.core.errors import InvalidParameterError
 from terrain.core.metakeys import version
@@ -70,17 +71,17 @@ class BuildResult:
         Figures for the user (counts, timings, the shape's non-star-shaped fraction).
     """
 
-    body: Body
-    craters: CraterCatalog | None = None
-    boulders: Boulders | None = None
+    body: Body | MeshBody
+    craters: CraterCatalog | dict | None = None
+    boulders: Boulders | MeshBoulders | None = None
     report: dict = field(default_factory=dict)
 
     def tables(self) -> dict:
         """Catalogues for the native file."""
         out = {}
-        if self.craters is not None:
+        if isinstance(self.craters, CraterCatalog):
             out["craters"] = self.craters.as_dict()
-        if self.boulders is not None:
+        if isinstance(self.boulders, Boulders):
             out["boulders"] = self.boulders.catalog.as_dict()
         return out
 
@@ -185,7 +186,6 @@ def build_mesh_body(recipe: Recipe, *, shape: ShapeModel | None = None, progress
     """
     from asteroid.packing import packing_body
     from asteroid.surface import (
-        BOULDER_SITE_STREAM,
         CRATER_SITE_STREAM,
         MeshBody,
         add_mesh_craters,
@@ -197,7 +197,7 @@ def build_mesh_body(recipe: Recipe, *, shape: ShapeModel | None = None, progress
     meta = dict(craterscape_version=version(), seed=recipe.seed, recipe=recipe.as_dict())
     if shape is None:
         cells = recipe.packing_cells or min(256, max(32, 2 * recipe.magnitude))
-        body = packing_body(recipe.packing, radius=recipe.base_radius, seed=recipe.seed,
+        body = packing_body(str(recipe.packing), radius=recipe.base_radius, seed=recipe.seed,
                             cells=cells)
         if not recipe.stretch.is_identity:
             body = body.replace(body.vertices * recipe.stretch.factors)
@@ -338,10 +338,10 @@ def _write_all(result: BuildResult, paths: OutputPaths, inputs) -> list[Path]:
     if not isinstance(result.body, Body):
         from asteroid.surface import save_columns, save_mesh_native
 
-        tables = {}
-        if result.craters is not None:
+        tables: dict[str, dict] = {}
+        if isinstance(result.craters, dict):
             tables["craters"] = result.craters
-        if result.boulders is not None:
+        if isinstance(result.boulders, MeshBoulders):
             tables["boulders"] = result.boulders.catalog
         save_mesh_native(paths.native, result.body, tables, inputs=inputs)
         written.append(paths.native)
@@ -353,10 +353,10 @@ def _write_all(result: BuildResult, paths: OutputPaths, inputs) -> list[Path]:
         return written
     save_native(paths.native, result.body, result.tables(), inputs=inputs)
     written.append(paths.native)
-    if paths.craters is not None and result.craters is not None:
+    if paths.craters is not None and isinstance(result.craters, CraterCatalog):
         save_table(paths.craters, result.craters, inputs=inputs)
         written.append(paths.craters)
-    if paths.boulders is not None and result.boulders is not None:
+    if paths.boulders is not None and isinstance(result.boulders, Boulders):
         save_table(paths.boulders, result.boulders.catalog, inputs=inputs)
         written.append(paths.boulders)
     return written

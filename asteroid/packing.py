@@ -140,7 +140,7 @@ _TETS = np.array([[0, 1, 3, 7], [0, 3, 2, 7], [0, 2, 6, 7], [0, 6, 4, 7], [0, 4,
 
 def marching_tetrahedra(values: np.ndarray, origin, step: float) \
         -> tuple[np.ndarray, np.ndarray]:
-    """Closed triangle mesh of the zero level of a grid (negative inside), outward wound.
+    """Mesh the zero level of a grid (negative inside): closed, outward wound.
 
     Parameters
     ----------

@@ -95,11 +95,11 @@ from pathlib import Path
 from typing import Any
 
 from asteroid.body import Stretch
+from asteroid.boulder_presets import BOULDER_PRESETS
 from asteroid.boulders import BoulderSettings
 from asteroid.craters import DEFAULT_MAX_EXTENT_DEG, CraterSettings, SlopeErosion, max_diameter
 from asteroid.faulting import FIG8_FAULTING, Faulting
 from asteroid.noise import FIG5_PRESETS, PerlinNoise
-from asteroid.boulder_presets import BOULDER_PRESETS
 from asteroid.shape import UNITS
 from asteroid.sphere import check_magnitude
 from terrain.core.checks import check_keys, number

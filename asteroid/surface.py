@@ -49,8 +49,7 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
-from asteroid.boulders import BoulderSettings, _local_shapes, _rotation_x, _rotation_y, \
-    _rotation_z
+from asteroid.boulders import BoulderSettings, _local_shapes, _rotation_x, _rotation_y, _rotation_z
 from asteroid.craters import CraterSettings
 from asteroid.errors import InvalidShapeError
 from terrain.core import memory
@@ -60,8 +59,9 @@ from terrain.craters.crater import crater_interior, exterior_height, shape_array
 from terrain.craters.cratering import obliteration
 from terrain.craters.population import Population
 
-__all__ = ["BOULDER_SITE_STREAM", "CRATER_SITE_STREAM", "POSITION_QUANTUM", "MeshBody", "MeshBoulders", "MeshCraters", "Sites",
-           "add_mesh_craters", "place_mesh_boulders", "refine", "sample_sites"]
+__all__ = ["BOULDER_SITE_STREAM", "CRATER_SITE_STREAM", "POSITION_QUANTUM", "MeshBody",
+           "MeshBoulders", "MeshCraters", "Sites", "add_mesh_craters", "load_mesh_native",
+           "place_mesh_boulders", "refine", "sample_sites", "save_mesh_native", "split"]
 
 log = logging.getLogger(__name__)
 
@@ -171,7 +171,7 @@ class MeshBody:
         return float(np.mean(np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=2)))
 
     def check_closed(self) -> None:
-        """Raise :class:`InvalidShapeError` unless every edge borders two triangles, once each way."""
+        """Raise :class:`InvalidShapeError` unless every edge has two triangles, one each way."""
         _check_closed(self.faces, self.n_vertices, "mesh body")
 
     def replace(self, vertices=None, faces=None, **metadata) -> MeshBody:
@@ -295,7 +295,7 @@ def sample_sites(vertices: np.ndarray, faces: np.ndarray, population: Population
 
 
 def _edges(faces: np.ndarray, n_vertices: int):
-    """Unique undirected edges and each face's three edge ids (edge i joins corners i, i+1)."""
+    """Return the unique undirected edges and each face's three edge ids (i joins i, i+1)."""
     a = faces
     b = np.roll(faces, -1, axis=1)
     lo, hi = np.minimum(a, b), np.maximum(a, b)
@@ -654,7 +654,8 @@ def place_mesh_boulders(body: MeshBody, population: Population, *, seed: int,
         centres[sl] = sites.points[sl] + normals[sl] * (-lowest - depth[sl])[:, None]
         out_v[sl] = world + centres[sl, None, :]
     faces_out = (fb[None, :, :] + (np.arange(n) * nv)[:, None, None]).reshape(-1, 3)
-    cat = dict(id=sites.uid, face=sites.face, x_m=centres[:, 0], y_m=centres[:, 1], z_m=centres[:, 2],
+    cat = dict(id=sites.uid, face=sites.face,
+               x_m=centres[:, 0], y_m=centres[:, 1], z_m=centres[:, 2],
                nx=normals[:, 0], ny=normals[:, 1], nz=normals[:, 2],
                diameter_m=sites.diameters, height_m=height, flattening=flattening,
                elongation=elongation, burial_fraction=burial, burial_depth_m=depth,
