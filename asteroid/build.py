@@ -341,7 +341,7 @@ def _write_all(result: BuildResult, paths: OutputPaths, inputs) -> list[Path]:
         tables: dict[str, dict] = {}
         if isinstance(result.craters, dict):
             tables["craters"] = result.craters
-        if isinstance(result.boulders, MeshBoulders):
+        if result.boulders is not None and isinstance(result.boulders.catalog, dict):
             tables["boulders"] = result.boulders.catalog
         save_mesh_native(paths.native, result.body, tables, inputs=inputs)
         written.append(paths.native)
