@@ -276,3 +276,27 @@ def test_gravitational_slopes_on_a_contact_binary(binary):
     order = np.argsort(s.gravitational_deg)
     cum = np.cumsum(s.vertex_area[order]) / s.vertex_area.sum()
     assert s.gravitational_deg[order][np.searchsorted(cum, 0.5)] < 35.0
+
+
+def test_icq_shape_model_is_read_closed(tmp_path):
+    """An ICQ file (cube faces of (Q + 1)^2 vertices) reads as one closed, outward surface."""
+    from asteroid.meshio.read import read_mesh
+
+    q, radius = 8, 2.0
+    t = -1.0 + 2.0 * np.arange(q + 1) / q
+    u, v = np.meshgrid(t, t, indexing="ij")
+    one = np.ones_like(u)
+    blocks = [(one, u, v), (-one, v, u), (u, one, v), (v, -one, u), (u, v, one),
+              (v, u, -one)]
+    lines = [str(q)]
+    for x, y, z in blocks:
+        p = np.stack([x, y, z], axis=-1).reshape(-1, 3)
+        p = radius * p / np.linalg.norm(p, axis=1, keepdims=True)
+        lines += [f"{a:.9f} {b:.9f} {c:.9f}" for a, b, c in p]
+    path = tmp_path / "ball.icq"
+    path.write_text("\n".join(lines) + "\n")
+    vertices, faces = read_mesh(path)
+    assert len(vertices) == 6 * q * q + 2
+    model = ShapeModel.from_arrays(vertices, faces)
+    # a cube-sphere of Q = 8 holds within 2 % of the ball's volume, from below
+    assert 0.97 < model.volume / (4.0 / 3.0 * math.pi * radius**3) < 1.0
