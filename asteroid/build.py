@@ -19,7 +19,7 @@ Outputs of ``craterscape asteroid build -o BODY.EXT`` (:func:`output_paths`):
 
 Example
 -------
->>> from asteroid.recipe import Recipe
+>>> from asteroid.recipe import KEEP_NON_STAR_FRACTION, Recipe
 >>> result = build(Recipe(magnitude=8, radius=500.0, seed=1, base="perlin"))
 >>> result.body.mesh.n_vertices, result.craters is None
 (386, True)
@@ -37,9 +37,10 @@ from asteroid.boulders import Boulders, BoulderSettings, place_boulders
 from asteroid.catalog import BoulderCatalog, CraterCatalog, save_table
 from asteroid.craters import add_craters, sample_craters
 from asteroid.meshio.export import MESH_FORMATS, mesh_format, write_mesh
-from asteroid.recipe import Recipe
+from asteroid.recipe import KEEP_NON_STAR_FRACTION, Recipe
 from asteroid.shape import ShapeModel
 from asteroid.sphere import SphereMesh
+from asteroid.surface import MeshBody, MeshBoulders
 from terrain.core import memory
 from terrain.core.errors import InvalidParameterError
 from terrain.core.metakeys import version
@@ -70,17 +71,17 @@ class BuildResult:
         Figures for the user (counts, timings, the shape's non-star-shaped fraction).
     """
 
-    body: Body
-    craters: CraterCatalog | None = None
-    boulders: Boulders | None = None
+    body: Body | MeshBody
+    craters: CraterCatalog | dict | None = None
+    boulders: Boulders | MeshBoulders | None = None
     report: dict = field(default_factory=dict)
 
     def tables(self) -> dict:
         """Catalogues for the native file."""
         out = {}
-        if self.craters is not None:
+        if isinstance(self.craters, CraterCatalog):
             out["craters"] = self.craters.as_dict()
-        if self.boulders is not None:
+        if isinstance(self.boulders, Boulders):
             out["boulders"] = self.boulders.catalog.as_dict()
         return out
 
@@ -95,6 +96,8 @@ def build(recipe: Recipe, *, progress: Progress | None = None) -> BuildResult:
         ``progress(done, total, stage)`` with stage "base", "craters" or "boulders"
         (:class:`terrain.core.progress.Progress`).
     """
+    if recipe.base == "packing":
+        return build_mesh_body(recipe, progress=progress)
     mesh = SphereMesh(recipe.magnitude)
     memory.require(mesh.n_vertices * float(BUILD_BYTES_PER_VERTEX),
                    f"building a magnitude {recipe.magnitude} asteroid "
@@ -125,6 +128,14 @@ def build(recipe: Recipe, *, progress: Progress | None = None) -> BuildResult:
             shape = shape.stretched(recipe.stretch)
         radius = shape.equivalent_radius
         projection = shape.project(mesh)
+        keep = recipe.shape_keep == "always" or (
+            recipe.shape_keep == "auto"
+            and projection.non_star_fraction > KEEP_NON_STAR_FRACTION)
+        if keep:
+            log.info("shape model %s: %.3f %% of directions are not star-shaped; keeping its "
+                     "mesh", shape.source, 100 * projection.non_star_fraction)
+            return build_mesh_body(recipe, shape=shape, progress=progress,
+                                   non_star_fraction=projection.non_star_fraction)
         radii = projection.radii
         report["non_star_fraction"] = projection.non_star_fraction
         meta["shape"] = dict(source=shape.source, centre_m=shape.centre.tolist(),
@@ -161,6 +172,84 @@ def build(recipe: Recipe, *, progress: Progress | None = None) -> BuildResult:
                                           count=len(boulders)))
         report["boulders"] = len(boulders)
         report["boulders_s"] = time.perf_counter() - t2
+    report["total_s"] = time.perf_counter() - t0
+    return BuildResult(body, craters, boulders, report)
+
+
+def build_mesh_body(recipe: Recipe, *, shape: ShapeModel | None = None, progress=None,
+                    non_star_fraction: float | None = None) -> BuildResult:
+    """Build a body kept as its own closed mesh (a shape model, or a packing preset).
+
+    The magnitude sets the feature scale as on the latitude/longitude mesh: the default
+    smallest crater spans 4 and the smallest boulder 1 of that mesh's vertex spacings, and the
+    mesh is refined locally where craters need it (:mod:`asteroid.surface`).
+    """
+    from asteroid.packing import packing_body
+    from asteroid.surface import (
+        CRATER_SITE_STREAM,
+        MeshBody,
+        add_mesh_craters,
+        place_mesh_boulders,
+        sample_sites,
+    )
+
+    t0 = time.perf_counter()
+    meta = dict(craterscape_version=version(), seed=recipe.seed, recipe=recipe.as_dict())
+    if shape is None:
+        cells = recipe.packing_cells or min(256, max(32, 2 * recipe.magnitude))
+        body = packing_body(str(recipe.packing), radius=recipe.base_radius, seed=recipe.seed,
+                            cells=cells)
+        if not recipe.stretch.is_identity:
+            body = body.replace(body.vertices * recipe.stretch.factors)
+        body = body.replace(**meta)
+    else:
+        body = MeshBody(shape.vertices, shape.faces,
+                        dict(meta, shape=dict(source=shape.source,
+                                              centre_m=shape.centre.tolist(),
+                                              volume_m3=shape.volume,
+                                              non_star_fraction=non_star_fraction)))
+    body.check_closed()
+    radius = body.equivalent_radius
+    spacing = SphereMesh(recipe.magnitude).mean_spacing * radius
+    report: dict = dict(vertices=body.n_vertices, triangles=len(body.faces),
+                        base_vertices=body.n_vertices, mesh_body=True)
+    if non_star_fraction is not None:
+        report["non_star_fraction"] = non_star_fraction
+    report["base_s"] = time.perf_counter() - t0
+
+    def stage_progress(stage):
+        if progress is None:
+            return None
+        return lambda done, total: progress(done, total, stage)
+
+    craters = None
+    if recipe.craters is not None:
+        t1 = time.perf_counter()
+        population = recipe.craters.population(radius, spacing)
+        sites = sample_sites(body.vertices, body.faces, population, seed=recipe.seed,
+                             stream=CRATER_SITE_STREAM)
+        result = add_mesh_craters(body, sites, seed=recipe.seed,
+                                  settings=recipe.craters.settings(),
+                                  progress=stage_progress("craters"))
+        body = result.body.replace(crater_population=population.as_dict())
+        craters = result.catalog
+        report["craters"] = len(sites)
+        report["craters_applied"] = int(craters["applied"].sum())
+        report["refine_rounds"] = result.refine_rounds
+        report["craters_s"] = time.perf_counter() - t1
+    boulders = None
+    if recipe.boulders is not None:
+        t2 = time.perf_counter()
+        population = recipe.boulders.population(spacing)
+        boulders = place_mesh_boulders(body, population, seed=recipe.seed,
+                                       settings=recipe.boulders.settings)
+        body = body.replace(boulders=dict(population=population.as_dict(), seed=recipe.seed,
+                                          settings=recipe.boulders.settings.as_dict(),
+                                          count=len(boulders)))
+        report["boulders"] = len(boulders)
+        report["boulders_s"] = time.perf_counter() - t2
+    report["vertices"] = body.n_vertices
+    report["triangles"] = len(body.faces)
     report["total_s"] = time.perf_counter() - t0
     return BuildResult(body, craters, boulders, report)
 
@@ -209,7 +298,12 @@ def output_paths(output, *, craters: bool, boulders: bool, inputs=()) -> OutputP
     return paths
 
 
-def _parts(body: Body, boulders: Boulders | None, level=None):
+def _parts(body, boulders, level=None):
+    if getattr(body, "faces", None) is not None and not isinstance(body, Body):
+        parts = [("body", body.vertices, body.faces)]
+        if boulders is not None and len(boulders):
+            parts.append(("boulders", boulders.vertices, boulders.faces))
+        return parts
     parts = [("body", body.vertices(), body.mesh.faces())]
     if boulders is not None and len(boulders):
         v, f = boulders.mesh(level)
@@ -241,12 +335,28 @@ def _write_all(result: BuildResult, paths: OutputPaths, inputs) -> list[Path]:
         write_mesh(paths.mesh, _parts(result.body, result.boulders), metadata=meta,
                    inputs=inputs)
         written.append(paths.mesh)
+    if not isinstance(result.body, Body):
+        from asteroid.surface import save_columns, save_mesh_native
+
+        tables: dict[str, dict] = {}
+        if isinstance(result.craters, dict):
+            tables["craters"] = result.craters
+        if result.boulders is not None and isinstance(result.boulders.catalog, dict):
+            tables["boulders"] = result.boulders.catalog
+        save_mesh_native(paths.native, result.body, tables, inputs=inputs)
+        written.append(paths.native)
+        for path, table in ((paths.craters, tables.get("craters")),
+                            (paths.boulders, tables.get("boulders"))):
+            if path is not None and table is not None:
+                save_columns(path, table, inputs=inputs)
+                written.append(path)
+        return written
     save_native(paths.native, result.body, result.tables(), inputs=inputs)
     written.append(paths.native)
-    if paths.craters is not None and result.craters is not None:
+    if paths.craters is not None and isinstance(result.craters, CraterCatalog):
         save_table(paths.craters, result.craters, inputs=inputs)
         written.append(paths.craters)
-    if paths.boulders is not None and result.boulders is not None:
+    if paths.boulders is not None and isinstance(result.boulders, Boulders):
         save_table(paths.boulders, result.boulders.catalog, inputs=inputs)
         written.append(paths.boulders)
     return written

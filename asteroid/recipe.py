@@ -95,6 +95,7 @@ from pathlib import Path
 from typing import Any
 
 from asteroid.body import Stretch
+from asteroid.boulder_presets import BOULDER_PRESETS
 from asteroid.boulders import BoulderSettings
 from asteroid.craters import DEFAULT_MAX_EXTENT_DEG, CraterSettings, SlopeErosion, max_diameter
 from asteroid.faulting import FIG8_FAULTING, Faulting
@@ -130,7 +131,14 @@ PAPER_CRATERS = {"c": 0.5, "k": -2.0}
 MAX_RADIUS = 1.0e7
 
 _TOP_KEYS = {"preset", "magnitude", "radius", "seed", "base", "stretch"}
-_TABLES = {"perlin", "faulting", "shape", "craters", "boulders"}
+_TABLES = {"perlin", "faulting", "shape", "packing", "craters", "boulders"}
+#: When a shape model is kept as its own mesh (:mod:`asteroid.surface`) instead of being
+#: projected onto the 6M^2 + 2 mesh: "auto" keeps it when more than
+#: :data:`KEEP_NON_STAR_FRACTION` of the mesh directions cross its surface more than once.
+SHAPE_KEEP = ("auto", "always", "never")
+#: Fraction of non-star-shaped directions above which "auto" keeps a shape model's mesh
+#: (Itokawa's folded neck, 0.24 %, still projects within 0.15 % of its volume).
+KEEP_NON_STAR_FRACTION = 0.01
 
 
 def _crater_dict(**extra) -> dict:
@@ -251,6 +259,9 @@ def parse_spec(text: str, what: str) -> dict | None:
         return dict(PAPER_CRATERS)
     out: dict = {}
     for part in filter(None, (p.strip() for p in text.split(","))):
+        if "=" not in part and what == "boulders" and part.lower() in BOULDER_PRESETS:
+            out.update(copy.deepcopy(BOULDER_PRESETS[part.lower()]))
+            continue
         if "=" not in part:
             raise InvalidParameterError(
                 f"--{what} expects key=value pairs separated by commas, 'paper' or 'none'; "
@@ -319,6 +330,9 @@ class Recipe:
     shape_file: str | None = None
     shape_units: str = "km"
     shape_centre: str | Sequence[float] = "centroid"
+    shape_keep: str = "auto"
+    packing: str | None = None
+    packing_cells: int | None = None
     stretch: Stretch = field(default_factory=Stretch)
     craters: CraterSpec | None = None
     boulders: BoulderSpec | None = None
@@ -330,9 +344,19 @@ class Recipe:
             object.__setattr__(self, "seed", check_seed(self.seed))
         except ValueError as exc:
             raise InvalidParameterError(str(exc)) from None
-        if self.base not in ("perlin", "faulting", "shape"):
+        if self.base not in ("perlin", "faulting", "shape", "packing"):
             raise InvalidParameterError(
-                f"base must be perlin, faulting or shape:FILE; got {self.base!r}")
+                f"base must be perlin, faulting, shape:FILE or packing:NAME; got {self.base!r}")
+        if self.shape_keep not in SHAPE_KEEP:
+            raise InvalidParameterError(
+                f"shape keep must be one of {', '.join(SHAPE_KEEP)}; got {self.shape_keep!r}")
+        if self.base == "packing":
+            from asteroid.packing import PACKINGS
+
+            if self.packing not in PACKINGS:
+                raise InvalidParameterError(
+                    f"unknown packing {self.packing!r}; choose one of "
+                    f"{', '.join(sorted(PACKINGS))}")
         if self.radius is not None:
             if isinstance(self.radius, bool) or not isinstance(self.radius, (int, float)):
                 raise InvalidParameterError(f"radius must be a number (metres); got "
@@ -345,7 +369,7 @@ class Recipe:
                     f"radius {r:g} m is larger than any asteroid (at most {MAX_RADIUS:g} m; "
                     "Ceres is 4.7e5 m)")
             object.__setattr__(self, "radius", r)
-        elif self.base != "shape":
+        elif self.base not in ("shape",):
             raise InvalidParameterError(
                 f"a {self.base} base needs --radius (metres); only a shape model has a size of "
                 "its own")
@@ -368,14 +392,20 @@ class Recipe:
         base = data.get("base")
         if base is None:
             raise InvalidParameterError("give a base: --base perlin|faulting|shape:FILE")
-        shape = check_keys(data.get("shape") or {}, {"file", "units", "centre"},
+        shape = check_keys(data.get("shape") or {}, {"file", "units", "centre", "keep"},
                            "recipe [shape]")
+        packing = check_keys(data.get("packing") or {}, {"name", "cells"}, "recipe [packing]")
+        if isinstance(base, str) and base.startswith("packing:"):
+            packing["name"] = base.split(":", 1)[1]
+            base = "packing"
         if isinstance(base, str) and base.startswith("shape:"):
             shape["file"] = base.split(":", 1)[1]
             base = "shape"
         shape_file = shape.pop("file", None)
         units = shape.pop("units", "km")
         centre = shape.pop("centre", "centroid")
+        keep = shape.pop("keep", "auto")
+        keep = {True: "always", False: "never"}.get(keep, keep)
         if "magnitude" not in data:
             raise InvalidParameterError("give the magnitude: --magnitude M")
         craters = data.get("craters")
@@ -395,6 +425,9 @@ class Recipe:
             shape_file=shape_file,
             shape_units=units,
             shape_centre=tuple(centre) if isinstance(centre, list) else centre,
+            shape_keep=str(keep),
+            packing=packing.get("name"),
+            packing_cells=None if packing.get("cells") is None else int(packing["cells"]),
             stretch=Stretch.parse(data.get("stretch")),
             craters=None if craters is None else _build_dataclass(CraterSpec, "craters",
                                                                   craters),
@@ -447,10 +480,14 @@ class Recipe:
             out["perlin"] = self.perlin.as_dict()
         elif self.base == "faulting":
             out["faulting"] = self.faulting.as_dict()
+        elif self.base == "packing":
+            out["packing"] = dict(name=self.packing, cells=self.packing_cells)
         else:
             out["shape"] = dict(file=self.shape_file, units=self.shape_units,
                                 centre=self.shape_centre if isinstance(self.shape_centre, str)
                                 else list(self.shape_centre))
+            if self.shape_keep != "auto":
+                out["shape"]["keep"] = self.shape_keep
         if self.craters is not None:
             out["craters"] = asdict(self.craters)
         if self.boulders is not None:

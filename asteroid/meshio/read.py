@@ -22,7 +22,7 @@ __all__ = ["READ_FORMATS", "read_mesh"]
 log = logging.getLogger(__name__)
 
 #: File suffixes read_mesh accepts.
-READ_FORMATS = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
+READ_FORMATS = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".icq")
 
 
 def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:
@@ -49,6 +49,10 @@ def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:
             f"shape model '{path}' has suffix '{path.suffix}'; expected one of "
             f"{', '.join(READ_FORMATS)}")
     memory.require(path.stat().st_size * 12.0, f"reading shape model '{path}'")
+    if path.suffix.lower() == ".icq":
+        from asteroid.meshio.icq import read_icq
+
+        return read_icq(path)
     try:
         loaded = trimesh.load(path, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for malformed files
