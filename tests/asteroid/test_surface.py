@@ -192,6 +192,7 @@ def _fresh_settings():
     return CraterSettings(CraterModel().smooth())
 
 
+@pytest.mark.slow
 def test_shape_model_through_the_command_line(tmp_path, binary):
     """A non-star-shaped shape model keeps its volume and surface, craters and boulders on it."""
     from asteroid.cli import asteroid
@@ -229,6 +230,7 @@ def test_shape_model_through_the_command_line(tmp_path, binary):
     assert np.all(gap <= cat["diameter_m"])
 
 
+@pytest.mark.slow
 def test_packing_base_with_craters_and_boulders():
     from asteroid.build import build
     from asteroid.recipe import Recipe
