@@ -243,8 +243,10 @@ class RockModel:
             raise InvalidParameterError(f"rock craters must be true or false; got "
                                         f"{self.craters!r}")
         if self.model in VIPER:
+            fixed = dict(zip(("a", "b"), VIPER[self.model], strict=True))
             for name in ("a", "b", "k"):
-                if getattr(self, name) is not None:
+                # the model's own published value (a record read back) is no override
+                if getattr(self, name) is not None and getattr(self, name) != fixed.get(name):
                     raise InvalidParameterError(
                         f"'{name}' is fixed by the {self.model} rock model (use the power "
                         "model for another law)")

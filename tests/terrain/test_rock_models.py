@@ -183,3 +183,17 @@ def test_the_command_lines_model_names_are_the_libraries():
     from terrain.surface.rocks import MODELS
 
     assert sorted(ROCK_MODELS) == sorted(MODELS)
+
+
+@pytest.mark.parametrize("name", ["viper-low", "viper-nominal", "viper-high"])
+def test_a_viper_model_reads_back_from_its_own_record(name):
+    """A stack records its rock model as plain data (with the law's a and b filled in); the
+    record must rebuild the same model (the hazard report does), and only another law is
+    refused."""
+    from terrain.core.errors import InvalidParameterError
+    from terrain.surface.rocks import RockModel
+
+    model = RockModel.from_spec(f"{name}:dmin=0.1")
+    assert RockModel.from_mapping(model.as_dict()) == model
+    with pytest.raises(InvalidParameterError, match="fixed by"):
+        RockModel.from_mapping(dict(model.as_dict(), a=1.0))
