@@ -8,7 +8,8 @@ from terrain.core import metakeys as mk
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("terrain", "asteroid", "render", "evaluation")
 #: Environment variables share the prefix but are not tile metadata.
-ENVIRONMENT = {"CRATERSCAPE_MEMORY_LIMIT", "CRATERSCAPE_TOKEN", "CRATERSCAPE_SHARED_DATA"}
+ENVIRONMENT = {"CRATERSCAPE_MEMORY_LIMIT", "CRATERSCAPE_TOKEN", "CRATERSCAPE_SHARED_DATA",
+               "CRATERSCAPE_EGL_DEVICE"}
 
 
 def _code_strings(path: Path):
