@@ -270,28 +270,28 @@ class BoulderSettings:
         return d
 
 
-def _rotation_z(a):
+def rotation_z(a):
     c, s = np.cos(a), np.sin(a)
     r = np.zeros(np.shape(a) + (3, 3))
     r[..., 0, 0], r[..., 0, 1], r[..., 1, 0], r[..., 1, 1], r[..., 2, 2] = c, -s, s, c, 1.0
     return r
 
 
-def _rotation_y(a):
+def rotation_y(a):
     c, s = np.cos(a), np.sin(a)
     r = np.zeros(np.shape(a) + (3, 3))
     r[..., 0, 0], r[..., 0, 2], r[..., 2, 0], r[..., 2, 2], r[..., 1, 1] = c, s, -s, c, 1.0
     return r
 
 
-def _rotation_x(a):
+def rotation_x(a):
     c, s = np.cos(a), np.sin(a)
     r = np.zeros(np.shape(a) + (3, 3))
     r[..., 1, 1], r[..., 1, 2], r[..., 2, 1], r[..., 2, 2], r[..., 0, 0] = c, -s, s, c, 1.0
     return r
 
 
-def _local_shapes(seed: int, settings: BoulderSettings, uid, diameter, elongation,
+def local_shapes(seed: int, settings: BoulderSettings, uid, diameter, elongation,
                   flattening) -> np.ndarray:
     """(n, V, 3) finest-level vertices of boulders in their own frames, metres."""
     unit = _unit_shapes(seed, np.asarray(uid, dtype=np.uint64), settings.levels,
@@ -327,7 +327,7 @@ class Boulders:
         """(n, V, 3) finest-level vertices of the boulders in their own frames, metres."""
         c = self.catalog
         sl = chunk or slice(None)
-        return _local_shapes(self.seed, self.settings, c.id[sl], c.diameter_m[sl],
+        return local_shapes(self.seed, self.settings, c.id[sl], c.diameter_m[sl],
                              c.elongation[sl], c.flattening[sl])
 
     def mesh(self, level: int | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -397,15 +397,15 @@ def place_boulders(body: Body, population: Population, *, seed: int,
     roll = tilt * (2.0 * u[:, 5] - 1.0)
     lat, lon = placement.latitude, placement.longitude
     colat = np.pi / 2 - lat
-    rot = (_rotation_z(lon) @ _rotation_y(colat) @ _rotation_z(yaw) @ _rotation_y(pitch)
-           @ _rotation_x(roll))
+    rot = (rotation_z(lon) @ rotation_y(colat) @ rotation_z(yaw) @ rotation_y(pitch)
+           @ rotation_x(roll))
     surface = body.surface_radius(placement.directions) if n else np.zeros(0)
     # the lowest point of each unrotated boulder (its own frame) sets how far up it sits
     zmin = np.empty(n)
     height = np.empty(n)
     for start in range(0, n, 4096):
         sl = slice(start, min(n, start + 4096))
-        z = _local_shapes(seed, settings, placement.uid[sl], placement.diameters[sl],
+        z = local_shapes(seed, settings, placement.uid[sl], placement.diameters[sl],
                           elongation[sl], flattening[sl])[..., 2]
         zmin[sl] = z.min(axis=1)
         height[sl] = z.max(axis=1) - zmin[sl]

@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
-from asteroid.boulders import BoulderSettings, _local_shapes, _rotation_x, _rotation_y, _rotation_z
+from asteroid.boulders import BoulderSettings, local_shapes, rotation_x, rotation_y, rotation_z
 from asteroid.craters import CraterSettings
 from asteroid.errors import InvalidShapeError
 from terrain.core import memory
@@ -632,7 +632,7 @@ def place_mesh_boulders(body: MeshBody, population: Population, *, seed: int,
     t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
     t2 = np.cross(normals, t1)
     frame = np.stack([t1, t2, normals], axis=2)        # columns: local x, y, z
-    rot = frame @ _rotation_z(yaw) @ _rotation_y(pitch) @ _rotation_x(roll)
+    rot = frame @ rotation_z(yaw) @ rotation_y(pitch) @ rotation_x(roll)
     from asteroid.boulders import subdivision
 
     faces_all, _ = subdivision(settings.levels)
@@ -644,7 +644,7 @@ def place_mesh_boulders(body: MeshBody, population: Population, *, seed: int,
     centres = np.empty((n, 3))
     for start in range(0, n, 4096):
         sl = slice(start, min(n, start + 4096))
-        local = _local_shapes(seed, settings, sites.uid[sl], sites.diameters[sl],
+        local = local_shapes(seed, settings, sites.uid[sl], sites.diameters[sl],
                               elongation[sl], flattening[sl])
         world = np.einsum("nij,nvj->nvi", rot[sl], local)
         along = np.einsum("nvi,ni->nv", world, normals[sl])

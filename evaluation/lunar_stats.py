@@ -30,6 +30,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from terrain.core.errors import InvalidParameterError
+from terrain.surface.rocks import VIPER as _ROCKS_VIPER
 
 __all__ = ["BODY_BOULDER_INDEX", "CRATER_EQUILIBRIUM", "FRESH_DEPTH_DIAMETER",
            "HURST_TOLERANCE", "KS_BETWEEN_REAL_DEMS", "MESH_SLOPE_RISE", "REGOLITH_RMS_SLOPE",
@@ -228,8 +229,9 @@ ROCK_ABUNDANCE = PublishedStat(
     "craters.")
 
 #: VIPER environment specification's rock size-frequency models, N(>=D) = a D^b per m^2 (D in
-#: metres): (a, b) of the low, nominal and high (after Haworth) models.
-VIPER_ROCK_MODELS = {"low": (1e-4, -1.755), "nominal": (3e-4, -2.482), "high": (2e-3, -2.661)}
+#: metres): (a, b) of the low, nominal and high (after Haworth) models, as the generator draws
+#: them (:data:`terrain.surface.rocks.VIPER`).
+VIPER_ROCK_MODELS = {k.removeprefix("viper-"): v for k, v in _ROCKS_VIPER.items()}
 
 #: Rocks of a metre and more per km^2, against the VIPER environment specification.
 ROCK_DENSITY = PublishedStat(

@@ -100,7 +100,7 @@ _LOADED: set[str] = set()
 _UTC = re.compile(r"^(\d{4})-(\d{2})-(\d{2})[T ](\d{2}):(\d{2})(?::(\d{2}(?:\.\d+)?))?Z?$")
 
 
-def _spice() -> Any:
+def spice() -> Any:
     """Return ``spiceypy`` with DE440, the leap seconds and the Moon's IAU model loaded."""
     import spiceypy
 
@@ -119,7 +119,7 @@ def _spice() -> Any:
 
 def _furnsh(kernels: tuple[str, ...]) -> None:
     """Load a user's kernels once each (files checked first, errors in one line)."""
-    sp = _spice()
+    sp = spice()
     with _LOCK:
         for k in kernels:
             path = str(Path(k).resolve())
@@ -175,7 +175,7 @@ def et_from_utc(utc: str, where: str = "sun") -> float:
         raise InvalidParameterError(
             f"{where} utc {utc!r} is not a valid time in the years {UTC_YEARS[0]}-"
             f"{UTC_YEARS[1]} (DE440's span)") from None
-    sp = _spice()
+    sp = spice()
     with _LOCK:
         return float(sp.str2et(f"{y:04d}-{mo:02d}-{d:02d}T{h:02d}:{mi:02d}:{s:09.6f}"))
 
@@ -379,7 +379,7 @@ class Orbit:
 
     def position_km(self, et: float) -> np.ndarray:
         """Heliocentric position (km, ecliptic J2000) at ``et`` (s past J2000 TDB)."""
-        sp = _spice()
+        sp = spice()
         a_km = self.a * AU_KM
         elts = [a_km * (1.0 - self.e), self.e, math.radians(self.i), math.radians(self.node),
                 math.radians(self.peri), math.radians(self.mean_anomaly),
@@ -486,7 +486,7 @@ def lunar_sky(et: float, site: Site, *, frame: str = "IAU_MOON", body: str = "MO
     Sky
         Apparent (``LT+S``) directions in the site's world frame, distances, earthshine.
     """
-    sp = _spice()
+    sp = spice()
     _furnsh(tuple(kernels))
     basis = site.basis()
     obs = site.position_km()
@@ -538,7 +538,7 @@ def body_sun(et: float, *, orbit: Orbit | None = None, target: str | None = None
     Sky
         The Sun's direction (world frame) and distance; no Earth.
     """
-    sp = _spice()
+    sp = spice()
     _furnsh(tuple(kernels))
     with _LOCK:
         try:

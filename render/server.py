@@ -778,7 +778,7 @@ class RenderServer:
                                 f"SET_SENSOR body is not UTF-8 JSON: {exc}") from None
         except RecursionError:  # nested too deeply for the parser itself
             too_deep = True
-        if too_deep or _depth(settings) > MAX_JSON_DEPTH:
+        if too_deep or json_depth(settings) > MAX_JSON_DEPTH:
             raise ProtocolError(ErrorCode.MALFORMED, "SET_SENSOR body is nested deeper than "
                                 f"{MAX_JSON_DEPTH} levels")
         if not isinstance(settings, dict):
@@ -951,7 +951,7 @@ def _frame_bytes(frame) -> int:
     return image.nbytes + fr.radiance.nbytes + fr.range.nbytes + fr.normals.nbytes
 
 
-def _depth(obj) -> int:
+def json_depth(obj) -> int:
     """Return the nesting depth of parsed JSON (a scalar: 0), counted without recursion."""
     deepest, todo = 0, [(obj, 0)]
     while todo:
@@ -975,7 +975,7 @@ def _json_object(body: bytes, what: str) -> dict:
                             f"{what} body is not UTF-8 JSON: {exc}") from None
     except RecursionError:  # nested too deeply for the parser itself
         too_deep = True
-    if too_deep or _depth(settings) > MAX_JSON_DEPTH:
+    if too_deep or json_depth(settings) > MAX_JSON_DEPTH:
         raise ProtocolError(ErrorCode.MALFORMED, f"{what} body is nested deeper than "
                             f"{MAX_JSON_DEPTH} levels")
     if not isinstance(settings, dict):

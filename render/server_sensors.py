@@ -51,7 +51,7 @@ MAX_SENSOR_SIDE = 8192
 
 
 def _settings(body: bytes, what: str, base: dict) -> dict:
-    from render.server import MAX_JSON_DEPTH, _depth
+    from render.server import MAX_JSON_DEPTH, json_depth
 
     if not body:
         return dict(base)
@@ -62,7 +62,7 @@ def _settings(body: bytes, what: str, base: dict) -> dict:
             from None
     except RecursionError:
         data = None
-    if data is None or _depth(data) > MAX_JSON_DEPTH:
+    if data is None or json_depth(data) > MAX_JSON_DEPTH:
         raise ProtocolError(ErrorCode.MALFORMED, f"{what} body is nested too deeply or null")
     if not isinstance(data, dict):
         raise ProtocolError(ErrorCode.MALFORMED, f"{what} body must be a JSON object")

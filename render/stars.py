@@ -170,11 +170,11 @@ def world_to_icrf(scenario: Any, time: float, scene: Any = None) -> tuple[np.nda
     eph = scenario.ephemeris
     if eph is None:
         return np.eye(3), 0.0
-    from render.ephemeris import _spice
+    from render.ephemeris import spice
 
     sky = scenario.sky_at(time, scene)
     et = float(sky.et)
-    sp = _spice()
+    sp = spice()
     if eph.orbit is not None or eph.target is not None:
         return np.asarray(sp.pxform(eph.frame, "J2000", et)), et
     site = eph.site if eph.site is not None else eph._cache["placed"].site

@@ -23,7 +23,7 @@ def test_moon_orientation_matches_cspice_with_pck00011():
     """IAU_MOON from the Archinal et al. 2018 constants equals CSPICE's pxform('IAU_MOON',
     'J2000') with pck00011.tpc's Moon (which holds the same model) at 14610 days past J2000,
     as published in a SPICE reimplementation's tests (the rotation matrix to 1e-12)."""
-    sp = eph._spice()
+    sp = eph.spice()
     expected = np.array([
         [5.720547105837333e-1, 8.198082524397307e-1, -2.5842548842481546e-2],
         [-7.61073769862349e-1, 5.187960000245592e-1, -3.8938082539594815e-1],
@@ -56,7 +56,7 @@ def test_sun_on_a_date_agrees_with_meeus_example_25b():
     equator and equinox of date). Ours: DE440 seen from the Earth's centre with light time and
     stellar aberration (LT+S), in the true-of-date frame, through the same site machinery a
     lunar site uses (a 1 m sphere at the Earth's centre, the site at its north pole)."""
-    sp = eph._spice()
+    sp = eph.spice()
     sp.lmpool([line for line in TOD_FRAME.strip().splitlines()])
     et = (2448908.5 - 2451545.0) * DAY  # TD = TDB to 2 ms
     site = eph.Site(0.0, 90.0, radius=1.0)
@@ -103,7 +103,7 @@ def test_solar_irradiance_follows_inverse_square_over_a_year():
     """The lighting's solar irradiance is the 1 au value over the squared distance, the
     distance from SPICE's own geometric Moon-Sun vector, and its yearly swing is that of the
     Earth's orbit (eccentricity 0.0167: (1.0167 / 0.9833)^2 = 1.069, +-1 % from the Moon)."""
-    sp = eph._spice()
+    sp = eph.spice()
     site = eph.Site(30.0, -60.0)
     base = Lighting((0.0, 0.0, 1.0))
     et0 = eph.et_from_utc("2027-01-01T00:00:00")
