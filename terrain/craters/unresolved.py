@@ -4,10 +4,11 @@ An expanded layer of a real DEM holds the DEM's own heights on a lattice (every 
 pixel, ``step`` = 2^level, :mod:`terrain.fractal.expand`). A crater smaller than the DEM
 resolves is added there as its height change ``d`` less the part of ``d`` the lattice
 samples: ``d - B[d]``, where ``B`` interpolates ``d``'s lattice values bilinearly to every
-pixel. ``B[d]`` equals ``d`` on the lattice, so every known height stays, bitwise, and what is
-added is exactly what the DEM's samples cannot see: a crater between lattice points is added
-whole, one over a lattice point keeps its height there and is added around it. ``docs/roughness.md``
-describes the use in ``terrain enhance``.
+pixel, and to zero at the layer's ends (where the layer meets its parent). ``B[d]`` equals
+``d`` on the lattice, so every known height stays, bitwise, and what is added is exactly what
+the DEM's samples cannot see: a crater between lattice points is added whole, one over a
+lattice point keeps its height there and is added around it. ``docs/roughness.md`` describes
+the use in ``terrain enhance``.
 
 Everything is a function of global pixel positions: a window computed from the craters of the
 window grown by :func:`lattice_halo` pixels equals the same window of the whole layer,
@@ -45,23 +46,40 @@ def lattice_halo(step: int) -> int:
 
 
 def _weights(first: int, n: int, step: int, lo: int, hi: int):
-    """Lattice lines below/above each of n global indices from ``first``, and the weight.
+    """Lines below/above each of n global indices from ``first``, the weight, and which are real.
 
-    ``lo``, ``hi``: the layer's first and last global index (inclusive). Outside the layer's
-    first and last lattice lines the nearest line is used with weight 0.
+    ``lo``, ``hi``: the layer's first and last global index (inclusive). The lines are the
+    lattice lines inside the layer and the layer's two ends; an end that is not a lattice
+    line is a *pseudo* line, on which the sampled change is taken as zero (the layer meets
+    its parent there, which has none of the added craters). So the part of ``d`` taken out
+    falls linearly from a lattice line to the layer's end, rather than continuing from the
+    nearest lattice point as a constant (which would raise or lower the whole margin, and a
+    layer with no lattice line at all by the change at one of its ends, against its parent).
+
+    Returns
+    -------
+    a0, a1 : (n,) int64
+        Global index of the line at or below and at or above each index.
+    t : (n,) float64
+        Weight of ``a1`` (0 on a line).
+    real0, real1 : (n,) bool
+        Whether ``a0`` and ``a1`` are lattice lines (else the layer's ends, valued zero).
     """
     g = np.arange(first, first + n, dtype=np.int64)
     first_line = -(-lo // step) * step
     last_line = (hi // step) * step
     a0 = (g // step) * step
-    a1 = a0 + step
-    t = (g - a0).astype(np.float64) / step
-    below = a0 < first_line
-    above = a1 > last_line
-    a0 = np.where(below, first_line, np.where(above, np.minimum(a0, last_line), a0))
-    a1 = np.where(below | above, a0, a1)
-    t = np.where(below | above, 0.0, t)
-    return a0, a1, t
+    a1 = np.where(g == a0, a0, a0 + step)
+    real0 = (a0 >= lo) & (a0 <= hi)
+    real1 = (a1 >= lo) & (a1 <= hi)
+    a0 = np.where(real0, a0, lo)
+    a1 = np.where(real1, a1, hi)
+    if first_line > last_line:  # no lattice line in the layer
+        real0[:] = False
+        real1[:] = False
+    span = a1 - a0
+    t = np.where(span > 0, (g - a0) / np.maximum(span, 1), 0.0).astype(np.float64)
+    return a0, a1, t, real0, real1
 
 
 def keep_lattice(before: np.ndarray, after: np.ndarray, *, step: int, origin: tuple[int, int],
@@ -90,14 +108,14 @@ def keep_lattice(before: np.ndarray, after: np.ndarray, *, step: int, origin: tu
     d = np.asarray(after, dtype=np.float64) - before
     h, w = d.shape
     r0, c0 = (int(v) for v in origin)
-    ra0, ra1, t = _weights(r0, h, step, *layer_rows)
-    cb0, cb1, s = _weights(c0, w, step, *layer_cols)
-    # the lattice lines must lie inside the region
+    ra0, ra1, t, rr0, rr1 = _weights(r0, h, step, *layer_rows)
+    cb0, cb1, s, cr0, cr1 = _weights(c0, w, step, *layer_cols)
+    # the lattice lines must lie inside the region (the layer's ends, valued zero, need not)
     ra0, ra1 = np.clip(ra0 - r0, 0, h - 1), np.clip(ra1 - r0, 0, h - 1)
     cb0, cb1 = np.clip(cb0 - c0, 0, w - 1), np.clip(cb1 - c0, 0, w - 1)
     known = np.where(np.isfinite(d), d, 0.0)  # an unknown pixel spreads no NaN
-    rows = (1.0 - t)[:, None] * known[ra0] + t[:, None] * known[ra1]
-    sampled = (1.0 - s)[None, :] * rows[:, cb0] + s[None, :] * rows[:, cb1]
+    rows = ((1.0 - t) * rr0)[:, None] * known[ra0] + (t * rr1)[:, None] * known[ra1]
+    sampled = ((1.0 - s) * cr0)[None, :] * rows[:, cb0] + (s * cr1)[None, :] * rows[:, cb1]
     out = before + (d - sampled)
     on_r = (np.arange(r0, r0 + h) % step) == 0
     on_c = (np.arange(c0, c0 + w) % step) == 0
