@@ -64,9 +64,7 @@ Layer fade-in: a finer layer's heights blend into its parent's surface across
 :data:`FADE_PARENT_PIXELS` parent pixels inside its extent (at most an eighth of the
 layer's side; a smoothstep from the parent's
 triangulated full-resolution surface at the layer's edge to the layer's own heights), so the
-finer detail fades in instead of starting with a step at the layer's edge. Its shading normals
-fade the same way into the parent's (bilinear), so that under a low sun the layer's outline
-draws no line: at the edge the shading is the parent's.
+finer detail fades in instead of starting with a step at the layer's edge.
 
 Range and truth: range comes from the drawn (morphed) geometry, per fragment, and the images
 and normal images from the same fragments (shaded with the layers' full-resolution normals),
@@ -413,14 +411,12 @@ class TerrainScene:
             z = z - (xs[None, :] ** 2 + ys[:, None] ** 2) / (2.0 * self.radius)
         if parent is not None:
             z = _fade_in(z, xs, ys, parent)
+        surface = (z, xs[0], ys[0], res)
         # normals from central differences of the (curved) heights
         dzdx = np.gradient(z, res, axis=1)
         dzdy = -np.gradient(z, res, axis=0)  # rows run south
         n = np.stack([-dzdx, -dzdy, np.ones_like(z)], axis=-1)
         n /= np.linalg.norm(n, axis=-1, keepdims=True)
-        if parent is not None:
-            n = _fade_normals(n, xs, ys, parent)
-        surface = (z, xs[0], ys[0], res, n)
         # the full-resolution normals as a texture (shading independent of the level of
         # detail, module docstring): texel (i, j) at pixel centre (xs[j], ys[i])
         normal_tex = gpu.texture((w, h), 3, n.astype("f2").tobytes(), dtype="f2")
@@ -1045,8 +1041,13 @@ def _fade_in(z: np.ndarray, xs: np.ndarray, ys: np.ndarray, parent) -> np.ndarra
     smoothstep of the distance to the layer's edge over :data:`FADE_PARENT_PIXELS` parent
     pixels (at most :data:`FADE_MAX_FRACTION` of the layer's smaller side).
     """
-    pz, px0, py0, pres = parent[:4]
-    weight = _fade_weight(xs, ys, pres)
+    pz, px0, py0, pres = parent
+    size = min(abs(xs[-1] - xs[0]), abs(ys[0] - ys[-1]))
+    margin = min(FADE_PARENT_PIXELS * pres, FADE_MAX_FRACTION * size)
+    ex = np.minimum(xs - xs[0], xs[-1] - xs)
+    ey = np.minimum(ys[0] - ys, ys - ys[-1])
+    t = np.clip(np.minimum(ey[:, None], ex[None, :]) / margin, 0.0, 1.0)
+    weight = t * t * (3.0 - 2.0 * t)
     band = weight < 1.0
     if not band.any():
         return z
@@ -1065,62 +1066,6 @@ def _fade_in(z: np.ndarray, xs: np.ndarray, ys: np.ndarray, parent) -> np.ndarra
     out = z.copy()
     wb = weight[rows, cols]
     out[rows, cols] = wb * z[rows, cols] + (1.0 - wb) * under
-    return out
-
-
-def _fade_weight(xs: np.ndarray, ys: np.ndarray, pres: float) -> np.ndarray:
-    """(h, w) weight of a layer's own surface: 0 on its edge, 1 past the fade margin."""
-    size = min(abs(xs[-1] - xs[0]), abs(ys[0] - ys[-1]))
-    margin = min(FADE_PARENT_PIXELS * pres, FADE_MAX_FRACTION * size)
-    ex = np.minimum(xs - xs[0], xs[-1] - xs)
-    ey = np.minimum(ys[0] - ys, ys - ys[-1])
-    t = np.clip(np.minimum(ey[:, None], ex[None, :]) / margin, 0.0, 1.0)
-    return t * t * (3.0 - 2.0 * t)
-
-
-def _fade_normals(n: np.ndarray, xs: np.ndarray, ys: np.ndarray, parent) -> np.ndarray:
-    """Shading normals blended into the parent's across the same margin as the heights.
-
-    The heights of the fade margin end on the parent's triangulated surface, but normals from
-    differences of that surface at the finer spacing are those of single coarse facets
-    (one-sided at the layer's edge), not the parent's smoothed per-pixel normals; under a
-    low sun a few degrees of difference draw the layer's outline as a bright or dark line.
-    Blended with the parent's normals (bilinear at the layer's pixel centres) by the heights'
-    own weight, the shading at the layer's edge is the parent's, and the seam is invisible.
-
-    Parameters
-    ----------
-    n : (h, w, 3) float64
-        The layer's unit normals.
-    xs, ys : (w,) and (h,) float64, metres
-        Pixel-centre coordinates of the layer's columns and rows (scene-local).
-    parent : tuple
-        ``(z, x of column 0, y of row 0, cell size, normals)`` of the parent layer.
-
-    Returns
-    -------
-    (h, w, 3) float64
-        Unit normals.
-    """
-    _, px0, py0, pres, pn = parent
-    weight = _fade_weight(xs, ys, pres)
-    band = weight < 1.0
-    if not band.any():
-        return n
-    rows, cols = np.nonzero(band)
-    c = (xs[cols] - px0) / pres
-    r = (py0 - ys[rows]) / pres
-    ph, pw = pn.shape[:2]
-    i0 = np.clip(np.floor(r).astype(np.int64), 0, ph - 2)
-    j0 = np.clip(np.floor(c).astype(np.int64), 0, pw - 2)
-    ti = np.clip(r - i0, 0.0, 1.0)[:, None]
-    tj = np.clip(c - j0, 0.0, 1.0)[:, None]
-    under = ((1.0 - ti) * ((1.0 - tj) * pn[i0, j0] + tj * pn[i0, j0 + 1])
-             + ti * ((1.0 - tj) * pn[i0 + 1, j0] + tj * pn[i0 + 1, j0 + 1]))
-    wb = weight[rows, cols][:, None]
-    blend = wb * n[rows, cols] + (1.0 - wb) * under
-    out = n.copy()
-    out[rows, cols] = blend / np.linalg.norm(blend, axis=-1, keepdims=True)
     return out
 
 
