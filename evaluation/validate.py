@@ -1086,13 +1086,29 @@ def young_crater_mask(tile: DEMTile, catalog, *, young_gyr: float = YOUNG_GYR,
     return mask.astype(bool)
 
 
+def _joined_craters(*catalogs):
+    """Return the position, size and age columns of several crater catalogues as one."""
+    from types import SimpleNamespace
+
+    cats = [c for c in catalogs if c is not None and len(c.diameter_m)]
+    if len(cats) <= 1:
+        return cats[0] if cats else None
+    return SimpleNamespace(**{k: np.concatenate([np.asarray(getattr(c, k)) for c in cats])
+                              for k in ("x_m", "y_m", "diameter_m", "age_gyr")})
+
+
 def _steep_old_check(tile: DEMTile, catalog, label: str) -> Result:
     from evaluation.slope import horn_slope
 
     stat = ls.STEEP_OLD_TERRAIN
     s = horn_slope(tile)
     keep = np.isfinite(s) & ~young_crater_mask(tile, catalog)
-    share = float(np.mean(s[keep] > REPOSE_DEG)) if keep.any() else math.nan
+    if not keep.any():
+        return not_applicable(REALISM, f"{label}area steeper than {REPOSE_DEG:g} deg at "
+                              f"{tile.resolution:.3g} m outside craters younger than "
+                              f"{1000 * YOUNG_GYR:g} Myr", "every cell lies on a young crater",
+                              stat)
+    share = float(np.mean(s[keep] > REPOSE_DEG))
     return _judge(
         REALISM, f"{label}area steeper than {REPOSE_DEG:g} deg at {tile.resolution:.3g} m "
         f"outside craters younger than {1000 * YOUNG_GYR:g} Myr", share, stat.threshold, "<=",
@@ -1365,13 +1381,15 @@ def validate_stack(stack, terrain: str, *, label: str = "stack",
     law = ls.terrain_law(terrain)
     curves, results, hurst, dists = [], [], [], []
     per_layer, steep_old = [], []
+    # young craters' walls are excused wherever they are catalogued: the base's and the layers'
+    young_from = _joined_craters(stack.catalog, base_catalog)
     for k, tile in enumerate(stack.tiles):
         name = f"layer {k}"
         curves.append(slope_curve(tile, label=f"{name} ({tile.resolution:.3g} m)",
                                   max_lag=None if k == 0 else 8))
         res, h, dist = _tile_checks(tile, law, name, f"{name}: ", steep=False,
                                     target=lambda est: stack_hurst_target(stack, est, law))
-        old = _steep_old_check(tile, stack.catalog, f"{name}: ")
+        old = _steep_old_check(tile, young_from, f"{name}: ")
         results += res + [old]
         steep_old.append((k, old.value))
         hurst += h

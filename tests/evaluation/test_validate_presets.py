@@ -231,3 +231,22 @@ def test_a_stack_is_judged_once_per_measure_with_the_base_catalogue_it_is_given(
     sec = validation_sections(v)[0]
     (table,) = [t for t in sec.tables if t[0].startswith("The figures")]
     assert any("median 2-D slope" in row[0] for row in table[2])
+
+
+def test_young_craters_of_the_base_catalogue_excuse_their_walls_too():
+    """A fresh-shaped 60 m crater listed 50 Myr old only in the base's catalogue: its walls
+    are excused once the base's catalogue joins the stack's (which lists an old one elsewhere)."""
+    from evaluation.validate import _joined_craters, _steep_old_check
+    from terrain.craters.crater import CraterShape, profile
+
+    n, d = 128, 60.0
+    yy, xx = np.mgrid[0:n, 0:n] + 0.5
+    x = 2.0 * np.hypot(xx - 64.0, yy - 64.0) / d - 1.0
+    z = np.where(x <= 1.0, profile(np.minimum(x, 1.0), CraterShape.from_state(d)), 0.0)
+    tile = DEMTile.from_array(z, resolution=1.0)
+    layers = SimpleNamespace(x_m=np.array([10.0]), y_m=np.array([10.0]),
+                             diameter_m=np.array([20.0]), age_gyr=np.array([3.0]))
+    base = SimpleNamespace(x_m=np.array([64.0]), y_m=np.array([n - 64.0]),
+                           diameter_m=np.array([d]), age_gyr=np.array([0.05]))
+    assert _steep_old_check(tile, _joined_craters(layers, None), "").status == "fail"
+    assert _steep_old_check(tile, _joined_craters(layers, base), "").status == "pass"
