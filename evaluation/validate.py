@@ -1087,13 +1087,21 @@ def young_crater_mask(tile: DEMTile, catalog, *, young_gyr: float = YOUNG_GYR,
 
 
 def _joined_craters(*catalogs):
-    """Return the position, size and age columns of several crater catalogues as one."""
+    """Return the position, size and age columns of several crater catalogues as one.
+
+    A catalogue without ages counts as old (no crater of it is known to be young).
+    """
     from types import SimpleNamespace
 
     cats = [c for c in catalogs if c is not None and len(c.diameter_m)]
-    if len(cats) <= 1:
-        return cats[0] if cats else None
-    return SimpleNamespace(**{k: np.concatenate([np.asarray(getattr(c, k)) for c in cats])
+    if not cats:
+        return None
+
+    def column(c, k):
+        v = getattr(c, k, None)
+        return np.full(len(c.diameter_m), np.inf) if v is None else np.asarray(v, np.float64)
+
+    return SimpleNamespace(**{k: np.concatenate([column(c, k) for c in cats])
                               for k in ("x_m", "y_m", "diameter_m", "age_gyr")})
 
 
