@@ -148,7 +148,12 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
         preset_figures,
         validate_stack,
     )
-    from evaluation.validate_report import as_check, regroup_campaign_checks, validation_sections
+    from evaluation.validate_report import (
+        as_check,
+        base_catalog_for,
+        regroup_campaign_checks,
+        validation_sections,
+    )
     from terrain.core.errors import InvalidDEMError, InvalidParameterError
     from terrain.io import read_dem
     from terrain.stack.store import read_stack
@@ -235,7 +240,9 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     say("evaluation: terrain realism of every layer (published lunar statistics)")
     # the stack is judged as the terrain type it was built for (its synth preset)
     terrain = getattr(c.synth, "terrain", None) or "south-polar"
-    realism = validate_stack(stack, terrain, label="lunar layer stack")
+    found = base_catalog_for(stack)  # the base's own craters (the stack's are the layers')
+    realism = validate_stack(stack, terrain, label="lunar layer stack",
+                             base_catalog=found[0] if found else None)
     sections += validation_sections(realism, key="lunar")
     facts["realism"] = dict(verdict=realism.verdict,
                             failed=[f"{r.name}: {r.meaning}" for r in realism.failures()])

@@ -14,7 +14,7 @@ from evaluation import lunar_stats as ls
 from evaluation.report import Check, Report, Section, figure_record, fmt, jsonable
 from evaluation.validate import COMPARISON, TRACKER, Result, Validation
 
-__all__ = ["as_check", "validation_report", "validation_sections"]
+__all__ = ["as_check", "base_catalog_for", "validation_report", "validation_sections"]
 
 
 def as_check(r: Result) -> Check:
@@ -75,16 +75,32 @@ def validation_sections(v: Validation, *, key: str = "") -> list[Section]:
         sec.paragraphs.append(
             f"{v.label} keeps to every published statistic of {v.terrain} terrain that "
             "applies to it.")
-    sec.paragraphs.append(
-        f"The {v.terrain} law: {law.source}. Median bidirectional slope (absolute height "
-        "difference over a baseline, as LOLA's slope maps use) from every baseline the input "
-        f"holds, against the law and a band of x/{ls.SLOPE_BAND_FACTOR.threshold:g}.")
+    if "slope_table" in v.data:  # a layer stack: each baseline on the layer fit for it
+        sec.paragraphs.append(
+            f"The {v.terrain} law: {law.source}. Median bidirectional slope (absolute height "
+            "difference over a baseline, as LOLA's slope maps use) at each baseline on the "
+            "widest layer where it spans at least 4 pixels: within "
+            f"{ls.SLOPE_LAW_DEG.threshold:g} deg of the law from 17 m to 1 km, and the RMS "
+            "slope with the site's tilt removed at centimetres. The curve below pools every "
+            "layer's baselines and is drawn, not judged.")
+    else:
+        sec.paragraphs.append(
+            f"The {v.terrain} law: {law.source}. Median bidirectional slope (absolute height "
+            "difference over a baseline, as LOLA's slope maps use) from every baseline the "
+            f"input holds, against the law and a band of x/{ls.SLOPE_BAND_FACTOR.threshold:g}.")
     sec.checks = [as_check(r) for r in v.results]
     sec.tables.append(("Checks with their sources",
                        ["group", "check", "value", "threshold", "result", "source"],
                        [[r.group, r.name, fmt(r.value), f"{r.relation} {fmt(r.limit)}"
                          if r.limit is not None else "", r.status, r.source]
                         for r in v.results]))
+    if "slope_table" in v.data:
+        from evaluation.validate import preset_figures
+
+        sec.tables.append((f"The figures a {v.terrain} terrain is judged by",
+                           ["quantity", "value"],
+                           [[q, fmt(x) if isinstance(x, float) else str(x)]
+                            for q, x in preset_figures(v)]))
     if v.hurst:
         sec.tables.append(("Hurst exponents (median structure function, even lags)",
                            ["DEM", "H", "+-", "R^2", "fit range (m)", "H along x, y", "note"],
@@ -200,6 +216,27 @@ def load_input(path, *, band: int = 1):
     return path.stem, tile, None, note
 
 
+def base_catalog_for(stack):
+    """Return the crater catalogue of a stack's base, where it lies beside the base, or None.
+
+    ``terrain synth --catalog`` writes it anywhere; a campaign writes ``NAME_craters.csv``
+    beside the base ``NAME.tif``, and the stack's manifest names the base (``source``).
+
+    Returns
+    -------
+    (CraterCatalog, path) or None
+    """
+    from pathlib import Path
+
+    from terrain.craters.catalog import CraterCatalog
+
+    source = (stack.info or {}).get("source")
+    if not source:
+        return None
+    path = Path(source).with_name(f"{Path(source).stem}_craters.csv")
+    return (CraterCatalog.from_csv(path), path) if path.is_file() else None
+
+
 def run_validation(path, terrain: str, output, *, reference=None, band: int = 1,
                    reference_band: int = 1):
     """Validate a DEM or layer stack and write the HTML report and its JSON twin.
@@ -232,8 +269,13 @@ def run_validation(path, terrain: str, output, *, reference=None, band: int = 1,
     check_output_path(Path(output).with_suffix(".json"), srcs)
     label, tile, stack, note = load_input(path, band=band)
     if stack is not None:
-        v = validate_stack(stack, terrain, label=label)
+        found = base_catalog_for(stack)
+        v = validate_stack(stack, terrain, label=label,
+                           base_catalog=found[0] if found else None)
         finest = stack.tiles[-1]
+        if found:
+            note = f"{note}; " if note else ""
+            note += f"the base's craters counted from {found[1]}"
     else:
         v = validate_dem(tile, terrain, label=label)
         finest = tile

@@ -392,15 +392,19 @@ def test_rock_sfd_is_judged_against_the_presets_viper_model(scale, verdict):
     match it within 15 % (plus counting noise); three times as many rocks fail."""
     from types import SimpleNamespace
 
+    from affine import Affine
+
     from evaluation.validate import _rock_sfd_check
     from terrain.surface.rocks import RockModel, rock_catalog
 
     a, b = ls.VIPER_ROCK_MODELS["nominal"]
     extent = (0.0, 0.0, 200.0, 200.0)
-    rocks = RockModel.from_spec(f"power:a={a * scale},b={b},dmin=0.2,dmax=10").generate(
+    rocks = RockModel.from_spec(f"power:a={a * scale},b={b},dmin=0.1,dmax=10").generate(
         7, extent, margin=False)
     cat = rock_catalog(rocks, np.zeros(len(rocks)), np.zeros(len(rocks), int))
-    tile = DEMTile.from_array(np.zeros((2000, 2000), np.float32), resolution=0.1)
+    # one 5 cm layer (what the count reads of a tile): complete from 2 px, 0.1 m
+    tile = SimpleNamespace(shape=(4000, 4000), resolution=0.05,
+                           transform=Affine(0.05, 0.0, 0.0, 0.0, -0.05, 200.0))
     r, figures = _rock_sfd_check(SimpleNamespace(tiles=[tile], rocks=cat), "south-polar")
     assert r.status == verdict, r
-    assert figures["diameter_m"][0] == pytest.approx(0.2)
+    assert figures["rows"][0]["diameter_m"] == pytest.approx(0.1)
