@@ -59,9 +59,11 @@ from terrain.craters.crater import crater_interior, exterior_height, shape_array
 from terrain.craters.cratering import obliteration
 from terrain.craters.population import Population
 
-__all__ = ["BOULDER_SITE_STREAM", "CRATER_SITE_STREAM", "POSITION_QUANTUM", "MeshBody",
-           "MeshBoulders", "MeshCraters", "Sites", "add_mesh_craters", "load_mesh_native",
-           "place_mesh_boulders", "refine", "sample_sites", "save_mesh_native", "split"]
+__all__ = ["BOULDER_SITE_STREAM", "CRATER_SITE_STREAM", "MESH_FORMAT", "POSITION_QUANTUM",
+           "MeshBody", "MeshBoulders", "MeshCraters", "Sites", "add_mesh_craters",
+           "boulder_rotations", "boulder_settings", "load_mesh_native", "mesh_boulder_geometry",
+           "native_format", "place_mesh_boulders", "refine", "sample_sites", "save_mesh_native",
+           "split"]
 
 log = logging.getLogger(__name__)
 
@@ -623,16 +625,12 @@ def place_mesh_boulders(body: MeshBody, population: Population, *, seed: int,
     elongation = e_lo + (e_hi - e_lo) * u[:, 1]
     burial = settings.max_burial * u[:, 2]
     tilt = math.radians(settings.max_tilt_deg)
-    yaw = 2.0 * np.pi * u[:, 3]
-    pitch = tilt * (2.0 * u[:, 4] - 1.0)
-    roll = tilt * (2.0 * u[:, 5] - 1.0)
+    # the angles as the catalogue records them, so the catalogue alone rebuilds the meshes
+    yaw = np.degrees(2.0 * np.pi * u[:, 3])
+    pitch = np.degrees(tilt * (2.0 * u[:, 4] - 1.0))
+    roll = np.degrees(tilt * (2.0 * u[:, 5] - 1.0))
     normals = face_normals(v, f)[sites.face]
-    helper = np.where(np.abs(normals[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
-    t1 = np.cross(helper, normals)
-    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-    t2 = np.cross(normals, t1)
-    frame = np.stack([t1, t2, normals], axis=2)        # columns: local x, y, z
-    rot = frame @ rotation_z(yaw) @ rotation_y(pitch) @ rotation_x(roll)
+    rot = boulder_rotations(normals, yaw, pitch, roll)
     from asteroid.boulders import subdivision
 
     faces_all, _ = subdivision(settings.levels)
@@ -659,10 +657,103 @@ def place_mesh_boulders(body: MeshBody, population: Population, *, seed: int,
                nx=normals[:, 0], ny=normals[:, 1], nz=normals[:, 2],
                diameter_m=sites.diameters, height_m=height, flattening=flattening,
                elongation=elongation, burial_fraction=burial, burial_depth_m=depth,
-               yaw_deg=np.degrees(yaw), pitch_deg=np.degrees(pitch),
-               roll_deg=np.degrees(roll))
+               yaw_deg=yaw, pitch_deg=pitch, roll_deg=roll)
     log.info("placed %d boulders on the mesh", n)
     return MeshBoulders(cat, out_v.reshape(-1, 3), faces_out.astype(np.int64))
+
+
+def boulder_rotations(normals: np.ndarray, yaw_deg: np.ndarray, pitch_deg: np.ndarray,
+                      roll_deg: np.ndarray) -> np.ndarray:
+    """Rotate boulders from their own frames to the body frame, short axis along the normal.
+
+    Parameters
+    ----------
+    normals : (n, 3) float64
+        Unit outward normal of each boulder's triangle (its own z axis).
+    yaw_deg, pitch_deg, roll_deg : (n,) float64, degrees
+        About the normal, then the tilts (the catalogue's columns).
+
+    Returns
+    -------
+    (n, 3, 3) float64
+        Own frame to body frame.
+    """
+    normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
+    helper = np.where(np.abs(normals[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
+    t1 = np.cross(helper, normals)
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    t2 = np.cross(normals, t1)
+    frame = np.stack([t1, t2, normals], axis=2)        # columns: local x, y, z
+    return frame @ rotation_z(np.radians(yaw_deg)) @ rotation_y(np.radians(pitch_deg)) \
+        @ rotation_x(np.radians(roll_deg))
+
+
+def boulder_settings(metadata: dict) -> tuple[BoulderSettings, int] | None:
+    """Return the boulder settings and seed a mesh body's metadata records (None: none).
+
+    Parameters
+    ----------
+    metadata : dict
+        :attr:`MeshBody.metadata` of a built body.
+    """
+    info = metadata.get("boulders")
+    if not isinstance(info, dict) or "settings" not in info:
+        return None
+    s = dict(info["settings"])
+    s["flattening"] = tuple(s["flattening"])
+    s["elongation"] = tuple(s["elongation"])
+    return BoulderSettings(**s), int(info["seed"])
+
+
+def mesh_boulder_geometry(catalog: dict, settings: BoulderSettings, seed: int,
+                          level: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Rebuild the boulders of a mesh body's catalogue at one level of detail.
+
+    The finest level gives exactly the meshes :func:`place_mesh_boulders` made (same bytes).
+
+    Parameters
+    ----------
+    catalog : dict
+        The boulder columns (:class:`MeshBoulders` ``catalog``, or a native file's table).
+    settings : asteroid.boulders.BoulderSettings
+        As the build recorded them (:func:`boulder_settings`).
+    seed : int
+        The build's seed.
+    level : int, optional
+        Level of detail, 0 (coarsest icosahedron) .. ``settings.levels - 1`` (default).
+
+    Returns
+    -------
+    vertices : (n V_l, 3) float64, metres
+    faces : (n F_l, 3) int64
+    """
+    from asteroid.boulders import subdivision
+
+    levels = settings.levels
+    level = levels - 1 if level is None else int(level)
+    if not 0 <= level < levels:
+        raise InvalidParameterError(f"boulder level must lie in [0, {levels}); got {level}")
+    n = len(catalog["id"])
+    if n == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+    faces_all, _ = subdivision(levels)
+    nv = 10 * 4**level + 2
+    normals = np.column_stack([catalog["nx"], catalog["ny"], catalog["nz"]])
+    rot = boulder_rotations(normals, catalog["yaw_deg"], catalog["pitch_deg"],
+                            catalog["roll_deg"])
+    centres = np.column_stack([catalog["x_m"], catalog["y_m"], catalog["z_m"]])
+    uid = np.asarray(catalog["id"], dtype=np.uint64)
+    diameter = np.asarray(catalog["diameter_m"], dtype=np.float64)
+    elongation = np.asarray(catalog["elongation"], dtype=np.float64)
+    flattening = np.asarray(catalog["flattening"], dtype=np.float64)
+    out = np.empty((n, nv, 3))
+    for start in range(0, n, 4096):
+        sl = slice(start, min(n, start + 4096))
+        local = local_shapes(seed, settings, uid[sl], diameter[sl], elongation[sl],
+                             flattening[sl])[:, :nv]
+        out[sl] = np.einsum("nij,nvj->nvi", rot[sl], local) + centres[sl, None, :]
+    faces = (faces_all[level][None, :, :] + (np.arange(n) * nv)[:, None, None]).reshape(-1, 3)
+    return out.reshape(-1, 3), faces.astype(np.int64)
 
 
 # ----------------------------------------------------------------------------------------
@@ -699,19 +790,61 @@ def save_mesh_native(path, body: MeshBody, tables=None, *, inputs=()):
 
 
 def load_mesh_native(path) -> tuple[MeshBody, dict]:
-    """Read a mesh body written by :func:`save_mesh_native`: the body and its catalogues."""
-    import json
+    """Read a mesh body written by :func:`save_mesh_native`: the body and its catalogues.
 
-    with np.load(path, allow_pickle=False) as z:
-        if str(z["format"]) != MESH_FORMAT:
-            raise InvalidShapeError(f"'{path}' is not a mesh body ({MESH_FORMAT})")
-        body = MeshBody(z["vertices"], z["faces"], json.loads(str(z["metadata"])))
-        tables: dict = {}
-        for name in z.files:
-            if "/" in name:
-                table, column = name.split("/", 1)
-                tables.setdefault(table, {})[column] = z[name]
+    A missing file, one that is not an ``.npz``, or one of another format raises one clear
+    error naming the file (:class:`terrain.core.errors.MissingInputError`,
+    :class:`asteroid.errors.InvalidShapeError`).
+    """
+    import json
+    import zipfile
+    from pathlib import Path
+
+    from terrain.core.errors import MissingInputError
+
+    path = Path(path)
+    if not path.is_file():
+        raise MissingInputError(f"mesh body '{path}' does not exist")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            fmt = str(z["format"]) if "format" in z.files else None
+            if fmt != MESH_FORMAT:
+                raise InvalidShapeError(f"'{path}' is not a mesh body ({MESH_FORMAT}); "
+                                        f"its format is {fmt!r}")
+            body = MeshBody(z["vertices"], z["faces"], json.loads(str(z["metadata"])))
+            tables: dict = {}
+            for name in z.files:
+                if "/" in name:
+                    table, column = name.split("/", 1)
+                    tables.setdefault(table, {})[column] = z[name]
+    except (zipfile.BadZipFile, ValueError, OSError, KeyError) as exc:
+        if isinstance(exc, InvalidShapeError):
+            raise
+        raise InvalidShapeError(f"cannot read mesh body '{path}': {exc}") from exc
     return body, tables
+
+
+def native_format(path) -> str | None:
+    """Return the format tag of a craterscape ``.npz`` (None for another file or none).
+
+    Tells a latitude/longitude body (:data:`asteroid.body.FORMAT`) from a mesh body
+    (:data:`MESH_FORMAT`) without loading either.
+
+    Parameters
+    ----------
+    path : str or Path
+    """
+    import zipfile
+    from pathlib import Path
+
+    path = Path(path)
+    if path.suffix.lower() != ".npz" or not path.is_file():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return str(z["format"]) if "format" in z.files else None
+    except (zipfile.BadZipFile, ValueError, OSError, KeyError):
+        return None
 
 
 def save_columns(path, columns: dict, *, inputs=()):
