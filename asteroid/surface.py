@@ -36,8 +36,11 @@ surface, as Li et al. (2022) do on their implicit surfaces:
    along the triangle's normal, and lifted so that their lowest point touches the surface,
    then sunk by a burial fraction of their height.
 
-Simplifications against :mod:`asteroid.craters`: no irregular rim and no roughness overlay
-(those need the latitude/longitude crater grid); the rim rides on the fitted plane.
+The rim is irregular as on the latitude/longitude mesh: the same fractal rim-radius table
+(:func:`terrain.craters.overlay.rim_table`, keyed by the seed and the crater's identity, which
+is keyed by its position) sets the rim radius along each azimuth of the local tangent frame.
+Simplifications against :mod:`asteroid.craters`: no roughness overlay (it needs the
+latitude/longitude crater grid); the rim rides on the fitted plane.
 """
 
 from __future__ import annotations
@@ -57,6 +60,7 @@ from terrain.core.errors import InvalidParameterError
 from terrain.core.rng import check_seed, hash64, poisson, stream_id, uniform_scalar
 from terrain.craters.crater import crater_interior, exterior_height, shape_arrays
 from terrain.craters.cratering import obliteration
+from terrain.craters.overlay import RIM_SAMPLES, periodic_sample, rim_table
 from terrain.craters.population import Population
 
 __all__ = ["BOULDER_SITE_STREAM", "CRATER_SITE_STREAM", "MESH_FORMAT", "POSITION_QUANTUM",
@@ -400,8 +404,13 @@ def refine(vertices: np.ndarray, faces: np.ndarray, centres: np.ndarray,
 
 @numba.njit(cache=True)
 def _crater_on_mesh(verts, base_normals, idx, p, n, e1, e2, d, curvature, floor, hr, ejecta,
-                    beta, ca, cb, c2, c3, cplx, want_slope):
-    """Fit the plane, then move each vertex of ``idx`` along n; returns (applied, slope)."""
+                    beta, ca, cb, c2, c3, cplx, want_slope, irregular, table):
+    """Fit the plane, then move each vertex of ``idx`` along n; returns (applied, slope).
+
+    With ``irregular`` the rim radius at azimuth theta (from e1 towards e2) is
+    ``D / 2 + table(theta) D`` (:func:`terrain.craters.overlay.rim_table`), as on the
+    latitude/longitude mesh.
+    """
     m = idx.size
     hx = np.empty(m)
     hy = np.empty(m)
@@ -454,7 +463,8 @@ def _crater_on_mesh(verts, base_normals, idx, p, n, e1, e2, d, curvature, floor,
         i = idx[k]
         x, y, h = hx[k], hy[k], hh[k]
         s = math.sqrt(x * x + y * y)
-        xr = s / radius - 1.0
+        rt = radius + periodic_sample(table, math.atan2(y, x)) * d if irregular else radius
+        xr = s / rt - 1.0
         if xr > 1.0:
             continue
         if xr <= 0.0:
@@ -533,6 +543,8 @@ def add_mesh_craters(body: MeshBody, sites: Sites, *, seed: int,
     cols = {name: np.zeros(n) for name in MESH_CRATER_COLUMNS}
     cols["id"] = sites.uid[order].copy()
     cols["applied"] = np.zeros(n, np.int64)
+    irregular = model.rim.effective_amplitude > 0.0
+    table = np.zeros(RIM_SAMPLES)
     step = max(1, n // 200)
     for k, j in enumerate(order):
         if progress is not None and k % step == 0:
@@ -554,7 +566,8 @@ def add_mesh_craters(body: MeshBody, sites: Sites, *, seed: int,
         cols["nx"][k], cols["ny"][k], cols["nz"][k] = nrm
         cols["diameter_m"][k], cols["age_gyr"][k] = d, sites.ages[j]
         _, slope = _crater_on_mesh(verts, base_normals, idx, p, nrm, e1, e2, d, 0.0, 0.0, 0.0,
-                                   0.0, 0.0, 0.0, 0.0, 0.0, 0.0, np.full(7, -2.0), True)
+                                   0.0, 0.0, 0.0, 0.0, 0.0, 0.0, np.full(7, -2.0), True,
+                                   False, table)
         sf = settings.slope.factor(slope) if math.isfinite(slope) else 0.0
         if model.slope.enabled and math.isfinite(slope):
             d0, r0 = model.factors(sites.ages[j], d, slope)
@@ -571,10 +584,12 @@ def add_mesh_craters(body: MeshBody, sites: Sites, *, seed: int,
         hr = float(s["rim_height"][0])
         curvature = float(s["fresh_rim_height"][0]) - hr + float(s["depth"][0])
         floor = hr - float(s["depth"][0])
+        if irregular:  # the crater's own rim, keyed by its identity (so by its position)
+            rim_table(seed, sites.uid[j], model.rim.effective_amplitude, model.rim.hurst, table)
         applied, _ = _crater_on_mesh(
             verts, base_normals, idx, p, nrm, e1, e2, d, curvature, floor, hr,
             float(s["ejecta"][0]), float(s["beta"][0]), float(s["a"][0]), float(s["b"][0]),
-            float(s["c2"][0]), float(s["c3"][0]), s["complex"][0], False)
+            float(s["c2"][0]), float(s["c3"][0]), s["complex"][0], False, irregular, table)
         cols["applied"][k] = int(applied)
     if progress is not None:
         progress(n, n)

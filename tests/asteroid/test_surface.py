@@ -186,6 +186,53 @@ def test_fresh_crater_depth_along_the_normal():
     assert reach.max() <= 1.05 * d * CraterModel().footprint_factor
 
 
+def test_an_irregular_rim_on_the_mesh_follows_the_rim_table():
+    """The rim crest of a mesh crater lies at D/2 + rho(theta) D along each azimuth, rho the
+    latitude/longitude path's rim table for the crater's identity (keyed by position)."""
+    from asteroid.craters import CraterSettings
+    from asteroid.surface import _tangents
+    from terrain.craters.overlay import RIM_SAMPLES, RimIrregularity, periodic_sample, rim_table
+
+    mesh = SphereMesh(64)
+    radius = 20_000.0
+    normal = np.array([0.3, -0.5, 0.8])
+    normal /= np.linalg.norm(normal)
+    site = normal * radius
+    d = 400.0
+    v, f, _ = refine(mesh.directions() * radius, mesh.faces(), site[None], np.array([d]),
+                     edges_per_diameter=80.0)
+    body = MeshBody(v, f)
+    uid = np.array([0x5EED], np.uint64)
+    sites = Sites(np.array([0]), site[None], np.array([d]), np.array([0.0]), uid,
+                  np.zeros((1, 0)))
+    import dataclasses
+
+    model = dataclasses.replace(CraterModel().smooth(),
+                                rim=RimIrregularity(amplitude=0.1, hurst=0.7))
+    out = add_mesh_craters(body, sites, seed=1, settings=CraterSettings(model),
+                           refine_mesh=False)
+    out.body.check_closed()
+    table = np.zeros(RIM_SAMPLES)
+    rim_table(1, uid[0], 0.1, 0.7, table)
+    n = np.array([out.catalog[k][0] for k in ("nx", "ny", "nz")])
+    e1, e2 = _tangents(n)
+    rel = out.body.vertices - site
+    x, y, h = rel @ e1, rel @ e2, rel @ n
+    s, theta = np.hypot(x, y), np.arctan2(y, x)
+    near = s < 1.5 * d
+    bins = np.linspace(-np.pi, np.pi, 25)
+    crest, expected = [], []
+    for lo, hi in zip(bins[:-1], bins[1:], strict=True):
+        sel = np.flatnonzero(near & (theta >= lo) & (theta < hi))
+        crest.append(s[sel[np.argmax(h[sel])]])
+        expected.append(0.5 * d + periodic_sample(table, 0.5 * (lo + hi)) * d)
+    crest, expected = np.array(crest), np.array(expected)
+    edge = d / 80.0
+    assert np.abs(crest - expected).max() < 3.0 * edge + 0.02 * d  # the wedge's width
+    assert np.ptp(expected) > 0.05 * d  # an irregular rim, followed
+    assert np.corrcoef(crest, expected)[0, 1] > 0.9
+
+
 def _fresh_settings():
     from asteroid.craters import CraterSettings
 
