@@ -72,3 +72,43 @@ def test_a_mesh_body_npz_is_read_for_slopes(tmp_path):
     shape = load_body(tmp_path / "cb.npz")
     assert shape.volume == pytest.approx(body.volume(), rel=1e-9)
     assert len(shape.faces) == len(body.faces)
+
+
+def test_binary_slopes_from_a_scenario_on_the_command_line(tmp_path):
+    """`craterscape evaluation binary-slopes SCENARIO` reads the binary's bodies and orbit."""
+    import json
+
+    from asteroid.body import Body, save_native
+    from tests.cli_helpers import one_line_error, run
+
+    save_native(tmp_path / "p.npz", Body.sphere(SphereMesh(12), 390.0))
+    save_native(tmp_path / "s.npz", Body.sphere(SphereMesh(8), 80.0))
+    scenario = tmp_path / "b.toml"
+    scenario.write_text('name = "b"\n[scene]\ntype = "binary"\nprimary = "p.npz"\n'
+                        'secondary = "s.npz"\n[trajectory]\ntype = "keyframes"\n'
+                        '[[trajectory.keyframe]]\ntime = 0.0\nposition = [1e4, 0, 0]\n'
+                        'look_at = [0, 0, 0]\n')
+    r = run("evaluation", "binary-slopes", scenario, "-o", tmp_path / "out", "--body",
+            "secondary", "--time", 100.0, "--radius-deg", 0.0)
+    assert r.exit_code == 0, r.output
+    summary = json.loads((tmp_path / "out" / "secondary_slopes.json").read_text())
+    assert summary["info"]["body"] == "secondary" and summary["vertices"] == 6 * 64 + 2
+    # the scenario's bodies, orbit (the default, Didymos-Dimorphos) and tidal lock: the same
+    # slopes as the library gives for them
+    from evaluation.meshslope import binary_slopes, load_body
+    from render.scenario import load_scenario
+
+    spec = load_scenario(scenario).scene
+    p, s = (load_body(tmp_path / n) for n in ("p.npz", "s.npz"))
+    ref = binary_slopes((p.vertices, p.faces), (s.vertices, s.faces), orbit=spec.orbit,
+                        primary_spin=spec.primary_spin, t=100.0, which="secondary",
+                        radius_deg=0.0)
+    rows = np.genfromtxt(tmp_path / "out" / "secondary_vertex_slopes.csv", delimiter=",",
+                         names=True)
+    assert np.allclose(rows["gravitational_slope_deg"], ref.gravitational_deg, atol=1e-4)
+    single = tmp_path / "one.toml"
+    single.write_text(scenario.read_text().replace('type = "binary"\nprimary = "p.npz"\n'
+                                                   'secondary = "s.npz"',
+                                                   'type = "asteroid"\nbody = "p.npz"'))
+    one_line_error(run("evaluation", "binary-slopes", single, "-o", tmp_path / "x"),
+                   "needs a binary scenario")
