@@ -355,7 +355,8 @@ def test_icq_shape_model_is_read_closed(tmp_path):
 def test_a_real_non_star_shaped_shape_through_the_command_line(tmp_path, shared_file):
     """Itokawa's Gaskell model (its folded neck crosses some rays from the centre twice),
     kept as its own mesh: volume within 1 %, surface within 0.5 % of the mean radius
-    (Hausdorff), watertight, with craters and boulders."""
+    (Hausdorff), watertight, with craters and boulders. The mean radius is 168 m, so the
+    craters are those whose depth stays below 0.8 m (D <= 3.5 m)."""
     from asteroid.cli import asteroid
     from asteroid.meshio.read import read_mesh
     from asteroid.shape import ShapeModel
@@ -368,7 +369,7 @@ def test_a_real_non_star_shaped_shape_through_the_command_line(tmp_path, shared_
     config.write_text(f'base = "shape:{source}"\nmagnitude = 48\nseed = 4\n'
                       '[shape]\nkeep = "always"\n')
     out = tmp_path / "itokawa.ply"
-    args = ["build", "--config", str(config), "--craters", "density=400,dmin=8,dmax=30",
+    args = ["build", "--config", str(config), "--craters", "density=300,dmin=2,dmax=3.5",
             "--boulders", "density=2000,dmin=2,dmax=8,levels=2", "-o", str(out)]
     result = CliRunner().invoke(asteroid, args)
     assert result.exit_code == 0, result.output
