@@ -32,10 +32,13 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from asteroid.body import Body, load_native, save_native
 from asteroid.boulders import Boulders, BoulderSettings, place_boulders
 from asteroid.catalog import BoulderCatalog, CraterCatalog, save_table
 from asteroid.craters import add_craters, sample_craters
+from asteroid.errors import InvalidShapeError
 from asteroid.meshio.export import MESH_FORMATS, mesh_format, write_mesh
 from asteroid.recipe import KEEP_NON_STAR_FRACTION, Recipe
 from asteroid.shape import ShapeModel
@@ -377,9 +380,13 @@ def boulders_of(native) -> Boulders | None:
 def export_model(native_path, output, *, boulders: bool = True, level: int | None = None) \
         -> Path:
     """Write a native model as a mesh file (body, and boulders at ``level`` of detail)."""
+    from asteroid.surface import MESH_FORMAT, native_format
+
     native_path = Path(native_path)
     mesh_format(output)
     check_output_path(output, [native_path])
+    if native_format(native_path) == MESH_FORMAT:
+        return _export_mesh_body(native_path, output, boulders=boulders, level=level)
     native = load_native(native_path)
     b = boulders_of(native) if boulders else None
     if level is not None and b is None:
@@ -388,3 +395,64 @@ def export_model(native_path, output, *, boulders: bool = True, level: int | Non
                 source=str(native_path))
     return write_mesh(output, _parts(native.body, b, level), metadata=meta,
                       inputs=[native_path])
+
+
+def _export_mesh_body(native_path: Path, output, *, boulders: bool, level: int | None) -> Path:
+    """Write a mesh body's ``.npz`` as a mesh file (body, boulders rebuilt from the catalogue)."""
+    from asteroid.surface import boulder_settings, load_mesh_native, mesh_boulder_geometry
+
+    body, tables = load_mesh_native(native_path)
+    recorded = boulder_settings(body.metadata)
+    table = tables.get("boulders")
+    have = boulders and recorded is not None and table is not None
+    if level is not None and not have:
+        raise InvalidParameterError(f"'{native_path}' has no boulders to export at a level")
+    parts = [("body", body.vertices, body.faces)]
+    if have:
+        assert recorded is not None and table is not None
+        v, f = mesh_boulder_geometry(table, recorded[0], recorded[1], level)
+        if len(f):
+            parts.append(("boulders", v, f))
+    meta = dict(seed=body.metadata.get("seed"), recipe=body.metadata.get("recipe"),
+                source=str(native_path))
+    return write_mesh(output, parts, metadata=meta, inputs=[native_path])
+
+
+def describe_model(path) -> dict:
+    """Describe a native ``.npz`` of either kind: size, volume, catalogues, provenance.
+
+    Parameters
+    ----------
+    path : str or Path
+        A latitude/longitude body or a mesh body, as ``craterscape asteroid build`` writes.
+
+    Returns
+    -------
+    dict
+        ``file``, ``kind`` (``"latlon"`` or ``"mesh"``), the body's summary, ``tables``
+        (rows per catalogue) and ``metadata``.
+    """
+    from asteroid.surface import MESH_FORMAT, load_mesh_native, native_format
+
+    path = Path(path)
+    if native_format(path) == MESH_FORMAT:
+        body, tables = load_mesh_native(path)
+        r = np.linalg.norm(body.vertices, axis=1)
+        try:
+            body.check_closed()
+            closed = True
+        except InvalidShapeError:
+            closed = False
+        summary = dict(kind="mesh", vertices=body.n_vertices, triangles=len(body.faces),
+                       volume_m3=body.volume(), area_m2=body.area(),
+                       equivalent_radius_m=body.equivalent_radius, mean_edge_m=body.mean_edge(),
+                       min_radius_m=float(r.min()), max_radius_m=float(r.max()),
+                       mean_radius_m=float(r.mean()), closed=closed)
+        metadata = dict(body.metadata)
+    else:
+        native = load_native(path)
+        summary = dict(kind="latlon", **native.body.summary())
+        tables = dict(native.tables)
+        metadata = dict(native.body.metadata)
+    rows = {name: len(next(iter(cols.values()))) if cols else 0 for name, cols in tables.items()}
+    return dict(file=str(path), **summary, tables=rows, metadata=metadata)

@@ -124,7 +124,7 @@ def build(output, magnitude, radius, base, seed, stretch, craters, boulders, con
               help="Boulder level of detail (default the finest).")
 @click.option("--no-boulders", is_flag=True, help="Write the body alone.")
 def export(model, output, level, no_boulders):
-    """Write a native model (.npz) as a mesh file."""
+    """Write a native model (.npz, lat/lon or mesh body) as a mesh file."""
     from asteroid.build import export_model
 
     export_model(model, output, boulders=not no_boulders, level=level)
@@ -134,15 +134,10 @@ def export(model, output, level, no_boulders):
 @asteroid.command()
 @click.argument("model", type=click.Path(path_type=Path))
 def info(model):
-    """Describe a native model: size, radii, volume, catalogues, provenance (JSON)."""
-    from asteroid.body import load_native
+    """Describe a native model (either kind): size, volume, catalogues, provenance (JSON)."""
+    from asteroid.build import describe_model
 
-    native = load_native(model)
-    report = dict(file=str(model), **native.body.summary(),
-                  tables={name: len(next(iter(cols.values()))) if cols else 0
-                          for name, cols in native.tables.items()},
-                  metadata=dict(native.body.metadata))
-    click.echo(json.dumps(report, indent=2))
+    click.echo(json.dumps(describe_model(model), indent=2, default=float))
 
 
 @asteroid.command()

@@ -36,8 +36,11 @@ surface, as Li et al. (2022) do on their implicit surfaces:
    along the triangle's normal, and lifted so that their lowest point touches the surface,
    then sunk by a burial fraction of their height.
 
-Simplifications against :mod:`asteroid.craters`: no irregular rim and no roughness overlay
-(those need the latitude/longitude crater grid); the rim rides on the fitted plane.
+The rim is irregular as on the latitude/longitude mesh: the same fractal rim-radius table
+(:func:`terrain.craters.overlay.rim_table`, keyed by the seed and the crater's identity, which
+is keyed by its position) sets the rim radius along each azimuth of the local tangent frame.
+Simplifications against :mod:`asteroid.craters`: no roughness overlay (it needs the
+latitude/longitude crater grid); the rim rides on the fitted plane.
 """
 
 from __future__ import annotations
@@ -57,11 +60,14 @@ from terrain.core.errors import InvalidParameterError
 from terrain.core.rng import check_seed, hash64, poisson, stream_id, uniform_scalar
 from terrain.craters.crater import crater_interior, exterior_height, shape_arrays
 from terrain.craters.cratering import obliteration
+from terrain.craters.overlay import RIM_SAMPLES, periodic_sample, rim_table
 from terrain.craters.population import Population
 
-__all__ = ["BOULDER_SITE_STREAM", "CRATER_SITE_STREAM", "POSITION_QUANTUM", "MeshBody",
-           "MeshBoulders", "MeshCraters", "Sites", "add_mesh_craters", "load_mesh_native",
-           "place_mesh_boulders", "refine", "sample_sites", "save_mesh_native", "split"]
+__all__ = ["BOULDER_SITE_STREAM", "CRATER_SITE_STREAM", "MESH_FORMAT", "POSITION_QUANTUM",
+           "MeshBody", "MeshBoulders", "MeshCraters", "Sites", "add_mesh_craters",
+           "boulder_rotations", "boulder_settings", "load_mesh_native", "mesh_boulder_geometry",
+           "native_format", "place_mesh_boulders", "refine", "sample_sites", "save_mesh_native",
+           "split"]
 
 log = logging.getLogger(__name__)
 
@@ -398,8 +404,13 @@ def refine(vertices: np.ndarray, faces: np.ndarray, centres: np.ndarray,
 
 @numba.njit(cache=True)
 def _crater_on_mesh(verts, base_normals, idx, p, n, e1, e2, d, curvature, floor, hr, ejecta,
-                    beta, ca, cb, c2, c3, cplx, want_slope):
-    """Fit the plane, then move each vertex of ``idx`` along n; returns (applied, slope)."""
+                    beta, ca, cb, c2, c3, cplx, want_slope, irregular, table):
+    """Fit the plane, then move each vertex of ``idx`` along n; returns (applied, slope).
+
+    With ``irregular`` the rim radius at azimuth theta (from e1 towards e2) is
+    ``D / 2 + table(theta) D`` (:func:`terrain.craters.overlay.rim_table`), as on the
+    latitude/longitude mesh.
+    """
     m = idx.size
     hx = np.empty(m)
     hy = np.empty(m)
@@ -452,7 +463,8 @@ def _crater_on_mesh(verts, base_normals, idx, p, n, e1, e2, d, curvature, floor,
         i = idx[k]
         x, y, h = hx[k], hy[k], hh[k]
         s = math.sqrt(x * x + y * y)
-        xr = s / radius - 1.0
+        rt = radius + periodic_sample(table, math.atan2(y, x)) * d if irregular else radius
+        xr = s / rt - 1.0
         if xr > 1.0:
             continue
         if xr <= 0.0:
@@ -531,6 +543,8 @@ def add_mesh_craters(body: MeshBody, sites: Sites, *, seed: int,
     cols = {name: np.zeros(n) for name in MESH_CRATER_COLUMNS}
     cols["id"] = sites.uid[order].copy()
     cols["applied"] = np.zeros(n, np.int64)
+    irregular = model.rim.effective_amplitude > 0.0
+    table = np.zeros(RIM_SAMPLES)
     step = max(1, n // 200)
     for k, j in enumerate(order):
         if progress is not None and k % step == 0:
@@ -552,7 +566,8 @@ def add_mesh_craters(body: MeshBody, sites: Sites, *, seed: int,
         cols["nx"][k], cols["ny"][k], cols["nz"][k] = nrm
         cols["diameter_m"][k], cols["age_gyr"][k] = d, sites.ages[j]
         _, slope = _crater_on_mesh(verts, base_normals, idx, p, nrm, e1, e2, d, 0.0, 0.0, 0.0,
-                                   0.0, 0.0, 0.0, 0.0, 0.0, 0.0, np.full(7, -2.0), True)
+                                   0.0, 0.0, 0.0, 0.0, 0.0, 0.0, np.full(7, -2.0), True,
+                                   False, table)
         sf = settings.slope.factor(slope) if math.isfinite(slope) else 0.0
         if model.slope.enabled and math.isfinite(slope):
             d0, r0 = model.factors(sites.ages[j], d, slope)
@@ -569,10 +584,12 @@ def add_mesh_craters(body: MeshBody, sites: Sites, *, seed: int,
         hr = float(s["rim_height"][0])
         curvature = float(s["fresh_rim_height"][0]) - hr + float(s["depth"][0])
         floor = hr - float(s["depth"][0])
+        if irregular:  # the crater's own rim, keyed by its identity (so by its position)
+            rim_table(seed, sites.uid[j], model.rim.effective_amplitude, model.rim.hurst, table)
         applied, _ = _crater_on_mesh(
             verts, base_normals, idx, p, nrm, e1, e2, d, curvature, floor, hr,
             float(s["ejecta"][0]), float(s["beta"][0]), float(s["a"][0]), float(s["b"][0]),
-            float(s["c2"][0]), float(s["c3"][0]), s["complex"][0], False)
+            float(s["c2"][0]), float(s["c3"][0]), s["complex"][0], False, irregular, table)
         cols["applied"][k] = int(applied)
     if progress is not None:
         progress(n, n)
@@ -623,16 +640,12 @@ def place_mesh_boulders(body: MeshBody, population: Population, *, seed: int,
     elongation = e_lo + (e_hi - e_lo) * u[:, 1]
     burial = settings.max_burial * u[:, 2]
     tilt = math.radians(settings.max_tilt_deg)
-    yaw = 2.0 * np.pi * u[:, 3]
-    pitch = tilt * (2.0 * u[:, 4] - 1.0)
-    roll = tilt * (2.0 * u[:, 5] - 1.0)
+    # the angles as the catalogue records them, so the catalogue alone rebuilds the meshes
+    yaw = np.degrees(2.0 * np.pi * u[:, 3])
+    pitch = np.degrees(tilt * (2.0 * u[:, 4] - 1.0))
+    roll = np.degrees(tilt * (2.0 * u[:, 5] - 1.0))
     normals = face_normals(v, f)[sites.face]
-    helper = np.where(np.abs(normals[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
-    t1 = np.cross(helper, normals)
-    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-    t2 = np.cross(normals, t1)
-    frame = np.stack([t1, t2, normals], axis=2)        # columns: local x, y, z
-    rot = frame @ rotation_z(yaw) @ rotation_y(pitch) @ rotation_x(roll)
+    rot = boulder_rotations(normals, yaw, pitch, roll)
     from asteroid.boulders import subdivision
 
     faces_all, _ = subdivision(settings.levels)
@@ -659,10 +672,103 @@ def place_mesh_boulders(body: MeshBody, population: Population, *, seed: int,
                nx=normals[:, 0], ny=normals[:, 1], nz=normals[:, 2],
                diameter_m=sites.diameters, height_m=height, flattening=flattening,
                elongation=elongation, burial_fraction=burial, burial_depth_m=depth,
-               yaw_deg=np.degrees(yaw), pitch_deg=np.degrees(pitch),
-               roll_deg=np.degrees(roll))
+               yaw_deg=yaw, pitch_deg=pitch, roll_deg=roll)
     log.info("placed %d boulders on the mesh", n)
     return MeshBoulders(cat, out_v.reshape(-1, 3), faces_out.astype(np.int64))
+
+
+def boulder_rotations(normals: np.ndarray, yaw_deg: np.ndarray, pitch_deg: np.ndarray,
+                      roll_deg: np.ndarray) -> np.ndarray:
+    """Rotate boulders from their own frames to the body frame, short axis along the normal.
+
+    Parameters
+    ----------
+    normals : (n, 3) float64
+        Unit outward normal of each boulder's triangle (its own z axis).
+    yaw_deg, pitch_deg, roll_deg : (n,) float64, degrees
+        About the normal, then the tilts (the catalogue's columns).
+
+    Returns
+    -------
+    (n, 3, 3) float64
+        Own frame to body frame.
+    """
+    normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
+    helper = np.where(np.abs(normals[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
+    t1 = np.cross(helper, normals)
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    t2 = np.cross(normals, t1)
+    frame = np.stack([t1, t2, normals], axis=2)        # columns: local x, y, z
+    return frame @ rotation_z(np.radians(yaw_deg)) @ rotation_y(np.radians(pitch_deg)) \
+        @ rotation_x(np.radians(roll_deg))
+
+
+def boulder_settings(metadata: dict) -> tuple[BoulderSettings, int] | None:
+    """Return the boulder settings and seed a mesh body's metadata records (None: none).
+
+    Parameters
+    ----------
+    metadata : dict
+        :attr:`MeshBody.metadata` of a built body.
+    """
+    info = metadata.get("boulders")
+    if not isinstance(info, dict) or "settings" not in info:
+        return None
+    s = dict(info["settings"])
+    s["flattening"] = tuple(s["flattening"])
+    s["elongation"] = tuple(s["elongation"])
+    return BoulderSettings(**s), int(info["seed"])
+
+
+def mesh_boulder_geometry(catalog: dict, settings: BoulderSettings, seed: int,
+                          level: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Rebuild the boulders of a mesh body's catalogue at one level of detail.
+
+    The finest level gives exactly the meshes :func:`place_mesh_boulders` made (same bytes).
+
+    Parameters
+    ----------
+    catalog : dict
+        The boulder columns (:class:`MeshBoulders` ``catalog``, or a native file's table).
+    settings : asteroid.boulders.BoulderSettings
+        As the build recorded them (:func:`boulder_settings`).
+    seed : int
+        The build's seed.
+    level : int, optional
+        Level of detail, 0 (coarsest icosahedron) .. ``settings.levels - 1`` (default).
+
+    Returns
+    -------
+    vertices : (n V_l, 3) float64, metres
+    faces : (n F_l, 3) int64
+    """
+    from asteroid.boulders import subdivision
+
+    levels = settings.levels
+    level = levels - 1 if level is None else int(level)
+    if not 0 <= level < levels:
+        raise InvalidParameterError(f"boulder level must lie in [0, {levels}); got {level}")
+    n = len(catalog["id"])
+    if n == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+    faces_all, _ = subdivision(levels)
+    nv = 10 * 4**level + 2
+    normals = np.column_stack([catalog["nx"], catalog["ny"], catalog["nz"]])
+    rot = boulder_rotations(normals, catalog["yaw_deg"], catalog["pitch_deg"],
+                            catalog["roll_deg"])
+    centres = np.column_stack([catalog["x_m"], catalog["y_m"], catalog["z_m"]])
+    uid = np.asarray(catalog["id"], dtype=np.uint64)
+    diameter = np.asarray(catalog["diameter_m"], dtype=np.float64)
+    elongation = np.asarray(catalog["elongation"], dtype=np.float64)
+    flattening = np.asarray(catalog["flattening"], dtype=np.float64)
+    out = np.empty((n, nv, 3))
+    for start in range(0, n, 4096):
+        sl = slice(start, min(n, start + 4096))
+        local = local_shapes(seed, settings, uid[sl], diameter[sl], elongation[sl],
+                             flattening[sl])[:, :nv]
+        out[sl] = np.einsum("nij,nvj->nvi", rot[sl], local) + centres[sl, None, :]
+    faces = (faces_all[level][None, :, :] + (np.arange(n) * nv)[:, None, None]).reshape(-1, 3)
+    return out.reshape(-1, 3), faces.astype(np.int64)
 
 
 # ----------------------------------------------------------------------------------------
@@ -699,19 +805,61 @@ def save_mesh_native(path, body: MeshBody, tables=None, *, inputs=()):
 
 
 def load_mesh_native(path) -> tuple[MeshBody, dict]:
-    """Read a mesh body written by :func:`save_mesh_native`: the body and its catalogues."""
-    import json
+    """Read a mesh body written by :func:`save_mesh_native`: the body and its catalogues.
 
-    with np.load(path, allow_pickle=False) as z:
-        if str(z["format"]) != MESH_FORMAT:
-            raise InvalidShapeError(f"'{path}' is not a mesh body ({MESH_FORMAT})")
-        body = MeshBody(z["vertices"], z["faces"], json.loads(str(z["metadata"])))
-        tables: dict = {}
-        for name in z.files:
-            if "/" in name:
-                table, column = name.split("/", 1)
-                tables.setdefault(table, {})[column] = z[name]
+    A missing file, one that is not an ``.npz``, or one of another format raises one clear
+    error naming the file (:class:`terrain.core.errors.MissingInputError`,
+    :class:`asteroid.errors.InvalidShapeError`).
+    """
+    import json
+    import zipfile
+    from pathlib import Path
+
+    from terrain.core.errors import MissingInputError
+
+    path = Path(path)
+    if not path.is_file():
+        raise MissingInputError(f"mesh body '{path}' does not exist")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            fmt = str(z["format"]) if "format" in z.files else None
+            if fmt != MESH_FORMAT:
+                raise InvalidShapeError(f"'{path}' is not a mesh body ({MESH_FORMAT}); "
+                                        f"its format is {fmt!r}")
+            body = MeshBody(z["vertices"], z["faces"], json.loads(str(z["metadata"])))
+            tables: dict = {}
+            for name in z.files:
+                if "/" in name:
+                    table, column = name.split("/", 1)
+                    tables.setdefault(table, {})[column] = z[name]
+    except (zipfile.BadZipFile, ValueError, OSError, KeyError) as exc:
+        if isinstance(exc, InvalidShapeError):
+            raise
+        raise InvalidShapeError(f"cannot read mesh body '{path}': {exc}") from exc
     return body, tables
+
+
+def native_format(path) -> str | None:
+    """Return the format tag of a craterscape ``.npz`` (None for another file or none).
+
+    Tells a latitude/longitude body (:data:`asteroid.body.FORMAT`) from a mesh body
+    (:data:`MESH_FORMAT`) without loading either.
+
+    Parameters
+    ----------
+    path : str or Path
+    """
+    import zipfile
+    from pathlib import Path
+
+    path = Path(path)
+    if path.suffix.lower() != ".npz" or not path.is_file():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return str(z["format"]) if "format" in z.files else None
+    except (zipfile.BadZipFile, ValueError, OSError, KeyError):
+        return None
 
 
 def save_columns(path, columns: dict, *, inputs=()):

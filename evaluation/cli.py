@@ -611,3 +611,53 @@ def validate_cmd(dem_or_stack, terrain, output, reference, band):
     fails = v.failures()
     click.echo(f"wrote {html_path} and {json_path}: verdict {v.verdict}"
                + "".join(f"\n  FAIL {r.name}: {r.meaning}" for r in fails), err=True)
+
+
+@evaluation.command("binary-slopes")
+@click.argument("scenario_file", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("-o", "--output", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Output folder (created if missing).")
+@click.option("--time", "time_s", type=float, default=0.0, show_default=True,
+              help="Seconds from the scenario's start (the bodies' poses).")
+@click.option("--body", type=click.Choice(["primary", "secondary"]), default="primary",
+              show_default=True, help="Whose surface.")
+@click.option("--radius-deg", type=float, default=3.0, show_default=True,
+              help="Cap radius of the per-vertex slope average (degrees).")
+@click.option("--coarse-faces", type=int, default=None,
+              help="Triangles of each coarsened body the gravity is computed from "
+                   "(default 4000).")
+def binary_slopes_cmd(scenario_file, output, time_s, body, radius_deg, coarse_faces):
+    """Gravitational slopes of one body of a binary scenario (its tide, spin and orbit)."""
+    from evaluation.meshslope import DEFAULT_COARSE_FACES, binary_slopes, load_body
+    from render.scenario import load_scenario
+    from terrain.core.outputs import check_output_folder, transaction
+
+    scenario = load_scenario(scenario_file)
+    spec = scenario.scene
+    if spec.type != "binary":
+        raise InvalidParameterError(f"binary-slopes needs a binary scenario ([scene] type = "
+                                    f"\"binary\"); {scenario_file} is {spec.type}")
+    assert spec.primary is not None and spec.secondary is not None  # a binary's, required
+    paths = [scenario.resolve(spec.primary), scenario.resolve(spec.secondary)]
+    shapes = [load_body(p) for p in paths]
+    srcs = [scenario_file, *paths]
+    check_output_folder(output, srcs)
+    with progress_bar(f"gravity {body}") as update:
+        s = binary_slopes((shapes[0].vertices, shapes[0].faces),
+                          (shapes[1].vertices, shapes[1].faces), orbit=spec.orbit,
+                          primary_spin=spec.primary_spin, secondary_spin=spec.secondary_spin,
+                          t=time_s, which=body, radius_deg=radius_deg,
+                          coarse_faces=coarse_faces or DEFAULT_COARSE_FACES, progress=update)
+    with transaction():  # every file or none
+        outdir = _outdir(output, srcs)
+        rows = [[i, f"{s.vertex_area[i]:.6g}", f"{s.radial_deg[i]:.4f}",
+                 f"{s.gravitational_deg[i]:.4f}"] + [f"{x:.6g}" for x in s.gravity[i]]
+                for i in range(s.vertex_area.size)]
+        write_csv(outdir / f"{body}_vertex_slopes.csv",
+                  ["vertex", "area_m2", "radial_slope_deg", "gravitational_slope_deg",
+                   "g_x_m_s2", "g_y_m_s2", "g_z_m_s2"], rows, srcs)
+        _write_text(outdir / f"{body}_slopes.json", json.dumps(s.as_dict(), indent=1), srcs)
+    g = s.summary("gravitational")
+    click.echo(f"wrote {body} slopes at t = {time_s:g} s to {output}: gravitational median "
+               f"{g['p50']:.1f} deg ({100 * g['area_fraction_below_35deg']:.1f} % of the area "
+               "below 35)", err=True)

@@ -64,7 +64,7 @@ from terrain.core.errors import InvalidParameterError
 
 __all__ = ["DEFAULT_BIN_DEG", "DEFAULT_COARSE_FACES", "DEFAULT_DENSITY", "DEFAULT_RADIUS_DEG",
            "MESH_SUFFIXES", "MeshSlopes", "SlopeAreaHistogram", "Spin", "cap_average",
-           "load_body", "mesh_slopes", "vertex_normals_and_areas"]
+           "binary_slopes", "load_body", "mesh_slopes", "vertex_normals_and_areas"]
 
 log = logging.getLogger(__name__)
 
@@ -125,7 +125,8 @@ def load_body(path, *, units: str = "m"):
     ----------
     path : str or Path
         ``.obj``, ``.ply``, ``.stl``, ``.off``, ``.glb``/``.gltf`` (through trimesh), or the
-        native ``.npz`` of ``craterscape asteroid build`` (always metres).
+        native ``.npz`` of ``craterscape asteroid build`` (always metres; a latitude/longitude
+        body or a mesh body).
     units : {"m", "km"}
         Units of a mesh file's coordinates (PDS shape models are in km).
 
@@ -143,7 +144,12 @@ def load_body(path, *, units: str = "m"):
         raise InvalidParameterError(f"units must be one of {sorted(UNITS)}; got {units!r}")
     if path.suffix.lower() == ".npz":
         from asteroid.body import load_native
+        from asteroid.surface import MESH_FORMAT, load_mesh_native, native_format
 
+        if native_format(path) == MESH_FORMAT:  # a body kept as its own mesh
+            mesh_body, _ = load_mesh_native(path)
+            return ShapeModel.from_arrays(mesh_body.vertices, mesh_body.faces,
+                                          source=f"'{path}'")
         body = load_native(path).body
         return ShapeModel.from_arrays(body.vertices(), body.mesh.faces(), source=f"'{path}'")
     if path.suffix.lower() not in MESH_SUFFIXES:
@@ -506,3 +512,103 @@ def mesh_slopes(vertices, faces, *, label: str = "", radius_deg: float = DEFAULT
     return MeshSlopes(label, areas, averaged[:, 0],
                       None if grav is None else averaged[:, 1], g_eff, float(radius_deg),
                       info)
+
+
+def binary_slopes(primary, secondary, *, orbit, primary_spin=None, secondary_spin=None,
+                  t: float = 0.0, which: str = "primary", label: str = "",
+                  radius_deg: float = DEFAULT_RADIUS_DEG,
+                  coarse_faces: int = DEFAULT_COARSE_FACES, progress=None) -> MeshSlopes:
+    """Radial and gravitational slopes of one body of a binary at time ``t``.
+
+    A particle at rest on body A's surface feels A's attraction, the tide of the other body
+    B (B's attraction there minus B's attraction at A's centre, which accelerates A as a
+    whole), and the centrifugal acceleration of A's own spin (a tidally locked body turns at
+    the mean motion about the orbit normal)::
+
+        g_eff(p) = g_A(p) + g_B(p) - g_B(c_A) + omega_A^2 r_perp
+
+    Both attractions are exact polyhedron fields (:class:`evaluation.gravity.Polyhedron`, of
+    coarsened copies); the masses follow from the orbit, as the render scene's do: Kepler's
+    third law gives ``G (m_A + m_B)`` from the period and the semi-major axis, the mass ratio
+    splits it, and each body is homogeneous.
+
+    Parameters
+    ----------
+    primary, secondary : ((n, 3) float64, (m, 3) int64)
+        Each body's closed, outward-wound mesh about its centre of mass, body frame, metres.
+    orbit : render.orbit.MutualOrbit
+        The mutual orbit (positions, masses).
+    primary_spin, secondary_spin : render.orbit.Spin, optional
+        As in a binary scene: the primary's default is :class:`render.orbit.Spin`'s; a
+        secondary without one is tidally locked.
+    t : float, seconds
+        When (the bodies' poses, as :meth:`render.binary_scene.BinaryScene.body_poses`).
+    which : {"primary", "secondary"}
+        The body whose surface the slopes are of.
+    label, radius_deg, coarse_faces, progress
+        As :func:`mesh_slopes`.
+
+    Returns
+    -------
+    MeshSlopes
+        Of the chosen body's vertices; ``gravity`` in its body frame.
+    """
+    import time
+
+    from render.camera import quat_to_matrix
+    from render.orbit import Spin as BodySpin
+
+    if which not in ("primary", "secondary"):
+        raise InvalidParameterError(f"which must be 'primary' or 'secondary'; got {which!r}")
+    meshes = [tuple(np.ascontiguousarray(a, dtype=dt) for a, dt in
+                    zip(m, (np.float64, np.int64), strict=True)) for m in (primary, secondary)]
+    spins = [primary_spin if primary_spin is not None else BodySpin(), secondary_spin]
+    t0 = time.perf_counter()
+    centres = orbit.positions(float(t))
+    quats = [spins[0].rotation(t), spins[1].rotation(t) if spins[1] is not None
+             else orbit.locked_rotation(t)]
+    rots = [quat_to_matrix(q) for q in quats]
+    # spin rate and world axis of each body
+    rates = []
+    for spin in spins:
+        if spin is None:  # tidally locked: the mean motion about the orbit normal
+            rates.append((orbit.mean_motion, orbit.orbit_rotation()[:, 2]))
+        else:
+            rate = 0.0 if spin.period == 0 else 2.0 * math.pi / float(spin.period)
+            rates.append((rate, np.asarray(spin.axis) / np.linalg.norm(spin.axis)))
+    total = orbit.gm / GRAVITATIONAL_CONSTANT
+    q = orbit.mass_ratio
+    masses = [total / (1.0 + q), total * q / (1.0 + q)]
+    a, b = (0, 1) if which == "primary" else (1, 0)
+    bodies = []
+    for i in (a, b):
+        v, f = meshes[i]
+        volume = signed_volume(v, f)
+        cv, cf = coarsen(v, f, int(coarse_faces))
+        bodies.append(Polyhedron.build(cv, cf, masses[i] / signed_volume(cv, cf)))
+        if i == a:
+            own_volume = volume
+    v, f = meshes[a]
+    normals, areas = vertex_normals_and_areas(v, f)
+    radial = _angle_deg(normals, v)
+    _, own = bodies[0].field(v, progress=progress)
+    # the other body's attraction, evaluated in its own frame
+    world = v @ rots[a].T + centres[a]
+    at_b = (world - centres[b]) @ rots[b]
+    centre_b = (centres[a] - centres[b]) @ rots[b]
+    _, pull = bodies[1].field(np.vstack([at_b, centre_b[None, :]]))
+    tide_world = (pull[:-1] - pull[-1]) @ rots[b].T
+    tide = tide_world @ rots[a]
+    rate, axis_w = rates[a]
+    g_eff = own + tide + centrifugal(v, rate=rate, axis=axis_w @ rots[a])
+    grav = _angle_deg(normals, -g_eff)
+    info = dict(vertices=len(v), faces=len(f), volume_m3=own_volume, body=which, time_s=float(t),
+                mass_kg=masses[a], other_mass_kg=masses[b],
+                density_kg_m3=masses[a] / own_volume, spin_rate_rad_s=rate,
+                separation_m=float(np.linalg.norm(centres[b] - centres[a])),
+                tide_max_m_s2=float(np.linalg.norm(tide, axis=1).max()),
+                radius_deg=radius_deg, gravitational_constant=GRAVITATIONAL_CONSTANT)
+    averaged = cap_average(v, np.column_stack([radial, grav]), areas, radius_deg)
+    info["seconds"] = time.perf_counter() - t0
+    return MeshSlopes(label or which, areas, averaged[:, 0], averaged[:, 1], g_eff,
+                      float(radius_deg), info)

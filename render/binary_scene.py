@@ -21,14 +21,14 @@ Truth: :meth:`BinaryScene.body_poses` gives each body's centre and rotation at a
 :meth:`BinaryScene.body_ids` which body each pixel of a frame shows (0 sky, 1 primary, 2
 secondary), from the frame's range: the surface point a pixel sees is assigned to the body
 whose surface it lies on (for a star-shaped native body, the distance to its surface along
-the point's direction; for a mesh, the distance to its bounding sphere).
+the point's direction; for a mesh body, the distance to its nearest surface vertex; for any
+other mesh, the distance to its bounding sphere).
 
 The world frame is inertial; the binary ignores a trajectory's body rotation
 (:meth:`set_body_rotation`): time alone moves and turns its bodies. Imposters are not used: a
-distant binary is drawn as geometry at its coarsest levels of detail. Bodies are shaded with
-the normals of the level drawn, not a single body's cube map of its finest normals
-(``render/shaders/scene.frag`` looks that cube up by the direction from the scene origin,
-which is not an orbiting body's centre).
+distant binary is drawn as geometry at its coarsest levels of detail. A native body is shaded
+with its cube map of its finest normals as a single body is (``render/shaders/scene.frag``
+looks it up by the body-frame direction from the batch's model offset, the body's centre).
 """
 
 from __future__ import annotations
@@ -97,7 +97,9 @@ def load_body(body: Any, *, boulders: bool = True) -> Any:
     Parameters
     ----------
     body : str, pathlib.Path, asteroid.body.Body, NativeModel or a body scene
-        A native body as ``craterscape asteroid build`` writes it (``.npz``), a closed mesh
+        A native body as ``craterscape asteroid build`` writes it (``.npz``: a
+        latitude/longitude body, or a mesh body drawn as a
+        :class:`~render.mesh_scene.MeshBodyScene` with its boulders), a closed mesh
         (``.ply``, ``.obj``, ``.stl``, ``.glb``; metres, centred on the body), a loaded body,
         or an :class:`~render.asteroid_scene.AsteroidScene` / :class:`~render.mesh_scene.MeshScene`.
     boulders : bool
@@ -109,7 +111,7 @@ def load_body(body: Any, *, boulders: bool = True) -> Any:
         Centred at its own origin.
     """
     from render.asteroid_scene import AsteroidScene
-    from render.mesh_scene import MeshScene
+    from render.mesh_scene import MeshBodyScene, MeshScene, is_mesh_body
 
     if isinstance(body, (AsteroidScene, MeshScene)):
         scene = body
@@ -118,6 +120,8 @@ def load_body(body: Any, *, boulders: bool = True) -> Any:
 
         vertices, faces = read_mesh(Path(body))
         scene = MeshScene(vertices, faces)
+    elif isinstance(body, (str, Path)) and is_mesh_body(body):  # a mesh body's .npz
+        scene = MeshBodyScene(Path(body), boulders=boulders)
     else:
         scene = AsteroidScene(body, boulders=boulders, imposter_pixels=0.0)
     if np.any(np.asarray(getattr(scene, "origin", np.zeros(3))) != 0):
@@ -240,7 +244,9 @@ class BinaryScene:
         """Whether a world point lies inside either body at time ``t``.
 
         A native body is star-shaped about its centre: inside means nearer its centre than
-        its surface in that direction; a mesh body is judged by its bounding sphere.
+        its surface in that direction; a mesh body (:class:`render.mesh_scene.MeshBodyScene`)
+        by its winding number, exact whatever its shape; any other mesh by its bounding
+        sphere.
 
         Parameters
         ----------
@@ -251,17 +257,31 @@ class BinaryScene:
         -------
         bool
         """
+        from render.mesh_scene import MeshBodyScene
+
         p = np.asarray(point, dtype=np.float64).reshape(1, 3)
         for body, (c, q) in zip(self.bodies, self.body_poses(t), strict=True):
-            if self._surface_gap(body, p, c, q)[0] < 0:
+            if isinstance(body, MeshBodyScene):
+                if body.contains(p[0] - c, q):
+                    return True
+            elif self._surface_gap(body, p, c, q)[0] < 0:
                 return True
         return False
 
     @staticmethod
     def _surface_gap(body, points: np.ndarray, centre: np.ndarray, quat: np.ndarray
                      ) -> np.ndarray:
-        """Distance of world points from a body's surface along their direction (m; < 0 in)."""
+        """Distance of world points from a body's surface along their direction (m; < 0 in).
+
+        A mesh body (:class:`render.mesh_scene.MeshBodyScene`) gives its distance to the
+        nearest surface vertex instead (unsigned: the body-id image needs only which surface
+        is nearer).
+        """
+        from render.mesh_scene import MeshBodyScene
+
         rel = points - centre
+        if isinstance(body, MeshBodyScene):
+            return body.surface_distance(rel @ quat_to_matrix(quat))
         dist = np.linalg.norm(rel, axis=1)
         surface = getattr(getattr(body, "body", None), "surface_radius", None)
         if surface is None:
@@ -369,10 +389,9 @@ class BinaryScene:
                           view.intrinsics, view.time)
             state = body.frame_state(local, lighting, own, gpu, None)
             for batch in state.batches:
+                # a normal cube is looked up by the direction from the body's centre (the
+                # batch's model offset), so each body keeps its finest normals
                 batch.model_offset = np.asarray(batch.model_offset, dtype=np.float64) + c
-                # the fragment stage looks a normal cube up by the direction from the scene
-                # origin, which is not this body's centre: shade with the drawn level's normals
-                batch.normal_cube = None
             batches.extend(state.batches)
             owner.extend([i] * len(state.batches))
             drawn[BODY_NAMES[i]] = state.drawn

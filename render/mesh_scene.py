@@ -39,7 +39,7 @@ from terrain.core.errors import InvalidParameterError
 if TYPE_CHECKING:
     from render.renderer import Lighting, RenderOptions, View
 
-__all__ = ["CHUNK", "MeshScene", "vertex_normals"]
+__all__ = ["CHUNK", "MeshBodyScene", "MeshScene", "is_mesh_body", "vertex_normals"]
 
 #: Triangles per culling chunk.
 CHUNK = 4096
@@ -339,3 +339,134 @@ class MeshScene:
         self._shadow = body_shadow_map(gpu, self._shadow, options.shadow_size,
                                        lighting.sun, self.reach, lambda extent: [batch])
         return self._shadow
+
+
+def is_mesh_body(path: Any) -> bool:
+    """Whether ``path`` names a body a scene draws as a mesh: a mesh body ``.npz`` or a mesh file.
+
+    ``craterscape asteroid build`` writes a latitude/longitude body (``.npz`` of format
+    ``craterscape-asteroid/1``, drawn by :class:`render.asteroid_scene.AsteroidScene`) or a
+    body kept as its own mesh (``craterscape-mesh-asteroid/1``, beside its ``.ply``/``.obj``
+    /... file); this tells them apart by the file's format tag.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+
+    Returns
+    -------
+    bool
+    """
+    from pathlib import Path
+
+    from asteroid.surface import MESH_FORMAT, native_format
+
+    p = Path(path)
+    if p.suffix.lower() == ".npz":
+        return native_format(p) == MESH_FORMAT
+    return True
+
+
+class MeshBodyScene(MeshScene):
+    """A body kept as its own closed mesh, drawn as a scenario's asteroid.
+
+    What ``craterscape asteroid build --base shape:FILE`` (a shape that is not star-shaped)
+    or ``--base packing:...`` writes: the ``.npz`` mesh body (its vertices, faces and
+    catalogues; the boulders are rebuilt from their catalogue at their finest level,
+    :func:`asteroid.surface.mesh_boulder_geometry`) or the mesh file beside it (body and
+    boulders as written). It turns with the scenario's spin as a latitude/longitude body
+    does (``kind`` ``"asteroid"``), and :meth:`contains` tells whether a point is inside the
+    body exactly (generalised winding number), whatever its shape.
+
+    Parameters
+    ----------
+    source : str or pathlib.Path
+        The mesh body's ``.npz``, or a closed mesh file (``.ply``, ``.obj``, ``.stl``,
+        ``.glb``; metres, about the body's centre).
+    boulders : bool
+        Draw the boulders (a ``.npz``'s catalogue; a mesh file's are part of its mesh).
+    albedo : path or (n,) float, optional
+        One albedo factor per body vertex (``.npy``); the boulders take 1.
+    """
+
+    kind = "asteroid"
+
+    def __init__(self, source: Any, *, boulders: bool = True, albedo: Any = None) -> None:
+        from pathlib import Path
+
+        from asteroid.surface import boulder_settings, load_mesh_native, mesh_boulder_geometry
+
+        path = Path(source)
+        self.source = path
+        self.catalogs: dict = {}
+        if path.suffix.lower() == ".npz":
+            body, tables = load_mesh_native(path)
+            self.catalogs = tables
+            body_v, body_f = body.vertices, body.faces
+            parts = [(body_v, body_f)]
+            recorded = boulder_settings(body.metadata)
+            if boulders and recorded is not None and "boulders" in tables:
+                parts.append(mesh_boulder_geometry(tables["boulders"], *recorded))
+        else:
+            from asteroid.meshio.read import read_mesh
+
+            body_v, body_f = read_mesh(path)
+            parts = [(np.asarray(body_v, dtype=np.float64), np.asarray(body_f, dtype=np.int64))]
+        #: The closed surface (without boulders) the inside test uses, body frame.
+        self.surface = (np.asarray(parts[0][0], dtype=np.float64),
+                        np.asarray(parts[0][1], dtype=np.int64))
+        vertices = np.concatenate([v for v, _ in parts])
+        offsets = np.cumsum([0] + [len(v) for v, _ in parts[:-1]])
+        faces = np.concatenate([f + o for (_, f), o in zip(parts, offsets, strict=True)])
+        factors = None
+        if albedo is not None:
+            a = np.load(albedo, allow_pickle=False) if isinstance(albedo, (str, Path)) \
+                else np.asarray(albedo)
+            a = np.asarray(a, dtype=np.float32).reshape(-1)
+            if a.shape != (len(self.surface[0]),):
+                raise InvalidParameterError(
+                    f"the albedo map of mesh body '{path}' must hold one factor per body "
+                    f"vertex ({len(self.surface[0])}); got {a.shape}")
+            factors = np.concatenate([a, np.ones(len(vertices) - len(a), np.float32)])
+        super().__init__(vertices, faces, albedo=factors)
+
+    def contains(self, point: Any, quaternion: Any = (1.0, 0.0, 0.0, 0.0)) -> bool:
+        """Whether a world point lies inside the body (boulders aside) turned by ``quaternion``.
+
+        Parameters
+        ----------
+        point : (3,) float, metres, world frame
+        quaternion : (4,) float
+            R_WB [w, x, y, z] of the body at that time.
+
+        Returns
+        -------
+        bool
+        """
+        from asteroid.shape import winding_number
+
+        p = (np.asarray(point, dtype=np.float64).reshape(3) - self.origin) \
+            @ quat_to_matrix(quaternion)
+        v, f = self.surface
+        r = np.linalg.norm(v, axis=1).max()
+        if np.linalg.norm(p) > r:
+            return False
+        return winding_number(v, f, p) > 0.5
+
+    def surface_distance(self, points: Any) -> np.ndarray:
+        """Distance (m) of body-frame points from the nearest surface vertex (boulders aside).
+
+        Parameters
+        ----------
+        points : (n, 3) float, metres, body frame
+
+        Returns
+        -------
+        (n,) float64
+        """
+        from scipy.spatial import cKDTree
+
+        if getattr(self, "_tree", None) is None:
+            self._tree = cKDTree(self.surface[0])
+        d, _ = self._tree.query(np.atleast_2d(np.asarray(points, dtype=np.float64)))
+        return np.asarray(d, dtype=np.float64)

@@ -85,7 +85,8 @@ def load_scene(scenario: Scenario) -> Scene:
     -------
     render.scene.Scene
         A :class:`render.terrain_scene.TerrainScene` (a layer stack) or a
-        :class:`render.asteroid_scene.AsteroidScene` (a native body).
+        :class:`render.asteroid_scene.AsteroidScene` (a native body) or a
+        :class:`render.mesh_scene.MeshBodyScene` (a body kept as its own mesh).
     """
     from render.scene_build import ensure_scene
 
@@ -106,8 +107,11 @@ def load_scene(scenario: Scenario) -> Scene:
         return TerrainScene(scenario.resolve(spec.stack), curvature=spec.curvature,
                             radius=spec.radius, albedo_map=albedo)
     from render.asteroid_scene import AsteroidScene
+    from render.mesh_scene import MeshBodyScene, is_mesh_body
 
     assert spec.body is not None  # required of an asteroid scene by SceneSpec.from_mapping
+    if is_mesh_body(scenario.resolve(spec.body)):  # a body kept as its own mesh
+        return MeshBodyScene(scenario.resolve(spec.body), boulders=spec.boulders, albedo=albedo)
     return AsteroidScene(scenario.resolve(spec.body), boulders=spec.boulders,
                          imposter_pixels=spec.imposter_pixels, albedo=albedo)
 

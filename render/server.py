@@ -60,6 +60,7 @@ from render.asteroid_scene import AsteroidScene
 from render.binary_scene import BinaryScene
 from render.camera import Intrinsics, Pose, look_at
 from render.errors import ProtocolError
+from render.mesh_scene import MeshBodyScene
 from render.motion import Motion
 from render.protocol import (
     ARRAY_HEAD,
@@ -755,6 +756,10 @@ class RenderServer:
                 raise ProtocolError(ErrorCode.INSIDE_SURFACE,
                                     f"camera at height {p[2]:.3f} m is on or below the terrain "
                                     f"({ground:.3f} m at {p[0]:.3f}, {p[1]:.3f})")
+            return
+        if isinstance(scene, MeshBodyScene):  # any shape: its winding number decides
+            if scene.contains(p, self.body_rotation(t)):
+                raise ProtocolError(ErrorCode.INSIDE_SURFACE, "camera is inside the body")
             return
         r = float(np.linalg.norm(p))
         # nearer the centre than the body's lowest vertex: inside whatever the direction

@@ -27,6 +27,7 @@ uniform int u_normal_map;       // terrain layers: shade with the layer's full-r
 uniform int u_normal_cube;      // asteroid bodies: shade with the finest level's normals,
 uniform samplerCube u_normal_cube_map;  // looked up by body-frame direction from the centre
 uniform mat3 u_world_from_model;  // (the body rotation, as in the vertex stage)
+uniform vec3 u_model_offset;      // the body's centre relative to the camera (vertex stage)
 uniform sampler2D u_normals;    // normals (texture of unit normals, one texel per pixel),
 uniform vec4 u_normal_rect;     // whatever the level of detail: (x0, y0, 1/width, 1/height)
 
@@ -245,7 +246,8 @@ void main() {
                                                (u_normal_rect.y - world.y) * u_normal_rect.w)).xyz);
     if (u_normal_cube == 1)
         n = normalize(u_world_from_model
-                      * texture(u_normal_cube_map, transpose(u_world_from_model) * world).xyz);
+                      * texture(u_normal_cube_map,
+                                transpose(u_world_from_model) * (v_rel - u_model_offset)).xyz);
     float r = length(v_rel);
     vec3 e = -v_rel / r;                       // towards the camera
     float mu0 = dot(n, u_sun);

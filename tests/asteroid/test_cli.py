@@ -161,3 +161,41 @@ def test_traceback_only_with_verbose(tmp_path):
     r = run("-v", "asteroid", "build", "-o", tmp_path / "x.ply", "--magnitude", 0, "--radius",
             1, "--base", "perlin")
     assert r.exit_code == 2 and "Traceback" in r.output
+
+
+def test_info_and_export_read_a_mesh_body(tmp_path):
+    """A packing body (kept as its own mesh): info describes it, export writes the mesh the
+    build wrote (same bytes), its boulders at any level, or the body alone, watertight."""
+    from asteroid.surface import load_mesh_native
+
+    r = run("asteroid", "build", "-o", tmp_path / "cb.ply", "--base", "packing:contact-binary",
+            "--radius", 300, "--magnitude", 16, "--seed", 1, "--craters",
+            "density=40,dmin=20,dmax=60", "--boulders", "density=300,dmin=4,dmax=12,levels=2")
+    assert r.exit_code == 0, r.output
+    body, tables = load_mesh_native(tmp_path / "cb.npz")
+    r = run("asteroid", "info", tmp_path / "cb.npz")
+    assert r.exit_code == 0, r.output
+    report = json.loads(r.output)
+    assert report["kind"] == "mesh" and report["closed"] is True
+    assert report["triangles"] == len(body.faces)
+    assert report["volume_m3"] == pytest.approx(4 / 3 * np.pi * 300.0**3, rel=0.01)
+    assert report["tables"] == {"craters": len(tables["craters"]["id"]),
+                                "boulders": len(tables["boulders"]["id"])}
+    r = run("asteroid", "export", tmp_path / "cb.npz", "-o", tmp_path / "again.ply")
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "again.ply").read_bytes() == (tmp_path / "cb.ply").read_bytes()
+    r = run("asteroid", "export", tmp_path / "cb.npz", "-o", tmp_path / "coarse.obj",
+            "--level", 0)
+    assert r.exit_code == 0, r.output
+    coarse = trimesh.load(tmp_path / "coarse.obj", process=False)
+    n_boulders = len(tables["boulders"]["id"])
+    assert len(coarse.faces) == len(body.faces) + 20 * n_boulders  # icosahedra
+    r = run("asteroid", "export", tmp_path / "cb.npz", "-o", tmp_path / "bare.stl",
+            "--no-boulders")
+    assert r.exit_code == 0, r.output
+    bare = trimesh.load(tmp_path / "bare.stl")
+    assert bare.is_watertight and len(bare.faces) == len(body.faces)
+    one_line_error(run("asteroid", "export", tmp_path / "cb.npz", "-o", tmp_path / "x.ply",
+                       "--level", 5), "boulder level")
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    one_line_error(run("asteroid", "info", tmp_path / "junk.npz"), "junk.npz")

@@ -182,3 +182,50 @@ def test_a_shape_file_can_be_the_secondary(renderer, binary, tmp_path):
     label, _, limb, *_ = _analytic(mixed, pose, k, 0.0)
     assert (label[~limb] == 2).sum() > 100
     assert np.array_equal(ids[~limb], label[~limb])
+
+
+def test_a_binarys_body_is_shaded_with_its_finest_normals_as_alone(renderer):
+    """A rough primary drawn at a coarse level: its shading normals are the single body's
+    (its cube map of the finest normals, looked up about its own centre), not the level's."""
+    from asteroid.body import Body
+    from asteroid.sphere import SphereMesh
+    from render.asteroid_scene import AsteroidScene
+    from render.binary_scene import BinaryScene
+
+    mesh = SphereMesh(128)
+    d = mesh.directions()
+    lon, lat = np.arctan2(d[:, 1], d[:, 0]), np.arcsin(d[:, 2])
+    radii = R1 * (1.0 + 0.01 * np.sin(40 * lon) * np.cos(40 * lat))  # ~60 m bumps, 4 m high
+    rough = Body(mesh, R1, radii)
+    binary = BinaryScene(AsteroidScene(rough, boulders=False, imposter_pixels=0.0),
+                         Body.sphere(SphereMesh(16), R2), orbit=binary_orbit(), boulders=False)
+    t = 0.0
+    (c1, q1), (c2, _) = binary.body_poses(t)
+    away = np.array([0.3, -1.0, 0.4])
+    pose = look_at(c1 + 2500.0 * away / np.linalg.norm(away), c1)
+    k = Intrinsics.from_fov(96, 96, 30.0)
+    light = Lighting((0.6, -0.7, 0.35), albedo=0.2, brdf="lommel-seeliger")
+    options = RenderOptions(shadows=False, lod_pixels=12.0)
+    pair = renderer.render(binary, View(pose, k, t), light, options)
+    ids = binary.body_ids(View(pose, k, t), pair)
+    alone = AsteroidScene(rough, boulders=False, imposter_pixels=0.0)
+    alone.set_body_rotation(q1)
+    moved = look_at(np.asarray(pose.position) - c1, (0.0, 0.0, 0.0))
+    single = renderer.render(alone, View(moved, k, t), light, options)
+    assert pair.drawn["primary"]["body_magnitude"] < 128  # a coarse level is drawn
+    both = (ids == 1) & np.isfinite(single.range)
+    assert both.sum() > 1000
+    cos = np.einsum("ij,ij->i", pair.normals[both], single.normals[both])
+    assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() < 1.0
+    # and the bumps show: the shading normals stray from the sphere's radial direction
+    rays = (k.rays() @ pose.rotation.T).reshape(96, 96, 3)
+    rays /= np.linalg.norm(rays, axis=2, keepdims=True)
+    pts = np.asarray(pose.position) + rays * pair.range[..., None]
+    radial = (pts[both] - c1) / np.linalg.norm(pts[both] - c1, axis=1, keepdims=True)
+    stray = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", pair.normals[both], radial),
+                                         -1, 1)))
+    assert np.median(stray) > 3.0
+
+
+def binary_orbit():
+    return MutualOrbit(mean_anomaly=30.0, inclination=10.0, node=20.0)
