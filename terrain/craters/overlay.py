@@ -40,7 +40,8 @@ from terrain.core.errors import InvalidParameterError
 from terrain.core.rng import key_prefix, normal_at, normal_scalar, stream_id, uniform_scalar
 
 __all__ = ["MAX_PATCH_LEVEL", "RIM_SAMPLES", "RimIrregularity", "Roughness", "crater_params",
-           "overlay_patch", "patch_value", "periodic_sample", "rim_table", "smooth_periodic"]
+           "overlay_patch", "overlay_patch_part", "patch_value", "periodic_sample", "rim_table",
+           "smooth_periodic"]
 
 #: Azimuth samples of the periodic rim-radius array (a power of two).
 RIM_SAMPLES = 64
@@ -293,6 +294,8 @@ def _region_weights(x, alpha, blend):
     we = min(1.0, max(0.0, x / blend + 0.5))
     ww = max(0.0, 1.0 - wf - we)
     total = wf + ww + we
+    if total == 1.0:  # most points: dividing by 1 would change nothing, and costs three divisions
+        return wf, ww, we
     return wf / total, ww / total, we / total
 
 
@@ -337,14 +340,54 @@ def overlay_patch(seed, uid, level, spacing, diameter, alpha, params, out):
         Filled with the patch.
     """
     n = 2**level
+    overlay_patch_part(seed, uid, level, spacing, diameter, alpha, params, out, math.inf,
+                       0, n, 0, n)
+
+
+#: Slack (patch spacings) added to the reach of every level of a partial patch.
+PART_SLACK = 0.01
+
+
+@numba.njit(cache=True)
+def overlay_patch_part(seed, uid, level, spacing, diameter, alpha, params, out, need_radius,
+                       i_lo, i_hi, j_lo, j_hi):
+    """:func:`overlay_patch` at the points that the patch's values in a region depend on.
+
+    The region is the points within ``need_radius`` (patch spacings) of the centre and in
+    rows ``i_lo .. i_hi``, columns ``j_lo .. j_hi``; a point of the diamond-square cascade
+    is computed when a point of the region depends on it (its parents, their parents...),
+    so every value in the region equals :func:`overlay_patch`'s, bitwise (the Gaussians are
+    keyed by position). Other points stay 0. A crater clipped by the tile, and the corners of
+    its square patch outside its round footprint, then cost nothing.
+
+    Parameters
+    ----------
+    seed, uid, level, spacing, diameter, alpha, params, out
+        As :func:`overlay_patch`.
+    need_radius : float, patch spacings
+        Radius of the region about the patch's centre (``math.inf``: no limit).
+    i_lo, i_hi, j_lo, j_hi : int
+        Rows and columns of the region (inclusive).
+    """
+    n = 2**level
     centre = n // 2
     radius = 0.5 * diameter
     blend = params[6]
     out[:, :] = 0.0
+    # Reach of each level's points: the finest diamond points are needed within the region;
+    # a level's points are read by the next finer level from (h / 2) (1 + sqrt 2) away
+    # (its diamond points' neighbours, its square points' corners), and a level's square
+    # points by its own diamond points, h away.
+    reach = np.empty(level + 1)
+    reach[0] = need_radius + PART_SLACK
+    for q in range(1, level + 1):
+        reach[q] = reach[q - 1] + 2.0 ** (q - 1) * (1.0 + math.sqrt(2.0)) + PART_SLACK
     step = n
     k = 0
     while step > 1:
         h = step // 2
+        q = level - k - 1  # h = 2^q
+        grow = reach[q] - reach[0]
         key_sq = key_prefix(seed, STREAM_OVERLAY, 2 * k, uid)
         key_di = key_prefix(seed, STREAM_OVERLAY, 2 * k + 1, uid)
         # Each region's displacement at half-steps 2k and 2k + 1: amplitude * S_f^(j + 1).
@@ -354,15 +397,37 @@ def overlay_patch(seed, uid, level, spacing, diameter, alpha, params, out):
         di_f = _step_scale(params[0], params[3], 2 * k + 1)
         di_w = _step_scale(params[1], params[4], 2 * k + 1)
         di_e = _step_scale(params[2], params[5], 2 * k + 1)
+        r2 = (reach[q] + h) ** 2
+        a_lo = i_lo - (grow + h)
+        a_hi = i_hi + (grow + h)
+        b_lo = j_lo - (grow + h)
+        b_hi = j_hi + (grow + h)
         for i in range(h, n, step):  # square phase
+            if i < a_lo or i > a_hi:
+                continue
+            di = float(i - centre)
             for j in range(h, n, step):
+                dj = float(j - centre)
+                if j < b_lo or j > b_hi or di * di + dj * dj > r2:
+                    continue
                 avg = 0.25 * (out[i - h, j - h] + out[i - h, j + h] + out[i + h, j - h]
                               + out[i + h, j + h])
                 sig = _patch_sigma(i, j, centre, spacing, radius, alpha, blend, sq_f, sq_w, sq_e)
                 out[i, j] = avg + sig * normal_at(key_sq, j, i)
+        r2 = reach[q] ** 2
+        a_lo = i_lo - grow
+        a_hi = i_hi + grow
+        b_lo = j_lo - grow
+        b_hi = j_hi + grow
         for i in range(0, n + 1, h):  # diamond phase
+            if i < a_lo or i > a_hi:
+                continue
+            di = float(i - centre)
             start = h if (i // h) % 2 == 0 else 0
             for j in range(start, n + 1, step):
+                dj = float(j - centre)
+                if j < b_lo or j > b_hi or di * di + dj * dj > r2:
+                    continue
                 total = 0.0
                 count = 0
                 if i - h >= 0:
