@@ -309,6 +309,57 @@ def _patch_sigma(i, j, centre, spacing, radius, alpha, blend, s_floor, s_wall, s
     return wf * s_floor + ww * s_wall + we * s_ejecta
 
 
+#: Relative margin of :func:`_region_bounds`: far larger than the rounding of x.
+REGION_MARGIN = 1e-6
+
+
+@numba.njit(cache=True)
+def _region_bounds(radius, alpha, blend):
+    """Squared distances (m^2) from the centre within which one region's weight is 1.
+
+    Returns (floor_max, wall_min, wall_max, ejecta_min): a point at squared distance d2 has
+    weights (1, 0, 0) if d2 <= floor_max, (0, 1, 0) if wall_min <= d2 <= wall_max and
+    (0, 0, 1) if d2 >= ejecta_min, by :data:`REGION_MARGIN` inside the blends (never the
+    case where a bound is -1 or inf).
+    """
+    floor_max = wall_min = wall_max = -1.0
+    ejecta_min = math.inf
+    if not (math.isfinite(alpha) and 0.0 < radius < math.inf and 0.0 < blend < math.inf):
+        return floor_max, wall_min, wall_max, ejecta_min
+    lo, hi = 1.0 - REGION_MARGIN, 1.0 + REGION_MARGIN
+    # floor: x below both alpha and 0 by half a blend; wall: x between them; ejecta: above
+    f = 1.0 + min(alpha, 0.0) - 0.5 * blend
+    if f > REGION_MARGIN:
+        floor_max = (radius * f * lo) ** 2
+    w0 = 1.0 + alpha + 0.5 * blend
+    w1 = 1.0 - 0.5 * blend
+    if w0 > REGION_MARGIN and w0 * hi < w1 * lo:
+        wall_min = (radius * w0 * hi) ** 2
+        wall_max = (radius * w1 * lo) ** 2
+    ejecta_min = (radius * (1.0 + max(alpha, 0.0) + 0.5 * blend) * hi) ** 2
+    return floor_max, wall_min, wall_max, ejecta_min
+
+
+@numba.njit(cache=True)
+def _sigma_at(i, j, centre, spacing, radius, alpha, blend, s_floor, s_wall, s_ejecta, bounds):
+    """:func:`_patch_sigma`, bitwise, without its square root and divisions away from blends.
+
+    Where one region's weight is 1 and the others' 0, the weighted sum is that region's
+    scale exactly (1 s + 0 + 0 = s for finite scales, which ``bounds`` of -1 and inf ensure
+    are never assumed otherwise).
+    """
+    dx = (j - centre) * spacing
+    dy = (i - centre) * spacing
+    d2 = dx * dx + dy * dy
+    if d2 <= bounds[0]:
+        return s_floor
+    if d2 >= bounds[3]:
+        return s_ejecta
+    if bounds[1] <= d2 <= bounds[2]:
+        return s_wall
+    return _patch_sigma(i, j, centre, spacing, radius, alpha, blend, s_floor, s_wall, s_ejecta)
+
+
 @numba.njit(cache=True)
 def _step_scale(amplitude, dimension, step_index):
     """Return amplitude * S_f^(step_index + 1) with S_f = 2^(-(3 - F) / 2) (eq. 14)."""
@@ -378,6 +429,11 @@ def overlay_patch_part(seed, uid, level, spacing, diameter, alpha, params, out, 
     # a level's points are read by the next finer level from (h / 2) (1 + sqrt 2) away
     # (its diamond points' neighbours, its square points' corners), and a level's square
     # points by its own diamond points, h away.
+    bounds = np.empty(4)
+    bounds[0], bounds[1], bounds[2], bounds[3] = _region_bounds(radius, alpha, blend)
+    plain = bounds.copy()
+    plain[0] = plain[1] = plain[2] = -1.0
+    plain[3] = math.inf
     reach = np.empty(level + 1)
     reach[0] = need_radius + PART_SLACK
     for q in range(1, level + 1):
@@ -397,6 +453,11 @@ def overlay_patch_part(seed, uid, level, spacing, diameter, alpha, params, out, 
         di_f = _step_scale(params[0], params[3], 2 * k + 1)
         di_w = _step_scale(params[1], params[4], 2 * k + 1)
         di_e = _step_scale(params[2], params[5], 2 * k + 1)
+        # the one-region shortcut holds for finite scales only
+        b_sq = bounds if (math.isfinite(sq_f) and math.isfinite(sq_w)
+                          and math.isfinite(sq_e)) else plain
+        b_di = bounds if (math.isfinite(di_f) and math.isfinite(di_w)
+                          and math.isfinite(di_e)) else plain
         r2 = (reach[q] + h) ** 2
         a_lo = i_lo - (grow + h)
         a_hi = i_hi + (grow + h)
@@ -412,7 +473,8 @@ def overlay_patch_part(seed, uid, level, spacing, diameter, alpha, params, out, 
                     continue
                 avg = 0.25 * (out[i - h, j - h] + out[i - h, j + h] + out[i + h, j - h]
                               + out[i + h, j + h])
-                sig = _patch_sigma(i, j, centre, spacing, radius, alpha, blend, sq_f, sq_w, sq_e)
+                sig = _sigma_at(i, j, centre, spacing, radius, alpha, blend, sq_f, sq_w, sq_e,
+                                b_sq)
                 out[i, j] = avg + sig * normal_at(key_sq, j, i)
         r2 = reach[q] ** 2
         a_lo = i_lo - grow
@@ -442,7 +504,8 @@ def overlay_patch_part(seed, uid, level, spacing, diameter, alpha, params, out, 
                 if i + h <= n:
                     total += out[i + h, j]
                     count += 1
-                sig = _patch_sigma(i, j, centre, spacing, radius, alpha, blend, di_f, di_w, di_e)
+                sig = _sigma_at(i, j, centre, spacing, radius, alpha, blend, di_f, di_w, di_e,
+                                b_di)
                 out[i, j] = total / count + sig * normal_at(key_di, j, i)
         step = h
         k += 1
