@@ -71,7 +71,8 @@ from terrain.craters.overlay import (
     Roughness,
     crater_params,
     overlay_patch_part,
-    patch_value,
+    patch_row,
+    patch_value_in_row,
     periodic_sample,
     rim_table,
     smooth_periodic,
@@ -719,6 +720,7 @@ def _stamp_crater(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, n,
         half = math.sqrt(max(0.0, reach * reach - dy * dy)) / res + 1.0
         row_j_lo = max(j_lo, int(math.ceil(cc - half)))
         row_j_hi = min(j_hi, int(math.floor(cc + half)))
+        p_i0, p_ti = patch_row(patch, spacing, half_extent, dy) if rough else (0, 0.0)
         for j in range(row_j_lo, row_j_hi + 1):
             dx = (x0 + (j + 0.5) * res) - xc
             r = math.sqrt(dx * dx + dy * dy)
@@ -737,7 +739,8 @@ def _stamp_crater(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, n,
             if math.isnan(t):
                 continue
             cur = out[i - or0, j - oc0]
-            ov = patch_value(patch, spacing, half_extent, dx, dy) if rough else 0.0
+            ov = (patch_value_in_row(patch, spacing, half_extent, p_i0, p_ti, dx) if rough
+                  else 0.0)
             if x <= 0.0:
                 if not irregular:
                     theta = math.atan2(dy, dx)

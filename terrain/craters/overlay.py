@@ -40,8 +40,8 @@ from terrain.core.errors import InvalidParameterError
 from terrain.core.rng import key_prefix, normal_at, normal_scalar, stream_id, uniform_scalar
 
 __all__ = ["MAX_PATCH_LEVEL", "RIM_SAMPLES", "RimIrregularity", "Roughness", "crater_params",
-           "overlay_patch", "overlay_patch_part", "patch_value", "periodic_sample", "rim_table",
-           "smooth_periodic"]
+           "overlay_patch", "overlay_patch_part", "patch_row", "patch_value",
+           "patch_value_in_row", "periodic_sample", "rim_table", "smooth_periodic"]
 
 #: Azimuth samples of the periodic rim-radius array (a power of two).
 RIM_SAMPLES = 64
@@ -531,14 +531,30 @@ def patch_value(patch, spacing, half_extent, dx, dy):
     -------
     float, metres
     """
+    i0, ti = patch_row(patch, spacing, half_extent, dy)
+    return patch_value_in_row(patch, spacing, half_extent, i0, ti, dx)
+
+
+@numba.njit(cache=True)
+def patch_row(patch, spacing, half_extent, dy):
+    """Row part of :func:`patch_value` at offset ``dy``: (upper row index, weight of the next).
+
+    A stamp computes it once per pixel row.
+    """
+    n = patch.shape[0] - 1
+    fi = (dy + half_extent) / spacing
+    fi = min(max(fi, 0.0), n * 1.0)
+    i0 = min(int(fi), n - 1)
+    return i0, fi - i0
+
+
+@numba.njit(cache=True)
+def patch_value_in_row(patch, spacing, half_extent, i0, ti, dx):
+    """:func:`patch_value` at offset ``dx`` in the row of :func:`patch_row` (bitwise equal)."""
     n = patch.shape[0] - 1
     fj = (dx + half_extent) / spacing
-    fi = (dy + half_extent) / spacing
     fj = min(max(fj, 0.0), n * 1.0)
-    fi = min(max(fi, 0.0), n * 1.0)
     j0 = min(int(fj), n - 1)
-    i0 = min(int(fi), n - 1)
     tj = fj - j0
-    ti = fi - i0
     return ((patch[i0, j0] * (1.0 - tj) + patch[i0, j0 + 1] * tj) * (1.0 - ti)
             + (patch[i0 + 1, j0] * (1.0 - tj) + patch[i0 + 1, j0 + 1] * tj) * ti)
