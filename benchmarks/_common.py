@@ -56,6 +56,11 @@ def peak_rss_bytes() -> int:
     return int(peak) if sys.platform == "darwin" else int(peak) * 1024
 
 
+def worker_memory() -> dict:
+    """This process's id and own peak RSS (bytes): what a Dask worker reports of itself."""
+    return dict(pid=os.getpid(), peak_rss_bytes=peak_rss_bytes())
+
+
 def summary(times: list[float]) -> dict:
     """Median, min, max and every run of a list of wall times (seconds)."""
     return dict(median_s=statistics.median(times), min_s=min(times), max_s=max(times),

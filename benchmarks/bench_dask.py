@@ -214,19 +214,26 @@ def child_enhance(spec):
 def worker_peak_rss(client) -> list[int]:
     """Every worker's own peak RSS in bytes, read in the worker process itself, sorted.
 
-    ``peak_rss_bytes`` travels by value (the workers need not import this folder) and reads
+    ``worker_memory`` travels by value (the workers need not import this folder) and reads
     the worker's own high-water mark: ``ru_maxrss`` would give the parent's peak, which a
-    freshly started worker process inherits.
+    freshly started worker process inherits. Each answer carries the process id it was read
+    in, checked to be a worker's and not this process's.
     """
+    import os
+
     import _common
     import cloudpickle
 
     cloudpickle.register_pickle_by_value(_common)
     try:
-        peaks = client.run(_common.peak_rss_bytes)
+        peaks = client.run(_common.worker_memory)
     finally:
         cloudpickle.unregister_pickle_by_value(_common)
-    return sorted(int(v) for v in peaks.values())
+    pids = [v["pid"] for v in peaks.values()]
+    if os.getpid() in pids or len(set(pids)) != len(pids):
+        raise RuntimeError(f"worker memory was not read in the workers' own processes "
+                           f"(parent {os.getpid()}, workers {pids})")
+    return sorted(int(v["peak_rss_bytes"]) for v in peaks.values())
 
 
 def _pooled(children: list[dict]) -> dict:

@@ -8,12 +8,16 @@ the result is the same, bit for bit, on one thread or many.
 Threads, not numba's ``prange``: a process that has run numba's OpenMP loops may not fork
 (numba ends such a child), and craterscape forks (stack edits, worker pools). The number of
 threads is ``NUMBA_NUM_THREADS`` (every core by default; a Dask worker of craterscape's gets
-1), or what :func:`limited` sets.
+1), or what :func:`limited` sets. The threads are started once and kept (a size class of
+craters calls :func:`run_blocks` dozens of times, and starting threads each time cost more
+than some of the calls); a child made by ``fork`` starts its own when it first needs them.
 """
 
 from __future__ import annotations
 
 import contextlib
+import os
+import threading
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 
@@ -24,6 +28,29 @@ __all__ = ["limited", "run_blocks", "threads"]
 #: Ranges handed out per thread: more than one, so a thread that finishes early takes more.
 RANGES_PER_THREAD = 4
 _limit: list[int] = []
+#: The kept pools, by their number of threads.
+_pools: dict[int, ThreadPoolExecutor] = {}
+_pools_lock = threading.Lock()
+
+
+def _forget_pool() -> None:
+    """Drop the parent's pools in a forked child, whose copies have no threads behind them."""
+    global _pools_lock
+    _pools.clear()
+    _pools_lock = threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pool)
+
+
+def _executor(n: int) -> ThreadPoolExecutor:
+    """Return the kept pool of ``n`` threads (started on first use)."""
+    with _pools_lock:
+        pool = _pools.get(n)
+        if pool is None:
+            pool = _pools[n] = ThreadPoolExecutor(n, thread_name_prefix="craterscape-blocks")
+        return pool
 
 
 def threads() -> int:
@@ -67,7 +94,6 @@ def run_blocks(kernel: Callable, blocks: int, *args) -> None:
         return
     parts = min(blocks, n * RANGES_PER_THREAD)
     bounds = [blocks * k // parts for k in range(parts + 1)]
-    with ThreadPoolExecutor(n) as pool:
-        for future in [pool.submit(kernel, *args, bounds[k], bounds[k + 1])
-                       for k in range(parts)]:
-            future.result()
+    pool = _executor(n)
+    for future in [pool.submit(kernel, *args, bounds[k], bounds[k + 1]) for k in range(parts)]:
+        future.result()

@@ -70,8 +70,9 @@ from terrain.craters.overlay import (
     RimIrregularity,
     Roughness,
     crater_params,
-    overlay_patch,
-    patch_value,
+    overlay_patch_part,
+    patch_row,
+    patch_value_in_row,
     periodic_sample,
     rim_table,
     smooth_periodic,
@@ -404,7 +405,14 @@ def class_planes(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, diam):
         Per crater: p0, px, py, samples, RMS, pixel roughness.
     """
     out = np.empty((cx.size, 6))
-    for n in range(cx.size):
+    _planes_range(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, diam, out, 0, cx.size)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _planes_range(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, diam, out, first, last):
+    """Fill rows ``first .. last - 1`` of :func:`class_planes`' result ``out``."""
+    for n in range(first, last):
         p0, px, py, nvalid, rms, pix = fit_plane(T, tr0, tc0, nrows, ncols, x0, y0, res,
                                                   cx[n], cy[n], 0.5 * diam[n])
         out[n, 0] = p0
@@ -413,6 +421,22 @@ def class_planes(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, diam):
         out[n, 3] = nvalid
         out[n, 4] = rms
         out[n, 5] = pix
+
+
+#: Craters per parallel block of plane fits.
+PLANE_BLOCK = 256
+
+
+def _class_planes_parallel(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, diam) -> np.ndarray:
+    """:func:`class_planes` on every core (each crater's fit is its own: the same bytes)."""
+    out = np.empty((cx.size, 6))
+    blocks = (cx.size + PLANE_BLOCK - 1) // PLANE_BLOCK
+
+    def kernel(first_block, last_block):
+        _planes_range(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, diam, out,
+                      first_block * PLANE_BLOCK, min(cx.size, last_block * PLANE_BLOCK))
+
+    run_blocks(kernel, blocks)
     return out
 
 
@@ -531,7 +555,8 @@ def _apply_class(T, tr0, tc0, out, or0, oc0, nrows, ncols, x0, y0, res,
         rim_tables = np.zeros((last - first, RIM_TERRAIN_SAMPLES))
         n_azimuths = np.zeros(last - first, dtype=np.int64)
         run_blocks(_prepare_craters, last - first, T, tr0, tc0, nrows, ncols, x0, y0, res,
-                   craters, settings, first, tables, rim_tables, n_azimuths, patches, offsets)
+                   craters, settings, first, tables, rim_tables, n_azimuths, patches, offsets,
+                   or0, or0 + out.shape[0] - 1, oc0, oc0 + out.shape[1] - 1)
         run_blocks(_stamp_bands, bands, T, tr0, tc0, out, or0, oc0, x0, y0, res, craters,
                    settings, first, last, size, reach_rows, tables, rim_tables, n_azimuths,
                    patches, offsets)
@@ -559,12 +584,13 @@ def _class_extents(craters, settings, y0, res):
 
 @numba.njit(cache=True, nogil=True)
 def _prepare_craters(T, tr0, tc0, nrows, ncols, x0, y0, res, craters, settings, first, tables,
-                     rim_tables, n_azimuths, patches, offsets, m_first, m_last):
+                     rim_tables, n_azimuths, patches, offsets, or0, or1, oc0, oc1, m_first,
+                     m_last):
     """Prepare the group's craters ``first + m_first .. first + m_last - 1``."""
     for m in range(m_first, m_last):
         _prepare_crater(T, tr0, tc0, nrows, ncols, x0, y0, res, craters, settings, first + m,
                         tables[m], rim_tables[m], n_azimuths[m:m + 1],
-                        patches[offsets[m]:offsets[m + 1]])
+                        patches[offsets[m]:offsets[m + 1]], or0, or1, oc0, oc1)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -589,10 +615,12 @@ def _stamp_bands(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, fir
 
 @numba.njit(cache=True)
 def _prepare_crater(T, tr0, tc0, nrows, ncols, x0, y0, res, craters, settings, n, table,
-                    rim_terrain_table, n_azimuth, patch):
+                    rim_terrain_table, n_azimuth, patch, or0, or1, oc0, oc1):
     """Fill crater ``n``'s rim tables and roughness patch (functions of ``T`` and its key).
 
-    The rim-terrain table's length goes to ``n_azimuth[0]``; the patch is flat.
+    The rim-terrain table's length goes to ``n_azimuth[0]``; the patch is flat, and holds
+    the values the crater's pixels in output rows ``or0 .. or1`` and columns ``oc0 .. oc1``
+    (DEM pixels, inclusive) read (:func:`terrain.craters.overlay.overlay_patch_part`).
     """
     if craters.planes[n, 3] < 3.0:
         return
@@ -610,7 +638,8 @@ def _prepare_crater(T, tr0, tc0, nrows, ncols, x0, y0, res, craters, settings, n
                 table, rim_terrain_table[:n_az])
     if settings.rough:
         level = _patch_level(d, res, settings.footprint_factor)
-        half_extent = d * settings.footprint_factor + res
+        reach_m = d * settings.footprint_factor
+        half_extent = reach_m + res
         spacing = 2.0 * half_extent / 2**level
         params = np.zeros(7)
         crater_params(settings.rough_params, d, craters.depth_fraction[n], craters.planes[n, 4],
@@ -619,8 +648,31 @@ def _prepare_crater(T, tr0, tc0, nrows, ncols, x0, y0, res, craters, settings, n
         row = craters.complex[n]
         region = row[0] if row[0] > -1.0 else craters.alpha[n]
         k = 2**level + 1
-        overlay_patch(settings.seed, craters.uid[n], level, spacing, d, region, params,
-                      patch.reshape((k, k)))
+        # The stamp reads the patch's bilinear nodes around its pixels within the reach
+        # (less than sqrt 2 spacings from each) and inside the class's region only.
+        nodes = k - 1
+        rc = (y0 - craters.y[n]) / res - 0.5
+        cc = (craters.x[n] - x0) / res - 0.5
+        rpix = reach_m / res
+        i_lo = max(or0, int(math.ceil(rc - rpix)))
+        i_hi = min(or1, int(math.floor(rc + rpix)))
+        j_lo = max(oc0, int(math.ceil(cc - rpix)))
+        j_hi = min(oc1, int(math.floor(cc + rpix)))
+        if i_lo > i_hi or j_lo > j_hi:
+            patch[:] = 0.0
+            return
+        # patch rows grow as the map's y does, against the DEM's rows
+        p_lo = int(math.floor(((y0 - (i_hi + 0.5) * res) - craters.y[n] + half_extent)
+                              / spacing)) - 1
+        p_hi = int(math.floor(((y0 - (i_lo + 0.5) * res) - craters.y[n] + half_extent)
+                              / spacing)) + 2
+        q_lo = int(math.floor(((x0 + (j_lo + 0.5) * res) - craters.x[n] + half_extent)
+                              / spacing)) - 1
+        q_hi = int(math.floor(((x0 + (j_hi + 0.5) * res) - craters.x[n] + half_extent)
+                              / spacing)) + 2
+        overlay_patch_part(settings.seed, craters.uid[n], level, spacing, d, region, params,
+                           patch.reshape((k, k)), reach_m / spacing + math.sqrt(2.0),
+                           max(0, p_lo), min(nodes, p_hi), max(0, q_lo), min(nodes, q_hi))
 
 
 @numba.njit(cache=True)
@@ -664,7 +716,12 @@ def _stamp_crater(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, n,
     j_hi = min(oc0 + out.shape[1] - 1, int(math.floor(cc + rpix)))
     for i in range(i_lo, i_hi + 1):
         dy = (y0 - (i + 0.5) * res) - yc
-        for j in range(j_lo, j_hi + 1):
+        # the columns of this row within the reach, and a pixel more (the test below decides)
+        half = math.sqrt(max(0.0, reach * reach - dy * dy)) / res + 1.0
+        row_j_lo = max(j_lo, int(math.ceil(cc - half)))
+        row_j_hi = min(j_hi, int(math.floor(cc + half)))
+        p_i0, p_ti = patch_row(patch, spacing, half_extent, dy) if rough else (0, 0.0)
+        for j in range(row_j_lo, row_j_hi + 1):
             dx = (x0 + (j + 0.5) * res) - xc
             r = math.sqrt(dx * dx + dy * dy)
             if r > reach:
@@ -682,7 +739,8 @@ def _stamp_crater(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, n,
             if math.isnan(t):
                 continue
             cur = out[i - or0, j - oc0]
-            ov = patch_value(patch, spacing, half_extent, dx, dy) if rough else 0.0
+            ov = (patch_value_in_row(patch, spacing, half_extent, p_i0, p_ti, dx) if rough
+                  else 0.0)
             if x <= 0.0:
                 if not irregular:
                     theta = math.atan2(dy, dx)
@@ -785,17 +843,22 @@ def crater_heights(base, shape, transform, craters, *, seed, model=None, window=
     settings = ClassSettings(seed, model.rim.effective_amplitude, model.rim.hurst,
                              model.roughness.enabled, model.roughness.as_array(), factor)
     placed = []
+    spare, owned = None, False  # base() may hand back the caller's own array
     total = len(classes.classes)
     for done, ((cls, d_max), region) in enumerate(
             zip(classes.classes, regions[1:], strict=True), start=1):
         q0, q1, p0, p1 = region
         extent = (x0 + p0 * res, y0 - q1 * res, x0 + p1 * res, y0 - q0 * res)
         table = classes.craters(cls, extent, d_max * factor + res)
-        out = terrain[q0 - origin[0]:q1 - origin[0], p0 - origin[1]:p1 - origin[1]].copy()
+        view = terrain[q0 - origin[0]:q1 - origin[0], p0 - origin[1]:p1 - origin[1]]
+        out = spare if spare is not None and spare.shape == view.shape else np.empty(
+            view.shape)
+        spare = None
+        _copy_rows(view, out)
         if len(table):
             table = table.take(table.composition_order())
-            planes = class_planes(terrain, origin[0], origin[1], nrows, ncols, x0, y0, res,
-                                  table.x, table.y, table.diameter)
+            planes = _class_planes_parallel(terrain, origin[0], origin[1], nrows, ncols, x0,
+                                            y0, res, table.x, table.y, table.diameter)
             slope = np.arctan(np.hypot(planes[:, 1], planes[:, 2]))
             depth_f, rim_f = model.factors(table.age, table.diameter, slope)
             s = shape_arrays(table.diameter, depth_f, rim_f, model.morphology)
@@ -813,11 +876,29 @@ def crater_heights(base, shape, transform, craters, *, seed, model=None, window=
                          craters, settings)
             placed.append((table, depth_f, rim_f, s, planes))
             log.debug("size class %d (D <= %.3g m): %d craters", cls, d_max, len(table))
-        terrain, origin = out, (q0, p0)
+        if owned:  # the class before's terrain: reused as the next class's output
+            spare = terrain
+        terrain, origin, owned = out, (q0, p0), True
         if progress is not None:
             progress(done, total)
     catalog = _catalog(placed, window, x0, y0, res, factor)
     return terrain, catalog
+
+
+#: Rows of one parallel block of :func:`_copy_rows`.
+COPY_ROWS = 64
+
+
+@numba.njit(cache=True, nogil=True)
+def _copy_block(src, dst, first, last):
+    """Copy the row blocks ``first .. last - 1`` (of :data:`COPY_ROWS` rows) of src to dst."""
+    for i in range(first * COPY_ROWS, min(dst.shape[0], last * COPY_ROWS)):
+        dst[i, :] = src[i, :]
+
+
+def _copy_rows(src: np.ndarray, dst: np.ndarray) -> None:
+    """``dst[...] = src`` on every core (a class's output starts as the terrain before it)."""
+    run_blocks(_copy_block, (dst.shape[0] + COPY_ROWS - 1) // COPY_ROWS, src, dst)
 
 
 def _catalog(placed, window: Window, x0: float, y0: float, res: float,

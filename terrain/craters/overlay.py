@@ -40,7 +40,8 @@ from terrain.core.errors import InvalidParameterError
 from terrain.core.rng import key_prefix, normal_at, normal_scalar, stream_id, uniform_scalar
 
 __all__ = ["MAX_PATCH_LEVEL", "RIM_SAMPLES", "RimIrregularity", "Roughness", "crater_params",
-           "overlay_patch", "patch_value", "periodic_sample", "rim_table", "smooth_periodic"]
+           "overlay_patch", "overlay_patch_part", "patch_row", "patch_value",
+           "patch_value_in_row", "periodic_sample", "rim_table", "smooth_periodic"]
 
 #: Azimuth samples of the periodic rim-radius array (a power of two).
 RIM_SAMPLES = 64
@@ -293,6 +294,8 @@ def _region_weights(x, alpha, blend):
     we = min(1.0, max(0.0, x / blend + 0.5))
     ww = max(0.0, 1.0 - wf - we)
     total = wf + ww + we
+    if total == 1.0:  # most points: dividing by 1 would change nothing, and costs three divisions
+        return wf, ww, we
     return wf / total, ww / total, we / total
 
 
@@ -304,6 +307,57 @@ def _patch_sigma(i, j, centre, spacing, radius, alpha, blend, s_floor, s_wall, s
     x = math.sqrt(dx * dx + dy * dy) / radius - 1.0
     wf, ww, we = _region_weights(x, alpha, blend)
     return wf * s_floor + ww * s_wall + we * s_ejecta
+
+
+#: Relative margin of :func:`_region_bounds`: far larger than the rounding of x.
+REGION_MARGIN = 1e-6
+
+
+@numba.njit(cache=True)
+def _region_bounds(radius, alpha, blend):
+    """Squared distances (m^2) from the centre within which one region's weight is 1.
+
+    Returns (floor_max, wall_min, wall_max, ejecta_min): a point at squared distance d2 has
+    weights (1, 0, 0) if d2 <= floor_max, (0, 1, 0) if wall_min <= d2 <= wall_max and
+    (0, 0, 1) if d2 >= ejecta_min, by :data:`REGION_MARGIN` inside the blends (never the
+    case where a bound is -1 or inf).
+    """
+    floor_max = wall_min = wall_max = -1.0
+    ejecta_min = math.inf
+    if not (math.isfinite(alpha) and 0.0 < radius < math.inf and 0.0 < blend < math.inf):
+        return floor_max, wall_min, wall_max, ejecta_min
+    lo, hi = 1.0 - REGION_MARGIN, 1.0 + REGION_MARGIN
+    # floor: x below both alpha and 0 by half a blend; wall: x between them; ejecta: above
+    f = 1.0 + min(alpha, 0.0) - 0.5 * blend
+    if f > REGION_MARGIN:
+        floor_max = (radius * f * lo) ** 2
+    w0 = 1.0 + alpha + 0.5 * blend
+    w1 = 1.0 - 0.5 * blend
+    if w0 > REGION_MARGIN and w0 * hi < w1 * lo:
+        wall_min = (radius * w0 * hi) ** 2
+        wall_max = (radius * w1 * lo) ** 2
+    ejecta_min = (radius * (1.0 + max(alpha, 0.0) + 0.5 * blend) * hi) ** 2
+    return floor_max, wall_min, wall_max, ejecta_min
+
+
+@numba.njit(cache=True)
+def _sigma_at(i, j, centre, spacing, radius, alpha, blend, s_floor, s_wall, s_ejecta, bounds):
+    """:func:`_patch_sigma`, bitwise, without its square root and divisions away from blends.
+
+    Where one region's weight is 1 and the others' 0, the weighted sum is that region's
+    scale exactly (1 s + 0 + 0 = s for finite scales, which ``bounds`` of -1 and inf ensure
+    are never assumed otherwise).
+    """
+    dx = (j - centre) * spacing
+    dy = (i - centre) * spacing
+    d2 = dx * dx + dy * dy
+    if d2 <= bounds[0]:
+        return s_floor
+    if d2 >= bounds[3]:
+        return s_ejecta
+    if bounds[1] <= d2 <= bounds[2]:
+        return s_wall
+    return _patch_sigma(i, j, centre, spacing, radius, alpha, blend, s_floor, s_wall, s_ejecta)
 
 
 @numba.njit(cache=True)
@@ -337,14 +391,59 @@ def overlay_patch(seed, uid, level, spacing, diameter, alpha, params, out):
         Filled with the patch.
     """
     n = 2**level
+    overlay_patch_part(seed, uid, level, spacing, diameter, alpha, params, out, math.inf,
+                       0, n, 0, n)
+
+
+#: Slack (patch spacings) added to the reach of every level of a partial patch.
+PART_SLACK = 0.01
+
+
+@numba.njit(cache=True)
+def overlay_patch_part(seed, uid, level, spacing, diameter, alpha, params, out, need_radius,
+                       i_lo, i_hi, j_lo, j_hi):
+    """:func:`overlay_patch` at the points that the patch's values in a region depend on.
+
+    The region is the points within ``need_radius`` (patch spacings) of the centre and in
+    rows ``i_lo .. i_hi``, columns ``j_lo .. j_hi``; a point of the diamond-square cascade
+    is computed when a point of the region depends on it (its parents, their parents...),
+    so every value in the region equals :func:`overlay_patch`'s, bitwise (the Gaussians are
+    keyed by position). Other points stay 0. A crater clipped by the tile, and the corners of
+    its square patch outside its round footprint, then cost nothing.
+
+    Parameters
+    ----------
+    seed, uid, level, spacing, diameter, alpha, params, out
+        As :func:`overlay_patch`.
+    need_radius : float, patch spacings
+        Radius of the region about the patch's centre (``math.inf``: no limit).
+    i_lo, i_hi, j_lo, j_hi : int
+        Rows and columns of the region (inclusive).
+    """
+    n = 2**level
     centre = n // 2
     radius = 0.5 * diameter
     blend = params[6]
     out[:, :] = 0.0
+    # Reach of each level's points: the finest diamond points are needed within the region;
+    # a level's points are read by the next finer level from (h / 2) (1 + sqrt 2) away
+    # (its diamond points' neighbours, its square points' corners), and a level's square
+    # points by its own diamond points, h away.
+    bounds = np.empty(4)
+    bounds[0], bounds[1], bounds[2], bounds[3] = _region_bounds(radius, alpha, blend)
+    plain = bounds.copy()
+    plain[0] = plain[1] = plain[2] = -1.0
+    plain[3] = math.inf
+    reach = np.empty(level + 1)
+    reach[0] = need_radius + PART_SLACK
+    for q in range(1, level + 1):
+        reach[q] = reach[q - 1] + 2.0 ** (q - 1) * (1.0 + math.sqrt(2.0)) + PART_SLACK
     step = n
     k = 0
     while step > 1:
         h = step // 2
+        q = level - k - 1  # h = 2^q
+        grow = reach[q] - reach[0]
         key_sq = key_prefix(seed, STREAM_OVERLAY, 2 * k, uid)
         key_di = key_prefix(seed, STREAM_OVERLAY, 2 * k + 1, uid)
         # Each region's displacement at half-steps 2k and 2k + 1: amplitude * S_f^(j + 1).
@@ -354,15 +453,43 @@ def overlay_patch(seed, uid, level, spacing, diameter, alpha, params, out):
         di_f = _step_scale(params[0], params[3], 2 * k + 1)
         di_w = _step_scale(params[1], params[4], 2 * k + 1)
         di_e = _step_scale(params[2], params[5], 2 * k + 1)
+        # the one-region shortcut holds for finite scales only
+        b_sq = bounds if (math.isfinite(sq_f) and math.isfinite(sq_w)
+                          and math.isfinite(sq_e)) else plain
+        b_di = bounds if (math.isfinite(di_f) and math.isfinite(di_w)
+                          and math.isfinite(di_e)) else plain
+        r2 = (reach[q] + h) ** 2
+        a_lo = i_lo - (grow + h)
+        a_hi = i_hi + (grow + h)
+        b_lo = j_lo - (grow + h)
+        b_hi = j_hi + (grow + h)
         for i in range(h, n, step):  # square phase
+            if i < a_lo or i > a_hi:
+                continue
+            di = float(i - centre)
             for j in range(h, n, step):
+                dj = float(j - centre)
+                if j < b_lo or j > b_hi or di * di + dj * dj > r2:
+                    continue
                 avg = 0.25 * (out[i - h, j - h] + out[i - h, j + h] + out[i + h, j - h]
                               + out[i + h, j + h])
-                sig = _patch_sigma(i, j, centre, spacing, radius, alpha, blend, sq_f, sq_w, sq_e)
+                sig = _sigma_at(i, j, centre, spacing, radius, alpha, blend, sq_f, sq_w, sq_e,
+                                b_sq)
                 out[i, j] = avg + sig * normal_at(key_sq, j, i)
+        r2 = reach[q] ** 2
+        a_lo = i_lo - grow
+        a_hi = i_hi + grow
+        b_lo = j_lo - grow
+        b_hi = j_hi + grow
         for i in range(0, n + 1, h):  # diamond phase
+            if i < a_lo or i > a_hi:
+                continue
+            di = float(i - centre)
             start = h if (i // h) % 2 == 0 else 0
             for j in range(start, n + 1, step):
+                dj = float(j - centre)
+                if j < b_lo or j > b_hi or di * di + dj * dj > r2:
+                    continue
                 total = 0.0
                 count = 0
                 if i - h >= 0:
@@ -377,7 +504,8 @@ def overlay_patch(seed, uid, level, spacing, diameter, alpha, params, out):
                 if i + h <= n:
                     total += out[i + h, j]
                     count += 1
-                sig = _patch_sigma(i, j, centre, spacing, radius, alpha, blend, di_f, di_w, di_e)
+                sig = _sigma_at(i, j, centre, spacing, radius, alpha, blend, di_f, di_w, di_e,
+                                b_di)
                 out[i, j] = total / count + sig * normal_at(key_di, j, i)
         step = h
         k += 1
@@ -403,14 +531,30 @@ def patch_value(patch, spacing, half_extent, dx, dy):
     -------
     float, metres
     """
+    i0, ti = patch_row(patch, spacing, half_extent, dy)
+    return patch_value_in_row(patch, spacing, half_extent, i0, ti, dx)
+
+
+@numba.njit(cache=True)
+def patch_row(patch, spacing, half_extent, dy):
+    """Row part of :func:`patch_value` at offset ``dy``: (upper row index, weight of the next).
+
+    A stamp computes it once per pixel row.
+    """
+    n = patch.shape[0] - 1
+    fi = (dy + half_extent) / spacing
+    fi = min(max(fi, 0.0), n * 1.0)
+    i0 = min(int(fi), n - 1)
+    return i0, fi - i0
+
+
+@numba.njit(cache=True)
+def patch_value_in_row(patch, spacing, half_extent, i0, ti, dx):
+    """:func:`patch_value` at offset ``dx`` in the row of :func:`patch_row` (bitwise equal)."""
     n = patch.shape[0] - 1
     fj = (dx + half_extent) / spacing
-    fi = (dy + half_extent) / spacing
     fj = min(max(fj, 0.0), n * 1.0)
-    fi = min(max(fi, 0.0), n * 1.0)
     j0 = min(int(fj), n - 1)
-    i0 = min(int(fi), n - 1)
     tj = fj - j0
-    ti = fi - i0
     return ((patch[i0, j0] * (1.0 - tj) + patch[i0, j0 + 1] * tj) * (1.0 - ti)
             + (patch[i0 + 1, j0] * (1.0 - tj) + patch[i0 + 1, j0 + 1] * tj) * ti)

@@ -46,6 +46,7 @@ import numba
 import numpy as np
 
 from terrain.core.errors import InvalidDEMError, InvalidParameterError
+from terrain.core.parallel import run_blocks
 from terrain.core.tile import DEMTile
 from terrain.fractal.regolith import RegolithLaw
 from terrain.fractal.rmd import (
@@ -99,10 +100,9 @@ def square_residual(heights: np.ndarray, s: int) -> tuple[float, int]:
     if ny <= 2 * s or nx <= 2 * s:
         return math.nan, 0
     k = max(1, int(math.ceil(math.sqrt(heights.size / RESIDUAL_POSITIONS))))
-    z = heights.astype(np.float64)
 
-    def at(dr, dc):
-        return z[s + dr:ny - s + dr:k, s + dc:nx - s + dc:k]
+    def at(dr, dc):  # the strided positions only, in float64
+        return np.asarray(heights[s + dr:ny - s + dr:k, s + dc:nx - s + dc:k], dtype=np.float64)
 
     r = at(0, 0) - 0.25 * (at(-s, -s) + at(-s, s) + at(s, -s) + at(s, s))
     r = r[np.isfinite(r)]
@@ -116,20 +116,26 @@ def _residual2(z, a, b):
     return r * r
 
 
-@numba.njit(cache=True)
-def _local_amplitude(z, r0, r1, c0, c1, half, global_sigma, out):
+#: Output rows of one strip of :func:`_local_amplitude` (a block of work on one thread).
+AMPLITUDE_STRIP = 64
+
+
+@numba.njit(cache=True, nogil=True)
+def _local_amplitude(z, r0, r1, c0, c1, half, global_sigma, out, strip_first, strip_last):
     """Box mean of squared square-residuals, as separable row then column sums.
 
     Every output sums its own box in a fixed order (rows of the box in order, each row's
     columns in order), clipped at the DEM's edges only, so any sub-region computed alone
-    gives the same values bitwise. Works in strips of rows to stay in cache.
+    gives the same values bitwise. Works in strips of rows to stay in cache: the strips
+    ``strip_first .. strip_last - 1`` (of :data:`AMPLITUDE_STRIP` rows from ``r0``).
     """
     ny, nx = z.shape
     b0 = max(1, c0 - half)
     b1 = min(nx - 2, c1 - 1 + half)
     width = c1 - c0
-    strip = 64
-    for s0 in range(r0, r1, strip):
+    strip = AMPLITUDE_STRIP
+    for s_index in range(strip_first, strip_last):
+        s0 = r0 + s_index * strip
         s1 = min(r1, s0 + strip)
         a0 = max(1, s0 - half)
         a1 = min(ny - 2, s1 - 1 + half)
@@ -192,7 +198,9 @@ def local_amplitude(heights: np.ndarray, global_sigma: float, box: int = LOCAL_B
     out = np.ones((r1 - r0 + 1, c1 - c0 + 1), dtype=np.float32)
     if box > 1:
         z = np.ascontiguousarray(heights, dtype=np.float32)
-        _local_amplitude(z, r0, r1 + 1, c0, c1 + 1, box // 2, float(global_sigma), out)
+        strips = (r1 + 1 - r0 + AMPLITUDE_STRIP - 1) // AMPLITUDE_STRIP
+        run_blocks(_local_amplitude, strips, z, r0, r1 + 1, c0, c1 + 1, box // 2,
+                   float(global_sigma), out)
     return out
 
 
