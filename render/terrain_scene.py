@@ -239,6 +239,7 @@ class TerrainScene:
         self._ctx: object = None  # the context the layers were uploaded to
         self._shadow_cache: dict = {}
         self._scatter_cache: dict = {}
+        self._mean_heights: dict = {}  # layer -> mean of its valid heights (invalid pixels')
         self.triangles_full = 0
         self.albedo_map: DEMTile | None = None
         self._albedo_gpu: tuple | None = None
@@ -759,15 +760,22 @@ class TerrainScene:
                 (col >= 0) & (col <= w - 1) & (row >= 0) & (row <= h - 1))
             if not inside.any():
                 continue
-            heights = np.where(tile.valid, tile.heights, np.mean(tile.heights[tile.valid]))
+            mean = self._mean_heights.get(k)
+            if mean is None:
+                mean = self._mean_heights[k] = np.mean(tile.heights[tile.valid])
             r, c = row[inside], col[inside]
             # beyond the base, its edge cells' planes continue (no terrace at its edge)
             i0 = np.clip(np.floor(r), 0, max(h - 2, 0)).astype(np.int64)
             j0 = np.clip(np.floor(c), 0, max(w - 2, 0)).astype(np.int64)
             i1, j1 = np.minimum(i0 + 1, h - 1), np.minimum(j0 + 1, w - 1)
             ti, tj = r - i0, c - j0
-            z[inside] = ((heights[i0, j0] * (1 - tj) + heights[i0, j1] * tj) * (1 - ti)
-                         + (heights[i1, j0] * (1 - tj) + heights[i1, j1] * tj) * ti)
+
+            def height(i, j, tile=tile, mean=mean):
+                # only the four corners' heights are read (never the whole layer)
+                return np.where(tile.valid[i, j], tile.heights[i, j], mean)
+
+            z[inside] = ((height(i0, j0) * (1 - tj) + height(i0, j1) * tj) * (1 - ti)
+                         + (height(i1, j0) * (1 - tj) + height(i1, j1) * tj) * ti)
         if self.curvature:
             z -= (xs[None, :] ** 2 + ys[:, None] ** 2) / (2.0 * self.radius)
         return z
