@@ -37,6 +37,15 @@ pixels reaches the map. A layer's map draws the ground once: the layer itself wh
 coarser layer outside the next finer one, culled to the map's window, so the maps' cost
 grows with the layers, not with their square.
 
+A layer seen only from afar, where an image pixel spans many of its pixels, needs no map at
+its own resolution: its map is drawn ``c`` times coarser (a power of two, with two cells of
+``c`` layer pixels to an image pixel at the layer's nearest drawn block; casters at the
+matching level of detail), so a relief of one image pixel reaches the map as one of two
+layer pixels reaches a full map. ``c`` is a function of the frame's camera alone (the
+same frame gives the same bytes whatever came before it); a map is kept per layer and
+``c``, so a descent draws each layer's map once per halving of ``c``, each a quarter of the
+next, and the first frame draws the distant fine layers' maps at a fraction of their cost.
+
 Geomorphing: levels of detail change continuously, never from one frame to the next. With
 ``lambda(d) = log2(target * d / (cell * focal))`` the continuous level at distance d (the
 planner's rule above picks ``s = 2^floor(lambda)`` at a block's nearest point), a vertex of a
@@ -121,6 +130,9 @@ BLOCK = 64
 SKIRT_PIXELS = 8.0
 #: Caster cells in a shadow map may be this many texels wide (along the map's coarser axis).
 SHADOW_CELL_TEXELS = 1.0
+#: Cells of a layer's coarsened shadow map (``c`` layer pixels each) an image pixel spans at
+#: least at the layer's nearest drawn block (:func:`_shadow_coarsening`).
+SHADOW_PIXEL_CELLS = 4.0
 #: Smallest side of a layer's shadow map, texels.
 MIN_SHADOW_SIDE = 64
 #: Sines of sun elevations below this one size terrain maps as this one (0.57 degrees): the
@@ -582,10 +594,14 @@ class TerrainScene:
             scatter = self._scatter_maps(gpu, lighting)
         batches: list[DrawBatch] = []
         drawn_layers: list[dict[str, Any]] = []
-        for layer, (lods, blocks) in zip(self._layers, plan, strict=True):
+        for layer, (lods, blocks), d in zip(self._layers, plan, dist, strict=True):
             if not blocks.size:
                 continue
             tris = 0
+            shadow = None
+            if shadows is not None:
+                coarse = _shadow_coarsening(float(d[blocks].min()) / focal, layer.resolution)
+                shadow = self._layer_shadow(gpu, shadows, lighting, options, layer, coarse)
             by_lod: dict = {}
             for b, s in zip(blocks, lods, strict=True):
                 by_lod.setdefault(int(s), []).append(int(b))
@@ -594,8 +610,6 @@ class TerrainScene:
                 ranges = _merge_ranges(layer.offsets[s][bl], layer.counts[s][bl])
                 n = int(layer.counts[s][bl].sum()) // 3
                 tris += n
-                shadow = (self._layer_shadow(gpu, shadows, lighting, options, layer)
-                          if shadows is not None else None)
                 batch = DrawBatch(vao, dvao, ranges, discard=layer.discard, shadow=shadow,
                                   triangles=n,
                                   scatter=(self._layer_scatter(gpu, scatter, lighting, layer)
@@ -657,7 +671,7 @@ class TerrainScene:
         return plan, total
 
     def _shadow_maps(self, gpu, lighting, options):
-        """Give the maps of this sun, level -> map, drawn as frames first need them.
+        """Give the maps of this sun, (level, coarsening) -> map, drawn as frames need them.
 
         Shared by every renderer on the context; a layer no frame has shown has no map.
         """
@@ -671,22 +685,22 @@ class TerrainScene:
         self._shadow_cache[key] = {}
         return self._shadow_cache[key]
 
-    def _layer_shadow(self, gpu, maps, lighting, options, layer):
-        """Give the layer's map in ``maps``, drawn first if it is not there."""
-        if layer.level in maps:
-            return maps[layer.level]
+    def _layer_shadow(self, gpu, maps, lighting, options, layer, coarse=1):
+        """Give the layer's map in ``maps`` at ``coarse`` times its texel, drawn if missing."""
+        if (layer.level, coarse) in maps:
+            return maps[layer.level, coarse]
         basis = light_basis(lighting.sun)
         # light-space y runs up the sun's azimuth: a texel of y covers 1 / sin(elevation)
         # of ground there (module docstring)
         sin_e = min(max(abs(float(lighting.sun[2])), MIN_SIN_ELEVATION), 1.0)
         receivers = box_corners(layer.lo.min(axis=0), layer.hi.max(axis=0))[0]
-        margin = SHADOW_MARGIN_PIXELS * layer.resolution
+        margin = SHADOW_MARGIN_PIXELS * layer.resolution * coarse
         *_, window = ortho_light(lighting.sun, receivers, receivers, margin=margin)
         casters = self._casters(layer.level, basis, window)
         corners = np.concatenate(
             [box_corners(self._layers[k].lo[b], self._layers[k].hi[b]).reshape(-1, 3)
              for k, b in casters] + [receivers])
-        texel = layer.resolution / float(options.shadow_detail)
+        texel = coarse * layer.resolution / float(options.shadow_detail)
         cap = int(options.shadow_size)
         size = (min(max(math.ceil((window[2] - window[0]) / texel), MIN_SHADOW_SIDE), cap),
                 min(max(math.ceil((window[3] - window[1]) / (texel * sin_e)),
@@ -696,10 +710,10 @@ class TerrainScene:
         def draw(extent, window):
             return self._depth_batches(gpu, casters, tx)
 
-        maps[layer.level] = render_shadow_map(gpu, None, size, lighting.sun, receivers,
-                                              corners, margin=margin,
-                                              bias=TERRAIN_SHADOW_BIAS, draw=draw)
-        return maps[layer.level]
+        maps[layer.level, coarse] = render_shadow_map(gpu, None, size, lighting.sun,
+                                                      receivers, corners, margin=margin,
+                                                      bias=TERRAIN_SHADOW_BIAS, draw=draw)
+        return maps[layer.level, coarse]
 
     def _scatter_maps(self, gpu, lighting):
         """Give level -> (texture, rect) of the scattered light and the Earth's visibility.
@@ -1075,6 +1089,24 @@ def _fade_in(z: np.ndarray, xs: np.ndarray, ys: np.ndarray, parent) -> np.ndarra
     wb = weight[rows, cols]
     out[rows, cols] = wb * z[rows, cols] + (1.0 - wb) * under
     return out
+
+
+def _shadow_coarsening(footprint: float, resolution: float) -> int:
+    """Give the power of two by which a layer's shadow map may be coarser than its pixels.
+
+    ``footprint`` is the ground an image pixel spans (m) at the layer's nearest drawn block
+    (its distance over the focal length; farther and off-axis, a pixel spans more), and
+    ``resolution`` the layer's pixel (m). The factor is the largest power of two ``c`` with
+    ``2 c * resolution <= footprint``, at most :data:`BLOCK` (casters are never drawn
+    coarser): a relief that spans one image pixel spans at least two cells of ``c`` layer
+    pixels, so the map resolves it as a layer-resolution map resolves a relief of two layer
+    pixels (the accuracy ``tests/render/test_shadow_maps.py`` measures), with a factor of two
+    to spare for the rocks of two image pixels the shadows must hold.
+    """
+    ratio = footprint / (SHADOW_PIXEL_CELLS * resolution)
+    if not ratio >= 2.0:  # NaN, or no power of two above 1 fits
+        return 1
+    return int(min(BLOCK, 2 ** math.floor(math.log2(ratio))))
 
 
 def _merge_ranges(offsets, counts) -> list[tuple[int, int]]:
