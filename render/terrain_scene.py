@@ -45,6 +45,9 @@ layer pixels reaches a full map. ``c`` is a function of the frame's camera alone
 same frame gives the same bytes whatever came before it); a map is kept per layer and
 ``c``, so a descent draws each layer's map once per halving of ``c``, each a quarter of the
 next, and the first frame draws the distant fine layers' maps at a fraction of their cost.
+Scattered light likewise: a layer is lit by its own grid (:mod:`render.scattering`), or,
+where an image pixel at its nearest drawn block spans a coarser layer's grid cell, by the
+coarsest such layer's grid, which covers it and resolves the light to an image pixel.
 
 Geomorphing: levels of detail change continuously, never from one frame to the next. With
 ``lambda(d) = log2(target * d / (cell * focal))`` the continuous level at distance d (the
@@ -598,10 +601,15 @@ class TerrainScene:
             if not blocks.size:
                 continue
             tris = 0
+            footprint = float(d[blocks].min()) / focal  # m per image pixel, nearest block
             shadow = None
             if shadows is not None:
-                coarse = _shadow_coarsening(float(d[blocks].min()) / focal, layer.resolution)
+                coarse = _shadow_coarsening(footprint, layer.resolution)
                 shadow = self._layer_shadow(gpu, shadows, lighting, options, layer, coarse)
+            light = None
+            if scatter is not None:
+                source = self._layers[self._scatter_source(layer.level, footprint)]
+                light = self._layer_scatter(gpu, scatter, lighting, source)
             by_lod: dict = {}
             for b, s in zip(blocks, lods, strict=True):
                 by_lod.setdefault(int(s), []).append(int(b))
@@ -612,8 +620,7 @@ class TerrainScene:
                 tris += n
                 batch = DrawBatch(vao, dvao, ranges, discard=layer.discard, shadow=shadow,
                                   triangles=n,
-                                  scatter=(self._layer_scatter(gpu, scatter, lighting, layer)
-                                           if scatter is not None else None))
+                                  scatter=light)
                 if options.geomorph:
                     # coarser visible geometry than the shadow map saw: the shader widens
                     # the bias with the continuous level (module docstring)
@@ -731,6 +738,25 @@ class TerrainScene:
                     tex.release()
             self._scatter_cache[key] = {}
         return self._scatter_cache[key]
+
+    def _scatter_cell(self, level: int) -> float:
+        x0, y0, x1, y1 = self._layers[level].extent
+        return max(x1 - x0, y1 - y0) / SCATTER_CELLS
+
+    def _scatter_source(self, level: int, footprint: float) -> int:
+        """Give the layer whose grid of scattered light a layer is drawn with.
+
+        Its own, or, where the camera is far enough that an image pixel (``footprint``, m,
+        at the layer's nearest drawn block) spans a coarser layer's grid cell, the
+        coarsest such layer's: it covers the layer (its grid spans its extent and more),
+        resolves the scattered light to an image pixel, finer than the layer's own grid
+        resolves it seen from close by, and is computed once for all the fine layers a
+        distant camera sees.
+        """
+        source = level
+        while source > 0 and self._scatter_cell(source - 1) <= footprint:
+            source -= 1
+        return source
 
     def _layer_scatter(self, gpu, maps, lighting, layer):
         """Give the layer's grid in ``maps`` (:mod:`render.scattering`), computed if missing."""
