@@ -38,13 +38,15 @@ coarser layer outside the next finer one, culled to the map's window, so the map
 grows with the layers, not with their square.
 
 A layer seen only from afar, where an image pixel spans many of its pixels, needs no map at
-its own resolution: its map is drawn ``c`` times coarser (a power of two, with two cells of
-``c`` layer pixels to an image pixel at the layer's nearest drawn block; casters at the
-matching level of detail), so a relief of one image pixel reaches the map as one of two
-layer pixels reaches a full map. ``c`` is a function of the frame's camera alone (the
-same frame gives the same bytes whatever came before it); a map is kept per layer and
-``c``, so a descent draws each layer's map once per halving of ``c``, each a quarter of the
-next, and the first frame draws the distant fine layers' maps at a fraction of their cost.
+its own resolution: its map is drawn ``c`` times coarser, ``c`` a power of two from
+:data:`MIN_SHADOW_COARSENING` on such that an image pixel at the layer's nearest drawn block
+spans :data:`SHADOW_PIXEL_CELLS` cells of ``c`` layer pixels (casters at the matching level
+of detail), so a relief of half an image pixel reaches the map as one of two layer pixels
+reaches a full map. ``c`` is a function of the frame's camera alone (the same frame gives
+the same bytes whatever came before it); a map is kept per layer and ``c``, so a camera
+coming from afar draws a fine layer's map once per halving of ``c`` down to 8, together
+about a third of a full map, then the full map, and its first frame draws the distant fine
+layers' maps at a fraction of their cost.
 Scattered light likewise: a layer is lit by its own grid (:mod:`render.scattering`), or,
 where an image pixel at its nearest drawn block spans a coarser layer's grid cell, by the
 coarsest such layer's grid, which covers it and resolves the light to an image pixel.
@@ -136,6 +138,12 @@ SHADOW_CELL_TEXELS = 1.0
 #: Cells of a layer's coarsened shadow map (``c`` layer pixels each) an image pixel spans at
 #: least at the layer's nearest drawn block (:func:`_shadow_coarsening`).
 SHADOW_PIXEL_CELLS = 4.0
+#: The least coarsening worth a map of its own (:func:`_shadow_coarsening`): at 2 and 4 a
+#: coarser map still costs about half a full one (its casters keep their detail; measured on
+#: the demo's stack), and a descent draws the full map anyway once it comes closer; from 8
+#: on it costs a quarter or less, so a camera coming from afar pays at most about a third
+#: of a full map more per layer, and its first frame a fraction.
+MIN_SHADOW_COARSENING = 8
 #: Smallest side of a layer's shadow map, texels.
 MIN_SHADOW_SIDE = 64
 #: Sines of sun elevations below this one size terrain maps as this one (0.57 degrees): the
@@ -1123,14 +1131,15 @@ def _shadow_coarsening(footprint: float, resolution: float) -> int:
     ``footprint`` is the ground an image pixel spans (m) at the layer's nearest drawn block
     (its distance over the focal length; farther and off-axis, a pixel spans more), and
     ``resolution`` the layer's pixel (m). The factor is the largest power of two ``c`` with
-    ``2 c * resolution <= footprint``, at most :data:`BLOCK` (casters are never drawn
-    coarser): a relief that spans one image pixel spans at least two cells of ``c`` layer
-    pixels, so the map resolves it as a layer-resolution map resolves a relief of two layer
-    pixels (the accuracy ``tests/render/test_shadow_maps.py`` measures), with a factor of two
-    to spare for the rocks of two image pixels the shadows must hold.
+    ``SHADOW_PIXEL_CELLS * c * resolution <= footprint``, at most :data:`BLOCK` (casters
+    are never drawn coarser), or 1 where that is below :data:`MIN_SHADOW_COARSENING`. A
+    relief of half an image pixel then spans at least two cells of ``c`` layer pixels, so
+    the map resolves it as a layer-resolution map resolves a relief of two layer pixels
+    (the accuracy ``tests/render/test_shadow_maps.py`` measures), with a factor of four to
+    spare for the rocks of two image pixels the shadows must hold.
     """
     ratio = footprint / (SHADOW_PIXEL_CELLS * resolution)
-    if not ratio >= 2.0:  # NaN, or no power of two above 1 fits
+    if not ratio >= MIN_SHADOW_COARSENING:  # NaN, or not worth a map of its own
         return 1
     return int(min(BLOCK, 2 ** math.floor(math.log2(ratio))))
 

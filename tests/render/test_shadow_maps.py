@@ -71,7 +71,9 @@ def test_a_distant_layers_coarser_map_keeps_the_shadows_of_rocks_of_two_image_pi
         renderer, monkeypatch):
     """Seen from afar (an image pixel over 9 layer pixels), the map is coarsened, not the rocks.
 
-    The layer's map is then drawn at twice its pixel (``_shadow_coarsening``). Against a map
+    The layer's map is then drawn at twice its pixel (``_shadow_coarsening``, here allowed
+    from 2 on: the demo coarsens from 8, where an image pixel spans 32 layer pixels, a rock
+    field too large for a test; the map is drawn alike at every factor). Against a map
     four times finer than the layer-resolution one, every shadow of 6 image pixels or more
     (rocks from 2 to 6 image pixels across, 7 degree sun) keeps at least half its area, and
     the shadow area missing stays within 4 points of what the layer-resolution map misses
@@ -81,6 +83,7 @@ def test_a_distant_layers_coarser_map_keeps_the_shadows_of_rocks_of_two_image_pi
 
     import render.terrain_scene as terrain_scene
 
+    monkeypatch.setattr(terrain_scene, "MIN_SHADOW_COARSENING", 2)
     rng = np.random.default_rng(11)
     n = 720
     yy, xx = np.mgrid[0:n, 0:n].astype(np.float64)
