@@ -7,6 +7,10 @@ alternately (A B, B A, ...) so that both see the same load:
   and compared, renamed into place) against rasterio writing the same GeoTIFF directly.
   Target: at most 1.6x the direct write (the read-back is what turns a full disk into an
   error instead of a truncated file).
+* ``sensor_tiff``: a frame's range (1024^2) and normals (1024^2 x 3) written the way every
+  rendered frame writes them (:func:`terrain.io.write_float_tiff`: ZSTD, safe) against
+  rasterio writing the same two TIFFs directly with DEFLATE (the earlier setting, no
+  safety); with both files' sizes. Target: at most the direct DEFLATE write.
 * ``transaction``: committing four files as one set (journal, renames) against writing the
   same four files one by one with :func:`terrain.core.outputs.atomic_path`. Target: at most 1.5x
   plus 20 ms.
@@ -63,6 +67,50 @@ def bench_write_dem(folder: Path, size: int, repeat: int) -> dict:
                 target_ratio=1.6, passed=ratio <= 1.6)
 
 
+def bench_sensor_tiff(folder: Path, size: int, repeat: int) -> dict:
+    import numpy as np
+
+    # the direct DEFLATE write is the baseline, so rasterio is imported here on purpose
+    import rasterio
+    from rasterio.errors import NotGeoreferencedWarning
+
+    from terrain.io import BLOCK_SIZE, write_float_tiff
+
+    # a range image and world normals like a descent frame's: smooth, NaN off the terrain
+    y, x = np.mgrid[0:size, 0:size] / size
+    rng = (8000.0 + 3000.0 * y + 40.0 * np.sin(40 * x) * np.cos(30 * y)).astype(np.float32)
+    rng[: size // 10] = np.nan
+    gx, gy = np.gradient(rng.astype(np.float64))
+    nor = np.stack([-gx, -gy, np.ones_like(gx)], -1)
+    nor = (nor / np.linalg.norm(nor, axis=-1, keepdims=True)).astype(np.float32)
+    images = {"range": rng[:, :, None], "normals": nor}
+
+    def ours():
+        for name, a in images.items():
+            write_float_tiff(a, folder / f"ours_{name}.tif")
+
+    def direct():
+        import warnings
+
+        for name, a in images.items():
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", NotGeoreferencedWarning)
+                with rasterio.open(folder / f"direct_{name}.tif", "w", driver="GTiff",
+                                   dtype="float32", count=a.shape[2], width=size, height=size,
+                                   nodata=float("nan"), compress="deflate", predictor=3,
+                                   tiled=True, blockxsize=BLOCK_SIZE,
+                                   blockysize=BLOCK_SIZE) as dst:
+                    dst.write(np.moveaxis(a, 2, 0))
+
+    timed = alternate(dict(ours=ours, direct_deflate=direct), repeat)
+    ratio = timed.ratio("ours", "direct_deflate")
+    sizes = {f"{who}_{name}_bytes": (folder / f"{who}_{name}.tif").stat().st_size
+             for who in ("ours", "direct") for name in images}
+    return dict(size=size, ours=timed.timings["ours"],
+                baseline_direct_deflate=timed.timings["direct_deflate"], ratio=ratio,
+                **sizes, passed=ratio <= 1.0)
+
+
 def bench_transaction(folder: Path, nbytes: int, repeat: int) -> dict:
     import os
 
@@ -115,13 +163,17 @@ def main(argv=None) -> int:
         tmp = Path(tmp)
         log(f"write_dem {size}^2")
         write = bench_write_dem(tmp, size, repeat)
+        sensor_size = 129 if args.quick else 1024
+        log(f"sensor TIFFs {sensor_size}^2")
+        sensor = bench_sensor_tiff(tmp, sensor_size, repeat)
         log(f"transaction of 4 x {nbytes} bytes")
         txn = bench_transaction(tmp, nbytes, repeat)
         log(f"read_stack of {layer}^2 layers")
         read = bench_read_stack(tmp, layer, repeat)
     doc = dict(benchmark="outputs", quick=args.quick, machine=machine_facts(),
-               results=dict(write_dem=write, transaction=txn, read_stack=read),
-               passed=all(r["passed"] for r in (write, txn, read)))
+               results=dict(write_dem=write, sensor_tiff=sensor, transaction=txn,
+                            read_stack=read),
+               passed=all(r["passed"] for r in (write, sensor, txn, read)))
     json.dump(doc, sys.stdout, indent=1)
     print()
     return 0

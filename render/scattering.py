@@ -130,10 +130,16 @@ class _Shifter:
         ti, tj = rows - i0, cols - j0
         r, c = self.pad + i0, self.pad + j0
         g = self.padded
-        top = g[..., r:r + h, c:c + w] * (1 - tj) + g[..., r:r + h, c + 1:c + 1 + w] * tj
-        bottom = (g[..., r + 1:r + 1 + h, c:c + w] * (1 - tj)
-                  + g[..., r + 1:r + 1 + h, c + 1:c + 1 + w] * tj)
-        return top * (1 - ti) + bottom * ti
+        # top * (1 - ti) + bottom * ti of the rows' interpolations, in place (the same
+        # operations in the same order as written out, fewer temporaries)
+        top = np.multiply(g[..., r:r + h, c:c + w], 1 - tj)
+        top += np.multiply(g[..., r:r + h, c + 1:c + 1 + w], tj)
+        bottom = np.multiply(g[..., r + 1:r + 1 + h, c:c + w], 1 - tj)
+        bottom += np.multiply(g[..., r + 1:r + 1 + h, c + 1:c + 1 + w], tj)
+        top *= 1 - ti
+        bottom *= ti
+        top += bottom
+        return top
 
 
 def _band(a: np.ndarray, nz: np.ndarray, theta: np.ndarray) -> np.ndarray:
@@ -224,30 +230,37 @@ def horizon_light(z: np.ndarray, spacing: float, sun: Any, *, albedo: float,
     # what a sample needs of its source: height, normal, radiosity
     shift = _Shifter(np.stack([z, n[0], n[1], n[2], radiosity]),
                      steps[-1] / spacing if steps.size else 0.0)
+    flat = scattered.ravel()  # a view: the receivers that see new terrain are updated
+    nz = n[2].ravel()
     for k in range(azimuths):
         phi = (k + 0.5) * dphi  # clockwise from north
         dx, dy = math.sin(phi), math.cos(phi)
         a = n[0] * dx + n[1] * dy
         top = np.arctan2(-a, n[2])  # the receiver's own tangent plane
-        low = _band(a, n[2], top)
-        before = np.zeros(z.shape)  # the previous sample's radiosity towards the receiver
+        low = _band(a, n[2], top).ravel()
+        top = top.ravel()
+        a = a.ravel()
+        before = np.zeros(z.size)  # the previous sample's radiosity towards the receiver
         for d in steps:
             zq, nxq, nyq, nzq, bq = shift.at(-dy * d / spacing, dx * d / spacing)
-            beta = np.arctan2(zq - z, d)
-            seen = beta > top
+            beta = np.arctan2(zq - z, d).ravel()
+            seen = np.flatnonzero(beta > top)
             # a source shines on the receiver only with the side that faces it (a plateau's
             # top seen from below its rim is the rim's wall, not the lit top)
             faces = (-(nxq * dx + nyq * dy) * d + nzq * (z - zq)) > 0.0
-            here = np.where(faces, bq, 0.0)
-            if not seen.any():
+            here = np.where(faces, bq, 0.0).ravel()
+            if not seen.size:
                 before = here
                 continue
-            high = _band(a, n[2], beta)
+            # only the receivers that see the sample above their horizon so far change: the
+            # same arithmetic, element by element, on those alone
+            rise = beta[seen]
+            high = _band(a[seen], nz[seen], rise)
             # the band between two samples: the mean of their radiances (trapezoid rule)
-            scattered += np.where(seen, 0.5 * (here + before) / math.pi * dphi * (high - low),
-                                  0.0)
-            low = np.where(seen, high, low)
-            top = np.where(seen, beta, top)
+            flat[seen] += (0.5 * (here[seen] + before[seen]) / math.pi * dphi
+                           * (high - low[seen]))
+            low[seen] = high
+            top[seen] = rise
             before = here
     earth_vis = np.ones(z.shape)
     if earth is not None:

@@ -37,6 +37,20 @@ pixels reaches the map. A layer's map draws the ground once: the layer itself wh
 coarser layer outside the next finer one, culled to the map's window, so the maps' cost
 grows with the layers, not with their square.
 
+A layer seen only from afar, where an image pixel spans many of its pixels, needs no map at
+its own resolution: its map is drawn ``c`` times coarser, ``c`` a power of two from
+:data:`MIN_SHADOW_COARSENING` on such that an image pixel at the layer's nearest drawn block
+spans :data:`SHADOW_PIXEL_CELLS` cells of ``c`` layer pixels (casters at the matching level
+of detail), so a relief of half an image pixel reaches the map as one of two layer pixels
+reaches a full map. ``c`` is a function of the frame's camera alone (the same frame gives
+the same bytes whatever came before it); a map is kept per layer and ``c``, so a camera
+coming from afar draws a fine layer's map once per halving of ``c`` down to 8, together
+about a third of a full map, then the full map, and its first frame draws the distant fine
+layers' maps at a fraction of their cost.
+Scattered light likewise: a layer is lit by its own grid (:mod:`render.scattering`), or,
+where an image pixel at its nearest drawn block spans a coarser layer's grid cell, by the
+coarsest such layer's grid, which covers it and resolves the light to an image pixel.
+
 Geomorphing: levels of detail change continuously, never from one frame to the next. With
 ``lambda(d) = log2(target * d / (cell * focal))`` the continuous level at distance d (the
 planner's rule above picks ``s = 2^floor(lambda)`` at a block's nearest point), a vertex of a
@@ -121,6 +135,15 @@ BLOCK = 64
 SKIRT_PIXELS = 8.0
 #: Caster cells in a shadow map may be this many texels wide (along the map's coarser axis).
 SHADOW_CELL_TEXELS = 1.0
+#: Cells of a layer's coarsened shadow map (``c`` layer pixels each) an image pixel spans at
+#: least at the layer's nearest drawn block (:func:`_shadow_coarsening`).
+SHADOW_PIXEL_CELLS = 4.0
+#: The least coarsening worth a map of its own (:func:`_shadow_coarsening`): at 2 and 4 a
+#: coarser map still costs about half a full one (its casters keep their detail; measured on
+#: the demo's stack), and a descent draws the full map anyway once it comes closer; from 8
+#: on it costs a quarter or less, so a camera coming from afar pays at most about a third
+#: of a full map more per layer, and its first frame a fraction.
+MIN_SHADOW_COARSENING = 8
 #: Smallest side of a layer's shadow map, texels.
 MIN_SHADOW_SIDE = 64
 #: Sines of sun elevations below this one size terrain maps as this one (0.57 degrees): the
@@ -239,6 +262,7 @@ class TerrainScene:
         self._ctx: object = None  # the context the layers were uploaded to
         self._shadow_cache: dict = {}
         self._scatter_cache: dict = {}
+        self._mean_heights: dict = {}  # layer -> mean of its valid heights (invalid pixels')
         self.triangles_full = 0
         self.albedo_map: DEMTile | None = None
         self._albedo_gpu: tuple | None = None
@@ -581,10 +605,19 @@ class TerrainScene:
             scatter = self._scatter_maps(gpu, lighting)
         batches: list[DrawBatch] = []
         drawn_layers: list[dict[str, Any]] = []
-        for layer, (lods, blocks) in zip(self._layers, plan, strict=True):
+        for layer, (lods, blocks), d in zip(self._layers, plan, dist, strict=True):
             if not blocks.size:
                 continue
             tris = 0
+            footprint = float(d[blocks].min()) / focal  # m per image pixel, nearest block
+            shadow = None
+            if shadows is not None:
+                coarse = _shadow_coarsening(footprint, layer.resolution)
+                shadow = self._layer_shadow(gpu, shadows, lighting, options, layer, coarse)
+            light = None
+            if scatter is not None:
+                source = self._layers[self._scatter_source(layer.level, footprint)]
+                light = self._layer_scatter(gpu, scatter, lighting, source)
             by_lod: dict = {}
             for b, s in zip(blocks, lods, strict=True):
                 by_lod.setdefault(int(s), []).append(int(b))
@@ -593,12 +626,9 @@ class TerrainScene:
                 ranges = _merge_ranges(layer.offsets[s][bl], layer.counts[s][bl])
                 n = int(layer.counts[s][bl].sum()) // 3
                 tris += n
-                shadow = (self._layer_shadow(gpu, shadows, lighting, options, layer)
-                          if shadows is not None else None)
                 batch = DrawBatch(vao, dvao, ranges, discard=layer.discard, shadow=shadow,
                                   triangles=n,
-                                  scatter=(self._layer_scatter(gpu, scatter, lighting, layer)
-                                           if scatter is not None else None))
+                                  scatter=light)
                 if options.geomorph:
                     # coarser visible geometry than the shadow map saw: the shader widens
                     # the bias with the continuous level (module docstring)
@@ -656,7 +686,7 @@ class TerrainScene:
         return plan, total
 
     def _shadow_maps(self, gpu, lighting, options):
-        """Give the maps of this sun, level -> map, drawn as frames first need them.
+        """Give the maps of this sun, (level, coarsening) -> map, drawn as frames need them.
 
         Shared by every renderer on the context; a layer no frame has shown has no map.
         """
@@ -670,22 +700,22 @@ class TerrainScene:
         self._shadow_cache[key] = {}
         return self._shadow_cache[key]
 
-    def _layer_shadow(self, gpu, maps, lighting, options, layer):
-        """Give the layer's map in ``maps``, drawn first if it is not there."""
-        if layer.level in maps:
-            return maps[layer.level]
+    def _layer_shadow(self, gpu, maps, lighting, options, layer, coarse=1):
+        """Give the layer's map in ``maps`` at ``coarse`` times its texel, drawn if missing."""
+        if (layer.level, coarse) in maps:
+            return maps[layer.level, coarse]
         basis = light_basis(lighting.sun)
         # light-space y runs up the sun's azimuth: a texel of y covers 1 / sin(elevation)
         # of ground there (module docstring)
         sin_e = min(max(abs(float(lighting.sun[2])), MIN_SIN_ELEVATION), 1.0)
         receivers = box_corners(layer.lo.min(axis=0), layer.hi.max(axis=0))[0]
-        margin = SHADOW_MARGIN_PIXELS * layer.resolution
+        margin = SHADOW_MARGIN_PIXELS * layer.resolution * coarse
         *_, window = ortho_light(lighting.sun, receivers, receivers, margin=margin)
         casters = self._casters(layer.level, basis, window)
         corners = np.concatenate(
             [box_corners(self._layers[k].lo[b], self._layers[k].hi[b]).reshape(-1, 3)
              for k, b in casters] + [receivers])
-        texel = layer.resolution / float(options.shadow_detail)
+        texel = coarse * layer.resolution / float(options.shadow_detail)
         cap = int(options.shadow_size)
         size = (min(max(math.ceil((window[2] - window[0]) / texel), MIN_SHADOW_SIDE), cap),
                 min(max(math.ceil((window[3] - window[1]) / (texel * sin_e)),
@@ -695,10 +725,10 @@ class TerrainScene:
         def draw(extent, window):
             return self._depth_batches(gpu, casters, tx)
 
-        maps[layer.level] = render_shadow_map(gpu, None, size, lighting.sun, receivers,
-                                              corners, margin=margin,
-                                              bias=TERRAIN_SHADOW_BIAS, draw=draw)
-        return maps[layer.level]
+        maps[layer.level, coarse] = render_shadow_map(gpu, None, size, lighting.sun,
+                                                      receivers, corners, margin=margin,
+                                                      bias=TERRAIN_SHADOW_BIAS, draw=draw)
+        return maps[layer.level, coarse]
 
     def _scatter_maps(self, gpu, lighting):
         """Give level -> (texture, rect) of the scattered light and the Earth's visibility.
@@ -716,6 +746,25 @@ class TerrainScene:
                     tex.release()
             self._scatter_cache[key] = {}
         return self._scatter_cache[key]
+
+    def _scatter_cell(self, level: int) -> float:
+        x0, y0, x1, y1 = self._layers[level].extent
+        return max(x1 - x0, y1 - y0) / SCATTER_CELLS
+
+    def _scatter_source(self, level: int, footprint: float) -> int:
+        """Give the layer whose grid of scattered light a layer is drawn with.
+
+        Its own, or, where the camera is far enough that an image pixel (``footprint``, m,
+        at the layer's nearest drawn block) spans a coarser layer's grid cell, the
+        coarsest such layer's: it covers the layer (its grid spans its extent and more),
+        resolves the scattered light to an image pixel, finer than the layer's own grid
+        resolves it seen from close by, and is computed once for all the fine layers a
+        distant camera sees.
+        """
+        source = level
+        while source > 0 and self._scatter_cell(source - 1) <= footprint:
+            source -= 1
+        return source
 
     def _layer_scatter(self, gpu, maps, lighting, layer):
         """Give the layer's grid in ``maps`` (:mod:`render.scattering`), computed if missing."""
@@ -759,15 +808,22 @@ class TerrainScene:
                 (col >= 0) & (col <= w - 1) & (row >= 0) & (row <= h - 1))
             if not inside.any():
                 continue
-            heights = np.where(tile.valid, tile.heights, np.mean(tile.heights[tile.valid]))
+            mean = self._mean_heights.get(k)
+            if mean is None:
+                mean = self._mean_heights[k] = np.mean(tile.heights[tile.valid])
             r, c = row[inside], col[inside]
             # beyond the base, its edge cells' planes continue (no terrace at its edge)
             i0 = np.clip(np.floor(r), 0, max(h - 2, 0)).astype(np.int64)
             j0 = np.clip(np.floor(c), 0, max(w - 2, 0)).astype(np.int64)
             i1, j1 = np.minimum(i0 + 1, h - 1), np.minimum(j0 + 1, w - 1)
             ti, tj = r - i0, c - j0
-            z[inside] = ((heights[i0, j0] * (1 - tj) + heights[i0, j1] * tj) * (1 - ti)
-                         + (heights[i1, j0] * (1 - tj) + heights[i1, j1] * tj) * ti)
+
+            def height(i, j, tile=tile, mean=mean):
+                # only the four corners' heights are read (never the whole layer)
+                return np.where(tile.valid[i, j], tile.heights[i, j], mean)
+
+            z[inside] = ((height(i0, j0) * (1 - tj) + height(i0, j1) * tj) * (1 - ti)
+                         + (height(i1, j0) * (1 - tj) + height(i1, j1) * tj) * ti)
         if self.curvature:
             z -= (xs[None, :] ** 2 + ys[:, None] ** 2) / (2.0 * self.radius)
         return z
@@ -1067,6 +1123,25 @@ def _fade_in(z: np.ndarray, xs: np.ndarray, ys: np.ndarray, parent) -> np.ndarra
     wb = weight[rows, cols]
     out[rows, cols] = wb * z[rows, cols] + (1.0 - wb) * under
     return out
+
+
+def _shadow_coarsening(footprint: float, resolution: float) -> int:
+    """Give the power of two by which a layer's shadow map may be coarser than its pixels.
+
+    ``footprint`` is the ground an image pixel spans (m) at the layer's nearest drawn block
+    (its distance over the focal length; farther and off-axis, a pixel spans more), and
+    ``resolution`` the layer's pixel (m). The factor is the largest power of two ``c`` with
+    ``SHADOW_PIXEL_CELLS * c * resolution <= footprint``, at most :data:`BLOCK` (casters
+    are never drawn coarser), or 1 where that is below :data:`MIN_SHADOW_COARSENING`. A
+    relief of half an image pixel then spans at least two cells of ``c`` layer pixels, so
+    the map resolves it as a layer-resolution map resolves a relief of two layer pixels
+    (the accuracy ``tests/render/test_shadow_maps.py`` measures), with a factor of four to
+    spare for the rocks of two image pixels the shadows must hold.
+    """
+    ratio = footprint / (SHADOW_PIXEL_CELLS * resolution)
+    if not ratio >= MIN_SHADOW_COARSENING:  # NaN, or not worth a map of its own
+        return 1
+    return int(min(BLOCK, 2 ** math.floor(math.log2(ratio))))
 
 
 def _merge_ranges(offsets, counts) -> list[tuple[int, int]]:

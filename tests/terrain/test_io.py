@@ -145,3 +145,35 @@ def test_png_writer(tmp_path):
     img = (np.arange(64, dtype=np.uint8).reshape(8, 8))
     io.write_png(img, tmp_path / "a.png")
     assert np.array_equal(cv2.imread(str(tmp_path / "a.png"), cv2.IMREAD_UNCHANGED), img)
+
+
+def test_float_tiffs_read_back_whole_in_the_same_bytes_and_a_cut_file_is_refused(tmp_path):
+    import os
+    import shutil
+    import sys
+    from pathlib import Path
+
+    sys.path.append(str(Path(__file__).resolve().parent.parent))
+    from cli_helpers import file_size_limit
+
+    rng = np.random.default_rng(3)
+    a = np.cumsum(rng.normal(size=(300, 280, 3)), axis=1).astype(np.float32)
+    a[5, 7, 1] = np.nan
+    first, second = tmp_path / "a.tif", tmp_path / "b.tif"
+    io.write_float_tiff(a, first, tags={"FRAME": "world"})
+    io.write_float_tiff(a, second, tags={"FRAME": "world"})
+    assert first.read_bytes() == second.read_bytes()
+    np.testing.assert_array_equal(io.read_float_tiff(first), a)
+    with rasterio.open(first) as src:  # any GDAL reader: the codec and the tags
+        assert src.tags()["FRAME"] == "world" and src.count == 3
+        np.testing.assert_array_equal(src.read(2), a[..., 1])
+    # a file cut short (a full disk) is found by its directory, not written into place
+    size = first.stat().st_size
+    for cut in (200, size // 2, size - 1):
+        shutil.copy(first, tmp_path / "cut.tif")
+        os.truncate(tmp_path / "cut.tif", cut)
+        with pytest.raises(OutputPathError, match="cannot write 'x.tif'"):
+            io._verify_blocks(tmp_path / "cut.tif", "x.tif", bands=3, tags={"FRAME": "world"})
+    with file_size_limit(size // 2), pytest.raises(OutputPathError, match="c.tif"):
+        io.write_float_tiff(a, tmp_path / "c.tif")
+    assert not (tmp_path / "c.tif").exists()
