@@ -8,7 +8,9 @@ in rounds so that the baseline is measured interleaved with what it is compared 
   density (N(>=D) = 0.1 D^-2 per m^2), no relaxation;
 * ``preset``: the south-polar preset: topographic diffusion, each size's lifetime, the
   production limit at large sizes, craters degraded past visibility dropped, and every layer
-  relaxed to the angle of repose.
+  relaxed to the angle of repose, and every level's roughness following the preset's slope
+  law (``terrain.stack.slopelaw``) where ``today`` expands with the demo's former fractal
+  dimension 2.05 and height scale 0.05.
 
 Each child reports its wall time (after a warm-up that compiles the numba kernels), its peak
 resident set size, and the crater count.
@@ -55,9 +57,11 @@ def _stack(spec: dict):
     s = SynthSpec.from_mapping(table)
     pop = population(s, resolution=1.0, extent=1e6, warn_small=False)
     x0, y0, x1, y1 = base.bounds
+    law = spec["name"] == "preset"
     return build_stack(base, ((x0 + x1) / 2, (y0 + y1) / 2), levels=spec["levels"],
                        layer_size=size, seed=SEED, population=pop, model=crater_model(s),
-                       params=RoughnessChoice(2.05, 0.05), repose=repose(s))
+                       params=RoughnessChoice() if law else RoughnessChoice(2.05, 0.05),
+                       repose=repose(s), slope_law=preset("south-polar") if law else None)
 
 
 def child(spec: dict) -> dict:

@@ -23,12 +23,25 @@ terrain.core.errors.InvalidParameterError: terrain preset 'south polar' is not k
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from terrain.core.checks import text
 
-__all__ = ["EQUILIBRIUM_EXPONENT", "PRESETS", "TRASK_EQUILIBRIUM", "TerrainPreset",
+__all__ = ["EQUILIBRIUM_EXPONENT", "HURST_BEYOND_SELF_AFFINE", "LAW_BASELINE_M",
+           "MEDIAN_ABS_GAUSSIAN", "PRESETS", "TRASK_EQUILIBRIUM", "TerrainPreset",
            "equilibrium_density", "preset"]
+
+#: Baseline (m) of the slope law's anchor: LOLA's 17 m bidirectional slopes (Rosenburg et al.
+#: 2011).
+LAW_BASELINE_M = 17.0
+#: Median of |x| over the standard deviation of a zero-mean Gaussian x (sqrt(2) erf^-1(1/2)):
+#: a median slope over a baseline is this times the RMS gradient of Gaussian height differences.
+MEDIAN_ABS_GAUSSIAN = 0.6744897501960817
+#: Hurst exponent of the slope law beyond a preset's self-affine range: LOLA's slopes fall
+#: faster there (Rosenburg et al. 2011, Figs. 5-8); 0.5, independent increments, is our
+#: choice, the one ``terrain synth`` gives a base above the range.
+HURST_BEYOND_SELF_AFFINE = 0.5
 
 
 #: Cumulative size-frequency exponent of the empirical crater equilibrium.
@@ -103,6 +116,36 @@ class TerrainPreset:
     sources: tuple[str, ...]
     diffusivity_m2_per_myr: float = 5.5
     visible_depth_ratio: float = 0.04
+
+    def median_slope_deg(self, baseline_m: float) -> float:
+        """Median bidirectional slope (deg) of the preset's law at ``baseline_m`` metres.
+
+        ``atan(tan(slope_17m) (L / 17 m)^(H - 1))`` up to the self-affine range (Rosenburg et
+        al. 2011), continued beyond it with :data:`HURST_BEYOND_SELF_AFFINE`.
+
+        >>> round(preset("south-polar").median_slope_deg(17.0), 2)
+        7.6
+        >>> round(preset("south-polar").median_slope_deg(1000.0), 2)
+        6.21
+        """
+        if not baseline_m > 0:
+            raise ValueError(f"baseline must be positive metres; got {baseline_m}")
+        t = math.tan(math.radians(self.slope_17m_deg))
+        top = self.self_affine_max_m
+        if baseline_m <= top:
+            t *= (baseline_m / LAW_BASELINE_M) ** (self.hurst - 1.0)
+        else:
+            t *= (top / LAW_BASELINE_M) ** (self.hurst - 1.0) \
+                * (baseline_m / top) ** (HURST_BEYOND_SELF_AFFINE - 1.0)
+        return math.degrees(math.atan(t))
+
+    def rms_gradient(self, baseline_m: float) -> float:
+        """RMS gradient (m/m) over ``baseline_m`` of Gaussian differences of the law's median.
+
+        >>> round(preset("south-polar").rms_gradient(17.0), 4)
+        0.1978
+        """
+        return math.tan(math.radians(self.median_slope_deg(baseline_m))) / MEDIAN_ABS_GAUSSIAN
 
 
 #: The presets by name. Numbers: LOLA slopes and Hurst exponents from Rosenburg et al. (2011,

@@ -36,9 +36,17 @@ from terrain.stack.plan import (
     layer_plan,
     site_in_bounds,
 )
+from terrain.stack.slopelaw import (
+    fill_from_gradient,
+    fill_target,
+    law_parameters,
+    law_record,
+    local_gradient,
+    strided,
+)
 from terrain.stack.store import ROCK_CATALOG
 
-__all__ = ["build_stack", "fixed_cells", "relax_layer", "rock_levels"]
+__all__ = ["build_stack", "expansion_parameters", "fixed_cells", "relax_layer", "rock_levels"]
 
 log = logging.getLogger(__name__)
 
@@ -49,7 +57,8 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
                 params: ExpansionParameters | RoughnessChoice | None = None,
                 min_crater_pixels: float = MIN_CRATER_PIXELS,
                 progress: Progress | None = None,
-                rocks=None, keep_known: bool = False, repose=None) -> LayerStack:
+                rocks=None, keep_known: bool = False, repose=None,
+                slope_law=None) -> LayerStack:
     """Build a nested layer stack around ``site`` (map coordinates of ``base``).
 
     Parameters
@@ -83,6 +92,12 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
     repose : terrain.surface.repose.Repose, optional
         Relax every layer's slopes above the angle of repose after its craters
         (:func:`relax_layer`): synthesized cells only, outside fresh craters.
+    slope_law : terrain.core.presets.TerrainPreset, optional
+        Every level's roughness follows this preset's slope law
+        (:mod:`terrain.stack.slopelaw`): without explicit ``params`` (a
+        :class:`~terrain.fractal.roughness.RoughnessChoice` of neither fractal dimension nor
+        height scale) the expansion continues the law's fBm, and each level adds the slope
+        its parent lacks under the law.
 
     Returns
     -------
@@ -120,10 +135,9 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
         info["base_fill_roughness"] = filled.roughness
         base = filled.tile
     tick("fill")
-    if not isinstance(params, ExpansionParameters):
-        params = (params or RoughnessChoice()).for_tile(base)
+    params = expansion_parameters(base, params, slope_law)
     amp = (local_amplitude(base.heights, params.base_sigma, params.local_box)
-           if params.uses_local_map else None)
+           if params.uses_local_map and slope_law is None else None)
 
     tiles = [base]
     catalogs = []
@@ -136,11 +150,19 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
             parent = tiles[k - 1]
             pr, pc = origins[k - 1]
             r0, c0 = origins[k]
+            sigmas = params.sigmas(k)
+            if slope_law is not None:
+                tp = local_gradient(parent.heights, parent.resolution)
+                target = fill_target(strided(tp), parent.resolution, slope_law)
+                fill = fill_from_gradient(tp, parent.resolution, target, float(sigmas[0]))
+                where: dict[str, Any] = dict(amplitude=fill, amplitude_origin=(pr, pc),
+                                             amplitude_level=k - 1)
+            else:
+                where = dict(amplitude=amp, amplitude_origin=(0, 0), amplitude_level=0)
             heights = expand_level(parent.heights, (pr, pc), (r0, r0 + 2 * size - 2),
                                    (c0, c0 + 2 * size - 2), level=k,
-                                   sigmas=params.sigmas(k), weights=params.weights(k),
-                                   taps=params.taps(k), seed=seed, amplitude=amp,
-                                   amplitude_origin=(0, 0), amplitude_level=0)
+                                   sigmas=sigmas, weights=params.weights(k),
+                                   taps=params.taps(k), seed=seed, **where)
             heights.flags.writeable = False
             tiles.append(DEMTile(heights, np.isfinite(heights),
                                  expanded_transform(parent.transform, 1, row, col), base.crs,
@@ -189,8 +211,37 @@ def build_stack(base: DEMTile, site: tuple[float, float], *, levels: int, layer_
                 expansion=params.as_dict(), min_crater_pixels=min_crater_pixels,
                 population=population.as_dict() if population else None,
                 crater_model=model.as_dict(),
-                **({"repose": repose.as_dict()} if repose is not None else {}))
+                **({"repose": repose.as_dict()} if repose is not None else {}),
+                **({"slope_law": law_record(slope_law)} if slope_law is not None else {}))
     return LayerStack(layer_records(tiles, windows, origins), catalog, info, rock_catalog)
+
+
+def expansion_parameters(base: DEMTile, params, slope_law) -> ExpansionParameters:
+    """Return a stack's expansion parameters: given, the slope law's, or measured from ``base``.
+
+    Parameters
+    ----------
+    base : DEMTile
+        The filled base.
+    params : ExpansionParameters, RoughnessChoice or None
+        Given parameters are kept; a choice of neither fractal dimension nor height scale
+        under a ``slope_law`` continues the law's fBm
+        (:func:`terrain.stack.slopelaw.law_parameters`, the choice's regolith floor kept);
+        otherwise the choice is measured from ``base``.
+    slope_law : terrain.core.presets.TerrainPreset or None
+
+    Returns
+    -------
+    ExpansionParameters
+    """
+    if isinstance(params, ExpansionParameters):
+        return params
+    choice = params or RoughnessChoice()
+    if slope_law is not None and choice.fractal_dimension is None \
+            and choice.height_scale is None:
+        return law_parameters(slope_law, base.resolution, max(2, max(base.shape) - 1),
+                              regolith=choice.regolith)
+    return choice.for_tile(base)
 
 
 def fixed_cells(shape: tuple[int, int], level: int, origin: tuple[int, int],

@@ -106,6 +106,8 @@ class StackExpandSource:
     params: ExpansionParameters
     seed: int
     base: DEMReader | None = None  # reader of the filled base (local roughness map)
+    law: Any = None  # terrain.core.presets.TerrainPreset whose slope law the level follows
+    fill_target: float = 0.0  # its RMS gradient target (terrain.stack.slopelaw.fill_target)
 
     @property
     def shape(self):
@@ -127,9 +129,13 @@ class StackExpandSource:
 
     def plan(self) -> dict:
         """Return what decides the layer's bytes, to match a resumed build."""
+        from terrain.stack.slopelaw import law_record
+
         return dict(kind="stack-expand", input=_stamp(self.parent), level=self.level,
                     origin=list(self.origin), parent_origin=list(self.parent_origin),
-                    params=self.params.as_dict(), seed=self.seed)
+                    params=self.params.as_dict(), seed=self.seed,
+                    **({} if self.law is None else {"slope_law": law_record(self.law),
+                                                    "fill_target": self.fill_target}))
 
     def compute(self, window: Window):
         """Compute the layer's heights in one window, equal to the in-memory layer's."""
@@ -144,8 +150,12 @@ class StackExpandSource:
         p0, p1 = parent_region(c0 - 2 * pc, c1 - 2 * pc, pw)
         grid, _ = self.parent.read(Window(p0, q0, p1 - p0 + 1, q1 - q0 + 1))
         p = self.params
-        amp, amp_origin = None, (0, 0)
-        if p.uses_local_map:
+        sigmas = p.sigmas(self.level)
+        amp, amp_origin, amp_level = None, (0, 0), 0
+        if self.law is not None:
+            amp, amp_origin = self._fill(r0, r1, c0, c1, float(sigmas[0]))
+            amp_level = self.level - 1
+        elif p.uses_local_map:
             base = filled_field(self.base)  # given whenever the roughness map is local
             ny, nx = base.shape
             scale = 0.5 ** self.level
@@ -161,10 +171,33 @@ class StackExpandSource:
                                   (b0 - h0, b1 - h0))
             amp_origin = (a0, b0)
         out = expand_level(grid, (pr + q0, pc + p0), (r0, r1), (c0, c1), level=self.level,
-                           sigmas=p.sigmas(self.level), weights=p.weights(self.level),
+                           sigmas=sigmas, weights=p.weights(self.level),
                            taps=p.taps(self.level), seed=self.seed, amplitude=amp,
-                           amplitude_origin=amp_origin, amplitude_level=0)
+                           amplitude_origin=amp_origin, amplitude_level=amp_level)
         return out, None
+
+    def _fill(self, r0, r1, c0, c1, sigma):
+        """Return the slope law's fill map on the parent pixels child rows r0-r1, cols c0-c1 read.
+
+        The expansion reads the map three child pixels beyond the window (its first pass);
+        the parent is read a box's halo further, clipped at the parent layer's edges, so the
+        values equal those of the whole parent (:func:`terrain.stack.slopelaw.fill_amplitude`).
+        """
+        from terrain.stack.slopelaw import fill_amplitude, map_halo
+
+        pr, pc = self.parent_origin
+        ph, pw = self.parent.shape
+        g0 = max(0, (r0 - 3) // 2 - pr)
+        g1 = min(ph - 1, -((-(r1 + 3)) // 2) - pr)
+        h0 = max(0, (c0 - 3) // 2 - pc)
+        h1 = min(pw - 1, -((-(c1 + 3)) // 2) - pc)
+        halo = map_halo()
+        w0, w1 = max(0, g0 - halo), min(ph - 1, g1 + halo)
+        v0, v1 = max(0, h0 - halo), min(pw - 1, h1 + halo)
+        grid, _ = self.parent.read(Window(v0, w0, v1 - v0 + 1, w1 - w0 + 1))
+        amp = fill_amplitude(grid, float(self.parent.transform.a), self.fill_target, sigma,
+                             rows=(g0 - w0, g1 - w0), cols=(h0 - v0, h1 - v0))
+        return amp, (pr + g0, pc + h0)
 
 
 @numba.njit(cache=True)
@@ -406,7 +439,7 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
                         min_crater_pixels: float | None = None, rocks=None, chunk: int = 1024,
                         client=None, progress=None, halo: int = 256,
                         geotiff_pixels: int | None = None, info=None, inputs=(),
-                        keep_known: bool = False, repose=None) -> dict:
+                        keep_known: bool = False, repose=None, slope_law=None) -> dict:
     """Build a layer stack chunk by chunk into ``outdir`` and commit it (manifest last).
 
     Parameters are those of :func:`terrain.stack.build.build_stack`, with the base given as a
@@ -428,6 +461,9 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
     geotiff_pixels : int, optional
         Layers of at most this many pixels are written as GeoTIFFs, larger ones stay Zarr
         (default: what fits in a quarter of the available memory).
+    slope_law : terrain.core.presets.TerrainPreset, optional
+        As :func:`terrain.stack.build.build_stack`'s; without ``params`` and with neither
+        ``fractal_dimension`` nor ``height_scale`` in ``estimate``, the law's parameters.
     info : dict, optional
         Provenance added to the manifest.
 
@@ -439,8 +475,9 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
     """
     from terrain.core.rng import check_seed
     from terrain.craters.cratering import CraterModel
-    from terrain.execution.chunked import CraterSource, FillSource, estimate_parameters
+    from terrain.execution.chunked import CraterSource, FillSource
     from terrain.stack.plan import MIN_CRATER_PIXELS, GridShape, layer_craters, layer_plan
+    from terrain.stack.slopelaw import law_record
     from terrain.stack.store import INCOMPLETE, prepare_folder, stack_lock
 
     seed = check_seed(seed)
@@ -482,14 +519,15 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
             min_crater_pixels=min_crater_pixels,
             rocks=rocks.as_dict() if rocks else None, chunk=chunk, halo=halo,
             **({"keep_known": True} if keep_known else {}),
-            **({"repose": repose.as_dict()} if repose is not None else {})))
+            **({"repose": repose.as_dict()} if repose is not None else {}),
+            **({"slope_law": law_record(slope_law)} if slope_law is not None else {})))
         common = dict(chunk=chunk, client=client, progress=progress, reports={})
         reports = common["reports"]
 
         # layer 0: the base, gaps filled
         e = _stage("e0", fill, work, **common) if fill is not None else reader
         base = e
-        params = params or estimate_parameters(base, **(estimate or {}))
+        params = params or _parameters(reader, base, estimate or {}, slope_law)
         cratered: list = []
         catalogs: list = []
         tables: list = []
@@ -499,9 +537,11 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
                 window = windows[k]
                 assert window is not None  # every layer above the base has one
                 col, row, size, _ = window
+                target = (0.0 if slope_law is None
+                          else _fill_target(cratered[k - 1], slope_law, chunk))
                 e = _stage(f"e{k}", StackExpandSource(
                     cratered[k - 1], origins[k - 1], origins[k], shapes[k][0], transforms[k],
-                    k, params, seed, base), work, **common)
+                    k, params, seed, base, slope_law, target), work, **common)
             table = None
             if population is not None:
                 table = layer_craters(population, seed, plan, k, factor, min_crater_pixels)
@@ -593,7 +633,8 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
                     expansion=params.as_dict(), min_crater_pixels=min_crater_pixels,
                     population=population.as_dict() if population else None,
                     crater_model=model.as_dict(), chunked=dict(chunk=chunk, halo=halo),
-                    **({"repose": repose.as_dict()} if repose is not None else {}))
+                    **({"repose": repose.as_dict()} if repose is not None else {}),
+                    **({"slope_law": law_record(slope_law)} if slope_law is not None else {}))
         layers = [_Layer(sh, tr, reader.crs) for sh, tr in zip(shapes, transforms, strict=True)]
         stack = LayerStack(layer_records(layers, windows, origins), catalog, info, rock_catalog)
         with atomic_path(outdir / CATALOG) as tmp:
@@ -613,6 +654,41 @@ def build_stack_chunked(reader, outdir, site, *, levels: int, layer_size: int = 
     return dict(files=files, craters=len(catalog),
                 rocks=None if rock_catalog is None else len(rock_catalog),
                 stages=stages, finest_resolution=float(plan[-1][1]))
+
+
+def _fill_target(parent, law, chunk: int) -> float:
+    """Return a level's fill target from its parent read window by window, as in memory."""
+    from terrain.stack.slopelaw import fill_target, gradient_sample, map_halo
+
+    ny, nx = parent.shape
+    res = float(parent.transform.a)
+    halo = map_halo()
+    parts = []
+    for r0 in range(0, ny, chunk):
+        for c0 in range(0, nx, chunk):
+            r1, c1 = min(ny, r0 + chunk), min(nx, c0 + chunk)
+            w0, w1 = max(0, r0 - halo), min(ny, r1 + halo)
+            v0, v1 = max(0, c0 - halo), min(nx, c1 + halo)
+            grid, _ = parent.read(Window(v0, w0, v1 - v0, w1 - w0))
+            parts.append(gradient_sample(grid, res, (r0, c0), rows=(r0 - w0, r1 - 1 - w0),
+                                         cols=(c0 - v0, c1 - 1 - v0)))
+    return fill_target(np.concatenate(parts), res, law)
+
+
+def _parameters(reader, base, estimate: dict, slope_law):
+    """Return the expansion parameters: the slope law's (as in memory), else measured."""
+    from terrain.execution.chunked import estimate_parameters
+    from terrain.fractal.regolith import RegolithLaw
+    from terrain.stack.slopelaw import law_parameters
+
+    if slope_law is not None and estimate.get("fractal_dimension") is None \
+            and estimate.get("height_scale") is None:
+        regolith = estimate.get("regolith")
+        if isinstance(regolith, dict):
+            regolith = RegolithLaw(**regolith)
+        return law_parameters(slope_law, float(reader.resolution),
+                              max(2, max(reader.shape) - 1), regolith=regolith)
+    return estimate_parameters(base, **estimate)
 
 
 def _count_unknown(reader, chunk: int) -> int:

@@ -77,7 +77,7 @@ MANIFEST_KEYS = frozenset({
     "base_filled_pixels", "base_fill_roughness", "rocks", "rock_catalog", "rock_counts", "seed",
     "site", "levels", "layer_size", "expansion", "min_crater_pixels", "population",
     "crater_model", "chunked", "source", "command", "craterscape_version", "edits",
-    "repose"})
+    "repose", "slope_law"})
 #: Keys of each layer's entry in a manifest.
 LAYER_KEYS = frozenset({"level", "file", "resolution", "width", "height", "bounds", "transform",
                         "parent", "window_in_parent", "origin"})

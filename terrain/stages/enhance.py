@@ -75,6 +75,15 @@ def _regolith(spec: EnhanceSpec) -> Any:
     return None if spec.no_regolith else RegolithLaw()
 
 
+def _slope_law(spec: EnhanceSpec) -> Any:
+    """Return the preset whose slope law the layers follow (None where F or H is given)."""
+    from terrain.core.presets import preset
+
+    if spec.fractal_dimension is not None or spec.height_scale is not None:
+        return None
+    return preset(spec.terrain)
+
+
 def _site(spec: EnhanceSpec, reader: Any) -> tuple[float, float]:
     """Return the landing site in map coordinates: given, from LON,LAT, or the DEM's centre."""
     from terrain.io import lonlat_to_xy
@@ -162,7 +171,8 @@ def enhance(spec: EnhanceSpec, source: Path, output: Path, execution: Execution,
                             params=RoughnessChoice(spec.fractal_dimension, spec.height_scale,
                                                    spec.uniform_roughness, _regolith(spec)),
                             min_crater_pixels=spec.min_crater_pixels, progress=bar,
-                            rocks=rocks, keep_known=True, repose=repose(spec))
+                            rocks=rocks, keep_known=True, repose=repose(spec),
+                            slope_law=_slope_law(spec))
     stack = stack.with_info(source=str(source), command="terrain enhance",
                             craterscape_version=mk.version())
     write_stack(stack, output, inputs=[source], known=exact)
@@ -212,7 +222,7 @@ def _chunked(spec: EnhanceSpec, source: Path, output: Path, execution: Execution
                 progress=stage_progress,
                 halo=DEFAULT_HALO if spec.halo is None else spec.halo, inputs=[source],
                 keep_known=True,
-                repose=repose(spec),
+                repose=repose(spec), slope_law=_slope_law(spec),
                 info=dict(source=str(source), command="terrain enhance",
                           craterscape_version=mk.version()))
     computed = sum(s["computed"] for s in result["stages"].values())
