@@ -12,10 +12,18 @@ whose edges stay below ``RenderOptions.lod_pixels`` on screen at the body's near
 
 Shadows: one orthographic map fitted to the body's bounding sphere, re-rendered every frame
 (the body turns under the sun).
+
+Scattered light: with ``RenderOptions.scattering`` on, the sunlight the body scatters once
+into itself is computed on its coarsest level of detail for the body-frame sun
+(:mod:`render.body_scattering`) and carried to every level's vertices from the nearest patch
+vertex facing the same way, as a vertex attribute. A body whose coarsest level holds more
+than :data:`render.body_scattering.MAX_PATCH_FACES` faces gets none (give it a coarser level
+with :meth:`MeshScene.add_lod`).
 """
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -40,6 +48,8 @@ if TYPE_CHECKING:
     from render.renderer import Lighting, RenderOptions, View
 
 __all__ = ["CHUNK", "MeshScene", "vertex_normals"]
+
+log = logging.getLogger(__name__)
 
 #: Triangles per culling chunk.
 CHUNK = 4096
@@ -96,6 +106,10 @@ class _Lod:
     triangles: int
     vaos: dict
     abo: object = None    # per-vertex albedo factors (float32), or None
+    sbo: object = None    # per-vertex scattered irradiance (float32), rewritten per sun
+    scatter_at: np.ndarray | None = None  # the patch vertex each vertex takes its light from
+    scatter_key: object = None            # the patch irradiance the buffer holds (its id)
+    source: int = 0                       # index of its mesh in the scene's meshes
 
 
 class MeshScene:
@@ -124,6 +138,7 @@ class MeshScene:
         self._meshes: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]] = []
         self._gpu: dict = {}
         self._shadow: ShadowMap | None = None
+        self._light: Any = None  # render.body_scattering.BodyLight (False: too large)
         self.add_lod(vertices, faces, albedo=albedo)
 
     def add_lod(self, vertices: np.ndarray, faces: np.ndarray, *,
@@ -155,6 +170,7 @@ class MeshScene:
         self._meshes.append((v, f, albedo))
         self._meshes.sort(key=lambda vf: len(vf[1]), reverse=True)
         self._gpu.clear()
+        self._light = None
 
     @property
     def reach(self) -> float:
@@ -203,7 +219,7 @@ class MeshScene:
         if ctx in self._gpu:
             return self._gpu[ctx]
         lods = []
-        for v, f, albedo in self._meshes:
+        for source, (v, f, albedo) in enumerate(self._meshes):
             n = vertex_normals(v, f)
             order = _morton_order(v[f].mean(axis=1))
             f = f[order]
@@ -220,14 +236,16 @@ class MeshScene:
             vbo = gpu.buffer(np.hstack([v, n]).astype(np.float32).tobytes())
             ibo = gpu.buffer(f.astype(np.uint32).tobytes())
             abo = None if albedo is None else gpu.buffer(albedo.tobytes())
-            lods.append(_Lod(vbo, ibo, centres, radii, firsts, counts, edge, len(f), {}, abo))
+            sbo = gpu.buffer(np.zeros(len(v), np.float32).tobytes())
+            lods.append(_Lod(vbo, ibo, centres, radii, firsts, counts, edge, len(f), {}, abo,
+                             sbo, source=source))
         self._gpu[ctx] = lods
         return lods
 
     def _vaos(self, gpu, lod: _Lod):
         key = gpu.token
         if key not in lod.vaos:
-            lod.vaos[key] = gpu.vertex_arrays(lod.vbo, lod.ibo, lod.abo)
+            lod.vaos[key] = gpu.vertex_arrays(lod.vbo, lod.ibo, lod.abo, scatter=lod.sbo)
         return lod.vaos[key]
 
     # ------------------------------------------------------------------ per frame
@@ -295,13 +313,49 @@ class MeshScene:
         tris = int(chosen.counts[chunks].sum()) // 3
         shadow = self._shadow_map(gpu, lighting, options, chosen) \
             if options.shadows and lighting is not None else None
+        scatter = bool(options.scattering and lighting is not None
+                       and self._scatter_into(chosen, lighting))
         batch = DrawBatch(vao, dvao, ranges, world_from_model=self.rotation,
                           model_offset=np.zeros(3), shadow=shadow, triangles=tris,
-                          vertex_albedo=chosen.abo is not None)
+                          vertex_albedo=chosen.abo is not None, vertex_scatter=scatter)
         far = far_plane(float(np.linalg.norm(cam) + self.reach))
         drawn = {"triangles": tris, "chunks": int(chunks.size), "lod_edge_m": chosen.edge,
                  "lod_triangles": chosen.triangles}
         return FrameState([batch], far, drawn)
+
+    def _scatter_into(self, lod: _Lod, lighting: Lighting) -> bool:
+        """Write the body's scattered light for the frame's sun into a level's buffer.
+
+        Returns False where the body gets none (its coarsest level is too large).
+        """
+        from scipy.spatial import cKDTree
+
+        from render.body_scattering import MAX_PATCH_FACES, BodyLight
+
+        pv, pf, palbedo = self._meshes[-1]
+        if self._light is None:
+            if len(pf) > MAX_PATCH_FACES:
+                log.warning("mesh scene: no scattered light: the coarsest level has %d faces, "
+                            "more than %d", len(pf), MAX_PATCH_FACES)
+                self._light = False
+            else:
+                self._light = BodyLight(pv, pf, albedo=palbedo)
+        if self._light is False:
+            return False
+        if lod.scatter_at is None:
+            v, f, _ = self._meshes[lod.source]
+            if lod.source == len(self._meshes) - 1:
+                lod.scatter_at = np.arange(len(v))
+            else:  # nearest patch vertex facing the same way (not across a thin wall)
+                scale = float(np.median(np.linalg.norm(pv[pf[:, 0]] - pv[pf[:, 1]], axis=1)))
+                tree = cKDTree(np.hstack([pv, scale * self._light.normals_v]))
+                lod.scatter_at = tree.query(np.hstack([v, scale * vertex_normals(v, f)]))[1]
+        sun = self.rotation.T @ np.asarray(lighting.sun, dtype=np.float64)
+        e = self._light.irradiance(sun, lighting.albedo)
+        if lod.scatter_key is not e:
+            lod.sbo.write(e[lod.scatter_at].astype(np.float32).tobytes())
+            lod.scatter_key = e
+        return True
 
     def shadow_casters(self, gpu: Gpu, extent: float, size: int) -> list[DrawBatch]:
         """Give the depth batch that casts the body's shadows into a map of ``extent``.
