@@ -144,7 +144,7 @@ class _BodyLod:
     abo: object = None    # per-vertex albedo factors (float32) or None
     morph: object = None   # per-vertex targets on the next coarser level (None: coarsest)
     cube: object = None    # the finest level's normals by direction (finest level only)
-    sbo: object = None     # per-vertex scattered irradiance (float32), rewritten per sun
+    sbo: Any = None        # per-vertex scattered irradiance (float32), rewritten per sun
     scatter_at: tuple | None = None  # patch vertices (n, 3) and weights (n, 3) per vertex
     scatter_key: object = None       # the patch irradiance the buffer holds (its id)
 

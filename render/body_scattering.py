@@ -7,10 +7,12 @@ scattering (Cohen & Wallace 1993, *Radiosity and Realistic Image Synthesis*, ch.
 
 - **Geometry, once.** Receivers are the patch mesh's vertices (position p_i, normal n_i);
   sources are its faces (centroid c_j, normal m_j, area A_j). The view factor from a receiver
-  to a source is ``F_ij = cos t_i cos t_j A_j / (pi r^2 + A_j)`` with ``r = |c_j - p_i|`` and
-  the cosines of the ray between them with each normal (the point-to-disk form of Wallace,
-  Elmquist & Haines 1989, SIGGRAPH, "A ray tracing algorithm for progressive radiosity",
-  eq. 4: the differential form ``cos cos A / (pi r^2)`` that stays finite for neighbours),
+  to a source is ``F_ij = a / (pi r^2 + a)``, ``a = cos t_i cos t_j A_j``, with
+  ``r = |c_j - p_i|`` and the cosines of the ray between them with each normal: the view
+  factor of a coaxial disk, ``A / (pi r^2 + A)`` (Wallace, Elmquist & Haines 1989, SIGGRAPH,
+  "A ray tracing algorithm for progressive radiosity"), with the disk's area as seen along
+  the ray from both ends, which is the differential form ``cos t_i cos t_j A / (pi r^2)``
+  where ``r^2 >> A`` and stays below 1 for neighbours,
   kept where both cosines are positive and a ray from the receiver to the source's centroid
   meets no other face (a bounding-volume hierarchy over the faces). It depends on the shape
   alone, so it is computed once per body: a sparse matrix of the pairs that see each other
@@ -18,10 +20,10 @@ scattering (Cohen & Wallace 1993, *Radiosity and Realistic Image Synthesis*, ch.
 - **Light, per sun direction.** A source's radiosity over the solar irradiance is
   ``B_j = A a_j mu0_j v_j`` (A the scene's normal albedo, a_j the face's albedo factor, mu0_j
   its cosine to the sun, v_j the fraction of :data:`SUN_SAMPLES` rays from points of the
-  face to the sun that meet no face): the sources are Lambertian. The scattered irradiance over the solar irradiance is
-  ``E_i = sum_j F_ij B_j`` (a matrix-vector product), which the fragment shader adds as a
-  Lambertian response of the surface's albedo, as it does the terrain's
-  (:mod:`render.scattering`). Light scattered twice or more (another factor of A) is left
+  face to the sun that meet no face): the sources are Lambertian. The scattered irradiance
+  over the solar irradiance is ``E_i = sum_j F_ij B_j`` (a matrix-vector product), which
+  the fragment shader adds as a Lambertian response of the surface's albedo, as it does the
+  terrain's (:mod:`render.scattering`). Light scattered twice or more (another factor of A) is left
   out, and the sun is a point for the sources (a penumbra's share of a source is small).
 - **Sun directions on a fixed lattice.** The body-frame sun is snapped to a lattice of
   directions :data:`SUN_STEP_DEG` apart (:func:`snap_direction`) and the result cached per
@@ -116,7 +118,12 @@ def _build_bvh(v0: np.ndarray, v1: np.ndarray, v2: np.ndarray):
     hi_t = np.maximum(np.maximum(v0, v1), v2)
     cen = (lo_t + hi_t) * 0.5
     order = np.arange(len(v0))
-    lo, hi, left, right, first, count = [], [], [], [], [], []
+    lo: list = []
+    hi: list = []
+    left: list = []
+    right: list = []
+    first: list = []
+    count: list = []
     stack = [(0, len(v0), -1, 0)]  # (start, end, parent, side)
     while stack:
         s, e, parent, side = stack.pop()
@@ -331,7 +338,8 @@ class BodyLight:
                      np.ascontiguousarray(e2))
         edge = float(np.median(np.linalg.norm(e1, axis=1)))
         self.eps = RAY_OFFSET * edge
-        rows, cols, vals = _view_factors(self.vertices, self.normals_v, self.centroids,
+        view_factors: Any = _view_factors  # a numba dispatcher
+        rows, cols, vals = view_factors(self.vertices, self.normals_v, self.centroids,
                                          self.normals_f, self.area, self.eps, *self._bvh,
                                          *self._tri)
         self.matrix = scipy.sparse.csr_matrix((vals, (rows, cols)),
@@ -362,7 +370,9 @@ class BodyLight:
         if key in self._cache:
             self._cache.move_to_end(key)
             return self._cache[key]
-        mu0 = _sunlit(self.centroids, self._corners, self.normals_f, s, self.eps, *self._bvh, *self._tri)
+        sunlit: Any = _sunlit
+        mu0 = sunlit(self.centroids, self._corners, self.normals_f, s, self.eps, *self._bvh,
+                      *self._tri)
         e = (self.matrix @ (float(albedo) * self.face_albedo * mu0)).astype(np.float32)
         self._cache[key] = e
         while len(self._cache) > CACHE:

@@ -106,7 +106,7 @@ class _Lod:
     triangles: int
     vaos: dict
     abo: object = None    # per-vertex albedo factors (float32), or None
-    sbo: object = None    # per-vertex scattered irradiance (float32), rewritten per sun
+    sbo: Any = None       # per-vertex scattered irradiance (float32), rewritten per sun
     scatter_at: np.ndarray | None = None  # the patch vertex each vertex takes its light from
     scatter_key: object = None            # the patch irradiance the buffer holds (its id)
     source: int = 0                       # index of its mesh in the scene's meshes
