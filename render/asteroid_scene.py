@@ -145,8 +145,8 @@ class _BodyLod:
     morph: object = None   # per-vertex targets on the next coarser level (None: coarsest)
     cube: object = None    # the finest level's normals by direction (finest level only)
     sbo: Any = None        # per-vertex scattered irradiance (float32), rewritten per sun
-    scatter_at: tuple | None = None  # patch vertices (n, 3) and weights (n, 3) per vertex
-    scatter_key: object = None       # the patch irradiance the buffer holds (its id)
+    scatter_at: Any = None  # (n, patch vertices) sparse interpolation from the patch mesh
+    scatter_key: Any = None  # the patch irradiances the buffer holds (own, extra)
 
 
 @dataclass(eq=False)
@@ -216,6 +216,9 @@ class AsteroidScene:
         self._shadow: ShadowMap | None = None
         self._fine: list = []
         self._light: Any = None  # render.body_scattering.BodyLight, built on first use
+        #: Scattered light from elsewhere (E / F per patch vertex of :meth:`body_light`, e.g.
+        #: a binary's other body), added to the body's own; None: none.
+        self.extra_scatter: np.ndarray | None = None
         self.albedo: np.ndarray | None = None
         if albedo is not None:
             if isinstance(albedo, (str, Path)):
@@ -487,8 +490,16 @@ class AsteroidScene:
             drawn["imposter_fade"] = float(imposter.blend)
         return FrameState(batches, far, drawn)
 
-    def _scatter_into(self, lod: _BodyLod, lighting: Lighting) -> None:
-        """Write the body's scattered light for the frame's sun into a level's buffer."""
+    def body_light(self) -> Any:
+        """Give the body's scattered light (a :class:`render.body_scattering.BodyLight`).
+
+        Built on first use, on the sphere mesh of magnitude :data:`SCATTER_MAGNITUDE`.
+
+        Returns
+        -------
+        render.body_scattering.BodyLight
+            View factors of the patch mesh, body frame.
+        """
         from asteroid.sphere import SphereMesh
         from render.body_scattering import BodyLight
 
@@ -501,15 +512,30 @@ class AsteroidScene:
                                     albedo=self._albedo_on(patch))
             log.info("asteroid scene: scattered light on %d patch vertices, %d pairs in view",
                      patch.n_vertices, self._light.pairs)
-        if lod.scatter_at is None:
+        return self._light
+
+    def _scatter_into(self, lod: _BodyLod, lighting: Lighting) -> None:
+        """Write the body's scattered light for the frame's sun into a level's buffer."""
+        from asteroid.sphere import SphereMesh
+
+        light = self.body_light()
+        patch = SphereMesh(min(SCATTER_MAGNITUDE, self.body.magnitude))
+        if lod.scatter_at is None:  # (vertices, patch vertices) interpolation weights
+            import scipy.sparse
+
             _, idx, w = patch.locate(SphereMesh(lod.magnitude).directions())
-            lod.scatter_at = (idx, w / w.sum(axis=1, keepdims=True))
+            rows = np.repeat(np.arange(len(idx)), 3)
+            lod.scatter_at = scipy.sparse.csr_matrix(
+                ((w / w.sum(axis=1, keepdims=True)).ravel(), (rows, idx.ravel())),
+                shape=(len(idx), patch.n_vertices))
         sun = self.rotation.T @ np.asarray(lighting.sun, dtype=np.float64)
-        e = self._light.irradiance(sun, lighting.albedo)
-        if lod.scatter_key is not e:
-            idx, w = lod.scatter_at
-            lod.sbo.write((e[idx] * w).sum(axis=1).astype(np.float32).tobytes())
-            lod.scatter_key = e
+        e = light.irradiance(sun, lighting.albedo)
+        extra = self.extra_scatter
+        if lod.scatter_key is None or lod.scatter_key[0] is not e \
+                or lod.scatter_key[1] is not extra:
+            total = e if extra is None else e + extra
+            lod.sbo.write((lod.scatter_at @ total).astype(np.float32).tobytes())
+            lod.scatter_key = (e, extra)
 
     def _boulder_batches(self, batches, levels, view, options, gpu, shadow):
         if not levels:

@@ -53,7 +53,8 @@ import scipy.sparse
 
 from terrain.core.errors import InvalidParameterError
 
-__all__ = ["MAX_PATCH_FACES", "SUN_STEP_DEG", "BodyLight", "snap_direction"]
+__all__ = ["MAX_PATCH_FACES", "SUN_STEP_DEG", "BodyLight", "mutual_irradiance",
+           "snap_direction"]
 
 log = logging.getLogger(__name__)
 
@@ -284,6 +285,30 @@ def _sunlit(c, corners, m, s, eps, lo, hi, left, right, first, count, order, v0,
     return out
 
 
+@numba.njit(cache=True)
+def _mutual(p, n, c, m, area, b):
+    """Irradiance at receivers (p, n) from Lambertian faces (c, m, area) of radiosity b."""
+    out = np.zeros(p.shape[0])
+    for j in range(c.shape[0]):
+        if b[j] <= 0.0:
+            continue
+        for i in range(p.shape[0]):
+            dx = c[j, 0] - p[i, 0]
+            dy = c[j, 1] - p[i, 1]
+            dz = c[j, 2] - p[i, 2]
+            r2 = dx * dx + dy * dy + dz * dz
+            if r2 <= 0.0:
+                continue
+            r = math.sqrt(r2)
+            ci = (n[i, 0] * dx + n[i, 1] * dy + n[i, 2] * dz) / r
+            cj = -(m[j, 0] * dx + m[j, 1] * dy + m[j, 2] * dz) / r
+            if ci <= 0.0 or cj <= 0.0:
+                continue
+            a = ci * cj * area[j]
+            out[i] += b[j] * a / (math.pi * r2 + a)
+    return out
+
+
 class BodyLight:
     """A body's single scattering: view factors once, irradiance per sun (module docstring).
 
@@ -345,7 +370,41 @@ class BodyLight:
         self.matrix = scipy.sparse.csr_matrix((vals, (rows, cols)),
                                               shape=(len(v), len(self.area)))
         self.pairs = int(len(vals))
+        # only faces some receiver sees need their sunlight: on a mostly convex body, few
+        self._seen = np.flatnonzero(np.diff(self.matrix.tocsc().indptr) > 0)
+        self._matrix_seen = self.matrix[:, self._seen].tocsr()
         self._cache: OrderedDict = OrderedDict()
+
+    def radiosity(self, sun: Any, albedo: float) -> np.ndarray:
+        """Give every face's radiosity over the solar irradiance, ``A a_j mu0_j v_j``.
+
+        The sun is snapped to the lattice of :func:`snap_direction` and the result cached.
+
+        Parameters
+        ----------
+        sun : (3,) float
+            Direction towards the sun, body frame.
+        albedo : float
+            The scene's normal albedo A.
+
+        Returns
+        -------
+        (m,) float64
+            One value per face of positive area.
+        """
+        s = np.asarray(snap_direction(sun, SUN_STEP_DEG), dtype=np.float64)
+        key = ("radiosity", tuple(s.tolist()), float(albedo))
+        if key not in self._cache:
+            sunlit: Any = _sunlit
+            mu0 = sunlit(self.centroids, self._corners, self.normals_f, s, self.eps,
+                         *self._bvh, *self._tri)
+            b = float(albedo) * self.face_albedo * mu0
+            b.flags.writeable = False
+            self._cache[key] = b
+            while len(self._cache) > CACHE:
+                self._cache.popitem(last=False)
+        self._cache.move_to_end(key)
+        return self._cache[key]
 
     def irradiance(self, sun: Any, albedo: float, *, snap: bool = True) -> np.ndarray:
         """Give the scattered irradiance over the solar irradiance at every patch vertex.
@@ -371,10 +430,49 @@ class BodyLight:
             self._cache.move_to_end(key)
             return self._cache[key]
         sunlit: Any = _sunlit
-        mu0 = sunlit(self.centroids, self._corners, self.normals_f, s, self.eps, *self._bvh,
-                      *self._tri)
-        e = (self.matrix @ (float(albedo) * self.face_albedo * mu0)).astype(np.float32)
+        j = self._seen
+        mu0 = sunlit(self.centroids[j], self._corners[j], self.normals_f[j], s, self.eps,
+                     *self._bvh, *self._tri)
+        e = (self._matrix_seen @ (float(albedo) * self.face_albedo[j] * mu0)).astype(np.float32)
+        e.flags.writeable = False
         self._cache[key] = e
         while len(self._cache) > CACHE:
             self._cache.popitem(last=False)
         return e
+
+
+def mutual_irradiance(receiver: BodyLight, source: BodyLight, rotation: Any, offset: Any,
+                      sun: Any, albedo: float) -> np.ndarray:
+    """Give the irradiance one body's sunlit surface sends onto another's patch vertices.
+
+    The source's faces are Lambertian of radiosity ``A a_j mu0_j v_j`` (their own sunlight
+    with the source's own shadows, :meth:`BodyLight.radiosity`), seen from each receiver vertex
+    with the view factor of :class:`BodyLight` where each faces the other; nothing between
+    them is looked for (the bodies are apart, and a receiver's own horizon is its tangent
+    plane), nor the source's eclipse by the receiver.
+
+    Parameters
+    ----------
+    receiver, source : BodyLight
+        The two bodies' patch meshes, each in its own body frame.
+    rotation : (3, 3) float
+        Source body frame to receiver body frame.
+    offset : (3,) float, metres
+        The source's centre in the receiver's body frame.
+    sun : (3,) float
+        Direction towards the sun, the source's body frame.
+    albedo : float
+        The scene's normal albedo A.
+
+    Returns
+    -------
+    (n,) float32
+        E / F per receiver patch vertex.
+    """
+    rot = np.asarray(rotation, dtype=np.float64).reshape(3, 3)
+    b = source.radiosity(sun, albedo)
+    c = source.centroids @ rot.T + np.asarray(offset, dtype=np.float64).reshape(3)
+    m = source.normals_f @ rot.T
+    mutual: Any = _mutual
+    return mutual(receiver.vertices, receiver.normals_v, c, m, source.area, b).astype(
+        np.float32)

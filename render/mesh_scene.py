@@ -108,7 +108,7 @@ class _Lod:
     abo: object = None    # per-vertex albedo factors (float32), or None
     sbo: Any = None       # per-vertex scattered irradiance (float32), rewritten per sun
     scatter_at: np.ndarray | None = None  # the patch vertex each vertex takes its light from
-    scatter_key: object = None            # the patch irradiance the buffer holds (its id)
+    scatter_key: Any = None               # the patch irradiances it holds (own, extra)
     source: int = 0                       # index of its mesh in the scene's meshes
 
 
@@ -139,6 +139,9 @@ class MeshScene:
         self._gpu: dict = {}
         self._shadow: ShadowMap | None = None
         self._light: Any = None  # render.body_scattering.BodyLight (False: too large)
+        #: Scattered light from elsewhere (E / F per patch vertex of :meth:`body_light`, e.g.
+        #: a binary's other body), added to the body's own; None: none.
+        self.extra_scatter: np.ndarray | None = None
         self.add_lod(vertices, faces, albedo=albedo)
 
     def add_lod(self, vertices: np.ndarray, faces: np.ndarray, *,
@@ -323,13 +326,17 @@ class MeshScene:
                  "lod_triangles": chosen.triangles}
         return FrameState([batch], far, drawn)
 
-    def _scatter_into(self, lod: _Lod, lighting: Lighting) -> bool:
-        """Write the body's scattered light for the frame's sun into a level's buffer.
+    def body_light(self) -> Any:
+        """Give the body's scattered light (a :class:`render.body_scattering.BodyLight`).
 
-        Returns False where the body gets none (its coarsest level is too large).
+        Built on first use, on the coarsest level of detail.
+
+        Returns
+        -------
+        render.body_scattering.BodyLight or None
+            View factors of the patch mesh, body frame; None where the coarsest level holds
+            more than :data:`render.body_scattering.MAX_PATCH_FACES` faces.
         """
-        from scipy.spatial import cKDTree
-
         from render.body_scattering import MAX_PATCH_FACES, BodyLight
 
         pv, pf, palbedo = self._meshes[-1]
@@ -340,21 +347,35 @@ class MeshScene:
                 self._light = False
             else:
                 self._light = BodyLight(pv, pf, albedo=palbedo)
-        if self._light is False:
+        return self._light or None
+
+    def _scatter_into(self, lod: _Lod, lighting: Lighting) -> bool:
+        """Write the body's scattered light for the frame's sun into a level's buffer.
+
+        Returns False where the body gets none (its coarsest level is too large).
+        """
+        from scipy.spatial import cKDTree
+
+        light = self.body_light()
+        if light is None:
             return False
+        pv, pf, _ = self._meshes[-1]
         if lod.scatter_at is None:
             v, f, _ = self._meshes[lod.source]
             if lod.source == len(self._meshes) - 1:
                 lod.scatter_at = np.arange(len(v))
             else:  # nearest patch vertex facing the same way (not across a thin wall)
                 scale = float(np.median(np.linalg.norm(pv[pf[:, 0]] - pv[pf[:, 1]], axis=1)))
-                tree = cKDTree(np.hstack([pv, scale * self._light.normals_v]))
+                tree = cKDTree(np.hstack([pv, scale * light.normals_v]))
                 lod.scatter_at = tree.query(np.hstack([v, scale * vertex_normals(v, f)]))[1]
         sun = self.rotation.T @ np.asarray(lighting.sun, dtype=np.float64)
-        e = self._light.irradiance(sun, lighting.albedo)
-        if lod.scatter_key is not e:
-            lod.sbo.write(e[lod.scatter_at].astype(np.float32).tobytes())
-            lod.scatter_key = e
+        e = light.irradiance(sun, lighting.albedo)
+        extra = self.extra_scatter
+        if lod.scatter_key is None or lod.scatter_key[0] is not e \
+                or lod.scatter_key[1] is not extra:
+            total = e if extra is None else e + extra
+            lod.sbo.write(total[lod.scatter_at].astype(np.float32).tobytes())
+            lod.scatter_key = (e, extra)
         return True
 
     def shadow_casters(self, gpu: Gpu, extent: float, size: int) -> list[DrawBatch]:

@@ -132,3 +132,26 @@ def test_rendered_bowl_shadow_holds_the_scattered_light(renderer):
     # where sunlit, the scattered light adds the same to the direct light
     lit = np.isfinite(off.range) & (off.radiance > 0.02)
     assert np.allclose(on.radiance[lit] - off.radiance[lit], expected, rtol=0.15)
+
+
+@pytest.mark.parametrize("phase", [0.0, 60.0, 90.0])
+def test_a_far_lambert_sphere_lights_a_second_body_as_its_phase_law_says(phase):
+    """A Lambertian sphere of radius a and albedo A at distance d and phase angle g sends
+    E / F = (2/3) A (a/d)^2 (sin g + (pi - g) cos g) / pi onto a surface facing it (its
+    geometric albedo 2A/3 and the Lambert sphere's phase law; Russell 1916, ApJ 43, 173):
+    within 5 % at 30 radii."""
+    from asteroid.sphere import SphereMesh
+    from render.body_scattering import BodyLight, mutual_irradiance
+
+    mesh = SphereMesh(16)
+    d = mesh.directions()
+    source, receiver = BodyLight(d * 1.0, mesh.faces()), BodyLight(d * 0.2, mesh.faces())
+    g = math.radians(phase)
+    distance = 30.0  # the source's centre at -x from the receiver's
+    e = mutual_irradiance(receiver, source, np.eye(3), (-distance, 0.0, 0.0),
+                          (math.cos(g), math.sin(g), 0.0), ALBEDO)
+    facing = int(np.argmin(d[:, 0]))
+    r = distance - 0.2
+    expected = 2.0 / 3.0 * ALBEDO / r**2 * (math.sin(g) + (math.pi - g) * math.cos(g)) / math.pi
+    assert e[facing] == pytest.approx(expected, rel=0.05)
+    assert np.all(e[d[:, 0] > 0.2] == 0), "the far side sees nothing of it"
