@@ -930,7 +930,8 @@ class RenderServer:
         axis = pose.rotation[:, 2]
         self.scene.set_body_rotation(self.body_rotation(t))  # a terrain ignores it
         view = View(pose, Intrinsics(1, 1, RAY_FOCAL, RAY_FOCAL, 0.0, 0.0), t)
-        options = dataclasses.replace(self.scenario.options, shadows=False)
+        # range and normals only: no shadows, no scattered light
+        options = dataclasses.replace(self.scenario.options, shadows=False, scattering=False)
         frame = self._gpu.render(self.scene, view, lighting, options)
         r = float(frame.range[0, 0])
         if not math.isfinite(r):
