@@ -53,8 +53,8 @@ import scipy.sparse
 
 from terrain.core.errors import InvalidParameterError
 
-__all__ = ["MAX_PATCH_FACES", "SUN_STEP_DEG", "BodyLight", "mutual_irradiance",
-           "snap_direction"]
+__all__ = ["MAX_PATCH_FACES", "PATCH_FACES", "SUN_STEP_DEG", "BodyLight", "cluster_mesh",
+           "mutual_irradiance", "snap_direction"]
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +63,8 @@ log = logging.getLogger(__name__)
 SUN_STEP_DEG = 1.0
 #: Patch meshes above this many faces are refused (the view factors grow with the square).
 MAX_PATCH_FACES = 40_000
+#: A mesh scene's patch mesh holds at most this many faces (a finer one is clustered).
+PATCH_FACES = 12_000
 #: Faces per leaf of the bounding-volume hierarchy.
 LEAF_FACES = 4
 #: Rays start this fraction of the median edge off their surface (no self-hits).
@@ -327,6 +329,8 @@ class BodyLight:
     ----------
     pairs : int
         Receiver-source pairs that see each other.
+    edge : float, metres
+        The patch mesh's median edge.
     """
 
     def __init__(self, vertices: Any, faces: Any, *, normals: Any = None,
@@ -362,6 +366,7 @@ class BodyLight:
         self._tri = (np.ascontiguousarray(a), np.ascontiguousarray(e1),
                      np.ascontiguousarray(e2))
         edge = float(np.median(np.linalg.norm(e1, axis=1)))
+        self.edge = edge
         self.eps = RAY_OFFSET * edge
         view_factors: Any = _view_factors  # a numba dispatcher
         rows, cols, vals = view_factors(self.vertices, self.normals_v, self.centroids,
@@ -476,3 +481,58 @@ def mutual_irradiance(receiver: BodyLight, source: BodyLight, rotation: Any, off
     mutual: Any = _mutual
     return mutual(receiver.vertices, receiver.normals_v, c, m, source.area, b).astype(
         np.float32)
+
+
+def cluster_mesh(vertices: Any, faces: Any, max_faces: int = PATCH_FACES
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Simplify a mesh to at most ``max_faces`` faces by vertex clustering.
+
+    The vertices in each cell of a cubic grid merge into their mean, and the faces whose
+    corners fall in fewer than three cells (or repeat another) go (Rossignac & Borrel 1993,
+    "Multi-resolution 3D approximations for rendering complex scenes"); the cell grows by a
+    quarter until the faces fit. The result need not be a closed surface, which the view
+    factors do not ask.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float, metres
+        The mesh's vertices.
+    faces : (m, 3) int
+        Its triangles (their winding is kept).
+    max_faces : int
+        The most faces wanted.
+
+    Returns
+    -------
+    vertices : (n', 3) float64
+    faces : (m', 3) int64
+        The simplified mesh (the input itself where it already fits).
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) <= max_faces:
+        return v, f
+    lo = v.min(axis=0)
+    area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]),
+                                axis=1).sum()
+    cell = math.sqrt(2.0 * area / max_faces)  # about two faces a cell
+    while True:
+        key = np.floor((v - lo) / cell).astype(np.int64)
+        _, label = np.unique(key, axis=0, return_inverse=True)
+        label = label.reshape(-1)
+        g = label[f]
+        keep = (g[:, 0] != g[:, 1]) & (g[:, 1] != g[:, 2]) & (g[:, 0] != g[:, 2])
+        g = g[keep]
+        _, first = np.unique(np.sort(g, axis=1), axis=0, return_index=True)
+        g = g[np.sort(first)]
+        if len(g) <= max_faces:
+            break
+        cell *= 1.25
+    count = np.bincount(label)
+    merged = np.zeros((len(count), 3))
+    for k in range(3):
+        merged[:, k] = np.bincount(label, weights=v[:, k]) / count
+    used = np.unique(g)
+    index = np.full(len(count), -1, np.int64)
+    index[used] = np.arange(len(used))
+    return merged[used], index[g]

@@ -14,11 +14,11 @@ Shadows: one orthographic map fitted to the body's bounding sphere, re-rendered 
 (the body turns under the sun).
 
 Scattered light: with ``RenderOptions.scattering`` on, the sunlight the body scatters once
-into itself is computed on its coarsest level of detail for the body-frame sun
+into itself is computed on a patch mesh, its coarsest level of detail (clustered down to
+:data:`render.body_scattering.PATCH_FACES` faces where it holds more,
+:func:`render.body_scattering.cluster_mesh`), for the body-frame sun
 (:mod:`render.body_scattering`) and carried to every level's vertices from the nearest patch
-vertex facing the same way, as a vertex attribute. A body whose coarsest level holds more
-than :data:`render.body_scattering.MAX_PATCH_FACES` faces gets none (give it a coarser level
-with :meth:`MeshScene.add_lod`).
+vertex facing the same way, as a vertex attribute.
 """
 
 from __future__ import annotations
@@ -329,43 +329,39 @@ class MeshScene:
     def body_light(self) -> Any:
         """Give the body's scattered light (a :class:`render.body_scattering.BodyLight`).
 
-        Built on first use, on the coarsest level of detail.
+        Built on first use, on the coarsest level of detail (clustered to at most
+        :data:`render.body_scattering.PATCH_FACES` faces).
 
         Returns
         -------
-        render.body_scattering.BodyLight or None
-            View factors of the patch mesh, body frame; None where the coarsest level holds
-            more than :data:`render.body_scattering.MAX_PATCH_FACES` faces.
+        render.body_scattering.BodyLight
+            View factors of the patch mesh, body frame.
         """
-        from render.body_scattering import MAX_PATCH_FACES, BodyLight
+        from render.body_scattering import PATCH_FACES, BodyLight, cluster_mesh
 
-        pv, pf, palbedo = self._meshes[-1]
         if self._light is None:
-            if len(pf) > MAX_PATCH_FACES:
-                log.warning("mesh scene: no scattered light: the coarsest level has %d faces, "
-                            "more than %d", len(pf), MAX_PATCH_FACES)
-                self._light = False
+            pv, pf, palbedo = self._meshes[-1]
+            if len(pf) > PATCH_FACES:
+                cv, cf = cluster_mesh(pv, pf, PATCH_FACES)
+                log.info("mesh scene: scattered light on %d faces clustered from %d",
+                         len(cf), len(pf))
+                self._light = BodyLight(cv, cf)  # albedo factors: 1 (they stay the receivers')
             else:
                 self._light = BodyLight(pv, pf, albedo=palbedo)
-        return self._light or None
+        return self._light
 
     def _scatter_into(self, lod: _Lod, lighting: Lighting) -> bool:
-        """Write the body's scattered light for the frame's sun into a level's buffer.
-
-        Returns False where the body gets none (its coarsest level is too large).
-        """
+        """Write the body's scattered light for the frame's sun into a level's buffer."""
         from scipy.spatial import cKDTree
 
         light = self.body_light()
-        if light is None:
-            return False
-        pv, pf, _ = self._meshes[-1]
+        pv = light.vertices
         if lod.scatter_at is None:
             v, f, _ = self._meshes[lod.source]
-            if lod.source == len(self._meshes) - 1:
+            if len(v) == len(pv) and np.array_equal(v, pv):
                 lod.scatter_at = np.arange(len(v))
             else:  # nearest patch vertex facing the same way (not across a thin wall)
-                scale = float(np.median(np.linalg.norm(pv[pf[:, 0]] - pv[pf[:, 1]], axis=1)))
+                scale = light.edge
                 tree = cKDTree(np.hstack([pv, scale * light.normals_v]))
                 lod.scatter_at = tree.query(np.hstack([v, scale * vertex_normals(v, f)]))[1]
         sun = self.rotation.T @ np.asarray(lighting.sun, dtype=np.float64)
