@@ -40,6 +40,13 @@ direction meets (the body is star-shaped about its centre), so the shading of th
 and every shading corner a tracker follows, stays on the surface while levels change; the
 normal images are these normals too. Boulders keep their own.
 
+Scattered light: with ``RenderOptions.scattering`` on, the sunlight the body scatters once
+into itself (its shadows included) is computed on a patch mesh of magnitude
+:data:`SCATTER_MAGNITUDE` for the body-frame sun (:mod:`render.body_scattering`: view
+factors once, irradiance per sun direction on a one-degree lattice) and carried to each
+level's vertices by direction (inside the patch triangle each direction meets), as a vertex
+attribute the fragment stage adds as a Lambertian response. Boulders get none.
+
 Shadows: one orthographic map fitted to the body's bounding sphere, whose projection depends
 on the sun alone (never on the camera), with casters drawn at one level of detail chosen from
 the map's texel size (never from the camera's distance), so nothing in the map changes as the
@@ -117,6 +124,9 @@ SHADOW_CELL_TEXELS = 2.0
 #: An icosahedron of radius r refined l times has edges of about this times ``r / 2^l`` (the
 #: unrefined edge is ``r / sin(2 pi / 5)`` = 1.0515 r): boulder levels are chosen by it.
 ICOSAHEDRON_EDGE = 1.05
+#: The body's scattered light is computed on the sphere mesh of this magnitude (6 M^2 + 2
+#: receivers; the finest level where that is coarser): scattered light is smooth.
+SCATTER_MAGNITUDE = 24
 
 
 @dataclass(eq=False)
@@ -134,6 +144,9 @@ class _BodyLod:
     abo: object = None    # per-vertex albedo factors (float32) or None
     morph: object = None   # per-vertex targets on the next coarser level (None: coarsest)
     cube: object = None    # the finest level's normals by direction (finest level only)
+    sbo: Any = None        # per-vertex scattered irradiance (float32), rewritten per sun
+    scatter_at: Any = None  # (n, patch vertices) sparse interpolation from the patch mesh
+    scatter_key: Any = None  # the patch irradiances the buffer holds (own, extra)
 
 
 @dataclass(eq=False)
@@ -202,6 +215,10 @@ class AsteroidScene:
         self._gpu: dict = {}
         self._shadow: ShadowMap | None = None
         self._fine: list = []
+        self._light: Any = None  # render.body_scattering.BodyLight, built on first use
+        #: Scattered light from elsewhere (E / F per patch vertex of :meth:`body_light`, e.g.
+        #: a binary's other body), added to the body's own; None: none.
+        self.extra_scatter: np.ndarray | None = None
         self.albedo: np.ndarray | None = None
         if albedo is not None:
             if isinstance(albedo, (str, Path)):
@@ -305,7 +322,8 @@ class AsteroidScene:
             abo = None if albedo is None else gpu.buffer(albedo.tobytes())
             lods.append(_BodyLod(mag, spacing, len(faces), vbo, ibo,
                                  tree.spheres[leaves, :3].copy(), tree.spheres[leaves, 3].copy(),
-                                 np.array(firsts), np.array(counts), {}, abo))
+                                 np.array(firsts), np.array(counts), {}, abo,
+                                 sbo=gpu.buffer(np.zeros(len(verts), np.float32).tobytes())))
             surfaces.append((mesh, radii, normals))
         for fine, (mesh, _, _), (coarse, c_radii, c_normals) in zip(
                 lods[:-1], surfaces[:-1], surfaces[1:], strict=True):
@@ -334,7 +352,8 @@ class AsteroidScene:
     def _vaos(gpu, item):
         key = gpu.token
         if key not in item.vaos:
-            item.vaos[key] = gpu.vertex_arrays(item.vbo, item.ibo, item.abo, morph=item.morph)
+            item.vaos[key] = gpu.vertex_arrays(item.vbo, item.ibo, item.abo, morph=item.morph,
+                                               scatter=getattr(item, "sbo", None))
         return item.vaos[key]
 
     def _rocks(self) -> Boulders:
@@ -454,10 +473,13 @@ class AsteroidScene:
             # every vertex has arrived on the next level where the planner switches to it
             switch = lods[chosen + 1].spacing * focal / options.lod_pixels
             morph = Morph(1, math.log2(switch), MORPH_BAND, level=1.0)
+        scatter = options.scattering and lighting is not None
+        if scatter:
+            self._scatter_into(body, lighting)
         batches = [DrawBatch(vao, dvao, ranges, world_from_model=self.rotation, shadow=shadow,
                              triangles=tris, vertex_albedo=body.abo is not None,
                              morph=morph, normal_cube=(lods[0].cube if options.geomorph
-                                                       else None))]
+                                                       else None), vertex_scatter=scatter)]
         drawn = {"body_magnitude": body.magnitude, "patches": int(patches.size),
                  "patches_total": int(len(body.radii)), "triangles": tris, "imposter": False}
         b_tris, counts = self._boulder_batches(batches, levels, view, options, gpu,
@@ -467,6 +489,53 @@ class AsteroidScene:
         if imposter is not None and imposter.blend is not None:
             drawn["imposter_fade"] = float(imposter.blend)
         return FrameState(batches, far, drawn)
+
+    def body_light(self) -> Any:
+        """Give the body's scattered light (a :class:`render.body_scattering.BodyLight`).
+
+        Built on first use, on the sphere mesh of magnitude :data:`SCATTER_MAGNITUDE`.
+
+        Returns
+        -------
+        render.body_scattering.BodyLight
+            View factors of the patch mesh, body frame.
+        """
+        from asteroid.sphere import SphereMesh
+        from render.body_scattering import BodyLight
+
+        mag = min(SCATTER_MAGNITUDE, self.body.magnitude)
+        patch = SphereMesh(mag)
+        if self._light is None:
+            radii = (np.asarray(self.body.radii, dtype=np.float64) if mag == self.body.magnitude
+                     else self.body.surface_radius(patch.directions()))
+            self._light = BodyLight(patch.directions() * radii[:, None], patch.faces(),
+                                    albedo=self._albedo_on(patch))
+            log.info("asteroid scene: scattered light on %d patch vertices, %d pairs in view",
+                     patch.n_vertices, self._light.pairs)
+        return self._light
+
+    def _scatter_into(self, lod: _BodyLod, lighting: Lighting) -> None:
+        """Write the body's scattered light for the frame's sun into a level's buffer."""
+        from asteroid.sphere import SphereMesh
+
+        light = self.body_light()
+        patch = SphereMesh(min(SCATTER_MAGNITUDE, self.body.magnitude))
+        if lod.scatter_at is None:  # (vertices, patch vertices) interpolation weights
+            import scipy.sparse
+
+            _, idx, w = patch.locate(SphereMesh(lod.magnitude).directions())
+            rows = np.repeat(np.arange(len(idx)), 3)
+            lod.scatter_at = scipy.sparse.csr_matrix(
+                ((w / w.sum(axis=1, keepdims=True)).ravel(), (rows, idx.ravel())),
+                shape=(len(idx), patch.n_vertices))
+        sun = self.rotation.T @ np.asarray(lighting.sun, dtype=np.float64)
+        e = light.irradiance(sun, lighting.albedo)
+        extra = self.extra_scatter
+        if lod.scatter_key is None or lod.scatter_key[0] is not e \
+                or lod.scatter_key[1] is not extra:
+            total = e if extra is None else e + extra
+            lod.sbo.write((lod.scatter_at @ total).astype(np.float32).tobytes())
+            lod.scatter_key = (e, extra)
 
     def _boulder_batches(self, batches, levels, view, options, gpu, shadow):
         if not levels:

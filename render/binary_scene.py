@@ -29,6 +29,11 @@ The world frame is inertial; the binary ignores a trajectory's body rotation
 distant binary is drawn as geometry at its coarsest levels of detail. A native body is shaded
 with its cube map of its finest normals as a single body is (``render/shaders/scene.frag``
 looks it up by the body-frame direction from the batch's model offset, the body's centre).
+
+Scattered light: with ``RenderOptions.scattering`` on, each body has its own (the body
+scene's, :mod:`render.body_scattering`) plus the light the other body's sunlit surface sends
+it (:func:`render.body_scattering.mutual_irradiance` between the two patch meshes, placed as
+the frame's time puts them; recomputed every frame, without looking for what lies between).
 """
 
 from __future__ import annotations
@@ -76,6 +81,11 @@ class BodyScene(Protocol):
 
     reach: float
     rotation: np.ndarray
+    extra_scatter: np.ndarray | None
+
+    def body_light(self) -> Any:
+        """Give the body's scattered light (render.body_scattering.BodyLight) or None."""
+        ...
 
     def set_body_rotation(self, quaternion: Any) -> None:
         """Set R_WB for the next frame."""
@@ -378,6 +388,7 @@ class BinaryScene:
         poses = self.body_poses(view.time)
         for body, (_, q) in zip(self.bodies, poses, strict=True):
             body.set_body_rotation(q)
+        self._mutual_light(poses, lighting if options.scattering else None)
         cam = np.asarray(view.pose.position, dtype=np.float64)
         own = replace(options, shadows=False)  # the binary draws the maps, with both casters
         batches: list[DrawBatch] = []
@@ -402,6 +413,22 @@ class BinaryScene:
             for batch, i in zip(batches, owner, strict=True):
                 batch.shadow = maps[i]
         return FrameState(batches, far_plane(far), drawn)
+
+    def _mutual_light(self, poses, lighting) -> None:
+        """Set each body's light from the other (None without ``lighting``)."""
+        from render.body_scattering import mutual_irradiance
+
+        lights: list[Any] = [body.body_light() if lighting is not None else None
+                             for body in self.bodies]
+        rots = [quat_to_matrix(q) for _, q in poses]
+        for recv, src in ((0, 1), (1, 0)):
+            if lights[recv] is None or lights[src] is None:
+                self.bodies[recv].extra_scatter = None
+                continue
+            offset = rots[recv].T @ (np.asarray(poses[src][0]) - np.asarray(poses[recv][0]))
+            self.bodies[recv].extra_scatter = mutual_irradiance(
+                lights[recv], lights[src], rots[recv].T @ rots[src], offset,
+                rots[src].T @ np.asarray(lighting.sun, dtype=np.float64), lighting.albedo)
 
     def _shadow_maps(self, gpu, lighting, options, poses) -> list[ShadowMap]:
         size = options.shadow_size

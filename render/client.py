@@ -194,6 +194,23 @@ class Client:
         return _json(self.request(MsgType.SET_LIGHT, json.dumps(settings).encode("utf-8")),
                      "SET_LIGHT")
 
+    def set_shading(self, **switches: bool) -> dict:
+        """Switch shading effects for this connection (SET_SHADING; other clients keep theirs).
+
+        Parameters
+        ----------
+        **switches : bool
+            Any of ``shadows``, ``soft_shadows``, ``scattering`` and ``earthshine`` (the
+            scenario's ``[render]`` keys); none: only ask what is in force.
+
+        Returns
+        -------
+        dict
+            Every switch in force on this connection.
+        """
+        return _json(self.request(MsgType.SET_SHADING, json.dumps(switches).encode("utf-8")),
+                     "SET_SHADING")
+
     def get_image(self, bits: int = 0) -> np.ndarray:
         """Return the camera image of the current pose.
 

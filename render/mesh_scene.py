@@ -12,10 +12,18 @@ whose edges stay below ``RenderOptions.lod_pixels`` on screen at the body's near
 
 Shadows: one orthographic map fitted to the body's bounding sphere, re-rendered every frame
 (the body turns under the sun).
+
+Scattered light: with ``RenderOptions.scattering`` on, the sunlight the body scatters once
+into itself is computed on a patch mesh, its coarsest level of detail (clustered down to
+:data:`render.body_scattering.PATCH_FACES` faces where it holds more,
+:func:`render.body_scattering.cluster_mesh`), for the body-frame sun
+(:mod:`render.body_scattering`) and carried to every level's vertices from the nearest patch
+vertex facing the same way, as a vertex attribute.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -40,6 +48,8 @@ if TYPE_CHECKING:
     from render.renderer import Lighting, RenderOptions, View
 
 __all__ = ["CHUNK", "MeshBodyScene", "MeshScene", "is_mesh_body", "vertex_normals"]
+
+log = logging.getLogger(__name__)
 
 #: Triangles per culling chunk.
 CHUNK = 4096
@@ -96,6 +106,10 @@ class _Lod:
     triangles: int
     vaos: dict
     abo: object = None    # per-vertex albedo factors (float32), or None
+    sbo: Any = None       # per-vertex scattered irradiance (float32), rewritten per sun
+    scatter_at: np.ndarray | None = None  # the patch vertex each vertex takes its light from
+    scatter_key: Any = None               # the patch irradiances it holds (own, extra)
+    source: int = 0                       # index of its mesh in the scene's meshes
 
 
 class MeshScene:
@@ -124,6 +138,10 @@ class MeshScene:
         self._meshes: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]] = []
         self._gpu: dict = {}
         self._shadow: ShadowMap | None = None
+        self._light: Any = None  # render.body_scattering.BodyLight (False: too large)
+        #: Scattered light from elsewhere (E / F per patch vertex of :meth:`body_light`, e.g.
+        #: a binary's other body), added to the body's own; None: none.
+        self.extra_scatter: np.ndarray | None = None
         self.add_lod(vertices, faces, albedo=albedo)
 
     def add_lod(self, vertices: np.ndarray, faces: np.ndarray, *,
@@ -155,6 +173,7 @@ class MeshScene:
         self._meshes.append((v, f, albedo))
         self._meshes.sort(key=lambda vf: len(vf[1]), reverse=True)
         self._gpu.clear()
+        self._light = None
 
     @property
     def reach(self) -> float:
@@ -203,7 +222,7 @@ class MeshScene:
         if ctx in self._gpu:
             return self._gpu[ctx]
         lods = []
-        for v, f, albedo in self._meshes:
+        for source, (v, f, albedo) in enumerate(self._meshes):
             n = vertex_normals(v, f)
             order = _morton_order(v[f].mean(axis=1))
             f = f[order]
@@ -220,14 +239,16 @@ class MeshScene:
             vbo = gpu.buffer(np.hstack([v, n]).astype(np.float32).tobytes())
             ibo = gpu.buffer(f.astype(np.uint32).tobytes())
             abo = None if albedo is None else gpu.buffer(albedo.tobytes())
-            lods.append(_Lod(vbo, ibo, centres, radii, firsts, counts, edge, len(f), {}, abo))
+            sbo = gpu.buffer(np.zeros(len(v), np.float32).tobytes())
+            lods.append(_Lod(vbo, ibo, centres, radii, firsts, counts, edge, len(f), {}, abo,
+                             sbo, source=source))
         self._gpu[ctx] = lods
         return lods
 
     def _vaos(self, gpu, lod: _Lod):
         key = gpu.token
         if key not in lod.vaos:
-            lod.vaos[key] = gpu.vertex_arrays(lod.vbo, lod.ibo, lod.abo)
+            lod.vaos[key] = gpu.vertex_arrays(lod.vbo, lod.ibo, lod.abo, scatter=lod.sbo)
         return lod.vaos[key]
 
     # ------------------------------------------------------------------ per frame
@@ -295,13 +316,63 @@ class MeshScene:
         tris = int(chosen.counts[chunks].sum()) // 3
         shadow = self._shadow_map(gpu, lighting, options, chosen) \
             if options.shadows and lighting is not None else None
+        scatter = bool(options.scattering and lighting is not None
+                       and self._scatter_into(chosen, lighting))
         batch = DrawBatch(vao, dvao, ranges, world_from_model=self.rotation,
                           model_offset=np.zeros(3), shadow=shadow, triangles=tris,
-                          vertex_albedo=chosen.abo is not None)
+                          vertex_albedo=chosen.abo is not None, vertex_scatter=scatter)
         far = far_plane(float(np.linalg.norm(cam) + self.reach))
         drawn = {"triangles": tris, "chunks": int(chunks.size), "lod_edge_m": chosen.edge,
                  "lod_triangles": chosen.triangles}
         return FrameState([batch], far, drawn)
+
+    def body_light(self) -> Any:
+        """Give the body's scattered light (a :class:`render.body_scattering.BodyLight`).
+
+        Built on first use, on the coarsest level of detail (clustered to at most
+        :data:`render.body_scattering.PATCH_FACES` faces).
+
+        Returns
+        -------
+        render.body_scattering.BodyLight
+            View factors of the patch mesh, body frame.
+        """
+        from render.body_scattering import PATCH_FACES, BodyLight, cluster_mesh
+
+        if self._light is None:
+            pv, pf, palbedo = self._meshes[-1]
+            if len(pf) > PATCH_FACES:
+                cv, cf = cluster_mesh(pv, pf, PATCH_FACES)
+                log.info("mesh scene: scattered light on %d faces clustered from %d",
+                         len(cf), len(pf))
+                self._light = BodyLight(cv, cf)  # albedo factors: 1 (they stay the receivers')
+            else:
+                self._light = BodyLight(pv, pf, albedo=palbedo)
+        return self._light
+
+    def _scatter_into(self, lod: _Lod, lighting: Lighting) -> bool:
+        """Write the body's scattered light for the frame's sun into a level's buffer."""
+        from scipy.spatial import cKDTree
+
+        light = self.body_light()
+        pv = light.vertices
+        if lod.scatter_at is None:
+            v, f, _ = self._meshes[lod.source]
+            if len(v) == len(pv) and np.array_equal(v, pv):
+                lod.scatter_at = np.arange(len(v))
+            else:  # nearest patch vertex facing the same way (not across a thin wall)
+                scale = light.edge
+                tree = cKDTree(np.hstack([pv, scale * light.normals_v]))
+                lod.scatter_at = tree.query(np.hstack([v, scale * vertex_normals(v, f)]))[1]
+        sun = self.rotation.T @ np.asarray(lighting.sun, dtype=np.float64)
+        e = light.irradiance(sun, lighting.albedo)
+        extra = self.extra_scatter
+        if lod.scatter_key is None or lod.scatter_key[0] is not e \
+                or lod.scatter_key[1] is not extra:
+            total = e if extra is None else e + extra
+            lod.sbo.write(total[lod.scatter_at].astype(np.float32).tobytes())
+            lod.scatter_key = (e, extra)
+        return True
 
     def shadow_casters(self, gpu: Gpu, extent: float, size: int) -> list[DrawBatch]:
         """Give the depth batch that casts the body's shadows into a map of ``extent``.

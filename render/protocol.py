@@ -24,15 +24,16 @@ from render.errors import ProtocolError
 
 __all__ = ["ERROR", "HEADER", "MAGIC", "MAX_REPLY_BODY", "MAX_REQUEST_BODY", "MINOR_VERSION",
            "PROTOCOL_MINOR",
-           "REPLY", "VERSION", "ErrorCode", "MsgType", "error_body", "pack_header", "read_exact",
-           "read_message", "unpack_header"]
+           "REPLY", "SHADING_KEYS", "VERSION", "ErrorCode", "MsgType", "error_body",
+           "pack_header", "read_exact", "read_message", "unpack_header"]
 
 MAGIC = b"CSRV"
 VERSION = 1
 #: Minor version (INFO's ``protocol_minor``): additions a version-1 client may use or ignore.
 #: 1: SET_LIGHT (the sun on a date); 2: GET_LABELS and GET_MASKS (image-space labels);
-#: 3: GET_RADAR, GET_LIDAR and GET_EVENTS (instruments); 4: GET_BODY_IDS (binary scenes).
-PROTOCOL_MINOR = 4
+#: 3: GET_RADAR, GET_LIDAR and GET_EVENTS (instruments); 4: GET_BODY_IDS (binary scenes);
+#: 5: SET_SHADING (the connection's shading switches).
+PROTOCOL_MINOR = 5
 #: The same (the name the label and instrument requests' code uses).
 MINOR_VERSION = PROTOCOL_MINOR
 #: Header: magic, version (u16), type (u16), request id (u32), body length (u32).
@@ -74,6 +75,7 @@ class MsgType(IntEnum):
     GET_LIDAR = 0x0027
     GET_EVENTS = 0x0028
     GET_BODY_IDS = 0x0029
+    SET_SHADING = 0x002A
     HEIGHT_AT = 0x0030
     PIXEL_RAY = 0x0031
     RAY = 0x0032
@@ -133,7 +135,9 @@ REQUEST_SIZES = {MsgType.HELLO: None, MsgType.INFO: 0, MsgType.PING: 0,
                  MsgType.GET_MASKS: 0, MsgType.GET_BODY_IDS: 0, MsgType.HEIGHT_AT: XY.size,
                  MsgType.PIXEL_RAY: XY.size, MsgType.RAY: RAY.size,
                  MsgType.GET_RADAR: None, MsgType.GET_LIDAR: None,
-                 MsgType.GET_EVENTS: EVENTS_REQUEST.size}
+                 MsgType.GET_EVENTS: EVENTS_REQUEST.size, MsgType.SET_SHADING: None}
+#: The switches of SET_SHADING (the ``[render]`` keys of the same names).
+SHADING_KEYS = ("shadows", "soft_shadows", "scattering", "earthshine")
 
 
 def pack_header(msg_type: int, request_id: int, length: int) -> bytes:

@@ -452,7 +452,7 @@ class SceneGpu:
         return tex
 
     def vertex_arrays(self, vbo: Any, ibo: Any, albedo: Any = None,
-                      morph: Any = None) -> tuple[Any, Any]:
+                      morph: Any = None, scatter: Any = None) -> tuple[Any, Any]:
         """Bind a mesh's buffers to the renderer's camera and depth programs.
 
         ``vbo`` interleaves position and normal (3f 3f); the depth pass reads positions only.
@@ -469,6 +469,10 @@ class SceneGpu:
             Per-vertex geomorphing targets (4f 3f: the coarser level's position, a key, the
             coarser level's normal; see :class:`render.scene.Morph` and
             ``shaders/scene.vert``).
+        scatter : moderngl.Buffer, optional
+            One float32 scattered irradiance (over the solar irradiance) per vertex
+            (:mod:`render.body_scattering`; draw such a mesh with ``DrawBatch.vertex_scatter``
+            set).
 
         Returns
         -------
@@ -480,6 +484,8 @@ class SceneGpu:
             content.append((albedo, "1f", "in_albedo"))
         if morph is not None:
             content.append((morph, "4f 3f", "in_morph", "in_morph_normal"))
+        if scatter is not None:
+            content.append((scatter, "1f", "in_scatter"))
         vao = self._ctx.vertex_array(self._scene_program, content, ibo)
         dvao = self._ctx.vertex_array(self._depth_program, [(vbo, "3f 12x", "in_position")],
                                       ibo)
@@ -754,6 +760,7 @@ class Renderer:
 
     def _set_batch(self, prog, batch, cam, shadows):
         prog["u_vertex_albedo"].value = 1 if batch.vertex_albedo else 0
+        prog["u_vertex_scatter"].value = 1 if batch.vertex_scatter else 0
         prog["u_world_from_model"].write(
             np.asarray(batch.world_from_model, dtype="f4").T.tobytes())
         prog["u_model_offset"].value = tuple((np.asarray(batch.model_offset) - cam).tolist())

@@ -191,7 +191,7 @@ class Gpu(Protocol):
         ...
 
     def vertex_arrays(self, vbo: Any, ibo: Any, albedo: Any = None,
-                      morph: Any = None) -> tuple[Any, Any]:
+                      morph: Any = None, scatter: Any = None) -> tuple[Any, Any]:
         """Bind a mesh's buffers to the camera and depth programs.
 
         Parameters
@@ -202,6 +202,8 @@ class Gpu(Protocol):
             One float32 albedo factor per vertex.
         morph : moderngl.Buffer, optional
             Per-vertex geomorphing targets (4f 3f, see :class:`Morph`).
+        scatter : moderngl.Buffer, optional
+            One float32 scattered irradiance per vertex (:mod:`render.body_scattering`).
 
         Returns
         -------
@@ -603,6 +605,9 @@ class DrawBatch:
         Light from elsewhere than the sun (:mod:`render.scattering`): ``(texture, rect)``,
         ``rect`` as for ``normal_map``; a two-channel float texture of the irradiance the
         terrain scatters (over the solar irradiance) and the Earth's visibility.
+    vertex_scatter : bool
+        The vertex array binds a per-vertex scattered irradiance (over the solar irradiance,
+        :mod:`render.body_scattering`), which then stands for ``scatter``'s first channel.
     """
 
     vao: Any
@@ -618,6 +623,7 @@ class DrawBatch:
     normal_map: tuple | None = None
     normal_cube: Any = None
     scatter: tuple | None = None
+    vertex_scatter: bool = False
 
 
 @dataclass(eq=False)

@@ -79,6 +79,7 @@ from render.protocol import (
     RAY_REPLY,
     REPLY,
     REQUEST_SIZES,
+    SHADING_KEYS,
     SUN,
     VERSION,
     XY,
@@ -97,7 +98,7 @@ from render.server_sensors import SENSOR_REQUESTS
 from render.server_sensors import answer as answer_sensor
 from render.terrain_scene import TerrainScene
 from render.trajectory import Sample, spin_rotation
-from terrain.core.checks import number
+from terrain.core.checks import boolean, number, reject_unknown
 from terrain.core.errors import InvalidParameterError, MemoryRequestError, MissingInputError
 
 __all__ = ["RenderServer", "is_loopback"]
@@ -606,6 +607,8 @@ class RenderServer:
             return json_body(self._set_sensor(st, body))
         if kind == MsgType.SET_LIGHT:
             return json_body(self._set_light(st, body))
+        if kind == MsgType.SET_SHADING:
+            return json_body(self._set_shading(st, body))
         if kind == MsgType.SET_MOTION:
             v = MOTION.unpack(body)
             _finite("motion", v)
@@ -684,7 +687,8 @@ class RenderServer:
         out = dict(protocol=VERSION, protocol_minor=MINOR_VERSION,
                    scenario=self.scenario.name, scene=self.scene.kind,
                    bounds=[lo.tolist(), hi.tolist()], sun=list(st.lighting.sun),
-                   seed=self.scenario.seed, sensor=self._sensor_info(st))
+                   seed=self.scenario.seed, sensor=self._sensor_info(st),
+                   shading=_shading(st))
         if isinstance(self.scene, TerrainScene):
             out["site"] = list(self.scene.site)
         out["protocol_minor"] = PROTOCOL_MINOR
@@ -718,6 +722,21 @@ class RenderServer:
         if sky is not None:
             out.update(sky.as_dict(), utc=parsed.ephemeris.utc if parsed.ephemeris else None)
         return out
+
+    def _set_shading(self, st: _State, body: bytes) -> dict:
+        """SET_SHADING: shading switches over those in force, this connection only.
+
+        The keys are ``[render]``'s of the same names (:data:`SHADING_KEYS`), each true or
+        false; an empty object changes nothing. Returns every switch in force.
+        """
+        settings = _json_object(body, "SET_SHADING")
+        reject_unknown(settings, SHADING_KEYS, "SET_SHADING")
+        values = {k: boolean(v, k, where="SET_SHADING") for k, v in settings.items()}
+        if values:
+            options = dataclasses.replace(st.scenario.options, **values)
+            st.scenario = dataclasses.replace(st.scenario, options=options)
+            st.frame = None
+        return _shading(st)
 
     def _sensor_info(self, st: _State) -> dict:
         d = dict(st.scenario.sensor.as_dict(), noise=st.noise)
@@ -815,7 +834,8 @@ class RenderServer:
         base = self.scenario.with_overrides(None, (w, h))
         check_frame_memory(base)  # MemoryRequestError: INVALID_VALUE, before any allocation
         st.scenario = dataclasses.replace(base, sensor=parsed.sensor, motion=parsed.motion,
-                                          ephemeris=st.scenario.ephemeris)  # SET_LIGHT's
+                                          ephemeris=st.scenario.ephemeris,  # SET_LIGHT's
+                                          options=st.scenario.options)  # SET_SHADING's
         st.sensor_table, st.noise, st.frame = table, noise, None
         return self._sensor_info(st)
 
@@ -915,7 +935,8 @@ class RenderServer:
         axis = pose.rotation[:, 2]
         self.scene.set_body_rotation(self.body_rotation(t))  # a terrain ignores it
         view = View(pose, Intrinsics(1, 1, RAY_FOCAL, RAY_FOCAL, 0.0, 0.0), t)
-        options = dataclasses.replace(self.scenario.options, shadows=False)
+        # range and normals only: no shadows, no scattered light
+        options = dataclasses.replace(self.scenario.options, shadows=False, scattering=False)
         frame = self._gpu.render(self.scene, view, lighting, options)
         r = float(frame.range[0, 0])
         if not math.isfinite(r):
@@ -986,6 +1007,11 @@ def _json_object(body: bytes, what: str) -> dict:
     if not isinstance(settings, dict):
         raise ProtocolError(ErrorCode.MALFORMED, f"{what} body must be a JSON object")
     return settings
+
+
+def _shading(st: _State) -> dict:
+    """Give the connection's shading switches (SET_SHADING's keys)."""
+    return {k: bool(getattr(st.scenario.options, k)) for k in SHADING_KEYS}
 
 
 def _finite(what: str, values) -> None:

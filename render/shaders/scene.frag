@@ -48,6 +48,8 @@ uniform int u_scatter_map;        // 1: u_scatter holds light scattered from the
 uniform sampler2D u_scatter;      // r: scattered irradiance / solar irradiance; g: Earth seen
 uniform vec4 u_scatter_rect;      // (x0, y0, 1/width, 1/height) as u_normal_rect
 uniform int u_scattering;         // 1: add r (Lambertian, the surface's albedo)
+in float v_scatter;               // bodies: per-vertex scattered irradiance / solar ...
+uniform int u_vertex_scatter;     // ... which stands for r where this is 1
 uniform vec3 u_earth;             // unit vector towards the Earth (world)
 uniform float u_earthshine;       // Earth's irradiance / the Sun's (0: none)
 
@@ -225,6 +227,8 @@ float secondary(vec3 n, vec3 world, vec3 e, float mu, float scale) {
     if (u_scatter_map == 1)
         s = texture(u_scatter, vec2((world.x - u_scatter_rect.x) * u_scatter_rect.z,
                                     (u_scatter_rect.y - world.y) * u_scatter_rect.w)).rg;
+    if (u_vertex_scatter == 1)
+        s.r = v_scatter;
     float out_f = u_scattering == 1 ? u_albedo * scale * s.r : 0.0;
     if (u_earthshine > 0.0) {
         float mu_e = dot(n, u_earth);

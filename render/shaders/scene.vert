@@ -8,10 +8,12 @@ in vec3 in_position;
 in vec3 in_normal;
 in float in_albedo;                    // per-vertex albedo factor (bodies); see u_vertex_albedo
 uniform int u_vertex_albedo;           // 1: in_albedo is bound; 0: factor 1
+in float in_scatter;                   // per-vertex scattered irradiance / solar (bodies)
 out vec3 v_rel;      // world position minus camera position (m)
 out vec3 v_normal;   // world-frame normal (not normalised)
 out float v_albedo;  // albedo factor (1 unless the mesh carries one per vertex)
 out float v_shadow_bias;  // extra shadow-map bias of coarse geometry (depth units)
+out float v_scatter;      // in_scatter (read only where u_vertex_scatter is 1)
 
 // Geomorphing (render.terrain_scene and render.asteroid_scene, module docstrings): a vertex
 // that the next coarser level of detail lacks slides from its own position to the coarser
@@ -52,5 +54,6 @@ void main() {
     v_rel = u_world_from_model * p + u_model_offset;
     v_normal = u_world_from_model * n;
     v_albedo = u_vertex_albedo == 1 ? in_albedo : 1.0;
+    v_scatter = in_scatter;
     gl_Position = u_clip_from_camera_rel * vec4(v_rel, 1.0);
 }

@@ -79,7 +79,7 @@ class _RecordingGpu:
     def texture_cube(self, size, components, data, dtype):
         raise AssertionError("the shadow-map setup uploads nothing")
 
-    def vertex_arrays(self, vbo, ibo, albedo=None, morph=None):
+    def vertex_arrays(self, vbo, ibo, albedo=None, morph=None, scatter=None):
         raise AssertionError("the shadow-map setup binds no meshes")
 
     def shadow_target(self, size):
