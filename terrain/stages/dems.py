@@ -67,9 +67,15 @@ def terrain_preset(spec: Any) -> Any:
 
 
 def repose(spec: Any) -> Any:
-    """Return the :class:`~terrain.surface.repose.Repose` of a spec's preset (None without)."""
+    """Return the :class:`~terrain.surface.repose.Repose` a spec asks for (None without).
+
+    A spec's own ``repose`` angle (synth) wins over its terrain preset's.
+    """
     from terrain.surface.repose import Repose
 
+    angle = getattr(spec, "repose", None)
+    if angle is not None:
+        return Repose(angle_deg=angle)
     p = terrain_preset(spec)
     return None if p is None else Repose(angle_deg=p.repose_deg)
 
@@ -263,6 +269,7 @@ def synth(spec: SynthSpec, source: None, output: Path, execution: Execution, *,
                                  progress=update, crs=crs, repose=relax)
     params = dict(size=spec.size, resolution=spec.resolution, terrain=spec.terrain,
                   fractal_dimension=fd, relief=relief, seed=spec.seed,
+                  **({} if relax is None else {"repose": relax.as_dict()}),
                   population=pop.as_dict() if pop else None,
                   **({"body": spec.body, "crs": spec.crs or "south-polar"} if crs else {}),
                   window=_window_list(spec.window))

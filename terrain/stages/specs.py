@@ -146,6 +146,10 @@ class SynthSpec(_CraterFields):
                              text())
     local_grid: bool = option(False, "A local grid in metres without CRS or body instead.",
                               FLAG)
+    repose: float | None = option(
+        None, "Relax slopes steeper than this angle (degrees) by mass wasting, as the terrain "
+        "presets do (default: the preset's angle; none without a preset).",
+        number(low=0.0, high=90.0, low_open=True, high_open=True))
     seed: int = SEED
     window: Window | None = WINDOW_FIELD
 
