@@ -35,6 +35,10 @@ log = logging.getLogger(__name__)
 MOON_RADIUS = 1_737_400.0
 #: Half the side of the polar grid LDEM_4 is reprojected onto (m): about 70 to 90 degrees S.
 LDEM_HALF_WIDTH_M = 600_000.0
+#: Vertices of a body its gravity is evaluated at; at the others it is interpolated
+#: (:func:`evaluation.meshslope.sampled_attraction`; docs/speed.md gives what that changes).
+#: Gaskell's Eros (24,578 vertices) and the facet-matched bodies are below it: exact.
+BODY_FIELD_POINTS = 2 ** 15
 
 TRACKING_NOTES = {
     "lunar": (
@@ -258,12 +262,12 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     spin = Spin(float(ev.get("eros_period_h", 5.27)), (0.0, 0.0, 1.0))
     shape = load_body(Path(asteroid_facts["body"]))
     body = mesh_slopes(shape.vertices, shape.faces, label="synthetic Eros-like body",
-                       density=density, spin=spin)
+                       density=density, spin=spin, field_points=BODY_FIELD_POINTS)
     reference = None
     if have.get("eros"):
         eros = load_body(real["eros"], units="km")
         reference = mesh_slopes(eros.vertices, eros.faces, label="433 Eros (Gaskell)",
-                                density=density, spin=spin)
+                                density=density, spin=spin, field_points=BODY_FIELD_POINTS)
     sec = asteroid_section([body], reference, limits)
     if reference is None:
         sec.notes.append(f"{real.get('eros')} not found: the body is not compared with real "
