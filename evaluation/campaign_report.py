@@ -128,6 +128,7 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     from asteroid.build import boulders_of
     from evaluation.compare import compare_dems
     from evaluation.evidence import dem_evidence
+    from evaluation.memo import measured_once
     from evaluation.meshslope import Spin, load_body, mesh_slopes
     from evaluation.report import (
         DEFAULT_THRESHOLDS,
@@ -201,7 +202,15 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     # -- slopes per layer, and against real DEMs at the two ends of the stack
     say("evaluation: slope distributions and spectra of every layer")
     stack = read_stack(Path(lunar_facts["stack"]))
-    evidence = dem_evidence([(f"layer {k}", t) for k, t in enumerate(stack.tiles)])
+    terrain = getattr(c.synth, "terrain", None) or "south-polar"
+    with measured_once():  # each layer's slopes measured once for the evidence and realism
+        evidence = dem_evidence([(f"layer {k}", t) for k, t in enumerate(stack.tiles)])
+        # realism is judged by published lunar statistics, layer by layer
+        # (evaluation.validate); the comparisons with real DEMs of other places below are
+        # side by side. The stack is judged as the terrain type it was built for (its
+        # synth preset).
+        say("evaluation: terrain realism of every layer (published lunar statistics)")
+        realism = validate_stack(stack, terrain, label="lunar layer stack")
     comparisons, notes = [], []
 
     def compare(tile, ref, label, ref_label):
@@ -234,12 +243,6 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     sec.notes += notes
     sec.paragraphs.append(DEM_NOTE)
     sections.append(sec)
-    # realism is judged by published lunar statistics, layer by layer (evaluation.validate);
-    # the comparisons with real DEMs of other places above are side by side
-    say("evaluation: terrain realism of every layer (published lunar statistics)")
-    # the stack is judged as the terrain type it was built for (its synth preset)
-    terrain = getattr(c.synth, "terrain", None) or "south-polar"
-    realism = validate_stack(stack, terrain, label="lunar layer stack")
     sections += validation_sections(realism, key="lunar")
     facts["realism"] = dict(verdict=realism.verdict,
                             failed=[f"{r.name}: {r.meaning}" for r in realism.failures()])
