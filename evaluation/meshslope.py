@@ -82,6 +82,9 @@ DEFAULT_COARSE_FACES = 4000
 #: Neighbouring field points each vertex's attraction is interpolated from when the field is
 #: evaluated at a sample of the vertices (:func:`sampled_attraction`).
 FIELD_NEIGHBOURS = 12
+#: Largest miss of a fitted plane at its own neighbours, as a fraction of the field, below
+#: which an interpolated value is kept (else the field is evaluated at that vertex too).
+FIELD_FIT_TOLERANCE = 1e-2
 #: Density used when neither density nor mass is given, kg m^-3 (433 Eros, the paper's body).
 DEFAULT_DENSITY = EROS_DENSITY
 #: Mesh files :func:`load_body` reads (the native asteroid model and what trimesh reads).
@@ -334,8 +337,10 @@ def sampled_attraction(body: Polyhedron, vertices: np.ndarray, normals: np.ndarr
     other vertex it is the value at the vertex of a plane fitted, in the vertex's tangent
     plane, to the :data:`FIELD_NEIGHBOURS` nearest sampled vertices by weighted least squares
     (a moving least-squares fit of degree one: exact for a field that varies linearly over
-    the surface). The uncertainty this adds to a body's slopes is measured in
-    ``docs/speed.md``.
+    the surface). Where that plane misses one of its own neighbours by more than
+    :data:`FIELD_FIT_TOLERANCE` of the field, the field bends within a sample spacing (a
+    coarse edge close by) and is evaluated at the vertex itself. The uncertainty this adds
+    to a body's slopes is measured in ``docs/speed.md``.
 
     Parameters
     ----------
@@ -354,7 +359,7 @@ def sampled_attraction(body: Polyhedron, vertices: np.ndarray, normals: np.ndarr
     -------
     attraction : (n, 3) float64, m s^-2
     sampled : int
-        Vertices where the field was evaluated.
+        Vertices where the field was evaluated (the sample and the refits).
     """
     from scipy.spatial import cKDTree
 
@@ -382,8 +387,16 @@ def sampled_attraction(body: Polyhedron, vertices: np.ndarray, normals: np.ndarr
     aw = a * w[:, :, None]
     lhs = np.einsum("nki,nkj->nij", aw, a) + 1e-9 * np.eye(3)
     rhs = np.einsum("nki,nkc->nic", aw, exact[nb])
-    out[q] = np.linalg.solve(lhs, rhs)[:, 0, :]
-    return out, int(len(idx))
+    coef = np.linalg.solve(lhs, rhs)
+    out[q] = coef[:, 0, :]
+    # where the plane misses its own neighbours by more than FIELD_FIT_TOLERANCE of the
+    # field (a coarse edge or vertex close by: the field bends within a sample spacing),
+    # the field is evaluated there too
+    miss = np.linalg.norm(exact[nb] - np.einsum("nki,nic->nkc", a, coef), axis=2)
+    bad = q[np.max(miss, axis=1) > FIELD_FIT_TOLERANCE * np.linalg.norm(coef[:, 0, :], axis=1)]
+    if bad.size:
+        _, out[bad] = body.field(v[bad])
+    return out, int(len(idx) + bad.size)
 
 
 # ------------------------------------------------------------------------------ result
