@@ -163,7 +163,7 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     keys = sorted(p.name for p in out.glob(".*.done.json") if "evaluation" not in p.name)
     stage = Stage(out, "evaluation", dict(
         inputs=[json.loads((out / k).read_text())["key"] for k in keys], real=have,
-        evaluation=dict(ev), v=3))
+        evaluation=dict(ev), v=4))
     report_path = stage.dir / "report.html"
     if stage.done() and report_path.exists():
         return report_path
