@@ -35,6 +35,10 @@ log = logging.getLogger(__name__)
 MOON_RADIUS = 1_737_400.0
 #: Half the side of the polar grid LDEM_4 is reprojected onto (m): about 70 to 90 degrees S.
 LDEM_HALF_WIDTH_M = 600_000.0
+#: Vertices of a body its gravity is evaluated at; at the others it is interpolated
+#: (:func:`evaluation.meshslope.sampled_attraction`; docs/speed.md gives what that changes).
+#: Gaskell's Eros (24,578 vertices) and the facet-matched bodies are below it: exact.
+BODY_FIELD_POINTS = 2 ** 15
 
 TRACKING_NOTES = {
     "lunar": (
@@ -124,6 +128,7 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     from asteroid.build import boulders_of
     from evaluation.compare import compare_dems
     from evaluation.evidence import dem_evidence
+    from evaluation.memo import measured_once
     from evaluation.meshslope import Spin, load_body, mesh_slopes
     from evaluation.report import (
         DEFAULT_THRESHOLDS,
@@ -163,7 +168,7 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     keys = sorted(p.name for p in out.glob(".*.done.json") if "evaluation" not in p.name)
     stage = Stage(out, "evaluation", dict(
         inputs=[json.loads((out / k).read_text())["key"] for k in keys], real=have,
-        evaluation=dict(ev), v=3))
+        evaluation=dict(ev), v=4))
     report_path = stage.dir / "report.html"
     if stage.done() and report_path.exists():
         return report_path
@@ -202,7 +207,17 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     # -- slopes per layer, and against real DEMs at the two ends of the stack
     say("evaluation: slope distributions and spectra of every layer")
     stack = read_stack(Path(lunar_facts["stack"]))
-    evidence = dem_evidence([(f"layer {k}", t) for k, t in enumerate(stack.tiles)])
+    terrain = getattr(c.synth, "terrain", None) or "south-polar"
+    with measured_once():  # each layer's slopes measured once for the evidence and realism
+        evidence = dem_evidence([(f"layer {k}", t) for k, t in enumerate(stack.tiles)])
+        # realism is judged by published lunar statistics, layer by layer
+        # (evaluation.validate); the comparisons with real DEMs of other places below are
+        # side by side. The stack is judged as the terrain type it was built for (its
+        # synth preset).
+        say("evaluation: terrain realism of every layer (published lunar statistics)")
+        found = base_catalog_for(stack)  # the base's own craters (the stack's are the layers')
+        realism = validate_stack(stack, terrain, label="lunar layer stack",
+                                 base_catalog=found[0] if found else None)
     comparisons, notes = [], []
 
     def compare(tile, ref, label, ref_label):
@@ -235,14 +250,6 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     sec.notes += notes
     sec.paragraphs.append(DEM_NOTE)
     sections.append(sec)
-    # realism is judged by published lunar statistics, layer by layer (evaluation.validate);
-    # the comparisons with real DEMs of other places above are side by side
-    say("evaluation: terrain realism of every layer (published lunar statistics)")
-    # the stack is judged as the terrain type it was built for (its synth preset)
-    terrain = getattr(c.synth, "terrain", None) or "south-polar"
-    found = base_catalog_for(stack)  # the base's own craters (the stack's are the layers')
-    realism = validate_stack(stack, terrain, label="lunar layer stack",
-                             base_catalog=found[0] if found else None)
     sections += validation_sections(realism, key="lunar")
     facts["realism"] = dict(verdict=realism.verdict,
                             failed=[f"{r.name}: {r.meaning}" for r in realism.failures()])
@@ -265,12 +272,12 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     spin = Spin(float(ev.get("eros_period_h", 5.27)), (0.0, 0.0, 1.0))
     shape = load_body(Path(asteroid_facts["body"]))
     body = mesh_slopes(shape.vertices, shape.faces, label="synthetic Eros-like body",
-                       density=density, spin=spin)
+                       density=density, spin=spin, field_points=BODY_FIELD_POINTS)
     reference = None
     if have.get("eros"):
         eros = load_body(real["eros"], units="km")
         reference = mesh_slopes(eros.vertices, eros.faces, label="433 Eros (Gaskell)",
-                                density=density, spin=spin)
+                                density=density, spin=spin, field_points=BODY_FIELD_POINTS)
     sec = asteroid_section([body], reference, limits)
     if reference is None:
         sec.notes.append(f"{real.get('eros')} not found: the body is not compared with real "

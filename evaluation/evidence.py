@@ -107,6 +107,7 @@ def dem_evidence(dems: Sequence, *, reference: str | None = None, ref_tile=None,
         The record.
     """
     from evaluation.compare import compare_dems, compare_slope_maps
+    from evaluation.memo import slope_distribution_of
     from evaluation.slope import horn_slope, slope_distribution
     from evaluation.spectrum import fit_hurst, radial_spectrum
     from terrain.io import read_dem
@@ -119,7 +120,7 @@ def dem_evidence(dems: Sequence, *, reference: str | None = None, ref_tile=None,
     ref_name = Path(reference).stem if reference is not None else "reference"
     for label, tile in dems:
         measured = at_baseline(tile, baseline, label)
-        distributions.append(slope_distribution(measured, label=label, edges=edges))
+        distributions.append(slope_distribution_of(measured, label, edges))
         try:
             spec = radial_spectrum(measured, label=label)
             spectra.append(spec)

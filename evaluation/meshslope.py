@@ -64,7 +64,8 @@ from terrain.core.errors import InvalidParameterError
 
 __all__ = ["DEFAULT_BIN_DEG", "DEFAULT_COARSE_FACES", "DEFAULT_DENSITY", "DEFAULT_RADIUS_DEG",
            "MESH_SUFFIXES", "MeshSlopes", "SlopeAreaHistogram", "Spin", "cap_average",
-           "binary_slopes", "load_body", "mesh_slopes", "vertex_normals_and_areas"]
+           "binary_slopes", "field_sample", "load_body", "mesh_slopes", "sampled_attraction",
+           "vertex_normals_and_areas"]
 
 log = logging.getLogger(__name__)
 
@@ -78,6 +79,12 @@ DEFAULT_BIN_DEG = 3.0
 #: max 1.6), 2,000 by 0.54 (p99 1.5), 8,000 by 0.18 (p99 0.54); the area median moves from
 #: 11.00 (full) to 11.35 degrees. 4,000 costs 5 s on Eros on 2 cores (the full model 73 s).
 DEFAULT_COARSE_FACES = 4000
+#: Neighbouring field points each vertex's attraction is interpolated from when the field is
+#: evaluated at a sample of the vertices (:func:`sampled_attraction`).
+FIELD_NEIGHBOURS = 12
+#: Largest miss of a fitted plane at its own neighbours, as a fraction of the field, below
+#: which an interpolated value is kept (else the field is evaluated at that vertex too).
+FIELD_FIT_TOLERANCE = 1e-2
 #: Density used when neither density nor mass is given, kg m^-3 (433 Eros, the paper's body).
 DEFAULT_DENSITY = EROS_DENSITY
 #: Mesh files :func:`load_body` reads (the native asteroid model and what trimesh reads).
@@ -293,6 +300,111 @@ def cap_average(directions, values, weights, radius_deg: float) -> np.ndarray:
     return out[:, 0] if one else out
 
 
+def field_sample(vertices: np.ndarray, points: int) -> np.ndarray:
+    """Return about ``points`` vertex indices spread evenly over a surface (one per grid cell).
+
+    The vertices are binned on a cubic grid whose cell holds about one sample's share of the
+    surface; each occupied cell keeps its lowest-numbered vertex, so the same mesh always
+    gives the same sample.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float64, metres
+    points : int
+        The sample size aimed at (the result is within a factor of about two of it).
+
+    Returns
+    -------
+    (k,) int64
+        Sorted vertex indices.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    extent = float(np.max(v.max(axis=0) - v.min(axis=0)))
+    # a closed surface of extent L has an area of order L^2: start from a cell of that share
+    step = extent / math.sqrt(max(1, points))
+    best = np.arange(len(v))
+    for _ in range(12):
+        cell = np.floor((v - v.min(axis=0)) / step).astype(np.int64)
+        _, first = np.unique(cell, axis=0, return_index=True)
+        best = np.sort(first)
+        ratio = len(best) / points
+        if 0.8 <= ratio <= 1.25:
+            break
+        step *= math.sqrt(ratio)
+    return best
+
+
+def sampled_attraction(body: Polyhedron, vertices: np.ndarray, normals: np.ndarray,
+                       points: int, *, progress=None) -> tuple[np.ndarray, int]:
+    """Return a polyhedron's attraction at every vertex, evaluated at a sample, interpolated.
+
+    The field is evaluated exactly (:meth:`evaluation.gravity.Polyhedron.field`) at about
+    ``points`` vertices spread evenly over the surface (:func:`field_sample`); at every
+    other vertex it is the value at the vertex of a plane fitted, in the vertex's tangent
+    plane, to the :data:`FIELD_NEIGHBOURS` nearest sampled vertices by weighted least squares
+    (a moving least-squares fit of degree one: exact for a field that varies linearly over
+    the surface). Where that plane misses one of its own neighbours by more than
+    :data:`FIELD_FIT_TOLERANCE` of the field, the field bends within a sample spacing (a
+    coarse edge close by) and is evaluated at the vertex itself. The uncertainty this adds
+    to a body's slopes is measured in ``docs/speed.md``.
+
+    Parameters
+    ----------
+    body : evaluation.gravity.Polyhedron
+        The (coarse) body whose field is wanted.
+    vertices : (n, 3) float64, metres
+        Where it is wanted.
+    normals : (n, 3) float64
+        Unit surface normals at the vertices (they define each tangent plane).
+    points : int
+        The sample size aimed at.
+    progress : callable, optional
+        Passed to the field evaluation.
+
+    Returns
+    -------
+    attraction : (n, 3) float64, m s^-2
+    sampled : int
+        Vertices where the field was evaluated (the sample and the refits).
+    """
+    from scipy.spatial import cKDTree
+
+    v = np.asarray(vertices, dtype=np.float64)
+    idx = field_sample(v, points)
+    _, exact = body.field(v[idx], progress=progress)
+    out = np.empty((len(v), 3))
+    out[idx] = exact
+    rest = np.ones(len(v), dtype=bool)
+    rest[idx] = False
+    q = np.flatnonzero(rest)
+    k = min(FIELD_NEIGHBOURS, len(idx))
+    dist, nb = cKDTree(v[idx]).query(v[q], k=k)
+    # tangent-plane coordinates of the neighbours about each vertex
+    n = np.nan_to_num(normals[q])
+    ref = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    e1 = np.cross(n, ref)
+    e1 /= np.maximum(np.linalg.norm(e1, axis=1), 1e-300)[:, None]
+    e2 = np.cross(n, e1)
+    d = v[idx][nb] - v[q][:, None, :]
+    scale = np.maximum(dist[:, -1:], 1e-300)
+    a = np.stack([np.ones(dist.shape), np.einsum("nkd,nd->nk", d, e1) / scale,
+                  np.einsum("nkd,nd->nk", d, e2) / scale], axis=2)
+    w = (1.0 - (dist / (1.0001 * scale)) ** 2) ** 2  # Wendland-like taper: far ones count less
+    aw = a * w[:, :, None]
+    lhs = np.einsum("nki,nkj->nij", aw, a) + 1e-9 * np.eye(3)
+    rhs = np.einsum("nki,nkc->nic", aw, exact[nb])
+    coef = np.linalg.solve(lhs, rhs)
+    out[q] = coef[:, 0, :]
+    # where the plane misses its own neighbours by more than FIELD_FIT_TOLERANCE of the
+    # field (a coarse edge or vertex close by: the field bends within a sample spacing),
+    # the field is evaluated there too
+    miss = np.linalg.norm(exact[nb] - np.einsum("nki,nic->nkc", a, coef), axis=2)
+    bad = q[np.max(miss, axis=1) > FIELD_FIT_TOLERANCE * np.linalg.norm(coef[:, 0, :], axis=1)]
+    if bad.size:
+        _, out[bad] = body.field(v[bad])
+    return out, int(len(idx) + bad.size)
+
+
 # ------------------------------------------------------------------------------ result
 
 
@@ -429,7 +541,7 @@ def _density(volume: float, density, mass) -> tuple[float, str]:
 def mesh_slopes(vertices, faces, *, label: str = "", radius_deg: float = DEFAULT_RADIUS_DEG,
                 gravity: bool = True, density: float | None = None, mass: float | None = None,
                 spin: Spin | None = None, coarse_faces: int = DEFAULT_COARSE_FACES,
-                progress=None) -> MeshSlopes:
+                field_points: int | None = None, progress=None) -> MeshSlopes:
     """Radial and gravitational slopes of a closed body (see the module docstring).
 
     Parameters
@@ -450,6 +562,10 @@ def mesh_slopes(vertices, faces, *, label: str = "", radius_deg: float = DEFAULT
         Rotation (default: none; then the density does not matter).
     coarse_faces : int
         Triangles of the coarsened copy the gravity is computed from.
+    field_points : int, optional
+        Evaluate the attraction at about this many vertices, evenly spread, and interpolate
+        it to the others (:func:`sampled_attraction`); None (the default), or at least as
+        many as the body has: at every vertex. The centrifugal term is exact at every vertex.
     progress : callable, optional
         ``progress(done, total)`` over the gravity evaluation.
 
@@ -493,7 +609,12 @@ def mesh_slopes(vertices, faces, *, label: str = "", radius_deg: float = DEFAULT
         # keep the fine body's mass on the coarse one
         body = Polyhedron.build(cv, cf, rho * volume / coarse_volume)
         t1 = time.perf_counter()
-        _, attraction = body.field(v, progress=progress)
+        if field_points is not None and 0 < int(field_points) < len(v):
+            attraction, sampled = sampled_attraction(body, v, normals, int(field_points),
+                                                     progress=progress)
+            info.update(field_points=sampled, field_neighbours=FIELD_NEIGHBOURS)
+        else:
+            _, attraction = body.field(v, progress=progress)
         g_eff = attraction + centrifugal(v, rate=spin.rate, axis=spin.axis)
         grav = _angle_deg(normals, -g_eff)
         info.update(density_kg_m3=rho, density_from=rho_from, mass_kg=rho * volume,

@@ -416,9 +416,10 @@ def jsonable(obj):
     if isinstance(obj, dict):
         return {str(k): jsonable(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [jsonable(v) for v in obj]
+        plain = _plain_floats(obj)
+        return plain if plain is not None else [jsonable(v) for v in obj]
     if isinstance(obj, np.ndarray):
-        return jsonable(obj.tolist())
+        return _array_jsonable(obj)
     if isinstance(obj, (np.floating, float)):
         v = float(obj)
         return v if math.isfinite(v) else None
@@ -427,6 +428,28 @@ def jsonable(obj):
     if isinstance(obj, (np.bool_,)):
         return bool(obj)
     return obj
+
+
+#: Types :func:`jsonable` returns unchanged (a float only when finite).
+_JSON_ATOMS = frozenset({float, int, bool, str, type(None)})
+
+
+def _plain_floats(items) -> list | None:
+    """Return ``items`` as a new list when :func:`jsonable` would keep every one, else None."""
+    for v in items:
+        t = type(v)
+        if t not in _JSON_ATOMS or (t is float and not math.isfinite(v)):
+            return None
+    return list(items)
+
+
+def _array_jsonable(a: np.ndarray):
+    """Return an array as :func:`jsonable` does, converting it at once where it can."""
+    if a.dtype.kind in "iub":  # integers and booleans: tolist gives Python int and bool
+        return a.tolist()
+    if a.dtype.kind == "f" and bool(np.isfinite(a).all()):
+        return a.tolist()  # Python floats, none of them NaN or infinite
+    return jsonable(a.tolist())
 
 
 def fmt(value, digits=4) -> str:

@@ -264,11 +264,12 @@ def cumulative_distribution(values, angles=None, weights=None) -> np.ndarray:
     v, w = _as_values(values, weights)
     if v.size == 0:
         raise InvalidParameterError("no valid slopes to build a distribution from")
-    order = np.argsort(v, kind="stable")
-    v = v[order]
-    if w is None:
+    if w is None:  # equal weights: the sorted values are all it needs (a sort, not an argsort)
+        v = np.sort(v)
         below = np.searchsorted(v, angles, side="right")
         return 100.0 * (v.size - below) / v.size
+    order = np.argsort(v, kind="stable")
+    v = v[order]
     cw = np.concatenate([[0.0], np.cumsum(w[order])])
     below = np.searchsorted(v, angles, side="right")
     return 100.0 * (cw[-1] - cw[below]) / cw[-1]

@@ -201,7 +201,7 @@ def slope_curve(tile: DEMTile, *, label: str = "", max_lag: int | None = None) -
     top = max(1, min(z.shape) // 4) if max_lag is None else int(max_lag)
     note = ""
     lags = [2 ** k for k in range(0, 30) if 2 ** k <= top]
-    if period2_ratio(tile) > 1.0:
+    if _period2_once(tile) > 1.0:
         lags = [g for g in lags if g > 1]
         note = "one-pixel baseline dropped: period-2 pattern"
     base, med = [], []
@@ -331,11 +331,30 @@ def steep_share(tile: DEMTile, angle_deg: float = REPOSE_DEG) -> float:
     >>> steep_share(flat)
     0.0
     """
-    from evaluation.slope import horn_slope
-
-    s = horn_slope(tile)
+    s = _horn_once(tile)
     s = s[np.isfinite(s)]
     return float(np.mean(s > angle_deg)) if s.size else math.nan
+
+
+# ------------------------------------------------- measured once per tile (evaluation.memo)
+
+
+def _horn_once(tile: DEMTile) -> np.ndarray:
+    from evaluation.memo import horn_slope_of
+
+    return horn_slope_of(tile)
+
+
+def _distribution_once(tile: DEMTile, label: str):
+    from evaluation.memo import slope_distribution_of
+
+    return slope_distribution_of(tile, label)
+
+
+def _period2_once(tile: DEMTile) -> float:
+    from evaluation.memo import once
+
+    return once("period2_ratio", tile, None, lambda: period2_ratio(tile))
 
 
 # ------------------------------------------------------------------------------- checks
@@ -646,8 +665,6 @@ class Validation:
 
 def _tile_checks(tile: DEMTile, law, label: str, prefix: str, *, steep: bool = True,
                  target=None):
-    from evaluation.slope import slope_distribution
-
     results, hurst = [], []
     try:
         est = hurst_estimate(tile)
@@ -659,7 +676,7 @@ def _tile_checks(tile: DEMTile, law, label: str, prefix: str, *, steep: bool = T
     results.append(_smooth_check(fine_spectral_hurst(tile), prefix))
     if steep:
         results.append(_steep_check(steep_share(tile), prefix, tile.resolution))
-    dist = slope_distribution(tile, label=label)
+    dist = _distribution_once(tile, label)
     return results, hurst, dist
 
 
@@ -1106,10 +1123,8 @@ def _joined_craters(*catalogs):
 
 
 def _steep_old_check(tile: DEMTile, catalog, label: str) -> Result:
-    from evaluation.slope import horn_slope
-
     stat = ls.STEEP_OLD_TERRAIN
-    s = horn_slope(tile)
+    s = _horn_once(tile)
     keep = np.isfinite(s) & ~young_crater_mask(tile, catalog)
     if not keep.any():
         return not_applicable(REALISM, f"{label}area steeper than {REPOSE_DEG:g} deg at "
@@ -1403,7 +1418,7 @@ def validate_stack(stack, terrain: str, *, label: str = "stack",
         hurst += h
         dists.append(dist)
         per_layer.append(dict(layer=k, resolution_m=tile.resolution,
-                              period2_ratio=period2_ratio(tile)))
+                              period2_ratio=_period2_once(tile)))
     table = stack_slope_table(stack)
     results[:0] = [_law_slope_check(table, law), _regolith_check(table)]
     cr, data = _crater_checks(stack, base_catalog)

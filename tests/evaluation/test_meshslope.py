@@ -11,6 +11,7 @@ from evaluation.gravity import GRAVITATIONAL_CONSTANT
 from evaluation.meshslope import (
     Spin,
     cap_average,
+    field_sample,
     load_body,
     mesh_slopes,
     vertex_normals_and_areas,
@@ -37,6 +38,53 @@ def test_spinning_sphere_has_the_analytic_gravitational_slope():
     # no spin: nothing but facets, whatever the density
     still = mesh_slopes(s.vertices, s.faces, radius_deg=0.0, density=10.0, coarse_faces=4000)
     assert np.max(still.gravitational_deg) < 0.6
+
+
+def _bumpy_ellipsoid(subdivisions: int = 5):
+    s = trimesh.creation.icosphere(subdivisions=subdivisions, radius=1.0)
+    v = np.asarray(s.vertices)
+    bumps = 1.0 + 0.03 * np.sin(7 * v[:, 0]) * np.cos(5 * v[:, 1]) * np.sin(3 * v[:, 2] + 1)
+    return v * bumps[:, None] * [2000.0, 1200.0, 900.0], np.asarray(s.faces)
+
+
+def test_sampled_gravity_agrees_with_the_field_at_every_vertex():
+    """The field at a third of the vertices, interpolated: the body's figures barely move.
+
+    The sample is many times denser than the coarse body the field comes from (about 17
+    sampled vertices per coarse vertex; the campaign's 16). This body's coarse copy has only
+    400 triangles, so its field bends within a sample spacing far more than the campaign's:
+    the bounds are looser than the campaign's errors (docs/speed.md).
+    """
+    v, f = _bumpy_ellipsoid()
+    spin = Spin(3.0)
+    exact = mesh_slopes(v, f, radius_deg=0.0, density=2000.0, spin=spin, coarse_faces=400)
+    sampled = mesh_slopes(v, f, radius_deg=0.0, density=2000.0, spin=spin, coarse_faces=400,
+                          field_points=len(v) // 3)
+    assert sampled.info["field_points"] < len(v)  # not every vertex
+    diff = np.abs(sampled.gravitational_deg - exact.gravitational_deg)
+    # the coarse body's own error is larger (0.3 deg median on Eros: DEFAULT_COARSE_FACES)
+    assert np.median(diff) < 0.05 and np.percentile(diff, 99) < 0.5
+    # the area-weighted figures a report gives move by a small fraction of a degree
+    a, b = exact.summary("gravitational"), sampled.summary("gravitational")
+    assert all(abs(a[k] - b[k]) < 0.05 for k in ("p10", "p50", "p90", "mean")), (a, b)
+    np.testing.assert_array_equal(sampled.radial_deg, exact.radial_deg)
+    # as many field points as vertices, or none asked for: the field at every vertex
+    every = mesh_slopes(v, f, radius_deg=0.0, density=2000.0, spin=spin, coarse_faces=400,
+                        field_points=len(v))
+    np.testing.assert_array_equal(every.gravitational_deg, exact.gravitational_deg)
+
+
+def test_field_sample_spreads_over_the_whole_surface():
+    v, _ = _bumpy_ellipsoid(4)
+    idx = field_sample(v, 300)
+    assert 240 <= idx.size <= 375 and np.all(np.diff(idx) > 0)
+    np.testing.assert_array_equal(idx, field_sample(v, 300))  # the same every time
+    # every vertex has a sampled one within a few sample spacings
+    from scipy.spatial import cKDTree
+
+    spacing = math.sqrt(4 * math.pi * 1200.0**2 / idx.size)  # about, for this body
+    gap, _ = cKDTree(v[idx]).query(v)
+    assert gap.max() < 1.5 * spacing
 
 
 def test_radial_slope_of_an_ellipsoid_is_the_angle_between_normal_and_position():
