@@ -55,7 +55,9 @@ def test_stage_tables_become_the_stages_specs():
     """What the campaign file says is what the stages get, and the campaign's own values
     (its seed, layers as large as the base) fill in the rest."""
     c = load_campaign(DEMO)
-    assert c.synth.fractal_dimension == 2.3 and c.synth.size == 1025
+    base = tomllib.loads(DEMO.read_text())["lunar"]["base"]
+    assert c.synth.fractal_dimension == base["fractal_dimension"] and c.synth.size == 1025
+    assert c.synth.repose == base["repose"]  # a synth option the file gives
     assert c.enhance.rocks == "viper-nominal" and c.enhance.levels == 15
     assert c.synth.seed == c.enhance.seed == 2014
     assert c.enhance.layer_size == c.synth.size and c.enhance.site is None
