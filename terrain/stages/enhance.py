@@ -102,9 +102,8 @@ def _content(spec: EnhanceSpec, resolution: float, shape: tuple, levels: int) ->
     finest = resolution / 2**levels
     rocks = None
     if spec.rocks is not None:
-        from terrain.surface.rocks import MIN_ROCK_PIXELS, RockModel
-
         from terrain.core.presets import preset
+        from terrain.surface.rocks import MIN_ROCK_PIXELS, RockModel
 
         # the terrain's regolith decides which craters throw out blocks (an explicit key wins)
         rocks = RockModel.from_spec(spec.rocks, defaults=dict(
