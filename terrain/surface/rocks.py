@@ -92,7 +92,7 @@ fade within a few hundred Myr; the block fields add what such craters add. Given
 
 Craters formed at the Neukum production rate (:mod:`terrain.craters.chronology`) then add,
 averaged over a large area, 10-75 % to the nominal law between 6 cm and 1.25 m with a 5 m
-regolith and 5-45 % with 10 m: a typical site stays within the VIPER low-high band, and a
+regolith and 3-45 % with 10 m: a typical site stays within the VIPER low-high band, and a
 site next to a young blocky crater is as rocky as its field.
 
 Seamless placement
