@@ -100,6 +100,9 @@ class TerrainPreset:
     rock_model : str
         Rock model name (the VIPER environment specification's ``viper-low``,
         ``viper-nominal`` or ``viper-high``).
+    regolith_m : float
+        Regolith thickness (m): craters whose excavation stays in it throw out no blocks
+        (:mod:`terrain.surface.rocks`).
     sources : tuple of str
         Where each number comes from.
     """
@@ -116,6 +119,7 @@ class TerrainPreset:
     sources: tuple[str, ...]
     diffusivity_m2_per_myr: float = 5.5
     visible_depth_ratio: float = 0.04
+    regolith_m: float = 5.0
 
     def median_slope_deg(self, baseline_m: float) -> float:
         """Median bidirectional slope (deg) of the preset's law at ``baseline_m`` metres.
@@ -155,7 +159,10 @@ class TerrainPreset:
 #: (south-polar and highlands ~3.9 Gyr: Stöffler and Ryder 2001; maria ~3.5 Gyr: Hiesinger et
 #: al. 2011); angle of repose 35 deg for lunar regolith (Carrier et al. 1991, Lunar Sourcebook
 #: ch. 9, 30-50 deg measured, 35 deg typical at the surface's low density); rocks from the VIPER
-#: environment specification (NASA VIPER-ENV, after Haworth and Li et al.).
+#: environment specification (NASA VIPER-ENV, after Haworth and Li et al.); regolith 4-5 m
+#: thick on the maria and 10-15 m on the highlands (McKay et al. 1991, Lunar Sourcebook ch. 7;
+#: Bandfield et al. 2011, JGR 116, E00H02, find the highlands' rocky craters larger, the
+#: regolith thicker, than the maria's).
 PRESETS: dict[str, TerrainPreset] = {
     p.name: p for p in (
         TerrainPreset(
@@ -163,38 +170,41 @@ PRESETS: dict[str, TerrainPreset] = {
             description="lunar south-polar highland terrain (the demo's site)",
             slope_17m_deg=7.6, hurst=0.95, self_affine_max_m=1000.0,
             crater_equilibrium=1.0, surface_age_gyr=3.9, repose_deg=35.0,
-            rock_model="viper-nominal",
+            rock_model="viper-nominal", regolith_m=10.0,
             sources=("Rosenburg et al. 2011 (LOLA slopes and Hurst exponent, polar)",
                      "Trask 1966 (crater equilibrium)",
                      "Fassett and Thomson 2014 (topographic diffusivity)",
                      "Stopar et al. 2017 (d/D of counted small craters)",
                      "Carrier et al. 1991 (angle of repose)",
-                     "VIPER environment specification (rock SFD, nominal)")),
+                     "VIPER environment specification (rock SFD, nominal)",
+                     "McKay et al. 1991 (highland regolith 10-15 m)")),
         TerrainPreset(
             name="highlands",
             description="lunar highlands (heavily cratered, rough at km scale)",
             slope_17m_deg=7.5, hurst=0.95, self_affine_max_m=1000.0,
             crater_equilibrium=1.0, surface_age_gyr=3.9, repose_deg=35.0,
-            rock_model="viper-nominal",
+            rock_model="viper-nominal", regolith_m=10.0,
             sources=("Rosenburg et al. 2011 (LOLA highlands slopes and Hurst exponent)",
                      "Trask 1966 (crater equilibrium)",
                      "Fassett and Thomson 2014 (topographic diffusivity)",
                      "Stopar et al. 2017 (d/D of counted small craters)",
                      "Carrier et al. 1991 (angle of repose)",
-                     "VIPER environment specification (rock SFD, nominal)")),
+                     "VIPER environment specification (rock SFD, nominal)",
+                     "McKay et al. 1991 (highland regolith 10-15 m)")),
         TerrainPreset(
             name="maria",
             description="lunar mare plains (smooth, self-affine to ~0.5 km)",
             slope_17m_deg=2.0, hurst=0.76, self_affine_max_m=500.0,
             crater_equilibrium=1.0, surface_age_gyr=3.5, repose_deg=35.0,
-            rock_model="viper-low",
+            rock_model="viper-low", regolith_m=5.0,
             sources=("Rosenburg et al. 2011 (LOLA maria slopes and Hurst exponent)",
                      "Trask 1966 (crater equilibrium)",
                      "Fassett and Thomson 2014 (topographic diffusivity)",
                      "Stopar et al. 2017 (d/D of counted small craters)",
                      "Hiesinger et al. 2011 (mare ages)",
                      "Carrier et al. 1991 (angle of repose)",
-                     "VIPER environment specification (rock SFD, low)")),
+                     "VIPER environment specification (rock SFD, low)",
+                     "McKay et al. 1991 (mare regolith 4-5 m)")),
     )
 }
 

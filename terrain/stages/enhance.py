@@ -111,9 +111,12 @@ def _content(spec: EnhanceSpec, resolution: float, shape: tuple, levels: int) ->
     finest = resolution / 2**levels
     rocks = None
     if spec.rocks is not None:
+        from terrain.core.presets import preset
         from terrain.surface.rocks import MIN_ROCK_PIXELS, RockModel
 
-        rocks = RockModel.from_spec(spec.rocks, defaults=dict(dmin=MIN_ROCK_PIXELS * finest))
+        # the terrain's regolith decides which craters throw out blocks (an explicit key wins)
+        rocks = RockModel.from_spec(spec.rocks, defaults=dict(
+            dmin=MIN_ROCK_PIXELS * finest, regolith_m=preset(spec.terrain).regolith_m))
     pop = population(spec, resolution=finest, extent=min(shape) * resolution, warn_small=False)
     if spec.population is None and spec.density is None:
         pop = default_population(spec, resolution, finest)

@@ -73,7 +73,10 @@ def rocks(spec: RocksSpec, source: Path, output: Path, execution: Execution, *,
     if spec.window is not None:
         spec.window.check_inside(*tile.shape)
     smallest = MIN_ROCK_PIXELS * tile.resolution
-    model = RockModel.from_mapping(values, defaults=dict(dmin=smallest))
+    defaults: dict = dict(dmin=smallest)
+    if spec.terrain is not None:  # the terrain's regolith decides which craters throw blocks
+        defaults["regolith_m"] = preset(spec.terrain).regolith_m
+    model = RockModel.from_mapping(values, defaults=defaults)
     if model.dmax is not None and model.dmax <= smallest:
         log.warning("no rock of this model (dmax %.3g m) is two pixels (%.3g m) wide: the "
                     "heights will not change", model.dmax, smallest)

@@ -57,20 +57,28 @@ uphill side may be buried in the slope, as real rocks are.
 
 Block fields around fresh craters
 ---------------------------------
-Rocks are excavated by craters deep enough to reach below the regolith (depth about D/5,
-so D >= 5 regolith thicknesses; Quaide and Oberbeck 1968, JGR 73, 5247) and thrown onto
-their rims and ejecta, where boulders are far denser than on the plains (Bart and Melosh
-2010, Icarus 209, 337). Given craters (x, y, diameter, age), each crater of diameter
-``Dc >= 5 regolith_m`` gets its own block field on top of the background:
+The VIPER laws are site averages: they already hold the rocks of ordinary small craters'
+ejecta. A fresh crater that digs through the regolith throws out blocks onto its rim and
+ejecta, far denser than on the plains (Bart and Melosh 2010, Icarus 209, 337), and those
+fade within a few hundred Myr; the block fields add what such craters add. Given craters
+(x, y, diameter, age), each crater of diameter Dc gets:
 
-* **Sizes**: a steep power law, ``N_c(>=d) = block_count (d / (Dc / 500))^block_index``
-  blocks per crater. Linne (Dc = 2.2 km, Mare Serenitatis) has 12,000 boulders >= 4.4 m
-  (Dc / 500) with a cumulative index of -4.03 and a largest of 30.8 m (Pajola et al. 2019,
-  Planet. Space Sci. 165, 99); the field scales with the crater (a 100 m crater has 12,000
-  blocks >= 20 cm and about 20 >= 1 m). The law runs from the size at which the blocks
-  would cover ``block_cover`` (10 %) of the field's area (about Dc / 1000: fresh ejecta is
-  bouldery, but not paved) up to the size of which one block is expected (about Dc / 50;
-  Linne's 46 m against its measured 30.8 m).
+* **Which craters**: the rock share of its excavated volume. A simple crater excavates to
+  about ``0.1 Dc`` (:data:`EXCAVATION_DEPTH`; Melosh 1989, Impact Cratering, ch. 5), a
+  paraboloid whose part below the regolith (``regolith_m``) is a paraboloid of depth
+  ``0.1 Dc - regolith_m``: a share ``s = (1 - regolith_m / (0.1 Dc))^2`` of the volume is
+  rock, 0 for craters that stay in the regolith (Quaide and Oberbeck 1968, JGR 73, 5247:
+  craters of 4-10 regolith thicknesses reach the substrate; a 5 m regolith makes craters
+  blocky from 50 m, a 10 m highland regolith from 100 m).
+* **How many and how large**: ``N_c(>=d) = block_count s (d / d_ref)^block_index`` with
+  ``d_ref = 4.4 m (Dc / 2.2 km)^0.66``. Linne (Dc 2.2 km) has 12,000 boulders >= 4.4 m with
+  a cumulative index of -4.03 (Pajola et al. 2019, Planet. Space Sci. 165, 99); block sizes
+  scale as Dc^0.66, as the largest boulder does (Bart and Melosh 2010: ``0.29 Dc^0.66`` m
+  over 18 craters hundreds of metres across; the exponent, not geometric similarity). The
+  size of which one block is expected is then ``45 m s^0.25 (Dc / 2.2 km)^0.66``, Bart and
+  Melosh's largest boulder within 5 % for a crater in rock (Linne's measured largest is
+  30.8 m). The law runs from there down to the size at which the blocks cover
+  ``block_cover`` (10 %) of the field's area: fresh ejecta is bouldery, not paved.
 * **Places**: uniform inside the rim, and falling as ``(R / r)^3`` outside it out to
   ``reach`` radii (ejecta thickness falls as r^-3, McGetchin et al. 1973, EPSL 20, 226;
   Linne's largest boulders lie within about two radii of its centre).
@@ -81,6 +89,11 @@ their rims and ejecta, where boulders are far denser than on the plains (Bart an
   doi:10.1029/2019JE005963). Each block survives a crater's age t with probability
   ``2^(-t / half_life_gyr)`` (60 Myr), drawn per block, so an older field is a thinned
   subset of the same blocks.
+
+Craters formed at the Neukum production rate (:mod:`terrain.craters.chronology`) then add,
+averaged over a large area, 10-75 % to the nominal law between 6 cm and 1.25 m with a 5 m
+regolith and 3-45 % with 10 m: a typical site stays within the VIPER low-high band, and a
+site next to a young blocky crater is as rocky as its field.
 
 Seamless placement
 ------------------
@@ -152,11 +165,16 @@ VIPER_DMAX = 5.0
 #: The lunar default rock model.
 DEFAULT_MODEL = "viper-nominal"
 
-#: Block fields (module docstring): Linne's boulders (Pajola et al. 2019), 12,000 >= Dc / 500
-#: with a cumulative index of -4.03.
+#: Block fields (module docstring). Linne (Dc 2.2 km): 12,000 boulders >= 4.4 m with a
+#: cumulative index of -4.03 (Pajola et al. 2019), the reference crater of the size law.
+LINNE_DIAMETER = 2200.0
+LINNE_BLOCK = 4.4
 BLOCK_COUNT = 12000.0
-BLOCK_REF_FRACTION = 1.0 / 500.0
 BLOCK_INDEX = -4.03
+#: Block sizes scale as Dc^0.66 (Bart and Melosh 2010, largest boulder 0.29 Dc^0.66 m).
+BLOCK_SIZE_EXPONENT = 0.66
+#: Excavation depth of a simple crater as a fraction of its diameter (Melosh 1989, ch. 5).
+EXCAVATION_DEPTH = 0.1
 #: Largest share of a block field's area its blocks cover (sets the smallest block).
 BLOCK_COVER = 0.1
 #: Block sizes run up to where this many blocks are expected per crater.
@@ -167,7 +185,7 @@ BLOCK_REACH = 2.0
 BLOCK_HALF_LIFE_GYR = 0.06
 #: Block fields of craters whose blocks survive with less than this probability are skipped.
 BLOCK_MIN_SURVIVAL = 1e-3
-#: Octave bins of a block field (sizes span Dc / 1000 - Dc / 50, about 4.3 octaves).
+#: Geometric bins of a block field's sizes.
 _BLOCK_BINS = 8
 
 STREAM_COUNT = stream_id("rocks-count")
@@ -198,7 +216,8 @@ class RockModel:
     craters : bool
         Give fresh craters block fields (module docstring) when craters are given.
     block_count : float
-        Blocks >= Dc / 500 per fresh crater of diameter Dc.
+        Blocks >= 4.4 m around a fresh crater of Linne's size (2.2 km) that excavates
+        only rock; other sizes scale as the module docstring says.
     block_index : float
         Cumulative index of the block sizes (< -2).
     block_cover : float
@@ -208,7 +227,8 @@ class RockModel:
     reach : float
         Extent of a block field in crater radii (>= 1).
     regolith_m : float
-        Regolith thickness: only craters with D >= 5 regolith_m excavate blocks.
+        Regolith thickness (m): craters excavate rock below it, none when
+        ``0.1 D <= regolith_m``.
     """
 
     model: str = DEFAULT_MODEL
@@ -422,28 +442,57 @@ class RockModel:
 
     # ------------------------------------------------------------------ block fields
     @property
-    def block_fractions(self) -> tuple[float, float]:
-        """Smallest and largest block of a fresh crater's field, as fractions of Dc.
+    def blocky_diameter(self) -> float:
+        """Smallest crater diameter (m) whose excavation reaches below the regolith."""
+        return self.regolith_m / EXCAVATION_DEPTH
 
-        The smallest is where the blocks >= it cover ``block_cover`` of the field's area
-        ``pi (reach Dc / 2)^2``; the largest is where ``BLOCK_TOP_COUNT`` block is expected.
+    def rock_share(self, crater_diameter):
+        """Share of a crater's excavated volume that is rock below the regolith.
+
+        The excavation cavity is a paraboloid of depth ``0.1 Dc``; the part below the regolith
+        is a paraboloid of depth ``0.1 Dc - regolith_m``, so its share of the volume is
+        ``(1 - regolith_m / (0.1 Dc))^2`` (0 for craters that stay in the regolith).
         """
-        alpha, f = self.block_index, BLOCK_REF_FRACTION
-        # share of the field's area under blocks >= d:
-        # count (-alpha) / (-alpha - 2) (f / reach)^2 (d / ref)^(alpha + 2)
-        share = self.block_count * -alpha / (-alpha - 2) * (f / self.reach) ** 2
-        lo = f * (self.block_cover / share) ** (1.0 / (alpha + 2))
-        hi = f * (BLOCK_TOP_COUNT / self.block_count) ** (1.0 / alpha)
-        return float(lo), float(max(hi, lo * 1.0001))
+        dc = np.asarray(crater_diameter, float)
+        depth = EXCAVATION_DEPTH * dc
+        with np.errstate(divide="ignore", invalid="ignore"):
+            share = np.where(depth > self.regolith_m,
+                             (1.0 - self.regolith_m / np.maximum(depth, 1e-300)) ** 2, 0.0)
+        return share
+
+    def _block_law(self, crater_diameter):
+        """Per crater: the law's coefficient c (N(>=d) = c d^index) and its size range.
+
+        Returns (c, lo, hi) arrays: the smallest block, where the blocks >= it cover
+        ``block_cover`` of the field ``pi (reach Dc / 2)^2``, and the largest, where
+        ``BLOCK_TOP_COUNT`` block is expected (lo = hi = 0 where a crater has no field).
+        """
+        dc = np.atleast_1d(np.asarray(crater_diameter, float))
+        alpha = self.block_index
+        scale = LINNE_BLOCK * (dc / LINNE_DIAMETER) ** BLOCK_SIZE_EXPONENT
+        c = self.block_count * self.rock_share(dc) * scale ** -alpha
+        ok = c > 0
+        cs = np.where(ok, c, 1.0)
+        hi = (BLOCK_TOP_COUNT / cs) ** (1.0 / alpha)
+        # blocks >= d cover c (-alpha) / (-alpha - 2) (pi / 4) d^(alpha + 2) of the ground
+        field = self.block_cover * (self.reach * dc) ** 2
+        lo = (field * (-alpha - 2) / (-alpha * cs)) ** (1.0 / (alpha + 2))
+        ok &= lo < hi
+        return np.where(ok, c, 0.0), np.where(ok, lo, 0.0), np.where(ok, hi, 0.0)
 
     def block_cumulative(self, d, crater_diameter, age_gyr=0.0):
         """Return the expected blocks >= d (m) in one crater's field (its age's survivors)."""
-        dc = np.asarray(crater_diameter, float)
-        lo, hi = self.block_fractions
-        dd = np.clip(np.asarray(d, float), lo * dc, hi * dc)
-        n = (self.block_count * (dd / (BLOCK_REF_FRACTION * dc)) ** self.block_index
-             - BLOCK_TOP_COUNT)
-        return n * self.block_survival(age_gyr) * (dc >= 5.0 * self.regolith_m)
+        c, lo, hi = self._block_law(crater_diameter)
+        dd = np.clip(np.asarray(d, float), lo, hi)
+        with np.errstate(divide="ignore"):
+            n = np.where(c > 0, c * np.where(dd > 0, dd, 1.0) ** self.block_index
+                         - BLOCK_TOP_COUNT, 0.0)
+        n = n * self.block_survival(age_gyr)
+        return n if np.ndim(d) or np.ndim(crater_diameter) else float(n[0])
+
+    def largest_block(self, crater_diameter) -> np.ndarray:
+        """Size (m) of which one block is expected in a fresh crater's field (0: none)."""
+        return self._block_law(crater_diameter)[2]
 
     def block_survival(self, age_gyr):
         """Share of a crater's blocks that survive its age (Gyr)."""
@@ -451,26 +500,20 @@ class RockModel:
 
     def crater_margin(self, crater_diameter: float) -> float:
         """Distance (m) from a crater's centre beyond which none of its blocks reaches."""
-        return self.reach * crater_diameter / 2 + _half_length(
-            self.block_fractions[1] * crater_diameter)
-
-    def _block_bins(self) -> tuple[np.ndarray, np.ndarray]:
-        """Bin edges (fractions of Dc) and expected blocks per bin of a fresh crater."""
-        lo, hi = self.block_fractions
-        edges = np.geomspace(lo, hi, _BLOCK_BINS + 1)
-        n = self.block_count * (edges / BLOCK_REF_FRACTION) ** self.block_index
-        return edges, n[:-1] - n[1:]
+        hi = float(self._block_law(crater_diameter)[2][0])
+        return self.reach * crater_diameter / 2 + _half_length(hi)
 
     def _block_sources(self, craters) -> np.ndarray:
-        """(n, 4) x, y, diameter, survival of the craters that have block fields."""
+        """(n, 7) x, y, diameter, survival, law coefficient, smallest and largest block."""
         if craters is None or not self.craters or not len(craters):
-            return np.empty((0, 4))
+            return np.empty((0, 7))
         d = np.asarray(craters.diameter, float)
         surv = self.block_survival(craters.age)
-        keep = (d >= 5.0 * self.regolith_m) & (surv >= BLOCK_MIN_SURVIVAL)
+        c, lo, hi = self._block_law(d)
+        keep = (c > 0) & (surv >= BLOCK_MIN_SURVIVAL)
         return np.ascontiguousarray(np.column_stack([
             np.asarray(craters.x, float)[keep], np.asarray(craters.y, float)[keep], d[keep],
-            surv[keep]]))
+            surv[keep], c[keep], lo[keep], hi[keep]]))
 
     def _table(self, d_lo, d_hi):
         """(log D, log N(>=D)) table of one bin for inverse-transform sampling."""
@@ -516,10 +559,10 @@ class RockModel:
             expected += n * area
             plans.append((b, d_lo, d_hi, cell, box))
         src = self._block_sources(craters)
-        edges, per_bin = self._block_bins()
         if len(src):
-            top = edges[1:][None, :] * src[:, 2:3]
-            expected += float(np.sum(per_bin[None, :] * src[:, 3:4] * (top > min_diameter)))
+            lo = np.maximum(src[:, 5], np.minimum(float(min_diameter), src[:, 6]))
+            n_lo = src[:, 4] * lo ** self.block_index - BLOCK_TOP_COUNT
+            expected += float(np.sum(np.maximum(n_lo, 0.0) * src[:, 3]))
         memory.require(expected * _BYTES_PER_ROCK,
                        f"a rock field of about {expected:.3g} rocks")
         parts = []
@@ -536,7 +579,7 @@ class RockModel:
             keep = out[:, 2] >= min_diameter
             parts.append((out[keep], uid[keep]))
         if len(src):
-            blocks = (seed, src, edges, per_bin, self.block_index, self.reach, xmin, ymin,
+            blocks = (seed, src, self.block_index, self.reach, xmin, ymin,
                       xmax, ymax, bool(margin), float(min_diameter))
             n = _place_blocks(*blocks, np.empty((0, _OUT)), np.empty(0, np.uint64), True)
             out = np.empty((n, _OUT))
@@ -642,8 +685,8 @@ def _place(seed, b, cell, lam, logd, logn, ix0, ix1, iy0, iy1, lo_x, lo_y, hi_x,
 
 
 @numba.njit(cache=True)
-def _place_blocks(seed, src, edges, per_bin, alpha, reach, xmin, ymin, xmax, ymax, margin,
-                  min_d, out, uid, count_only):
+def _place_blocks(seed, src, alpha, reach, xmin, ymin, xmax, ymax, margin, min_d, out, uid,
+                  count_only):
     """Blocks of the craters' fields (module docstring) whose outline may touch the extent.
 
     A block is keyed by its crater's position (millimetres), its size bin and its number in
@@ -654,12 +697,14 @@ def _place_blocks(seed, src, edges, per_bin, alpha, reach, xmin, ymin, xmax, yma
     inner = 1.0 / (3.0 - 2.0 / reach)
     for c in range(src.shape[0]):
         cx, cy, dc, surv = src[c, 0], src[c, 1], src[c, 2], src[c, 3]
+        coef, d_lo, d_hi = src[c, 4], src[c, 5], src[c, 6]
+        step = (d_hi / d_lo) ** (1.0 / _BLOCK_BINS)
         ix = np.int64(round(cx * 1000.0))
         iy = np.int64(round(cy * 1000.0))
         rad = 0.5 * dc
-        for bi in range(per_bin.size):
-            lo = edges[bi] * dc
-            hi = edges[bi + 1] * dc
+        for bi in range(_BLOCK_BINS):
+            lo = d_lo * step ** bi
+            hi = d_hi if bi == _BLOCK_BINS - 1 else d_lo * step ** (bi + 1)
             if hi <= min_d:
                 continue
             grow = 0.5 * hi / math.sqrt(0.4) * (1 + 3 * SHAPE_PERTURBATION) if margin else 0.0
@@ -669,7 +714,7 @@ def _place_blocks(seed, src, edges, per_bin, alpha, reach, xmin, ymin, xmax, yma
             if math.hypot(gx, gy) > reach * rad:
                 continue
             count = poisson(uniform_scalar(seed, STREAM_BLOCK_COUNT, bi, ix, iy, 0),
-                            per_bin[bi])
+                            coef * (lo ** alpha - hi ** alpha))
             for j in range(count):
                 k0 = _NPAR * j
                 if uniform_scalar(seed, STREAM_BLOCK, bi, ix, iy, k0 + 3) >= surv:

@@ -2,8 +2,11 @@
 
 The references are the published laws and measurements written out here, not the model's
 own functions: the VIPER environment specification's N(>=D) = a D^b per m^2, Linne's boulder
-field (Pajola et al. 2019: cumulative index -4.03, largest 30.8 m around a 2.2 km crater) and
-the median boulder survival of 40-80 Myr (Basilevsky et al. 2013; Watkins et al. 2019).
+field (Pajola et al. 2019: 12,000 boulders >= 4.4 m, cumulative index -4.03, largest 30.8 m
+around a 2.2 km crater), the largest boulder of a crater, 0.29 Dc^0.66 m (Bart and Melosh
+2010), the median boulder survival of 40-80 Myr (Basilevsky et al. 2013; Watkins et al.
+2019) and the Neukum production function's N(>=1 km) = 8.38e-4 per km^2 per Gyr with a
+cumulative slope of -3 below 1 km (Neukum et al. 2001).
 """
 
 import math
@@ -73,11 +76,11 @@ def _field(age, diameter=500.0, seed=5, model="viper-nominal:dmin=0.5"):
 
 
 def test_fresh_block_fields_follow_linnes_steep_size_distribution():
-    """Around a fresh 500 m crater the boulders >= 1-4 m follow a cumulative index near
+    """Around a fresh 500 m crater the boulders >= 2-8 m follow a cumulative index near
     Linne's -4.03 (Pajola et al. 2019), far steeper than the plains' -2.48, and its largest
     block is of the size Linne's is for its diameter (30.8 m / 2.2 km) within a factor 3."""
     rocks, area = _field(0.0)
-    d = np.geomspace(1.0, 4.0, 5)
+    d = np.geomspace(2.0, 8.0, 5)
     n = np.array([_count(rocks, x, area) for x in d])
     index = np.polyfit(np.log(d), np.log(n), 1)[0]
     assert -4.6 < index < -3.5, index
@@ -88,6 +91,92 @@ def test_fresh_block_fields_follow_linnes_steep_size_distribution():
     assert n[0] > 20 * n_plain[0]              # a block field, not a sprinkle
     ratio = rocks.diameter.max() / 500.0
     assert 30.8 / 2200 / 3 < ratio < 30.8 / 2200 * 3, ratio
+
+
+def test_a_linne_size_crater_has_linnes_boulders():
+    """A fresh 2.2 km crater in a thin (5 m) regolith has about Linne's 12,000 boulders
+    >= 4.4 m (Pajola et al. 2019) within two radii, and its largest within a factor 1.5 of
+    Linne's 30.8 m."""
+    rocks, _ = _field(0.0, diameter=2200.0, model="viper-nominal:dmin=4,regolith_m=5")
+    plain = 3e-4 * (4.4**-2.482 - 5.0**-2.482) * math.pi * 2200.0**2
+    n = np.count_nonzero(rocks.diameter >= 4.4) - plain
+    assert 12000 * 0.8 < n < 12000 * 1.2, n
+    assert 30.8 / 1.5 < rocks.diameter.max() < 30.8 * 1.5, rocks.diameter.max()
+
+
+@pytest.mark.parametrize("diameter", [200.0, 500.0, 1000.0])
+def test_largest_block_follows_bart_and_melosh(diameter):
+    """The largest boulder of a fresh crater in rock is 0.29 Dc^0.66 m (Bart and Melosh
+    2010), whose craters scatter about a factor 2 around it."""
+    published = 0.29 * diameter**0.66
+    largest = []
+    for seed in range(5):
+        m = RockModel.from_spec("viper-nominal:dmin=1,regolith_m=2")
+        craters = CraterTable.from_craters([Crater(0.0, 0.0, diameter, 0.0)])
+        half = diameter * 1.2
+        rocks = m.generate(seed, (-half, -half, half, half), craters=craters,
+                           min_diameter=published / 4, margin=False)
+        largest.append(rocks.diameter.max())
+    ratio = float(np.median(largest)) / published
+    assert 0.5 < ratio < 2.0, (diameter, largest, published)
+
+
+@pytest.mark.parametrize("regolith, blocky", [(5.0, 60.0), (10.0, 110.0)])
+def test_only_craters_that_dig_below_the_regolith_throw_blocks(regolith, blocky):
+    """Excavating to a tenth of their diameter, craters up to 10 regolith thicknesses throw
+    out no blocks; just beyond, small ones; a crater of 40 thicknesses hundreds >= 1 m."""
+    model = f"viper-nominal:dmin=0.1,regolith_m={regolith}"
+
+    def blocks(diameter, d):
+        rocks, area = _field(0.0, diameter=diameter, model=model)
+        plain = 3e-4 * (d**-2.482 - 5.0**-2.482) * area
+        return np.count_nonzero(rocks.diameter >= d) - plain, plain
+
+    below, plain = blocks(9.5 * regolith, 0.1)
+    assert below < 5 * math.sqrt(plain), below
+    near, plain = blocks(blocky, 0.1)
+    assert near > 5 * math.sqrt(plain), near
+    big, plain = blocks(40 * regolith, 1.0)
+    assert big > 100 + 5 * math.sqrt(plain), big
+
+
+def _fresh_craters(side, seed, age_gyr=0.6, dmin=40.0):
+    """Craters >= dmin made over the last age_gyr at the Neukum production rate (N(>=1 km) =
+    8.38e-4 per km^2 per Gyr, cumulative slope -3 below 1 km), ages uniform: a plain's fresh
+    craters, not chosen to be near the site or away from it."""
+    rng = np.random.default_rng(seed)
+    per_km2 = 8.38e-4 * age_gyr * (dmin / 1000.0) ** -3.0
+    n = rng.poisson(per_km2 * (side / 1000.0) ** 2)
+    d = dmin * (1.0 - rng.random(n)) ** (-1.0 / 3.0)
+    xy = rng.random((n, 2)) * side
+    return CraterTable.from_craters([Crater(float(x), float(y), float(dd), float(t)) for
+                                     (x, y), dd, t in zip(xy, d, rng.random(n) * age_gyr,
+                                                          strict=True)])
+
+
+@pytest.mark.parametrize("regolith", [5.0, 10.0])
+def test_a_typical_site_stays_in_the_viper_band(regolith):
+    """Over a large plain whose fresh craters formed at the production rate, the rocks per m^2
+    from 6 cm to 1.25 m lie between the VIPER low and high laws: the block fields add to the
+    nominal plain what fresh craters add, not a different surface."""
+    side = 4000.0
+    craters = _fresh_craters(side, seed=11)
+    model = RockModel.from_spec(f"viper-nominal:dmin=0.05,regolith_m={regolith}")
+    # small rocks on sample squares spread over the plain, large ones on its middle km^2
+    for d, square, n_side in ((0.06, 20.0, 12), (0.2, 60.0, 12), (0.6, 1000.0, 1),
+                              (1.25, 2000.0, 1)):
+        count, area = 0, 0.0
+        for cx in np.linspace(0.5 * square, side - 0.5 * square, n_side):
+            for cy in np.linspace(0.5 * square, side - 0.5 * square, n_side):
+                if n_side == 1:
+                    cx = cy = side / 2
+                box = (cx - square / 2, cy - square / 2, cx + square / 2, cy + square / 2)
+                rocks = model.generate(3, box, craters=craters, min_diameter=d, margin=False)
+                count += int(np.count_nonzero(rocks.diameter >= d))
+                area += square * square
+        low = PUBLISHED["viper-low"][0] * d ** PUBLISHED["viper-low"][1]
+        high = PUBLISHED["viper-high"][0] * d ** PUBLISHED["viper-high"][1]
+        assert low < count / area < high, (d, count / area, low, high)
 
 
 def test_block_fields_fade_with_the_median_boulder_survival():
