@@ -6,8 +6,14 @@ uniform mat3 u_world_from_model;       // body rotation (asteroids); identity fo
 uniform vec3 u_model_offset;           // model origin in world, relative to the camera
 in vec3 in_position;
 in vec3 in_normal;
-in float in_albedo;                    // per-vertex albedo factor (bodies); see u_vertex_albedo
+in float in_albedo;                    // per-vertex albedo factor (bodies); see VERTEX_ALBEDO
+// Specialised at compile time as scene.frag is (VERTEX_ALBEDO: in_albedo is bound; MORPH:
+// the batch geomorphs); the generic program reads u_vertex_albedo and u_morph instead.
+#ifndef SPECIALISED
 uniform int u_vertex_albedo;           // 1: in_albedo is bound; 0: factor 1
+#define VERTEX_ALBEDO u_vertex_albedo
+#define MORPH 1
+#endif
 out vec3 v_rel;      // world position minus camera position (m)
 out vec3 v_normal;   // world-frame normal (not normalised)
 out float v_albedo;  // albedo factor (1 unless the mesh carries one per vertex)
@@ -36,7 +42,7 @@ void main() {
     vec3 p = in_position;
     vec3 n = in_normal;
     v_shadow_bias = 0.0;
-    if (u_morph != 0) {
+    if (MORPH == 1 && u_morph != 0) {
         float d = length(u_world_from_model * p + u_model_offset);
         float k = u_morph == 1 ? u_morph_k : u_morph_k + in_morph.w;
         if (u_morph == 2 || in_morph.w == u_morph_level) {
@@ -51,6 +57,6 @@ void main() {
     }
     v_rel = u_world_from_model * p + u_model_offset;
     v_normal = u_world_from_model * n;
-    v_albedo = u_vertex_albedo == 1 ? in_albedo : 1.0;
+    v_albedo = VERTEX_ALBEDO == 1 ? in_albedo : 1.0;
     gl_Position = u_clip_from_camera_rel * vec4(v_rel, 1.0);
 }
