@@ -539,7 +539,7 @@ class TerrainScene:
         Returns
         -------
         render.scene.FrameState
-            The batches (coarsest layer first) and what they draw.
+            The batches (finest layer first: front to back) and what they draw.
         """
         self.upload(gpu)
         k = view.intrinsics
@@ -584,6 +584,7 @@ class TerrainScene:
         for layer, (lods, blocks) in zip(self._layers, plan, strict=True):
             if not blocks.size:
                 continue
+            layer_batches: list[DrawBatch] = []
             tris = 0
             by_lod: dict = {}
             for b, s in zip(blocks, lods, strict=True):
@@ -612,7 +613,11 @@ class TerrainScene:
                 elif shadow is not None and s > 1:
                     # coarser visible geometry than the shadow map saw: widen the bias
                     batch.shadow = _with_extra_bias(shadow, LOD_BIAS_PIXELS * s * layer.resolution)
-                batches.append(batch)
+                layer_batches.append(batch)
+            # front to back: a finer layer (nearer the camera, which looks at the site) is
+            # drawn before the coarser ones, whose hidden fragments then fail the depth test
+            # before they are shaded
+            batches[:0] = layer_batches
             drawn_layers.append({"level": layer.level, "resolution": layer.resolution,
                                  "blocks": int(blocks.size), "triangles": tris,
                                  "lod": sorted({int(s) for s in lods})})
