@@ -683,6 +683,9 @@ class Renderer:
         self.scene_program = self.ctx.program(vertex_shader=_shader("scene.vert"),
                                               fragment_shader=_shader("scene.frag"))
         self._programs: dict[tuple, Any] = {}
+        self._resolve_program: Any = None
+        self._resolve_vao: Any = None
+        self._resolve: dict = {}
         self._clip_control = _gl("glClipControl", ctypes.c_uint, ctypes.c_uint)
         self.depth_program = self.ctx.program(vertex_shader=_shader("depth.vert"),
                                               fragment_shader=_shader("depth.frag"))
@@ -886,20 +889,59 @@ class Renderer:
         w, h = ka.width, ka.height
         rad = np.frombuffer(fbo.read(attachment=0, components=1, dtype="f4"),
                             dtype=np.float32).reshape(h, w)[::-1].copy()
-        range_m = np.frombuffer(fbo.read(attachment=1, components=1, dtype="f4"),
-                            dtype=np.float32).reshape(h, w)[::-1].copy()
-        nrm = np.frombuffer(fbo.read(attachment=2, components=4, dtype="f4"),
-                            dtype=np.float32).reshape(h, w, 4)[::-1]
         if a != 1:  # radiance: the mean of each pixel's samples; range, normals: its centre's
-            c = (a - 1) // 2
             rad = rad.reshape(k.height, a, k.width, a).mean(axis=(1, 3), dtype=np.float64) \
                 .astype(np.float32)
-            range_m = range_m[c::a, c::a].copy()
-            nrm = nrm[c::a, c::a]
+            fbo = self._centre_samples(fbo, (k.width, k.height), a)
+        range_m = np.frombuffer(fbo.read(attachment=1, components=1, dtype="f4"),
+                                dtype=np.float32).reshape(k.height, k.width)[::-1].copy()
+        nrm = np.frombuffer(fbo.read(attachment=2, components=4, dtype="f4"),
+                            dtype=np.float32).reshape(k.height, k.width, 4)[::-1]
         hit = nrm[:, :, 3] > 0.5
         range_m[~hit] = np.nan
         normals = np.where(hit[:, :, None], nrm[:, :, :3], np.nan).astype(np.float32)
         return Frame(np.ascontiguousarray(rad), range_m, normals, dict(state.drawn))
+
+    def _centre_samples(self, fbo: Any, size: tuple[int, int], a: int) -> Any:
+        """Copy each pixel's centre sample of an antialiased frame's range and normals.
+
+        Done on the GPU, so that only a pixel's one sample of them is read back (sample
+        ``a x + (a - 1) / 2`` of pixel x, the same in rows: ``a`` is odd).
+
+        Returns
+        -------
+        moderngl.Framebuffer
+            A ``size`` framebuffer whose attachments 1 and 2 hold them.
+        """
+        import moderngl
+
+        ctx = self.ctx
+        if self._resolve_program is None:
+            self._resolve_program = ctx.program(vertex_shader=_shader("fullscreen.vert"),
+                                                fragment_shader=_shader("centre.frag"))
+            self._resolve_vao = ctx.vertex_array(self._resolve_program, [])
+        target = self._resolve.get(size)
+        if target is None:
+            for old in self._resolve.values():  # one size at a time
+                for tex in old.color_attachments:
+                    tex.release()
+                old.release()
+            self._resolve.clear()
+            # attachment 0 is unused: the attachments keep the camera pass's numbering
+            color = [ctx.texture(size, 1, dtype="f4"), ctx.texture(size, 1, dtype="f4"),
+                     ctx.texture(size, 4, dtype="f4")]
+            target = self._resolve[size] = ctx.framebuffer(color_attachments=color)
+        prog = self._resolve_program
+        prog["u_factor"].value = a
+        prog["u_range"].value = 6
+        prog["u_normal"].value = 7
+        fbo.color_attachments[1].use(location=6)
+        fbo.color_attachments[2].use(location=7)
+        target.use()
+        ctx.viewport = (0, 0, size[0], size[1])
+        ctx.disable(moderngl.DEPTH_TEST)
+        self._resolve_vao.render(moderngl.TRIANGLES, vertices=3)
+        return target
 
     def _set_albedo_map(self, albedo):
         """Bind a scene's albedo map ((texture, (xmin, ymin, xmax, ymax) scene-local)) or none."""
