@@ -284,7 +284,7 @@ def main(argv=None) -> int:
         names = [*raw, *options]
         for name in names[2:]:  # warm each setting's one-off work (earthshine's grids)
             renderer.render(scene, View(samples[0].pose, k), lights[name], options[name])
-        times = {name: [] for name in names}
+        times: dict[str, list[float]] = {name: [] for name in names}
         drawn: dict[str, list] = {name: [] for name in names[2:]}
         for i, s in enumerate(samples):
             for name in order(names, i):
