@@ -88,7 +88,7 @@ def raw_load(renderer, stack_dir: Path, view, size: int, triangles: int) -> dict
     import moderngl
     import numpy as np
 
-    from render.renderer import LOG_NEAR, clip_from_camera
+    from render.renderer import NEAR_M, clip_from_camera
     from terrain.io import read_dem
 
     ctx = renderer.ctx
@@ -121,16 +121,13 @@ def raw_load(renderer, stack_dir: Path, view, size: int, triangles: int) -> dict
     far = 3.0 * n * res
     rot = np.eye(4)
     rot[:3, :3] = pose.rotation.T
-    clip_rel = (clip_from_camera(k, LOG_NEAR, far) @ rot).T.astype("f4").tobytes()
+    clip_rel = (clip_from_camera(k, NEAR_M, far) @ rot).T.astype("f4").tobytes()
     prog["u_clip_from_camera_rel"].write(clip_rel)
     prog["u_world_from_model"].write(np.eye(3, dtype="f4").tobytes())
     prog["u_model_offset"].value = tuple((-np.asarray(pose.position)).tolist())
     prog["u_camera"].value = tuple(pose.position)
-    prog["u_axis"].value = tuple(pose.rotation[:, 2].tolist())
     prog["u_sun"].value = (0.5, 0.5, 0.7071)
     prog["u_albedo"].value = 0.12
-    prog["u_log_near"].value = math.log(LOG_NEAR)
-    prog["u_log_scale"].value = 1.0 / math.log(far / LOG_NEAR)
     for name in ("u_use_discard", "u_shadows", "u_vertex_albedo", "u_morph", "u_normal_map",
                  "u_normal_cube", "u_use_albedo_map", "u_brdf"):
         prog[name].value = 0
@@ -138,8 +135,10 @@ def raw_load(renderer, stack_dir: Path, view, size: int, triangles: int) -> dict
     fbo.use()
     ctx.viewport = (0, 0, size, size)
     ctx.enable(moderngl.DEPTH_TEST)
-    fbo.clear(depth=1.0)
+    ctx.depth_func = ">"  # the renderer's reversed Z (near / z in [0.5, 1]: clip z [-1, 1])
+    fbo.clear(depth=0.0)
     vao.render(moderngl.TRIANGLES)
+    ctx.depth_func = "<"
     for i, comps in ((0, 1), (1, 1), (2, 4)):
         fbo.read(attachment=i, components=comps, dtype="f4")
     total = time.perf_counter() - t0

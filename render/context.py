@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from render.errors import RenderUnavailableError
 
 __all__ = ["APT_PACKAGES", "DEVICE_ENV", "EglDevice", "choose_device", "create_context",
-           "describe", "egl_devices", "fallbacks", "keep_current"]
+           "describe", "egl_devices", "fallbacks", "gl_function", "keep_current"]
 
 log = logging.getLogger(__name__)
 
@@ -314,6 +314,36 @@ def _egl():
     lib.eglMakeCurrent.argtypes = [ctypes.c_void_p] * 4
     lib.eglMakeCurrent.restype = ctypes.c_uint
     return lib
+
+
+@functools.cache
+def gl_function(name: str, *argtypes: type) -> object | None:
+    """Return an OpenGL entry point that moderngl does not wrap, or None where none is offered.
+
+    Looked up through ``eglGetProcAddress`` (the driver's own function; it acts on the
+    calling thread's current context, as moderngl's calls do).
+
+    Parameters
+    ----------
+    name : str
+        The GL function, e.g. ``"glClipControl"``.
+    *argtypes : ctypes types
+        Its arguments (it returns nothing).
+
+    Returns
+    -------
+    ctypes function or None
+        The callable, or None where EGL or the function is missing.
+    """
+    lib = _egl()
+    if lib is None:
+        return None
+    lib.eglGetProcAddress.restype = ctypes.c_void_p
+    lib.eglGetProcAddress.argtypes = [ctypes.c_char_p]
+    address = lib.eglGetProcAddress(name.encode())
+    if not address:
+        return None
+    return ctypes.CFUNCTYPE(None, *argtypes)(address)
 
 
 def _egl_current() -> tuple[int, int, int, int] | None:

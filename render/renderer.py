@@ -3,10 +3,17 @@
 One draw of the scene fills three float32 colour attachments: radiance (reflectance factor
 I/F under a unit sun, see :mod:`render.reflectance`), range (the Euclidean distance from the
 camera centre, computed per fragment from camera-relative float32 positions: not recovered from
-the 24-bit depth buffer) and the world-frame surface normal. Depth testing uses a logarithmic
-depth written per fragment (``log(z / near) / log(far / near)``), which keeps 1e-6 relative
-depth resolution from centimetres to a thousand kilometres, so descents from orbit to touchdown
-need no depth partitioning.
+the depth buffer) and the world-frame surface normal. Depth testing uses reversed Z: a float32
+depth buffer holding ``near / z`` (an infinite-far projection, clip z in [0, 1]), whose
+relative depth resolution is float32's own (6e-8) at every distance, from centimetres to a
+thousand kilometres, so descents from orbit to touchdown need no depth partitioning, and the
+fragment shader writes no depth (a rasteriser then rejects hidden fragments before shading
+them).
+
+Each camera pass draws with programs specialised at compile time (``#define`` switches in
+``shaders/scene.frag``): one per reflectance law and per combination of the effects and maps
+its batches use, compiled once per renderer, so that no fragment pays for a path it never
+takes.
 
 The projection follows :mod:`render.camera` exactly: pixel (u, v) is centred where the
 OpenCV pinhole model puts it, so a world point's rendered pixel and its projection with the
@@ -22,6 +29,7 @@ frame.
 
 from __future__ import annotations
 
+import ctypes
 import itertools
 import logging
 import math
@@ -33,7 +41,8 @@ from typing import Any
 import numpy as np
 
 from render.camera import Intrinsics, Pose
-from render.context import create_context
+from render.context import create_context, gl_function
+from render.errors import RenderUnavailableError
 from render.imposter import blend, composite
 from render.reflectance import BRDF_CODES, MCEWEN_MOON, SATO_643NM, Hapke, check_brdf
 from render.scene import DrawBatch, Imposter, Scene
@@ -44,11 +53,8 @@ __all__ = ["Frame", "Lighting", "RenderOptions", "Renderer", "SceneGpu", "View",
 
 log = logging.getLogger(__name__)
 
-#: Nearest depth the logarithmic depth buffer resolves (m): the near clip plane.
-LOG_NEAR = 0.01
-#: Smallest far distance (m) the logarithmic depth is scaled to: a scene whose farthest
-#: point is closer (or an empty one) still gets a well-defined ``log(far / near)``.
-MIN_FAR_M = 1.0
+#: The near clip plane (m): the reversed-Z depth buffer holds ``NEAR_M / z``.
+NEAR_M = 0.01
 #: Image sizes whose offscreen framebuffers are kept at once (a frame, its imposter, and
 #: the sizes of a client switching between a few).
 MAX_TARGETS = 4
@@ -317,11 +323,12 @@ def clip_from_camera(intrinsics: Intrinsics, near: float, far: float) -> np.ndar
     """Give the clip-space matrix acting on OpenCV camera coordinates (X, Y, Z, 1).
 
     Pixel (u, v) with v counted from the top maps to the centre of framebuffer texel
-    (u, h - 1 - v): ``x_ndc = (2u + 1) / w - 1``, ``y_ndc = 1 - (2v + 1) / h``. Clip z only
-    clips at the near plane: ``z_ndc = 1 - 2 near / Z`` is an infinite-far projection, so no
-    far plane can cut distant geometry through float32 rounding (a finite far plane with a
-    near plane of 1 cm loses whole bodies at 100 km that way); depth itself is written
-    logarithmically by the fragment shader.
+    (u, h - 1 - v): ``x_ndc = (2u + 1) / w - 1``, ``y_ndc = 1 - (2v + 1) / h``. Reversed Z
+    with an infinite far plane: clip z is ``near``, so ``z_ndc = near / Z``, 1 at the near
+    plane and falling towards 0 with distance (drawn with clip z in [0, 1], a depth test
+    "greater" and a float depth buffer cleared to 0, see :class:`Renderer`); only the near
+    plane clips, so no far plane can cut distant geometry through float32 rounding (a finite
+    far plane with a near plane of 1 cm loses whole bodies at 100 km that way).
 
     Parameters
     ----------
@@ -344,14 +351,122 @@ def clip_from_camera(intrinsics: Intrinsics, near: float, far: float) -> np.ndar
     m[0, 2] = (2.0 * k.cx + 1.0) / w - 1.0
     m[1, 1] = -2.0 * k.fy / h
     m[1, 2] = 1.0 - (2.0 * k.cy + 1.0) / h
-    m[2, 2] = 1.0
-    m[2, 3] = -2.0 * near
+    m[2, 3] = near
     m[3, 2] = 1.0
     return m
 
 
-def _shader(name: str) -> str:
-    return resources.files("render").joinpath(f"shaders/{name}").read_text(encoding="utf-8")
+def _shader(name: str, defines: dict[str, int] | None = None) -> str:
+    """Read a shader, with ``#define NAME value`` lines after its ``#version`` line."""
+    text = resources.files("render").joinpath(f"shaders/{name}").read_text(encoding="utf-8")
+    if not defines:
+        return text
+    version, _, rest = text.partition("\n")
+    lines = [f"#define {k} {int(v)}" for k, v in sorted(defines.items())]
+    return "\n".join([version, "#define SPECIALISED 1", *lines, rest])
+
+
+#: The compile-time switches of the camera pass's programs (``shaders/scene.frag``).
+SWITCHES = ("BRDF", "VERTEX_ALBEDO", "VERTEX_SCATTER", "ALBEDO_MAP", "DISCARD", "NORMAL_MAP",
+            "NORMAL_CUBE", "SHADOWS", "SOFT_SHADOWS", "SCATTER_MAP", "SCATTERING", "EARTHSHINE",
+            "MORPH")
+
+# GL enums glClipControl and a float depth renderbuffer need (moderngl wraps neither)
+_GL_LOWER_LEFT, _GL_NEGATIVE_ONE_TO_ONE, _GL_ZERO_TO_ONE = 0x8CA1, 0x935E, 0x935F
+_GL_RENDERBUFFER, _GL_DEPTH_COMPONENT32F = 0x8D41, 0x8CAC
+
+
+def _gl(name: str, *argtypes: Any) -> Any:
+    fn = gl_function(name, *argtypes)
+    if fn is None:
+        raise RenderUnavailableError(
+            f"the OpenGL driver lacks {name} (OpenGL 4.5 or ARB_clip_control is needed)")
+    return fn
+
+
+def _set(prog: Any, name: str, value: Any) -> None:
+    """Set a uniform where the program uses it (a specialised one drops unused uniforms)."""
+    member = prog.get(name, None)
+    if member is not None:
+        member.value = value
+
+
+def _write(prog: Any, name: str, data: bytes) -> None:
+    """Write a uniform's bytes where the program uses it."""
+    member = prog.get(name, None)
+    if member is not None:
+        member.write(data)
+
+
+class CameraArrays:
+    """A mesh bound to the camera pass: one vertex array per program that draws it.
+
+    The renderer draws a mesh with the program its batch's switches select (see
+    :data:`SWITCHES`); each program's vertex array is made the first time it is asked for.
+
+    Parameters
+    ----------
+    ctx : moderngl.Context
+        The renderer's context.
+    content : list of tuple
+        The vertex array's content (buffer, format, attribute names).
+    ibo : moderngl.Buffer
+        The index buffer.
+    """
+
+    def __init__(self, ctx: Any, content: list, ibo: Any) -> None:
+        self._ctx = ctx
+        self._content = content
+        self._ibo = ibo
+        self._arrays: dict[int, Any] = {}
+
+    def bound(self, program: Any) -> Any:
+        """Give the vertex array binding the mesh to ``program`` (made on first use).
+
+        Parameters
+        ----------
+        program : moderngl.Program
+            A camera-pass program.
+
+        Returns
+        -------
+        moderngl.VertexArray
+            The vertex array.
+        """
+        key = program.glo
+        vao = self._arrays.get(key)
+        if vao is None:
+            # an attribute a specialised program dropped (in_albedo, in_morph) is skipped
+            content = []
+            for buffer, fmt, *names in self._content:
+                if all(_has(program, n) for n in names):
+                    content.append((buffer, fmt, *names))
+                else:  # skip the attributes' bytes, keep the others
+                    parts = fmt.split()
+                    kept = [n for n in names if _has(program, n)]
+                    fmt = " ".join(p if _has(program, n) else _skip(p)
+                                   for p, n in zip(parts, names, strict=True))
+                    if kept:
+                        content.append((buffer, fmt, *kept))
+            vao = self._ctx.vertex_array(program, content, self._ibo)
+            self._arrays[key] = vao
+        return vao
+
+    def release(self) -> None:
+        """Release every vertex array (the buffers stay the scene's)."""
+        for vao in self._arrays.values():
+            vao.release()
+        self._arrays.clear()
+
+
+def _has(program: Any, name: str) -> bool:
+    return program.get(name, None) is not None
+
+
+def _skip(fmt: str) -> str:
+    """Turn one attribute's moderngl format (``"3f"``) into padding of its bytes (``"12x"``)."""
+    count = int(fmt[:-1] or 1)
+    return f"{4 * count}x"
 
 
 class SceneGpu:
@@ -476,8 +591,9 @@ class SceneGpu:
 
         Returns
         -------
-        tuple of moderngl.VertexArray
-            ``(scene, depth)`` vertex arrays.
+        tuple
+            ``(CameraArrays, moderngl.VertexArray)``: the camera pass's vertex arrays (one
+            per specialised program, made as the renderer asks) and the depth pass's.
         """
         content: list[tuple[Any, ...]] = [(vbo, "3f 3f", "in_position", "in_normal")]
         if albedo is not None:
@@ -486,7 +602,7 @@ class SceneGpu:
             content.append((morph, "4f 3f", "in_morph", "in_morph_normal"))
         if scatter is not None:
             content.append((scatter, "1f", "in_scatter"))
-        vao = self._ctx.vertex_array(self._scene_program, content, ibo)
+        vao = CameraArrays(self._ctx, content, ibo)
         dvao = self._ctx.vertex_array(self._depth_program, [(vbo, "3f 12x", "in_position")],
                                       ibo)
         return vao, dvao
@@ -569,8 +685,15 @@ class Renderer:
         import moderngl
 
         self.ctx = ctx or create_context()
+        #: The generic camera-pass program (every switch a uniform); frames are drawn with
+        #: the specialised ones (:meth:`program`).
         self.scene_program = self.ctx.program(vertex_shader=_shader("scene.vert"),
                                               fragment_shader=_shader("scene.frag"))
+        self._programs: dict[tuple, Any] = {}
+        self._resolve_program: Any = None
+        self._resolve_vao: Any = None
+        self._resolve: dict = {}
+        self._clip_control = _gl("glClipControl", ctypes.c_uint, ctypes.c_uint)
         self.depth_program = self.ctx.program(vertex_shader=_shader("depth.vert"),
                                               fragment_shader=_shader("depth.frag"))
         #: The handle scenes get: uploads, vertex arrays and shadow maps, no camera pass.
@@ -590,6 +713,29 @@ class Renderer:
         self._dummy_cube = self.ctx.texture_cube((1, 1), 3, np.tile(np.array([0, 0, 1], "f2"),
                                                                      6).tobytes(), dtype="f2")
 
+    def program(self, switches: dict[str, int]) -> Any:
+        """Give the camera-pass program specialised for ``switches`` (compiled once).
+
+        Parameters
+        ----------
+        switches : dict
+            A value for each of :data:`SWITCHES` (the reflectance law's code for ``BRDF``,
+            0 or 1 for the others).
+
+        Returns
+        -------
+        moderngl.Program
+            The program.
+        """
+        key = tuple(int(switches[name]) for name in SWITCHES)
+        prog = self._programs.get(key)
+        if prog is None:
+            defines = dict(zip(SWITCHES, key, strict=True))
+            prog = self.ctx.program(vertex_shader=_shader("scene.vert", defines),
+                                    fragment_shader=_shader("scene.frag", defines))
+            self._programs[key] = prog
+        return prog
+
     # ------------------------------------------------------------------ framebuffers
     def _target(self, size: tuple[int, ...]) -> Any:
         """Return the offscreen framebuffer for an image size.
@@ -608,8 +754,14 @@ class Renderer:
                 fbo.release()
             color = [self.ctx.texture(size, 1, dtype="f4"), self.ctx.texture(size, 1, dtype="f4"),
                      self.ctx.texture(size, 4, dtype="f4")]
-            self._fbos[size] = self.ctx.framebuffer(
-                color_attachments=color, depth_attachment=self.ctx.depth_renderbuffer(size))
+            depth = self.ctx.depth_renderbuffer(size)
+            # reversed Z needs a float depth buffer (moderngl makes 24-bit fixed point)
+            _gl("glBindRenderbuffer", ctypes.c_uint, ctypes.c_uint)(_GL_RENDERBUFFER, depth.glo)
+            _gl("glRenderbufferStorage", ctypes.c_uint, ctypes.c_uint, ctypes.c_int,
+                ctypes.c_int)(_GL_RENDERBUFFER, _GL_DEPTH_COMPONENT32F, size[0], size[1])
+            _gl("glBindRenderbuffer", ctypes.c_uint, ctypes.c_uint)(_GL_RENDERBUFFER, 0)
+            self._fbos[size] = self.ctx.framebuffer(color_attachments=color,
+                                                    depth_attachment=depth)
         return self._fbos[size]
 
     # ------------------------------------------------------------------ passes
@@ -671,7 +823,6 @@ class Renderer:
         k = view.intrinsics
         ctx = self.ctx
         state = scene.frame_state(view, lighting, options, self.gpu, imposter)
-        far = max(state.far, MIN_FAR_M)
         origin = np.asarray(scene.origin, dtype=np.float64)
         cam = np.asarray(view.pose.position, dtype=np.float64) - origin  # scene-local
         r_cw = view.pose.rotation.T
@@ -682,147 +833,178 @@ class Renderer:
         a = int(options.antialias)
         ka = k if a == 1 else Intrinsics(k.width * a, k.height * a, k.fx * a, k.fy * a,
                                          a * (k.cx + 0.5) - 0.5, a * (k.cy + 0.5) - 0.5)
-        clip = clip_from_camera(ka, LOG_NEAR, far) @ cam_rel
-        prog = self.scene_program
-        prog["u_clip_from_camera_rel"].write(clip.T.astype("f4").tobytes())
-        prog["u_camera"].value = tuple(cam.tolist())
-        prog["u_axis"].value = tuple(view.pose.rotation[:, 2].tolist())
-        prog["u_sun"].value = tuple(lighting.sun)
-        prog["u_albedo"].value = lighting.albedo
-        prog["u_brdf"].value = BRDF_CODES[lighting.brdf]
-        prog["u_mcewen"].value = tuple(lighting.mcewen)
+        clip = clip_from_camera(ka, NEAR_M, state.far) @ cam_rel
         hp = lighting.hapke
-        prog["u_hapke_a"].value = (hp.w, hp.b, hp.c, hp.bs0)
-        prog["u_hapke_b"].value = (hp.hs, hp.bc0, hp.hc, math.radians(hp.theta_bar))
-        prog["u_hapke_k"].value = hp.porosity_k
-        self._set_albedo_map(prog, state.albedo)
-        prog["u_log_near"].value = math.log(LOG_NEAR)
-        prog["u_log_scale"].value = 1.0 / math.log(far / LOG_NEAR)
-        prog["u_shadow_map"].value = 0
-        prog["u_shadow_depth"].value = 4
-        prog["u_scatter"].value = 5
-        prog["u_sun_tan"].value = (math.tan(lighting.sun_angular_radius)
-                                   if options.soft_shadows else 0.0)
-        prog["u_scattering"].value = 1 if options.scattering else 0
+        sun_tan = math.tan(lighting.sun_angular_radius) if options.soft_shadows else 0.0
         earth = lighting.earth if options.earthshine and lighting.earthshine > 0 else None
-        prog["u_earth"].value = tuple(earth) if earth is not None else (0.0, 0.0, 1.0)
-        prog["u_earthshine"].value = lighting.earthshine if earth is not None else 0.0
+        frame_uniforms: dict[str, Any] = {
+            "u_camera": tuple(cam.tolist()), "u_sun": tuple(lighting.sun),
+            "u_albedo": lighting.albedo, "u_mcewen": tuple(lighting.mcewen),
+            "u_hapke_a": (hp.w, hp.b, hp.c, hp.bs0),
+            "u_hapke_b": (hp.hs, hp.bc0, hp.hc, math.radians(hp.theta_bar)),
+            "u_hapke_k": hp.porosity_k, "u_shadow_map": 0, "u_shadow_depth": 4,
+            "u_scatter": 5, "u_albedo_map": 1, "u_normals": 2, "u_normal_cube_map": 3,
+            "u_sun_tan": sun_tan,
+            "u_earth": tuple(earth) if earth is not None else (0.0, 0.0, 1.0),
+            "u_earthshine": lighting.earthshine if earth is not None else 0.0}
+        if state.albedo is not None:
+            frame_uniforms["u_albedo_window"] = tuple(float(v) for v in state.albedo[1])
+        clip_bytes = clip.T.astype("f4").tobytes()
+        frame_switches = dict(
+            BRDF=BRDF_CODES[lighting.brdf], ALBEDO_MAP=state.albedo is not None,
+            SOFT_SHADOWS=sun_tan > 0, SCATTERING=bool(options.scattering),
+            EARTHSHINE=earth is not None)
+        self._set_albedo_map(state.albedo)
+        shadows = options.shadows and lighting is not None
 
         fbo = self._target((ka.width, ka.height))
         fbo.use()
         ctx.viewport = (0, 0, ka.width, ka.height)
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE)
-        ctx.depth_func = "<"
+        ctx.depth_func = ">"  # reversed Z: nearer is greater
         if rows is not None:
             top, bottom = (int(r) * a for r in rows)
             ctx.scissor = (0, ka.height - bottom, ka.width, bottom - top)
+        self._clip_control(_GL_LOWER_LEFT, _GL_ZERO_TO_ONE)
         try:
-            fbo.clear(color=(0.0, 0.0, 0.0, 0.0), depth=1.0)
+            fbo.clear(color=(0.0, 0.0, 0.0, 0.0), depth=0.0)
+            ready: set[int] = set()  # programs whose frame uniforms are set
             for batch in state.batches:
-                self._set_batch(prog, batch, cam, options.shadows and lighting is not None)
+                shadow = batch.shadow if shadows else None
+                prog = self.program(dict(
+                    frame_switches, VERTEX_ALBEDO=bool(batch.vertex_albedo),
+                    VERTEX_SCATTER=bool(batch.vertex_scatter),
+                    DISCARD=batch.discard is not None, NORMAL_MAP=batch.normal_map is not None,
+                    NORMAL_CUBE=batch.normal_cube is not None, SHADOWS=shadow is not None,
+                    SCATTER_MAP=batch.scatter is not None, MORPH=batch.morph is not None))
+                if prog.glo not in ready:
+                    ready.add(prog.glo)
+                    _write(prog, "u_clip_from_camera_rel", clip_bytes)
+                    for name, value in frame_uniforms.items():
+                        _set(prog, name, value)
+                self._set_batch(prog, batch, cam, shadow)
+                vao = batch.vao.bound(prog)
                 for first, count in batch.ranges:
-                    batch.vao.render(moderngl.TRIANGLES, vertices=count, first=first)
+                    vao.render(moderngl.TRIANGLES, vertices=count, first=first)
         finally:
+            self._clip_control(_GL_LOWER_LEFT, _GL_NEGATIVE_ONE_TO_ONE)
             ctx.scissor = None
+            ctx.depth_func = "<"
         err = ctx.error
         if err != "GL_NO_ERROR":
             raise RuntimeError(f"OpenGL error while rendering: {err}")
         w, h = ka.width, ka.height
         rad = np.frombuffer(fbo.read(attachment=0, components=1, dtype="f4"),
                             dtype=np.float32).reshape(h, w)[::-1].copy()
-        range_m = np.frombuffer(fbo.read(attachment=1, components=1, dtype="f4"),
-                            dtype=np.float32).reshape(h, w)[::-1].copy()
-        nrm = np.frombuffer(fbo.read(attachment=2, components=4, dtype="f4"),
-                            dtype=np.float32).reshape(h, w, 4)[::-1]
         if a != 1:  # radiance: the mean of each pixel's samples; range, normals: its centre's
-            c = (a - 1) // 2
             rad = rad.reshape(k.height, a, k.width, a).mean(axis=(1, 3), dtype=np.float64) \
                 .astype(np.float32)
-            range_m = range_m[c::a, c::a].copy()
-            nrm = nrm[c::a, c::a]
+            fbo = self._centre_samples(fbo, (k.width, k.height), a)
+        range_m = np.frombuffer(fbo.read(attachment=1, components=1, dtype="f4"),
+                                dtype=np.float32).reshape(k.height, k.width)[::-1].copy()
+        nrm = np.frombuffer(fbo.read(attachment=2, components=4, dtype="f4"),
+                            dtype=np.float32).reshape(k.height, k.width, 4)[::-1]
         hit = nrm[:, :, 3] > 0.5
         range_m[~hit] = np.nan
         normals = np.where(hit[:, :, None], nrm[:, :, :3], np.nan).astype(np.float32)
         return Frame(np.ascontiguousarray(rad), range_m, normals, dict(state.drawn))
 
-    def _set_albedo_map(self, prog, albedo):
+    def _centre_samples(self, fbo: Any, size: tuple[int, int], a: int) -> Any:
+        """Copy each pixel's centre sample of an antialiased frame's range and normals.
+
+        Done on the GPU, so that only a pixel's one sample of them is read back (sample
+        ``a x + (a - 1) / 2`` of pixel x, the same in rows: ``a`` is odd).
+
+        Returns
+        -------
+        moderngl.Framebuffer
+            A ``size`` framebuffer whose attachments 1 and 2 hold them.
+        """
+        import moderngl
+
+        ctx = self.ctx
+        if self._resolve_program is None:
+            self._resolve_program = ctx.program(vertex_shader=_shader("fullscreen.vert"),
+                                                fragment_shader=_shader("centre.frag"))
+            self._resolve_vao = ctx.vertex_array(self._resolve_program, [])
+        target = self._resolve.get(size)
+        if target is None:
+            for old in self._resolve.values():  # one size at a time
+                for tex in old.color_attachments:
+                    tex.release()
+                old.release()
+            self._resolve.clear()
+            # attachment 0 is unused: the attachments keep the camera pass's numbering
+            color = [ctx.texture(size, 1, dtype="f4"), ctx.texture(size, 1, dtype="f4"),
+                     ctx.texture(size, 4, dtype="f4")]
+            target = self._resolve[size] = ctx.framebuffer(color_attachments=color)
+        prog = self._resolve_program
+        prog["u_factor"].value = a
+        prog["u_range"].value = 6
+        prog["u_normal"].value = 7
+        fbo.color_attachments[1].use(location=6)
+        fbo.color_attachments[2].use(location=7)
+        target.use()
+        ctx.viewport = (0, 0, size[0], size[1])
+        ctx.disable(moderngl.DEPTH_TEST)
+        self._resolve_vao.render(moderngl.TRIANGLES, vertices=3)
+        return target
+
+    def _set_albedo_map(self, albedo):
         """Bind a scene's albedo map ((texture, (xmin, ymin, xmax, ymax) scene-local)) or none."""
         if albedo is None:
-            prog["u_use_albedo_map"].value = 0
             self._dummy_albedo.use(location=1)
         else:
-            texture, window = albedo
-            prog["u_use_albedo_map"].value = 1
-            prog["u_albedo_window"].value = tuple(float(v) for v in window)
-            texture.use(location=1)
-        prog["u_albedo_map"].value = 1
+            albedo[0].use(location=1)
 
-    def _set_batch(self, prog, batch, cam, shadows):
-        prog["u_vertex_albedo"].value = 1 if batch.vertex_albedo else 0
-        prog["u_vertex_scatter"].value = 1 if batch.vertex_scatter else 0
-        prog["u_world_from_model"].write(
-            np.asarray(batch.world_from_model, dtype="f4").T.tobytes())
-        prog["u_model_offset"].value = tuple((np.asarray(batch.model_offset) - cam).tolist())
+    def _set_batch(self, prog, batch, cam, shadow):
+        _write(prog, "u_world_from_model",
+               np.asarray(batch.world_from_model, dtype="f4").T.tobytes())
+        _set(prog, "u_model_offset", tuple((np.asarray(batch.model_offset) - cam).tolist()))
         if batch.discard is not None:
-            prog["u_use_discard"].value = 1
-            prog["u_discard"].value = tuple(batch.discard)
-        else:
-            prog["u_use_discard"].value = 0
+            _set(prog, "u_discard", tuple(batch.discard))
         morph = batch.morph
         if morph is not None:
-            prog["u_morph"].value = int(morph.mode)
-            prog["u_morph_level"].value = float(morph.level)
-            prog["u_morph_k"].value = float(morph.k)
-            prog["u_morph_band"].value = float(morph.band)
-            prog["u_morph_scale"].value = float(morph.scale)
-            prog["u_morph_top"].value = float(morph.top)
-            prog["u_bias_per_level"].value = float(morph.bias_per_level)
-        else:
-            prog["u_morph"].value = 0
-        prog["u_normals"].value = 2  # its own unit, never the shadow map's (a 2-D sampler)
-        if batch.normal_map is not None:
+            _set(prog, "u_morph", int(morph.mode))
+            _set(prog, "u_morph_level", float(morph.level))
+            _set(prog, "u_morph_k", float(morph.k))
+            _set(prog, "u_morph_band", float(morph.band))
+            _set(prog, "u_morph_scale", float(morph.scale))
+            _set(prog, "u_morph_top", float(morph.top))
+            _set(prog, "u_bias_per_level", float(morph.bias_per_level))
+        if batch.normal_map is not None:  # its own unit, never the shadow map's
             texture, rect = batch.normal_map
             texture.use(location=2)
-            prog["u_normal_map"].value = 1
-            prog["u_normal_rect"].value = tuple(float(v) for v in rect)
+            _set(prog, "u_normal_rect", tuple(float(v) for v in rect))
         else:
-            prog["u_normal_map"].value = 0
             self._dummy_normals.use(location=2)
-        prog["u_normal_cube_map"].value = 3
         if batch.normal_cube is not None:
             batch.normal_cube.use(location=3)
-            prog["u_normal_cube"].value = 1
         else:
-            prog["u_normal_cube"].value = 0
             self._dummy_cube.use(location=3)
-        shadow = batch.shadow if shadows else None
         if shadow is not None:
-            prog["u_shadows"].value = 1
             shadow.texture.use(location=0)
             light = shadow.light_from_world @ _translation(cam)
-            prog["u_light_from_world"].write(light.T.astype("f4").tobytes())
-            prog["u_normal_offset"].value = shadow.normal_offset
-            prog["u_bias"].value = shadow.bias
-            prog["u_slope_texels"].value = shadow.slope_texels
-            prog["u_texel"].value = tuple(float(t) for t in shadow.texel_xy)
-            prog["u_shadow_extent"].value = (shadow.texel_xy[0] * shadow.shape[0],
-                                             shadow.texel_xy[1] * shadow.shape[1])
-            prog["u_depth_range"].value = shadow.depth_range_m
-            prog["u_light_axes"].write(np.asarray(shadow.axes, "f4").T.tobytes())
+            _write(prog, "u_light_from_world", light.T.astype("f4").tobytes())
+            _set(prog, "u_normal_offset", shadow.normal_offset)
+            _set(prog, "u_bias", shadow.bias)
+            _set(prog, "u_slope_texels", shadow.slope_texels)
+            _set(prog, "u_texel", tuple(float(t) for t in shadow.texel_xy))
+            _set(prog, "u_shadow_extent", (shadow.texel_xy[0] * shadow.shape[0],
+                                           shadow.texel_xy[1] * shadow.shape[1]))
+            _set(prog, "u_depth_range", shadow.depth_range_m)
+            _write(prog, "u_light_axes", np.asarray(shadow.axes, "f4").T.tobytes())
             self._depth_sampler.texture = shadow.texture
         else:
-            prog["u_shadows"].value = 0
             self._dummy_shadow.use(location=0)
             self._depth_sampler.texture = self._dummy_shadow
         self._depth_sampler.use(location=4)
         if batch.scatter is not None:
             texture, rect = batch.scatter
             texture.use(location=5)
-            prog["u_scatter_map"].value = 1
-            prog["u_scatter_rect"].value = tuple(float(v) for v in rect)
+            _set(prog, "u_scatter_rect", tuple(float(v) for v in rect))
         else:
-            prog["u_scatter_map"].value = 0
             self._dummy_scatter.use(location=5)
 
 

@@ -563,7 +563,7 @@ class TerrainScene:
         Returns
         -------
         render.scene.FrameState
-            The batches (coarsest layer first) and what they draw.
+            The batches (finest layer first: front to back) and what they draw.
         """
         self.upload(gpu)
         k = view.intrinsics
@@ -608,6 +608,7 @@ class TerrainScene:
         for layer, (lods, blocks), d in zip(self._layers, plan, dist, strict=True):
             if not blocks.size:
                 continue
+            layer_batches: list[DrawBatch] = []
             tris = 0
             footprint = float(d[blocks].min()) / focal  # m per image pixel, nearest block
             shadow = None
@@ -642,7 +643,11 @@ class TerrainScene:
                 elif shadow is not None and s > 1:
                     # coarser visible geometry than the shadow map saw: widen the bias
                     batch.shadow = _with_extra_bias(shadow, LOD_BIAS_PIXELS * s * layer.resolution)
-                batches.append(batch)
+                layer_batches.append(batch)
+            # front to back: a finer layer (nearer the camera, which looks at the site) is
+            # drawn before the coarser ones, whose hidden fragments then fail the depth test
+            # before they are shaded
+            batches[:0] = layer_batches
             drawn_layers.append({"level": layer.level, "resolution": layer.resolution,
                                  "blocks": int(blocks.size), "triangles": tris,
                                  "lod": sorted({int(s) for s in lods})})

@@ -1,37 +1,61 @@
 #version 330 core
 // Shading, LIDAR range and normals in one pass (three float colour attachments).
+//
+// Specialised at compile time: the renderer prepends a #define for each switch below (the
+// reflectance law, shadows, the soft shadows' extended sun, the secondary light, the maps a
+// batch carries), so a program holds only the paths its batches take (a CPU rasteriser
+// pays for every instruction of an untaken branch). Without them (the generic program),
+// each switch is read from its uniform.
+#ifndef SPECIALISED
+uniform int u_brdf;             // 0 Lambert, 1 Lommel-Seeliger, 2 lunar-Lambert (McEwen), 3 Hapke
+uniform int u_vertex_albedo;    // 1: v_albedo scales the albedo
+uniform int u_use_albedo_map;   // 1: u_albedo_map scales the albedo (or w) by its value
+uniform int u_use_discard;      // terrain layers: draw only outside the finer layer
+uniform int u_normal_map;       // terrain layers: shade with the layer's full-resolution
+uniform int u_normal_cube;      // asteroid bodies: shade with the finest level's normals
+uniform int u_shadows;
+uniform int u_soft_shadows;     // 1: the sun is its disk (u_sun_tan)
+uniform int u_scatter_map;      // 1: u_scatter holds light scattered from the terrain
+uniform int u_scattering;       // 1: add r (Lambertian, the surface's albedo)
+uniform int u_earthshine_on;    // 1: add the Earth's light (u_earthshine)
+uniform int u_vertex_scatter;   // 1: v_scatter is the scattered light (bodies), not the map
+#define BRDF u_brdf
+#define VERTEX_ALBEDO u_vertex_albedo
+#define ALBEDO_MAP u_use_albedo_map
+#define DISCARD u_use_discard
+#define NORMAL_MAP u_normal_map
+#define NORMAL_CUBE u_normal_cube
+#define SHADOWS u_shadows
+#define SOFT_SHADOWS u_soft_shadows
+#define SCATTER_MAP u_scatter_map
+#define SCATTERING u_scattering
+#define EARTHSHINE u_earthshine_on
+#define VERTEX_SCATTER u_vertex_scatter
+#endif
 in vec3 v_rel;
 in vec3 v_normal;
-in float v_albedo;              // per-vertex albedo factor, used where u_vertex_albedo is 1
-uniform int u_vertex_albedo;
+in float v_albedo;              // per-vertex albedo factor, used where VERTEX_ALBEDO is 1
 in float v_shadow_bias;          // geomorphing terrain: extra bias of coarse geometry
+in float v_scatter;              // bodies: per-vertex scattered irradiance / solar, used where
+                                 // VERTEX_SCATTER is 1 (render.body_scattering)
 
 uniform vec3 u_camera;          // camera position in world (m), for world-frame tests
-uniform vec3 u_axis;            // optical axis (unit, world)
 uniform vec3 u_sun;             // unit vector towards the sun (world)
 uniform float u_albedo;
-uniform int u_brdf;             // 0 Lambert, 1 Lommel-Seeliger, 2 lunar-Lambert (McEwen), 3 Hapke
 uniform vec3 u_mcewen;          // lunar-Lambert L(g) = 1 + a g + b g^2 + c g^3, g in degrees
 uniform vec4 u_hapke_a;         // Hapke: w, b, c, Bs0
 uniform vec4 u_hapke_b;         // Hapke: hs, Bc0, hc, theta-bar (radians)
 uniform float u_hapke_k;        // Hapke porosity factor K (1: none)
-uniform int u_use_albedo_map;   // 1: u_albedo_map scales the albedo (or w) by its value
 uniform sampler2D u_albedo_map;
 uniform vec4 u_albedo_window;   // xmin, ymin, xmax, ymax (scene-local) the map's texels span
-uniform float u_log_near;       // log depth: (log(z) - u_log_near) * u_log_scale
-uniform float u_log_scale;
-uniform int u_use_discard;      // terrain layers: draw only outside the finer layer
 uniform vec4 u_discard;         // xmin, ymin, xmax, ymax (world)
 
-uniform int u_normal_map;       // terrain layers: shade with the layer's full-resolution
-uniform int u_normal_cube;      // asteroid bodies: shade with the finest level's normals,
 uniform samplerCube u_normal_cube_map;  // looked up by body-frame direction from the centre
 uniform mat3 u_world_from_model;  // (the body rotation, as in the vertex stage)
 uniform vec3 u_model_offset;      // the body's centre relative to the camera (vertex stage)
 uniform sampler2D u_normals;    // normals (texture of unit normals, one texel per pixel),
 uniform vec4 u_normal_rect;     // whatever the level of detail: (x0, y0, 1/width, 1/height)
 
-uniform int u_shadows;
 uniform sampler2DShadow u_shadow_map;  // the map, compared <= with 2x2 bilinear filtering
 uniform sampler2D u_shadow_depth;      // the same map, its raw depths (blocker search)
 uniform mat4 u_light_from_world;  // world (camera-relative) -> shadow texture [0,1]^3
@@ -44,12 +68,8 @@ uniform float u_bias;             // depth units, constant
 uniform float u_slope_texels;     // texels of depth per unit of the receiver's depth gradient
 uniform float u_sun_tan;          // tangent of the solar disk's angular radius (0: a point)
 
-uniform int u_scatter_map;        // 1: u_scatter holds light scattered from the terrain
 uniform sampler2D u_scatter;      // r: scattered irradiance / solar irradiance; g: Earth seen
 uniform vec4 u_scatter_rect;      // (x0, y0, 1/width, 1/height) as u_normal_rect
-uniform int u_scattering;         // 1: add r (Lambertian, the surface's albedo)
-in float v_scatter;               // bodies: per-vertex scattered irradiance / solar ...
-uniform int u_vertex_scatter;     // ... which stands for r where this is 1
 uniform vec3 u_earth;             // unit vector towards the Earth (world)
 uniform float u_earthshine;       // Earth's irradiance / the Sun's (0: none)
 
@@ -61,9 +81,9 @@ float reflectance(float mu0, float mu, float g_deg, float scale) {
     if (mu0 <= 0.0) return 0.0;
     mu = max(mu, 1e-4);
     float albedo = u_albedo * scale;
-    if (u_brdf == 0) return albedo * mu0;                              // Lambert: A mu0
+    if (BRDF == 0) return albedo * mu0;                              // Lambert: A mu0
     float ls = 2.0 * mu0 / (mu0 + mu);                                 // 1 at mu0 = mu = 1
-    if (u_brdf == 1) return albedo * ls;                               // Lommel-Seeliger
+    if (BRDF == 1) return albedo * ls;                               // Lommel-Seeliger
     float L = 1.0 + g_deg * (u_mcewen.x + g_deg * (u_mcewen.y + g_deg * u_mcewen.z));
     return albedo * (L * ls + (1.0 - L) * mu0);                        // McEwen (1991)
 }
@@ -143,8 +163,8 @@ float hapke(vec3 n, vec3 s, vec3 v, float scale) {
 }
 
 float albedo_scale(vec3 world) {
-    float a = u_vertex_albedo == 1 ? v_albedo : 1.0;     // exactly 1 otherwise
-    if (u_use_albedo_map == 1) {
+    float a = VERTEX_ALBEDO == 1 ? v_albedo : 1.0;     // exactly 1 otherwise
+    if (ALBEDO_MAP == 1) {
         vec2 uv = (world.xy - u_albedo_window.xy) / (u_albedo_window.zw - u_albedo_window.xy);
         a *= texture(u_albedo_map, uv).r;
     }
@@ -178,7 +198,7 @@ vec2 vogel(int i, int count) {                 // Vogel (1979) spiral: even cove
 }
 
 float visibility(vec3 n, float mu0) {
-    if (u_shadows == 0 || mu0 <= 0.0) return 1.0;
+    if (SHADOWS == 0 || mu0 <= 0.0) return 1.0;
     vec4 lc = u_light_from_world * vec4(v_rel + n * u_normal_offset, 1.0);
     vec3 c = lc.xyz / lc.w;
     if (c.x < 0.0 || c.x > 1.0 || c.y < 0.0 || c.y > 1.0 || c.z > 1.0) return 1.0;
@@ -187,7 +207,8 @@ float visibility(vec3 n, float mu0) {
     grad *= min(1.0, MAX_TAN_INCIDENCE / max(length(grad), 1e-30));
     float ref = c.z - u_bias - v_shadow_bias
               - u_slope_texels * length(grad * u_texel) / u_depth_range;
-    if (u_sun_tan <= 0.0)  // a point sun: one bilinear comparison (2x2 percentage-closer)
+    // a point sun: one bilinear comparison (2x2 percentage-closer)
+    if (SOFT_SHADOWS == 0 || u_sun_tan <= 0.0)
         return texture(u_shadow_map, vec3(c.xy, ref));
     // the receiver's plane in light space: depth (m) per metre of light-space x and y, so
     // that samples beside the receiver compare with its plane there, not with its own depth
@@ -224,16 +245,16 @@ float visibility(vec3 n, float mu0) {
 // scattering, Lambertian, where the scene holds it; the Earth's, by the surface's own law.
 float secondary(vec3 n, vec3 world, vec3 e, float mu, float scale) {
     vec2 s = vec2(0.0, 1.0);
-    if (u_scatter_map == 1)
+    if (SCATTER_MAP == 1)
         s = texture(u_scatter, vec2((world.x - u_scatter_rect.x) * u_scatter_rect.z,
                                     (u_scatter_rect.y - world.y) * u_scatter_rect.w)).rg;
-    if (u_vertex_scatter == 1)
+    if (VERTEX_SCATTER == 1)
         s.r = v_scatter;
-    float out_f = u_scattering == 1 ? u_albedo * scale * s.r : 0.0;
-    if (u_earthshine > 0.0) {
+    float out_f = SCATTERING == 1 ? u_albedo * scale * s.r : 0.0;
+    if (EARTHSHINE == 1 && u_earthshine > 0.0) {
         float mu_e = dot(n, u_earth);
         float g_e = degrees(acos(clamp(dot(u_earth, e), -1.0, 1.0)));
-        float r_e = u_brdf == 3 ? hapke(n, u_earth, e, scale) : reflectance(mu_e, mu, g_e, scale);
+        float r_e = BRDF == 3 ? hapke(n, u_earth, e, scale) : reflectance(mu_e, mu, g_e, scale);
         out_f += u_earthshine * s.g * r_e;
     }
     return out_f;
@@ -241,14 +262,14 @@ float secondary(vec3 n, vec3 world, vec3 e, float mu, float scale) {
 
 void main() {
     vec3 world = v_rel + u_camera;
-    if (u_use_discard == 1 && world.x > u_discard.x && world.x < u_discard.z
+    if (DISCARD == 1 && world.x > u_discard.x && world.x < u_discard.z
             && world.y > u_discard.y && world.y < u_discard.w)
         discard;
     vec3 n = normalize(v_normal);
-    if (u_normal_map == 1)
+    if (NORMAL_MAP == 1)
         n = normalize(texture(u_normals, vec2((world.x - u_normal_rect.x) * u_normal_rect.z,
                                                (u_normal_rect.y - world.y) * u_normal_rect.w)).xyz);
-    if (u_normal_cube == 1)
+    if (NORMAL_CUBE == 1)
         n = normalize(u_world_from_model
                       * texture(u_normal_cube_map,
                                 transpose(u_world_from_model) * (v_rel - u_model_offset)).xyz);
@@ -258,10 +279,8 @@ void main() {
     float mu = dot(n, e);
     float g = degrees(acos(clamp(dot(u_sun, e), -1.0, 1.0)));
     float scale = albedo_scale(world);
-    float refl = u_brdf == 3 ? hapke(n, u_sun, e, scale) : reflectance(mu0, mu, g, scale);
+    float refl = BRDF == 3 ? hapke(n, u_sun, e, scale) : reflectance(mu0, mu, g, scale);
     out_radiance = refl * visibility(n, mu0) + secondary(n, world, e, mu, scale);
     out_range = r;
     out_normal = vec4(n, 1.0);
-    float z = max(dot(v_rel, u_axis), 1e-6);
-    gl_FragDepth = clamp((log(z) - u_log_near) * u_log_scale, 0.0, 1.0);
 }

@@ -6,14 +6,23 @@ uniform mat3 u_world_from_model;       // body rotation (asteroids); identity fo
 uniform vec3 u_model_offset;           // model origin in world, relative to the camera
 in vec3 in_position;
 in vec3 in_normal;
-in float in_albedo;                    // per-vertex albedo factor (bodies); see u_vertex_albedo
-uniform int u_vertex_albedo;           // 1: in_albedo is bound; 0: factor 1
+in float in_albedo;                    // per-vertex albedo factor (bodies); see VERTEX_ALBEDO
 in float in_scatter;                   // per-vertex scattered irradiance / solar (bodies)
+// Specialised at compile time as scene.frag is (VERTEX_ALBEDO: in_albedo is bound;
+// VERTEX_SCATTER: in_scatter is; MORPH: the batch geomorphs); the generic program reads
+// u_vertex_albedo, u_vertex_scatter and u_morph instead.
+#ifndef SPECIALISED
+uniform int u_vertex_albedo;           // 1: in_albedo is bound; 0: factor 1
+uniform int u_vertex_scatter;          // 1: in_scatter is bound; 0: none
+#define VERTEX_ALBEDO u_vertex_albedo
+#define VERTEX_SCATTER u_vertex_scatter
+#define MORPH 1
+#endif
 out vec3 v_rel;      // world position minus camera position (m)
 out vec3 v_normal;   // world-frame normal (not normalised)
 out float v_albedo;  // albedo factor (1 unless the mesh carries one per vertex)
 out float v_shadow_bias;  // extra shadow-map bias of coarse geometry (depth units)
-out float v_scatter;      // in_scatter (read only where u_vertex_scatter is 1)
+out float v_scatter;      // in_scatter where VERTEX_SCATTER is 1, else 0
 
 // Geomorphing (render.terrain_scene and render.asteroid_scene, module docstrings): a vertex
 // that the next coarser level of detail lacks slides from its own position to the coarser
@@ -38,7 +47,7 @@ void main() {
     vec3 p = in_position;
     vec3 n = in_normal;
     v_shadow_bias = 0.0;
-    if (u_morph != 0) {
+    if (MORPH == 1 && u_morph != 0) {
         float d = length(u_world_from_model * p + u_model_offset);
         float k = u_morph == 1 ? u_morph_k : u_morph_k + in_morph.w;
         if (u_morph == 2 || in_morph.w == u_morph_level) {
@@ -53,7 +62,7 @@ void main() {
     }
     v_rel = u_world_from_model * p + u_model_offset;
     v_normal = u_world_from_model * n;
-    v_albedo = u_vertex_albedo == 1 ? in_albedo : 1.0;
-    v_scatter = in_scatter;
+    v_albedo = VERTEX_ALBEDO == 1 ? in_albedo : 1.0;
+    v_scatter = VERTEX_SCATTER == 1 ? in_scatter : 0.0;
     gl_Position = u_clip_from_camera_rel * vec4(v_rel, 1.0);
 }
