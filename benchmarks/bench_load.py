@@ -131,6 +131,12 @@ def raw_load(renderer, stack_dir: Path, view, size: int, triangles: int) -> dict
     for name in ("u_use_discard", "u_shadows", "u_vertex_albedo", "u_morph", "u_normal_map",
                  "u_normal_cube", "u_use_albedo_map", "u_brdf"):
         prog[name].value = 0
+    # each sampler on its own unit, as the renderer sets them (a 2-D sampler, a shadow sampler
+    # and a cube sampler left together on unit 0 make the draw an invalid operation)
+    for name, unit in (("u_shadow_map", 0), ("u_albedo_map", 1), ("u_normals", 2),
+                       ("u_normal_cube_map", 3), ("u_shadow_depth", 4), ("u_scatter", 5)):
+        if name in prog:
+            prog[name].value = unit
     fbo = renderer._target((size, size))
     fbo.use()
     ctx.viewport = (0, 0, size, size)
@@ -139,6 +145,9 @@ def raw_load(renderer, stack_dir: Path, view, size: int, triangles: int) -> dict
     fbo.clear(depth=0.0)
     vao.render(moderngl.TRIANGLES)
     ctx.depth_func = "<"
+    error = ctx.error
+    if error != "GL_NO_ERROR":
+        raise RuntimeError(f"OpenGL error in the raw draw: {error}")
     for i, comps in ((0, 1), (1, 1), (2, 4)):
         fbo.read(attachment=i, components=comps, dtype="f4")
     total = time.perf_counter() - t0
