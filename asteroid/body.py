@@ -47,7 +47,7 @@ from terrain.core.checks import number
 from terrain.core.errors import InvalidParameterError, MissingInputError
 from terrain.core.outputs import atomic_path
 
-__all__ = ["FORMAT", "Body", "NativeModel", "Stretch", "load_native", "save_native"]
+__all__ = ["FORMAT", "Body", "NativeModel", "Stretch", "load_native", "npy_member", "save_native"]
 
 log = logging.getLogger(__name__)
 
@@ -263,7 +263,8 @@ class NativeModel:
     tables: Mapping = field(default_factory=dict)
 
 
-def _member(zf: zipfile.ZipFile, name: str, array: np.ndarray) -> None:
+def npy_member(zf: zipfile.ZipFile, name: str, array: np.ndarray) -> None:
+    """Write ``array`` into ``zf`` as ``NAME.npy``, stored, with a fixed date (same bytes)."""
     info = zipfile.ZipInfo(f"{name}.npy", date_time=_ZIP_EPOCH)
     info.compress_type = zipfile.ZIP_STORED
     info.external_attr = 0o644 << 16
@@ -287,18 +288,18 @@ def save_native(path, body: Body, tables: Mapping | None = None, *,
     """
     path = Path(path)
     with atomic_path(path, inputs) as tmp, zipfile.ZipFile(tmp, "w", allowZip64=True) as zf:
-        _member(zf, "format", np.array(FORMAT))
-        _member(zf, "magnitude", np.array(body.magnitude, dtype=np.int64))
-        _member(zf, "radius", np.array(body.radius, dtype=np.float64))
-        _member(zf, "radii", body.radii)
-        _member(zf, "metadata", np.array(json.dumps(dict(body.metadata), sort_keys=True)))
+        npy_member(zf, "format", np.array(FORMAT))
+        npy_member(zf, "magnitude", np.array(body.magnitude, dtype=np.int64))
+        npy_member(zf, "radius", np.array(body.radius, dtype=np.float64))
+        npy_member(zf, "radii", body.radii)
+        npy_member(zf, "metadata", np.array(json.dumps(dict(body.metadata), sort_keys=True)))
         for table, columns in (tables or {}).items():
             for column, values in columns.items():
                 values = np.asarray(values)
                 if values.dtype == object:
                     raise InvalidParameterError(
                         f"table {table} column {column} must be numeric or text; got objects")
-                _member(zf, f"{table}/{column}", values)
+                npy_member(zf, f"{table}/{column}", values)
     log.info("wrote native model %s (M = %d, %d vertices)", path, body.magnitude,
              body.mesh.n_vertices)
     return path

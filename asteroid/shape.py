@@ -65,7 +65,7 @@ from asteroid.sphere import SphereMesh, cap_ranges, ring_offset, ring_size, unit
 from terrain.core import memory
 from terrain.core.errors import InvalidParameterError
 
-__all__ = ["UNITS", "Projection", "ShapeModel", "winding_number"]
+__all__ = ["UNITS", "Projection", "ShapeModel", "check_closed", "winding_number"]
 
 log = logging.getLogger(__name__)
 
@@ -109,7 +109,7 @@ def winding_number(vertices: np.ndarray, faces: np.ndarray, point) -> float:
     return total / (4.0 * math.pi)
 
 
-def _check_closed(faces: np.ndarray, n_vertices: int, source: str) -> None:
+def check_closed(faces: np.ndarray, n_vertices: int, source: str) -> None:
     """Every edge used exactly twice, once each way (closed, manifold, consistently wound)."""
     if np.any((faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2])
               | (faces[:, 0] == faces[:, 2])):
@@ -280,7 +280,7 @@ class ShapeModel:
                                     f"{f.shape}")
         if f.min() < 0 or f.max() >= len(v):
             raise InvalidShapeError(f"shape model {source} has face indices outside its vertices")
-        _check_closed(f, len(v), source)
+        check_closed(f, len(v), source)
         volume = _signed_volume(v, f)
         scale = float(np.abs(v).max())
         if not abs(volume) > 1e-12 * scale**3:

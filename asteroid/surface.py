@@ -52,9 +52,11 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
+from asteroid.body import npy_member
 from asteroid.boulders import BoulderSettings, local_shapes, rotation_x, rotation_y, rotation_z
 from asteroid.craters import CraterSettings
 from asteroid.errors import InvalidShapeError
+from asteroid.shape import check_closed
 from terrain.core import memory
 from terrain.core.errors import InvalidParameterError
 from terrain.core.rng import check_seed, hash64, poisson, stream_id, uniform_scalar
@@ -90,12 +92,6 @@ _SITE_FIELDS = 4
 
 # ----------------------------------------------------------------------------------------
 # the body
-
-
-def _check_closed(faces: np.ndarray, n_vertices: int, what: str) -> None:
-    from asteroid.shape import _check_closed as check
-
-    check(faces, n_vertices, what)
 
 
 def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
@@ -178,7 +174,7 @@ class MeshBody:
 
     def check_closed(self) -> None:
         """Raise :class:`InvalidShapeError` unless every edge has two triangles, one each way."""
-        _check_closed(self.faces, self.n_vertices, "mesh body")
+        check_closed(self.faces, self.n_vertices, "mesh body")
 
     def replace(self, vertices=None, faces=None, **metadata) -> MeshBody:
         """Return a copy with new geometry and/or metadata merged in."""
@@ -788,19 +784,18 @@ def save_mesh_native(path, body: MeshBody, tables=None, *, inputs=()):
     import zipfile
     from pathlib import Path
 
-    from asteroid.body import _member
     from terrain.core.outputs import atomic_path
 
     path = Path(path)
     with atomic_path(path, inputs) as tmp, zipfile.ZipFile(tmp, "w", allowZip64=True) as zf:
-        _member(zf, "format", np.array(MESH_FORMAT))
-        _member(zf, "vertices", body.vertices)
-        _member(zf, "faces", body.faces)
-        _member(zf, "metadata", np.array(json.dumps(dict(body.metadata), sort_keys=True,
+        npy_member(zf, "format", np.array(MESH_FORMAT))
+        npy_member(zf, "vertices", body.vertices)
+        npy_member(zf, "faces", body.faces)
+        npy_member(zf, "metadata", np.array(json.dumps(dict(body.metadata), sort_keys=True,
                                                     default=float)))
         for table, columns in (tables or {}).items():
             for column, values in columns.items():
-                _member(zf, f"{table}/{column}", np.asarray(values))
+                npy_member(zf, f"{table}/{column}", np.asarray(values))
     return path
 
 

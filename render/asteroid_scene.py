@@ -528,14 +528,10 @@ class AsteroidScene:
             lod.scatter_at = scipy.sparse.csr_matrix(
                 ((w / w.sum(axis=1, keepdims=True)).ravel(), (rows, idx.ravel())),
                 shape=(len(idx), patch.n_vertices))
-        sun = self.rotation.T @ np.asarray(lighting.sun, dtype=np.float64)
-        e = light.irradiance(sun, lighting.albedo)
-        extra = self.extra_scatter
-        if lod.scatter_key is None or lod.scatter_key[0] is not e \
-                or lod.scatter_key[1] is not extra:
-            total = e if extra is None else e + extra
-            lod.sbo.write((lod.scatter_at @ total).astype(np.float32).tobytes())
-            lod.scatter_key = (e, extra)
+        from render.body_scattering import write_vertex_scatter
+
+        write_vertex_scatter(lod, light, self.rotation, lighting, self.extra_scatter,
+                             lambda total: lod.scatter_at @ total)
 
     def _boulder_batches(self, batches, levels, view, options, gpu, shadow):
         if not levels:

@@ -54,7 +54,7 @@ import scipy.sparse
 from terrain.core.errors import InvalidParameterError
 
 __all__ = ["MAX_PATCH_FACES", "PATCH_FACES", "SUN_STEP_DEG", "BodyLight", "cluster_mesh",
-           "mutual_irradiance", "snap_direction"]
+           "mutual_irradiance", "snap_direction", "write_vertex_scatter"]
 
 log = logging.getLogger(__name__)
 
@@ -481,6 +481,34 @@ def mutual_irradiance(receiver: BodyLight, source: BodyLight, rotation: Any, off
     mutual: Any = _mutual
     return mutual(receiver.vertices, receiver.normals_v, c, m, source.area, b).astype(
         np.float32)
+
+
+def write_vertex_scatter(lod: Any, light: BodyLight, rotation: Any, lighting: Any,
+                         extra: Any, spread: Any) -> None:
+    """Write a level of detail's per-vertex scattered light, when the sun or ``extra`` changed.
+
+    Parameters
+    ----------
+    lod : object
+        The level's GPU record: ``sbo`` (its scatter buffer) and ``scatter_key`` (what the
+        buffer was written from, or None).
+    light : BodyLight
+        The body's scattering.
+    rotation : (3, 3) float
+        Body frame to world.
+    lighting : render.renderer.Lighting
+        The frame's sun and albedo.
+    extra : (n_patch,) float or None
+        Light from elsewhere (a binary's companion), added at the patch vertices.
+    spread : callable
+        Patch-vertex values -> the level's vertex values.
+    """
+    sun = np.asarray(rotation).T @ np.asarray(lighting.sun, dtype=np.float64)
+    e = light.irradiance(sun, lighting.albedo)
+    if lod.scatter_key is None or lod.scatter_key[0] is not e or lod.scatter_key[1] is not extra:
+        total = e if extra is None else e + extra
+        lod.sbo.write(np.asarray(spread(total), dtype=np.float32).tobytes())
+        lod.scatter_key = (e, extra)
 
 
 def cluster_mesh(vertices: Any, faces: Any, max_faces: int = PATCH_FACES

@@ -364,14 +364,10 @@ class MeshScene:
                 scale = light.edge
                 tree = cKDTree(np.hstack([pv, scale * light.normals_v]))
                 lod.scatter_at = tree.query(np.hstack([v, scale * vertex_normals(v, f)]))[1]
-        sun = self.rotation.T @ np.asarray(lighting.sun, dtype=np.float64)
-        e = light.irradiance(sun, lighting.albedo)
-        extra = self.extra_scatter
-        if lod.scatter_key is None or lod.scatter_key[0] is not e \
-                or lod.scatter_key[1] is not extra:
-            total = e if extra is None else e + extra
-            lod.sbo.write(total[lod.scatter_at].astype(np.float32).tobytes())
-            lod.scatter_key = (e, extra)
+        from render.body_scattering import write_vertex_scatter
+
+        write_vertex_scatter(lod, light, self.rotation, lighting, self.extra_scatter,
+                             lambda total: total[lod.scatter_at])
         return True
 
     def shadow_casters(self, gpu: Gpu, extent: float, size: int) -> list[DrawBatch]:
