@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from terrain.core.errors import InvalidParameterError
 from terrain.surface.rocks import VIPER as _ROCKS_VIPER
 
-__all__ = ["BODY_BOULDER_INDEX", "CRATER_EQUILIBRIUM", "FRESH_DEPTH_DIAMETER",
+__all__ = ["BLOCK_FIELDS", "BODY_BOULDER_INDEX", "CRATER_EQUILIBRIUM", "FRESH_DEPTH_DIAMETER",
            "GENERATOR_HURST", "HURST_TOLERANCE", "KS_BETWEEN_REAL_DEMS", "MESH_SLOPE_RISE",
            "REGOLITH_RMS_SLOPE",
            "ROCK_ABUNDANCE", "ROCK_SFD", "SLOPE_BAND_FACTOR", "SLOPE_LAW_DEG", "SMALL_CRATER_DD",
@@ -321,8 +321,8 @@ GENERATOR_HURST = PublishedStat(
 
 #: Rock size-frequency distribution against the terrain preset's VIPER model.
 ROCK_SFD = PublishedStat(
-    "rock_sfd_model", "|N(>=D) / model - 1| over a decade of rock size, each size on the "
-    "widest layer resolving it", 0.0, 0.15, "",
+    "rock_sfd_model", "|N(>=D) / model - 1| over a decade of rock size outside fresh craters' "
+    "block fields, each size on the widest layer resolving it", 0.0, 0.15, "",
     "VIPER environment specification (NASA): N(>=D) = 3e-4 D^-2.482 per m^2 (nominal), "
     "1e-4 D^-1.755 (low), 2e-3 D^-2.661 (high, after Haworth)", 0.15,
     "A terrain built for the model must follow it within 15 % at every size, plus two "
@@ -330,10 +330,24 @@ ROCK_SFD = PublishedStat(
     "(2 / sqrt(N)): a field drawn from the model passes each size at least 97.7 % of the "
     "time, and the limit is reported per size.")
 
+#: Rocks inside fresh craters' block fields against the background law plus the blocks expected.
+BLOCK_FIELDS = PublishedStat(
+    "rock_block_fields", "|N(>=D) inside fresh craters' block fields / (background + expected "
+    "blocks) - 1|, each size on the widest layer resolving it", 0.0, 0.15, "",
+    "Pajola et al. 2019 (Planet. Space Sci. 165, 99: Linne, Dc 2.2 km, 12,000 boulders >= "
+    "4.4 m, cumulative index -4.03); Bart and Melosh 2010 (Icarus 209, 337: block sizes as "
+    "Dc^0.66); Basilevsky et al. 2013 (Planet. Space Sci. 89, 118: median boulder survival "
+    "40-80 Myr); excavation to 0.1 Dc below the regolith (Melosh 1989)", 0.15,
+    "The blocks expected in the footprints (reach crater radii) of the catalogue's fresh "
+    "craters follow from each crater's diameter, age and place by the published calibration "
+    "(evaluation.blockfields); with the background law over the footprints' area they must "
+    "match the count within 15 % plus two Poisson standard deviations of the expected count "
+    "(2 / sqrt(N)), as the background does.")
+
 #: Every entry, for the report's sources table.
 STATS = (SLOPE_BAND_FACTOR, SLOPE_LAW_DEG, REGOLITH_RMS_SLOPE, HURST_TOLERANCE, SMOOTHNESS,
          STEEP_SLOPE, STEEP_OLD_TERRAIN, CRATER_EQUILIBRIUM, FRESH_DEPTH_DIAMETER,
-         SMALL_CRATER_DD, ROCK_ABUNDANCE, ROCK_DENSITY, ROCK_SFD, GENERATOR_HURST,
+         SMALL_CRATER_DD, ROCK_ABUNDANCE, ROCK_DENSITY, ROCK_SFD, BLOCK_FIELDS, GENERATOR_HURST,
          BODY_BOULDER_INDEX, MESH_SLOPE_RISE, KS_BETWEEN_REAL_DEMS)
 
 

@@ -1224,7 +1224,7 @@ def rock_layers(stack) -> list[int]:
     return list(range(first, len(stack.tiles)))
 
 
-def pooled_rock_counts(stack, diameters) -> list[dict]:
+def pooled_rock_counts(stack, diameters, fields=None) -> list[dict]:
     """N(>=D) of a stack's rocks, each size counted on the widest layer complete for it.
 
     For each diameter D the layer is the coarsest of :func:`rock_layers` whose pixels resolve
@@ -1235,13 +1235,19 @@ def pooled_rock_counts(stack, diameters) -> list[dict]:
     ----------
     stack : terrain.stack.model.LayerStack
     diameters : sequence of float, metres
+    fields : (BlockSite, FreshCraters), optional
+        Fresh craters' block fields (:mod:`evaluation.blockfields`): each row then also
+        splits the count and the area into inside and outside the fields' footprints.
 
     Returns
     -------
     list of dict
         ``diameter_m``, ``layer``, ``area_m2``, ``count`` and ``per_m2`` per size a layer
-        resolves (sizes none resolves are left out).
+        resolves (sizes none resolves are left out); with ``fields``, also
+        ``field_area_m2``, ``field_count`` (inside the footprints), ``outside_area_m2`` and
+        ``outside_count``.
     """
+    from evaluation.blockfields import footprint_area, in_footprints
     from terrain.stack.plan import layer_bounds
     from terrain.surface.rocks import MIN_ROCK_PIXELS
 
@@ -1255,31 +1261,82 @@ def pooled_rock_counts(stack, diameters) -> list[dict]:
             continue
         k = min(fits)
         t = stack.tiles[k]
-        xmin, ymin, xmax, ymax = layer_bounds(t.shape, t.transform)
+        extent = layer_bounds(t.shape, t.transform)
+        xmin, ymin, xmax, ymax = extent
         area = (xmax - xmin) * (ymax - ymin)
-        n = int(np.count_nonzero((rocks.x_m >= xmin) & (rocks.x_m <= xmax)
-                                 & (rocks.y_m >= ymin) & (rocks.y_m <= ymax)
-                                 & (rocks.diameter_m >= d * (1.0 - 1e-9))))
-        out.append(dict(diameter_m=float(d), layer=k, area_m2=float(area), count=n,
-                        per_m2=n / area))
+        sel = np.flatnonzero((rocks.x_m >= xmin) & (rocks.x_m <= xmax)
+                             & (rocks.y_m >= ymin) & (rocks.y_m <= ymax)
+                             & (rocks.diameter_m >= d * (1.0 - 1e-9)))
+        row = dict(diameter_m=float(d), layer=k, area_m2=float(area), count=int(sel.size),
+                   per_m2=sel.size / area)
+        if fields is not None:
+            site, craters = fields
+            near = craters.touching(extent, site)
+            inside = int(np.count_nonzero(in_footprints(near, site, rocks.x_m[sel],
+                                                        rocks.y_m[sel])))
+            f_area = footprint_area(near, site, extent)
+            row.update(field_area_m2=f_area, field_count=inside,
+                       outside_area_m2=float(area) - f_area, outside_count=int(sel.size) - inside)
+        out.append(row)
     return out
 
 
+def block_fields_of(stack, terrain: str):
+    """Return the (BlockSite, FreshCraters) of a stack's block fields, or None.
+
+    None where the stack has no crater catalogue or its rock model drew no fields; the site
+    (regolith, reach, cover) is the rock model the stack recorded, the terrain preset's
+    regolith where it recorded none.
+    """
+    from evaluation.blockfields import BlockSite, FreshCraters
+    from terrain.core.presets import preset
+
+    catalog = getattr(stack, "catalog", None)
+    if catalog is None or not len(catalog.diameter_m) or getattr(catalog, "age_gyr",
+                                                                   None) is None:
+        return None
+    site = BlockSite.of_stack(stack, preset(terrain).regolith_m)
+    if not site.enabled:
+        return None
+    craters = FreshCraters.of_catalog(catalog, site)
+    return (site, craters) if len(craters) else None
+
+
+def _sfd_judgement(rows, name: str, stat, count_key: str, expect_key: str, what: str):
+    """Judge measured/expected counts per size: within 15 % plus 2 Poisson sigmas."""
+    ratio = np.array([r[count_key] / r[expect_key] for r in rows])
+    tol = np.array([stat.threshold + ROCK_SFD_SIGMAS / math.sqrt(r[expect_key]) for r in rows])
+    j = int(np.argmax(np.abs(ratio - 1.0) - tol))
+    detail = ", ".join(f"{r['diameter_m']:.2g} m (layer {r['layer']}): {r[count_key]} vs "
+                       f"{r[expect_key]:.1f}" for r in rows)
+    return _judge(REALISM, name + f" ({rows[0]['diameter_m']:.2g}-{rows[-1]['diameter_m']:.2g}"
+                  " m, each size on the widest layer resolving it)", abs(ratio[j] - 1.0),
+                  float(tol[j]), "<=", stat,
+                  fail_meaning=(f"N(>={rows[j]['diameter_m']:.2g} m) is {ratio[j]:.2g} times "
+                                f"{what} ({detail})"), pass_meaning=detail)
+
+
 def _rock_sfd_check(stack, terrain: str) -> tuple[Result, dict]:
-    """Judge the rocks' N(>=D) over at least a decade of size against the preset's VIPER law.
+    """Judge the background rocks' N(>=D) over at least a decade of size against the VIPER law.
 
     Each size is counted on the widest layer complete for it (:func:`pooled_rock_counts`),
     from the smallest complete size up to :data:`ROCK_SFD_MAX_M`, at
     :data:`ROCK_SFD_PER_DECADE` sizes a decade, where the model expects at least
-    :data:`ROCK_SFD_MIN_EXPECTED` rocks. Each measured/model ratio may miss 1 by 15 % plus
-    :data:`ROCK_SFD_SIGMAS` Poisson standard deviations of the expected count.
+    :data:`ROCK_SFD_MIN_EXPECTED` rocks. Where the stack's crater catalogue holds fresh
+    craters with block fields (:func:`block_fields_of`), only the rocks outside their
+    footprints are background, counted over the area outside them; the rest are judged by
+    :func:`_block_field_check`. The model is the law as drawn: N(>=D) - N(>=5 m)
+    (:data:`terrain.surface.rocks.VIPER_DMAX`). Each measured/model ratio may miss 1 by 15 %
+    plus :data:`ROCK_SFD_SIGMAS` Poisson standard deviations of the expected count.
     """
     from terrain.core.presets import preset
-    from terrain.surface.rocks import MIN_ROCK_PIXELS
+    from terrain.surface.rocks import MIN_ROCK_PIXELS, VIPER_DMAX
 
     stat = ls.ROCK_SFD
     model = preset(terrain).rock_model
-    name = f"rock N(>=D) over a decade of size against the {model} model"
+    fields = block_fields_of(stack, terrain)
+    name = (f"background rock N(>=D) outside fresh craters' block fields against the {model} "
+            "model" if fields else f"rock N(>=D) over a decade of size against the {model} model")
     layers = rock_layers(stack)
     if not layers:
         return not_applicable(REALISM, name, "the stack has no rocks", stat), {}
@@ -1290,29 +1347,67 @@ def _rock_sfd_check(stack, terrain: str) -> tuple[Result, dict]:
                               stat), {}
     n = int(math.floor(ROCK_SFD_PER_DECADE * math.log10(ROCK_SFD_MAX_M / d0) + 1e-9)) + 1
     ds = d0 * 10.0 ** (np.arange(n) / ROCK_SFD_PER_DECADE)
-    rows = pooled_rock_counts(stack, ds)
+    rows = pooled_rock_counts(stack, ds, fields)
     for r in rows:
-        r["model_count"] = float(ls.viper_cumulative(model, r["diameter_m"])) * r["area_m2"]
-    rows = [r for r in rows if r["model_count"] >= ROCK_SFD_MIN_EXPECTED]
-    figures = dict(rows=rows, model=model)
-    if not rows or rows[-1]["diameter_m"] < 10.0 * rows[0]["diameter_m"] * (1 - 1e-9):
-        span = (f"{rows[0]['diameter_m']:.3g}-{rows[-1]['diameter_m']:.3g} m" if rows
+        law = float(ls.viper_cumulative(model, r["diameter_m"])
+                    - ls.viper_cumulative(model, VIPER_DMAX))
+        r["model_count"] = law * r["area_m2"]
+        if fields:
+            r["outside_model_count"] = law * r["outside_area_m2"]
+            r["field_background_count"] = law * r["field_area_m2"]
+    counted, expected = (("outside_count", "outside_model_count") if fields
+                         else ("count", "model_count"))
+    figures = dict(rows=rows, model=model, fields=bool(fields),
+                   fresh_craters=len(fields[1]) if fields else 0)
+    judged = [r for r in rows if r[expected] >= ROCK_SFD_MIN_EXPECTED]
+    if not judged or judged[-1]["diameter_m"] < 10.0 * judged[0]["diameter_m"] * (1 - 1e-9):
+        span = (f"{judged[0]['diameter_m']:.3g}-{judged[-1]['diameter_m']:.3g} m" if judged
                 else "no size")
         return not_applicable(REALISM, name, f"the layers count {span} with at least "
                               f"{ROCK_SFD_MIN_EXPECTED:g} rocks expected: less than a decade",
                               stat), figures
-    ratio = np.array([r["count"] / r["model_count"] for r in rows])
-    tol = np.array([0.15 + ROCK_SFD_SIGMAS / math.sqrt(r["model_count"]) for r in rows])
-    j = int(np.argmax(np.abs(ratio - 1.0) - tol))
-    for r, q in zip(rows, ratio, strict=True):
-        r["ratio"] = float(q)
-    detail = ", ".join(f"{r['diameter_m']:.2g} m (layer {r['layer']}): {r['count']} vs "
-                       f"{r['model_count']:.1f}" for r in rows)
-    return _judge(REALISM, name + f" ({rows[0]['diameter_m']:.2g}-{rows[-1]['diameter_m']:.2g}"
-                  " m, each size on the widest layer resolving it)", abs(ratio[j] - 1.0),
-                  float(tol[j]), "<=", stat,
-                  fail_meaning=(f"N(>={rows[j]['diameter_m']:.2g} m) is {ratio[j]:.2g} times "
-                                f"the model's ({detail})"), pass_meaning=detail), figures
+    for r in judged:
+        r["ratio"] = r[counted] / r[expected]
+    return _sfd_judgement(judged, name, stat, counted, expected, "the model's"), figures
+
+
+def _block_field_check(stack, terrain: str, figures: dict) -> Result:
+    """Judge the rocks inside fresh craters' footprints against background plus blocks.
+
+    Per size of :func:`_rock_sfd_check`'s rows: the rocks of D and more centred in the
+    footprints against the VIPER law over the footprints' area plus the blocks the crater
+    catalogue and the published calibration expect there
+    (:func:`evaluation.blockfields.expected_blocks`), wherever that sum is at least
+    :data:`ROCK_SFD_MIN_EXPECTED`; within 15 % plus :data:`ROCK_SFD_SIGMAS` Poisson standard
+    deviations (a field's count is Poisson given the catalogue).
+    """
+    from evaluation.blockfields import expected_blocks
+    from terrain.stack.plan import layer_bounds
+
+    stat = ls.BLOCK_FIELDS
+    model = figures.get("model") or "VIPER"
+    name = (f"rock N(>=D) inside fresh craters' block fields against the {model} model plus "
+            "the blocks the crater catalogue and the Linne calibration expect")
+    fields = block_fields_of(stack, terrain)
+    if not fields or not figures.get("rows"):
+        why = ("no fresh crater of the catalogue has a block field" if not fields
+               else "no rock size counted")
+        return not_applicable(REALISM, name, why, stat)
+    site, craters = fields
+    rows = []
+    for r in figures["rows"]:
+        t = stack.tiles[r["layer"]]
+        r["expected_blocks"] = expected_blocks(craters, site, layer_bounds(t.shape, t.transform),
+                                               r["diameter_m"])
+        r["field_model_count"] = r["field_background_count"] + r["expected_blocks"]
+        if r["field_model_count"] >= ROCK_SFD_MIN_EXPECTED:
+            r["field_ratio"] = r["field_count"] / r["field_model_count"]
+            rows.append(r)
+    if not rows:
+        return not_applicable(REALISM, name, f"no size has {ROCK_SFD_MIN_EXPECTED:g} rocks "
+                              "expected inside the block fields of the counted layers", stat)
+    return _sfd_judgement(rows, name, stat, "field_count", "field_model_count",
+                          "background plus blocks")
 
 
 def _rocks_1m(stack) -> dict | None:
@@ -1367,13 +1462,28 @@ def preset_figures(v: Validation) -> list[tuple[str, object]]:
         rows.append(("largest rock, m", rk["largest_m"]))
         if rk.get("largest_layer") is not None:
             rows[-1] = (f"largest rock, m (layer {rk['largest_layer']})", rk["largest_m"])
-    sfd = v.data.get("rock_model_sfd")
-    if sfd:
-        rows += [(f"rocks N(>={r['diameter_m']:.2g} m) per km^2 on layer {r['layer']} "
-                  f"({r['area_m2'] / 1e6:.3g} km^2, {r['count']} rocks): measured / "
-                  f"{sfd['model']}", f"{r['per_m2'] * 1e6:.4g} / "
-                  f"{r['model_count'] / r['area_m2'] * 1e6:.4g}")
-                 for r in sfd.get("rows", [])]
+    sfd = v.data.get("rock_model_sfd") or {}
+    for r in sfd.get("rows", []):
+        where = f"on layer {r['layer']}"
+        if not sfd.get("fields"):
+            rows.append((f"rocks N(>={r['diameter_m']:.2g} m) per km^2 {where} "
+                         f"({r['area_m2'] / 1e6:.3g} km^2, {r['count']} rocks): measured / "
+                         f"{sfd['model']}", f"{r['per_m2'] * 1e6:.4g} / "
+                         f"{r['model_count'] / r['area_m2'] * 1e6:.4g}"))
+            continue
+        out_km2 = r["outside_area_m2"] / 1e6
+        rows.append((f"rocks N(>={r['diameter_m']:.2g} m) per km^2 {where} outside block "
+                     f"fields ({out_km2:.3g} of {r['area_m2'] / 1e6:.3g} km^2, "
+                     f"{r['outside_count']} rocks): measured / {sfd['model']}",
+                     f"{r['outside_count'] / max(out_km2, 1e-300):.4g} / "
+                     f"{r['outside_model_count'] / max(out_km2, 1e-300):.4g}"
+                     if out_km2 > 0 else "no area outside the fields"))
+        if r["field_area_m2"] > 0 and "field_model_count" in r:
+            rows.append((f"rocks >= {r['diameter_m']:.2g} m {where} inside block fields "
+                         f"({r['field_area_m2'] / 1e6:.3g} km^2): measured / {sfd['model']} "
+                         "+ expected blocks",
+                         f"{r['field_count']} / {r['field_background_count']:.4g} + "
+                         f"{r['expected_blocks']:.4g}"))
     return rows
 
 
@@ -1442,6 +1552,8 @@ def validate_stack(stack, terrain: str, *, label: str = "stack",
     if stack.rocks is not None and len(stack.rocks.diameter_m):
         check, figures = _rock_sfd_check(stack, terrain)
         results.append(check)
+        if figures.get("fields"):
+            results.append(_block_field_check(stack, terrain, figures))
         data["rock_model_sfd"] = figures
     results += body_checks()
     data["layers"] = per_layer
