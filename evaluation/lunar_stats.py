@@ -33,7 +33,7 @@ from terrain.core.errors import InvalidParameterError
 from terrain.surface.rocks import VIPER as _ROCKS_VIPER
 
 __all__ = ["BLOCK_FIELDS", "BODY_BOULDER_INDEX", "CRATER_EQUILIBRIUM", "FRESH_DEPTH_DIAMETER",
-           "GENERATOR_HURST", "HURST_TOLERANCE", "KS_BETWEEN_REAL_DEMS", "MESH_SLOPE_RISE",
+           "HURST_TOLERANCE", "KS_BETWEEN_REAL_DEMS", "MESH_SLOPE_RISE",
            "REGOLITH_RMS_SLOPE",
            "ROCK_ABUNDANCE", "ROCK_SFD", "SLOPE_BAND_FACTOR", "SLOPE_LAW_DEG", "SMALL_CRATER_DD",
            "SMOOTHNESS", "STATS", "STEEP_OLD_TERRAIN", "STEEP_SLOPE", "TERRAINS",
@@ -309,16 +309,6 @@ SMALL_CRATER_DD = PublishedStat(
     "The mean must lie within 0.04 of 0.12 (0.08-0.16): a population stuck at its degraded "
     "floor (mean 0.02-0.05) or all fresh (0.2) fails.")
 
-#: Hurst exponent of a synthetic base against its own generator.
-GENERATOR_HURST = PublishedStat(
-    "generator_hurst", "|H - H of the base's generator| (structure function, even lags 2-16 px)",
-    0.0, 0.04, "", "the base's generator: random midpoint displacement of fractal dimension F, "
-    "H = 3 - F (terrain.fractal.rmd, eq. 14); Rosenburg et al. 2011 for the spread of H within "
-    "one terrain type (+-0.1)", 0.15,
-    "The estimator recovers an RMD surface's H within 0.04 on 1025 px tiles (measured, "
-    "H 0.7 and 0.95); the base's craters steepen its structure function at their own scales, "
-    "and may move H by as much as it varies within one terrain type (+-0.1): limit 0.15.")
-
 #: Rock size-frequency distribution against the terrain preset's VIPER model.
 ROCK_SFD = PublishedStat(
     "rock_sfd_model", "|N(>=D) / model - 1| over a decade of rock size outside fresh craters' "
@@ -347,7 +337,7 @@ BLOCK_FIELDS = PublishedStat(
 #: Every entry, for the report's sources table.
 STATS = (SLOPE_BAND_FACTOR, SLOPE_LAW_DEG, REGOLITH_RMS_SLOPE, HURST_TOLERANCE, SMOOTHNESS,
          STEEP_SLOPE, STEEP_OLD_TERRAIN, CRATER_EQUILIBRIUM, FRESH_DEPTH_DIAMETER,
-         SMALL_CRATER_DD, ROCK_ABUNDANCE, ROCK_DENSITY, ROCK_SFD, BLOCK_FIELDS, GENERATOR_HURST,
+         SMALL_CRATER_DD, ROCK_ABUNDANCE, ROCK_DENSITY, ROCK_SFD, BLOCK_FIELDS,
          BODY_BOULDER_INDEX, MESH_SLOPE_RISE, KS_BETWEEN_REAL_DEMS)
 
 
