@@ -720,8 +720,15 @@ def results_text(c: Campaign, out: Path, report: Path, commit: str) -> str:
                       t.get("ideal_one_step_median_px")),
                      (f"{run}: truth round trip, median (px)", t.get("truth_round_trip_px"))]
     for comparison in facts.get("dem_comparisons", []):
-        rows.append((f"{comparison['label']} against {comparison['reference']}: slope KS "
-                     f"distance", comparison["ks"]))
+        pair = f"{comparison['label']} against {comparison['reference']}"
+        rows.append((f"{pair}: slope KS distance", comparison["ks"]))
+        if comparison.get("shape_ks") is not None:
+            rows.append((f"{pair}: KS distance of slopes over their median (shape)",
+                         comparison["shape_ks"]))
+        if comparison.get("amplitude_ratio") is not None:
+            why = ", not judged: another place" if comparison.get("shape_only") else ""
+            rows.append((f"{pair}: median slope ratio (amplitude{why})",
+                         comparison["amplitude_ratio"]))
     if "site" in facts:
         rows += [("landing site: safe fraction", facts["site"].get("safe_fraction")),
                  ("landing site: rocks", facts["site"].get("rocks"))]

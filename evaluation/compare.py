@@ -7,12 +7,21 @@ shortens. Then it reports
 
 * the two-sample Kolmogorov-Smirnov distance ``D = max |F(s) - F_ref(s)|`` between the
   slope distributions (the statistic only: neighbouring slopes are correlated, so the
-  textbook p-value, which assumes independent samples, would be meaningless);
+  textbook p-value, which assumes independent samples, would be meaningless), and the same
+  distance between the slopes each divided by its own median: the distribution's *shape*,
+  free of its amplitude, with the ratio of the medians (the amplitude) beside it;
 * slope quantiles of both;
 * the ratio of their radially averaged power spectra over the band both resolve, with the
   median and largest ``|log10 ratio|`` (the paper's Fig. 14 comparison as numbers), and
   the Hurst exponent of each from the median structure function over even lags
   (:func:`evaluation.validate.hurst_estimate`), which a period-2 pattern cannot bias.
+
+A reference of another place (``shape_only``) is compared by shape: its terrain need not be
+as rough as ours (a flat landing region against terrain built for a regional slope law), so
+the amplitude is reported, not judged, and the spectra's ratio, which carries the amplitude
+(and, for a shape-from-shading DEM, its period-2 pattern's power), with it. The spectral
+*slope* is compared through the structure-function Hurst exponents, which even lags keep
+free of that pattern.
 
 DEMs in different coordinate reference systems are refused: their pixels are not the same
 shape on the ground, so their slopes are not comparable until one is reprojected onto the
@@ -121,6 +130,10 @@ class Comparison:
         ``P / P_ref`` over the common band (cycles per metre).
     hurst, reference_hurst : float or None
         From the median structure function over even lags (robust to period-2 patterns).
+    shape_ks_distance : float or None
+        KS distance of the slopes each divided by its own median (the shape alone).
+    shape_only : bool
+        The reference is another place: shape judged, amplitude reported (module docstring).
     """
 
     label: str
@@ -136,6 +149,14 @@ class Comparison:
     ratio: np.ndarray = field(default_factory=lambda: np.zeros(0))
     hurst: float | None = None
     reference_hurst: float | None = None
+    shape_ks_distance: float | None = None
+    shape_only: bool = False
+
+    @property
+    def amplitude_ratio(self) -> float | None:
+        """Median slope over the reference's at the matched baseline (None if it is 0)."""
+        ref = self.reference_distribution.quantiles["p50"]
+        return self.distribution.quantiles["p50"] / ref if ref > 0 else None
 
     @property
     def log10_ratio_median(self) -> float | None:
@@ -160,6 +181,8 @@ class Comparison:
             quantiles=self.distribution.quantiles,
             reference_quantiles=self.reference_distribution.quantiles,
             hurst=self.hurst, reference_hurst=self.reference_hurst,
+            shape_ks_distance=self.shape_ks_distance, shape_only=self.shape_only,
+            amplitude_ratio=self.amplitude_ratio,
             spectrum_log10_ratio_median=self.log10_ratio_median,
             spectrum_log10_ratio_max=self.log10_ratio_max,
             ratio_frequency_per_m=self.ratio_frequency.tolist(), ratio=self.ratio.tolist(),
@@ -191,7 +214,7 @@ def _spectrum_and_hurst(tile, label):
 
 def compare_dems(tile: DEMTile, reference: DEMTile, *, label: str = "DEM",
                  reference_label: str = "reference", edges: str = "mask",
-                 angles=None) -> Comparison:
+                 angles=None, shape_only: bool = False) -> Comparison:
     """Compare a DEM with a reference DEM (see the module docstring).
 
     Parameters
@@ -202,6 +225,8 @@ def compare_dems(tile: DEMTile, reference: DEMTile, *, label: str = "DEM",
         Slope edge handling (:func:`evaluation.slope.horn`).
     angles : (k,) float, degrees, optional
         Thresholds of the cumulative distributions.
+    shape_only : bool
+        The reference is another place: judge the shape, report the amplitude.
 
     Returns
     -------
@@ -237,13 +262,16 @@ def compare_dems(tile: DEMTile, reference: DEMTile, *, label: str = "DEM",
     da = slope_distribution(a, label=label, angles=angles, slopes=sa)
     db = slope_distribution(b, label=reference_label, angles=angles, slopes=sb)
     ks = ks_distance(sa, sb)
+    fa, fb = sa[np.isfinite(sa)], sb[np.isfinite(sb)]
+    ma, mb = float(np.median(fa)), float(np.median(fb))
+    shape_ks = ks_distance(fa / ma, fb / mb) if ma > 0 and mb > 0 else None
     spec_a, hurst_a = _spectrum_and_hurst(a, label)
     spec_b, hurst_b = _spectrum_and_hurst(b, reference_label)
     freq = ratio = np.zeros(0)
     if spec_a is not None and spec_b is not None:
         freq, ratio = spectrum_ratio(spec_a, spec_b)
     return Comparison(label, reference_label, a.resolution, resampled, ks, da, db, spec_a,
-                      spec_b, freq, ratio, hurst_a, hurst_b)
+                      spec_b, freq, ratio, hurst_a, hurst_b, shape_ks, bool(shape_only))
 
 
 @dataclass(frozen=True)

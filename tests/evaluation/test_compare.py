@@ -100,3 +100,32 @@ def test_slope_map_agreement_needs_a_shared_grid():
         compare_slope_maps(np.zeros((3, 3)), np.zeros((3, 4)))
     a = compare_slope_maps(np.arange(9.0).reshape(3, 3), np.arange(9.0).reshape(3, 3) + 1)
     assert a.bias_deg == -1.0 and a.max_abs_deg == 1.0 and a.correlation == pytest.approx(1.0)
+
+
+def test_another_place_is_compared_by_shape_and_its_amplitude_shown():
+    """The same kind of terrain at 2.3 times the relief (a rougher place): the plain KS
+    distance is large, the KS distance of slopes over their median is small, and the
+    amplitude ratio reads the relief's factor (slopes of a few degrees scale with it)."""
+    a = fractional_brownian_surface(256, 0.8, resolution=2.0, rms=2.0, seed=1)
+    rough = a.replace(heights=a.heights * 2.3)
+    c = compare_dems(rough, a, shape_only=True)
+    assert c.shape_only and c.ks_distance > 0.5
+    assert c.shape_ks_distance < 0.05
+    assert c.amplitude_ratio == pytest.approx(2.3, rel=0.1)
+    # smooth plains beside rough ground: a wider distribution, whatever its amplitude (a
+    # random walk's slopes have the same form as any Gaussian surface's: its Hurst exponent,
+    # compared beside the shape, tells it apart)
+    mixed = a.replace(heights=a.heights * np.where(np.arange(256) < 128, 0.2, 1.0)[None, :])
+    assert compare_dems(mixed, a, shape_only=True).shape_ks_distance > 0.1
+
+
+def test_a_period_2_row_pattern_does_not_move_the_shape_or_the_hurst_exponent():
+    """Rows alternately raised and lowered by 0.6 m, as in the shared SfS DEM: Horn slopes
+    (differences over two pixels) and the even-lag Hurst fit do not see it."""
+    a = fractional_brownian_surface(256, 0.8, resolution=1.0, rms=3.0, seed=1)
+    b = fractional_brownian_surface(256, 0.8, resolution=1.0, rms=3.0, seed=2)
+    striped = b.replace(heights=b.heights + 0.6 * (-1.0) ** np.arange(256)[:, None])
+    clean = compare_dems(a, b, shape_only=True)
+    dirty = compare_dems(a, striped, shape_only=True)
+    assert dirty.shape_ks_distance == pytest.approx(clean.shape_ks_distance, abs=1e-6)
+    assert dirty.reference_hurst == pytest.approx(clean.reference_hurst, abs=1e-6)

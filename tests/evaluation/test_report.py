@@ -110,6 +110,27 @@ def test_dem_section_checks_against_a_reference(tmp_path):
     assert_self_contained(render_html(report))
 
 
+def test_another_place_is_judged_by_shape_with_its_amplitude_noted():
+    """A reference of another place: the shape and the Hurst exponent are checked, the plain
+    KS distance and the spectra's ratio (the amplitude) are shown in the table and a note,
+    not judged."""
+    from evaluation.compare import compare_dems
+
+    a = fractional_brownian_surface(128, 0.8, resolution=2.0, rms=2.0, seed=1)
+    b = fractional_brownian_surface(128, 0.8, resolution=2.0, rms=2.0, seed=2)
+    rough = a.replace(heights=a.heights * 3.0)
+    section = dem_section([slope_distribution(rough, label="a")], (), (),
+                          [compare_dems(rough, b, label="a", reference_label="b",
+                                        shape_only=True)])
+    names = [c.name for c in section.checks]
+    assert names == ["KS distance of slopes over their median (shape) a vs b",
+                     "Hurst difference a vs b"]
+    assert all(c.passed for c in section.checks)
+    assert any("another place" in n and "median slope ratio" in n for n in section.notes)
+    (table,) = [t for t in section.tables if t[0].startswith("a against b")]
+    assert any(row[0] == "median slope ratio (amplitude)" for row in table[2])
+
+
 def test_missing_evidence_makes_a_report_incomplete_not_passed(run_without_truth):
     reader = RunReader(run_without_truth)
     scored = score(track(reader), reader)
