@@ -47,9 +47,6 @@ the same bytes whatever came before it); a map is kept per layer and ``c``, so a
 coming from afar draws a fine layer's map once per halving of ``c`` down to 8, together
 about a third of a full map, then the full map, and its first frame draws the distant fine
 layers' maps at a fraction of their cost.
-A map draws its casters finest layer first: the map holds the least depth whatever the
-order, and the layer's own ground, drawn first, hides more of the coarser layers' fragments
-from the depth test's later stages.
 Scattered light likewise: a layer is lit by its own grid (:mod:`render.scattering`), or,
 where an image pixel at its nearest drawn block spans a coarser layer's grid cell, by the
 coarsest such layer's grid, which covers it and resolves the light to an image pixel.
@@ -924,12 +921,7 @@ class TerrainScene:
         return out
 
     def _depth_batches(self, gpu, casters, texel):
-        """Give the casters' depth batches, each layer at the detail ``texel`` (m) resolves.
-
-        The finest layer comes first: a map holds the least depth of its casters whatever
-        their order, and drawn nearer the front first, more of the coarser layers' fragments
-        fail the depth test early (a quarter less time on llvmpipe, the same texels).
-        """
+        """Give the casters' depth batches, each layer at the detail ``texel`` (m) resolves."""
         batches = []
         for k, blocks in casters:
             layer = self._layers[k]
@@ -941,7 +933,7 @@ class TerrainScene:
             ranges = _merge_ranges(layer.offsets[s][blocks], layer.counts[s][blocks])
             last = k == casters[-1][0]
             batches.append(DrawBatch(None, dvao, ranges, discard=None if last else layer.discard))
-        return batches[::-1]
+        return batches
 
 
 def _block_extremes(z: np.ndarray, brows: np.ndarray, bcols: np.ndarray):
