@@ -6,7 +6,8 @@ nested 1025^2 layers, craters and rocks at every scale; ``--quick``: the reduced
 times, interleaved round by round (A B, B A, ...):
 
 * ``scene``: ``TerrainScene(stack folder)`` (the layers, the crater and rock catalogues),
-  its upload (vertex, geomorphing and index buffers, normal textures) and its first 1024^2
+  its upload (index buffers; the layers it draws build their vertex, geomorphing and normal
+  buffers in the frame) and its first 1024^2
   frame (256^2 with ``--quick``) of the descent's first pose, without shadows (their maps
   are the shadow code's and timed by bench_render) and, separately, that first frame alone;
   then the same view again with the descent's shadows (4096-texel maps, built on this first

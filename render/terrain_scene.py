@@ -80,6 +80,12 @@ layer's side; a smoothstep from the parent's
 triangulated full-resolution surface at the layer's edge to the layer's own heights), so the
 finer detail fades in instead of starting with a step at the layer's edge.
 
+Loading: :meth:`TerrainScene.upload` prepares every layer's heights (invalid pixels
+filled, curvature, fade-in), block bounds and shared index buffers; a layer's vertex buffer
+is built when a frame first draws it or a shadow map first casts with it, and its
+geomorphing buffer and normals texture when a frame first draws it. A layer no frame needs
+costs its heights only, and the buffers are the same bytes whenever they are built.
+
 Range and truth: range comes from the drawn (morphed) geometry, per fragment, and the images
 and normal images from the same fragments (shaded with the layers' full-resolution normals),
 so they agree with each other and with the poses exactly. Morphing moves a vertex only
@@ -181,7 +187,7 @@ class _Layer:
     level: int
     resolution: float
     shape: tuple
-    vbo: Any              # interleaved positions and normals of every vertex (3f 3f)
+    vbo: Any              # interleaved positions and normals of every vertex (3f 3f), or None
     ibos: dict            # lod -> buffer
     vaos: dict            # lod -> (vao, depth_vao)
     offsets: dict         # lod -> (n_blocks,) first index
@@ -193,6 +199,9 @@ class _Layer:
     extent: tuple         # (xmin, ymin, xmax, ymax) scene-local, pixel centres
     morph_vbo: object = None
     normal_map: tuple | None = None  # (texture, rect): see DrawBatch.normal_map
+    # (z, xs, ys): the curved, faded heights and pixel centres the vertex buffers are built
+    # from when a frame first needs them (:meth:`TerrainScene._vertex_buffers`)
+    heights: tuple | None = None
 
 
 def _lods() -> list[int]:
@@ -387,29 +396,39 @@ class TerrainScene:
         return lo, hi
 
     # ------------------------------------------------------------------ GPU
-    def upload(self, gpu: Gpu) -> None:
-        """Build every layer's vertex and index buffers (once per context).
+    def upload(self, gpu: Gpu, *, eager: bool = False) -> None:
+        """Prepare every layer for drawing (once per context).
+
+        Every layer's heights, block bounds and index buffers are made here; its vertex
+        buffers when a frame first draws it or casts a shadow with it, and its geomorphing
+        buffer and normals texture when a frame first draws it (the same bytes either way:
+        a layer no frame needs costs its heights only).
 
         Parameters
         ----------
         gpu : render.scene.Gpu
             The handle the buffers and normal textures are uploaded through.
+        eager : bool
+            Upload every layer's buffers now.
         """
-        if self._ctx is gpu.context and self._layers:
-            return
-        self._ctx = gpu.context
-        self._layers = []
-        self._index_cache = {}
-        tiles = self.stack.tiles
-        total = 0
-        parent = None
-        for k, tile in enumerate(tiles):
-            finer = tiles[k + 1] if k + 1 < len(tiles) else None
-            layer, parent = self._build_layer(gpu, k, tile, finer, parent)
-            self._layers.append(layer)
-            total += int(layer.counts[1].sum()) // 3
-        self.triangles_full = total
-        log.info("terrain scene: %d layers, %d triangles at full resolution", len(tiles), total)
+        if not (self._ctx is gpu.context and self._layers):
+            self._ctx = gpu.context
+            self._layers = []
+            self._index_cache = {}
+            tiles = self.stack.tiles
+            total = 0
+            parent = None
+            for k, tile in enumerate(tiles):
+                finer = tiles[k + 1] if k + 1 < len(tiles) else None
+                layer, parent = self._build_layer(gpu, k, tile, finer, parent)
+                self._layers.append(layer)
+                total += int(layer.counts[1].sum()) // 3
+            self.triangles_full = total
+            log.info("terrain scene: %d layers, %d triangles at full resolution", len(tiles),
+                     total)
+        if eager:
+            for layer in self._layers:
+                self._vertex_buffers(gpu, layer, morph=True)
 
     def _local_extent(self, tile):
         left, bottom, right, top = tile.bounds
@@ -418,7 +437,10 @@ class TerrainScene:
                 right - r / 2 - self.site[0], top - r / 2 - self.site[1])
 
     def _build_layer(self, gpu, k, tile, finer, parent=None):
-        """Build the layer's GPU buffers, and its surface (for the next layer's fade-in)."""
+        """Prepare a layer (heights, blocks, indices); give it and its surface (for fade-in).
+
+        Its vertex buffers are built when a frame first needs them (:meth:`_vertex_buffers`).
+        """
         h, w = tile.shape
         res = tile.resolution
         x0, y0, x1, y1 = self._local_extent(tile)
@@ -436,51 +458,9 @@ class TerrainScene:
         if parent is not None:
             z = _fade_in(z, xs, ys, parent)
         surface = (z, xs[0], ys[0], res)
-        # normals from central differences of the (curved) heights
-        dzdx = np.gradient(z, res, axis=1)
-        dzdy = -np.gradient(z, res, axis=0)  # rows run south
-        n = np.stack([-dzdx, -dzdy, np.ones_like(z)], axis=-1)
-        n /= np.linalg.norm(n, axis=-1, keepdims=True)
-        # the full-resolution normals as a texture (shading independent of the level of
-        # detail, module docstring): texel (i, j) at pixel centre (xs[j], ys[i])
-        normal_tex = gpu.texture((w, h), 3, n.astype("f2").tobytes(), dtype="f2")
-        normal_rect = (xs[0] - 0.5 * res, ys[0] + 0.5 * res, 1.0 / (w * res), 1.0 / (h * res))
-        # skirt vertices: lowered copies of every block-boundary row and column
         brows = _samples(0, h - 1, BLOCK)
         bcols = _samples(0, w - 1, BLOCK)
         depth = SKIRT_PIXELS * res
-        target, level, tnormal = _morph_targets(z, n)
-        # vertices: every pixel centre, then the skirt rows, then the skirt columns; the
-        # vertex buffer interleaves position and normal (3f 3f), the geomorphing buffer the
-        # target position, the level and the target normal (4f 3f; module docstring), skirts
-        # following their edge vertex. Filled in float32 straight from the float64 values.
-        n_main = h * w
-        n_rows = len(brows) * w
-        vert = np.empty((n_main + n_rows + len(bcols) * h, 6), dtype=np.float32)
-        morph = np.empty((len(vert), 7), dtype=np.float32)
-        for out, height, normal in ((vert, z, n), (morph, target, tnormal)):
-            main = out[:n_main].reshape(h, w, -1)
-            main[..., 0] = xs[None, :]
-            main[..., 1] = ys[:, None]
-            main[..., 2] = height
-            rows = out[n_main:n_main + n_rows].reshape(len(brows), w, -1)
-            rows[..., 0] = xs[None, :]
-            rows[..., 1] = ys[brows][:, None]
-            rows[..., 2] = height[brows] - depth
-            cols = out[n_main + n_rows:].reshape(len(bcols), h, -1)
-            cols[..., 0] = xs[bcols][:, None]
-            cols[..., 1] = ys[None, :]
-            cols[..., 2] = height[:, bcols].T - depth
-            first = 3 if out is vert else 4
-            main[..., first:] = normal
-            rows[..., first:] = normal[brows]
-            cols[..., first:] = normal[:, bcols].transpose(1, 0, 2)
-        morph_main = morph[:n_main].reshape(h, w, 7)
-        morph_main[..., 3] = level
-        morph[n_main:n_main + n_rows].reshape(len(brows), w, 7)[..., 3] = level[brows]
-        morph[n_main + n_rows:].reshape(len(bcols), h, 7)[..., 3] = level[:, bcols].T
-        vbo = gpu.buffer(vert)
-        morph_vbo = gpu.buffer(morph)
         nby, nbx = len(brows) - 1, len(bcols) - 1
         lo = np.empty((nby * nbx, 3))
         hi = np.empty((nby * nbx, 3))
@@ -515,15 +495,94 @@ class TerrainScene:
                        & (lo[:, 1] >= discard[1]) & (hi[:, 1] <= discard[3]))
         else:
             covered = np.zeros(nby * nbx, dtype=bool)
-        layer = _Layer(k, res, (h, w), vbo, ibos, vaos, offsets, counts, lo, hi, discard,
-                       covered, (x0, y0, x1, y1), morph_vbo, (normal_tex, normal_rect))
+        layer = _Layer(k, res, (h, w), None, ibos, vaos, offsets, counts, lo, hi, discard,
+                       covered, (x0, y0, x1, y1), heights=(z, xs, ys))
         return layer, surface
 
+    def _vertex_buffers(self, gpu, layer: _Layer, morph: bool) -> None:
+        """Upload what the layer lacks of its buffers, from its prepared heights.
+
+        Its vertex buffer, and with ``morph`` its geomorphing buffer and normals texture.
+        """
+        if layer.vbo is not None and (layer.morph_vbo is not None or not morph):
+            return
+        assert layer.heights is not None  # dropped only once every buffer is built
+        z, xs, ys = layer.heights
+        h, w = layer.shape
+        res = layer.resolution
+        # normals from central differences of the (curved) heights
+        dzdx = np.gradient(z, res, axis=1)
+        dzdy = -np.gradient(z, res, axis=0)  # rows run south
+        n = np.stack([-dzdx, -dzdy, np.ones_like(z)], axis=-1)
+        n /= np.linalg.norm(n, axis=-1, keepdims=True)
+        # skirt vertices: lowered copies of every block-boundary row and column
+        brows = _samples(0, h - 1, BLOCK)
+        bcols = _samples(0, w - 1, BLOCK)
+        depth = SKIRT_PIXELS * res
+        # vertices: every pixel centre, then the skirt rows, then the skirt columns; the
+        # vertex buffer interleaves position and normal (3f 3f), the geomorphing buffer the
+        # target position, the level and the target normal (4f 3f; module docstring), skirts
+        # following their edge vertex. Filled in float32 straight from the float64 values.
+        n_main = h * w
+        n_rows = len(brows) * w
+        n_all = n_main + n_rows + len(bcols) * h
+        fills = []
+        if layer.vbo is None:
+            vert = np.empty((n_all, 6), dtype=np.float32)
+            fills.append((vert, z, n, 3))
+        if morph:
+            # the full-resolution normals as a texture (shading independent of the level of
+            # detail, module docstring): texel (i, j) at pixel centre (xs[j], ys[i])
+            normal_tex = gpu.texture((w, h), 3, n.astype("f2").tobytes(), dtype="f2")
+            normal_rect = (xs[0] - 0.5 * res, ys[0] + 0.5 * res, 1.0 / (w * res),
+                           1.0 / (h * res))
+            target, level, tnormal = _morph_targets(z, n)
+            morph_buf = np.empty((n_all, 7), dtype=np.float32)
+            fills.append((morph_buf, target, tnormal, 4))
+        for out, height, normal, first in fills:
+            main = out[:n_main].reshape(h, w, -1)
+            main[..., 0] = xs[None, :]
+            main[..., 1] = ys[:, None]
+            main[..., 2] = height
+            rows = out[n_main:n_main + n_rows].reshape(len(brows), w, -1)
+            rows[..., 0] = xs[None, :]
+            rows[..., 1] = ys[brows][:, None]
+            rows[..., 2] = height[brows] - depth
+            cols = out[n_main + n_rows:].reshape(len(bcols), h, -1)
+            cols[..., 0] = xs[bcols][:, None]
+            cols[..., 1] = ys[None, :]
+            cols[..., 2] = height[:, bcols].T - depth
+            main[..., first:] = normal
+            rows[..., first:] = normal[brows]
+            cols[..., first:] = normal[:, bcols].transpose(1, 0, 2)
+        if layer.vbo is None:
+            layer.vbo = gpu.buffer(vert)
+        if morph:
+            morph_buf[:n_main].reshape(h, w, 7)[..., 3] = level
+            morph_buf[n_main:n_main + n_rows].reshape(len(brows), w, 7)[..., 3] = level[brows]
+            morph_buf[n_main + n_rows:].reshape(len(bcols), h, 7)[..., 3] = level[:, bcols].T
+            layer.morph_vbo = gpu.buffer(morph_buf)
+            layer.normal_map = (normal_tex, normal_rect)
+            layer.heights = None  # every buffer is built
+
     def _vaos(self, gpu, layer: _Layer, s: int):
+        """Give the layer's (camera, depth) vertex arrays at level s (its buffers built)."""
         key = (gpu.token, s)
         if key not in layer.vaos:
+            self._vertex_buffers(gpu, layer, morph=True)
             layer.vaos[key] = gpu.vertex_arrays(layer.vbo, layer.ibos[s],
-                                                     morph=layer.morph_vbo)
+                                                morph=layer.morph_vbo)
+        return layer.vaos[key]
+
+    def _depth_vao(self, gpu, layer: _Layer, s: int):
+        """Give the layer's depth vertex array at level s (its vertex buffer built)."""
+        pair = layer.vaos.get((gpu.token, s))
+        if pair is not None:
+            return pair[1]
+        key = (gpu.token, s, "depth")
+        if key not in layer.vaos:
+            self._vertex_buffers(gpu, layer, morph=False)
+            layer.vaos[key] = gpu.vertex_arrays(layer.vbo, layer.ibos[s])[1]
         return layer.vaos[key]
 
     # ------------------------------------------------------------------ per frame
@@ -596,6 +655,9 @@ class TerrainScene:
                         low = mid
                 plan, total = self._plan(visible, dist, focal, fits)
             target = fits
+        for layer, (_, blocks) in zip(self._layers, plan, strict=True):
+            if blocks.size:  # drawn: every buffer at once (before a map casts with it)
+                self._vertex_buffers(gpu, layer, morph=True)
         shadows = None
         if options.shadows and lighting is not None:
             shadows = self._shadow_maps(gpu, lighting, options)
@@ -867,10 +929,10 @@ class TerrainScene:
             # wasted
             s = int(min(BLOCK, 2 ** max(0, math.floor(math.log2(
                 max(SHADOW_CELL_TEXELS * texel / layer.resolution, 1.0))))))
-            vao, dvao = self._vaos(gpu, layer, s)
+            dvao = self._depth_vao(gpu, layer, s)
             ranges = _merge_ranges(layer.offsets[s][blocks], layer.counts[s][blocks])
             last = k == casters[-1][0]
-            batches.append(DrawBatch(vao, dvao, ranges, discard=None if last else layer.discard))
+            batches.append(DrawBatch(None, dvao, ranges, discard=None if last else layer.discard))
         return batches
 
 

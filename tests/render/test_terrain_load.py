@@ -85,7 +85,7 @@ def test_uploaded_buffers_are_the_golden_bytes(renderer):
     from render.terrain_scene import TerrainScene
 
     scene = TerrainScene(_stack())
-    scene.upload(renderer.gpu)
+    scene.upload(renderer.gpu, eager=True)
     assert _buffers_hash(scene) == GOLDEN_BUFFERS
 
 
