@@ -345,6 +345,9 @@ def main(argv=None) -> int:
     parser.add_argument("--child", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--skip-out-of-core", action="store_true",
                         help="full run without the 16385^2 out-of-core configuration")
+    parser.add_argument("--chunk", type=int, default=None,
+                        help="chunk side of the full run (default: the library's, "
+                             "terrain.execution.chunked.DEFAULT_CHUNK)")
     parser.add_argument("--throughput-only", action="store_true",
                         help="the expansion's throughput alone (memory, in-process, 1 and 2 "
                              "workers), no overhead, stack or out-of-core parts")
@@ -359,7 +362,7 @@ def main(argv=None) -> int:
     # --quick is a smoke test: one round, no 1-worker cluster (a cluster's start costs seconds)
     from terrain.execution.chunked import DEFAULT_CHUNK
 
-    size, chunk, rounds = (513, 128, 1) if args.quick else (4097, DEFAULT_CHUNK, 3)
+    size, chunk, rounds = (513, 128, 1) if args.quick else (4097, args.chunk or DEFAULT_CHUNK, 3)
     work = Path(tempfile.mkdtemp(prefix="bench-dask-"))
     results = dict(machine=machine_facts(note="shared machine: other jobs ran concurrently"))
     try:
