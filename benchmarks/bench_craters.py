@@ -17,6 +17,12 @@ Each benchmark compares against a baseline measured in the same run:
   cost is the difference of the medians, divided by the number of craters touching the tile.
 * ``craters_one_thread``: the default model on one thread (:mod:`terrain.core.parallel`),
   the baseline of the parallel composition (its heights must sum to the same value).
+
+Each tile configuration also reports its process CPU time (``cpu``, ``time.process_time``:
+every thread's), and each crater cost its CPU microseconds per crater and ``cores_busy``
+(CPU over wall time of the craters): on a shared machine the wall figures carry the other
+jobs' load, the CPU figures much less of it, and ``cores_busy`` shows how much of the
+parallel composition the machine let run at once.
 * ``window``: a window of the same cratered tile vs the full tile (the default-model
   configuration above); the first round's child also checks that the window equals the same
   pixels of a full tile it computes once, bitwise.
@@ -112,17 +118,18 @@ def child_tile(spec: dict) -> dict:
 def _child_tile(spec: dict) -> dict:
     warmup_s = _warm_up(spec["model"])
     rss_after_warmup = peak_rss_bytes()
-    times, n_craters, checksum = [], None, None
+    times, cpu, n_craters, checksum = [], [], None, None
     for i in range(spec["repeat"]):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         result = _synth(spec)
         times.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
         n_craters = len(result.catalog)
         checksum = float(result.tile.heights.astype("float64").sum())
         del result  # so that the next call's peak does not include this result
         log(f"  {spec['name']} run {i + 1}/{spec['repeat']}: {times[-1]:.3f} s")
     peak = peak_rss_bytes()
-    return dict(warmup_s=warmup_s, wall=summary(times), n_craters=n_craters,
+    return dict(warmup_s=warmup_s, wall=summary(times), cpu=summary(cpu), n_craters=n_craters,
                 peak_rss_bytes=peak, peak_rss_after_warmup_bytes=rss_after_warmup,
                 peak_rss_increment_bytes=peak - rss_after_warmup, height_sum=checksum)
 
@@ -191,11 +198,15 @@ def benchmark(quick: bool, repeat: int, timeout: float) -> dict:
     base, default, smooth, one_thread, window = (pool(runs[name]) for name in specs)
 
     base_med = base["wall"]["median_s"]
+    base_cpu = base["cpu"]["median_s"]
 
     def crater_cost(cfg: dict) -> dict:
         cost = cfg["wall"]["median_s"] - base_med
         us = cost / cfg["n_craters"] * 1e6 if cfg["n_craters"] else None
-        return dict(crater_time_s=cost, us_per_crater=us,
+        cpu = cfg["cpu"]["median_s"] - base_cpu
+        return dict(crater_time_s=cost, us_per_crater=us, crater_cpu_s=cpu,
+                    cpu_us_per_crater=cpu / cfg["n_craters"] * 1e6 if cfg["n_craters"] else None,
+                    cores_busy=cpu / cost if cost > 0 else None,
                     vs_peer_220us=us / PEER_US_PER_CRATER if us is not None else None,
                     speedup_vs_peer=PEER_US_PER_CRATER / us if us else None)
 

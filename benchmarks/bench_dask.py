@@ -65,8 +65,9 @@ def _input(path: Path, size: int, chunk: int, workers: int | None = None):
 def _warm_up() -> None:
     """Compile (or load numba's cache of) the kernels this process runs, on a tiny stack.
 
-    A cluster's workers are new processes in every run, so they load their kernels inside
-    the timing: that is part of what a chunked command costs.
+    A cluster's workers are new processes in every run: the throughput children run this
+    on every worker (``client.run``) before the timed run and report its time apart
+    (``worker_warm_up_s``), a fixed cost per worker and run, like the cluster's start.
     """
     from terrain.craters.population import Population
     from terrain.fractal.expand import expand
@@ -115,6 +116,10 @@ def child_throughput(spec):
         t0 = time.perf_counter()
         with dask_client(workers) as client:
             started = time.perf_counter() - t0
+            if client is not None:
+                t1 = time.perf_counter()
+                client.run(_warm_up)
+                extra["worker_warm_up_s"] = time.perf_counter() - t1
             report = run(ExpandSource(reader, 1, SEED, params), out, chunk=spec["chunk"],
                          client=client)
             if client is not None:
@@ -252,8 +257,9 @@ def _pooled(children: list[dict]) -> dict:
         runs = [t for c in children for t in c["worker_s_per_chunk_runs"]]
         out["worker_s_per_chunk_runs"] = runs
         out["worker_s_per_chunk"] = float(np.median(runs))
-    if "cluster_start_s" in first:
-        out["cluster_start_s"] = float(np.median([c["cluster_start_s"] for c in children]))
+    for key in ("cluster_start_s", "worker_warm_up_s"):
+        if key in first:
+            out[key] = float(np.median([c[key] for c in children]))
     return out
 
 
@@ -339,6 +345,12 @@ def main(argv=None) -> int:
     parser.add_argument("--child", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--skip-out-of-core", action="store_true",
                         help="full run without the 16385^2 out-of-core configuration")
+    parser.add_argument("--chunk", type=int, default=None,
+                        help="chunk side of the full run (default: the library's, "
+                             "terrain.execution.chunked.DEFAULT_CHUNK)")
+    parser.add_argument("--throughput-only", action="store_true",
+                        help="the expansion's throughput alone (memory, in-process, 1 and 2 "
+                             "workers), no overhead, stack or out-of-core parts")
     args = parser.parse_args(argv)
     if args.child:
         spec = json.loads(args.child)
@@ -350,7 +362,7 @@ def main(argv=None) -> int:
     # --quick is a smoke test: one round, no 1-worker cluster (a cluster's start costs seconds)
     from terrain.execution.chunked import DEFAULT_CHUNK
 
-    size, chunk, rounds = (513, 128, 1) if args.quick else (4097, DEFAULT_CHUNK, 3)
+    size, chunk, rounds = (513, 128, 1) if args.quick else (4097, args.chunk or DEFAULT_CHUNK, 3)
     work = Path(tempfile.mkdtemp(prefix="bench-dask-"))
     results = dict(machine=machine_facts(note="shared machine: other jobs ran concurrently"))
     try:
@@ -372,6 +384,8 @@ def main(argv=None) -> int:
             worker_s_per_chunk={k: v.get("worker_s_per_chunk") for k, v in runs.items()},
             two_vs_one_worker=(runs["cluster2"]["pixels_per_s"] / runs["cluster1"]["pixels_per_s"]
                                if "cluster1" in runs else None))
+        if args.throughput_only:
+            return _print(results)
         results["overhead"] = _run_child(__file__, dict(
             kind="overhead", name="overhead", tasks=200, chunk=chunk, repeat=1, dir=str(work)),
             600, log)
@@ -388,6 +402,10 @@ def main(argv=None) -> int:
             results["out_of_core"] = out_of_core(work, OOC_SIZE, 2048)
     finally:
         shutil.rmtree(work, ignore_errors=True)
+    return _print(results)
+
+
+def _print(results: dict) -> int:
     print(json.dumps(results, indent=2, default=float))
     return 0
 

@@ -81,8 +81,12 @@ log = logging.getLogger(__name__)
 
 #: Default chunk side in pixels (16 MiB of float32 per chunk): a task's fixed costs (the
 #: scheduler's round trip, reading its window and halo, the Zarr write and its marker) are
-#: then a small share of its compute (docs/scaling.md).
-DEFAULT_CHUNK = 2048
+#: then a small share of its compute (docs/scaling.md). 2^11 + 1, not 2^11: craterscape's
+#: DEMs are 2^n + 1 pixels a side, which 2^11 leaves with a last chunk one pixel wide (a
+#: 8193^2 expansion: 25 chunks, 9 of them slivers paying a whole chunk's fixed costs for
+#: almost no pixels), and 2^11 + 1 tiles with 2^(n - 11) chunks (the last 2050 - 2^(n - 11)
+#: pixels wide: 2046 at 8193, 2034 at 32769).
+DEFAULT_CHUNK = 2049
 #: Smallest chunk side accepted (smaller chunks cost more in scheduling than they compute).
 MIN_CHUNK = 16
 

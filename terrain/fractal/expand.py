@@ -67,7 +67,7 @@ STREAM_EXPAND = stream_id("expand")
 def _amplitude_row(amp, ar0, scale, r, buf):
     """Interpolate the local roughness map bilinearly to child row r.
 
-    At the map's column spacing, into buf (then :func:`_amplitude_col` along the row);
+    At the map's column spacing, into buf (then :func:`_amplitude_cols` along the row);
     nothing without a map.
     """
     if amp.shape[0] == 0:
@@ -81,15 +81,24 @@ def _amplitude_row(amp, ar0, scale, r, buf):
 
 
 @numba.njit(cache=True)
-def _amplitude_col(buf, ac0, scale, c):
-    """Linear interpolation along a row buffer from :func:`_amplitude_row` (1 without map)."""
-    n = buf.size
+def _amplitude_cols(n, ac0, scale, c_first, c_step, lo, hi, w_lo, w_hi):
+    """Columns and weights of the linear interpolation along a row buffer of ``n`` values.
+
+    For the child columns ``c_first + m c_step`` (m = 0 .. lo.size - 1), the same for every
+    row of a pass: the value at m is ``buf[lo[m]] w_lo[m] + buf[hi[m]] w_hi[m]`` with the
+    row buffer of :func:`_amplitude_row` (nothing to fill without a map).
+    """
     if n == 0:
-        return 1.0
-    fc = min(max(c * scale - ac0, 0.0), n - 1.0)
-    j = min(int(fc), n - 2) if n > 1 else 0
-    tj = fc - j
-    return buf[j] * (1.0 - tj) + buf[min(j + 1, n - 1)] * tj
+        return
+    for m in range(lo.size):
+        c = c_first + m * c_step
+        fc = min(max(c * scale - ac0, 0.0), n - 1.0)
+        j = min(int(fc), n - 2) if n > 1 else 0
+        tj = fc - j
+        lo[m] = j
+        hi[m] = min(j + 1, n - 1)
+        w_lo[m] = 1.0 - tj
+        w_hi[m] = tj
 
 
 #: Output rows of one parallel block of a pass: a block draws its first noise rows afresh
@@ -105,6 +114,9 @@ def _expand_pass(grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis, sig, wts, 
     keyed by position, and a block computes its own noise rows), so the result is the same,
     bit for bit, on any number of threads (:mod:`terrain.core.parallel`).
     """
+    if sc != (2 if axis == 1 else 1):  # the kernel counts parent columns, one per step
+        raise ValueError(f"a pass along axis {axis} reads grid columns "
+                         f"{2 if axis == 1 else 1} apart; got {sc}")
     blocks = (out.shape[0] + BLOCK_ROWS - 1) // BLOCK_ROWS
     run_blocks(_expand_blocks, blocks, grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis,
                sig, wts, taps, key, amp, ar0, ac0, scale, rmin, rmax, cmin, cmax)
@@ -147,6 +159,12 @@ def _expand_rows(grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis, sig, wts, 
         n_new = nx
         step, b_row, b_col = 1, taps[2], taps[0]
     norm = 1.0 / math.sqrt((1.0 + 2.0 * b_row * b_row) * (1.0 + 2.0 * b_col * b_col))
+    has_map = amp.shape[1] > 0  # without a map every displacement's amplitude is 1
+    a_lo = np.empty(n_new, dtype=np.int64)
+    a_hi = np.empty(n_new, dtype=np.int64)
+    w_lo = np.empty(n_new)
+    w_hi = np.empty(n_new)
+    _amplitude_cols(amp.shape[1], ac0, scale, o_c0 + j_new, step, a_lo, a_hi, w_lo, w_hi)
     g = np.empty(n_new + 2)
     noise = np.empty((3, n_new))
     held = NO_ROW
@@ -156,22 +174,32 @@ def _expand_rows(grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis, sig, wts, 
         if axis == 1:  # along the row: copies at even columns, predictions at odd ones
             held = noise_rows(key, r, 2, o_c0 + j_new, step, b_row, g, noise, held)
             row = grid[(r - g_r0) // sr]
+            # grid columns sc = 2 apart and j stepping by 2: the parent index grows by one
+            # a step (counted, not divided: an integer division per pixel cost a third of
+            # the pass)
+            q = (o_c0 + o_c0 % 2 - g_c0) // sc
             for j in range(o_c0 % 2, nx, 2):
-                out[i, j] = row[(o_c0 + j - g_c0) // sc]
+                out[i, j] = row[q]
+                q += 1
+            k = (o_c0 + j_new - 1 - g_c0) // sc
+            m = 0
             for j in range(j_new, nx, 2):
                 c = o_c0 + j
-                k = (c - 1 - g_c0) // sc
                 m3 = float(row[k - 1]) if c - 3 >= cmin else nan
                 p3 = float(row[k + 2]) if c + 3 <= cmax else nan
                 z, kind = predict(m3, float(row[k]), float(row[k + 1]), p3, wts)
-                sigma = sig[kind] * _amplitude_col(buf, ac0, scale, c)
-                e = correlated_value(noise, (j - j_new) // 2, b_col, norm)
+                a = buf[a_lo[m]] * w_lo[m] + buf[a_hi[m]] * w_hi[m] if has_map else 1.0
+                sigma = sig[kind] * a
+                e = correlated_value(noise, m, b_col, norm)
                 out[i, j] = np.float32(z + sigma * e)
+                k += 1
+                m += 1
         else:  # along the column: a copied row, or a predicted one from the rows around it
+            q0 = o_c0 - g_c0  # grid columns sc = 1 apart: column j is grid column q0 + j
             if r % 2 == 0:
                 row = grid[(r - g_r0) // sr]
                 for j in range(nx):
-                    out[i, j] = row[(o_c0 + j - g_c0) // sc]
+                    out[i, j] = row[q0 + j]
                 continue
             held = noise_rows(key, r, 2, o_c0, step, b_row, g, noise, held)
             k = (r - 1 - g_r0) // sr
@@ -179,11 +207,12 @@ def _expand_rows(grid, g_r0, g_c0, sr, sc, out, o_r0, o_c0, tr, axis, sig, wts, 
             have_p3 = r + 3 <= rmax
             for j in range(nx):
                 c = o_c0 + j
-                q = (c - g_c0) // sc
+                q = q0 + j
                 m3 = float(grid[k - 1, q]) if have_m3 else nan
                 p3 = float(grid[k + 2, q]) if have_p3 else nan
                 z, kind = predict(m3, float(grid[k, q]), float(grid[k + 1, q]), p3, wts)
-                sigma = sig[kind] * _amplitude_col(buf, ac0, scale, c)
+                a = buf[a_lo[j]] * w_lo[j] + buf[a_hi[j]] * w_hi[j] if has_map else 1.0
+                sigma = sig[kind] * a
                 out[i, j] = np.float32(z + sigma * correlated_value(noise, j, b_col, norm))
 
 

@@ -56,7 +56,7 @@ class Execution(Spec):
                            "processes.", FLAG)
     scheduler: str | None = option(None, "Run chunk by chunk on the Dask cluster at this "
                                    "address (tcp://HOST:PORT).", text())
-    chunk: int | None = option(None, "Chunk side in pixels (default 2048); implies a chunked "
+    chunk: int | None = option(None, "Chunk side in pixels (default 2049); implies a chunked "
                                "run.", integer(low=16))
     cog: Path | None = option(None, "After a chunked run, also convert the Zarr output into "
                               "this Cloud Optimized GeoTIFF.", OUTPUT_PATH)
@@ -260,7 +260,7 @@ def run_out_of_core(source: Any, output: Path, execution: Execution, label: str,
             share = memory.available_bytes() / (execution.workers or 1) / 4
             chunk = DEFAULT_CHUNK
             while chunk > 64 and (chunk + 2 * halo) ** 2 * 64 > share:
-                chunk //= 2
+                chunk = (chunk - 1) // 2 + 1  # 2^k + 1 stays 2^(k-1) + 1 (DEFAULT_CHUNK)
         log.warning("%s: %dx%d pixels do not fit in memory; running chunk by chunk through "
                     "%s", label, nx, ny, scratch)
         done = run_chunked(source, scratch, dataclasses.replace(execution, chunk=chunk), label,
