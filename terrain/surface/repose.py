@@ -11,39 +11,41 @@ relaxation* (the "critical slope" limit of the law, as landscape models apply it
 threshold hillslope of Roering et al. 1999, Fig. 1), which moves material from the upper to
 the lower cell of every neighbour pair steeper than Sc until none is, conserving volume.
 
-Each iteration looks at the four neighbour pairs of every cell (east, south, and the two
-diagonals, at distances r and r sqrt 2) and, for a pair whose height difference exceeds
-``Sc * distance``, moves :data:`RELAXATION` of the excess from the higher cell to the lower
-(half to each side, all pairs at once: a Jacobi sweep, so the result is independent of cell
-order). A cell that must not change (a known height, a fresh crater's wall) keeps its
-height and the other cell of the pair takes the whole move. A pair limit of ``Sc cos(pi/8)``
-bounds the gradient in every direction by Sc (the steepest direction lies within 22.5
-degrees of one of the four pair directions), so the Horn slope of the relaxed ground stays
-at or below the angle of repose.
+Each iteration looks at the eight neighbours of every cell (at distances r and r sqrt 2)
+and, for a pair whose height difference exceeds ``Sc * distance``, moves :data:`RELAXATION`
+of the excess from the higher cell to the lower (half to each side, all pairs at once: a
+Jacobi sweep; each cell sums its moves over its neighbours in one fixed order, so the result
+depends neither on the order the cells are visited in nor on where a window starts). A cell
+that must not change (a known height, a fresh crater's wall) keeps its height and the other
+cell of the pair takes the whole move. A pair limit of ``Sc cos(pi/8)`` bounds the gradient
+in every direction by Sc (the steepest direction lies within 22.5 degrees of one of the four
+pair directions), so the Horn slope of the relaxed ground stays at or below the angle of
+repose.
 
-A sweep visits only the blocks of :data:`BLOCK` x BLOCK cells that can still move: a block
-is swept again only if one of its pairs exceeded its limit in the last sweep, or a cell of
-the block or of its 1-cell border changed. A pair that was within its limit and whose two
-cells did not change is still within it, so the skipped blocks would have moved nothing and
-the result is bitwise that of sweeping every cell; what it costs is the area still moving.
-That lets the relaxation run :data:`DEFAULT_ITERATIONS` sweeps for less than the cost of a
-hundred full sweeps on the demo's layers, where most ground settles within a few sweeps
-and only steep crater walls keep moving (Jacobi sweeps spread an excess like diffusion, so
+A sweep visits only the blocks of :data:`BLOCK` x BLOCK cells where a cell of the block or
+of its 1-cell border changed in the last sweep. A cell none of whose 3 x 3 neighbourhood
+changed gets the same moves as in the last sweep, which left it unchanged, so it stays
+unchanged: the skipped blocks would have changed nothing, and the heights are bitwise those
+of sweeping every cell. What a sweep costs is the area still moving, which lets the
+relaxation run :data:`DEFAULT_ITERATIONS` sweeps for about the cost of the 96 full sweeps
+it ran before (benchmarks/bench_stack.py measures both): most ground settles within a few
+sweeps, and only steep walls keep moving (Jacobi sweeps spread an excess like diffusion, so
 a wall n cells wide takes of the order of n^2 sweeps to settle).
 
 A cell depends only on cells within ``iterations`` of it, so a window grown by that halo
 gives bitwise the same heights as the whole tile (:data:`DEFAULT_ITERATIONS`); the sweeps stop
-early once no pair exceeds its limit by more than a thousandth of it (such pairs never move,
-which keeps the early stop window-exact). The skipped blocks do not change this: they are
-aligned to the window's own corner, but skipping changes no height.
+early once a sweep changes nothing (pairs within a thousandth of their limit do not move;
+a window that has stopped would change nothing more, and what still moves outside it
+reaches at most ``iterations`` cells in).
 
 Where cells that must not change pin two heights further apart than the limit allows along
-any path of free cells between them (a fresh crater sitting on an old wall steeper than
-repose keeps that wall's slope under it), no relaxation of the free cells can reach the
-limit: there the sweeps settle into a steady flow from the higher pinned cell to the lower
-(the free cell of a pair with a pinned one takes the whole move, so such a flow adds volume
-at the top and takes it at the bottom), its pairs above their limit, until ``iterations``
-ends them.
+every path of free cells between them (known pixels of a base steeper than the limit at the
+layer's pixel size, or a fresh crater on an old wall steeper than repose, which keeps that
+wall's slope under it), no relaxation of the free cells reaches the limit: there the sweeps
+settle into a flow from the higher pinned cell to the lower (the free cell of a pair with a
+pinned one takes the whole move, so such a flow adds volume at the top and takes it at the
+bottom), its pairs above their limit, until ``iterations`` ends them. Volume is conserved
+where no pinned cell takes part.
 
 Examples
 --------
@@ -71,20 +73,18 @@ log = logging.getLogger(__name__)
 __all__ = ["BLOCK", "DEFAULT_FRESH_AGE_GYR", "DEFAULT_ITERATIONS", "RELAXATION", "Repose",
            "horn_tangent", "relax_to_repose"]
 
-#: Most Jacobi iterations (and the halo a window needs): enough for the demo's crater walls to
-#: settle where they can (see the module docstring), at the cost of fewer than a hundred
-#: sweeps of every cell (benchmarks/bench_stack.py measures it).
-DEFAULT_ITERATIONS = 1024
+#: Most Jacobi iterations (and the halo a window needs): four times the 96 full sweeps the
+#: relaxation made before it skipped settled blocks, at about their cost on the demo's
+#: layers (see the module docstring; benchmarks/bench_stack.py measures it).
+DEFAULT_ITERATIONS = 384
 #: Side (cells) of the blocks a sweep skips while they are settled.
-BLOCK = 16
+BLOCK = 8
 #: Share of a pair's excess height difference moved per iteration (a cell has eight pairs).
 RELAXATION = 0.25
 #: Craters younger than this (Gyr) keep their walls: fresh walls stand above repose.
 DEFAULT_FRESH_AGE_GYR = 0.1
-#: A pair moves only when it exceeds its limit by more than this fraction of the limit, and
-#: the sweeps stop once none does. Sub-threshold pairs never move, so a sweep that moves
-#: nothing in a window would move nothing there in the whole tile either, and a window grown
-#: by ``iterations`` cells still equals the whole tile's result.
+#: A pair moves only when it exceeds its limit by more than this fraction of the limit, so
+#: the sweeps come to a stop (they stop once one changes nothing).
 _SETTLED = 1e-3
 #: The pair limit as a fraction of Sc (see the module docstring).
 _PAIR_FACTOR = math.cos(math.pi / 8.0)
@@ -189,10 +189,10 @@ def horn_tangent(heights: np.ndarray, resolution: float) -> np.ndarray:
 
 @numba.njit(cache=True)
 def _relax(z, free, limit, iterations, block):
-    """Jacobi sweeps of the pair rule in place, over the active blocks only.
+    """Jacobi sweeps of the pair rule in place, over the blocks that can still change.
 
-    Return the sweeps made, the pairs still above their limit at the last sweep, and the
-    blocks swept (summed over the sweeps: the work).
+    Return the sweeps made, the pairs above their limit at the end, and the blocks swept
+    (summed over the sweeps: the work).
     """
     ny, nx = z.shape
     nby = (ny + block - 1) // block
@@ -200,72 +200,55 @@ def _relax(z, free, limit, iterations, block):
     dz = np.zeros_like(z)
     active = np.ones((nby, nbx), dtype=np.bool_)
     nxt = np.zeros((nby, nbx), dtype=np.bool_)
-    touched = np.zeros((nby, nbx), dtype=np.bool_)
-    di = (0, 1, 1, 1)
-    dj = (1, 0, 1, -1)
-    dist = (1.0, 1.0, math.sqrt(2.0), math.sqrt(2.0))
+    # the eight neighbours, each cell's in the same order, so that a cell's sum of moves
+    # does not depend on the blocks or on where a window starts
+    di = (-1, -1, -1, 0, 0, 1, 1, 1)
+    dj = (-1, 0, 1, -1, 1, -1, 0, 1)
+    r2 = math.sqrt(2.0)
+    dist = (r2, 1.0, r2, 1.0, 1.0, r2, 1.0, r2)
     sweeps = 0
-    left = 0
     work = 0
     for _ in range(iterations):
-        left = 0
-        nxt[:, :] = False
-        touched[:, :] = False
-        # the pairs a block owns: those of its cells with their east, south and two southern
-        # diagonal neighbours (the south row and the side columns of its 1-cell border)
+        any_active = False
         for bi in range(nby):
             for bj in range(nbx):
                 if not active[bi, bj]:
                     continue
+                any_active = True
                 work += 1
-                steep = False
                 for i in range(bi * block, min(ny, (bi + 1) * block)):
                     for j in range(bj * block, min(nx, (bj + 1) * block)):
                         za = z[i, j]
-                        if math.isnan(za):
+                        if not free[i, j] or math.isnan(za):
                             continue
-                        fa = free[i, j]
-                        for p in range(4):
-                            bi_ = i + di[p]
-                            bj_ = j + dj[p]
-                            if bi_ >= ny or bj_ < 0 or bj_ >= nx:
+                        d = 0.0
+                        for p in range(8):
+                            ii = i + di[p]
+                            jj = j + dj[p]
+                            if ii < 0 or ii >= ny or jj < 0 or jj >= nx:
                                 continue
-                            zb = z[bi_, bj_]
+                            zb = z[ii, jj]
                             if math.isnan(zb):
                                 continue
-                            fb = free[bi_, bj_]
-                            if not (fa or fb):
-                                continue
-                            diff = za - zb
-                            excess = abs(diff) - limit * dist[p]
+                            excess = abs(za - zb) - limit * dist[p]
                             if not excess > _SETTLED * limit:
                                 continue
-                            steep = True
-                            left += 1
-                            move = RELAXATION * excess * (1.0 if diff > 0.0 else -1.0)
-                            if fa and fb:
-                                dz[i, j] -= 0.5 * move
-                                dz[bi_, bj_] += 0.5 * move
-                            elif fa:
-                                dz[i, j] -= move
-                            else:
-                                dz[bi_, bj_] += move
-                if steep:
-                    # a pair that moved may still be steep (its cells' moves may cancel)
-                    nxt[bi, bj] = True
-                    for a in range(bi, min(nby, bi + 2)):
-                        for b in range(max(0, bj - 1), min(nbx, bj + 2)):
-                            touched[a, b] = True
-        if left == 0:
+                            move = RELAXATION * excess
+                            if free[ii, jj]:
+                                move *= 0.5  # half to each cell; a fixed one takes none
+                            d += -move if za > zb else move
+                        dz[i, j] = d
+        if not any_active:
             break
         sweeps += 1
+        nxt[:, :] = False
         for bi in range(nby):
             for bj in range(nbx):
-                if not touched[bi, bj]:
+                if not active[bi, bj]:
                     continue
                 for i in range(bi * block, min(ny, (bi + 1) * block)):
                     for j in range(bj * block, min(nx, (bj + 1) * block)):
-                        d = dz[i, j]  # non-zero on free cells only
+                        d = dz[i, j]
                         if d == 0.0:
                             continue
                         dz[i, j] = 0.0
@@ -273,12 +256,28 @@ def _relax(z, free, limit, iterations, block):
                         if znew == z[i, j]:
                             continue
                         z[i, j] = znew
-                        # every block owning a pair of this cell sweeps again
+                        # the blocks holding this cell or a neighbour sweep again
                         for a in range(max(0, i - 1) // block, min(ny - 1, i + 1) // block + 1):
                             for b in range(max(0, j - 1) // block,
                                            min(nx - 1, j + 1) // block + 1):
                                 nxt[a, b] = True
         active, nxt = nxt, active
+    left = 0
+    for i in range(ny):
+        for j in range(nx):
+            za = z[i, j]
+            if math.isnan(za):
+                continue
+            for p in range(4, 8):  # each pair once: east and the three southern neighbours
+                ii = i + di[p]
+                jj = j + dj[p]
+                if ii >= ny or jj < 0 or jj >= nx:
+                    continue
+                zb = z[ii, jj]
+                if math.isnan(zb) or not (free[i, j] or free[ii, jj]):
+                    continue
+                if abs(za - zb) - limit * dist[p] > _SETTLED * limit:
+                    left += 1
     return sweeps, left, work
 
 
