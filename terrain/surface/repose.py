@@ -30,7 +30,7 @@ of sweeping every cell. What a sweep costs is the area still moving, which lets 
 relaxation run :data:`DEFAULT_ITERATIONS` sweeps for not much more than the 96 sweeps of
 every cell it ran before: most ground settles within a few sweeps, and only steep walls
 (Jacobi sweeps spread an excess like diffusion, so a wall n cells wide takes of the order
-of n^2 sweeps to settle) and the pinned cells below keep moving.
+of n^2 sweeps to settle) and the free cells between pinned ones (below) keep moving.
 
 A cell depends only on cells within ``iterations`` of it, so a window grown by that halo
 gives bitwise the same heights as the whole tile (:data:`DEFAULT_ITERATIONS`); the sweeps stop
