@@ -281,6 +281,10 @@ class ReposeSource(OnReaderGrid):
     Each chunk relaxes its window grown by the relaxation's halo (one cell per sweep, so the
     window equals the whole layer's result) with the same fixed cells as the in-memory build:
     those co-located with a known pixel of the input base, and those inside fresh craters.
+    The halo is ``iterations + 1`` cells (1025 by default): a chunk of the default 2048 cells
+    inside a larger layer reads up to 4 times its area (a layer no larger than a chunk reads
+    only itself), and its sweeps skip the grown window's settled blocks, so it repeats its
+    neighbours' sweeps only where the ground within a halo of its edges still moves.
     """
 
     reader: DEMReader  # the layer after its craters
