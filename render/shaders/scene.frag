@@ -1,4 +1,5 @@
 #version 330 core
+#extension GL_ARB_texture_gather : require
 // Shading, LIDAR range and normals in one pass (three float colour attachments).
 //
 // Specialised at compile time: the renderer prepends a #define for each switch below (the
@@ -186,16 +187,23 @@ const float MIN_MU0 = 0.05;
 // blockers cover, exact for one blocker edge. The blocker search looks at most
 // SEARCH_TEXELS of the map's coarser axis away (a receiver farther from every blocker is
 // lit by all of the disk unless a penumbra is wider than that).
-const int BLOCKER_SAMPLES = 8;
-const int FILTER_SAMPLES = 24;
+//
+// Cost: a CPU rasteriser runs both sides of every `if` (it masks lanes), but leaves a loop
+// as soon as no lane of its fragments goes on, so the filter is a loop whose count is zero
+// where the search decides alone: no blocker (lit), every search texel blocked with the
+// penumbra inside the searched disk (umbra), or a penumbra under half a texel (the one
+// bilinear comparison at the receiver). The search reads BLOCKER_GATHERS x 4 texels with
+// textureGather, each texel compared with the receiver's plane at that texel's own centre.
+// Both disks of points are Vogel spirals turned by an angle keyed to the pixel (the R2
+// sequence, Roberts 2018): fixed per pixel, so frames stay the same bytes, and a few taps
+// give noise, not the bands of one fixed pattern, which neighbouring pixels average out.
+const int BLOCKER_GATHERS = 4;
+const int FILTER_SAMPLES = 16;
 const float SEARCH_TEXELS = 24.0;
 const float GOLDEN_ANGLE = 2.39996323;
-
-vec2 vogel(int i, int count) {                 // Vogel (1979) spiral: even cover of the disk
-    float r = sqrt((float(i) + 0.5) / float(count));
-    float a = float(i) * GOLDEN_ANGLE;
-    return r * vec2(cos(a), sin(a));
-}
+const mat2 GOLDEN_TURN = mat2(cos(GOLDEN_ANGLE), sin(GOLDEN_ANGLE),
+                              -sin(GOLDEN_ANGLE), cos(GOLDEN_ANGLE));
+const vec2 R2 = vec2(0.75487767, 0.56984029);   // Roberts (2018): 1 / g, 1 / g^2, g^3 = g + 1
 
 float visibility(vec3 n, float mu0) {
     if (SHADOWS == 0 || mu0 <= 0.0) return 1.0;
@@ -208,8 +216,9 @@ float visibility(vec3 n, float mu0) {
     float ref = c.z - u_bias - v_shadow_bias
               - u_slope_texels * length(grad * u_texel) / u_depth_range;
     // a point sun: one bilinear comparison (2x2 percentage-closer)
+    float centre = texture(u_shadow_map, vec3(c.xy, ref));
     if (SOFT_SHADOWS == 0 || u_sun_tan <= 0.0)
-        return texture(u_shadow_map, vec3(c.xy, ref));
+        return centre;
     // the receiver's plane in light space: depth (m) per metre of light-space x and y, so
     // that samples beside the receiver compare with its plane there, not with its own depth
     // (the lit ground up the sun is nearer the sun than the receiver, not in front of it)
@@ -218,27 +227,41 @@ float visibility(vec3 n, float mu0) {
     float reach = min(c.z * u_depth_range * u_sun_tan,
                       SEARCH_TEXELS * max(u_texel.x, u_texel.y));
     vec2 to_tex = 1.0 / u_shadow_extent;
+    vec2 size = u_shadow_extent / u_texel;          // texels
+    vec2 step_depth = plane * u_texel;              // the plane's depth change per texel
+    float turn = 6.28318531 * fract(dot(floor(gl_FragCoord.xy), R2));
+    vec2 start = vec2(cos(turn), sin(turn));
+    vec2 dir = start;
     float blockers = 0.0;
     float distance_sum = 0.0;
-    for (int i = 0; i <= BLOCKER_SAMPLES; ++i) {   // the last sample: the receiver's texel
-        vec2 off = i < BLOCKER_SAMPLES ? vogel(i, BLOCKER_SAMPLES) * reach : vec2(0.0);
-        float r = ref + dot(plane, off);
-        float d = texture(u_shadow_depth, c.xy + off * to_tex).r;
-        if (d < r) {
-            blockers += 1.0;
-            distance_sum += r - d;
-        }
+    for (int i = 0; i < BLOCKER_GATHERS; ++i) {
+        // the first at the receiver, the last at the search's edge
+        vec2 at = c.xy * size + sqrt(float(i) / float(BLOCKER_GATHERS - 1)) * reach
+                  / u_texel * dir;                  // texels
+        dir = GOLDEN_TURN * dir;
+        vec4 d = textureGather(u_shadow_depth, at / size);
+        // gathered texels: (x0, y1), (x1, y1), (x1, y0), (x0, y0), x0 = floor(at - 0.5)
+        vec2 first = floor(at - 0.5) + 0.5 - c.xy * size;  // (x0, y0) from the receiver
+        float r00 = ref + dot(step_depth, first);
+        vec4 r = vec4(r00 + step_depth.y, r00 + step_depth.x + step_depth.y,
+                      r00 + step_depth.x, r00);
+        vec4 blocked = vec4(lessThan(d, r));
+        blockers += dot(blocked, vec4(1.0));
+        distance_sum += dot(blocked, r - d);
     }
-    if (blockers == 0.0) return 1.0;
-    float penumbra = distance_sum / blockers * u_depth_range * u_sun_tan;  // m
-    if (penumbra < 0.5 * min(u_texel.x, u_texel.y))
-        return texture(u_shadow_map, vec3(c.xy, ref));
+    float penumbra = distance_sum / max(blockers, 1.0) * u_depth_range * u_sun_tan;  // m
+    bool umbra = blockers == float(4 * BLOCKER_GATHERS) && penumbra <= reach;
+    bool sharp = penumbra < 0.5 * min(u_texel.x, u_texel.y);
+    int taps = (blockers == 0.0 || umbra || sharp) ? 0 : FILTER_SAMPLES;
     float lit = 0.0;
-    for (int i = 0; i < FILTER_SAMPLES; ++i) {
-        vec2 off = vogel(i, FILTER_SAMPLES) * penumbra;
+    dir = start;
+    for (int i = 0; i < taps; ++i) {
+        vec2 off = sqrt((float(i) + 0.5) / float(FILTER_SAMPLES)) * penumbra * dir;
+        dir = GOLDEN_TURN * dir;
         lit += texture(u_shadow_map, vec3(c.xy + off * to_tex, ref + dot(plane, off)));
     }
-    return lit / float(FILTER_SAMPLES);
+    if (taps > 0) return lit / float(FILTER_SAMPLES);
+    return blockers == 0.0 ? 1.0 : umbra ? 0.0 : centre;
 }
 
 // Light from elsewhere than the sun's disk (render.scattering): the terrain's single
