@@ -24,8 +24,10 @@ from affine import Affine
 GOLDEN_BUFFERS = "f55e2f2dc651e7eccaf2297bb6bfa37a94397362414b37621060f2eca3d48b9b"
 #: sha256 of the image, range and normals of one frame. First computed with the loader before
 #: vectorisation; recomputed once when the shading changed on purpose (the extended sun's
-#: penumbrae and light scattered into shadows), the buffers' hash above unchanged by it.
-GOLDEN_FRAME = "ce7123e50b6f7c19345b26d03d189a8114fa9f7eb3d3229592fe8253b18035ce"
+#: penumbrae and light scattered into shadows), the buffers' hash above unchanged by it; and
+#: again when the soft shadows' blocker search and filter changed (gathered search, 16-tap
+#: spiral filter skipped where the search decides), computed with the eager loader of 420ce8e.
+GOLDEN_FRAME = "21685326783c69179f449c86f859e09c51705cf6df344f463290b586ecfc9b70"
 
 
 def _stack():
