@@ -308,6 +308,8 @@ def camera_map(range0: np.ndarray, truth0, truth1, stride: int = 1):
     ok : same shape, bool
         A return, in front of camera 1.
     """
+    from evaluation.warpkernels import camera_map_rows
+
     h, w = range0.shape
     k0, k1 = truth0.intrinsics, truth1.intrinsics
     r_wc0, r_wc1 = truth0.pose.rotation, truth1.pose.rotation
@@ -317,17 +319,9 @@ def camera_map(range0: np.ndarray, truth0, truth1, stride: int = 1):
     t = (np.asarray(truth0.pose.position) @ body - np.asarray(truth1.pose.position)) @ r_wc1
     x = (np.arange(0, w, stride, dtype=np.float64) - k0.cx) / k0.fx
     y = (np.arange(0, h, stride, dtype=np.float64) - k0.cy) / k0.fy
-    r = np.asarray(range0[::stride, ::stride], dtype=np.float64)
-    have = np.isfinite(r) & (r > 0)
-    scale = np.where(have, r, np.nan) / np.sqrt(x[None, :] ** 2 + y[:, None] ** 2 + 1.0)
-    c = [t[i] + scale * (x[None, :] * a[0, i] + y[:, None] * a[1, i] + a[2, i])
-         for i in range(3)]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u1 = k1.fx * c[0] / c[2] + k1.cx
-        v1 = k1.fy * c[1] / c[2] + k1.cy
-    ok = have & (c[2] > 0) & np.isfinite(u1) & np.isfinite(v1)
-    distance = np.sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2])
-    return np.where(ok, u1, np.nan), np.where(ok, v1, np.nan), distance, ok
+    # per pixel (compiled): scale = r / |(x, y, 1)|, c = t + scale (x, y, 1) A,
+    # (u1, v1) = (fx c_x / c_z + cx, fy c_y / c_z + cy), distance = |c|
+    return camera_map_rows(range0[::stride, ::stride], x, y, a, t, k1.fx, k1.fy, k1.cx, k1.cy)
 
 
 def _worst_tile(residual: np.ndarray, mask: np.ndarray, tile: int = TILE) -> float | None:
