@@ -53,7 +53,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -485,24 +484,22 @@ def consistency(run, *, edge_px: int = 2, occlusion_tolerance: float = 0.002,
     layer, lod = change_marks([t.drawn for t in run.truth])
     frames = []
 
+    from evaluation.tracking import read_ahead
+
     def load(k):
         return run.image(k), run.range(k), run.normals(k)
 
     # the next frame is read (and decompressed, without the GIL) while a pair is measured
-    with ThreadPoolExecutor(max_workers=1) as reader:
-        image0, range0, normals0 = load(0)
-        ahead = reader.submit(load, 1)
-        for k in range(len(run) - 1):
-            image1, range1, normals1 = ahead.result()
-            if k + 2 < len(run):
-                ahead = reader.submit(load, k + 2)
-            frames.append(_pair_record(k, pair_residual(
-                image0, image1, range0, range1, run.truth[k], run.truth[k + 1],
-                normals0=normals0, normals1=normals1, sensor=sensor, edge_px=edge_px,
-                occlusion_tolerance=occlusion_tolerance, stride=stride), layer, lod))
-            image0, range0, normals0 = image1, range1, normals1
-            if progress is not None:
-                progress(k + 1, len(run) - 1)
+    ahead = read_ahead(load, len(run))
+    image0, range0, normals0 = next(ahead)
+    for k, (image1, range1, normals1) in enumerate(ahead):
+        frames.append(_pair_record(k, pair_residual(
+            image0, image1, range0, range1, run.truth[k], run.truth[k + 1],
+            normals0=normals0, normals1=normals1, sensor=sensor, edge_px=edge_px,
+            occlusion_tolerance=occlusion_tolerance, stride=stride), layer, lod))
+        image0, range0, normals0 = image1, range1, normals1
+        if progress is not None:
+            progress(k + 1, len(run) - 1)
     result = Consistency(str(run.dir), frames,
                          dict(edge_px=int(edge_px), occlusion_tolerance=occlusion_tolerance,
                               dark_sigmas=DARK_SIGMAS, silhouette_jump=SILHOUETTE_JUMP,

@@ -97,7 +97,8 @@ from terrain.core import memory
 from terrain.core.errors import InvalidParameterError
 
 __all__ = ["ScoredTracks", "TrackerSettings", "Tracks", "ideal_one_step", "ideal_one_steps",
-           "load_run", "save_tracks", "score", "track", "truth_round_trip", "truth_warped_frame"]
+           "load_run", "read_ahead", "save_tracks", "score", "track", "truth_round_trip",
+           "truth_warped_frame"]
 
 log = logging.getLogger(__name__)
 
@@ -423,8 +424,9 @@ def track(run, settings: TrackerSettings | None = None, *, progress=None) -> Tra
     replenish(prev, 0)
     if progress is not None:
         progress(1, n)
-    for k in range(1, n):
-        image = grey(run.image(k))
+    frames = read_ahead(lambda j: run.image(j + 1), n - 1)
+    for k, frame in enumerate(frames, start=1):
+        image = grey(frame)
         if image.shape != prev.shape:
             raise InvalidParameterError(
                 f"frame {k} is {image.shape[1]}x{image.shape[0]}; frame 0 is {w}x{h}")
@@ -779,7 +781,7 @@ def score(tracks: Tracks, run, *, outlier_px: float = 2.0,
     hidden = outside = 0
     alive = tracks.alive()
     prev = None
-    for k, range_m in enumerate(_ranges_ahead(run, n)):
+    for k, range_m in enumerate(read_ahead(run.range, n)):
         t = truth[k]
         sel = np.flatnonzero(tracks.start == k)
         if sel.size:
@@ -847,19 +849,27 @@ def _carry(run, k0: int, k1: int, uv: np.ndarray, range0: np.ndarray, range1: np
     return out
 
 
-def _ranges_ahead(run, n: int):
-    """Yield frames 0 .. n-1's range images, the next one read while the caller works."""
+def read_ahead(load, n: int):
+    """Yield ``load(0) .. load(n - 1)``, each next one loaded in a thread while the caller works.
+
+    For passes over a run's frames: decoding PNGs and GeoTIFFs releases the GIL, so reading
+    frame k+1 overlaps measuring frame k, and what is yielded is what ``load`` returns, in
+    order.
+
+    >>> list(read_ahead(lambda k: k * k, 4))
+    [0, 1, 4, 9]
+    """
     from concurrent.futures import ThreadPoolExecutor
 
     if n <= 0:
         return
-    with ThreadPoolExecutor(max_workers=1) as reader:  # decompression releases the GIL
-        ahead = reader.submit(run.range, 0)
+    with ThreadPoolExecutor(max_workers=1) as reader:
+        ahead = reader.submit(load, 0)
         for k in range(n):
-            range_m = ahead.result()
+            value = ahead.result()
             if k + 1 < n:
-                ahead = reader.submit(run.range, k + 1)
-            yield range_m
+                ahead = reader.submit(load, k + 1)
+            yield value
 
 
 def _one_step_at(tracks: Tracks, run, k: int, alive: np.ndarray, prev: np.ndarray,
@@ -997,10 +1007,14 @@ def ideal_one_steps(scored: ScoredTracks, run, *,
               criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
     grey = _Grey()
     outs = [np.full((tracks.n_tracks, tracks.n_frames), np.nan) for _ in noises]
-    prev_img = run.image(0)
+    def load(k):  # the frame and its range (kept by the reader for the warp)
+        run.range(k)
+        return run.image(k)
+
+    frames = read_ahead(load, tracks.n_frames)
+    prev_img = next(frames)
     grey(prev_img)  # the sequence's scale comes from frame 0, as in track()
-    for k in range(1, tracks.n_frames):
-        img = run.image(k)
+    for k, img in enumerate(frames, start=1):
         sel = np.flatnonzero(np.isfinite(scored.one_step[:, k]))
         if sel.size:
             warped = truth_warped_frame(run, k - 1, k, prev_img, img)
