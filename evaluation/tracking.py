@@ -792,7 +792,7 @@ def score(tracks: Tracks, run, *, outlier_px: float = 2.0,
             if ok.any():
                 world = t.pose.unproject(uv[ok], r[ok], t.intrinsics)
                 body[sel[ok]] = world @ quat_to_matrix(t.body_rotation)  # R_WB^T p_W
-        if k:
+        if prev is not None and range_m is not None:  # every frame has range (checked above)
             _one_step_at(tracks, run, k, alive, prev, range_m, occlusion_tolerance, one_step)
         prev = range_m
         # tracks born before frame k were lifted at their first frame, earlier in this pass
