@@ -8,7 +8,9 @@ against truth, the truth round trip, the frame-to-frame consistency at the campa
 sampling, and the tracker on truth-warped frames without and with fresh noise), interleaved
 round by round: render a fresh run, evaluate the last run rendered, the order reversed every
 other round. The JSON gives both medians, their ratio (``evaluation_to_render``), the split of
-the evaluation by step, and the consistency's pixel stride.
+the evaluation by step in wall and in CPU seconds (every thread's: on a shared machine the
+wall time of a step measures the load as much as the step), and the consistency's pixel
+stride.
 
 Usage::
 
@@ -64,11 +66,13 @@ def evaluate_run(folder: Path) -> dict:
     )
 
     steps: dict = {}
+    cpu: dict = {}
 
     def timed(name, call):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         out = call()
         steps[name] = time.perf_counter() - t0
+        cpu[name] = time.process_time() - c0  # every thread's: a shared machine inflates wall
         return out
 
     run = load_run(folder)
@@ -78,7 +82,7 @@ def evaluate_run(folder: Path) -> dict:
     stride = sampling_stride(run.image(0).shape)
     timed("consistency", lambda: consistency(run, stride=stride))
     timed("ideal_one_step", lambda: ideal_one_steps(scored, run, noises=(None, 2014)))
-    return dict(seconds=sum(steps.values()), steps=steps, stride=stride)
+    return dict(seconds=sum(steps.values()), steps=steps, cpu=cpu, stride=stride)
 
 
 def main(argv=None) -> int:
@@ -115,9 +119,11 @@ def main(argv=None) -> int:
         eval_med = summary([e["seconds"] for e in evals])
         steps = {k: summary([e["steps"][k] for e in evals])["median_s"]
                  for k in evals[0]["steps"]}
+        cpu = {k: summary([e["cpu"][k] for e in evals])["median_s"] for k in evals[0]["cpu"]}
         out = dict(
             benchmark="evaluation stage", quick=quick, frames=frames, image=[size, size],
             rounds=rounds, render=render_med, evaluation=eval_med, evaluation_steps_s=steps,
+            evaluation_steps_cpu_s=cpu,
             consistency_stride=evals[0]["stride"],
             evaluation_to_render=eval_med["median_s"] / render_med["median_s"],
             renderer=describe(), peak_rss_bytes=peak_rss_bytes(), machine=machine_facts())

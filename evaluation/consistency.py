@@ -53,7 +53,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -308,6 +307,8 @@ def camera_map(range0: np.ndarray, truth0, truth1, stride: int = 1):
     ok : same shape, bool
         A return, in front of camera 1.
     """
+    from evaluation.warpkernels import camera_map_rows
+
     h, w = range0.shape
     k0, k1 = truth0.intrinsics, truth1.intrinsics
     r_wc0, r_wc1 = truth0.pose.rotation, truth1.pose.rotation
@@ -317,17 +318,9 @@ def camera_map(range0: np.ndarray, truth0, truth1, stride: int = 1):
     t = (np.asarray(truth0.pose.position) @ body - np.asarray(truth1.pose.position)) @ r_wc1
     x = (np.arange(0, w, stride, dtype=np.float64) - k0.cx) / k0.fx
     y = (np.arange(0, h, stride, dtype=np.float64) - k0.cy) / k0.fy
-    r = np.asarray(range0[::stride, ::stride], dtype=np.float64)
-    have = np.isfinite(r) & (r > 0)
-    scale = np.where(have, r, np.nan) / np.sqrt(x[None, :] ** 2 + y[:, None] ** 2 + 1.0)
-    c = [t[i] + scale * (x[None, :] * a[0, i] + y[:, None] * a[1, i] + a[2, i])
-         for i in range(3)]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u1 = k1.fx * c[0] / c[2] + k1.cx
-        v1 = k1.fy * c[1] / c[2] + k1.cy
-    ok = have & (c[2] > 0) & np.isfinite(u1) & np.isfinite(v1)
-    distance = np.sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2])
-    return np.where(ok, u1, np.nan), np.where(ok, v1, np.nan), distance, ok
+    # per pixel (compiled): scale = r / |(x, y, 1)|, c = t + scale (x, y, 1) A,
+    # (u1, v1) = (fx c_x / c_z + cx, fy c_y / c_z + cy), distance = |c|
+    return camera_map_rows(range0[::stride, ::stride], x, y, a, t, k1.fx, k1.fy, k1.cx, k1.cy)
 
 
 def _worst_tile(residual: np.ndarray, mask: np.ndarray, tile: int = TILE) -> float | None:
@@ -491,24 +484,22 @@ def consistency(run, *, edge_px: int = 2, occlusion_tolerance: float = 0.002,
     layer, lod = change_marks([t.drawn for t in run.truth])
     frames = []
 
+    from evaluation.tracking import read_ahead
+
     def load(k):
         return run.image(k), run.range(k), run.normals(k)
 
     # the next frame is read (and decompressed, without the GIL) while a pair is measured
-    with ThreadPoolExecutor(max_workers=1) as reader:
-        image0, range0, normals0 = load(0)
-        ahead = reader.submit(load, 1)
-        for k in range(len(run) - 1):
-            image1, range1, normals1 = ahead.result()
-            if k + 2 < len(run):
-                ahead = reader.submit(load, k + 2)
-            frames.append(_pair_record(k, pair_residual(
-                image0, image1, range0, range1, run.truth[k], run.truth[k + 1],
-                normals0=normals0, normals1=normals1, sensor=sensor, edge_px=edge_px,
-                occlusion_tolerance=occlusion_tolerance, stride=stride), layer, lod))
-            image0, range0, normals0 = image1, range1, normals1
-            if progress is not None:
-                progress(k + 1, len(run) - 1)
+    ahead = read_ahead(load, len(run))
+    image0, range0, normals0 = next(ahead)
+    for k, (image1, range1, normals1) in enumerate(ahead):
+        frames.append(_pair_record(k, pair_residual(
+            image0, image1, range0, range1, run.truth[k], run.truth[k + 1],
+            normals0=normals0, normals1=normals1, sensor=sensor, edge_px=edge_px,
+            occlusion_tolerance=occlusion_tolerance, stride=stride), layer, lod))
+        image0, range0, normals0 = image1, range1, normals1
+        if progress is not None:
+            progress(k + 1, len(run) - 1)
     result = Consistency(str(run.dir), frames,
                          dict(edge_px=int(edge_px), occlusion_tolerance=occlusion_tolerance,
                               dark_sigmas=DARK_SIGMAS, silhouette_jump=SILHOUETTE_JUMP,

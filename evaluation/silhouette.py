@@ -10,6 +10,9 @@ consistency check leaves them out of its residual (:mod:`evaluation.consistency`
 
 from __future__ import annotations
 
+import math
+
+import numba
 import numpy as np
 
 __all__ = ["SILHOUETTE_JUMP", "contour_pixels", "dilate", "near_contours"]
@@ -43,19 +46,33 @@ def contour_pixels(range_m: np.ndarray, jump: float = SILHOUETTE_JUMP) -> np.nda
     array([[0, 1, 1],
            [0, 1, 0]])
     """
-    edge = ~np.isfinite(range_m)
-    with np.errstate(invalid="ignore"):
-        for axis in (0, 1):
-            a = range_m[:-1] if axis == 0 else range_m[:, :-1]
-            b = range_m[1:] if axis == 0 else range_m[:, 1:]
-            step = np.abs(a - b) > jump * np.minimum(a, b)
-            if axis == 0:
-                edge[:-1] |= step
-                edge[1:] |= step
-            else:
-                edge[:, :-1] |= step
-                edge[:, 1:] |= step
+    r = np.ascontiguousarray(range_m)
+    if r.dtype not in (np.float32, np.float64):
+        r = r.astype(np.float64)
+    edge = np.empty(r.shape, dtype=bool)
+    _contour_kernel(r, r.dtype.type(jump), edge)  # compared in the image's own precision
     return edge
+
+
+@numba.njit(cache=True, nogil=True)
+def _contour_kernel(r, jump, edge):
+    h, w = r.shape
+    for j in range(h):
+        for i in range(w):
+            edge[j, i] = not math.isfinite(r[j, i])
+    for j in range(h):
+        for i in range(w):
+            a = r[j, i]
+            if i + 1 < w:  # along a row
+                b = r[j, i + 1]
+                if abs(a - b) > jump * min(a, b):  # False where either has no return
+                    edge[j, i] = True
+                    edge[j, i + 1] = True
+            if j + 1 < h:  # down a column
+                b = r[j + 1, i]
+                if abs(a - b) > jump * min(a, b):
+                    edge[j, i] = True
+                    edge[j + 1, i] = True
 
 
 def dilate(mask: np.ndarray, px: int) -> np.ndarray:

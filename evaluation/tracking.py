@@ -97,7 +97,8 @@ from terrain.core import memory
 from terrain.core.errors import InvalidParameterError
 
 __all__ = ["ScoredTracks", "TrackerSettings", "Tracks", "ideal_one_step", "ideal_one_steps",
-           "load_run", "save_tracks", "score", "track", "truth_round_trip", "truth_warped_frame"]
+           "load_run", "read_ahead", "save_tracks", "score", "track", "truth_round_trip",
+           "truth_warped_frame"]
 
 log = logging.getLogger(__name__)
 
@@ -423,8 +424,9 @@ def track(run, settings: TrackerSettings | None = None, *, progress=None) -> Tra
     replenish(prev, 0)
     if progress is not None:
         progress(1, n)
-    for k in range(1, n):
-        image = grey(run.image(k))
+    frames = read_ahead(lambda j: run.image(j + 1), n - 1)
+    for k, frame in enumerate(frames, start=1):
+        image = grey(frame)
         if image.shape != prev.shape:
             raise InvalidParameterError(
                 f"frame {k} is {image.shape[1]}x{image.shape[0]}; frame 0 is {w}x{h}")
@@ -507,7 +509,9 @@ def near_dark(image: np.ndarray, level: int, margin: int, min_area: int) -> np.n
     big = big[big > 0]  # label 0: the pixels with signal
     if not big.size:
         return np.zeros(img.shape, dtype=bool)
-    region = np.isin(labels, big)
+    lookup = np.zeros(len(stats), dtype=bool)  # a table by label: one gather per pixel
+    lookup[big] = True
+    region = lookup[labels]
     # distance from the region: pixels of the region are at 0
     dist = cv2.distanceTransform((~region).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     return dist <= margin
@@ -547,31 +551,16 @@ def _prewarped(prev, image, p0, p1, st1, lk):
 
 
 def _sample_range(range_m: np.ndarray, uv: np.ndarray, tolerance: float) -> np.ndarray:
-    """Range at fractional pixels: bilinear where the 4 returns agree, else nearest; NaN."""
-    h, w = range_m.shape
-    u, v = uv[:, 0], uv[:, 1]
-    out = np.full(len(uv), np.nan)
-    inside = (u >= -0.5) & (u <= w - 0.5) & (v >= -0.5) & (v <= h - 0.5) & np.isfinite(u) \
-        & np.isfinite(v)
-    if not inside.any():
-        return out
-    ui, vi = u[inside], v[inside]
-    u0 = np.clip(np.floor(ui).astype(np.int64), 0, w - 2) if w > 1 else np.zeros(ui.size, int)
-    v0 = np.clip(np.floor(vi).astype(np.int64), 0, h - 2) if h > 1 else np.zeros(vi.size, int)
-    u1, v1 = np.minimum(u0 + 1, w - 1), np.minimum(v0 + 1, h - 1)
-    fu, fv = np.clip(ui - u0, 0, 1), np.clip(vi - v0, 0, 1)
-    c0, c1, c2, c3 = range_m[v0, u0], range_m[v0, u1], range_m[v1, u0], range_m[v1, u1]
-    bil = (c0 * (1 - fu) * (1 - fv) + c1 * fu * (1 - fv) + c2 * (1 - fu) * fv
-           + c3 * fu * fv)
-    # elementwise over the four (a reduction along an axis of 4 is many times slower)
-    low = np.minimum(np.minimum(c0, c1), np.minimum(c2, c3))
-    with np.errstate(invalid="ignore"):
-        spread = np.maximum(np.maximum(c0, c1), np.maximum(c2, c3)) - low  # NaN: no return
-        agree = np.isfinite(spread) & (spread <= tolerance * low)
-    nearest = range_m[np.clip(np.rint(vi).astype(np.int64), 0, h - 1),
-                  np.clip(np.rint(ui).astype(np.int64), 0, w - 1)]
-    out[inside] = np.where(agree, bil, nearest)
-    return out
+    """Range at fractional pixels: bilinear where the 4 returns agree, else nearest; NaN.
+
+    The four returns agree when their spread is at most ``tolerance`` times the nearest of
+    them; points outside the image (by more than half a pixel) get NaN. Compiled
+    (:func:`evaluation.warpkernels.sample_range_points`).
+    """
+    from evaluation.warpkernels import sample_range_points
+
+    uv = np.asarray(uv, dtype=np.float64)
+    return sample_range_points(range_m, uv[:, 0], uv[:, 1], tolerance)
 
 
 def truth_round_trip(run, *, step: int = 1, spacing: int = 8) -> float:
@@ -782,28 +771,33 @@ def score(tracks: Tracks, run, *, outlier_px: float = 2.0,
             raise InvalidParameterError(
                 f"frame {k}'s truth says {t.intrinsics.width}x{t.intrinsics.height} pixels; "
                 f"its image is {w}x{h}")
-    # lift every track at its first frame, into the body frame
+    # one pass over the frames, each range image read once: lift the tracks born at frame
+    # k (into the body frame), score those born before it, and take each step's one-step error
     body = np.full((tracks.n_tracks, 3), np.nan)
     silhouette = np.zeros(tracks.n_tracks, dtype=bool)
-    for k in np.unique(tracks.start):
-        sel = np.flatnonzero(tracks.start == k)
-        uv = tracks.positions[sel, k].astype(np.float64)
-        range_m = run.range(int(k))
-        silhouette[sel] = _near_silhouette(range_m, uv)
-        r = _sample_range(range_m, uv, occlusion_tolerance)
-        ok = np.isfinite(r)
-        if ok.any():
-            t = truth[int(k)]
-            world = t.pose.unproject(uv[ok], r[ok], t.intrinsics)
-            body[sel[ok]] = world @ quat_to_matrix(t.body_rotation)  # R_WB^T p_W
-    lifted = np.isfinite(body).all(axis=1)
     errors = np.full((tracks.n_tracks, n), np.nan)
     predicted = np.full((tracks.n_tracks, n, 2), np.nan)
+    one_step = np.full((tracks.n_tracks, n), np.nan)
     hidden = outside = 0
     alive = tracks.alive()
-    for k in range(n):
+    prev = None
+    for k, range_m in enumerate(read_ahead(run.range, n)):
         t = truth[k]
-        sel = np.flatnonzero(lifted & alive[:, k] & (tracks.start < k))
+        sel = np.flatnonzero(tracks.start == k)
+        if sel.size:
+            uv = tracks.positions[sel, k].astype(np.float64)
+            silhouette[sel] = _near_silhouette(range_m, uv)
+            r = _sample_range(range_m, uv, occlusion_tolerance)
+            ok = np.isfinite(r)
+            if ok.any():
+                world = t.pose.unproject(uv[ok], r[ok], t.intrinsics)
+                body[sel[ok]] = world @ quat_to_matrix(t.body_rotation)  # R_WB^T p_W
+        if prev is not None and range_m is not None:  # every frame has range (checked above)
+            _one_step_at(tracks, run, k, alive, prev, range_m, occlusion_tolerance, one_step)
+        prev = range_m
+        # tracks born before frame k were lifted at their first frame, earlier in this pass
+        sel = np.flatnonzero(alive[:, k] & (tracks.start < k))
+        sel = sel[np.isfinite(body[sel]).all(axis=1)]
         if sel.size == 0:
             continue
         world = body[sel] @ quat_to_matrix(t.body_rotation).T
@@ -813,7 +807,7 @@ def score(tracks: Tracks, run, *, outlier_px: float = 2.0,
                   & (uv[:, 1] >= -0.5) & (uv[:, 1] <= h - 0.5))
         outside += int((~within).sum())
         dist = np.linalg.norm(world - np.asarray(t.pose.position), axis=1)
-        seen = _sample_range(run.range(k), uv, occlusion_tolerance)
+        seen = _sample_range(range_m, uv, occlusion_tolerance)
         with np.errstate(invalid="ignore"):
             blocked = within & (~np.isfinite(seen)
                                 | (seen < dist * (1.0 - occlusion_tolerance)))
@@ -821,10 +815,10 @@ def score(tracks: Tracks, run, *, outlier_px: float = 2.0,
         good = within & ~blocked
         err = np.linalg.norm(tracks.positions[sel, k].astype(np.float64) - uv, axis=1)
         errors[sel[good], k] = err[good]
+    lifted = np.isfinite(body).all(axis=1)
     counts = dict(scored=int(np.isfinite(errors).sum()), hidden=hidden, outside=outside,
                   unlifted_tracks=int((~lifted).sum()),
                   silhouette_tracks=int(silhouette.sum()))
-    one_step = _one_step_errors(tracks, run, occlusion_tolerance)
     return ScoredTracks(tracks, errors, predicted, counts, float(outlier_px), [], silhouette,
                         one_step)
 
@@ -855,22 +849,37 @@ def _carry(run, k0: int, k1: int, uv: np.ndarray, range0: np.ndarray, range1: np
     return out
 
 
-def _one_step_errors(tracks: Tracks, run, tolerance: float) -> np.ndarray:
-    """(n_tracks, n_frames) one-step errors (see :class:`ScoredTracks`)."""
-    n = tracks.n_frames
-    alive = tracks.alive()
-    out = np.full((tracks.n_tracks, n), np.nan)
-    prev = run.range(0) if n else np.empty((0, 0))  # no frames: the loop does not run
-    for k in range(1, n):
-        range_m = run.range(k)
-        sel = np.flatnonzero(alive[:, k] & alive[:, k - 1])
-        if sel.size:
-            q = _carry(run, k - 1, k, tracks.positions[sel, k - 1].astype(np.float64), prev,
-                       range_m, tolerance)
-            out[sel, k] = np.linalg.norm(tracks.positions[sel, k].astype(np.float64) - q,
-                                         axis=1)
-        prev = range_m
-    return out
+def read_ahead(load, n: int):
+    """Yield ``load(0) .. load(n - 1)``, each next one loaded in a thread while the caller works.
+
+    For passes over a run's frames: decoding PNGs and GeoTIFFs releases the GIL, so reading
+    frame k+1 overlaps measuring frame k, and what is yielded is what ``load`` returns, in
+    order.
+
+    >>> list(read_ahead(lambda k: k * k, 4))
+    [0, 1, 4, 9]
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    if n <= 0:
+        return
+    with ThreadPoolExecutor(max_workers=1) as reader:
+        ahead = reader.submit(load, 0)
+        for k in range(n):
+            value = ahead.result()
+            if k + 1 < n:
+                ahead = reader.submit(load, k + 1)
+            yield value
+
+
+def _one_step_at(tracks: Tracks, run, k: int, alive: np.ndarray, prev: np.ndarray,
+                 range_m: np.ndarray, tolerance: float, out: np.ndarray) -> None:
+    """Fill ``out[:, k]`` with step k-1 -> k's one-step errors (see :class:`ScoredTracks`)."""
+    sel = np.flatnonzero(alive[:, k] & alive[:, k - 1])
+    if sel.size:
+        q = _carry(run, k - 1, k, tracks.positions[sel, k - 1].astype(np.float64), prev,
+                   range_m, tolerance)
+        out[sel, k] = np.linalg.norm(tracks.positions[sel, k].astype(np.float64) - q, axis=1)
 
 
 def truth_warped_frame(run, k0: int, k1: int, image0=None, image1=None) -> np.ndarray:
@@ -928,21 +937,13 @@ def _fresh_noise(image: np.ndarray, sensor: dict, seed: int, frame: int) -> np.n
     """Return ``image`` with new shot and read noise of the run's sensor.
 
     The noise is keyed by seed, frame, column and row, and rounded and clipped as the sensor
-    does.
+    does (:func:`evaluation.warpkernels.noisy_rows`).
     """
-    from terrain.core.rng import normal, stream_id
+    from evaluation.warpkernels import noisy_rows
+    from terrain.core.rng import stream_id
 
-    gain = float(sensor.get("gain", 0.0))
-    read = float(sensor.get("read_noise", 0.0))
-    dn = image.astype(np.float64)
-    sigma = np.sqrt((np.maximum(dn, 0.0) / gain if gain > 0 else 0.0) + read * read)
-    h, w = dn.shape[:2]
-    z = normal(seed, stream_id(STREAM_IDEAL_NOISE), frame, np.arange(w)[None, :],
-               np.arange(h)[:, None])
-    if dn.ndim == 3:
-        z = z[:, :, None]
-    top = np.iinfo(image.dtype).max
-    return np.clip(np.rint(dn + sigma * z), 0, top).astype(image.dtype)
+    return noisy_rows(image, seed, stream_id(STREAM_IDEAL_NOISE), frame,
+                      float(sensor.get("gain", 0.0)), float(sensor.get("read_noise", 0.0)))
 
 
 def ideal_one_step(scored: ScoredTracks, run, *, sensor_noise: bool = False,
@@ -1006,10 +1007,14 @@ def ideal_one_steps(scored: ScoredTracks, run, *,
               criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
     grey = _Grey()
     outs = [np.full((tracks.n_tracks, tracks.n_frames), np.nan) for _ in noises]
-    prev_img = run.image(0)
+    def load(k):  # the frame and its range (kept by the reader for the warp)
+        run.range(k)
+        return run.image(k)
+
+    frames = read_ahead(load, tracks.n_frames)
+    prev_img = next(frames)
     grey(prev_img)  # the sequence's scale comes from frame 0, as in track()
-    for k in range(1, tracks.n_frames):
-        img = run.image(k)
+    for k, img in enumerate(frames, start=1):
         sel = np.flatnonzero(np.isfinite(scored.one_step[:, k]))
         if sel.size:
             warped = truth_warped_frame(run, k - 1, k, prev_img, img)

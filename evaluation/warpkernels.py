@@ -1,0 +1,181 @@
+"""Compiled per-pixel kernels of the truth warps, on every core, the bytes the same.
+
+The evaluation carries every pixel of a frame through its range image into another frame
+(:func:`evaluation.consistency.camera_map`), samples range images at fractional pixels
+(``evaluation.tracking._sample_range``) and adds fresh sensor noise to truth-warped frames
+(``evaluation.tracking._fresh_noise``), a million pixels at a time for every step of a
+run. Written as NumPy expressions each of these made a dozen full-frame temporaries; here
+each pixel is computed once, by the same floating-point operations in the same order (no
+fused multiply-adds, no reassociation), so the results are those of the expressions, bit for
+bit. Rows or runs of points are blocks of :func:`terrain.core.parallel.run_blocks`: each
+block writes only its own pixels, so the bytes do not depend on the number of threads.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from terrain.core.parallel import run_blocks
+from terrain.core.rng import check_seed, key_prefix, normal_at
+
+__all__ = ["POINTS_PER_BLOCK", "camera_map_rows", "noisy_rows", "sample_range_points"]
+
+#: Points of :func:`sample_range_points` per block of work.
+POINTS_PER_BLOCK = 1 << 16
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _camera_map_kernel(r, x, y, a, t, fx1, fy1, cx1, cy1, u_out, v_out, d_out, ok_out,
+                       first, last):
+    nx = x.size
+    for j in range(first, last):
+        yj = y[j]
+        for i in range(nx):
+            xi = x[i]
+            rij = np.float64(r[j, i])
+            have = math.isfinite(rij) and rij > 0.0
+            # as NumPy: scale = where(have, r, nan) / sqrt(x^2 + y^2 + 1)
+            scale = (rij if have else np.nan) / math.sqrt(xi * xi + yj * yj + 1.0)
+            c0 = t[0] + scale * (xi * a[0, 0] + yj * a[1, 0] + a[2, 0])
+            c1 = t[1] + scale * (xi * a[0, 1] + yj * a[1, 1] + a[2, 1])
+            c2 = t[2] + scale * (xi * a[0, 2] + yj * a[1, 2] + a[2, 2])
+            u1 = fx1 * c0 / c2 + cx1  # IEEE division (error_model="numpy"), as NumPy's
+            v1 = fy1 * c1 / c2 + cy1
+            ok = have and c2 > 0.0 and math.isfinite(u1) and math.isfinite(v1)
+            u_out[j, i] = u1 if ok else np.nan
+            v_out[j, i] = v1 if ok else np.nan
+            d_out[j, i] = math.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+            ok_out[j, i] = ok
+
+
+def camera_map_rows(r: np.ndarray, x: np.ndarray, y: np.ndarray, a: np.ndarray, t: np.ndarray,
+                    fx1: float, fy1: float, cx1: float, cy1: float):
+    """Compute the core of :func:`evaluation.consistency.camera_map` over a grid of pixels.
+
+    Parameters
+    ----------
+    r : (ny, nx) float32 or float64, metres
+        Range of the pixels carried (NaN: no return).
+    x, y : (nx,), (ny,) float64
+        Their normalised image coordinates in camera 0 (``(u - cx) / fx``, ``(v - cy) / fy``).
+    a : (3, 3) float64
+        Camera-0 directions to camera-1 axes (row vectors).
+    t : (3,) float64, metres
+        Camera 0's origin in camera 1's axes.
+    fx1, fy1, cx1, cy1 : float, pixels
+        Camera 1's intrinsics.
+
+    Returns
+    -------
+    u1, v1, distance, ok
+        As :func:`evaluation.consistency.camera_map` returns them.
+    """
+    ny, nx = r.shape
+    u = np.empty((ny, nx))
+    v = np.empty((ny, nx))
+    d = np.empty((ny, nx))
+    ok = np.empty((ny, nx), dtype=np.bool_)
+    run_blocks(_camera_map_kernel, ny, r, np.ascontiguousarray(x, dtype=np.float64),
+               np.ascontiguousarray(y, dtype=np.float64),
+               np.ascontiguousarray(a, dtype=np.float64),
+               np.ascontiguousarray(t, dtype=np.float64), float(fx1), float(fy1), float(cx1),
+               float(cy1), u, v, d, ok)
+    return u, v, d, ok
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _sample_kernel(range_m, u, v, tol, out, first, last):
+    h, w = range_m.shape
+    n = u.size
+    for b in range(first, last):
+        for p in range(b * POINTS_PER_BLOCK, min(n, (b + 1) * POINTS_PER_BLOCK)):
+            up = u[p]
+            vp = v[p]
+            if not (up >= -0.5 and up <= w - 0.5 and vp >= -0.5 and vp <= h - 0.5
+                    and math.isfinite(up) and math.isfinite(vp)):
+                out[p] = np.nan
+                continue
+            u0 = min(max(int(math.floor(up)), 0), w - 2) if w > 1 else 0
+            v0 = min(max(int(math.floor(vp)), 0), h - 2) if h > 1 else 0
+            u1 = min(u0 + 1, w - 1)
+            v1 = min(v0 + 1, h - 1)
+            fu = min(max(up - u0, 0.0), 1.0)
+            fv = min(max(vp - v0, 0.0), 1.0)
+            c0 = range_m[v0, u0]
+            c1 = range_m[v0, u1]
+            c2 = range_m[v1, u0]
+            c3 = range_m[v1, u1]
+            agree = False
+            if (math.isfinite(c0) and math.isfinite(c1) and math.isfinite(c2)
+                    and math.isfinite(c3)):
+                low = min(min(c0, c1), min(c2, c3))
+                spread = max(max(c0, c1), max(c2, c3)) - low
+                agree = math.isfinite(spread) and spread <= tol * low
+            if agree:
+                out[p] = (c0 * (1 - fu) * (1 - fv) + c1 * fu * (1 - fv) + c2 * (1 - fu) * fv
+                          + c3 * fu * fv)
+            else:
+                ri = min(max(int(np.rint(vp)), 0), h - 1)
+                ci = min(max(int(np.rint(up)), 0), w - 1)
+                out[p] = range_m[ri, ci]
+
+
+def sample_range_points(range_m: np.ndarray, u: np.ndarray, v: np.ndarray,
+                        tolerance: float) -> np.ndarray:
+    """Sample a range image at points ``(u, v)`` (:func:`evaluation.tracking._sample_range`).
+
+    ``tolerance`` is applied in the range image's own precision (a float32 image's spread
+    is compared with float32 ``tolerance * low``, as NumPy compares them).
+
+    Returns
+    -------
+    (n,) float64, metres
+    """
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    v = np.ascontiguousarray(v, dtype=np.float64)
+    out = np.empty(u.size)
+    img = np.ascontiguousarray(range_m)
+    if img.dtype not in (np.float32, np.float64):
+        img = img.astype(np.float64)
+    blocks = -(-u.size // POINTS_PER_BLOCK)
+    run_blocks(_sample_kernel, blocks, img, u, v, img.dtype.type(tolerance), out)
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _noise_kernel(image, prefix, gain, read2, top, out, first, last):
+    h, w, c = image.shape
+    for j in range(first, last):
+        for i in range(w):
+            z = normal_at(prefix, i, j)
+            for ch in range(c):
+                dn = np.float64(image[j, i, ch])
+                var = (max(dn, 0.0) / gain if gain > 0.0 else 0.0) + read2
+                value = np.rint(dn + math.sqrt(var) * z)
+                out[j, i, ch] = min(max(value, 0.0), top)
+
+
+def noisy_rows(image: np.ndarray, seed: int, stream: int, level: int, gain: float,
+               read_noise: float) -> np.ndarray:
+    """Return an integer image with fresh shot and read noise keyed by (seed, stream, level, x, y).
+
+    The deviate of pixel (x, y) is ``terrain.core.rng.normal(seed, stream, level, x, y)``,
+    the same for every channel; the noise's standard deviation is
+    ``sqrt(max(DN, 0) / gain + read_noise^2)`` (no shot noise where ``gain`` is 0); the
+    result is rounded half to even and clipped to the dtype's range.
+
+    Returns
+    -------
+    ndarray, ``image``'s shape and dtype
+    """
+    img = np.ascontiguousarray(image)
+    view = img if img.ndim == 3 else img[:, :, None]
+    out = np.empty(view.shape, dtype=img.dtype)
+    prefix = np.uint64(key_prefix(check_seed(seed), int(stream), int(level), 0))
+    read = float(read_noise)
+    run_blocks(_noise_kernel, view.shape[0], view, prefix, float(gain), read * read,
+               float(np.iinfo(img.dtype).max), out)
+    return out.reshape(img.shape)
