@@ -962,7 +962,7 @@ def write_report(report: Report, path, *, inputs=()) -> tuple[Path, Path]:
     if not report.created:
         report.created = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
     text = render_html(report)
-    doc = json.dumps(jsonable(report.as_dict()), indent=1, allow_nan=False)
+    doc = json.dumps(jsonable(report.as_dict()), allow_nan=False)
     with atomic_path(json_path, inputs) as tmp:
         tmp.write_text(doc, encoding="utf-8")
     with atomic_path(path, inputs) as tmp:
