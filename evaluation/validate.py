@@ -37,10 +37,10 @@ from evaluation import lunar_stats as ls
 from terrain.core.errors import InvalidDEMError, InvalidParameterError
 from terrain.core.tile import DEMTile
 
-__all__ = ["GROUPS", "HurstEstimate", "body_slope_check", "boulder_check", "boulder_index",
-           "facet_matched_slopes", "Result", "SlopeCurve", "Validation", "hurst_estimate",
-           "not_applicable", "period2_ratio", "slope_curve", "steep_share", "validate_dem",
-           "validate_stack"]
+__all__ = ["GROUPS", "HurstEstimate", "body_slope_check", "block_field_check", "boulder_check",
+           "boulder_index", "facet_matched_slopes", "Result", "SlopeCurve", "Validation",
+           "hurst_estimate", "not_applicable", "period2_ratio", "rock_sfd_check", "slope_curve",
+           "steep_share", "validate_dem", "validate_stack"]
 
 #: Check groups, in report order. Only the first two decide the verdict.
 REALISM, RENDERER, TRACKER, COMPARISON = ("terrain realism", "renderer consistency",
@@ -1316,7 +1316,7 @@ def _sfd_judgement(rows, name: str, stat, count_key: str, expect_key: str, what:
                                 f"{what} ({detail})"), pass_meaning=detail)
 
 
-def _rock_sfd_check(stack, terrain: str) -> tuple[Result, dict]:
+def rock_sfd_check(stack, terrain: str) -> tuple[Result, dict]:
     """Judge the background rocks' N(>=D) over at least a decade of size against the VIPER law.
 
     Each size is counted on the widest layer complete for it (:func:`pooled_rock_counts`),
@@ -1325,7 +1325,7 @@ def _rock_sfd_check(stack, terrain: str) -> tuple[Result, dict]:
     :data:`ROCK_SFD_MIN_EXPECTED` rocks. Where the stack's crater catalogue holds fresh
     craters with block fields (:func:`block_fields_of`), only the rocks outside their
     footprints are background, counted over the area outside them; the rest are judged by
-    :func:`_block_field_check`. The model is the law as drawn: N(>=D) - N(>=5 m)
+    :func:`block_field_check`. The model is the law as drawn: N(>=D) - N(>=5 m)
     (:data:`terrain.surface.rocks.VIPER_DMAX`). Each measured/model ratio may miss 1 by 15 %
     plus :data:`ROCK_SFD_SIGMAS` Poisson standard deviations of the expected count.
     """
@@ -1371,10 +1371,10 @@ def _rock_sfd_check(stack, terrain: str) -> tuple[Result, dict]:
     return _sfd_judgement(judged, name, stat, counted, expected, "the model's"), figures
 
 
-def _block_field_check(stack, terrain: str, figures: dict) -> Result:
+def block_field_check(stack, terrain: str, figures: dict) -> Result:
     """Judge the rocks inside fresh craters' footprints against background plus blocks.
 
-    Per size of :func:`_rock_sfd_check`'s rows: the rocks of D and more centred in the
+    Per size of :func:`rock_sfd_check`'s rows: the rocks of D and more centred in the
     footprints against the VIPER law over the footprints' area plus the blocks the crater
     catalogue and the published calibration expect there
     (:func:`evaluation.blockfields.expected_blocks`), wherever that sum is at least
@@ -1550,10 +1550,10 @@ def validate_stack(stack, terrain: str, *, label: str = "stack",
     results += rock
     data.update(rdata)
     if stack.rocks is not None and len(stack.rocks.diameter_m):
-        check, figures = _rock_sfd_check(stack, terrain)
+        check, figures = rock_sfd_check(stack, terrain)
         results.append(check)
         if figures.get("fields"):
-            results.append(_block_field_check(stack, terrain, figures))
+            results.append(block_field_check(stack, terrain, figures))
         data["rock_model_sfd"] = figures
     results += body_checks()
     data["layers"] = per_layer

@@ -22,7 +22,7 @@ from evaluation.blockfields import (
     footprint_area,
     in_footprints,
 )
-from evaluation.validate import _block_field_check, _rock_sfd_check
+from evaluation.validate import block_field_check, rock_sfd_check
 
 WIDE = (-1e5, -1e5, 1e5, 1e5)
 
@@ -144,23 +144,23 @@ def test_background_and_block_field_are_each_judged_against_what_they_were_drawn
     one population against the background law, the same rocks fail (the field is no
     excess)."""
     stack = _field_stack()
-    bg, figures = _rock_sfd_check(stack, "south-polar")
+    bg, figures = rock_sfd_check(stack, "south-polar")
     assert bg.status == "pass", bg
     assert "outside fresh craters' block fields" in bg.name
-    fields = _block_field_check(stack, "south-polar", figures)
+    fields = block_field_check(stack, "south-polar", figures)
     assert fields.status == "pass", fields
     row = next(r for r in figures["rows"] if r["diameter_m"] >= 1.0)
     assert row["field_area_m2"] == pytest.approx(math.pi * 300.0**2, rel=0.01)
     assert row["expected_blocks"] > 10 * row["field_background_count"]  # blocks dominate
-    merged, _ = _rock_sfd_check(_field_stack(with_catalog=False), "south-polar")
+    merged, _ = rock_sfd_check(_field_stack(with_catalog=False), "south-polar")
     assert merged.status == "fail" and "times the model" in merged.meaning
 
 
 def test_three_times_the_blocks_fail_the_field_check_but_not_the_background():
     stack = _field_stack(block_scale=3.0)
-    bg, figures = _rock_sfd_check(stack, "south-polar")
+    bg, figures = rock_sfd_check(stack, "south-polar")
     assert bg.status == "pass", bg
-    fields = _block_field_check(stack, "south-polar", figures)
+    fields = block_field_check(stack, "south-polar", figures)
     assert fields.status == "fail" and "background plus blocks" in fields.meaning
     assert fields.value > 1.0  # about twice the expected count at every size
 
