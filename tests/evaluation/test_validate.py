@@ -394,7 +394,7 @@ def test_rock_sfd_is_judged_against_the_presets_viper_model(scale, verdict):
 
     from affine import Affine
 
-    from evaluation.validate import _rock_sfd_check
+    from evaluation.validate import rock_sfd_check
     from terrain.surface.rocks import RockModel, rock_catalog
 
     a, b = ls.VIPER_ROCK_MODELS["nominal"]
@@ -405,6 +405,6 @@ def test_rock_sfd_is_judged_against_the_presets_viper_model(scale, verdict):
     # one 5 cm layer (what the count reads of a tile): complete from 2 px, 0.1 m
     tile = SimpleNamespace(shape=(4000, 4000), resolution=0.05,
                            transform=Affine(0.05, 0.0, 0.0, 0.0, -0.05, 200.0))
-    r, figures = _rock_sfd_check(SimpleNamespace(tiles=[tile], rocks=cat), "south-polar")
+    r, figures = rock_sfd_check(SimpleNamespace(tiles=[tile], rocks=cat), "south-polar")
     assert r.status == verdict, r
     assert figures["rows"][0]["diameter_m"] == pytest.approx(0.1)

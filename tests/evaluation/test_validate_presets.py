@@ -18,10 +18,10 @@ from evaluation import lunar_stats as ls
 from evaluation.validate import (
     HurstEstimate,
     _base_crater_check,
-    _rock_sfd_check,
     generator_hurst,
     hurst_estimate,
     pooled_rock_counts,
+    rock_sfd_check,
     stack_hurst_target,
 )
 from terrain.core import metakeys as mk
@@ -81,7 +81,7 @@ def test_pooled_rock_sfd_recovers_the_power_law_it_was_drawn_from():
     and the check passes. Counting every size on the finest layer alone could not: it expects
     five rocks of a metre, a count 45 % uncertain."""
     stack = _rock_stack()
-    r, figures = _rock_sfd_check(stack, "south-polar")
+    r, figures = rock_sfd_check(stack, "south-polar")
     rows = figures["rows"]
     assert rows[-1]["diameter_m"] / rows[0]["diameter_m"] >= 10.0
     assert [row["layer"] for row in rows] == sorted(row["layer"] for row in rows)[::-1]
@@ -96,15 +96,15 @@ def test_pooled_rock_sfd_recovers_the_power_law_it_was_drawn_from():
 
 
 def test_three_times_the_rocks_fail_the_sfd_check():
-    r, _ = _rock_sfd_check(_rock_stack(scale=3.0), "south-polar")
+    r, _ = rock_sfd_check(_rock_stack(scale=3.0), "south-polar")
     assert r.status == "fail" and "times the model" in r.meaning
     assert r.value == pytest.approx(2.0, abs=0.3)
 
 
 def test_the_sfd_is_judged_against_the_presets_own_model():
     """The maria preset's model is VIPER's low law: nominal rocks are too many for it."""
-    assert _rock_sfd_check(_rock_stack(model="low"), "maria")[0].status == "pass"
-    assert _rock_sfd_check(_rock_stack(model="nominal"), "maria")[0].status == "fail"
+    assert rock_sfd_check(_rock_stack(model="low"), "maria")[0].status == "pass"
+    assert rock_sfd_check(_rock_stack(model="nominal"), "maria")[0].status == "fail"
 
 
 def test_metre_rocks_are_counted_on_the_widest_layer_that_resolves_them():
@@ -119,7 +119,7 @@ def test_a_stack_resolving_less_than_a_decade_of_rock_size_is_not_judged():
     stack.tiles = stack.tiles[:1]  # only the 0.4 m layer: 0.8 m and up
     keep = stack.rocks.layer == 0
     stack.rocks = SimpleNamespace(**{k: v[keep] for k, v in vars(stack.rocks).items()})
-    r, _ = _rock_sfd_check(stack, "south-polar")
+    r, _ = rock_sfd_check(stack, "south-polar")
     assert r.status == "not applicable" and "decade" in r.meaning
 
 
