@@ -122,6 +122,7 @@ from render.scene import (
     ortho_light,
     render_shadow_map,
 )
+from render.terrain_buffers import layer_buffers, morph_targets
 from terrain.core import metakeys as mk
 from terrain.core.errors import InvalidParameterError
 
@@ -510,57 +511,24 @@ class TerrainScene:
         z, xs, ys = layer.heights
         h, w = layer.shape
         res = layer.resolution
-        # normals from central differences of the (curved) heights
-        dzdx = np.gradient(z, res, axis=1)
-        dzdy = -np.gradient(z, res, axis=0)  # rows run south
-        n = np.stack([-dzdx, -dzdy, np.ones_like(z)], axis=-1)
-        n /= np.linalg.norm(n, axis=-1, keepdims=True)
-        # skirt vertices: lowered copies of every block-boundary row and column
-        brows = _samples(0, h - 1, BLOCK)
-        bcols = _samples(0, w - 1, BLOCK)
-        depth = SKIRT_PIXELS * res
-        # vertices: every pixel centre, then the skirt rows, then the skirt columns; the
-        # vertex buffer interleaves position and normal (3f 3f), the geomorphing buffer the
-        # target position, the level and the target normal (4f 3f; module docstring), skirts
-        # following their edge vertex. Filled in float32 straight from the float64 values.
-        n_main = h * w
-        n_rows = len(brows) * w
-        n_all = n_main + n_rows + len(bcols) * h
-        fills = []
-        if layer.vbo is None:
-            vert = np.empty((n_all, 6), dtype=np.float32)
-            fills.append((vert, z, n, 3))
+        # vertices: every pixel centre, then the skirt rows (lowered copies of every
+        # block-boundary row), then the skirt columns; the vertex buffer interleaves position
+        # and normal (3f 3f), the geomorphing buffer the target position, the level and the
+        # target normal (4f 3f; module docstring), skirts following their edge vertex.
+        # Normals from central differences of the (curved) heights (render.terrain_buffers).
+        n, vert, morph_buf = layer_buffers(
+            z, xs, ys, res, _samples(0, h - 1, BLOCK), _samples(0, w - 1, BLOCK),
+            SKIRT_PIXELS * res, _cell_tables(h, w) if morph else None,
+            vertices=layer.vbo is None, morph=morph)
         if morph:
             # the full-resolution normals as a texture (shading independent of the level of
             # detail, module docstring): texel (i, j) at pixel centre (xs[j], ys[i])
             normal_tex = gpu.texture((w, h), 3, n.astype("f2").tobytes(), dtype="f2")
             normal_rect = (xs[0] - 0.5 * res, ys[0] + 0.5 * res, 1.0 / (w * res),
                            1.0 / (h * res))
-            target, level, tnormal = _morph_targets(z, n)
-            morph_buf = np.empty((n_all, 7), dtype=np.float32)
-            fills.append((morph_buf, target, tnormal, 4))
-        for out, height, normal, first in fills:
-            main = out[:n_main].reshape(h, w, -1)
-            main[..., 0] = xs[None, :]
-            main[..., 1] = ys[:, None]
-            main[..., 2] = height
-            rows = out[n_main:n_main + n_rows].reshape(len(brows), w, -1)
-            rows[..., 0] = xs[None, :]
-            rows[..., 1] = ys[brows][:, None]
-            rows[..., 2] = height[brows] - depth
-            cols = out[n_main + n_rows:].reshape(len(bcols), h, -1)
-            cols[..., 0] = xs[bcols][:, None]
-            cols[..., 1] = ys[None, :]
-            cols[..., 2] = height[:, bcols].T - depth
-            main[..., first:] = normal
-            rows[..., first:] = normal[brows]
-            cols[..., first:] = normal[:, bcols].transpose(1, 0, 2)
         if layer.vbo is None:
             layer.vbo = gpu.buffer(vert)
         if morph:
-            morph_buf[:n_main].reshape(h, w, 7)[..., 3] = level
-            morph_buf[n_main:n_main + n_rows].reshape(len(brows), w, 7)[..., 3] = level[brows]
-            morph_buf[n_main + n_rows:].reshape(len(bcols), h, 7)[..., 3] = level[:, bcols].T
             layer.morph_vbo = gpu.buffer(morph_buf)
             layer.normal_map = (normal_tex, normal_rect)
             layer.heights = None  # every buffer is built
@@ -1053,33 +1021,28 @@ def _coarse_cells(n: int, s: int):
     return cells(np.flatnonzero(levels == s)), cells(np.flatnonzero(levels >= 2 * s))
 
 
-def _runs(lines, a, b, t):
-    """Split lines and their cells into runs where line, a and b are each evenly spaced.
+def _line_cells(n: int):
+    """Per level index q (level ``2^q`` below :data:`BLOCK`): each line's level-``2^(q+1)`` cell.
 
-    Yields ``(lines, a, b, t)`` with slices for the first three (views into a grid, never
-    copies) and the run's part of ``t``.
+    Returns ``(levels, a, b, t)``: (n,) int64 coarsest level of each line, and (q, n)
+    first and last line of the cell and the fraction (:func:`_coarse_cells`; lines of a
+    coarser level lie on the cell grid, t = 0).
     """
-    i, n = 0, len(lines)
-    while i < n:
-        j = i + 1
-        if j < n:
-            step = (lines[j] - lines[i], a[j] - a[i], b[j] - b[i])
-            while (j + 1 < n and step[0] > 0 and lines[j + 1] - lines[j] == step[0]
-                   and a[j + 1] - a[j] == step[1] and b[j + 1] - b[j] == step[2]):
-                j += 1
-            j += 1
-        yield (_slice(lines[i:j]), _slice(a[i:j]), _slice(b[i:j]), t[i:j])
-        i = j
+    lods = _lods()[:-1]
+    a = np.zeros((len(lods), n), dtype=np.int64)
+    b = np.zeros((len(lods), n), dtype=np.int64)
+    t = np.zeros((len(lods), n))
+    for q, s in enumerate(lods):
+        for lines, la, lb, lt in _coarse_cells(n, s):
+            a[q, lines], b[q, lines], t[q, lines] = la, lb, lt
+    return _levels_1d(n).astype(np.int64), a, b, t
 
 
-def _slice(idx: np.ndarray) -> slice | np.ndarray:
-    """Return an evenly spaced run of indices as a slice (a constant run stays an array)."""
-    if len(idx) == 1:
-        return slice(int(idx[0]), int(idx[0]) + 1)
-    step = int(idx[1] - idx[0])
-    if step <= 0:
-        return idx
-    return slice(int(idx[0]), int(idx[-1]) + 1, step)
+def _cell_tables(h: int, w: int) -> tuple:
+    """Give the rows' and columns' cells (:func:`render.terrain_buffers.layer_buffers`)."""
+    rl, ra, rb, rt = _line_cells(h)
+    cl, ca, cb, ct = _line_cells(w)
+    return rl, cl, ra, rb, rt, ca, cb, ct, BLOCK
 
 
 def _morph_targets(z: np.ndarray, normals: np.ndarray):
@@ -1107,52 +1070,10 @@ def _morph_targets(z: np.ndarray, normals: np.ndarray):
     Notes
     -----
     A vertex's level is the smaller of its row's and its column's, and where it lies in a
-    cell of level 2s depends on its row and its column separately. The vertices of level s
-    are three products of lines: rows of level s exactly with columns of level s exactly
-    or of level 2s or coarser, and rows of level 2s or coarser with columns of level s
-    exactly. Each product is computed at once, over runs of evenly spaced lines (strided
-    views of the grid), with the same arithmetic per vertex as one vertex at a time, so
-    with the same results.
+    cell of level 2s depends on its row and its column separately (:func:`_cell_tables`);
+    :func:`render.terrain_buffers.morph_targets` computes every vertex at once.
     """
-    h, w = z.shape
-    rl, cl = _levels_1d(h), _levels_1d(w)
-    level = np.minimum(rl[:, None], cl[None, :])
-    target = z.copy()
-    tnormal = normals.copy()
-    for s in _lods()[:-1]:
-        rows_s, rows_2s = _coarse_cells(h, s)
-        cols_s, cols_2s = _coarse_cells(w, s)
-        for rows, cols in ((rows_s, cols_s), (rows_s, cols_2s), (rows_2s, cols_s)):
-            if not rows[0].size or not cols[0].size:
-                continue
-            for r, ra, rb, ti in _runs(*rows):
-                for c, ca, cb, tj in _runs(*cols):
-                    t_i, t_j = ti[:, None], tj[None, :]
-                    upper = (t_i + t_j) <= 1.0  # triangle (a, c, b); else (b, c, d)
-                    for src, dst in ((z, target), (normals, tnormal)):
-                        za, zb = src[ra][:, ca], src[ra][:, cb]
-                        zc, zd = src[rb][:, ca], src[rb][:, cb]
-                        if src.ndim == 3:
-                            ti3, tj3, up = t_i[..., None], t_j[..., None], upper[..., None]
-                        else:
-                            ti3, tj3, up = t_i, t_j, upper
-                        value = _on_triangle(za, zb, zc, ti3, tj3)
-                        if not upper.all():
-                            second = _on_triangle(zd, zc, zb, 1.0 - ti3, 1.0 - tj3)
-                            value = np.where(up, value, second)
-                        dst[r, c] = value
-    return target, level, tnormal
-
-
-def _on_triangle(za, zb, zc, ti, tj):
-    """``za + ti (zc - za) + tj (zb - za)``, evaluated in that order (in place, no copies)."""
-    out = np.subtract(zc, za)
-    out *= ti
-    out += za
-    step = np.subtract(zb, za)
-    step *= tj
-    out += step
-    return out
+    return morph_targets(z, normals, _cell_tables(*z.shape))
 
 
 def _fade_in(z: np.ndarray, xs: np.ndarray, ys: np.ndarray, parent) -> np.ndarray:

@@ -1,0 +1,224 @@
+"""A terrain layer's vertex, geomorphing and normal buffers, compiled.
+
+What :class:`render.terrain_scene.TerrainScene` uploads for a layer when a frame first draws
+it: every pixel centre's position and unit normal (``3f 3f``), its geomorphing target (the
+next coarser level's height and normal below it, and its own level: ``4f 3f``, see
+:mod:`render.terrain_scene`'s geomorphing), the skirt vertices following (lowered copies of
+the block-boundary rows, then columns), and the float64 normals the normals texture is made
+of. One pass per image row, on every core (:func:`terrain.core.parallel.run_blocks`), with
+the same float64 arithmetic per vertex, in the same order, as the numpy expressions the
+module docstring of :mod:`render.terrain_scene` states (central differences as
+``numpy.gradient``, the norm as ``numpy.linalg.norm``, the triangle interpolation
+``za + ti (zc - za) + tj (zb - za)`` in that order), so the bytes are those of the numpy
+expressions.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from terrain.core.parallel import run_blocks
+
+__all__ = ["layer_buffers", "morph_targets"]
+
+
+@numba.njit(nogil=True, cache=True)
+def _normals_rows(z, res, n, first, last):
+    """Write the unit normals of rows ``first .. last - 1`` (central differences inside)."""
+    h, w = z.shape
+    two = 2.0 * res
+    for i in range(first, last):
+        for j in range(w):
+            # numpy.gradient(z, res, axis=1), then axis=0 (rows run south: negated)
+            if j == 0:
+                gx = (z[i, 1] - z[i, 0]) / res
+            elif j == w - 1:
+                gx = (z[i, w - 1] - z[i, w - 2]) / res
+            else:
+                gx = (z[i, j + 1] - z[i, j - 1]) / two
+            if i == 0:
+                gy = (z[1, j] - z[0, j]) / res
+            elif i == h - 1:
+                gy = (z[h - 1, j] - z[h - 2, j]) / res
+            else:
+                gy = (z[i + 1, j] - z[i - 1, j]) / two
+            nx = -gx
+            ny = gy  # -dz/dy, with y north and rows running south
+            # numpy.linalg.norm over the last axis: the first square, plus the others' sum
+            length = math.sqrt(nx * nx + (ny * ny + 1.0))
+            n[i, j, 0] = nx / length
+            n[i, j, 1] = ny / length
+            n[i, j, 2] = 1.0 / length
+
+
+@numba.njit(nogil=True, cache=True, inline="always")
+def _on_triangle(za, zb, zc, ti, tj):
+    # za + ti (zc - za) + tj (zb - za), evaluated in this order
+    out = (zc - za) * ti
+    out += za
+    out += (zb - za) * tj
+    return out
+
+
+@numba.njit(nogil=True, cache=True)
+def _morph_rows(z, n, rl, cl, ra, rb, rt, ca, cb, ct, block, target, tnormal, level, first,
+                last):
+    """Morph targets of rows ``first .. last - 1`` (see ``morph_targets``)."""
+    h, w = z.shape
+    for i in range(first, last):
+        for j in range(w):
+            s = min(rl[i], cl[j])
+            level[i, j] = s
+            if s >= block:
+                target[i, j] = z[i, j]
+                for k in range(3):
+                    tnormal[i, j, k] = n[i, j, k]
+                continue
+            q = 0
+            while (1 << (q + 1)) <= s:
+                q += 1
+            ia, ib, ti = ra[q, i], rb[q, i], rt[q, i]
+            ja, jb, tj = ca[q, j], cb[q, j], ct[q, j]
+            if ti + tj <= 1.0:  # triangle (a, c, b); else (b, c, d)
+                target[i, j] = _on_triangle(z[ia, ja], z[ia, jb], z[ib, ja], ti, tj)
+                for k in range(3):
+                    tnormal[i, j, k] = _on_triangle(n[ia, ja, k], n[ia, jb, k], n[ib, ja, k],
+                                                    ti, tj)
+            else:
+                ui, uj = 1.0 - ti, 1.0 - tj
+                target[i, j] = _on_triangle(z[ib, jb], z[ib, ja], z[ia, jb], ui, uj)
+                for k in range(3):
+                    tnormal[i, j, k] = _on_triangle(n[ib, jb, k], n[ib, ja, k], n[ia, jb, k],
+                                                    ui, uj)
+
+
+@numba.njit(nogil=True, cache=True)
+def _fill_rows(out, first_normal, xs, ys, height, normal, extra, brows, bcols, depth, first,
+               last):
+    """Write rows ``first .. last - 1`` of the main vertices and of every skirt column.
+
+    ``out`` is ``(h w + len(brows) w + len(bcols) h, c)`` float32: position, ``extra`` (the
+    level, when ``first_normal`` is 4) and normal. Skirt row ``k`` is written by the range
+    holding main row ``brows[k]``.
+    """
+    h, w = height.shape
+    n_main = h * w
+    n_rows = len(brows) * w
+    for i in range(first, last):
+        for j in range(w):
+            v = i * w + j
+            out[v, 0] = xs[j]
+            out[v, 1] = ys[i]
+            out[v, 2] = height[i, j]
+            if first_normal == 4:
+                out[v, 3] = extra[i, j]
+            for k in range(3):
+                out[v, first_normal + k] = normal[i, j, k]
+        for kb in range(len(bcols)):
+            c = bcols[kb]
+            v = n_main + n_rows + kb * h + i
+            out[v, 0] = xs[c]
+            out[v, 1] = ys[i]
+            out[v, 2] = height[i, c] - depth
+            if first_normal == 4:
+                out[v, 3] = extra[i, c]
+            for k in range(3):
+                out[v, first_normal + k] = normal[i, c, k]
+    for kb in range(len(brows)):
+        r = brows[kb]
+        if first <= r < last:
+            for j in range(w):
+                v = n_main + kb * w + j
+                out[v, 0] = xs[j]
+                out[v, 1] = ys[r]
+                out[v, 2] = height[r, j] - depth
+                if first_normal == 4:
+                    out[v, 3] = extra[r, j]
+                for k in range(3):
+                    out[v, first_normal + k] = normal[r, j, k]
+
+
+def layer_buffers(z: np.ndarray, xs: np.ndarray, ys: np.ndarray, res: float,
+                  brows: np.ndarray, bcols: np.ndarray, depth: float, cells,
+                  vertices: bool, morph: bool):
+    """Give a layer's normals and the buffers asked for.
+
+    Parameters
+    ----------
+    z : (h, w) float64, metres
+        The layer's (curved, faded) heights at its pixel centres.
+    xs, ys : (w,), (h,) float64, metres
+        Pixel centres (scene-local).
+    res : float, metres
+        Pixel size.
+    brows, bcols : (k,) int
+        Block-boundary rows and columns (their skirts follow the main vertices).
+    depth : float, metres
+        How far the skirts hang below their edge.
+    cells : tuple
+        ``(rl, cl, ra, rb, rt, ca, cb, ct, block)``: each row's and column's coarsest level
+        (int64), and per level index q (level ``2^q``) the first and last line of the
+        level-``2^(q+1)`` cell holding each line and its fraction of the way (float64);
+        block: the coarsest level.
+    vertices, morph : bool
+        Build the ``3f 3f`` vertex buffer; the ``4f 3f`` geomorphing buffer.
+
+    Returns
+    -------
+    normals : (h, w, 3) float64
+    vert : (n, 6) float32 or None
+    morph_buf : (n, 7) float32 or None
+    """
+    h, w = z.shape
+    z = np.ascontiguousarray(z, dtype=np.float64)
+    xs = np.ascontiguousarray(xs, dtype=np.float64)
+    ys = np.ascontiguousarray(ys, dtype=np.float64)
+    brows = np.ascontiguousarray(brows, dtype=np.int64)
+    bcols = np.ascontiguousarray(bcols, dtype=np.int64)
+    n_all = h * w + len(brows) * w + len(bcols) * h
+    n = np.empty((h, w, 3))
+    run_blocks(_normals_rows, h, z, float(res), n)
+    none2 = np.zeros((1, 1))
+    vert = morph_buf = None
+    if vertices:
+        vert = np.empty((n_all, 6), dtype=np.float32)
+        run_blocks(_fill_rows, h, vert, 3, xs, ys, z, n, none2, brows, bcols, float(depth))
+    if morph:
+        target, level, tnormal = morph_targets(z, n, cells)
+        morph_buf = np.empty((n_all, 7), dtype=np.float32)
+        run_blocks(_fill_rows, h, morph_buf, 4, xs, ys, target, tnormal, level, brows, bcols,
+                   float(depth))
+    return n, vert, morph_buf
+
+
+def morph_targets(z: np.ndarray, normals: np.ndarray, cells) -> tuple:
+    """Per vertex: the next coarser level's height and normal below it, and its own level.
+
+    Parameters
+    ----------
+    z : (h, w) float64, metres
+        Heights.
+    normals : (h, w, 3) float64
+        Unit normals.
+    cells : tuple
+        The lines' levels and cells (:func:`layer_buffers`).
+
+    Returns
+    -------
+    target : (h, w) float64, metres
+    level : (h, w) float64
+    target_normal : (h, w, 3) float64
+        As ``render.terrain_scene``'s ``_morph_targets`` states them.
+    """
+    h, w = z.shape
+    rl, cl, ra, rb, rt, ca, cb, ct, block = cells
+    target = np.empty((h, w))
+    tnormal = np.empty((h, w, 3))
+    level = np.empty((h, w))
+    run_blocks(_morph_rows, h, np.ascontiguousarray(z, dtype=np.float64),
+               np.ascontiguousarray(normals, dtype=np.float64), rl, cl, ra, rb, rt, ca, cb,
+               ct, int(block), target, tnormal, level)
+    return target, level, tnormal
