@@ -22,7 +22,7 @@ import numpy as np
 
 from terrain.core.parallel import run_blocks
 
-__all__ = ["layer_buffers", "morph_targets"]
+__all__ = ["fade_in", "layer_buffers", "morph_targets"]
 
 
 @numba.njit(nogil=True, cache=True)
@@ -222,3 +222,65 @@ def morph_targets(z: np.ndarray, normals: np.ndarray, cells) -> tuple:
                np.ascontiguousarray(normals, dtype=np.float64), rl, cl, ra, rb, rt, ca, cb,
                ct, int(block), target, tnormal, level)
     return target, level, tnormal
+
+
+@numba.njit(nogil=True, cache=True)
+def _fade_rows(z, xs, ys, pz, px0, py0, pres, margin, out, first, last):
+    """Blend rows ``first .. last - 1`` into the parent's surface (see :func:`fade_in`)."""
+    h, w = z.shape
+    ph, pw = pz.shape
+    for i in range(first, last):
+        ey = min(ys[0] - ys[i], ys[i] - ys[h - 1])
+        r = (py0 - ys[i]) / pres
+        i0 = min(max(np.int64(math.floor(r)), 0), ph - 2)
+        ti = min(max(r - i0, 0.0), 1.0)
+        for j in range(w):
+            ex = min(xs[j] - xs[0], xs[w - 1] - xs[j])
+            t = min(max(min(ey, ex) / margin, 0.0), 1.0)
+            weight = t * t * (3.0 - 2.0 * t)
+            if not weight < 1.0:
+                out[i, j] = z[i, j]
+                continue
+            c = (xs[j] - px0) / pres
+            j0 = min(max(np.int64(math.floor(c)), 0), pw - 2)
+            tj = min(max(c - j0, 0.0), 1.0)
+            za, zb = pz[i0, j0], pz[i0, j0 + 1]
+            zc, zd = pz[i0 + 1, j0], pz[i0 + 1, j0 + 1]
+            if ti + tj <= 1.0:
+                under = za + ti * (zc - za) + tj * (zb - za)
+            else:
+                under = zd + (1.0 - ti) * (zb - zd) + (1.0 - tj) * (zc - zd)
+            out[i, j] = weight * z[i, j] + (1.0 - weight) * under
+
+
+def fade_in(z: np.ndarray, xs: np.ndarray, ys: np.ndarray, parent: tuple,
+            margin: float) -> np.ndarray:
+    """Blend a layer's heights into its parent's surface across ``margin`` inside its edge.
+
+    Parameters
+    ----------
+    z : (h, w) float64, metres
+        The layer's heights.
+    xs, ys : (w,), (h,) float64, metres
+        Its pixel centres (scene-local).
+    parent : tuple
+        ``(z, x of column 0, y of row 0, cell size)`` of the parent (curved heights,
+        scene-local); its surface is its full-resolution triangulation (the diagonal from
+        top-right to bottom-left, as drawn).
+    margin : float, metres
+        Width of the blend; the layer's own heights weigh a smoothstep of the distance to
+        its edge over it.
+
+    Returns
+    -------
+    (h, w) float64, metres
+        The blended heights (a new array).
+    """
+    pz, px0, py0, pres = parent
+    out = np.empty(z.shape)
+    run_blocks(_fade_rows, z.shape[0], np.ascontiguousarray(z, dtype=np.float64),
+               np.ascontiguousarray(xs, dtype=np.float64),
+               np.ascontiguousarray(ys, dtype=np.float64),
+               np.ascontiguousarray(pz, dtype=np.float64), float(px0), float(py0),
+               float(pres), float(margin), out)
+    return out

@@ -122,7 +122,7 @@ from render.scene import (
     ortho_light,
     render_shadow_map,
 )
-from render.terrain_buffers import layer_buffers, morph_targets
+from render.terrain_buffers import fade_in, layer_buffers, morph_targets
 from terrain.core import metakeys as mk
 from terrain.core.errors import InvalidParameterError
 
@@ -1085,32 +1085,9 @@ def _fade_in(z: np.ndarray, xs: np.ndarray, ys: np.ndarray, parent) -> np.ndarra
     smoothstep of the distance to the layer's edge over :data:`FADE_PARENT_PIXELS` parent
     pixels (at most :data:`FADE_MAX_FRACTION` of the layer's smaller side).
     """
-    pz, px0, py0, pres = parent
+    pres = parent[3]
     size = min(abs(xs[-1] - xs[0]), abs(ys[0] - ys[-1]))
-    margin = min(FADE_PARENT_PIXELS * pres, FADE_MAX_FRACTION * size)
-    ex = np.minimum(xs - xs[0], xs[-1] - xs)
-    ey = np.minimum(ys[0] - ys, ys - ys[-1])
-    t = np.clip(np.minimum(ey[:, None], ex[None, :]) / margin, 0.0, 1.0)
-    weight = t * t * (3.0 - 2.0 * t)
-    band = weight < 1.0
-    if not band.any():
-        return z
-    rows, cols = np.nonzero(band)
-    c = (xs[cols] - px0) / pres
-    r = (py0 - ys[rows]) / pres
-    ph, pw = pz.shape
-    i0 = np.clip(np.floor(r).astype(np.int64), 0, ph - 2)
-    j0 = np.clip(np.floor(c).astype(np.int64), 0, pw - 2)
-    ti = np.clip(r - i0, 0.0, 1.0)
-    tj = np.clip(c - j0, 0.0, 1.0)
-    za, zb = pz[i0, j0], pz[i0, j0 + 1]
-    zc, zd = pz[i0 + 1, j0], pz[i0 + 1, j0 + 1]
-    under = np.where(ti + tj <= 1.0, za + ti * (zc - za) + tj * (zb - za),
-                     zd + (1.0 - ti) * (zb - zd) + (1.0 - tj) * (zc - zd))
-    out = z.copy()
-    wb = weight[rows, cols]
-    out[rows, cols] = wb * z[rows, cols] + (1.0 - wb) * under
-    return out
+    return fade_in(z, xs, ys, parent, min(FADE_PARENT_PIXELS * pres, FADE_MAX_FRACTION * size))
 
 
 def _shadow_coarsening(footprint: float, resolution: float) -> int:
