@@ -12,7 +12,10 @@ times, interleaved round by round (A B, B A, ...):
   are the shadow code's and timed by bench_render) and, separately, that first frame alone;
   then the same view again with the descent's shadows (4096-texel maps, built on this first
   shadowed frame: ``shadow_frame_s``) and once more (the maps cached: ``again_s``), so the
-  load with the first shadowed frame is ``seconds + shadow_frame_s``;
+  load with the first shadowed frame is ``seconds + shadow_frame_s``; each also in CPU
+  seconds of the process, every thread (``cpu_s``, ``shadow_frame_cpu_s``, ``again_cpu_s``:
+  llvmpipe's and the compiled kernels' threads included), the fairer figure on a shared
+  machine;
 * ``raw``: the baseline, the least any loader must do: the layers' GeoTIFFs read, and one
   plain grid mesh with as many triangles as the scene's first frame draws (positions and
   normals, one draw call, the scene's shader) uploaded, drawn and read back.
@@ -95,6 +98,7 @@ def raw_load(renderer, stack_dir: Path, view, size: int, triangles: int) -> dict
     ctx = renderer.ctx
     prog = renderer.scene_program
     manifest = json.loads((stack_dir / "manifest.json").read_text())
+    c0 = time.process_time()
     t0 = time.perf_counter()
     tiles = [read_dem(stack_dir / layer["file"]) for layer in manifest["layers"]]
     read_s = time.perf_counter() - t0
@@ -154,7 +158,8 @@ def raw_load(renderer, stack_dir: Path, view, size: int, triangles: int) -> dict
     total = time.perf_counter() - t0
     for obj in (vao, vbo, ibo):
         obj.release()
-    return dict(seconds=total, read_s=read_s, upload_s=upload_s, triangles=faces.size // 3)
+    return dict(seconds=total, cpu_s=time.process_time() - c0, read_s=read_s,
+                upload_s=upload_s, triangles=faces.size // 3)
 
 
 def scene_load(renderer, stack_dir: Path, size: int) -> dict:
@@ -162,6 +167,7 @@ def scene_load(renderer, stack_dir: Path, size: int) -> dict:
     from render.renderer import Lighting, RenderOptions
     from render.terrain_scene import TerrainScene
 
+    c0 = time.process_time()
     t0 = time.perf_counter()
     scene = TerrainScene(stack_dir)
     read_s = time.perf_counter() - t0
@@ -172,13 +178,16 @@ def scene_load(renderer, stack_dir: Path, size: int) -> dict:
     frame = renderer.render(scene, view, Lighting.from_angles(60.0, 7.0),
                             RenderOptions(shadows=False))
     now = time.perf_counter()
-    out = dict(seconds=now - t0, read_s=read_s, upload_s=upload_s, first_frame_s=now - t1,
+    out = dict(seconds=now - t0, cpu_s=time.process_time() - c0, read_s=read_s,
+               upload_s=upload_s, first_frame_s=now - t1,
                triangles_drawn=frame.drawn["triangles"], triangles_full=scene.triangles_full)
     lighting = Lighting.from_angles(60.0, 7.0)
     for name in ("shadow_frame_s", "again_s"):
+        c2 = time.process_time()
         t2 = time.perf_counter()
         renderer.render(scene, view, lighting, RenderOptions(shadow_size=SHADOW_SIZE))
         out[name] = time.perf_counter() - t2
+        out[name.replace("_s", "_cpu_s")] = time.process_time() - c2
     out["with_shadows_s"] = out["seconds"] + out["shadow_frame_s"]
     del scene, frame
     gc.collect()  # the context's gc_mode "auto" releases the layers' buffers now
@@ -215,6 +224,7 @@ def main(argv=None) -> int:
                     results[name].append(raw_load(renderer, stack_dir, view, size, drawn))
                 log(f"round {i + 1}: {name} {results[name][-1]['seconds']:.2f} s")
         med = {name: summary([r["seconds"] for r in runs]) for name, runs in results.items()}
+        cpu = {name: summary([r["cpu_s"] for r in runs]) for name, runs in results.items()}
         shadowed = {key: summary([r[key] for r in results["scene"]])
                     for key in ("with_shadows_s", "shadow_frame_s", "again_s")}
         out = dict(
@@ -224,6 +234,8 @@ def main(argv=None) -> int:
             scene=dict(med["scene"], runs=results["scene"]),
             raw=dict(med["raw"], runs=results["raw"]),
             ratio_to_raw=med["scene"]["median_s"] / med["raw"]["median_s"],
+            cpu=dict(scene=cpu["scene"], raw=cpu["raw"],
+                     ratio_to_raw=cpu["scene"]["median_s"] / cpu["raw"]["median_s"]),
             with_shadows=dict(shadowed, ratio_to_raw=(shadowed["with_shadows_s"]["median_s"]
                                                       / med["raw"]["median_s"])),
             renderer=describe(), peak_rss_bytes=peak_rss_bytes(),
