@@ -22,7 +22,7 @@ import numpy as np
 
 from terrain.core.parallel import run_blocks
 
-__all__ = ["fade_in", "layer_buffers", "morph_targets"]
+__all__ = ["block_indices", "fade_in", "layer_buffers", "morph_targets"]
 
 
 @numba.njit(nogil=True, cache=True)
@@ -284,3 +284,99 @@ def fade_in(z: np.ndarray, xs: np.ndarray, ys: np.ndarray, parent: tuple,
                np.ascontiguousarray(pz, dtype=np.float64), float(px0), float(py0),
                float(pres), float(margin), out)
     return out
+
+
+@numba.njit(nogil=True, cache=True, inline="always")
+def _sampled(n, s):
+    """Count 0, s, 2s, ... below n, and n itself."""
+    return (n - 1) // s + 2 if n > 0 else 1
+
+
+@numba.njit(nogil=True, cache=True, inline="always")
+def _sample(k, n, s):
+    """Give the k-th of 0, s, 2s, ... below n, then n."""
+    return min(k * s, n)
+
+
+@numba.njit(nogil=True, cache=True)
+def _index_rows(out, offsets, brows, bcols, h, w, s, first, last):
+    """Write the indices of the blocks in block rows ``first .. last - 1``."""
+    nbx = len(bcols) - 1
+    row_base = h * w
+    col_base = row_base + len(brows) * w
+    for bi in range(first, last):
+        r0 = brows[bi]
+        rlen = brows[bi + 1] - r0
+        nr = _sampled(rlen, s)
+        for bj in range(nbx):
+            c0 = bcols[bj]
+            clen = bcols[bj + 1] - c0
+            nc = _sampled(clen, s)
+            o = offsets[bi * nbx + bj]
+            for i in range(nr - 1):
+                ra = r0 + _sample(i, rlen, s)
+                rb = r0 + _sample(i + 1, rlen, s)
+                for j in range(nc - 1):
+                    ca = c0 + _sample(j, clen, s)
+                    cb = c0 + _sample(j + 1, clen, s)
+                    a, b = ra * w + ca, ra * w + cb
+                    c, d = rb * w + ca, rb * w + cb
+                    out[o] = a
+                    out[o + 1] = c
+                    out[o + 2] = b
+                    out[o + 3] = b
+                    out[o + 4] = c
+                    out[o + 5] = d
+                    o += 6
+            # skirts: top, bottom (along the columns), left, right (along the rows)
+            for edge in range(4):
+                along = nc if edge < 2 else nr
+                for k in range(along - 1):
+                    if edge < 2:
+                        line = r0 + (0 if edge == 0 else rlen)
+                        p0, p1 = c0 + _sample(k, clen, s), c0 + _sample(k + 1, clen, s)
+                        e0, e1 = line * w + p0, line * w + p1
+                        low = row_base + (bi + edge) * w
+                        l0, l1 = low + p0, low + p1
+                    else:
+                        line = c0 + (0 if edge == 2 else clen)
+                        p0, p1 = r0 + _sample(k, rlen, s), r0 + _sample(k + 1, rlen, s)
+                        e0, e1 = p0 * w + line, p1 * w + line
+                        low = col_base + (bj + edge - 2) * h
+                        l0, l1 = low + p0, low + p1
+                    out[o] = e0
+                    out[o + 1] = e1
+                    out[o + 2] = l1
+                    out[o + 3] = e0
+                    out[o + 4] = l1
+                    out[o + 5] = l0
+                    o += 6
+
+
+def block_indices(h: int, w: int, s: int, brows: np.ndarray, bcols: np.ndarray):
+    """Index buffer of a layer of (h, w) vertices at level s, with every block's range.
+
+    Blocks in row-major order, each its cells' two triangles (a, c, b), (b, c, d) row by
+    row, then the skirts of its top, bottom, left and right edges; the skirt vertices
+    follow the layer's main vertices (rows of block-boundary lines ``brows``, then columns
+    ``bcols``).
+
+    Returns
+    -------
+    indices : (n,) uint32
+    offsets, counts : (n_blocks,) int64
+        Each block's first index and number of indices.
+    """
+    brows = np.ascontiguousarray(brows, dtype=np.int64)
+    bcols = np.ascontiguousarray(bcols, dtype=np.int64)
+    nr = np.array([_sampled(int(n), s) for n in np.diff(brows)], dtype=np.int64)
+    nc = np.array([_sampled(int(n), s) for n in np.diff(bcols)], dtype=np.int64)
+    per = (6 * (nr[:, None] - 1) * (nc[None, :] - 1) + 12 * (nc[None, :] - 1)
+           + 12 * (nr[:, None] - 1)).ravel()
+    offsets = np.zeros(per.size, dtype=np.int64)
+    if per.size:
+        offsets[1:] = np.cumsum(per)[:-1]
+    out = np.empty(int(per.sum()), dtype=np.uint32)
+    run_blocks(_index_rows, len(brows) - 1, out, offsets, brows, bcols, int(h), int(w),
+               int(s))
+    return out, offsets, per.astype(np.int64)

@@ -122,7 +122,7 @@ from render.scene import (
     ortho_light,
     render_shadow_map,
 )
-from render.terrain_buffers import fade_in, layer_buffers, morph_targets
+from render.terrain_buffers import block_indices, fade_in, layer_buffers, morph_targets
 from terrain.core import metakeys as mk
 from terrain.core.errors import InvalidParameterError
 
@@ -923,9 +923,8 @@ def _block_extremes(z: np.ndarray, brows: np.ndarray, bcols: np.ndarray):
 def _block_indices(h: int, w: int, s: int):
     """Index buffer of a layer of (h, w) vertices at level s, with every block's range.
 
-    Blocks in row-major order, each its cells' two triangles (a, c, b), (b, c, d) row by
-    row, then the skirts of its top, bottom, left and right edges; the skirt vertices
-    follow the layer's main vertices (rows of block-boundary lines, then columns).
+    Blocks of :data:`BLOCK` cells (:func:`render.terrain_buffers.block_indices`: each
+    block's cells' two triangles, then its skirts).
 
     Returns
     -------
@@ -933,57 +932,7 @@ def _block_indices(h: int, w: int, s: int):
     offsets, counts : (n_blocks,) int64
         Each block's first index and number of indices.
     """
-    brows = _samples(0, h - 1, BLOCK)
-    bcols = _samples(0, w - 1, BLOCK)
-    nby, nbx = len(brows) - 1, len(bcols) - 1
-    row_base = h * w
-    col_base = row_base + len(brows) * w
-    rel_r = [_samples(0, int(brows[i + 1] - brows[i]), s) for i in range(nby)]
-    rel_c = [_samples(0, int(bcols[j + 1] - bcols[j]), s) for j in range(nbx)]
-    nr = np.array([len(r) for r in rel_r], dtype=np.int64)
-    nc = np.array([len(c) for c in rel_c], dtype=np.int64)
-    per = (6 * (nr[:, None] - 1) * (nc[None, :] - 1) + 12 * (nc[None, :] - 1)
-           + 12 * (nr[:, None] - 1)).ravel()
-    offsets = np.zeros(nby * nbx, dtype=np.int64)
-    if per.size:
-        offsets[1:] = np.cumsum(per)[:-1]
-    out = np.empty(int(per.sum()), dtype=np.int64)
-    # blocks whose rows (columns) are sampled alike, at most two kinds per axis: one go each
-    kinds_r: dict = {}
-    for i, r in enumerate(rel_r):
-        kinds_r.setdefault(tuple(r), []).append(i)
-    kinds_c: dict = {}
-    for j, c in enumerate(rel_c):
-        kinds_c.setdefault(tuple(c), []).append(j)
-    for rr, bis in kinds_r.items():
-        for cc, bjs in kinds_c.items():
-            bi = np.array(bis)[:, None, None]
-            bj = np.array(bjs)[None, :, None]
-            rs = brows[bi] + np.array(rr)        # (nbi, 1, nr)
-            cs = bcols[bj] + np.array(cc)        # (1, nbj, nc)
-            grid = rs[..., :, None] * w + cs[..., None, :]  # (nbi, nbj, nr, nc)
-            a = grid[..., :-1, :-1]
-            b = grid[..., :-1, 1:]
-            c = grid[..., 1:, :-1]
-            d = grid[..., 1:, 1:]
-            shape = grid.shape[:2]
-            parts = [np.stack(np.broadcast_arrays(a, c, b, b, c, d), axis=-1)
-                     .reshape(*shape, -1)]
-            edges = (
-                (grid[..., 0, :], row_base + bi * w + cs),
-                (grid[..., -1, :], row_base + (bi + 1) * w + cs),
-                (grid[..., :, 0], col_base + bj * h + rs),
-                (grid[..., :, -1], col_base + (bj + 1) * h + rs),
-            )
-            for edge, low in edges:
-                edge, low = np.broadcast_arrays(edge, low)
-                e0, e1, l0, l1 = edge[..., :-1], edge[..., 1:], low[..., :-1], low[..., 1:]
-                parts.append(np.stack([e0, e1, l1, e0, l1, l0], axis=-1).reshape(*shape, -1))
-            tri = np.concatenate(parts, axis=-1)  # (nbi, nbj, count)
-            blocks = (bi[..., 0] * nbx + bj[..., 0]).ravel()
-            where = offsets[blocks][:, None] + np.arange(tri.shape[-1])
-            out[where] = tri.reshape(len(blocks), -1)
-    return out.astype(np.uint32), offsets, per.astype(np.int64)
+    return block_indices(h, w, s, _samples(0, h - 1, BLOCK), _samples(0, w - 1, BLOCK))
 
 
 def _levels_1d(n: int) -> np.ndarray:
