@@ -540,10 +540,9 @@ class ClassSettings(NamedTuple):
 #: craters that reach it, writing its own rows only.
 BAND_ROWS = 32
 #: Most patch values (float64) prepared at once: the class's craters are composed in groups
-#: whose roughness patches together stay under this (16 MiB). Each group costs two calls per
-#: part of :func:`terrain.core.parallel.run_blocks`; about 48 groups on the 4097^2 tile with
-#: 100,000 craters (95 at 8 MiB).
-PATCH_BUDGET = 1 << 21
+#: whose roughness patches together stay under this (8 MiB, to be read back from cache; at
+#: 16 MiB the smallest craters' stamps read them back more slowly on a loaded machine).
+PATCH_BUDGET = 1 << 20
 
 
 @numba.njit(cache=True)
