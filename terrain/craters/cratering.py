@@ -221,6 +221,28 @@ def _laplacian(T, tr0, tc0, nrows, ncols, x0, y0, res, x, y):
 
 
 @numba.njit(cache=True)
+def _ring_directions(rings):
+    """(cos, sin) of the azimuth of each point of the plane-fit pattern's rings 0 .. rings.
+
+    Ring k (8k points, 1 at the centre) starts at row 1 + 4 k (k - 1); every crater's fit
+    reads its directions here instead of evaluating them again (the same values, bitwise).
+    """
+    out = np.empty((1 + 4 * rings * (rings + 1), 2))
+    for k in range(rings + 1):
+        count = 1 if k == 0 else 8 * k
+        start = 0 if k == 0 else 1 + 4 * k * (k - 1)
+        for m in range(count):
+            ang = 2.0 * math.pi * (m + 0.5 * (k % 2)) / count
+            out[start + m, 0] = math.cos(ang)
+            out[start + m, 1] = math.sin(ang)
+    return out
+
+
+#: :func:`_ring_directions` of the largest pattern (numba reads it as a constant).
+RING_DIRECTIONS = _ring_directions(PLANE_RINGS_MAX)
+
+
+@numba.njit(cache=True)
 def fit_plane(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, radius):
     """Least-squares plane z = p0 + px dx + py dy over a symmetric polar pattern in the bowl.
 
@@ -267,11 +289,11 @@ def fit_plane(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, radius):
     spix = 0.0
     for k in range(rings + 1):
         count = 1 if k == 0 else 8 * k
+        start = 0 if k == 0 else 1 + 4 * k * (k - 1)
         rk = radius * k / rings
         for m in range(count):
-            ang = 2.0 * math.pi * (m + 0.5 * (k % 2)) / count
-            dx = rk * math.cos(ang)
-            dy = rk * math.sin(ang)
+            dx = rk * RING_DIRECTIONS[start + m, 0]
+            dy = rk * RING_DIRECTIONS[start + m, 1]
             lap = _laplacian(T, tr0, tc0, nrows, ncols, x0, y0, res, cx + dx, cy + dy)
             if not math.isnan(lap):
                 npix += 1.0
@@ -405,14 +427,17 @@ def class_planes(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, diam):
         Per crater: p0, px, py, samples, RMS, pixel roughness.
     """
     out = np.empty((cx.size, 6))
-    _planes_range(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, diam, out, 0, cx.size)
+    _planes_range(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, diam,
+                  np.arange(cx.size), out, 0, cx.size)
     return out
 
 
 @numba.njit(cache=True, nogil=True)
-def _planes_range(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, diam, out, first, last):
-    """Fill rows ``first .. last - 1`` of :func:`class_planes`' result ``out``."""
-    for n in range(first, last):
+def _planes_range(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, diam, order, out, first,
+                  last):
+    """Fill the rows ``order[first .. last - 1]`` of :func:`class_planes`' result ``out``."""
+    for t in range(first, last):
+        n = order[t]
         p0, px, py, nvalid, rms, pix = fit_plane(T, tr0, tc0, nrows, ncols, x0, y0, res,
                                                   cx[n], cy[n], 0.5 * diam[n])
         out[n, 0] = p0
@@ -431,9 +456,11 @@ def _class_planes_parallel(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, diam)
     """:func:`class_planes` on every core (each crater's fit is its own: the same bytes)."""
     out = np.empty((cx.size, 6))
     blocks = (cx.size + PLANE_BLOCK - 1) // PLANE_BLOCK
+    # fitted from north to south, so that neighbouring fits read terrain rows still in cache
+    order = np.argsort(-cy, kind="stable")
 
     def kernel(first_block, last_block):
-        _planes_range(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, diam, out,
+        _planes_range(T, tr0, tc0, nrows, ncols, x0, y0, res, cx, cy, diam, order, out,
                       first_block * PLANE_BLOCK, min(cx.size, last_block * PLANE_BLOCK))
 
     run_blocks(kernel, blocks)
@@ -513,7 +540,8 @@ class ClassSettings(NamedTuple):
 #: craters that reach it, writing its own rows only.
 BAND_ROWS = 32
 #: Most patch values (float64) prepared at once: the class's craters are composed in groups
-#: whose roughness patches together stay under this (8 MiB, to be read back from cache).
+#: whose roughness patches together stay under this (8 MiB, to be read back from cache; at
+#: 16 MiB the smallest craters' stamps read them back more slowly on a loaded machine).
 PATCH_BUDGET = 1 << 20
 
 
@@ -554,9 +582,11 @@ def _apply_class(T, tr0, tc0, out, or0, oc0, nrows, ncols, x0, y0, res,
         tables = np.zeros((last - first, RIM_SAMPLES))
         rim_tables = np.zeros((last - first, RIM_TERRAIN_SAMPLES))
         n_azimuths = np.zeros(last - first, dtype=np.int64)
+        # prepared from north to south, so that neighbours read terrain rows still in cache
+        order = np.argsort(-craters.y[first:last], kind="stable")
         run_blocks(_prepare_craters, last - first, T, tr0, tc0, nrows, ncols, x0, y0, res,
-                   craters, settings, first, tables, rim_tables, n_azimuths, patches, offsets,
-                   or0, or0 + out.shape[0] - 1, oc0, oc0 + out.shape[1] - 1)
+                   craters, settings, first, order, tables, rim_tables, n_azimuths, patches,
+                   offsets, or0, or0 + out.shape[0] - 1, oc0, oc0 + out.shape[1] - 1)
         run_blocks(_stamp_bands, bands, T, tr0, tc0, out, or0, oc0, x0, y0, res, craters,
                    settings, first, last, size, reach_rows, tables, rim_tables, n_azimuths,
                    patches, offsets)
@@ -583,11 +613,12 @@ def _class_extents(craters, settings, y0, res):
 
 
 @numba.njit(cache=True, nogil=True)
-def _prepare_craters(T, tr0, tc0, nrows, ncols, x0, y0, res, craters, settings, first, tables,
-                     rim_tables, n_azimuths, patches, offsets, or0, or1, oc0, oc1, m_first,
-                     m_last):
-    """Prepare the group's craters ``first + m_first .. first + m_last - 1``."""
-    for m in range(m_first, m_last):
+def _prepare_craters(T, tr0, tc0, nrows, ncols, x0, y0, res, craters, settings, first, order,
+                     tables, rim_tables, n_azimuths, patches, offsets, or0, or1, oc0, oc1,
+                     m_first, m_last):
+    """Prepare the group's craters ``first + order[m_first .. m_last - 1]``."""
+    for t in range(m_first, m_last):
+        m = order[t]
         _prepare_crater(T, tr0, tc0, nrows, ncols, x0, y0, res, craters, settings, first + m,
                         tables[m], rim_tables[m], n_azimuths[m:m + 1],
                         patches[offsets[m]:offsets[m + 1]], or0, or1, oc0, oc1)

@@ -171,9 +171,9 @@ def rim_table(seed, uid, amplitude, hurst, out):
     while step > 1:
         half = step // 2
         sigma *= 0.5**hurst
+        key = key_prefix(seed, STREAM_RIM, level, uid)  # normal_scalar's key, once a level
         for i in range(half, n, step):
-            work[i] = 0.5 * (work[i - half] + work[i + half]) + sigma * normal_scalar(
-                seed, STREAM_RIM, level, i, 0, uid)
+            work[i] = 0.5 * (work[i - half] + work[i + half]) + sigma * normal_at(key, i, 0)
         step = half
         level += 1
     for i in range(n):
@@ -239,8 +239,13 @@ def smooth_periodic(values, passes):
     n = values.size
     tmp = np.empty(n)
     for _ in range(passes):
+        # the neighbours wrap by index, not by ``%``: an integer division per value cost
+        # more than the filter itself
+        prev = n - 1
         for i in range(n):
-            tmp[i] = 0.25 * values[(i - 1) % n] + 0.5 * values[i] + 0.25 * values[(i + 1) % n]
+            nxt = i + 1 if i + 1 < n else 0
+            tmp[i] = 0.25 * values[prev] + 0.5 * values[i] + 0.25 * values[nxt]
+            prev = i
         values[:] = tmp
 
 
