@@ -169,7 +169,8 @@ def sampling_stride(shape: tuple[int, ...], pixels: int = SAMPLED_PIXELS) -> int
 
 def pair_residual(image0, image1, range0, range1, truth0, truth1, *, normals0=None,
                   normals1=None, sensor: dict | None = None, edge_px: int = 2,
-                  occlusion_tolerance: float = 0.002, stride: int = 1) -> PairResidual:
+                  occlusion_tolerance: float = 0.002, stride: int = 1,
+                  contours0=None, contours1=None) -> PairResidual:
     """Photometric residual of frame t+1 warped into frame t through the truth.
 
     Parameters
@@ -194,6 +195,9 @@ def pair_residual(image0, image1, range0, range1, truth0, truth1, *, normals0=No
         residual and mask are then that grid's, ``(ceil(h / stride), ceil(w / stride))``,
         and the tiles of ``worst_tile_dn`` keep their side in frame t's pixels. Frame t+1
         is sampled at full resolution either way.
+    contours0, contours1 : (h, w) bool, optional
+        ``near_contours(range0, edge_px)`` and ``near_contours(range1, edge_px)`` where the
+        caller has them (a run's frames are each in two pairs); computed here otherwise.
 
     Returns
     -------
@@ -223,9 +227,13 @@ def pair_residual(image0, image1, range0, range1, truth0, truth1, *, normals0=No
                       cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0)
     with np.errstate(invalid="ignore"):
         visible = inside & (r1_at > 0) & (np.abs(r1_at - seen) <= occlusion_tolerance * seen)
-    edges1 = cv2.remap(near_contours(range1, edge_px).astype(np.uint8), map_u, map_v,
+    if contours0 is None:
+        contours0 = near_contours(range0, edge_px)
+    if contours1 is None:
+        contours1 = near_contours(range1, edge_px)
+    edges1 = cv2.remap(contours1.astype(np.uint8), map_u, map_v,
                        cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=1) > 0
-    mask = visible & ~near_contours(range0, edge_px)[::s, ::s] & ~edges1
+    mask = visible & ~contours0[::s, ::s] & ~edges1
     i0 = i0[::s, ::s]
     warped = cv2.remap(i1, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     # lit in both
@@ -492,12 +500,15 @@ def consistency(run, *, edge_px: int = 2, occlusion_tolerance: float = 0.002,
     # the next frame is read (and decompressed, without the GIL) while a pair is measured
     ahead = read_ahead(load, len(run))
     image0, range0, normals0 = next(ahead)
+    contours0 = near_contours(range0, edge_px)  # each frame's once, for both its pairs
     for k, (image1, range1, normals1) in enumerate(ahead):
+        contours1 = near_contours(range1, edge_px)
         frames.append(_pair_record(k, pair_residual(
             image0, image1, range0, range1, run.truth[k], run.truth[k + 1],
             normals0=normals0, normals1=normals1, sensor=sensor, edge_px=edge_px,
-            occlusion_tolerance=occlusion_tolerance, stride=stride), layer, lod))
-        image0, range0, normals0 = image1, range1, normals1
+            occlusion_tolerance=occlusion_tolerance, stride=stride, contours0=contours0,
+            contours1=contours1), layer, lod))
+        image0, range0, normals0, contours0 = image1, range1, normals1, contours1
         if progress is not None:
             progress(k + 1, len(run) - 1)
     result = Consistency(str(run.dir), frames,

@@ -201,11 +201,6 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.degrees(np.arctan2(cross, dot))
 
 
-@numba.njit(cache=True)
-def _cell_keys(cells, n_side):  # pragma: no cover - compiled
-    return (cells[:, 0] * n_side + cells[:, 1]) * n_side + cells[:, 2]
-
-
 @numba.njit(cache=True, parallel=True)
 def _cap_sums(units, weights, values, order, keys_sorted, starts, ends, cells, n_side,
               chord2, out_values, out_weights):  # pragma: no cover - compiled
@@ -286,7 +281,7 @@ def cap_average(directions, values, weights, radius_deg: float) -> np.ndarray:
     chord = 2.0 * math.sin(math.radians(radius_deg) / 2.0)
     n_side = max(1, int(math.ceil(2.0 / chord)) + 1)
     cells = np.minimum(np.floor((units + 1.0) / chord).astype(np.int64), n_side - 1)
-    keys = _cell_keys(cells, n_side)
+    keys = (cells[:, 0] * n_side + cells[:, 1]) * n_side + cells[:, 2]
     order = np.argsort(keys, kind="stable")
     keys_sorted, starts = np.unique(keys[order], return_index=True)
     ends = np.append(starts[1:], n)

@@ -453,8 +453,14 @@ def _array_jsonable(a: np.ndarray):
     """Return an array as :func:`jsonable` does, converting it at once where it can."""
     if a.dtype.kind in "iub":  # integers and booleans: tolist gives Python int and bool
         return a.tolist()
-    if a.dtype.kind == "f" and bool(np.isfinite(a).all()):
-        return a.tolist()  # Python floats, none of them NaN or infinite
+    if a.dtype.kind == "f":
+        finite = np.isfinite(a)
+        if bool(finite.all()):
+            return a.tolist()  # Python floats, none of them NaN or infinite
+        # an object array holds Python floats; the NaN and infinities become None in place
+        plain = a.astype(object)
+        plain[~finite] = None
+        return plain.tolist()
     return jsonable(a.tolist())
 
 

@@ -97,8 +97,8 @@ from terrain.core import memory
 from terrain.core.errors import InvalidParameterError
 
 __all__ = ["ScoredTracks", "TrackerSettings", "Tracks", "ideal_one_step", "ideal_one_steps",
-           "load_run", "read_ahead", "save_tracks", "score", "track", "truth_round_trip",
-           "truth_warped_frame"]
+           "load_run", "median_by_age", "read_ahead", "save_tracks", "score", "track",
+           "truth_round_trip", "truth_warped_frame"]
 
 log = logging.getLogger(__name__)
 
@@ -621,6 +621,38 @@ def _near_silhouette(range_m: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return near[rows, cols]
 
 
+def median_by_age(values: np.ndarray, age: np.ndarray) -> list:
+    """Return ``[age, median, count]`` of the finite values of each track age from 1 up.
+
+    Parameters
+    ----------
+    values : (n_tracks, n_frames) float64
+        NaN where there is nothing.
+    age : (n_tracks, n_frames) int
+        Frames since each track started.
+
+    Returns
+    -------
+    list of [int, float, int]
+        One row per age that has a finite value, ages in increasing order.
+
+    Examples
+    --------
+    >>> median_by_age(np.array([[np.nan, 1.0, 3.0], [np.nan, 2.0, np.nan]]),
+    ...               np.array([[0, 1, 2], [0, 1, 2]]))
+    [[1, 1.5, 2], [2, 3.0, 1]]
+    """
+    ok = np.isfinite(values) & (age >= 1)
+    ages = age[ok]
+    vals = values[ok]
+    # grouped by one stable sort; a median does not depend on the order of its values
+    order = np.argsort(ages, kind="stable")
+    ages, vals = ages[order], vals[order]
+    found, starts, counts = np.unique(ages, return_index=True, return_counts=True)
+    return [[int(a), float(np.median(vals[i:i + n])), int(n)]
+            for a, i, n in zip(found, starts, counts, strict=True)]
+
+
 @dataclass(frozen=True, eq=False)
 class ScoredTracks:
     """Tracks with their error against the truth (see :func:`score`).
@@ -679,13 +711,8 @@ class ScoredTracks:
                    max_px=float(e.max()), outlier_fraction=float((e > self.outlier_px).mean()))
         for q in ERROR_QUANTILES[1:]:
             out[f"p{round(q * 100):d}_px"] = float(np.quantile(e, q))
-        by_age = []
         age = np.arange(self.tracks.n_frames)[None, :] - self.tracks.start[:, None]
-        for a in range(1, int(age.max()) + 1 if age.size else 1):
-            sel = np.isfinite(self.errors) & (age == a)
-            if sel.any():
-                by_age.append([a, float(np.median(self.errors[sel])), int(sel.sum())])
-        out["median_px_by_track_age"] = by_age
+        out["median_px_by_track_age"] = median_by_age(self.errors, age)
         if self.one_step is not None:
             one = self.one_step[np.isfinite(self.one_step)]
             out["one_step"] = dict(
@@ -695,12 +722,7 @@ class ScoredTracks:
                 p90_px=float(np.quantile(one, 0.9)) if one.size else None,
                 outlier_fraction=(float((one > self.outlier_px).mean()) if one.size
                                   else None))
-            by_age = []
-            for a in range(1, int(age.max()) + 1 if age.size else 1):
-                sel = np.isfinite(self.one_step) & (age == a)
-                if sel.any():
-                    by_age.append([a, float(np.median(self.one_step[sel])), int(sel.sum())])
-            out["one_step_median_px_by_track_age"] = by_age
+            out["one_step_median_px_by_track_age"] = median_by_age(self.one_step, age)
             if self.silhouette is not None:
                 surface = self.one_step[~self.silhouette]
                 surface = surface[np.isfinite(surface)]

@@ -13,6 +13,7 @@ from evaluation.report import (
     Report,
     asteroid_section,
     dem_section,
+    jsonable,
     load_thresholds,
     render_html,
     thresholds_toml,
@@ -183,3 +184,25 @@ def test_report_json_has_no_nan(tmp_path):
     assert doc["sections"][0]["data"]["odd"] == [None, None, 1.0]
     with pytest.raises(InvalidParameterError, match=r"\.html"):
         write_report(Report("x", [section], DEFAULT_THRESHOLDS), tmp_path / "r.json")
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("shape", [(), (7,), (5, 4), (3, 2, 6)])
+def test_jsonable_float_arrays_match_element_by_element(dtype, shape):
+    # every element, on its own: a finite value as the Python float of its dtype, else None
+    rng = np.random.default_rng(7)
+    a = rng.normal(size=shape).astype(dtype)
+    flat = a.reshape(-1)
+    flat[::3] = np.nan
+    flat[1::5] = np.inf
+    flat[2::7] = -np.inf
+
+    def reference(x):
+        if isinstance(x, list):
+            return [reference(y) for y in x]
+        return x if np.isfinite(x) else None
+
+    out = jsonable({"a": a})["a"]
+    assert out == reference(a.tolist())
+    assert json.dumps(out) == json.dumps(reference(a.tolist()))
+    assert "NaN" not in json.dumps(out) and "Infinity" not in json.dumps(out)

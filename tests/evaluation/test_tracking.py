@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from evaluation.tracking import TrackerSettings, score, track
+from evaluation.tracking import TrackerSettings, median_by_age, score, track
 from render.camera import Pose, quat_from_matrix, quat_to_matrix
 from render.rundir import RunReader
 from terrain.core.errors import InvalidParameterError, MissingInputError
@@ -395,3 +395,21 @@ ground_track = [300.0, 100.0]
     print(f"GL-rendered descent: median {s['median_px']:.3f} px, outliers "
           f"{s['outlier_fraction']:.4f}, {s['observations']} observations")
     assert s["median_px"] <= MEDIAN_ERROR_PX and s["outlier_fraction"] < 0.02
+
+
+def test_median_by_age_is_each_age_group_median():
+    # tracks starting at different frames, with gaps: each age's median and count, taken
+    # one age at a time over the whole array
+    rng = np.random.default_rng(3)
+    n_tracks, n_frames = 40, 25
+    start = rng.integers(0, n_frames, n_tracks)
+    age = np.arange(n_frames)[None, :] - start[:, None]
+    values = np.where(age >= 1, rng.exponential(0.2, (n_tracks, n_frames)), np.nan)
+    values[rng.random(values.shape) < 0.3] = np.nan
+    expected = []
+    for a in range(1, int(age.max()) + 1):
+        sel = np.isfinite(values) & (age == a)
+        if sel.any():
+            expected.append([a, float(np.median(values[sel])), int(sel.sum())])
+    assert median_by_age(values, age) == expected
+    assert median_by_age(np.full((3, 4), np.nan), np.ones((3, 4), int)) == []
