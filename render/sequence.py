@@ -14,6 +14,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
@@ -44,15 +45,20 @@ SHADOW_BYTES_PER_TEXEL = 8
 #: Peak bytes per sample of an antialiased frame (``RenderOptions.antialias``), on top: the
 #: attachments, depth and read-backs at the sample resolution.
 SAMPLE_BYTES_PER_PIXEL = 56
+#: Bytes per image pixel of the frame a sequence writes while it renders the next one
+#: (:func:`run_sequence`): its image, range, normals, radiance and body ids.
+WRITE_BEHIND_BYTES_PER_PIXEL = 24
 
 
-def check_frame_memory(scenario: Scenario) -> None:
+def check_frame_memory(scenario: Scenario, *, write_behind: bool = False) -> None:
     """Refuse a frame size whose buffers would not fit in memory, before any allocation.
 
     Parameters
     ----------
     scenario : render.scenario.Scenario
         Its image size and shadow-map size are checked.
+    write_behind : bool
+        Also the outputs of the previous frame, written meanwhile (:func:`run_sequence`).
 
     Raises
     ------
@@ -64,7 +70,8 @@ def check_frame_memory(scenario: Scenario) -> None:
     shadow = scenario.options.shadow_size if scenario.options.shadows else 0
     a = scenario.options.antialias
     samples = k.width * k.height * a * a * SAMPLE_BYTES_PER_PIXEL if a > 1 else 0
-    memory.require(k.width * k.height * FRAME_BYTES_PER_PIXEL + samples
+    behind = k.width * k.height * WRITE_BEHIND_BYTES_PER_PIXEL if write_behind else 0
+    memory.require(k.width * k.height * FRAME_BYTES_PER_PIXEL + samples + behind
                    + shadow * shadow * SHADOW_BYTES_PER_TEXEL,
                    f"rendering {k.width}x{k.height} frames" + (f" ({a}x{a} samples a pixel)"
                                                                if a > 1 else ""))
@@ -284,7 +291,7 @@ def run_sequence(scenario: Scenario, run_dir: str | Path, *, resume: bool = Fals
         The run's manifest (also written to ``manifest.json``).
     """
     run_dir = Path(run_dir)
-    check_frame_memory(scenario)
+    check_frame_memory(scenario, write_behind=True)
     RunWriter.check(run_dir, resume=resume)
     renderer = Renderer() if renderer is None else renderer
     scene = load_scene(scenario) if scene is None else scene
@@ -321,28 +328,40 @@ def run_sequence(scenario: Scenario, run_dir: str | Path, *, resume: bool = Fals
     t0 = time.perf_counter()
     rendered = 0
     control = ExposureControl(scenario.sensor)
-    for i, sample in enumerate(samples):
-        if i in done:
-            pending = None
-            continue
-        before = writer.exposure_before(i)  # resuming: the loop goes on where it stopped
-        if before is not None:
-            control.value = before.get("exposure_time", before.get("exposure"))
-        image, frame, truth = render_sample(renderer, scene, scenario, sample, i, samples,
-                                            exposure=control)
-        writer.write_frame(truth, image,
-                           frame.range if scenario.outputs["range"] else None,
-                           frame.normals if scenario.outputs["normals"] else None,
-                           scenario.lighting_at(sample.time, scene).radiance(frame.radiance)
-                           if scenario.outputs.get("radiance") else None,
-                           body_ids=frame.body_ids if scenario.outputs.get("body_ids", True)
-                           else None)
-        if labeller is not None:
-            pending = _label_frame(writer, labeller, scenario, frame, truth, pending)
-        rendered += 1
-        if progress is not None:
-            progress(i + 1, len(samples),
-                     f"{rendered / max(time.perf_counter() - t0, 1e-9):.2f} frame/s")
+    # A frame's files are encoded and written on a thread while the next frame renders
+    # (compression, PNG encoding and fsync release the GIL); one write at a time, in frame
+    # order, so the truth file still lists exactly the frames whose files are complete.
+    # Labels read and extend the truth entries: a labelled frame waits for its write.
+    # Leaving the pool waits for the frame being written, also when an error ends the loop.
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="run-writer") as behind:
+        writing: Future | None = None
+        for i, sample in enumerate(samples):
+            if i in done:
+                pending = None
+                continue
+            before = writer.exposure_before(i)  # resuming: the loop goes on where it stopped
+            if before is not None:
+                control.value = before.get("exposure_time", before.get("exposure"))
+            image, frame, truth = render_sample(renderer, scene, scenario, sample, i, samples,
+                                                exposure=control)
+            radiance = (scenario.lighting_at(sample.time, scene).radiance(frame.radiance)
+                        if scenario.outputs.get("radiance") else None)
+            if writing is not None:
+                writing.result()  # raises what the previous frame's write raised
+            writing = behind.submit(
+                writer.write_frame, truth, image,
+                frame.range if scenario.outputs["range"] else None,
+                frame.normals if scenario.outputs["normals"] else None, radiance,
+                body_ids=frame.body_ids if scenario.outputs.get("body_ids", True) else None)
+            if labeller is not None:
+                writing.result()
+                pending = _label_frame(writer, labeller, scenario, frame, truth, pending)
+            rendered += 1
+            if progress is not None:
+                progress(i + 1, len(samples),
+                         f"{rendered / max(time.perf_counter() - t0, 1e-9):.2f} frame/s")
+        if writing is not None:
+            writing.result()
     elapsed = time.perf_counter() - t0
     facts: dict = {}
     if scenario.events is not None:
