@@ -32,7 +32,8 @@ from terrain.core.errors import InvalidParameterError
 from terrain.core.progress import Progress
 from terrain.io import write_png
 
-__all__ = ["check_frame_memory", "frame_motion", "load_scene", "render_sample", "run_sequence"]
+__all__ = ["check_frame_memory", "expose_sample", "frame_motion", "load_scene",
+           "render_sample", "run_sequence", "shoot_sample"]
 
 log = logging.getLogger(__name__)
 
@@ -191,6 +192,33 @@ def render_sample(renderer: Renderer, scene: Scene, scenario: Scenario, sample: 
     truth : render.rundir.FrameTruth
         The frame's truth entry.
     """
+    if exposure is None:
+        exposure = ExposureControl(scenario.sensor)
+    frame, truth, irradiance = shoot_sample(renderer, scene, scenario, sample, index, samples,
+                                            motion=motion, exposure=exposure)
+    image, truth = expose_sample(exposure, frame, truth, irradiance)
+    return image, frame, truth
+
+
+def shoot_sample(renderer: Renderer, scene: Scene, scenario: Scenario, sample: Sample,
+                 index: int, samples: Sequence[Sample] | None = None, *,
+                 motion: Motion | None = None,
+                 exposure: ExposureControl | None = None) -> tuple[Frame, FrameTruth, float]:
+    """Render one trajectory sample, before the sensor exposes it (:func:`render_sample`).
+
+    Parameters are those of :func:`render_sample`; ``exposure`` is only read here (the
+    exposure a blurred frame integrates). Without motion blur or a rolling shutter the frame
+    does not depend on it, so a sequence exposes a frame while it renders the next.
+
+    Returns
+    -------
+    frame : render.renderer.Frame
+        Radiance (the I/F the sensor integrates), range and normals at the frame time.
+    truth : render.rundir.FrameTruth
+        The frame's truth entry, without exposure (:func:`expose_sample` adds it).
+    spectral_irradiance : float
+        The sun's at the frame time (W m^-2 nm^-1), for :func:`expose_sample`.
+    """
     view = View(sample.pose, scenario.intrinsics, sample.time)
     if motion is None:
         motion = frame_motion(scenario, samples, index)
@@ -228,8 +256,6 @@ def render_sample(renderer: Renderer, scene: Scene, scenario: Scenario, sample: 
         frame.radiance = radiance
         frame.drawn = dict(frame.drawn, stars=dict(stars, world_to_icrf=rotation.tolist(),
                                                    et=et))
-    image, record = exposure.expose(frame.radiance, index, intrinsics=scenario.intrinsics,
-                                    spectral_irradiance=lighting.spectral_irradiance)
     from render.binary_scene import BinaryScene
 
     bodies = None
@@ -238,9 +264,35 @@ def render_sample(renderer: Renderer, scene: Scene, scenario: Scenario, sample: 
         bodies = scene.bodies_truth(sample.time)
     truth = FrameTruth(index, sample.time, sample.pose, scenario.intrinsics,
                        lighting.sun, tuple(sample.body_rotation), frame.drawn, motion=moving,
-                       sky=None if sky is None else sky.as_dict(), exposure=record,
-                       bodies=bodies)
-    return image, frame, truth
+                       sky=None if sky is None else sky.as_dict(), bodies=bodies)
+    return frame, truth, lighting.spectral_irradiance
+
+
+def expose_sample(exposure: ExposureControl, frame: Frame, truth: FrameTruth,
+                  spectral_irradiance: float) -> tuple[np.ndarray, FrameTruth]:
+    """Expose a frame :func:`shoot_sample` rendered: its image, and its truth with exposure.
+
+    Parameters
+    ----------
+    exposure : render.sensor.ExposureControl
+        The sensor's auto-exposure loop (updated by this frame: frames are exposed in order).
+    frame : render.renderer.Frame
+        The frame (its radiance is the I/F the sensor integrates).
+    truth : render.rundir.FrameTruth
+        Its truth entry, without exposure.
+    spectral_irradiance : float
+        The sun's at the frame time (W m^-2 nm^-1).
+
+    Returns
+    -------
+    image : (h, w) uint8 or uint16
+        The digital image.
+    truth : render.rundir.FrameTruth
+        The frame's truth entry, with its exposure.
+    """
+    image, record = exposure.expose(frame.radiance, truth.index, intrinsics=truth.intrinsics,
+                                    spectral_irradiance=spectral_irradiance)
+    return image, replace(truth, exposure=record)
 
 
 def _label_frame(writer: RunWriter, labeller, scenario: Scenario, frame: Frame,
@@ -329,10 +381,25 @@ def run_sequence(scenario: Scenario, run_dir: str | Path, *, resume: bool = Fals
     rendered = 0
     control = ExposureControl(scenario.sensor)
     # A frame's files are encoded and written on a thread while the next frame renders
-    # (compression, PNG encoding and fsync release the GIL); one write at a time, in frame
+    # (compression, PNG encoding and fsync release the GIL); one frame at a time, in frame
     # order, so the truth file still lists exactly the frames whose files are complete.
+    # Where the next frame does not depend on this one's exposure (no motion blur, no rolling
+    # shutter: shoot_sample), the sensor exposes it there too; frames are exposed in order.
     # Labels read and extend the truth entries: a labelled frame waits for its write.
-    # Leaving the pool waits for the frame being written, also when an error ends the loop.
+    # Leaving the pool waits for the frame in flight, also when an error ends the loop.
+    behind_exposure = (frame_motion(scenario, samples, 0) is None
+                       and not scenario.sensor.rolling and labeller is None)
+
+    def develop(frame: Frame, truth: FrameTruth, irradiance: float, radiance,
+                image: np.ndarray | None = None) -> None:
+        if image is None:
+            image, truth = expose_sample(control, frame, truth, irradiance)
+        writer.write_frame(truth, image,
+                           frame.range if scenario.outputs["range"] else None,
+                           frame.normals if scenario.outputs["normals"] else None, radiance,
+                           body_ids=frame.body_ids if scenario.outputs.get("body_ids", True)
+                           else None)
+
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="run-writer") as behind:
         writing: Future | None = None
         for i, sample in enumerate(samples):
@@ -341,18 +408,19 @@ def run_sequence(scenario: Scenario, run_dir: str | Path, *, resume: bool = Fals
                 continue
             before = writer.exposure_before(i)  # resuming: the loop goes on where it stopped
             if before is not None:
+                if writing is not None:
+                    writing.result()  # an earlier frame's exposure must not come after it
                 control.value = before.get("exposure_time", before.get("exposure"))
-            image, frame, truth = render_sample(renderer, scene, scenario, sample, i, samples,
-                                                exposure=control)
+            frame, truth, irradiance = shoot_sample(renderer, scene, scenario, sample, i,
+                                                    samples, exposure=control)
             radiance = (scenario.lighting_at(sample.time, scene).radiance(frame.radiance)
                         if scenario.outputs.get("radiance") else None)
             if writing is not None:
-                writing.result()  # raises what the previous frame's write raised
-            writing = behind.submit(
-                writer.write_frame, truth, image,
-                frame.range if scenario.outputs["range"] else None,
-                frame.normals if scenario.outputs["normals"] else None, radiance,
-                body_ids=frame.body_ids if scenario.outputs.get("body_ids", True) else None)
+                writing.result()  # raises what the previous frame's raised
+            image = None
+            if not behind_exposure:
+                image, truth = expose_sample(control, frame, truth, irradiance)
+            writing = behind.submit(develop, frame, truth, irradiance, radiance, image)
             if labeller is not None:
                 writing.result()
                 pending = _label_frame(writer, labeller, scenario, frame, truth, pending)
