@@ -560,19 +560,32 @@ def _poisson_inverse(u: np.ndarray, lam: np.ndarray) -> np.ndarray:
     """Return the smallest k with P(K <= k) >= u for Poisson means ``lam`` < 30.
 
     Inverse transform, summing the probability mass term by term; exact up to float64
-    rounding.
+    rounding. The values already found are dropped from the sums whenever they are half of
+    those left (every value's terms are summed in the same order either way).
     """
     p = np.exp(-lam)
     cdf = p.copy()
     k = np.zeros_like(lam)
     todo = u > cdf
+    at = np.flatnonzero(todo)  # where in k the values summed below go
+    u, lam, p, cdf = u[todo], lam[todo], p[todo], cdf[todo]
+    found = np.zeros_like(lam)  # terms each value has added: its k once found
+    todo = np.ones(at.size, dtype=bool)
+    left = at.size
     n = 0
-    while np.any(todo) and n < 200:
+    while left and n < 200:
         n += 1
-        p = p * lam / n
-        cdf = cdf + p
-        k[todo] = n
+        p *= lam
+        p /= n
+        cdf += p
+        found += todo
         todo &= u > cdf
+        left = int(np.count_nonzero(todo))
+        if left <= todo.size // 2:
+            k.flat[at] = found
+            at, u, lam, p, cdf, found = (a[todo] for a in (at, u, lam, p, cdf, found))
+            todo = np.ones(left, dtype=bool)
+    k.flat[at] = found
     return k
 
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
@@ -31,7 +32,8 @@ from terrain.core.errors import InvalidParameterError
 from terrain.core.progress import Progress
 from terrain.io import write_png
 
-__all__ = ["check_frame_memory", "frame_motion", "load_scene", "render_sample", "run_sequence"]
+__all__ = ["check_frame_memory", "expose_sample", "frame_motion", "load_scene",
+           "render_sample", "run_sequence", "shoot_sample"]
 
 log = logging.getLogger(__name__)
 
@@ -44,15 +46,20 @@ SHADOW_BYTES_PER_TEXEL = 8
 #: Peak bytes per sample of an antialiased frame (``RenderOptions.antialias``), on top: the
 #: attachments, depth and read-backs at the sample resolution.
 SAMPLE_BYTES_PER_PIXEL = 56
+#: Bytes per image pixel of the frame a sequence writes while it renders the next one
+#: (:func:`run_sequence`): its image, range, normals, radiance and body ids.
+WRITE_BEHIND_BYTES_PER_PIXEL = 24
 
 
-def check_frame_memory(scenario: Scenario) -> None:
+def check_frame_memory(scenario: Scenario, *, write_behind: bool = False) -> None:
     """Refuse a frame size whose buffers would not fit in memory, before any allocation.
 
     Parameters
     ----------
     scenario : render.scenario.Scenario
         Its image size and shadow-map size are checked.
+    write_behind : bool
+        Also the outputs of the previous frame, written meanwhile (:func:`run_sequence`).
 
     Raises
     ------
@@ -64,7 +71,8 @@ def check_frame_memory(scenario: Scenario) -> None:
     shadow = scenario.options.shadow_size if scenario.options.shadows else 0
     a = scenario.options.antialias
     samples = k.width * k.height * a * a * SAMPLE_BYTES_PER_PIXEL if a > 1 else 0
-    memory.require(k.width * k.height * FRAME_BYTES_PER_PIXEL + samples
+    behind = k.width * k.height * WRITE_BEHIND_BYTES_PER_PIXEL if write_behind else 0
+    memory.require(k.width * k.height * FRAME_BYTES_PER_PIXEL + samples + behind
                    + shadow * shadow * SHADOW_BYTES_PER_TEXEL,
                    f"rendering {k.width}x{k.height} frames" + (f" ({a}x{a} samples a pixel)"
                                                                if a > 1 else ""))
@@ -184,6 +192,33 @@ def render_sample(renderer: Renderer, scene: Scene, scenario: Scenario, sample: 
     truth : render.rundir.FrameTruth
         The frame's truth entry.
     """
+    if exposure is None:
+        exposure = ExposureControl(scenario.sensor)
+    frame, truth, irradiance = shoot_sample(renderer, scene, scenario, sample, index, samples,
+                                            motion=motion, exposure=exposure)
+    image, truth = expose_sample(exposure, frame, truth, irradiance)
+    return image, frame, truth
+
+
+def shoot_sample(renderer: Renderer, scene: Scene, scenario: Scenario, sample: Sample,
+                 index: int, samples: Sequence[Sample] | None = None, *,
+                 motion: Motion | None = None,
+                 exposure: ExposureControl | None = None) -> tuple[Frame, FrameTruth, float]:
+    """Render one trajectory sample, before the sensor exposes it (:func:`render_sample`).
+
+    Parameters are those of :func:`render_sample`; ``exposure`` is only read here (the
+    exposure a blurred frame integrates). Without motion blur or a rolling shutter the frame
+    does not depend on it, so a sequence exposes a frame while it renders the next.
+
+    Returns
+    -------
+    frame : render.renderer.Frame
+        Radiance (the I/F the sensor integrates), range and normals at the frame time.
+    truth : render.rundir.FrameTruth
+        The frame's truth entry, without exposure (:func:`expose_sample` adds it).
+    spectral_irradiance : float
+        The sun's at the frame time (W m^-2 nm^-1), for :func:`expose_sample`.
+    """
     view = View(sample.pose, scenario.intrinsics, sample.time)
     if motion is None:
         motion = frame_motion(scenario, samples, index)
@@ -221,8 +256,6 @@ def render_sample(renderer: Renderer, scene: Scene, scenario: Scenario, sample: 
         frame.radiance = radiance
         frame.drawn = dict(frame.drawn, stars=dict(stars, world_to_icrf=rotation.tolist(),
                                                    et=et))
-    image, record = exposure.expose(frame.radiance, index, intrinsics=scenario.intrinsics,
-                                    spectral_irradiance=lighting.spectral_irradiance)
     from render.binary_scene import BinaryScene
 
     bodies = None
@@ -231,9 +264,35 @@ def render_sample(renderer: Renderer, scene: Scene, scenario: Scenario, sample: 
         bodies = scene.bodies_truth(sample.time)
     truth = FrameTruth(index, sample.time, sample.pose, scenario.intrinsics,
                        lighting.sun, tuple(sample.body_rotation), frame.drawn, motion=moving,
-                       sky=None if sky is None else sky.as_dict(), exposure=record,
-                       bodies=bodies)
-    return image, frame, truth
+                       sky=None if sky is None else sky.as_dict(), bodies=bodies)
+    return frame, truth, lighting.spectral_irradiance
+
+
+def expose_sample(exposure: ExposureControl, frame: Frame, truth: FrameTruth,
+                  spectral_irradiance: float) -> tuple[np.ndarray, FrameTruth]:
+    """Expose a frame :func:`shoot_sample` rendered: its image, and its truth with exposure.
+
+    Parameters
+    ----------
+    exposure : render.sensor.ExposureControl
+        The sensor's auto-exposure loop (updated by this frame: frames are exposed in order).
+    frame : render.renderer.Frame
+        The frame (its radiance is the I/F the sensor integrates).
+    truth : render.rundir.FrameTruth
+        Its truth entry, without exposure.
+    spectral_irradiance : float
+        The sun's at the frame time (W m^-2 nm^-1).
+
+    Returns
+    -------
+    image : (h, w) uint8 or uint16
+        The digital image.
+    truth : render.rundir.FrameTruth
+        The frame's truth entry, with its exposure.
+    """
+    image, record = exposure.expose(frame.radiance, truth.index, intrinsics=truth.intrinsics,
+                                    spectral_irradiance=spectral_irradiance)
+    return image, replace(truth, exposure=record)
 
 
 def _label_frame(writer: RunWriter, labeller, scenario: Scenario, frame: Frame,
@@ -284,7 +343,7 @@ def run_sequence(scenario: Scenario, run_dir: str | Path, *, resume: bool = Fals
         The run's manifest (also written to ``manifest.json``).
     """
     run_dir = Path(run_dir)
-    check_frame_memory(scenario)
+    check_frame_memory(scenario, write_behind=True)
     RunWriter.check(run_dir, resume=resume)
     renderer = Renderer() if renderer is None else renderer
     scene = load_scene(scenario) if scene is None else scene
@@ -321,28 +380,56 @@ def run_sequence(scenario: Scenario, run_dir: str | Path, *, resume: bool = Fals
     t0 = time.perf_counter()
     rendered = 0
     control = ExposureControl(scenario.sensor)
-    for i, sample in enumerate(samples):
-        if i in done:
-            pending = None
-            continue
-        before = writer.exposure_before(i)  # resuming: the loop goes on where it stopped
-        if before is not None:
-            control.value = before.get("exposure_time", before.get("exposure"))
-        image, frame, truth = render_sample(renderer, scene, scenario, sample, i, samples,
-                                            exposure=control)
+    # A frame's files are encoded and written on a thread while the next frame renders
+    # (compression, PNG encoding and fsync release the GIL); one frame at a time, in frame
+    # order, so the truth file still lists exactly the frames whose files are complete.
+    # Where the next frame does not depend on this one's exposure (no motion blur, no rolling
+    # shutter: shoot_sample), the sensor exposes it there too; frames are exposed in order.
+    # Labels read and extend the truth entries: a labelled frame waits for its write.
+    # Leaving the pool waits for the frame in flight, also when an error ends the loop.
+    behind_exposure = (frame_motion(scenario, samples, 0) is None
+                       and not scenario.sensor.rolling and labeller is None)
+
+    def develop(frame: Frame, truth: FrameTruth, irradiance: float, radiance,
+                image: np.ndarray | None = None) -> None:
+        if image is None:
+            image, truth = expose_sample(control, frame, truth, irradiance)
         writer.write_frame(truth, image,
                            frame.range if scenario.outputs["range"] else None,
-                           frame.normals if scenario.outputs["normals"] else None,
-                           scenario.lighting_at(sample.time, scene).radiance(frame.radiance)
-                           if scenario.outputs.get("radiance") else None,
+                           frame.normals if scenario.outputs["normals"] else None, radiance,
                            body_ids=frame.body_ids if scenario.outputs.get("body_ids", True)
                            else None)
-        if labeller is not None:
-            pending = _label_frame(writer, labeller, scenario, frame, truth, pending)
-        rendered += 1
-        if progress is not None:
-            progress(i + 1, len(samples),
-                     f"{rendered / max(time.perf_counter() - t0, 1e-9):.2f} frame/s")
+
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="run-writer") as behind:
+        writing: Future | None = None
+        for i, sample in enumerate(samples):
+            if i in done:
+                pending = None
+                continue
+            before = writer.exposure_before(i)  # resuming: the loop goes on where it stopped
+            if before is not None:
+                if writing is not None:
+                    writing.result()  # an earlier frame's exposure must not come after it
+                control.value = before.get("exposure_time", before.get("exposure"))
+            frame, truth, irradiance = shoot_sample(renderer, scene, scenario, sample, i,
+                                                    samples, exposure=control)
+            radiance = (scenario.lighting_at(sample.time, scene).radiance(frame.radiance)
+                        if scenario.outputs.get("radiance") else None)
+            if writing is not None:
+                writing.result()  # raises what the previous frame's raised
+            image = None
+            if not behind_exposure:
+                image, truth = expose_sample(control, frame, truth, irradiance)
+            writing = behind.submit(develop, frame, truth, irradiance, radiance, image)
+            if labeller is not None:
+                writing.result()
+                pending = _label_frame(writer, labeller, scenario, frame, truth, pending)
+            rendered += 1
+            if progress is not None:
+                progress(i + 1, len(samples),
+                         f"{rendered / max(time.perf_counter() - t0, 1e-9):.2f} frame/s")
+        if writing is not None:
+            writing.result()
     elapsed = time.perf_counter() - t0
     facts: dict = {}
     if scenario.events is not None:
