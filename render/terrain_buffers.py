@@ -96,6 +96,18 @@ def _morph_rows(z, n, rl, cl, ra, rb, rt, ca, cb, ct, block, target, tnormal, le
 
 
 @numba.njit(nogil=True, cache=True)
+def _put(out, v, first_normal, x, y, z, extra, normal, i, j):
+    """Write vertex ``v``: position, ``extra[i, j]`` (``first_normal`` 4), ``normal[i, j]``."""
+    out[v, 0] = x
+    out[v, 1] = y
+    out[v, 2] = z
+    if first_normal == 4:
+        out[v, 3] = extra[i, j]
+    for k in range(3):
+        out[v, first_normal + k] = normal[i, j, k]
+
+
+@numba.njit(nogil=True, cache=True)
 def _fill_rows(out, first_normal, xs, ys, height, normal, extra, brows, bcols, depth, first,
                last):
     """Write rows ``first .. last - 1`` of the main vertices and of every skirt column.
@@ -109,36 +121,17 @@ def _fill_rows(out, first_normal, xs, ys, height, normal, extra, brows, bcols, d
     n_rows = len(brows) * w
     for i in range(first, last):
         for j in range(w):
-            v = i * w + j
-            out[v, 0] = xs[j]
-            out[v, 1] = ys[i]
-            out[v, 2] = height[i, j]
-            if first_normal == 4:
-                out[v, 3] = extra[i, j]
-            for k in range(3):
-                out[v, first_normal + k] = normal[i, j, k]
+            _put(out, i * w + j, first_normal, xs[j], ys[i], height[i, j], extra, normal, i, j)
         for kb in range(len(bcols)):
             c = bcols[kb]
-            v = n_main + n_rows + kb * h + i
-            out[v, 0] = xs[c]
-            out[v, 1] = ys[i]
-            out[v, 2] = height[i, c] - depth
-            if first_normal == 4:
-                out[v, 3] = extra[i, c]
-            for k in range(3):
-                out[v, first_normal + k] = normal[i, c, k]
+            _put(out, n_main + n_rows + kb * h + i, first_normal, xs[c], ys[i],
+                 height[i, c] - depth, extra, normal, i, c)
     for kb in range(len(brows)):
         r = brows[kb]
         if first <= r < last:
             for j in range(w):
-                v = n_main + kb * w + j
-                out[v, 0] = xs[j]
-                out[v, 1] = ys[r]
-                out[v, 2] = height[r, j] - depth
-                if first_normal == 4:
-                    out[v, 3] = extra[r, j]
-                for k in range(3):
-                    out[v, first_normal + k] = normal[r, j, k]
+                _put(out, n_main + kb * w + j, first_normal, xs[j], ys[r], height[r, j] - depth,
+                     extra, normal, r, j)
 
 
 def layer_buffers(z: np.ndarray, xs: np.ndarray, ys: np.ndarray, res: float,
