@@ -19,6 +19,7 @@ import json
 import logging
 import os
 import tempfile
+import threading
 import warnings
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -271,33 +272,40 @@ def _verify_blocks(tmp, path, messages: str = "", *, bands: int,
         raise OutputPathError(f"cannot write '{path}': {reason}")
 
 
+#: Held while file descriptor 2 points at a capture (:func:`_c_stderr`). Frames are written
+#: on a thread while the next renders (``render.sequence``): two captures at once would each
+#: save the other's sink as "stderr", and the process would lose its real one for good.
+_FD2_LOCK = threading.RLock()
+
+
 @contextlib.contextmanager
 def _c_stderr() -> Iterator[list]:
     """Capture what C libraries (GDAL, libtiff) print on file descriptor 2 meanwhile.
 
     Yields a list that receives the text; the caller decides whether it is an error (then it
-    becomes the one-line reason) or is passed on to stderr unchanged.
+    becomes the one-line reason) or is passed on to stderr unchanged. One capture at a time
+    in the process (:data:`_FD2_LOCK`); what another thread prints meanwhile is captured too
+    and passed on afterwards.
     """
-    import os
     import sys
-    import tempfile
 
     out: list = []
-    try:
-        sys.stderr.flush()
-        saved = os.dup(2)
-    except (OSError, ValueError, AttributeError):  # no real stderr: nothing to capture
-        yield out
-        return
-    with tempfile.TemporaryFile() as sink:
-        os.dup2(sink.fileno(), 2)
+    with _FD2_LOCK:
         try:
+            sys.stderr.flush()
+            saved = os.dup(2)
+        except (OSError, ValueError, AttributeError):  # no real stderr: nothing to capture
             yield out
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-            sink.seek(0)
-            out.append(sink.read().decode("utf-8", "replace"))
+            return
+        with tempfile.TemporaryFile() as sink:
+            os.dup2(sink.fileno(), 2)
+            try:
+                yield out
+            finally:
+                os.dup2(saved, 2)
+                os.close(saved)
+                sink.seek(0)
+                out.append(sink.read().decode("utf-8", "replace"))
 
 
 def _replay(captured: list) -> None:

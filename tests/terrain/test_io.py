@@ -177,3 +177,28 @@ def test_float_tiffs_read_back_whole_in_the_same_bytes_and_a_cut_file_is_refused
     with file_size_limit(size // 2), pytest.raises(OutputPathError, match="c.tif"):
         io.write_float_tiff(a, tmp_path / "c.tif")
     assert not (tmp_path / "c.tif").exists()
+
+
+def test_writes_on_threads_keep_the_process_stderr(tmp_path):
+    # frames are written on a thread while the next renders: each write points file
+    # descriptor 2 at a capture for GDAL's messages, and two at once must not leave the
+    # process writing its stderr into a deleted capture file
+    import os
+    import threading
+
+    before = os.fstat(2)
+    tile = DEMTile.from_array(np.arange(64 * 64, dtype=np.float32).reshape(64, 64),
+                              transform=Affine(2.0, 0, 1000.0, 0, -2.0, 5000.0))
+
+    def write(k):
+        for i in range(15):
+            io.write_dem(tile, tmp_path / f"t{k}_{i}.tif")
+
+    threads = [threading.Thread(target=write, args=(k,)) for k in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    after = os.fstat(2)
+    assert (after.st_dev, after.st_ino) == (before.st_dev, before.st_ino)
+    assert len(list(tmp_path.glob("*.tif"))) == 60
