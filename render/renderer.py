@@ -736,9 +736,9 @@ class _Stencil:
 class _Target:
     """The offscreen framebuffers of one image size.
 
-    ``surface`` (range, normal, position; the depth and stencil buffer) is what the surface
-    pass draws into (``surface_vertex`` also the per-vertex values, made on first use),
-    ``shade`` (radiance) the shading pass, and ``frame`` (radiance, range, normal) is read
+    ``surface`` (normal, position; the depth and stencil buffer) is what the surface pass
+    draws into (``surface_vertex`` also the per-vertex values, made on first use),
+    ``shade`` (radiance, range) the shading pass, and ``frame`` (radiance, range, normal) is read
     back; ``inputs`` are the surface pass's images the shading pass reads.
     """
 
@@ -873,9 +873,9 @@ class Renderer:
             _gl("glRenderbufferStorage", ctypes.c_uint, ctypes.c_uint, ctypes.c_int,
                 ctypes.c_int)(_GL_RENDERBUFFER, _GL_DEPTH32F_STENCIL8, size[0], size[1])
             _gl("glBindRenderbuffer", ctypes.c_uint, ctypes.c_uint)(_GL_RENDERBUFFER, 0)
-            surface = ctx.framebuffer(color_attachments=[range_, normal, rel],
+            surface = ctx.framebuffer(color_attachments=[normal, rel],
                                       depth_attachment=depth)
-            shade = ctx.framebuffer(color_attachments=[radiance])
+            shade = ctx.framebuffer(color_attachments=[radiance, range_])
             self._attach_stencil(surface, _GL_STENCIL_ATTACHMENT, depth)
             self._attach_stencil(shade, _GL_DEPTH_STENCIL_ATTACHMENT, depth)
             self._fbos[size] = _Target(
@@ -898,9 +898,9 @@ class Renderer:
             ctx = self.ctx
             size = target.frame.size
             vertex = ctx.texture(size, 2, dtype="f4")
-            range_, normal = target.frame.color_attachments[1:]
+            normal = target.frame.color_attachments[2]
             depth = target.surface.depth_attachment
-            fbo = ctx.framebuffer(color_attachments=[range_, normal, target.inputs[1], vertex],
+            fbo = ctx.framebuffer(color_attachments=[normal, target.inputs[1], vertex],
                                   depth_attachment=depth)
             self._attach_stencil(fbo, _GL_STENCIL_ATTACHMENT, depth)
             target.surface_vertex = fbo

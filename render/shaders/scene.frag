@@ -1,6 +1,6 @@
 #version 330 core
 // The surface pass: what the shading pass (shade.frag) needs of each pixel's nearest fragment,
-// with the LIDAR range and the normals: its camera-relative position and extra shadow bias,
+// with the normals: its camera-relative position and extra shadow bias,
 // and a body's per-vertex albedo factor and scattered light where its batch carries them
 // (the maps, the albedo's and the scattered light's, the shading pass looks up itself).
 //
@@ -36,10 +36,9 @@ uniform vec3 u_model_offset;      // the body's centre relative to the camera (v
 uniform sampler2D u_normals;    // normals (texture of unit normals, one texel per pixel),
 uniform vec4 u_normal_rect;     // whatever the level of detail: (x0, y0, 1/width, 1/height)
 
-layout(location = 0) out float out_range;
-layout(location = 1) out vec4 out_normal;
-layout(location = 2) out vec4 out_rel;       // v_rel, v_shadow_bias
-layout(location = 3) out vec2 out_vertex;    // v_albedo, v_scatter (bodies that carry them)
+layout(location = 0) out vec4 out_normal;
+layout(location = 1) out vec4 out_rel;       // v_rel, v_shadow_bias
+layout(location = 2) out vec2 out_vertex;    // v_albedo, v_scatter (bodies that carry them)
 
 void main() {
     vec3 world = v_rel + u_camera;
@@ -54,7 +53,6 @@ void main() {
         n = normalize(u_world_from_model
                       * texture(u_normal_cube_map,
                                 transpose(u_world_from_model) * (v_rel - u_model_offset)).xyz);
-    out_range = length(v_rel);
     out_normal = vec4(n, 1.0);
     out_rel = vec4(v_rel, v_shadow_bias);
     if (VERTEX_ALBEDO == 1 || VERTEX_SCATTER == 1)

@@ -1,6 +1,7 @@
 #version 330 core
 #extension GL_ARB_texture_gather : require
-// The shading pass: radiance from what the surface pass (scene.frag) left in each pixel.
+// The shading pass: radiance and range from what the surface pass (scene.frag) left in each
+// pixel.
 //
 // Deferred shading: the surface pass draws every batch and keeps, per pixel, the nearest
 // fragment's position and normal (and a body's per-vertex values), and in the stencil the
@@ -66,6 +67,7 @@ uniform vec3 u_earth;             // unit vector towards the Earth (world)
 uniform float u_earthshine;       // Earth's irradiance / the Sun's (0: none)
 
 layout(location = 0) out float out_radiance;
+layout(location = 1) out float out_range;   // the LIDAR range (m)
 
 float reflectance(float mu0, float mu, float g_deg, float scale) {
     if (mu0 <= 0.0) return 0.0;
@@ -290,4 +292,5 @@ void main() {
     float refl = BRDF == 3 ? hapke(n, u_sun, e, scale) : reflectance(mu0, mu, g, scale);
     out_radiance = refl * visibility(n, mu0, rel, surface.w)
                  + secondary(n, world, e, mu, scale, vertex);
+    out_range = r;
 }
