@@ -1,16 +1,16 @@
 """The renderer: camera images, exact LIDAR range and normals, with shadows.
 
 A frame is two passes. The surface pass draws the scene once into float32 colour
-attachments: range (the Euclidean distance from the camera centre, computed per fragment
-from camera-relative float32 positions: not recovered from the depth buffer), the
-world-frame surface normal, and what shading needs of the nearest surface (its
-camera-relative position, albedo factor and light from elsewhere); its stencil holds each
-pixel's group (the batches that share a shadow map). The shading pass then computes the
-radiance (reflectance factor I/F under a unit sun, see :mod:`render.reflectance`) once per
-pixel, a full-screen triangle per group drawn where the stencil holds it: a CPU rasteriser
-shades a 4x4 block of pixels for every triangle that touches it, so drawn forward, with
-triangles of a pixel or two, each pixel's shadows were computed many times over. The
-stencil test also lets the rasteriser skip a block whose fragments all lie behind what is
+attachments: the world-frame surface normal and what shading needs of the nearest surface
+(its camera-relative position, a body's per-vertex albedo factor and scattered light); its
+stencil holds each pixel's group (the batches that share a shadow map and maps). The
+shading pass then computes, once per pixel, the radiance (reflectance factor I/F under a
+unit sun, see :mod:`render.reflectance`) and the range (the Euclidean distance from the
+camera centre, from the camera-relative float32 position: not recovered from the depth
+buffer), a full-screen triangle per group drawn where the stencil holds it: a CPU
+rasteriser shades a 4x4 block of pixels for every triangle that touches it, so drawn
+forward, with triangles of a pixel or two, each pixel's shadows were computed many times
+over. The stencil test also lets the rasteriser skip a block whose fragments all lie behind what is
 already drawn (with a depth test alone it shades them and drops the results). Depth
 testing uses reversed Z: a float32 depth buffer holding ``near / z`` (an infinite-far
 projection, clip z in [0, 1]), whose relative depth resolution is float32's own (6e-8) at
