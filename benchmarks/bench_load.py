@@ -131,18 +131,17 @@ def raw_load(renderer, stack_dir: Path, view, size: int, triangles: int) -> dict
     prog["u_world_from_model"].write(np.eye(3, dtype="f4").tobytes())
     prog["u_model_offset"].value = tuple((-np.asarray(pose.position)).tolist())
     prog["u_camera"].value = tuple(pose.position)
-    prog["u_sun"].value = (0.5, 0.5, 0.7071)
-    prog["u_albedo"].value = 0.12
-    for name in ("u_use_discard", "u_shadows", "u_vertex_albedo", "u_morph", "u_normal_map",
-                 "u_normal_cube", "u_use_albedo_map", "u_brdf"):
-        prog[name].value = 0
-    # each sampler on its own unit, as the renderer sets them (a 2-D sampler, a shadow sampler
-    # and a cube sampler left together on unit 0 make the draw an invalid operation)
-    for name, unit in (("u_shadow_map", 0), ("u_albedo_map", 1), ("u_normals", 2),
-                       ("u_normal_cube_map", 3), ("u_shadow_depth", 4), ("u_scatter", 5)):
+    for name in ("u_use_discard", "u_vertex_albedo", "u_vertex_scatter", "u_morph",
+                 "u_normal_map", "u_normal_cube", "u_use_albedo_map", "u_scatter_map"):
+        if name in prog:
+            prog[name].value = 0
+    # each sampler on its own unit, as the renderer sets them (a 2-D sampler and a cube
+    # sampler left together on unit 0 make the draw an invalid operation)
+    for name, unit in (("u_albedo_map", 1), ("u_normals", 2), ("u_normal_cube_map", 3),
+                       ("u_scatter", 5)):
         if name in prog:
             prog[name].value = unit
-    fbo = renderer._target((size, size))
+    fbo = renderer._target((size, size)).surface  # the surface pass's images
     fbo.use()
     ctx.viewport = (0, 0, size, size)
     ctx.enable(moderngl.DEPTH_TEST)
@@ -153,7 +152,7 @@ def raw_load(renderer, stack_dir: Path, view, size: int, triangles: int) -> dict
     error = ctx.error
     if error != "GL_NO_ERROR":
         raise RuntimeError(f"OpenGL error in the raw draw: {error}")
-    for i, comps in ((0, 1), (1, 1), (2, 4)):
+    for i, comps in ((0, 1), (1, 4), (2, 4), (3, 4)):
         fbo.read(attachment=i, components=comps, dtype="f4")
     total = time.perf_counter() - t0
     for obj in (vao, vbo, ibo):

@@ -34,7 +34,7 @@ and ``phi`` to include them.
 A per-pixel albedo map (a raster on a terrain, a value per vertex on a body) multiplies the
 albedo A of the first three models and Hapke's w (capped below 1).
 
-The shader (``render/shaders/scene.frag``) implements the same formulas; the functions here
+The shader (``render/shaders/shade.frag``) implements the same formulas; the functions here
 are the numpy reference for CPU use (tests check the rendered Hapke I/F against a separate
 implementation written from the papers).
 """

@@ -1,19 +1,27 @@
-"""The renderer: camera images, exact LIDAR range and normals in one pass, with shadows.
+"""The renderer: camera images, exact LIDAR range and normals, with shadows.
 
-One draw of the scene fills three float32 colour attachments: radiance (reflectance factor
-I/F under a unit sun, see :mod:`render.reflectance`), range (the Euclidean distance from the
-camera centre, computed per fragment from camera-relative float32 positions: not recovered from
-the depth buffer) and the world-frame surface normal. Depth testing uses reversed Z: a float32
-depth buffer holding ``near / z`` (an infinite-far projection, clip z in [0, 1]), whose
-relative depth resolution is float32's own (6e-8) at every distance, from centimetres to a
-thousand kilometres, so descents from orbit to touchdown need no depth partitioning, and the
-fragment shader writes no depth (a rasteriser then rejects hidden fragments before shading
-them).
+A frame is two passes. The surface pass draws the scene once into float32 colour
+attachments: the world-frame surface normal and what shading needs of the nearest surface
+(its camera-relative position, a body's per-vertex albedo factor and scattered light); its
+stencil holds each pixel's group (the batches that share a shadow map and maps). The
+shading pass then computes, once per pixel, the radiance (reflectance factor I/F under a
+unit sun, see :mod:`render.reflectance`) and the range (the Euclidean distance from the
+camera centre, from the camera-relative float32 position: not recovered from the depth
+buffer), a full-screen triangle per group drawn where the stencil holds it: a CPU
+rasteriser shades a 4x4 block of pixels for every triangle that touches it, so drawn
+forward, with triangles of a pixel or two, each pixel's shadows were computed many times
+over. The stencil test also lets the rasteriser skip a block whose fragments all lie behind what is
+already drawn (with a depth test alone it shades them and drops the results). Depth
+testing uses reversed Z: a float32 depth buffer holding ``near / z`` (an infinite-far
+projection, clip z in [0, 1]), whose relative depth resolution is float32's own (6e-8) at
+every distance, from centimetres to a thousand kilometres, so descents from orbit to
+touchdown need no depth partitioning, and the fragment shader writes no depth (so the depth
+test comes before the fragment shader).
 
-Each camera pass draws with programs specialised at compile time (``#define`` switches in
-``shaders/scene.frag``): one per reflectance law and per combination of the effects and maps
-its batches use, compiled once per renderer, so that no fragment pays for a path it never
-takes.
+Each pass draws with programs specialised at compile time (``#define`` switches in
+``shaders/scene.frag`` and ``shaders/shade.frag``): one per combination of the maps and
+per-vertex values its batches carry, and one per reflectance law and effects, compiled once
+per renderer, so that no fragment pays for a path it never takes.
 
 The projection follows :mod:`render.camera` exactly: pixel (u, v) is centred where the
 OpenCV pinhole model puts it, so a world point's rendered pixel and its projection with the
@@ -366,14 +374,25 @@ def _shader(name: str, defines: dict[str, int] | None = None) -> str:
     return "\n".join([version, "#define SPECIALISED 1", *lines, rest])
 
 
-#: The compile-time switches of the camera pass's programs (``shaders/scene.frag``).
-SWITCHES = ("BRDF", "VERTEX_ALBEDO", "VERTEX_SCATTER", "ALBEDO_MAP", "DISCARD", "NORMAL_MAP",
-            "NORMAL_CUBE", "SHADOWS", "SOFT_SHADOWS", "SCATTER_MAP", "SCATTERING", "EARTHSHINE",
-            "MORPH")
+#: The compile-time switches of the surface pass's programs (``shaders/scene.vert`` and
+#: ``shaders/scene.frag``).
+SWITCHES = ("VERTEX_ALBEDO", "VERTEX_SCATTER", "DISCARD", "NORMAL_MAP", "NORMAL_CUBE", "MORPH")
+#: The compile-time switches of the shading pass's programs (``shaders/shade.frag``).
+SHADE_SWITCHES = ("BRDF", "VERTEX_ALBEDO", "VERTEX_SCATTER", "ALBEDO_MAP", "SCATTER_MAP",
+                  "SHADOWS", "SOFT_SHADOWS", "SCATTERING", "EARTHSHINE")
 
 # GL enums glClipControl and a float depth renderbuffer need (moderngl wraps neither)
 _GL_LOWER_LEFT, _GL_NEGATIVE_ONE_TO_ONE, _GL_ZERO_TO_ONE = 0x8CA1, 0x935E, 0x935F
-_GL_RENDERBUFFER, _GL_DEPTH_COMPONENT32F = 0x8D41, 0x8CAC
+_GL_RENDERBUFFER, _GL_DEPTH32F_STENCIL8 = 0x8D41, 0x8CAD
+# ... and the stencil test that selects each shading pass's pixels
+_GL_FRAMEBUFFER, _GL_STENCIL_ATTACHMENT, _GL_DEPTH_STENCIL_ATTACHMENT = 0x8D40, 0x8D20, 0x821A
+_GL_STENCIL_TEST, _GL_STENCIL_BUFFER_BIT = 0x0B90, 0x0400
+_GL_ALWAYS, _GL_EQUAL, _GL_KEEP, _GL_REPLACE = 0x0207, 0x0202, 0x1E00, 0x1E01
+#: Groups of batches a frame can shade (the stencil's 8 bits, 0 meaning none).
+MAX_GROUPS = 255
+#: Texture units the shading pass reads the surface pass's normal, position and per-vertex
+#: values from.
+_SURFACE_UNITS = (6, 7, 8)
 
 
 def _gl(name: str, *argtypes: Any) -> Any:
@@ -671,6 +690,71 @@ class SceneGpu:
                 batch.depth_vao.render(moderngl.TRIANGLES, vertices=count, first=first)
 
 
+class _Stencil:
+    """The stencil test, which moderngl does not wrap.
+
+    The surface pass writes each pixel's group; each shading pass draws where it holds its
+    own.
+    """
+
+    def __init__(self) -> None:
+        u, i = ctypes.c_uint, ctypes.c_int
+        self._enable, self._disable = _gl("glEnable", u), _gl("glDisable", u)
+        self._func, self._op = _gl("glStencilFunc", u, i, u), _gl("glStencilOp", u, u, u)
+        self._mask = _gl("glStencilMask", u)
+        self._clear_value, self._clear = _gl("glClearStencil", i), _gl("glClear", u)
+
+    def clear(self) -> None:
+        """Set the bound framebuffer's stencil to 0 (no group) within the scissor."""
+        self._mask(0xFF)
+        self._clear_value(0)
+        self._clear(_GL_STENCIL_BUFFER_BIT)
+
+    def write(self, group: int) -> None:
+        """Write ``group`` where a fragment passes the depth test."""
+        self._enable(_GL_STENCIL_TEST)
+        self._mask(0xFF)
+        self._func(_GL_ALWAYS, group, 0xFF)
+        self._op(_GL_KEEP, _GL_KEEP, _GL_REPLACE)
+
+    def select(self, group: int) -> None:
+        """Draw only where the stencil holds ``group``, leaving it as it is."""
+        self._enable(_GL_STENCIL_TEST)
+        self._mask(0)
+        self._func(_GL_EQUAL, group, 0xFF)
+        self._op(_GL_KEEP, _GL_KEEP, _GL_KEEP)
+
+    def off(self) -> None:
+        """Back to GL's defaults."""
+        self._disable(_GL_STENCIL_TEST)
+        self._mask(0xFF)
+        self._func(_GL_ALWAYS, 0, 0xFF)
+        self._op(_GL_KEEP, _GL_KEEP, _GL_KEEP)
+
+
+@dataclass(eq=False)
+class _Target:
+    """The offscreen framebuffers of one image size.
+
+    ``surface`` (normal, position; the depth and stencil buffer) is what the surface pass
+    draws into (``surface_vertex`` also the per-vertex values, made on first use),
+    ``shade`` (radiance, range) the shading pass, and ``frame`` (radiance, range, normal) is read
+    back; ``inputs`` are the surface pass's images the shading pass reads.
+    """
+
+    frame: Any
+    surface: Any
+    shade: Any
+    inputs: list
+    owned: list
+    surface_vertex: Any = None
+
+    def release(self) -> None:
+        fbos = (self.frame, self.surface, self.shade, self.surface_vertex)
+        for obj in (*(f for f in fbos if f is not None), *self.owned):
+            obj.release()
+
+
 class Renderer:
     """Holds the GL programs and offscreen framebuffers; renders scenes frame by frame.
 
@@ -690,10 +774,12 @@ class Renderer:
         self.scene_program = self.ctx.program(vertex_shader=_shader("scene.vert"),
                                               fragment_shader=_shader("scene.frag"))
         self._programs: dict[tuple, Any] = {}
+        self._shade_programs: dict[tuple, tuple[Any, Any]] = {}
         self._resolve_program: Any = None
         self._resolve_vao: Any = None
         self._resolve: dict = {}
         self._clip_control = _gl("glClipControl", ctypes.c_uint, ctypes.c_uint)
+        self._stencil = _Stencil()
         self.depth_program = self.ctx.program(vertex_shader=_shader("depth.vert"),
                                               fragment_shader=_shader("depth.frag"))
         #: The handle scenes get: uploads, vertex arrays and shadow maps, no camera pass.
@@ -714,13 +800,12 @@ class Renderer:
                                                                      6).tobytes(), dtype="f2")
 
     def program(self, switches: dict[str, int]) -> Any:
-        """Give the camera-pass program specialised for ``switches`` (compiled once).
+        """Give the surface-pass program specialised for ``switches`` (compiled once).
 
         Parameters
         ----------
         switches : dict
-            A value for each of :data:`SWITCHES` (the reflectance law's code for ``BRDF``,
-            0 or 1 for the others).
+            A value, 0 or 1, for each of :data:`SWITCHES`.
 
         Returns
         -------
@@ -736,9 +821,39 @@ class Renderer:
             self._programs[key] = prog
         return prog
 
+    def shade_program(self, switches: dict[str, int]) -> tuple[Any, Any]:
+        """Give the shading-pass program specialised for ``switches`` (compiled once).
+
+        Parameters
+        ----------
+        switches : dict
+            A value for each of :data:`SHADE_SWITCHES` (the reflectance law's code for
+            ``BRDF``, 0 or 1 for the others).
+
+        Returns
+        -------
+        tuple
+            ``(moderngl.Program, moderngl.VertexArray)``: the program and the vertex array
+            of its full-screen triangle.
+        """
+        key = tuple(int(switches[name]) for name in SHADE_SWITCHES)
+        shade = self._shade_programs.get(key)
+        if shade is None:
+            defines = dict(zip(SHADE_SWITCHES, key, strict=True))
+            prog = self.ctx.program(vertex_shader=_shader("fullscreen.vert"),
+                                    fragment_shader=_shader("shade.frag", defines))
+            for name, unit in zip(("u_surface_normal", "u_surface_rel", "u_surface_vertex"),
+                                  _SURFACE_UNITS, strict=True):
+                _set(prog, name, unit)
+            for name, unit in (("u_shadow_map", 0), ("u_albedo_map", 1), ("u_shadow_depth", 4),
+                               ("u_scatter", 5)):
+                _set(prog, name, unit)
+            shade = self._shade_programs[key] = (prog, self.ctx.vertex_array(prog, []))
+        return shade
+
     # ------------------------------------------------------------------ framebuffers
-    def _target(self, size: tuple[int, ...]) -> Any:
-        """Return the offscreen framebuffer for an image size.
+    def _target(self, size: tuple[int, ...]) -> _Target:
+        """Return the offscreen framebuffers for an image size.
 
         Kept per size (an imposter renders a small image just before a full-size frame), at
         most :data:`MAX_TARGETS` sizes, the oldest dropped first.
@@ -747,22 +862,51 @@ class Renderer:
         if size not in self._fbos:
             if len(self._fbos) >= MAX_TARGETS:  # drop the oldest size
                 old = next(iter(self._fbos))
-                fbo = self._fbos.pop(old)
-                for tex in fbo.color_attachments:
-                    tex.release()
-                fbo.depth_attachment.release()
-                fbo.release()
-            color = [self.ctx.texture(size, 1, dtype="f4"), self.ctx.texture(size, 1, dtype="f4"),
-                     self.ctx.texture(size, 4, dtype="f4")]
-            depth = self.ctx.depth_renderbuffer(size)
+                self._fbos.pop(old).release()
+            ctx = self.ctx
+            radiance, range_ = (ctx.texture(size, 1, dtype="f4") for _ in range(2))
+            normal, rel = (ctx.texture(size, 4, dtype="f4") for _ in range(2))
+            depth = ctx.depth_renderbuffer(size)
             # reversed Z needs a float depth buffer (moderngl makes 24-bit fixed point)
             _gl("glBindRenderbuffer", ctypes.c_uint, ctypes.c_uint)(_GL_RENDERBUFFER, depth.glo)
+            # (and a stencil, the group of each pixel: moderngl makes neither)
             _gl("glRenderbufferStorage", ctypes.c_uint, ctypes.c_uint, ctypes.c_int,
-                ctypes.c_int)(_GL_RENDERBUFFER, _GL_DEPTH_COMPONENT32F, size[0], size[1])
+                ctypes.c_int)(_GL_RENDERBUFFER, _GL_DEPTH32F_STENCIL8, size[0], size[1])
             _gl("glBindRenderbuffer", ctypes.c_uint, ctypes.c_uint)(_GL_RENDERBUFFER, 0)
-            self._fbos[size] = self.ctx.framebuffer(color_attachments=color,
-                                                    depth_attachment=depth)
+            surface = ctx.framebuffer(color_attachments=[normal, rel],
+                                      depth_attachment=depth)
+            shade = ctx.framebuffer(color_attachments=[radiance, range_])
+            self._attach_stencil(surface, _GL_STENCIL_ATTACHMENT, depth)
+            self._attach_stencil(shade, _GL_DEPTH_STENCIL_ATTACHMENT, depth)
+            self._fbos[size] = _Target(
+                ctx.framebuffer(color_attachments=[radiance, range_, normal]), surface, shade,
+                [normal, rel], [radiance, range_, normal, rel, depth])
         return self._fbos[size]
+
+    def _attach_stencil(self, fbo: Any, point: int, depth: Any) -> None:
+        fbo.use()
+        _gl("glFramebufferRenderbuffer", ctypes.c_uint, ctypes.c_uint, ctypes.c_uint,
+            ctypes.c_uint)(_GL_FRAMEBUFFER, point, _GL_RENDERBUFFER, depth.glo)
+
+    def _vertex_target(self, target: _Target) -> Any:
+        """Give the surface pass's framebuffer with the per-vertex values' attachment too.
+
+        Made when a frame of that size first draws a batch that carries them (bodies), so
+        that frames without any (terrain) allocate none.
+        """
+        if target.surface_vertex is None:
+            ctx = self.ctx
+            size = target.frame.size
+            vertex = ctx.texture(size, 2, dtype="f4")
+            normal = target.frame.color_attachments[2]
+            depth = target.surface.depth_attachment
+            fbo = ctx.framebuffer(color_attachments=[normal, target.inputs[1], vertex],
+                                  depth_attachment=depth)
+            self._attach_stencil(fbo, _GL_STENCIL_ATTACHMENT, depth)
+            target.surface_vertex = fbo
+            target.inputs.append(vertex)
+            target.owned.append(vertex)
+        return target.surface_vertex
 
     # ------------------------------------------------------------------ passes
     def render(self, scene: Scene, view: View, lighting: Lighting,
@@ -850,51 +994,97 @@ class Renderer:
         if state.albedo is not None:
             frame_uniforms["u_albedo_window"] = tuple(float(v) for v in state.albedo[1])
         clip_bytes = clip.T.astype("f4").tobytes()
-        frame_switches = dict(
+        shade_switches = dict(
             BRDF=BRDF_CODES[lighting.brdf], ALBEDO_MAP=state.albedo is not None,
             SOFT_SHADOWS=sun_tan > 0, SCATTERING=bool(options.scattering),
             EARTHSHINE=earth is not None)
         self._set_albedo_map(state.albedo)
         shadows = options.shadows and lighting is not None
 
-        fbo = self._target((ka.width, ka.height))
-        fbo.use()
-        ctx.viewport = (0, 0, ka.width, ka.height)
-        ctx.enable(moderngl.DEPTH_TEST)
-        ctx.disable(moderngl.CULL_FACE)
-        ctx.depth_func = ">"  # reversed Z: nearer is greater
+        target = self._target((ka.width, ka.height))
+        surface = target.surface
+        if any(b.vertex_albedo or b.vertex_scatter for b in state.batches):
+            surface = self._vertex_target(target)
+        scissor = None
         if rows is not None:
             top, bottom = (int(r) * a for r in rows)
-            ctx.scissor = (0, ka.height - bottom, ka.width, bottom - top)
+            scissor = (0, ka.height - bottom, ka.width, bottom - top)
+        for fbo in (surface, target.shade):
+            fbo.viewport = (0, 0, ka.width, ka.height)
+            fbo.scissor = scissor
         self._clip_control(_GL_LOWER_LEFT, _GL_ZERO_TO_ONE)
         try:
-            fbo.clear(color=(0.0, 0.0, 0.0, 0.0), depth=0.0)
+            # the surface pass: every batch, each pixel keeping its nearest fragment's
+            # surface; a group is the batches one shading pass shades (one shadow map, one
+            # scattered light map, the same per-vertex values)
+            surface.use()
+            ctx.enable(moderngl.DEPTH_TEST)
+            ctx.disable(moderngl.CULL_FACE)
+            ctx.depth_func = ">"  # reversed Z: nearer is greater
+            surface.clear(color=(0.0, 0.0, 0.0, 0.0), depth=0.0)
+            self._stencil.clear()
+            groups: dict[tuple, tuple[int, Any, Any, dict]] = {}
             ready: set[int] = set()  # programs whose frame uniforms are set
             for batch in state.batches:
                 shadow = batch.shadow if shadows else None
+                scatter = batch.scatter
+                vertex = dict(VERTEX_ALBEDO=bool(batch.vertex_albedo),
+                              VERTEX_SCATTER=bool(batch.vertex_scatter))
+                key = (id(shadow), None if scatter is None else (id(scatter[0]),
+                                                                 tuple(scatter[1])),
+                       *vertex.values())
+                group = groups.setdefault(key, (len(groups) + 1, shadow, scatter, vertex))[0]
+                if group > MAX_GROUPS:
+                    raise RuntimeError(f"a frame shades at most {MAX_GROUPS} groups of "
+                                       f"batches (one per shadow map); this one has more")
                 prog = self.program(dict(
-                    frame_switches, VERTEX_ALBEDO=bool(batch.vertex_albedo),
-                    VERTEX_SCATTER=bool(batch.vertex_scatter),
-                    DISCARD=batch.discard is not None, NORMAL_MAP=batch.normal_map is not None,
-                    NORMAL_CUBE=batch.normal_cube is not None, SHADOWS=shadow is not None,
-                    SCATTER_MAP=batch.scatter is not None, MORPH=batch.morph is not None))
+                    vertex, DISCARD=batch.discard is not None,
+                    NORMAL_MAP=batch.normal_map is not None,
+                    NORMAL_CUBE=batch.normal_cube is not None, MORPH=batch.morph is not None))
                 if prog.glo not in ready:
                     ready.add(prog.glo)
                     _write(prog, "u_clip_from_camera_rel", clip_bytes)
                     for name, value in frame_uniforms.items():
                         _set(prog, name, value)
-                self._set_batch(prog, batch, cam, shadow)
+                self._stencil.write(group)
+                self._set_batch(prog, batch, cam)
                 vao = batch.vao.bound(prog)
                 for first, count in batch.ranges:
                     vao.render(moderngl.TRIANGLES, vertices=count, first=first)
+            # the shading pass: each group's pixels once (shaders/shade.frag)
+            ctx.disable(moderngl.DEPTH_TEST)
+            target.shade.use()
+            target.shade.clear(color=(0.0, 0.0, 0.0, 0.0))
+            # (the per-vertex values' unit stays unbound where no batch of any frame had them)
+            for unit, texture in zip(_SURFACE_UNITS, target.inputs, strict=False):
+                texture.use(location=unit)
+            for group, shadow, scatter, vertex in groups.values():
+                prog, triangle = self.shade_program(dict(
+                    shade_switches, **vertex, SHADOWS=shadow is not None,
+                    SCATTER_MAP=scatter is not None))
+                if prog.glo not in ready:
+                    ready.add(prog.glo)
+                    for name, value in frame_uniforms.items():
+                        _set(prog, name, value)
+                self._stencil.select(group)
+                self._set_shadow(prog, shadow, cam)
+                if scatter is not None:
+                    scatter[0].use(location=5)
+                    _set(prog, "u_scatter_rect", tuple(float(v) for v in scatter[1]))
+                else:
+                    self._dummy_scatter.use(location=5)
+                triangle.render(moderngl.TRIANGLES, vertices=3)
         finally:
             self._clip_control(_GL_LOWER_LEFT, _GL_NEGATIVE_ONE_TO_ONE)
-            ctx.scissor = None
+            self._stencil.off()
+            surface.scissor = None
+            target.shade.scissor = None
             ctx.depth_func = "<"
         err = ctx.error
         if err != "GL_NO_ERROR":
             raise RuntimeError(f"OpenGL error while rendering: {err}")
         w, h = ka.width, ka.height
+        fbo = target.frame
         rad = np.frombuffer(fbo.read(attachment=0, components=1, dtype="f4"),
                             dtype=np.float32).reshape(h, w)[::-1].copy()
         if a != 1:  # radiance: the mean of each pixel's samples; range, normals: its centre's
@@ -958,7 +1148,8 @@ class Renderer:
         else:
             albedo[0].use(location=1)
 
-    def _set_batch(self, prog, batch, cam, shadow):
+    def _set_batch(self, prog, batch, cam):
+        """Set a batch's uniforms and textures in a surface-pass program."""
         _write(prog, "u_world_from_model",
                np.asarray(batch.world_from_model, dtype="f4").T.tobytes())
         _set(prog, "u_model_offset", tuple((np.asarray(batch.model_offset) - cam).tolist()))
@@ -983,6 +1174,9 @@ class Renderer:
             batch.normal_cube.use(location=3)
         else:
             self._dummy_cube.use(location=3)
+
+    def _set_shadow(self, prog, shadow, cam):
+        """Bind a group's shadow map (or none) and set its uniforms in a shading program."""
         if shadow is not None:
             shadow.texture.use(location=0)
             light = shadow.light_from_world @ _translation(cam)
@@ -1000,12 +1194,6 @@ class Renderer:
             self._dummy_shadow.use(location=0)
             self._depth_sampler.texture = self._dummy_shadow
         self._depth_sampler.use(location=4)
-        if batch.scatter is not None:
-            texture, rect = batch.scatter
-            texture.use(location=5)
-            _set(prog, "u_scatter_rect", tuple(float(v) for v in rect))
-        else:
-            self._dummy_scatter.use(location=5)
 
 
 def _translation(t) -> np.ndarray:

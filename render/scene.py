@@ -39,7 +39,7 @@ __all__ = ["BODY_SHADOW_BIAS", "TERRAIN_SHADOW_BIAS", "DrawBatch", "FrameState",
 #: depth comparison then allows a constant ``BIAS_TEXELS`` (one texel's depth
 #: quantisation and rasterisation difference, plus margin) and ``SLOPE_BIAS_TEXELS`` times
 #: the tangent of the sun's incidence (a sloped receiver's depth changes across a texel; the
-#: tangent is capped at 20 in ``shaders/scene.frag``, ``MAX_TAN_INCIDENCE``).
+#: tangent is capped at 20 in ``shaders/shade.frag``, ``MAX_TAN_INCIDENCE``).
 #: Bodies (asteroids, meshes) are drawn into the map with the same mesh as the camera sees.
 NORMAL_OFFSET_TEXELS = 1.0
 BODY_BIAS_TEXELS = 1.5

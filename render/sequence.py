@@ -37,15 +37,16 @@ __all__ = ["check_frame_memory", "expose_sample", "frame_motion", "load_scene",
 
 log = logging.getLogger(__name__)
 
-#: Peak bytes per image pixel of one frame: float colour, range and normal attachments and
-#: depth on the GPU side, their float32 read-backs, the sensor's working copies and the image.
-FRAME_BYTES_PER_PIXEL = 96
+#: Peak bytes per image pixel of one frame: float colour, range and normal attachments, the
+#: surface pass's position (16) and a body's per-vertex values (8), depth and stencil (8) on
+#: the GPU side, their float32 read-backs, the sensor's working copies and the image.
+FRAME_BYTES_PER_PIXEL = 124
 #: Bytes reserved per shadow-map texel: a 32-bit depth texel, and as much again allowed for
 #: the driver's own copies.
 SHADOW_BYTES_PER_TEXEL = 8
 #: Peak bytes per sample of an antialiased frame (``RenderOptions.antialias``), on top: the
-#: attachments, depth and read-backs at the sample resolution.
-SAMPLE_BYTES_PER_PIXEL = 56
+#: attachments, depth, stencil and read-backs at the sample resolution.
+SAMPLE_BYTES_PER_PIXEL = 84
 #: Bytes per image pixel of the frame a sequence writes while it renders the next one
 #: (:func:`run_sequence`): its image, range, normals, radiance and body ids.
 WRITE_BEHIND_BYTES_PER_PIXEL = 24
