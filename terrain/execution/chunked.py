@@ -1045,19 +1045,21 @@ def dask_client(workers: int | None = None, scheduler: str | None = None,
         yield client
 
 
-#: Modules a chunk task imports on a fresh worker: this one (the task function and the
-#: sources), the window functions the sources call, and Zarr with its Blosc codec.
-WORKER_MODULES = ("terrain.execution.chunked", "terrain.fractal.expand", "terrain.fractal.gapfill",
-                  "terrain.fractal.synthetic", "terrain.craters.cratering", "zarr",
-                  "numcodecs.blosc")
+#: Modules a chunk task imports on a fresh worker: dask.array (its ``map_blocks`` wraps the
+#: task function, so unpickling the first task imports it, SciPy's FFT included), this
+#: module (the task function and the sources), the window functions the sources call, and
+#: Zarr with its Blosc codec.
+WORKER_MODULES = ("dask.array", "terrain.execution.chunked", "terrain.fractal.expand",
+                  "terrain.fractal.gapfill", "terrain.fractal.synthetic",
+                  "terrain.craters.cratering", "zarr", "numcodecs.blosc")
 
 
 def prepare_worker() -> list[str]:
     """Import :data:`WORKER_MODULES` in this process; return their names.
 
     Run on every worker when a client is made (:func:`dask_client`), so that the imports
-    (about half a second, Zarr's most of it) are paid once per worker, when the cluster
-    starts, and not by the first chunk of every run on it.
+    (a second or more, dask.array's and Zarr's most of it) are paid once per worker, when
+    the cluster starts, and not by the first chunk of every run on it.
     """
     import importlib
 
