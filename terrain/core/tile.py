@@ -24,6 +24,7 @@ import numpy as np
 from affine import Affine
 
 from terrain.core.errors import InvalidDEMError, InvalidParameterError
+from terrain.core.parallel import run_blocks
 
 __all__ = ["DEMTile", "Window", "default_transform"]
 
@@ -31,6 +32,20 @@ __all__ = ["DEMTile", "Window", "default_transform"]
 def default_transform(resolution: float, nrows: int) -> Affine:
     """North-up transform of a local map frame with the tile's lower-left corner at (0, 0)."""
     return Affine(resolution, 0.0, 0.0, 0.0, -resolution, resolution * nrows)
+
+
+#: Rows per block of :func:`_finite_rows` (a 8193-pixel row is 32 KiB of heights).
+FINITE_ROWS = 256
+
+
+def _finite_rows(heights: np.ndarray, valid: np.ndarray, first: int, last: int) -> None:
+    """Write ``isfinite(heights)`` into ``valid`` on the blocks of rows ``first .. last - 1``.
+
+    NumPy releases the GIL in the comparison, so :func:`terrain.core.parallel.run_blocks`
+    derives a large tile's mask on every core.
+    """
+    rows = slice(first * FINITE_ROWS, last * FINITE_ROWS)
+    np.isfinite(heights[rows], out=valid[rows])
 
 
 @dataclass(frozen=True)
@@ -181,7 +196,8 @@ class DEMTile:
                                   f"got {heights.dtype} {heights.shape}")
         tile = object.__new__(cls)
         heights.flags.writeable = False
-        valid = np.isfinite(heights)
+        valid = np.empty(heights.shape, dtype=bool)
+        run_blocks(_finite_rows, -(-heights.shape[0] // FINITE_ROWS), heights, valid)
         valid.flags.writeable = False
         meta = MappingProxyType({str(k): str(v) for k, v in dict(metadata or {}).items()})
         for name, value in (("heights", heights), ("valid", valid), ("transform", transform),

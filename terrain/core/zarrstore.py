@@ -40,8 +40,10 @@ import json
 import logging
 import os
 import tempfile
+import threading
 import zipfile
 import zlib
+from collections import OrderedDict
 from pathlib import Path
 
 import numpy as np
@@ -84,6 +86,61 @@ def _file_stamp(path: Path) -> tuple[int, int]:
     except FileNotFoundError:
         return (-1, 0)
     return (len(data), zlib.crc32(data))
+
+
+#: Bytes of decoded chunks a process keeps of the complete stores it reads (four 2049^2
+#: chunks and some: a 2x2 neighbourhood of input chunks). A chunk task reads
+#: its window with a halo of a few pixels, which reaches into up to three neighbouring chunks:
+#: without the cache each task decoded those whole again (a 2x expansion of 4097^2 into
+#: 2049^2 chunks decoded 36 input chunks for 16 tasks, a fifth of the workers' time).
+DECODED_CACHE_BYTES = 96 * 2**20
+_DECODED: OrderedDict[tuple, np.ndarray] = OrderedDict()
+_DECODED_LOCK = threading.Lock()
+
+
+def _decoded_chunk(store: ZarrDEM, i: int, j: int) -> np.ndarray:
+    """Return chunk (i, j) of a complete store, decoded (float32, as stored), via the cache.
+
+    A chunk is kept under the size and CRC-32 its marker recorded together with the
+    inode, size and modification time of its file now, so a chunk written again (a store
+    made anew at the same path, a damaged chunk recomputed) is decoded again, never served
+    stale; a chunk whose marker cannot be read, or disagrees with its file, is not kept.
+    """
+    w = store.chunk_window(i, j)
+    key = _chunk_key(store, i, j)
+    if key is not None:
+        with _DECODED_LOCK:
+            block = _DECODED.get(key)
+            if block is not None:
+                _DECODED.move_to_end(key)
+                return block
+    block = np.asarray(_array(store.path, "r")[w.row:w.row + w.height, w.col:w.col + w.width],
+                       dtype=np.float32)
+    block.flags.writeable = False
+    if key is not None and block.nbytes <= DECODED_CACHE_BYTES // 2:  # two at least, or none
+        with _DECODED_LOCK:
+            _DECODED[key] = block
+            held = sum(b.nbytes for b in _DECODED.values())
+            while held > DECODED_CACHE_BYTES:
+                held -= _DECODED.popitem(last=False)[1].nbytes
+    return block
+
+
+def _chunk_key(store: ZarrDEM, i: int, j: int) -> tuple | None:
+    """Return what identifies chunk (i, j)'s stored bytes (:func:`_decoded_chunk`), or None."""
+    try:
+        with np.load(store._marker(i, j)) as f:
+            size, crc = (int(v) for v in f[CHUNK_STAMP])
+    except _UNREADABLE:  # no marker, or one from before the stamps: not kept
+        return None
+    try:
+        st = os.stat(store.chunk_file(i, j))
+        found = (st.st_ino, st.st_size, st.st_mtime_ns)
+    except FileNotFoundError:  # all nodata: Zarr keeps no file
+        found = (-1, -1, 0)
+    if found[1] != size:
+        return None
+    return (str(store.path), i, j, size, crc, found)
 
 
 def is_zarr(path) -> bool:
@@ -345,7 +402,10 @@ class ZarrDEM:
         window.check_inside(*self.shape)
         rs, cs = window.slices
         try:
-            h = np.asarray(_array(self.path, "r")[rs, cs], dtype=np.float32)
+            if self.complete:  # no chunk changes any more: decode each once per process
+                h = self._assemble(window)
+            else:
+                h = np.asarray(_array(self.path, "r")[rs, cs], dtype=np.float32)
         except _UNREADABLE as exc:
             raise self._unreadable(window, exc) from None
         valid = np.isfinite(h)
@@ -353,6 +413,20 @@ class ZarrDEM:
             valid &= h != np.float32(self.nodata)
         h = np.where(valid, h, np.float32(np.nan)).astype(np.float32)
         return h, valid
+
+    def _assemble(self, window: Window) -> np.ndarray:
+        """Return the window's stored values (float32) from the decoded chunks it overlaps."""
+        out = np.empty((window.height, window.width), dtype=np.float32)
+        c = self.chunk
+        for i in range(window.row // c, -(-(window.row + window.height) // c)):
+            for j in range(window.col // c, -(-(window.col + window.width) // c)):
+                block = _decoded_chunk(self, i, j)
+                r0, c0 = max(window.row, i * c), max(window.col, j * c)
+                r1 = min(window.row + window.height, i * c + block.shape[0])
+                c1 = min(window.col + window.width, j * c + block.shape[1])
+                out[r0 - window.row:r1 - window.row, c0 - window.col:c1 - window.col] = \
+                    block[r0 - i * c:r1 - i * c, c0 - j * c:c1 - j * c]
+        return out
 
     def _unreadable(self, window: Window, exc: BaseException) -> InvalidDEMError:
         """Return the error for a failed read, naming the first chunk that cannot be read."""

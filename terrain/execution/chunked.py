@@ -21,9 +21,10 @@ Dask cluster (``--scheduler tcp://HOST:PORT``, as printed by ``dask scheduler`` 
    :func:`terrain.fractal.gapfill.fill_gaps`),
 3. writes the chunk, then its marker.
 
-Memory is bounded by one chunk and its halo per worker, never by the DEM. A worker that dies
-mid-run is replaced by Dask and its task run again; a run that stops part way is resumed by
-running the same command again: finished chunks are not computed again.
+Memory is bounded by one chunk and its halo per worker, never by the DEM (plus the decoded
+input chunks a worker keeps, :data:`terrain.core.zarrstore.DECODED_CACHE_BYTES`). A worker
+that dies mid-run is replaced by Dask and its task run again; a run that stops part way is
+resumed by running the same command again: finished chunks are not computed again.
 
 Examples
 --------
@@ -1027,6 +1028,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None,
             raise InvalidParameterError(
                 f"cannot reach the Dask scheduler at {scheduler}: {exc}") from exc
         with client:
+            _prepare_workers(client)
             yield client
         return
     if workers is None or isinstance(workers, bool) or int(workers) < 1:  # None: scheduler
@@ -1038,7 +1040,35 @@ def dask_client(workers: int | None = None, scheduler: str | None = None,
         quiet.setLevel(logging.ERROR)  # the scheduler's chatter, unless -v
     with contextlib.ExitStack() as undo:
         undo.callback(quiet.setLevel, level)
-        yield undo.enter_context(_local_client(workers, processes, memory_limit, env))
+        client = undo.enter_context(_local_client(workers, processes, memory_limit, env))
+        _prepare_workers(client)
+        yield client
+
+
+#: Modules a chunk task imports on a fresh worker: dask.array (its ``map_blocks`` wraps the
+#: task function, so unpickling the first task imports it, SciPy's FFT included), this
+#: module (the task function and the sources), the window functions the sources call, and
+#: Zarr with its Blosc codec.
+WORKER_MODULES = ("dask.array", "terrain.execution.chunked", "terrain.fractal.expand",
+                  "terrain.fractal.gapfill", "terrain.fractal.synthetic",
+                  "terrain.craters.cratering", "zarr", "numcodecs.blosc")
+
+
+def prepare_worker() -> list[str]:
+    """Import :data:`WORKER_MODULES` in this process; return their names.
+
+    Run on every worker when a client is made (:func:`dask_client`), so that the imports
+    (a second or more, dask.array's and Zarr's most of it) are paid once per worker, when
+    the cluster starts, and not by the first chunk of every run on it.
+    """
+    import importlib
+
+    return [importlib.import_module(name).__name__ for name in WORKER_MODULES]
+
+
+def _prepare_workers(client) -> None:
+    """Run :func:`prepare_worker` on the client's workers (those connected now)."""
+    client.run(prepare_worker)
 
 
 @contextlib.contextmanager

@@ -100,13 +100,45 @@ def square_residual(heights: np.ndarray, s: int) -> tuple[float, int]:
     if ny <= 2 * s or nx <= 2 * s:
         return math.nan, 0
     k = max(1, int(math.ceil(math.sqrt(heights.size / RESIDUAL_POSITIONS))))
+    if isinstance(heights, np.ndarray):
+        r = np.empty(len(range(s, ny - s, k)) * len(range(s, nx - s, k)))
+        r = r[:_known_residuals(heights, s, k, r)]
+    else:  # an object that answers strided slices (a DEM read from a file in strips)
 
-    def at(dr, dc):  # the strided positions only, in float64
-        return np.asarray(heights[s + dr:ny - s + dr:k, s + dc:nx - s + dc:k], dtype=np.float64)
+        def at(dr, dc):  # the strided positions only, in float64
+            return np.asarray(heights[s + dr:ny - s + dr:k, s + dc:nx - s + dc:k],
+                              dtype=np.float64)
 
-    r = at(0, 0) - 0.25 * (at(-s, -s) + at(-s, s) + at(s, -s) + at(s, s))
-    r = r[np.isfinite(r)]
+        r = at(0, 0) - 0.25 * (at(-s, -s) + at(-s, s) + at(s, -s) + at(s, s))
+        r = r[np.isfinite(r)]
     return (float(np.sqrt(np.mean(r * r))) if r.size else math.nan), int(r.size)
+
+
+def _square_residuals(heights, spacings, out, first: int, last: int) -> None:
+    """:func:`square_residual` at ``spacings[first:last]`` into ``out`` (one spacing a block)."""
+    for i in range(first, last):
+        out[i] = square_residual(heights, spacings[i])
+
+
+@numba.njit(cache=True, nogil=True)
+def _known_residuals(z, s, k, out):
+    """Write the finite square residuals at every k-th row and column into ``out``, in order.
+
+    In one pass what ``c - 0.25 (nw + ne + sw + se)`` on float64 copies of the strided
+    views, filtered by ``isfinite``, gives, the same operations in the same order (so the
+    same bits) without the temporaries. Returns how many were written.
+    """
+    ny, nx = z.shape
+    n = 0
+    for a in range(s, ny - s, k):
+        for b in range(s, nx - s, k):
+            around = (np.float64(z[a - s, b - s]) + np.float64(z[a - s, b + s])
+                      + np.float64(z[a + s, b - s]) + np.float64(z[a + s, b + s]))
+            r = np.float64(z[a, b]) - 0.25 * around
+            if math.isfinite(r):
+                out[n] = r
+                n += 1
+    return n
 
 
 @numba.njit(cache=True)
@@ -128,12 +160,21 @@ def _local_amplitude(z, r0, r1, c0, c1, half, global_sigma, out, strip_first, st
     columns in order), clipped at the DEM's edges only, so any sub-region computed alone
     gives the same values bitwise. Works in strips of rows to stay in cache: the strips
     ``strip_first .. strip_last - 1`` (of :data:`AMPLITUDE_STRIP` rows from ``r0``).
+
+    The sums run one box offset at a time over a whole row (the inner loops are over
+    columns, so they vectorise); a residual that is unknown, or outside the DEM, adds 0.0
+    and counts 0, which leaves every partial sum (never -0.0) as skipping it would.
     """
     ny, nx = z.shape
     b0 = max(1, c0 - half)
     b1 = min(nx - 2, c1 - 1 + half)
     width = c1 - c0
+    box = 2 * half + 1
     strip = AMPLITUDE_STRIP
+    # residuals of a row at columns c0 - half .. c1 - 1 + half, NaN off b0 .. b1
+    line = np.full(width + 2 * half, math.nan)
+    t = np.empty(width)
+    k = np.empty(width)
     for s_index in range(strip_first, strip_last):
         s0 = r0 + s_index * strip
         s1 = min(r1, s0 + strip)
@@ -143,33 +184,31 @@ def _local_amplitude(z, r0, r1, c0, c1, half, global_sigma, out, strip_first, st
         rows2 = np.zeros((na, width))
         rows_n = np.zeros((na, width))
         if b1 >= b0:
-            line = np.empty(b1 - b0 + 1)
             for a in range(a0, a1 + 1):
                 for b in range(b0, b1 + 1):
-                    line[b - b0] = _residual2(z, a, b)
-                for j in range(width):
-                    t = 0.0
-                    k = 0.0
-                    for b in range(max(b0, c0 + j - half), min(b1, c0 + j + half) + 1):
-                        v = line[b - b0]
-                        if not math.isnan(v):
-                            t += v
-                            k += 1.0
-                    rows2[a - a0, j] = t
-                    rows_n[a - a0, j] = k
+                    line[b - c0 + half] = _residual2(z, a, b)
+                sums = rows2[a - a0]
+                counts = rows_n[a - a0]
+                for d in range(box):
+                    for j in range(width):
+                        v = line[j + d]
+                        known = not math.isnan(v)
+                        sums[j] += v if known else 0.0
+                        counts[j] += 1.0 if known else 0.0
         for i in range(s0, s1):
             lo = max(a0, i - half)
             hi = min(a1, i + half)
+            t[:] = 0.0
+            k[:] = 0.0
+            for a in range(lo, hi + 1):
+                for j in range(width):
+                    t[j] += rows2[a - a0, j]
+                    k[j] += rows_n[a - a0, j]
             for j in range(width):
-                t = 0.0
-                k = 0.0
-                for a in range(lo, hi + 1):
-                    t += rows2[a - a0, j]
-                    k += rows_n[a - a0, j]
-                if k == 0.0 or global_sigma <= 0.0:
+                if k[j] == 0.0 or global_sigma <= 0.0:
                     out[i - r0, j] = 1.0
                 else:
-                    out[i - r0, j] = math.sqrt(t / k) / global_sigma
+                    out[i - r0, j] = math.sqrt(t[j] / k[j]) / global_sigma
 
 
 def local_amplitude(heights: np.ndarray, global_sigma: float, box: int = LOCAL_BOX,
@@ -230,8 +269,12 @@ def estimate(tile: DEMTile, spacings=DEFAULT_SPACINGS) -> FractalFit:
     """
     used, sigmas = [], []
     positions = 0
-    for s in spacings:
-        sigma, n = square_residual(tile.heights, s)
+    measured: list = [None] * len(spacings)
+    if isinstance(tile.heights, np.ndarray):  # one spacing a thread
+        run_blocks(_square_residuals, len(spacings), tile.heights, tuple(spacings), measured)
+    else:  # strided slices answered from a file, which reads it once: in turn
+        _square_residuals(tile.heights, tuple(spacings), measured, 0, len(spacings))
+    for s, (sigma, n) in zip(spacings, measured, strict=True):
         positions += n
         if n >= MIN_POSITIONS and math.isfinite(sigma) and sigma > 0:
             used.append(s)
