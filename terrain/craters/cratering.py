@@ -526,6 +526,9 @@ class ClassSettings(NamedTuple):
         The overlay's parameters (:meth:`CraterRoughness.as_array`).
     footprint_factor : float
         Reach of a crater's change in diameters.
+    gaps : bool
+        Whether the terrain has unknown (NaN) pixels, which craters leave alone; without
+        any, the stamp does not read the pre-class terrain at every pixel to look for them.
     """
 
     seed: int
@@ -534,6 +537,7 @@ class ClassSettings(NamedTuple):
     rough: bool
     rough_params: np.ndarray
     footprint_factor: float
+    gaps: bool
 
 
 #: Output rows of one parallel band of a size class: each band composes, in age order, the
@@ -720,6 +724,7 @@ def _stamp_crater(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, n,
     row = craters.complex[n]
     irregular = settings.rim_amplitude > 0.0
     rough = settings.rough
+    gaps = settings.gaps
     reach = d * settings.footprint_factor
     if rough:
         level = _patch_level(d, res, settings.footprint_factor)
@@ -766,8 +771,7 @@ def _stamp_crater(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, n,
             x = r / rt - 1.0
             if x > 1.0:
                 continue
-            t = T[i - tr0, j - tc0]
-            if math.isnan(t):
+            if gaps and math.isnan(T[i - tr0, j - tc0]):
                 continue
             cur = out[i - or0, j - oc0]
             ov = (patch_value_in_row(patch, spacing, half_extent, p_i0, p_ti, dx) if rough
@@ -871,8 +875,11 @@ def crater_heights(base, shape, transform, craters, *, seed, model=None, window=
 
     terrain = np.ascontiguousarray(base(r0, r1, c0, c1), dtype=np.float64)
     origin = (r0, c0)
+    # Craters never make a known pixel unknown or an unknown one known, so the first
+    # region's gaps are every class's.
     settings = ClassSettings(seed, model.rim.effective_amplitude, model.rim.hurst,
-                             model.roughness.enabled, model.roughness.as_array(), factor)
+                             model.roughness.enabled, model.roughness.as_array(), factor,
+                             bool(np.isnan(terrain).any()))
     placed = []
     spare, owned = None, False  # base() may hand back the caller's own array
     total = len(classes.classes)
