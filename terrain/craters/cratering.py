@@ -56,6 +56,7 @@ import numpy as np
 
 from terrain.core import memory
 from terrain.core import metakeys as mk
+from terrain.core.arctan import atan2
 from terrain.core.errors import InvalidParameterError
 from terrain.core.parallel import run_blocks
 from terrain.core.rng import check_seed
@@ -633,6 +634,7 @@ def _stamp_bands(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, fir
                  size, reach_rows, tables, rim_tables, n_azimuths, patches, offsets,
                  band_first, band_last):
     """Compose the group's craters, in age order, onto the bands ``band_first .. last - 1``."""
+    azimuths = np.empty(out.shape[1])
     for band in range(band_first, band_last):
         row_first = or0 + band * BAND_ROWS
         row_last = min(or0 + out.shape[0], or0 + (band + 1) * BAND_ROWS) - 1
@@ -645,7 +647,7 @@ def _stamp_bands(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, fir
             _stamp_crater(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, n,
                           tables[m], rim_tables[m, :n_azimuths[m]],
                           patches[offsets[m]:offsets[m + 1]].reshape((k, k)),
-                          row_first, row_last)
+                          row_first, row_last, azimuths)
 
 
 @numba.njit(cache=True)
@@ -710,10 +712,25 @@ def _prepare_crater(T, tr0, tc0, nrows, ncols, x0, y0, res, craters, settings, n
                            max(0, p_lo), min(nodes, p_hi), max(0, q_lo), min(nodes, q_hi))
 
 
+@numba.njit(cache=True, error_model="numpy")
+def _row_azimuths(x0, res, xc, dy, j_lo, j_hi, out):
+    """Fill ``out[:j_hi - j_lo + 1]`` with the azimuths (rad) of the pixels ``j_lo .. j_hi``.
+
+    A loop of :func:`terrain.core.arctan.atan2` alone, which the compiler vectorises; the
+    numpy error model only drops the division-by-zero checks that would stop it (``atan2``
+    never divides by zero).
+    """
+    for j in range(j_lo, j_hi + 1):
+        out[j - j_lo] = atan2(dy, (x0 + (j + 0.5) * res) - xc)
+
+
 @numba.njit(cache=True)
 def _stamp_crater(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, n, table,
-                  rim_terrain_table, patch, row_first, row_last):
-    """Compose crater ``n`` onto the output rows ``row_first..row_last`` (DEM pixels)."""
+                  rim_terrain_table, patch, row_first, row_last, azimuths):
+    """Compose crater ``n`` onto the output rows ``row_first..row_last`` (DEM pixels).
+
+    ``azimuths`` is scratch space of at least the output's width.
+    """
     d = craters.diameter[n]
     radius = 0.5 * d
     xc = craters.x[n]
@@ -757,6 +774,8 @@ def _stamp_crater(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, n,
         row_j_lo = max(j_lo, int(math.ceil(cc - half)))
         row_j_hi = min(j_hi, int(math.floor(cc + half)))
         p_i0, p_ti = patch_row(patch, spacing, half_extent, dy) if rough else (0, 0.0)
+        if irregular:  # every pixel of the row reads the rim at its azimuth
+            _row_azimuths(x0, res, xc, dy, row_j_lo, row_j_hi, azimuths)
         for j in range(row_j_lo, row_j_hi + 1):
             dx = (x0 + (j + 0.5) * res) - xc
             r = math.sqrt(dx * dx + dy * dy)
@@ -764,7 +783,7 @@ def _stamp_crater(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, n,
                 continue
             theta = 0.0
             if irregular:
-                theta = math.atan2(dy, dx)
+                theta = azimuths[j - row_j_lo]
                 rt = radius + periodic_sample(table, theta) * d
             else:
                 rt = radius
@@ -778,7 +797,7 @@ def _stamp_crater(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, n,
                   else 0.0)
             if x <= 0.0:
                 if not irregular:
-                    theta = math.atan2(dy, dx)
+                    theta = atan2(dy, dx)
                 offset = periodic_sample(rim_terrain_table, theta)
                 h = crater_interior(x, curvature, floor, hr + offset, row)
                 plane = p0 + px * dx + py * dy
