@@ -56,6 +56,7 @@ import numpy as np
 
 from terrain.core import memory
 from terrain.core import metakeys as mk
+from terrain.core.arctan import atan2
 from terrain.core.errors import InvalidParameterError
 from terrain.core.parallel import run_blocks
 from terrain.core.rng import check_seed
@@ -526,6 +527,9 @@ class ClassSettings(NamedTuple):
         The overlay's parameters (:meth:`CraterRoughness.as_array`).
     footprint_factor : float
         Reach of a crater's change in diameters.
+    gaps : bool
+        Whether the terrain has unknown (NaN) pixels, which craters leave alone; without
+        any, the stamp does not read the pre-class terrain at every pixel to look for them.
     """
 
     seed: int
@@ -534,6 +538,7 @@ class ClassSettings(NamedTuple):
     rough: bool
     rough_params: np.ndarray
     footprint_factor: float
+    gaps: bool
 
 
 #: Output rows of one parallel band of a size class: each band composes, in age order, the
@@ -629,6 +634,7 @@ def _stamp_bands(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, fir
                  size, reach_rows, tables, rim_tables, n_azimuths, patches, offsets,
                  band_first, band_last):
     """Compose the group's craters, in age order, onto the bands ``band_first .. last - 1``."""
+    azimuths = np.empty(out.shape[1])
     for band in range(band_first, band_last):
         row_first = or0 + band * BAND_ROWS
         row_last = min(or0 + out.shape[0], or0 + (band + 1) * BAND_ROWS) - 1
@@ -641,7 +647,7 @@ def _stamp_bands(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, fir
             _stamp_crater(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, n,
                           tables[m], rim_tables[m, :n_azimuths[m]],
                           patches[offsets[m]:offsets[m + 1]].reshape((k, k)),
-                          row_first, row_last)
+                          row_first, row_last, azimuths)
 
 
 @numba.njit(cache=True)
@@ -706,10 +712,25 @@ def _prepare_crater(T, tr0, tc0, nrows, ncols, x0, y0, res, craters, settings, n
                            max(0, p_lo), min(nodes, p_hi), max(0, q_lo), min(nodes, q_hi))
 
 
+@numba.njit(cache=True, error_model="numpy")
+def _row_azimuths(x0, res, xc, dy, j_lo, j_hi, out):
+    """Fill ``out[:j_hi - j_lo + 1]`` with the azimuths (rad) of the pixels ``j_lo .. j_hi``.
+
+    A loop of :func:`terrain.core.arctan.atan2` alone, which the compiler vectorises; the
+    numpy error model only drops the division-by-zero checks that would stop it (``atan2``
+    never divides by zero).
+    """
+    for j in range(j_lo, j_hi + 1):
+        out[j - j_lo] = atan2(dy, (x0 + (j + 0.5) * res) - xc)
+
+
 @numba.njit(cache=True)
 def _stamp_crater(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, n, table,
-                  rim_terrain_table, patch, row_first, row_last):
-    """Compose crater ``n`` onto the output rows ``row_first..row_last`` (DEM pixels)."""
+                  rim_terrain_table, patch, row_first, row_last, azimuths):
+    """Compose crater ``n`` onto the output rows ``row_first..row_last`` (DEM pixels).
+
+    ``azimuths`` is scratch space of at least the output's width.
+    """
     d = craters.diameter[n]
     radius = 0.5 * d
     xc = craters.x[n]
@@ -720,6 +741,7 @@ def _stamp_crater(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, n,
     row = craters.complex[n]
     irregular = settings.rim_amplitude > 0.0
     rough = settings.rough
+    gaps = settings.gaps
     reach = d * settings.footprint_factor
     if rough:
         level = _patch_level(d, res, settings.footprint_factor)
@@ -752,6 +774,8 @@ def _stamp_crater(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, n,
         row_j_lo = max(j_lo, int(math.ceil(cc - half)))
         row_j_hi = min(j_hi, int(math.floor(cc + half)))
         p_i0, p_ti = patch_row(patch, spacing, half_extent, dy) if rough else (0, 0.0)
+        if irregular:  # every pixel of the row reads the rim at its azimuth
+            _row_azimuths(x0, res, xc, dy, row_j_lo, row_j_hi, azimuths)
         for j in range(row_j_lo, row_j_hi + 1):
             dx = (x0 + (j + 0.5) * res) - xc
             r = math.sqrt(dx * dx + dy * dy)
@@ -759,22 +783,21 @@ def _stamp_crater(T, tr0, tc0, out, or0, oc0, x0, y0, res, craters, settings, n,
                 continue
             theta = 0.0
             if irregular:
-                theta = math.atan2(dy, dx)
+                theta = azimuths[j - row_j_lo]
                 rt = radius + periodic_sample(table, theta) * d
             else:
                 rt = radius
             x = r / rt - 1.0
             if x > 1.0:
                 continue
-            t = T[i - tr0, j - tc0]
-            if math.isnan(t):
+            if gaps and math.isnan(T[i - tr0, j - tc0]):
                 continue
             cur = out[i - or0, j - oc0]
             ov = (patch_value_in_row(patch, spacing, half_extent, p_i0, p_ti, dx) if rough
                   else 0.0)
             if x <= 0.0:
                 if not irregular:
-                    theta = math.atan2(dy, dx)
+                    theta = atan2(dy, dx)
                 offset = periodic_sample(rim_terrain_table, theta)
                 h = crater_interior(x, curvature, floor, hr + offset, row)
                 plane = p0 + px * dx + py * dy
@@ -871,8 +894,11 @@ def crater_heights(base, shape, transform, craters, *, seed, model=None, window=
 
     terrain = np.ascontiguousarray(base(r0, r1, c0, c1), dtype=np.float64)
     origin = (r0, c0)
+    # Craters never make a known pixel unknown or an unknown one known, so the first
+    # region's gaps are every class's.
     settings = ClassSettings(seed, model.rim.effective_amplitude, model.rim.hurst,
-                             model.roughness.enabled, model.roughness.as_array(), factor)
+                             model.roughness.enabled, model.roughness.as_array(), factor,
+                             bool(np.isnan(terrain).any()))
     placed = []
     spare, owned = None, False  # base() may hand back the caller's own array
     total = len(classes.classes)
