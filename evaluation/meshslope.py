@@ -85,6 +85,10 @@ FIELD_NEIGHBOURS = 12
 #: Largest miss of a fitted plane at its own neighbours, as a fraction of the field, below
 #: which an interpolated value is kept (else the field is evaluated at that vertex too).
 FIELD_FIT_TOLERANCE = 1e-2
+#: Levels of the field's sample: where a plane misses, the sample is made twice as dense
+#: there and the plane fitted again, up to this many times in all; what still misses after
+#: the last is evaluated exactly (:func:`sampled_attraction`).
+FIELD_LEVELS = 2
 #: Density used when neither density nor mass is given, kg m^-3 (433 Eros, the paper's body).
 DEFAULT_DENSITY = EROS_DENSITY
 #: Mesh files :func:`load_body` reads (the native asteroid model and what trimesh reads).
@@ -295,6 +299,29 @@ def cap_average(directions, values, weights, radius_deg: float) -> np.ndarray:
     return out[:, 0] if one else out
 
 
+def _one_per_cell(vertices: np.ndarray, step: float, origin: np.ndarray) -> np.ndarray:
+    """Sorted indices of the lowest-numbered vertex in each occupied cubic cell of ``step``."""
+    cell = np.floor((vertices - origin) / step).astype(np.int64)
+    _, first = np.unique(cell, axis=0, return_index=True)
+    return np.sort(first)
+
+
+def _field_grid(v: np.ndarray, points: int) -> tuple[np.ndarray, float]:
+    """:func:`field_sample`'s indices and the cell side (metres) that gave them."""
+    extent = float(np.max(v.max(axis=0) - v.min(axis=0)))
+    origin = v.min(axis=0)
+    # a closed surface of extent L has an area of order L^2: start from a cell of that share
+    step = extent / math.sqrt(max(1, points))
+    best, best_step = np.arange(len(v)), step
+    for _ in range(12):
+        best, best_step = _one_per_cell(v, step, origin), step
+        ratio = len(best) / points
+        if 0.8 <= ratio <= 1.25:
+            break
+        step *= math.sqrt(ratio)
+    return best, best_step
+
+
 def field_sample(vertices: np.ndarray, points: int) -> np.ndarray:
     """Return about ``points`` vertex indices spread evenly over a surface (one per grid cell).
 
@@ -313,20 +340,7 @@ def field_sample(vertices: np.ndarray, points: int) -> np.ndarray:
     (k,) int64
         Sorted vertex indices.
     """
-    v = np.asarray(vertices, dtype=np.float64)
-    extent = float(np.max(v.max(axis=0) - v.min(axis=0)))
-    # a closed surface of extent L has an area of order L^2: start from a cell of that share
-    step = extent / math.sqrt(max(1, points))
-    best = np.arange(len(v))
-    for _ in range(12):
-        cell = np.floor((v - v.min(axis=0)) / step).astype(np.int64)
-        _, first = np.unique(cell, axis=0, return_index=True)
-        best = np.sort(first)
-        ratio = len(best) / points
-        if 0.8 <= ratio <= 1.25:
-            break
-        step *= math.sqrt(ratio)
-    return best
+    return _field_grid(np.asarray(vertices, dtype=np.float64), points)[0]
 
 
 def sampled_attraction(body: Polyhedron, vertices: np.ndarray, normals: np.ndarray,
@@ -340,8 +354,11 @@ def sampled_attraction(body: Polyhedron, vertices: np.ndarray, normals: np.ndarr
     (a moving least-squares fit of degree one: exact for a field that varies linearly over
     the surface). Where that plane misses one of its own neighbours by more than
     :data:`FIELD_FIT_TOLERANCE` of the field, the field bends within a sample spacing (a
-    coarse edge close by) and is evaluated at the vertex itself. The uncertainty this adds
-    to a body's slopes is measured in ``docs/speed.md``.
+    coarse edge close by): there the field is evaluated at one of those vertices per cell
+    of half the spacing, and the others are fitted again from the denser sample, under the
+    same tolerance (:data:`FIELD_LEVELS` fits in all); a vertex whose last plane still
+    misses is evaluated itself. The uncertainty this adds to a body's slopes is measured
+    in ``docs/speed.md``.
 
     Parameters
     ----------
@@ -365,39 +382,66 @@ def sampled_attraction(body: Polyhedron, vertices: np.ndarray, normals: np.ndarr
     from scipy.spatial import cKDTree
 
     v = np.asarray(vertices, dtype=np.float64)
-    idx = field_sample(v, points)
-    _, exact = body.field(v[idx], progress=progress)
+    idx, step = _field_grid(v, points)
     out = np.empty((len(v), 3))
-    out[idx] = exact
-    rest = np.ones(len(v), dtype=bool)
-    rest[idx] = False
-    q = np.flatnonzero(rest)
-    k = min(FIELD_NEIGHBOURS, len(idx))
-    dist, nb = cKDTree(v[idx]).query(v[q], k=k)
-    # tangent-plane coordinates of the neighbours about each vertex
-    n = np.nan_to_num(normals[q])
+    _, out[idx] = body.field(v[idx], progress=progress)
+    known = np.zeros(len(v), dtype=bool)
+    known[idx] = True
+    pending = np.flatnonzero(~known)
+    for level in range(1, FIELD_LEVELS + 1):
+        if not pending.size:
+            break
+        src = np.flatnonzero(known)
+        fitted, missed = _plane_fit(v[src], out[src], cKDTree(v[src]), v[pending],
+                                    normals[pending], min(FIELD_NEIGHBOURS, src.size),
+                                    FIELD_FIT_TOLERANCE)
+        out[pending[~missed]] = fitted[~missed]
+        bad = pending[missed]
+        if level == FIELD_LEVELS:  # the field bends within the finest spacing: exact there
+            if bad.size:
+                _, out[bad] = body.field(v[bad])
+            known[bad] = True
+            break
+        # where the plane missed, the field is evaluated at one vertex per cell of half the
+        # spacing before, and the rest are fitted again from the denser sample
+        new = bad[_one_per_cell(v[bad], step / 2 ** level, v.min(axis=0))]
+        _, out[new] = body.field(v[new])
+        known[new] = True
+        pending = np.setdiff1d(bad, new, assume_unique=True)
+    return out, int(known.sum())
+
+
+def _plane_fit(src_points, src_values, tree, points, normals, k, tolerance):
+    """Weighted least-squares planes through each point's ``k`` nearest source values.
+
+    Returns the planes' values at the points, (n, 3), and whether each plane misses one of
+    its own neighbours by more than ``tolerance`` of its value, (n,) bool.
+    """
+    dist, nb = tree.query(points, k=k)
+    if k == 1:
+        dist, nb = dist[:, None], nb[:, None]
+    # tangent-plane coordinates of the neighbours about each point
+    n = np.nan_to_num(normals)
     ref = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
     e1 = np.cross(n, ref)
     e1 /= np.maximum(np.linalg.norm(e1, axis=1), 1e-300)[:, None]
     e2 = np.cross(n, e1)
-    d = v[idx][nb] - v[q][:, None, :]
+    d = src_points[nb] - points[:, None, :]
     scale = np.maximum(dist[:, -1:], 1e-300)
     a = np.stack([np.ones(dist.shape), np.einsum("nkd,nd->nk", d, e1) / scale,
                   np.einsum("nkd,nd->nk", d, e2) / scale], axis=2)
     w = (1.0 - (dist / (1.0001 * scale)) ** 2) ** 2  # Wendland-like taper: far ones count less
     aw = a * w[:, :, None]
     lhs = np.einsum("nki,nkj->nij", aw, a) + 1e-9 * np.eye(3)
-    rhs = np.einsum("nki,nkc->nic", aw, exact[nb])
+    values = src_values[nb]
+    rhs = np.einsum("nki,nkc->nic", aw, values)
     coef = np.linalg.solve(lhs, rhs)
-    out[q] = coef[:, 0, :]
     # where the plane misses its own neighbours by more than FIELD_FIT_TOLERANCE of the
     # field (a coarse edge or vertex close by: the field bends within a sample spacing),
-    # the field is evaluated there too
-    miss = np.linalg.norm(exact[nb] - np.einsum("nki,nic->nkc", a, coef), axis=2)
-    bad = q[np.max(miss, axis=1) > FIELD_FIT_TOLERANCE * np.linalg.norm(coef[:, 0, :], axis=1)]
-    if bad.size:
-        _, out[bad] = body.field(v[bad])
-    return out, int(len(idx) + bad.size)
+    # the caller evaluates the field there
+    miss = np.linalg.norm(values - np.einsum("nki,nic->nkc", a, coef), axis=2)
+    return coef[:, 0, :], np.max(miss, axis=1) > tolerance * np.linalg.norm(coef[:, 0, :],
+                                                                             axis=1)
 
 
 # ------------------------------------------------------------------------------ result

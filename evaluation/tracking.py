@@ -994,8 +994,8 @@ def ideal_one_step(scored: ScoredTracks, run, *, sensor_noise: bool = False,
     return ideal_one_steps(scored, run, noises=(seed if sensor_noise else None,))[0]
 
 
-def ideal_one_steps(scored: ScoredTracks, run, *,
-                    noises: tuple[int | None, ...] = (None,)) -> list[np.ndarray]:
+def ideal_one_steps(scored: ScoredTracks, run, *, noises: tuple[int | None, ...] = (None,),
+                    every: int = 1) -> list[np.ndarray]:
     """:func:`ideal_one_step` for several noise settings, each truth-warped frame made once.
 
     Parameters
@@ -1007,12 +1007,18 @@ def ideal_one_steps(scored: ScoredTracks, run, *,
     noises : tuple of (int or None)
         Per result: None for the warped frames as they are, or the seed of their fresh
         sensor noise.
+    every : int, optional
+        Measure only the steps k-1 -> k whose k is a multiple of ``every`` (the others are
+        NaN); a measured step's errors are those ``every=1`` gives.
 
     Returns
     -------
     list of (n_tracks, n_frames) float64, pixels
         One per entry of ``noises``, each what :func:`ideal_one_step` returns.
     """
+    every = int(every)
+    if every < 1:
+        raise InvalidParameterError(f"every must be a positive number of steps; got {every}")
     import cv2
 
     if scored.one_step is None:
@@ -1038,7 +1044,7 @@ def ideal_one_steps(scored: ScoredTracks, run, *,
     grey(prev_img)  # the sequence's scale comes from frame 0, as in track()
     for k, img in enumerate(frames, start=1):
         sel = np.flatnonzero(np.isfinite(scored.one_step[:, k]))
-        if sel.size:
+        if sel.size and k % every == 0:
             warped = truth_warped_frame(run, k - 1, k, prev_img, img)
             p0 = tracks.positions[sel, k - 1].astype(np.float32).reshape(-1, 1, 2)
             p0_64 = p0.reshape(-1, 2).astype(np.float64)
