@@ -149,11 +149,11 @@ def raw_load(renderer, stack_dir: Path, view, size: int, triangles: int) -> dict
     fbo.clear(depth=0.0)
     vao.render(moderngl.TRIANGLES)
     ctx.depth_func = "<"
-    error = ctx.error
+    for i in range(len(fbo.color_attachments)):  # the surface pass's images: normal, rel
+        fbo.read(attachment=i, components=4, dtype="f4")
+    error = ctx.error  # (checked after the reads too: a bad read would fail the next round)
     if error != "GL_NO_ERROR":
         raise RuntimeError(f"OpenGL error in the raw draw: {error}")
-    for i, comps in ((0, 1), (1, 4), (2, 4), (3, 4)):
-        fbo.read(attachment=i, components=comps, dtype="f4")
     total = time.perf_counter() - t0
     for obj in (vao, vbo, ibo):
         obj.release()
