@@ -42,6 +42,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import numba
 import numpy as np
 
 from terrain.core.errors import InvalidParameterError
@@ -140,6 +141,48 @@ class _Shifter:
         bottom *= ti
         top += bottom
         return top
+
+
+@numba.njit(cache=True, nogil=True)
+def _sample_sources(padded, pad, rows, cols, z, dx, dy, d, dz, here):  # pragma: no cover
+    """One step of the scattered light's walk, for every receiver at once (compiled).
+
+    Samples the padded grids of :class:`_Shifter` (height, normal x, y, z, radiosity) at
+    every point plus (``rows``, ``cols``) cells, bilinearly, with the arithmetic of
+    :meth:`_Shifter.at` in its order (IEEE operations only: the same float64 values), and
+    writes ``dz``: the sample's height above the receiver, and ``here``: its radiosity
+    where its surface faces the receiver, else 0 (the test of :func:`horizon_light`).
+    One pass over the grids instead of NumPy's temporaries; ``atan2`` stays NumPy's.
+    """
+    h, w = z.shape
+    i0, j0 = math.floor(rows), math.floor(cols)
+    ti, tj = rows - i0, cols - j0
+    r, c = pad + i0, pad + j0
+    ui, uj = 1 - ti, 1 - tj
+    for y in range(h):
+        for x in range(w):
+            zq = _bilinear(padded, 0, r + y, c + x, ti, tj, ui, uj)
+            nxq = _bilinear(padded, 1, r + y, c + x, ti, tj, ui, uj)
+            nyq = _bilinear(padded, 2, r + y, c + x, ti, tj, ui, uj)
+            nzq = _bilinear(padded, 3, r + y, c + x, ti, tj, ui, uj)
+            zr = z[y, x]
+            dz[y, x] = zq - zr
+            if (-(nxq * dx + nyq * dy) * d + nzq * (zr - zq)) > 0.0:
+                here[y, x] = _bilinear(padded, 4, r + y, c + x, ti, tj, ui, uj)
+            else:
+                here[y, x] = 0.0
+
+
+@numba.njit(cache=True, inline="always")
+def _bilinear(padded, g, r, c, ti, tj, ui, uj):  # pragma: no cover
+    """:meth:`_Shifter.at`'s value of grid ``g`` at padded (r, c) + (ti, tj), its order."""
+    top = padded[g, r, c] * uj
+    top += padded[g, r, c + 1] * tj
+    bottom = padded[g, r + 1, c] * uj
+    bottom += padded[g, r + 1, c + 1] * tj
+    top *= ui
+    bottom *= ti
+    return top + bottom
 
 
 def _band(a: np.ndarray, nz: np.ndarray, theta: np.ndarray) -> np.ndarray:
@@ -242,13 +285,16 @@ def horizon_light(z: np.ndarray, spacing: float, sun: Any, *, albedo: float,
         a = a.ravel()
         before = np.zeros(z.size)  # the previous sample's radiosity towards the receiver
         for d in steps:
-            zq, nxq, nyq, nzq, bq = shift.at(-dy * d / spacing, dx * d / spacing)
-            beta = np.arctan2(zq - z, d).ravel()
+            # each receiver's sample: its height above the receiver, and its radiosity where
+            # its surface faces the receiver, else 0 (a source shines on the receiver only
+            # with the side that faces it: a plateau's top seen from below its rim is the
+            # rim's wall, not the lit top)
+            dz, source = np.empty(z.shape), np.empty(z.shape)
+            _sample_sources(shift.padded, shift.pad, -dy * d / spacing, dx * d / spacing, z,
+                            dx, dy, d, dz, source)
+            beta = np.arctan2(dz, d).ravel()
             seen = np.flatnonzero(beta > top)
-            # a source shines on the receiver only with the side that faces it (a plateau's
-            # top seen from below its rim is the rim's wall, not the lit top)
-            faces = (-(nxq * dx + nyq * dy) * d + nzq * (z - zq)) > 0.0
-            here = np.where(faces, bq, 0.0).ravel()
+            here = source.ravel()
             if not seen.size:
                 before = here
                 continue
