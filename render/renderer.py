@@ -417,11 +417,13 @@ def _write(prog: Any, name: str, data: bytes) -> None:
         member.write(data)
 
 
-class CameraArrays:
-    """A mesh bound to the camera pass: one vertex array per program that draws it.
+class MeshArrays:
+    """A mesh bound to the programs that draw it: one vertex array per program.
 
-    The renderer draws a mesh with the program its batch's switches select (see
-    :data:`SWITCHES`); each program's vertex array is made the first time it is asked for.
+    The renderer draws a mesh with the camera-pass program its batch's switches select (see
+    :data:`SWITCHES`), and its depth with one of the shadow pass's two programs (with or
+    without a discard rectangle); each program's vertex array is made the first time it is
+    asked for.
 
     Parameters
     ----------
@@ -445,7 +447,7 @@ class CameraArrays:
         Parameters
         ----------
         program : moderngl.Program
-            A camera-pass program.
+            A camera-pass or shadow-pass program.
 
         Returns
         -------
@@ -492,24 +494,27 @@ class SceneGpu:
     """The handle to the GPU a renderer passes its scenes (:class:`render.scene.Gpu`).
 
     Buffers and textures are uploaded here (the scene owns them); vertex arrays bind the
-    renderer's two programs; shadow maps are allocated and their depth drawn here. Nothing
+    renderer's programs; shadow maps are allocated and their depth drawn here. Nothing
     else: the context itself and camera passes stay the renderer's.
 
     Parameters
     ----------
     ctx : moderngl.Context
         The renderer's context.
-    scene_program, depth_program : moderngl.Program
-        The camera pass's and the shadow pass's programs.
+    scene_program, depth_program, plain_depth_program : moderngl.Program
+        The camera pass's program, and the shadow pass's with a discard rectangle and
+        without one.
     """
 
-    def __init__(self, ctx: Any, scene_program: Any, depth_program: Any) -> None:
+    def __init__(self, ctx: Any, scene_program: Any, depth_program: Any,
+                 plain_depth_program: Any) -> None:
         self._ctx = ctx
         # Scenes cache vertex arrays per renderer (they bind this renderer's programs). A
         # never-reused token, not id(self): a new renderer can get a dead one's id.
         self.token = next(_TOKENS)
         self._scene_program = scene_program
         self._depth_program = depth_program
+        self._plain_depth_program = plain_depth_program
 
     @property
     def context(self) -> object:
@@ -611,8 +616,8 @@ class SceneGpu:
         Returns
         -------
         tuple
-            ``(CameraArrays, moderngl.VertexArray)``: the camera pass's vertex arrays (one
-            per specialised program, made as the renderer asks) and the depth pass's.
+            ``(MeshArrays, MeshArrays)``: the camera pass's vertex arrays (one per
+            specialised program, made as the renderer asks) and the depth pass's.
         """
         content: list[tuple[Any, ...]] = [(vbo, "3f 3f", "in_position", "in_normal")]
         if albedo is not None:
@@ -621,9 +626,8 @@ class SceneGpu:
             content.append((morph, "4f 3f", "in_morph", "in_morph_normal"))
         if scatter is not None:
             content.append((scatter, "1f", "in_scatter"))
-        vao = CameraArrays(self._ctx, content, ibo)
-        dvao = self._ctx.vertex_array(self._depth_program, [(vbo, "3f 12x", "in_position")],
-                                      ibo)
+        vao = MeshArrays(self._ctx, content, ibo)
+        dvao = MeshArrays(self._ctx, [(vbo, "3f 12x", "in_position")], ibo)
         return vao, dvao
 
     def shadow_target(self, size: tuple[int, int]) -> tuple[Any, Any]:
@@ -675,19 +679,22 @@ class SceneGpu:
         ctx.disable(moderngl.CULL_FACE)
         ctx.depth_func = "<"
         framebuffer.clear(depth=1.0)
-        prog = self._depth_program
-        prog["u_clip_from_world"].write(light_clip.T.astype("f4").tobytes())
+        clip = light_clip.T.astype("f4").tobytes()
+        for prog in (self._depth_program, self._plain_depth_program):
+            prog["u_clip_from_world"].write(clip)
         for batch in batches:
+            # a batch without a discard rectangle is drawn with no fragment shader at all:
+            # llvmpipe then writes depth straight from the rasteriser (a shader that may
+            # discard costs every fragment, even when its branch is not taken)
+            prog = self._depth_program if batch.discard is not None else self._plain_depth_program
             prog["u_world_from_model"].write(
                 np.asarray(batch.world_from_model, dtype="f4").T.tobytes())
             prog["u_model_offset"].value = tuple(np.asarray(batch.model_offset).tolist())
             if batch.discard is not None:
-                prog["u_use_discard"].value = 1
                 prog["u_discard"].value = tuple(batch.discard)
-            else:
-                prog["u_use_discard"].value = 0
+            vao = batch.depth_vao.bound(prog)
             for first, count in batch.ranges:
-                batch.depth_vao.render(moderngl.TRIANGLES, vertices=count, first=first)
+                vao.render(moderngl.TRIANGLES, vertices=count, first=first)
 
 
 class _Stencil:
@@ -780,10 +787,15 @@ class Renderer:
         self._resolve: dict = {}
         self._clip_control = _gl("glClipControl", ctypes.c_uint, ctypes.c_uint)
         self._stencil = _Stencil()
-        self.depth_program = self.ctx.program(vertex_shader=_shader("depth.vert"),
-                                              fragment_shader=_shader("depth.frag"))
+        self.depth_program = self.ctx.program(
+            vertex_shader=_shader("depth.vert"),
+            fragment_shader=_shader("depth.frag", {"DISCARD_RECT": 1}))
+        #: The shadow pass's program for batches without a discard rectangle.
+        self.plain_depth_program = self.ctx.program(vertex_shader=_shader("depth.vert"),
+                                                    fragment_shader=_shader("depth.frag"))
         #: The handle scenes get: uploads, vertex arrays and shadow maps, no camera pass.
-        self.gpu = SceneGpu(self.ctx, self.scene_program, self.depth_program)
+        self.gpu = SceneGpu(self.ctx, self.scene_program, self.depth_program,
+                            self.plain_depth_program)
         self._fbos: dict = {}
         self._dummy_shadow = self.ctx.depth_texture((1, 1))
         self._dummy_shadow.compare_func = "<="

@@ -207,8 +207,9 @@ class Gpu(Protocol):
 
         Returns
         -------
-        tuple of moderngl.VertexArray
-            ``(scene, depth)`` vertex arrays.
+        tuple
+            ``(scene, depth)``: the mesh bound to the camera pass's programs and to the
+            shadow pass's (opaque handles that go into a :class:`DrawBatch`).
         """
         ...
 
@@ -574,7 +575,7 @@ class DrawBatch:
 
     Parameters
     ----------
-    vao, depth_vao : moderngl.VertexArray
+    vao, depth_vao : handles
         The mesh bound to the camera and the depth programs (:meth:`Gpu.vertex_arrays`);
         ``vao`` is None in a batch only shadow maps draw.
     ranges : list of (int, int)

@@ -898,10 +898,29 @@ class TerrainScene:
             s = int(min(BLOCK, 2 ** max(0, math.floor(math.log2(
                 max(SHADOW_CELL_TEXELS * texel / layer.resolution, 1.0))))))
             dvao = self._depth_vao(gpu, layer, s)
-            ranges = _merge_ranges(layer.offsets[s][blocks], layer.counts[s][blocks])
-            last = k == casters[-1][0]
-            batches.append(DrawBatch(None, dvao, ranges, discard=None if last else layer.discard))
+            discard = None if k == casters[-1][0] else layer.discard
+            # Blocks that keep a pixel clear of the discard rectangle lose no fragment to it:
+            # they go to a batch without the test, which the depth-only program draws without
+            # a fragment shader (the same depths: a map holds the least depth at each texel,
+            # whatever the order of the draws).
+            near = (_near_rectangle(layer.lo[blocks], layer.hi[blocks], discard,
+                                    layer.resolution)
+                    if discard is not None else np.zeros(blocks.size, bool))
+            for part, rect in ((blocks[~near], None), (blocks[near], discard)):
+                if part.size:
+                    ranges = _merge_ranges(layer.offsets[s][part], layer.counts[s][part])
+                    batches.append(DrawBatch(None, dvao, ranges, discard=rect))
         return batches
+
+
+def _near_rectangle(lo: np.ndarray, hi: np.ndarray, rect: tuple, margin: float) -> np.ndarray:
+    """Give whether each box comes within ``margin`` of a rectangle, or overlaps it.
+
+    ``lo``, ``hi`` are (n, 3) box corners (their x-y extent is compared), ``rect`` is
+    ``(x0, y0, x1, y1)``, all scene-local metres.
+    """
+    return ((hi[:, 0] >= rect[0] - margin) & (lo[:, 0] <= rect[2] + margin)
+            & (hi[:, 1] >= rect[1] - margin) & (lo[:, 1] <= rect[3] + margin))
 
 
 def _block_extremes(z: np.ndarray, brows: np.ndarray, bcols: np.ndarray):

@@ -102,3 +102,38 @@ def test_a_frame_is_the_golden_bytes(renderer):
     for a in (frame.radiance, frame.range, frame.normals):
         digest.update(np.ascontiguousarray(a).tobytes())
     assert digest.hexdigest() == GOLDEN_FRAME
+
+
+def test_shadow_maps_skip_the_discard_test_only_where_it_would_discard_nothing(
+        renderer, monkeypatch):
+    """Coarser blocks clear of the finer layer are drawn without the discard test: same bytes.
+
+    The shadow pass draws a coarser layer's blocks that keep a pixel clear of the finer
+    layer's extent with a depth program that has no fragment shader, and only the others
+    with the discard test. A frame drawn so must equal, byte for byte, one whose shadow maps
+    sent every coarser block through the discard test (as every block went before).
+    """
+    import render.terrain_scene as terrain_scene
+    from render.renderer import SceneGpu
+    from render.terrain_scene import TerrainScene
+
+    seen, maps = [], []
+    draw_depth = SceneGpu.draw_depth
+
+    def recording(self, framebuffer, size, light_clip, batches):
+        maps.append(size)
+        seen.extend(batch.discard is not None for batch in batches)
+        return draw_depth(self, framebuffer, size, light_clip, batches)
+
+    monkeypatch.setattr(SceneGpu, "draw_depth", recording)
+    split = _frame(renderer, TerrainScene(_stack()))
+    # the maps had both kinds of batch, and more plain ones than one per map (the layer's
+    # own, which never discards)
+    assert any(seen) and seen.count(False) > len(maps)
+    seen.clear()
+    monkeypatch.setattr(terrain_scene, "_near_rectangle",
+                        lambda lo, hi, rect, margin: np.ones(lo.shape[0], bool))
+    every = _frame(renderer, TerrainScene(_stack()))
+    for a, b in ((split.radiance, every.radiance), (split.range, every.range),
+                 (split.normals, every.normals)):
+        assert np.array_equal(a, b, equal_nan=True)
