@@ -903,10 +903,12 @@ class TerrainScene:
             # they go to a batch without the test, which the depth-only program draws without
             # a fragment shader (the same depths: a map holds the least depth at each texel,
             # whatever the order of the draws).
-            near = (_near_rectangle(layer.lo[blocks], layer.hi[blocks], discard,
-                                    layer.resolution)
-                    if discard is not None else np.zeros(blocks.size, bool))
-            for part, rect in ((blocks[~near], None), (blocks[near], discard)):
+            parts = [(blocks, None)]
+            if discard is not None:
+                near = _near_rectangle(layer.lo[blocks], layer.hi[blocks], discard,
+                                       layer.resolution)
+                parts = [(blocks[~near], None), (blocks[near], discard)]
+            for part, rect in parts:
                 if part.size:
                     ranges = _merge_ranges(layer.offsets[s][part], layer.counts[s][part])
                     batches.append(DrawBatch(None, dvao, ranges, discard=rect))

@@ -130,7 +130,6 @@ def test_shadow_maps_skip_the_discard_test_only_where_it_would_discard_nothing(
     # the maps had both kinds of batch, and more plain ones than one per map (the layer's
     # own, which never discards)
     assert any(seen) and seen.count(False) > len(maps)
-    seen.clear()
     monkeypatch.setattr(terrain_scene, "_near_rectangle",
                         lambda lo, hi, rect, margin: np.ones(lo.shape[0], bool))
     every = _frame(renderer, TerrainScene(_stack()))
