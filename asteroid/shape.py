@@ -117,14 +117,18 @@ def check_closed(faces: np.ndarray, n_vertices: int, source: str) -> None:
                                 "vertex); clean the mesh first")
     a = faces.reshape(-1)
     b = np.roll(faces, -1, axis=1).reshape(-1)
-    directed = a * np.int64(n_vertices) + b
-    uniq, counts = np.unique(directed, return_counts=True)
-    if np.any(counts > 1):
+    # one sort of the directed edges answers both questions (np.unique and np.isin would
+    # sort them twice more: 3 s of a 786k-triangle body's 4.8 s load)
+    directed = np.sort(a * np.int64(n_vertices) + b)
+    same = directed[1:] == directed[:-1]
+    if same.any():
+        runs = int(np.count_nonzero(same[1:] & ~same[:-1])) + int(same[0])
         raise InvalidShapeError(
             f"shape model {source} is not a consistently wound manifold surface "
-            f"({int((counts > 1).sum())} edges run the same way in two triangles)")
+            f"({runs} edges run the same way in two triangles)")
     reverse = b * np.int64(n_vertices) + a
-    missing = ~np.isin(reverse, uniq)
+    at = np.minimum(np.searchsorted(directed, reverse), directed.size - 1)
+    missing = directed[at] != reverse
     if missing.any():
         raise InvalidShapeError(
             f"shape model {source} is not a closed surface: {int(missing.sum())} edges border "

@@ -59,6 +59,7 @@ import numpy as np
 
 from terrain.core import memory
 from terrain.core.errors import InvalidParameterError
+from terrain.core.rows import unique_rows
 
 __all__ = ["EROS_DENSITY", "EROS_PERIOD_H", "GRAVITATIONAL_CONSTANT", "Polyhedron",
            "centrifugal", "closed_chain", "coarsen", "polyhedron_field", "signed_volume"]
@@ -179,7 +180,7 @@ class Polyhedron:
         a = f.reshape(-1)
         b = np.roll(f, -1, axis=1).reshape(-1)
         pairs = np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1)
-        edges, face_edges = np.unique(pairs, axis=0, return_inverse=True)
+        edges, face_edges = unique_rows(pairs, return_inverse=True)
         lengths = np.linalg.norm(v[edges[:, 1]] - v[edges[:, 0]], axis=1)
         volume = signed_volume(v, f)
         if not volume > 0:
@@ -402,8 +403,7 @@ def coarsen(vertices, faces, target_faces: int) -> tuple[np.ndarray, np.ndarray]
 
 def _cluster(v: np.ndarray, f: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
     cell = np.floor((v - v.min(axis=0)) / step).astype(np.int64)
-    _, cluster = np.unique(cell, axis=0, return_inverse=True)
-    cluster = cluster.reshape(-1)
+    _, cluster = unique_rows(cell, return_inverse=True)
     k = int(cluster.max()) + 1
     counts = np.bincount(cluster, minlength=k).astype(np.float64)
     cv = np.stack([np.bincount(cluster, weights=v[:, d], minlength=k) for d in range(3)],
@@ -416,8 +416,7 @@ def _cluster(v: np.ndarray, f: np.ndarray, step: float) -> tuple[np.ndarray, np.
     canon = np.stack([cf[np.arange(len(cf)), (rot + j) % 3] for j in range(3)], axis=1)
     flipped = canon[:, 1] > canon[:, 2]
     key = np.where(flipped[:, None], canon[:, [0, 2, 1]], canon)
-    _, inv = np.unique(key, axis=0, return_inverse=True)
-    inv = inv.reshape(-1)
+    _, inv = unique_rows(key, return_inverse=True)
     sign = np.where(flipped, -1, 1)
     net = np.bincount(inv, weights=sign)
     # keep |net| copies of each group's triangle, wound by the sign of the net count

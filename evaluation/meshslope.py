@@ -61,6 +61,7 @@ from evaluation.gravity import (
 from evaluation.slope import cumulative_distribution, weighted_quantiles
 from terrain.core import memory
 from terrain.core.errors import InvalidParameterError
+from terrain.core.rows import unique_rows
 
 __all__ = ["DEFAULT_BIN_DEG", "DEFAULT_COARSE_FACES", "DEFAULT_DENSITY", "DEFAULT_RADIUS_DEG",
            "MESH_SUFFIXES", "MeshSlopes", "SlopeAreaHistogram", "Spin", "cap_average",
@@ -302,7 +303,7 @@ def cap_average(directions, values, weights, radius_deg: float) -> np.ndarray:
 def _one_per_cell(vertices: np.ndarray, step: float, origin: np.ndarray) -> np.ndarray:
     """Sorted indices of the lowest-numbered vertex in each occupied cubic cell of ``step``."""
     cell = np.floor((vertices - origin) / step).astype(np.int64)
-    _, first = np.unique(cell, axis=0, return_index=True)
+    _, first = unique_rows(cell, return_index=True)
     return np.sort(first)
 
 
