@@ -66,13 +66,13 @@ def unique_rows(a, *, return_index: bool = False, return_inverse: bool = False):
                                     f"{a.shape} {a.dtype}")
     keys = _row_keys(a) if a.size else None
     if keys is None:  # no rows, or keys past int64: numpy's own (slower) way
-        res = np.unique(a, axis=0, return_index=return_index, return_inverse=return_inverse)
-        if not (return_index or return_inverse):
-            return res
-        out = list(res)
+        rows, first, inverse = np.unique(a, axis=0, return_index=True, return_inverse=True)
+        keys_out = [rows]
+        if return_index:
+            keys_out.append(first)
         if return_inverse:
-            out[-1] = out[-1].reshape(-1)
-        return tuple(out)
+            keys_out.append(inverse.reshape(-1))
+        return keys_out[0] if len(keys_out) == 1 else tuple(keys_out)
     # np.unique sorts stably, so its index is each row's first occurrence; so is this one
     _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
     out = [a[first]]
