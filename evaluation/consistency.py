@@ -64,9 +64,8 @@ from render.rundir import RunReader
 from terrain.core.errors import InvalidParameterError
 
 __all__ = ["DARK_SIGMAS", "SAMPLED_PIXELS", "SILHOUETTE_JUMP", "SPIKE_BOUND", "Consistency",
-           "PairResidual", "camera_map", "change_marks", "consistency", "pair_residual",
-           "sampling_stride",
-           "save_consistency"]
+           "PairResidual", "camera_affine", "camera_map", "change_marks", "consistency",
+           "pair_residual", "sampling_stride", "save_consistency"]
 
 log = logging.getLogger(__name__)
 
@@ -317,8 +316,36 @@ def camera_map(range0: np.ndarray, truth0, truth1, stride: int = 1):
     """
     from evaluation.warpkernels import camera_map_rows
 
-    h, w = range0.shape
-    k0, k1 = truth0.intrinsics, truth1.intrinsics
+    x, y, a, t = camera_affine(range0.shape, truth0, truth1, stride)
+    k1 = truth1.intrinsics
+    # per pixel (compiled): scale = r / |(x, y, 1)|, c = t + scale (x, y, 1) A,
+    # (u1, v1) = (fx c_x / c_z + cx, fy c_y / c_z + cy), distance = |c|
+    return camera_map_rows(range0[::stride, ::stride], x, y, a, t, k1.fx, k1.fy, k1.cx, k1.cy)
+
+
+def camera_affine(shape: tuple[int, ...], truth0, truth1, stride: int = 1):
+    """Return the geometry :func:`camera_map` carries pixels with (rays, camera 0 to 1).
+
+    Parameters
+    ----------
+    shape : (h, w, ...) of int
+        Frame 0's shape.
+    truth0, truth1 : render.rundir.FrameTruth
+        The two frames' pose, intrinsics and body rotation.
+    stride : int, pixels
+        Every ``stride`` rows and columns.
+
+    Returns
+    -------
+    x, y : (ceil(w / stride),), (ceil(h / stride),) float64
+        Normalised image coordinates in camera 0 of the columns and rows.
+    a : (3, 3) float64
+        Camera-0 directions to camera-1 axes (row vectors).
+    t : (3,) float64, metres
+        Camera 0's origin in camera 1's axes.
+    """
+    h, w = int(shape[0]), int(shape[1])
+    k0 = truth0.intrinsics
     r_wc0, r_wc1 = truth0.pose.rotation, truth1.pose.rotation
     # row vectors: world1 = world0 @ rot0 @ rot1.T, camera = (world - position) @ R_WC
     body = quat_to_matrix(truth0.body_rotation) @ quat_to_matrix(truth1.body_rotation).T
@@ -326,9 +353,7 @@ def camera_map(range0: np.ndarray, truth0, truth1, stride: int = 1):
     t = (np.asarray(truth0.pose.position) @ body - np.asarray(truth1.pose.position)) @ r_wc1
     x = (np.arange(0, w, stride, dtype=np.float64) - k0.cx) / k0.fx
     y = (np.arange(0, h, stride, dtype=np.float64) - k0.cy) / k0.fy
-    # per pixel (compiled): scale = r / |(x, y, 1)|, c = t + scale (x, y, 1) A,
-    # (u1, v1) = (fx c_x / c_z + cx, fy c_y / c_z + cy), distance = |c|
-    return camera_map_rows(range0[::stride, ::stride], x, y, a, t, k1.fx, k1.fy, k1.cx, k1.cy)
+    return x, y, a, t
 
 
 def _worst_tile(residual: np.ndarray, mask: np.ndarray, tile: int = TILE) -> float | None:

@@ -920,31 +920,18 @@ def truth_warped_frame(run, k0: int, k1: int, image0=None, image1=None) -> np.nd
     range0, range1 = run.range(k0), run.range(k1)
     if range0 is None or range1 is None:
         raise InvalidParameterError("truth-warped frames need range images")
-    from evaluation.consistency import camera_map
+    from evaluation.consistency import camera_affine
+    from evaluation.warpkernels import truth_warp_rows
 
-    h, w = range1.shape
     # what _carry does for every pixel of frame k1 at once (at a pixel centre the range
-    # sampled is the pixel's own): lift, carry into frame k0, keep what frame k0 sees
-    tolerance = 0.002
-    u, v, dist, lifted = camera_map(range1, run.truth[k1], run.truth[k0])
-    idx = np.flatnonzero(lifted)
-    q = np.stack([u.ravel()[idx], v.ravel()[idx]], axis=1)
-    seen = _sample_range(range0, q, tolerance)
-    h0, w0 = range0.shape
-    with np.errstate(invalid="ignore"):
-        good = ((q[:, 0] >= -0.5) & (q[:, 0] <= w0 - 0.5) & (q[:, 1] >= -0.5)
-                & (q[:, 1] <= h0 - 0.5) & np.isfinite(seen)
-                & (seen >= dist.ravel()[idx] * (1.0 - tolerance)))
-    ok = np.zeros(h * w, dtype=bool)
-    ok[idx[good]] = True
-    mu = np.full(h * w, -10.0, dtype=np.float32)
-    mv = np.full(h * w, -10.0, dtype=np.float32)
-    mu[idx[good]] = q[good, 0]
-    mv[idx[good]] = q[good, 1]
-    mu, mv = mu.reshape(h, w), mv.reshape(h, w)
+    # sampled is the pixel's own): lift, carry into frame k0, keep what frame k0 sees; one
+    # compiled pass per pixel (camera_map's carry, then _sample_range's sample of range0)
+    x, y, a, t = camera_affine(range1.shape, run.truth[k1], run.truth[k0])
+    k0_in = run.truth[k0].intrinsics
+    mu, mv, okm = truth_warp_rows(range1, x, y, a, t, k0_in.fx, k0_in.fy, k0_in.cx, k0_in.cy,
+                                  range0, tolerance=0.002)
     src = img0.astype(np.float32)
     warped = cv2.remap(src, mu, mv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    okm = ok.reshape(h, w)
     if src.ndim == 3:
         okm = okm[:, :, None]
     out = np.where(okm, warped, img1.astype(np.float32))
