@@ -507,14 +507,18 @@ def near_dark(image: np.ndarray, level: int, margin: int, min_area: int) -> np.n
     _, labels, stats, _ = cv2.connectedComponentsWithStats(dark, connectivity=8)
     big = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= min_area)
     big = big[big > 0]  # label 0: the pixels with signal
-    if not big.size:
+    if not big.size or margin < 0:
         return np.zeros(img.shape, dtype=bool)
     lookup = np.zeros(len(stats), dtype=bool)  # a table by label: one gather per pixel
     lookup[big] = True
     region = lookup[labels]
-    # distance from the region: pixels of the region are at 0
-    dist = cv2.distanceTransform((~region).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    return dist <= margin
+    # within ``margin`` (Euclidean) of the region: the region grown by every integer offset
+    # (dx, dy) with dx^2 + dy^2 <= margin^2: the same pixels as an exact Euclidean distance
+    # transform's ``distance <= margin`` (cv2.DIST_MASK_PRECISE; a distance between pixels is
+    # the root of an integer), at a fifth of its cost for the default margin
+    reach = np.arange(-math.floor(margin), math.floor(margin) + 1)
+    disk = (reach[:, None] ** 2 + reach[None, :] ** 2 <= margin * margin).astype(np.uint8)
+    return cv2.dilate(region.view(np.uint8), disk) > 0  # the border adds nothing
 
 
 #: Fewest first-pass tracks from which a step's homography is estimated for prewarping.

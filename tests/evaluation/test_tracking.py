@@ -305,6 +305,32 @@ def test_no_corner_is_detected_beside_the_sky_or_a_deep_shadow(tmp_path):
     assert masked.alive()[:, 1].sum() >= masked.alive()[:, 0].sum() - 2
 
 
+@pytest.mark.parametrize("margin", [0, 1, 5, 12, 30])
+def test_near_dark_is_an_exact_euclidean_distance_within_the_margin(margin):
+    """near_dark grows the dark regions by a disk: the pixels an exact distance transform
+    puts within ``margin`` of them, no more and no fewer."""
+    import cv2
+
+    from evaluation.tracking import near_dark
+
+    rng = np.random.default_rng(margin)
+    img = np.full((120, 150), 100, np.uint8)
+    for _ in range(6):  # dark blobs of several sizes, some at the border, left of column 130
+        r0, c0 = rng.integers(-10, 120), rng.integers(-10, 100)
+        img[max(r0, 0):r0 + rng.integers(3, 30), max(c0, 0):c0 + rng.integers(3, 30)] = 0
+    img[60, 145] = 0  # a speck, smaller than min_area: surface detail
+    near = near_dark(img, 2, margin, 9)
+    dark = img <= 2
+    _, labels, stats, _ = cv2.connectedComponentsWithStats(dark.astype(np.uint8),
+                                                           connectivity=8)
+    region = np.isin(labels, np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= 9)[1:])
+    dist = cv2.distanceTransform((~region).astype(np.uint8), cv2.DIST_L2,
+                                 cv2.DIST_MASK_PRECISE)
+    assert region.any() and not region[60, 145]
+    assert np.array_equal(near, dist <= margin)
+
+
+
 @pytest.mark.parametrize("kwargs", [dict(dark_level=-1), dict(dark_level=256),
                                     dict(dark_margin=-2), dict(dark_margin=2.5)])
 def test_bad_dark_settings_are_refused(kwargs):
