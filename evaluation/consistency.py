@@ -221,8 +221,9 @@ def pair_residual(image0, image1, range0, range1, truth0, truth1, *, normals0=No
     rot1 = quat_to_matrix(truth1.body_rotation)
     map_u, map_v, seen = _warp_maps(range0, truth0, truth1, s)
     inside = (map_u >= 0) & (map_u <= w - 1) & (map_v >= 0) & (map_v <= h - 1)
-    # seen in both: frame t+1's range at the projection (nearest return) against the distance
-    r1_at = cv2.remap(np.nan_to_num(range1, nan=-1.0).astype(np.float32), map_u, map_v,
+    # seen in both: frame t+1's range at the projection (nearest return) against the distance;
+    # a pixel without return (NaN, copied by the nearest sample) fails both tests as -1 would
+    r1_at = cv2.remap(np.asarray(range1, dtype=np.float32), map_u, map_v,
                       cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0)
     with np.errstate(invalid="ignore"):
         visible = inside & (r1_at > 0) & (np.abs(r1_at - seen) <= occlusion_tolerance * seen)
@@ -239,12 +240,13 @@ def pair_residual(image0, image1, range0, range1, truth0, truth1, *, normals0=No
     sun = np.asarray(truth0.sun, dtype=np.float64)
     sun1 = np.asarray(truth1.sun, dtype=np.float64)
     if normals0 is not None and normals1 is not None:
+        # facing the sun: n . sun > 0, False without a normal (NaN); frame t+1's test is
+        # taken at the projection (nearest pixel) as bytes, a quarter of its cosines' size
         with np.errstate(invalid="ignore"):
-            facing0 = np.nan_to_num(normals0[::s, ::s] @ sun.astype(np.float32),
-                                    nan=-1.0) > 0
-            facing1 = cv2.remap(np.nan_to_num(normals1 @ sun1.astype(np.float32), nan=-1.0)
-                                .astype(np.float32), map_u, map_v, cv2.INTER_NEAREST,
-                                borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0) > 0
+            facing0 = normals0[::s, ::s] @ sun.astype(np.float32) > 0
+            facing1 = cv2.remap((normals1 @ sun1.astype(np.float32) > 0).view(np.uint8),
+                                map_u, map_v, cv2.INTER_NEAREST,
+                                borderMode=cv2.BORDER_CONSTANT, borderValue=0) > 0
         mask &= facing0 & facing1
     dark0 = i0 <= dark_dn
     dark1 = warped <= dark_dn
@@ -261,12 +263,14 @@ def pair_residual(image0, image1, range0, range1, truth0, truth1, *, normals0=No
     mean = float(vals.mean()) if vals.size else float("nan")
     noise = floor = None
     if variance is not None and vals.size:
-        noise = float(np.sqrt(np.mean(0.5 * (variance(i0[mask]) + variance(warped[mask])))))
+        var0, var1 = variance(i0[mask]), variance(warped[mask])  # each once, for both sums
+        noise = float(np.sqrt(np.mean(0.5 * (var0 + var1))))
         # bilinear sampling averages frame t+1's noise: sum of the squared weights
-        fu = map_u[mask] - np.floor(map_u[mask])
-        fv = map_v[mask] - np.floor(map_v[mask])
+        mu, mv = map_u[mask], map_v[mask]
+        fu = mu - np.floor(mu)
+        fv = mv - np.floor(mv)
         w2 = ((1 - fu) ** 2 + fu**2) * ((1 - fv) ** 2 + fv**2)
-        floor = float(np.sqrt(np.mean(variance(i0[mask]) + w2 * variance(warped[mask]))))
+        floor = float(np.sqrt(np.mean(var0 + w2 * var1)))
     return PairResidual(residual, mask, rms, mean, noise, float(mask.mean()), floor,
                         _worst_tile(residual, mask, TILE // s))
 
