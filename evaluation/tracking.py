@@ -1080,13 +1080,21 @@ def save_tracks(scored: ScoredTracks, run, folder, *, inputs=()) -> dict:
     if scored.predicted is not None:
         header += ["true_u_px", "true_v_px", "error_px"]
     writer.writerow(header)
+    predicted, errors = scored.predicted, scored.errors
     for i in range(tracks.n_tracks):
-        for k in range(tracks.start[i], tracks.stop[i] + 1):
-            u, v = tracks.positions[i, k]
+        # a track's life as Python floats at once (the same values; no NumPy scalar a cell)
+        first, last = int(tracks.start[i]), int(tracks.stop[i]) + 1
+        uv = tracks.positions[i, first:last].tolist()
+        true_uv = err = None
+        if predicted is not None and errors is not None:  # scored together
+            true_uv = predicted[i, first:last].tolist()
+            err = errors[i, first:last].tolist()
+        for j, k in enumerate(range(first, last)):
+            u, v = uv[j]
             row = [i, k, f"{u:.3f}", f"{v:.3f}"]
-            if scored.predicted is not None and scored.errors is not None:  # scored together
-                tu, tv = scored.predicted[i, k]
-                e = scored.errors[i, k]
+            if true_uv is not None and err is not None:
+                tu, tv = true_uv[j]
+                e = err[j]
                 row += [f"{tu:.3f}" if math.isfinite(tu) else "",
                         f"{tv:.3f}" if math.isfinite(tv) else "",
                         f"{e:.4f}" if math.isfinite(e) else ""]
