@@ -132,10 +132,46 @@ def _heights(tile: DEMTile) -> np.ndarray:
     return np.where(tile.valid, tile.heights, np.nan).astype(np.float64)
 
 
+def _median_in_place(values: np.ndarray) -> float:
+    """Return ``np.median(values)``, bit for bit, reordering ``values`` to find it.
+
+    np.median partitions at both middle ranks at once, and numpy partitions at several ranks
+    with a plain introselect, while a single rank takes its vectorised select: about five
+    times faster on a million values. So the upper middle value is selected alone, the lower
+    one is the largest value below it, and the two are averaged with np.mean as np.median
+    averages them.
+
+    Parameters
+    ----------
+    values : (n,) float64, finite, n >= 1
+        Reordered in place. np.median would give NaN for a NaN among them; this does not
+        look for one: every caller has kept only finite values.
+
+    Returns
+    -------
+    float
+
+    Examples
+    --------
+    >>> v = np.array([4.0, 1.0, 3.0, 2.0])
+    >>> _median_in_place(v.copy()), float(np.median(v))
+    (2.5, 2.5)
+    """
+    k = values.size // 2
+    values.partition(k)
+    if values.size % 2:
+        # np.mean of the one middle value, as np.median takes it (it makes a -0.0 0.0)
+        return float(np.mean(values[k:k + 1]))
+    # the lower middle value is the largest of the k below rank k; moved next to the upper one
+    j = int(np.argmax(values[:k]))
+    values[j], values[k - 1] = values[k - 1], values[j]
+    return float(np.mean(values[k - 1:k + 1]))
+
+
 def _median_abs_diff(z: np.ndarray, lag: int, axis: int) -> float:
     d = z[:, lag:] - z[:, :-lag] if axis == 1 else z[lag:, :] - z[:-lag, :]
     d = np.abs(d[np.isfinite(d)])
-    return float(np.median(d)) if d.size else math.nan
+    return _median_in_place(d) if d.size else math.nan
 
 
 def period2_ratio(tile: DEMTile) -> float:
@@ -212,7 +248,7 @@ def slope_curve(tile: DEMTile, *, label: str = "", max_lag: int | None = None) -
         if d.size < 16:
             continue
         base.append(lag * tile.resolution)
-        med.append(math.degrees(math.atan(float(np.median(d)) / (lag * tile.resolution))))
+        med.append(math.degrees(math.atan(_median_in_place(d) / (lag * tile.resolution))))
     return SlopeCurve(label, np.array(base), np.array(med), note)
 
 
@@ -976,7 +1012,7 @@ def baseline_slopes(tile: DEMTile, lag: int) -> tuple[float, float]:
     raw, flat = diffs(z), diffs(_plane_removed(z))
     if raw.size < 16:
         return math.nan, math.nan
-    med = math.degrees(math.atan(float(np.median(np.abs(raw))) / length))
+    med = math.degrees(math.atan(_median_in_place(np.abs(raw)) / length))
     rms = math.degrees(math.atan(math.sqrt(float(np.mean(flat**2))) / length))
     return med, rms
 
@@ -1000,7 +1036,7 @@ def median_2d_slope(tile: DEMTile, lag: int) -> float:
     g = g[np.isfinite(g)]
     if g.size < 16:
         return math.nan
-    return math.degrees(math.atan(float(np.median(g)) / (lag * tile.resolution)))
+    return math.degrees(math.atan(_median_in_place(g) / (lag * tile.resolution)))
 
 
 def stack_slope_table(stack, baselines=SLOPE_TABLE_M) -> list[dict]:

@@ -13,11 +13,14 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from evaluation import lunar_stats as ls
 from evaluation.counterexamples import fresh_crater_field, smoothed_8x
 from evaluation.spectrum import fractional_brownian_surface
 from evaluation.validate import (
+    _median_in_place,
     compare_reference,
     crater_density,
     hurst_estimate,
@@ -108,6 +111,17 @@ def test_median_slope_of_a_known_plane_at_every_baseline():
     curve = slope_curve(DEMTile.from_array(np.add.outer(g, g), resolution=2.0))
     assert np.allclose(curve.median_deg, 10.0)
     assert curve.baseline_m.tolist() == [2.0, 4.0, 8.0, 16.0, 32.0]
+
+
+@given(st.lists(st.sampled_from([0.0, -0.0, 0.5, 1.0, 3.0, 1e-300, 1e308]) | st.floats(
+    allow_nan=False, allow_infinity=False), min_size=1, max_size=64))
+def test_the_one_rank_median_is_numpys_median_bit_for_bit(values):
+    """Even and odd counts, ties, signed zeros, sums that overflow: np.median's very bits."""
+    v = np.array(values, dtype=np.float64)
+    with np.errstate(over="ignore"):
+        want = np.float64(np.median(v))
+        got = np.float64(_median_in_place(v.copy()))
+    assert got.tobytes() == want.tobytes()
 
 
 # ----------------------------------------------------------- plainly not lunar: fails
