@@ -31,6 +31,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 
 from evaluation import lunar_stats as ls
@@ -168,9 +169,65 @@ def _median_in_place(values: np.ndarray) -> float:
     return float(np.mean(values[k - 1:k + 1]))
 
 
+@numba.njit(cache=True, nogil=True)
+def _abs_finite_diffs_into(z, lag, axis, out, start):
+    # |z[r, c + lag] - z[r, c]| (axis 1) or |z[r + lag, c] - z[r, c]| (axis 0) in the
+    # row-major order of numpy's sliced difference, the finite ones only (a NaN height, or a
+    # difference that overflows, is left out), written to out from start; returns the end.
+    # One pass where numpy made four full-size temporaries; the same IEEE subtraction.
+    ny, nx = z.shape
+    m = start
+    if axis == 1:
+        for r in range(ny):
+            for c in range(nx - lag):
+                d = z[r, c + lag] - z[r, c]
+                if np.isfinite(d):
+                    out[m] = abs(d)
+                    m += 1
+    else:
+        for r in range(ny - lag):
+            for c in range(nx):
+                d = z[r + lag, c] - z[r, c]
+                if np.isfinite(d):
+                    out[m] = abs(d)
+                    m += 1
+    return m
+
+
+def _abs_diffs(z: np.ndarray, lag: int, axes: tuple) -> np.ndarray:
+    """Return the finite absolute height differences at ``lag`` pixels along ``axes``, pooled.
+
+    Parameters
+    ----------
+    z : (ny, nx) float64, metres
+        Heights, NaN where unknown (:func:`_heights`).
+    lag : int
+        Pixels, >= 1.
+    axes : tuple of {0, 1}
+        Map axes in the order pooled (1: along x, within rows; 0: along y).
+
+    Returns
+    -------
+    (n,) float64, metres
+        What ``np.abs(d[np.isfinite(d)])`` gives for the differences of each axis
+        (``z[:, lag:] - z[:, :-lag]`` or ``z[lag:] - z[:-lag]``) concatenated.
+
+    Examples
+    --------
+    >>> _abs_diffs(np.array([[0.0, 1.0, 3.0], [np.nan, 0.0, -2.0]]), 1, (1, 0)).tolist()
+    [1.0, 2.0, 2.0, 1.0, 5.0]
+    """
+    z = np.ascontiguousarray(z, dtype=np.float64)
+    ny, nx = z.shape
+    out = np.empty(sum(max(0, ny * (nx - lag) if a == 1 else (ny - lag) * nx) for a in axes))
+    end = 0
+    for axis in axes:
+        end = _abs_finite_diffs_into(z, lag, axis, out, end)
+    return out[:end]
+
+
 def _median_abs_diff(z: np.ndarray, lag: int, axis: int) -> float:
-    d = z[:, lag:] - z[:, :-lag] if axis == 1 else z[lag:, :] - z[:-lag, :]
-    d = np.abs(d[np.isfinite(d)])
+    d = _abs_diffs(z, lag, (axis,))
     return _median_in_place(d) if d.size else math.nan
 
 
@@ -242,9 +299,7 @@ def slope_curve(tile: DEMTile, *, label: str = "", max_lag: int | None = None) -
         note = "one-pixel baseline dropped: period-2 pattern"
     base, med = [], []
     for lag in lags:
-        d = np.concatenate([(z[:, lag:] - z[:, :-lag]).ravel(),
-                            (z[lag:, :] - z[:-lag, :]).ravel()])
-        d = np.abs(d[np.isfinite(d)])
+        d = _abs_diffs(z, lag, (1, 0))  # both map axes pooled
         if d.size < 16:
             continue
         base.append(lag * tile.resolution)

@@ -20,6 +20,7 @@ from evaluation import lunar_stats as ls
 from evaluation.counterexamples import fresh_crater_field, smoothed_8x
 from evaluation.spectrum import fractional_brownian_surface
 from evaluation.validate import (
+    _abs_diffs,
     _median_in_place,
     compare_reference,
     crater_density,
@@ -122,6 +123,21 @@ def test_the_one_rank_median_is_numpys_median_bit_for_bit(values):
         want = np.float64(np.median(v))
         got = np.float64(_median_in_place(v.copy()))
     assert got.tobytes() == want.tobytes()
+
+
+@pytest.mark.parametrize("lag", [1, 2, 5, 9, 40])
+def test_the_compiled_differences_are_numpys_bit_for_bit(lag):
+    """Unknown and infinite heights, signed zeros, overflowing differences, lags past the edge."""
+    rng = np.random.default_rng(lag)
+    z = rng.normal(size=(11, 9)) * 10.0 ** rng.integers(-5, 309, size=(11, 9))
+    z[rng.random(z.shape) < 0.2] = np.nan
+    z[rng.random(z.shape) < 0.05] = np.inf
+    z[rng.random(z.shape) < 0.1] = -0.0
+    with np.errstate(all="ignore"):
+        dx, dy = (z[:, lag:] - z[:, :-lag]).ravel(), (z[lag:] - z[:-lag]).ravel()
+        d = np.concatenate([dx, dy])
+    assert _abs_diffs(z, lag, (1, 0)).tobytes() == np.abs(d[np.isfinite(d)]).tobytes()
+    assert _abs_diffs(z, lag, (0,)).tobytes() == np.abs(dy[np.isfinite(dy)]).tobytes()
 
 
 # ----------------------------------------------------------- plainly not lunar: fails
