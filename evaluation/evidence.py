@@ -107,9 +107,9 @@ def dem_evidence(dems: Sequence, *, reference: str | None = None, ref_tile=None,
         The record.
     """
     from evaluation.compare import compare_dems, compare_slope_maps
-    from evaluation.memo import slope_distribution_of
+    from evaluation.memo import radial_spectrum_of, slope_distribution_of
     from evaluation.slope import horn_slope, slope_distribution
-    from evaluation.spectrum import fit_hurst, radial_spectrum
+    from evaluation.spectrum import fit_hurst
     from terrain.io import read_dem
 
     distributions: list = []
@@ -122,7 +122,7 @@ def dem_evidence(dems: Sequence, *, reference: str | None = None, ref_tile=None,
         measured = at_baseline(tile, baseline, label)
         distributions.append(slope_distribution_of(measured, label, edges))
         try:
-            spec = radial_spectrum(measured, label=label)
+            spec = radial_spectrum_of(measured, label)
             spectra.append(spec)
             try:
                 fits.append(fit_hurst(spec))

@@ -3,7 +3,8 @@
 The campaign's evaluation measures every layer of a stack several times over: its slope
 distribution for the evidence tables and again for the realism checks, its Horn slope for
 the distribution and again for the share steeper than repose, its period-2 ratio for the
-slope curve and again for the per-layer table. Inside :func:`measured_once`, :func:`once`
+slope curve and again for the per-layer table, its power spectrum for the evidence and again
+for the smoothness check. Inside :func:`measured_once`, :func:`once`
 computes each such measurement of a tile the first time it is asked for and returns that
 same result afterwards; outside it, :func:`once` simply computes. A result is keyed by the
 tile object itself (kept alive with it), never by its contents, so a tile never gets another
@@ -16,7 +17,8 @@ from collections.abc import Callable, Hashable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
-__all__ = ["horn_slope_of", "measured_once", "once", "slope_distribution_of"]
+__all__ = ["horn_slope_of", "measured_once", "once", "radial_spectrum_of",
+           "slope_distribution_of"]
 
 _active: list[dict] = []
 
@@ -92,3 +94,33 @@ def slope_distribution_of(tile, label: str = "", edges: str = "mask"):
     return once("slope_distribution", tile, (label, edges),
                 lambda: slope_distribution(tile, label=label, edges=edges,
                                            slopes=horn_slope_of(tile, edges)))
+
+
+def radial_spectrum_of(tile, label: str = ""):
+    """Return :func:`evaluation.spectrum.radial_spectrum` of a tile (its defaults), once per scope.
+
+    The evidence tables and the realism's smoothness check both ask for a layer's spectrum;
+    the second gets the first's numbers (read-only) under its own label. The label only
+    names the record and the warning about gaps, which is logged the first time only.
+
+    Examples
+    --------
+    >>> from evaluation.spectrum import fractional_brownian_surface
+    >>> tile = fractional_brownian_surface(64, 0.8, seed=1)
+    >>> with measured_once():
+    ...     a, b = radial_spectrum_of(tile, "layer 0"), radial_spectrum_of(tile)
+    >>> a.power is b.power, a.label, b.label
+    (True, 'layer 0', '')
+    """
+    from dataclasses import replace
+
+    from evaluation.spectrum import radial_spectrum
+
+    def compute():
+        spec = radial_spectrum(tile, label=label)
+        for a in (spec.frequency, spec.power, spec.counts):
+            a.flags.writeable = False  # shared by every caller in the scope
+        return spec
+
+    spec = once("radial_spectrum", tile, None, compute)
+    return spec if spec.label == label else replace(spec, label=label)

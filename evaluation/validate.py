@@ -402,11 +402,12 @@ def fine_spectral_hurst(tile: DEMTile):
     -------
     evaluation.spectrum.HurstFit or None
     """
-    from evaluation.spectrum import fit_hurst, radial_spectrum
+    from evaluation.memo import radial_spectrum_of
+    from evaluation.spectrum import fit_hurst
 
     if min(tile.shape) < 4 * SMOOTH_BAND_PX[1]:
         return None
-    spec = radial_spectrum(tile)
+    spec = radial_spectrum_of(tile)  # the evidence tables' spectrum of the layer, in a scope
     r = tile.resolution
     try:
         return fit_hurst(spec, f_low=1.0 / (SMOOTH_BAND_PX[1] * r),
