@@ -500,7 +500,7 @@ def lunar_layers(terrain: str, ev: dict, folder: Path, stack_dir: Path, run_dir:
 
     # -- the landing site at lander scale: hazards, rocks, the layers under the descent
     say("evaluation: hazard map, rocks and the layers drawn under the descent")
-    sections.append(site(ev, folder, stack_dir, load_run(run_dir), facts, say))
+    sections.append(site(ev, folder, stack_dir, load_run(run_dir), facts, say, stack=stack))
     return sections, facts, messages
 
 
@@ -611,7 +611,7 @@ def consistency_report(run, scored, tracking_sec, folder: Path, limits, key, fac
     return consistency_section(result, limits, run_label=f"the {key}", key=key)
 
 
-def site(ev, folder: Path, stack_dir: Path, run, facts: dict, say):
+def site(ev, folder: Path, stack_dir: Path, run, facts: dict, say, *, stack=None):
     """Return the site section: hazards, rocks and the layers drawn under the descent.
 
     The hazard map of the site (:class:`terrain.stages.specs.HazardsSpec`), the rocks against their
@@ -631,6 +631,8 @@ def site(ev, folder: Path, stack_dir: Path, run, facts: dict, say):
         The stage's facts, extended with ``site``.
     say : callable
         Called with one line per frame reported.
+    stack : terrain.stack.model.LayerStack, optional
+        The stack at ``stack_dir``, already read (not read again for the rocks and descent).
 
     Returns
     -------
@@ -648,7 +650,7 @@ def site(ev, folder: Path, stack_dir: Path, run, facts: dict, say):
     log.info("%s", run_stage(spec, stack_dir, tif).message)
     n = len(run)
     frames = (60, 90, 110, 119) if n == 120 else sorted({n // 2, 3 * n // 4, n - 2, n - 1})
-    sec = hazards_file_section(tif, run=run, frames=frames)
+    sec = hazards_file_section(tif, run=run, frames=frames, stack=stack)
     sec.links = [("hazard bands: slope, step, safe (GeoTIFF)", "hazards.tif"),
                  ("hazard map (PNG)", "hazards.png"),
                  ("rock catalogue (CSV)", os.path.relpath(stack_dir / "rocks.csv", folder))]

@@ -213,12 +213,14 @@ def site_section(hazards, hazard_png, *, layer: int | None, resolution: float, r
     return sec
 
 
-def hazards_file_section(path, *, run=None, frames=()) -> Section:
+def hazards_file_section(path, *, run=None, frames=(), stack=None) -> Section:
     """:func:`site_section` of a GeoTIFF written by ``craterscape terrain hazards``.
 
     Its tags name the lander and the source; where the source is a layer stack with rocks,
     the rocks of the hazard layer are drawn against their model, and with ``run`` (a
     :class:`render.rundir.RunReader` of a descent over that stack) the descent table is added.
+    ``stack`` is that source stack where the caller has already read it (a campaign's
+    evaluation has: reading 16 layers again takes a second); otherwise it is read here.
     """
     import json
     from pathlib import Path
@@ -246,7 +248,7 @@ def hazards_file_section(path, *, run=None, frames=()) -> Section:
     if source.is_dir() and (source / "manifest.json").exists():
         from terrain.stack.store import read_stack
 
-        stack = read_stack(source)
+        stack = read_stack(source) if stack is None else stack
         if stack.rocks is not None and stack.info.get("rocks"):
             kwargs.update(rocks=stack.rocks, rock_model=RockModel.from_mapping(
                 stack.info["rocks"]), rock_extent=(tile.bounds,
