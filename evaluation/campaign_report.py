@@ -151,24 +151,26 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     stage.begin()
     t0 = time.perf_counter()
     # Independent parts run in two worker processes while this one tracks the descent (most
-    # of it on one core): the descent's consistency, the lunar layers (slopes, realism,
-    # real DEMs, hazards), the approach's tracking, then the asteroid's slopes (polyhedron
-    # gravity). Each part computes what it computed in one process: the same figures,
+    # of it on one core): the asteroid's slopes (polyhedron gravity), the lunar layers
+    # (slopes, realism, real DEMs, hazards), the descent's consistency, the approach's
+    # tracking. Each part computes what it computed in one process: the same figures,
     # sooner. Fresh interpreters ("spawn"): this process runs threads (frame readers,
     # numba's), which a forked child would inherit half-made.
     with ProcessPoolExecutor(max_workers=2, mp_context=get_context("spawn")) as pool:
-        descent = pool.submit(measure_consistency, Path(lunar_facts["run"]),
-                              stage.dir / "lunar_consistency")
-        layers = pool.submit(lunar_layers, getattr(c.synth, "terrain", None) or "south-polar",
-                             dict(ev), stage.dir, Path(lunar_facts["stack"]),
-                             Path(lunar_facts["run"]), real, have,
-                             json.loads(json.dumps(DEFAULT_THRESHOLDS)))
-        approach = pool.submit(tracking_report, "asteroid", Path(asteroid_facts["run"]),
-                               stage.dir, json.loads(json.dumps(DEFAULT_THRESHOLDS)), c.seed)
+        # the two longest parts first, one per worker; the descent's consistency (wanted
+        # after this process has tracked the descent) and the approach's tracking next
         slopes = pool.submit(asteroid_slopes, Path(asteroid_facts["body"]),
                              Path(real["eros"]) if have.get("eros") else None,
                              float(ev.get("eros_density", 2670.0)),
                              float(ev.get("eros_period_h", 5.27)))
+        layers = pool.submit(lunar_layers, getattr(c.synth, "terrain", None) or "south-polar",
+                             dict(ev), stage.dir, Path(lunar_facts["stack"]),
+                             Path(lunar_facts["run"]), real, have,
+                             json.loads(json.dumps(DEFAULT_THRESHOLDS)))
+        descent = pool.submit(measure_consistency, Path(lunar_facts["run"]),
+                              stage.dir / "lunar_consistency")
+        approach = pool.submit(tracking_report, "asteroid", Path(asteroid_facts["run"]),
+                               stage.dir, json.loads(json.dumps(DEFAULT_THRESHOLDS)), c.seed)
         return _evaluate_stage(c, out, stage, t0, lunar_facts, asteroid_facts, real, have,
                                descent, layers, approach, slopes, say, summary_name)
 
@@ -568,12 +570,13 @@ def consistency_report(run, scored, tracking_sec, folder: Path, limits, key, fac
     from evaluation.tracking import ideal_one_steps
 
     say(f"evaluation: frame-to-frame consistency of the {key}")
-    result, summary = (measure_consistency(Path(run.dir), folder) if measured is None
-                       else measured.result())
     # without and with fresh sensor noise, each truth-warped frame made once for both; a
-    # long run on every second step (docs/speed.md: the uncertainty)
+    # long run on every second step (docs/speed.md: the uncertainty). Measured before the
+    # consistency is asked for, so that another process measuring it has the time to.
     every = 2 if len(run) - 1 >= IDEAL_SAMPLED_STEPS else 1
     ideal, noisy = ideal_one_steps(scored, run, noises=(None, seed), every=every)
+    result, summary = (measure_consistency(Path(run.dir), folder) if measured is None
+                       else measured.result())
     ideal = ideal[np.isfinite(ideal)]
     noisy = noisy[np.isfinite(noisy)]
     errors = scored.error_summary() or {}
