@@ -107,12 +107,11 @@ def descent_layers(run, stack) -> list[dict]:
     """
     rows = []
     for k, truth in enumerate(run.truth):
-        range_m = run.range(k)
-        if range_m is None:
-            continue
         intr = truth.intrinsics
         i, j = int(round(intr.cy)), int(round(intr.cx))  # pixel centres at integers
-        r = float(range_m[i, j])
+        r = run.range_at(k, i, j)  # the centre's range alone: one tile of the image read
+        if r is None:
+            continue
         if not (math.isfinite(r) and r > 0):
             continue
         point = truth.pose.unproject([[j, i]], [r], intr)[0]

@@ -65,7 +65,7 @@ from render.camera import Intrinsics, Pose
 from terrain.core.checks import check_keys
 from terrain.core.errors import InvalidParameterError, MissingInputError
 from terrain.core.outputs import atomic_path
-from terrain.io import read_float_tiff, write_float_tiff, write_png
+from terrain.io import read_float_tiff, read_float_tiff_pixel, write_float_tiff, write_png
 
 __all__ = ["FORMAT", "FrameTruth", "RunReader", "RunWriter"]
 
@@ -420,6 +420,19 @@ class RunReader:
             while len(self._ranges) > RANGE_CACHE:
                 self._ranges.popitem(last=False)
         return a
+
+    def range_at(self, k: int, row: int, col: int) -> float | None:
+        """Return frame ``k``'s range at one pixel (m), or None without truth.
+
+        The value :meth:`range` holds there, read from the one tile that holds it.
+        """
+        if not self.truth or not self.truth[k].range:
+            return None
+        with self._ranges_lock:
+            cached = self._ranges.get(k)
+        if cached is not None:
+            return float(cached[row, col])
+        return float(read_float_tiff_pixel(self.dir / self.truth[k].range, row, col)[0])
 
     def body_ids(self, k: int) -> np.ndarray | None:
         """Return frame ``k``'s body-id image (uint8, 0 sky), or None where it has none."""

@@ -31,7 +31,12 @@ from rasterio.errors import NotGeoreferencedWarning, RasterioError, RasterioIOEr
 
 from terrain.core import memory
 from terrain.core import metakeys as mk
-from terrain.core.errors import InvalidDEMError, MissingInputError, OutputPathError
+from terrain.core.errors import (
+    InvalidDEMError,
+    InvalidParameterError,
+    MissingInputError,
+    OutputPathError,
+)
 from terrain.core.outputs import atomic_path, check_output_path
 from terrain.core.tile import DEMTile
 
@@ -495,6 +500,32 @@ def read_float_tiff(path) -> np.ndarray:
     except (RasterioIOError, RasterioError) as exc:
         raise InvalidDEMError(f"cannot read image '{path}': {_first_line(exc)}") from exc
     return a[0] if a.shape[0] == 1 else np.moveaxis(a, 0, 2)
+
+
+def read_float_tiff_pixel(path, row: int, col: int) -> np.ndarray:
+    """Return one pixel of a float TIFF written by :func:`write_float_tiff`: (bands,).
+
+    Only the tile that holds it is decoded (a sixteenth of a 1024^2 range image's), and its
+    values are those :func:`read_float_tiff` gives there. A pixel outside the image raises
+    :class:`~terrain.core.errors.InvalidParameterError`.
+    """
+    from rasterio.windows import Window as RioWindow
+
+    path = Path(path)
+    if not path.exists():
+        raise MissingInputError(f"image '{path}' does not exist")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(path) as src:
+                if not (0 <= row < src.height and 0 <= col < src.width):
+                    raise InvalidParameterError(
+                        f"pixel (row {row}, column {col}) lies outside image '{path}' "
+                        f"({src.width}x{src.height})")
+                a = src.read(window=RioWindow(col, row, 1, 1))
+    except (RasterioIOError, RasterioError) as exc:
+        raise InvalidDEMError(f"cannot read image '{path}': {_first_line(exc)}") from exc
+    return a[:, 0, 0]
 
 
 def raster_layout(path) -> dict:

@@ -41,6 +41,12 @@ def test_a_run_as_written_reads_back(run_dir):
     assert run.truth[0].motion["samples"] == 3
 
 
+def test_the_range_at_one_pixel_is_the_range_image_s_value_there(run_dir):
+    run = RunReader(run_dir)
+    assert run.range_at(1, 2, 3) == float(run.range(1)[2, 3]) == 1.0
+    assert RunReader(run_dir).range_at(0, 0, 0) == 1.0  # read from the file, not a cache
+
+
 @pytest.mark.parametrize("change, key, near", [
     (lambda t: t[1].update(tme=0.5), "tme", "time"),
     (lambda t: t[0]["camera"].update(positon=[0, 0, 1]), "positon", "position"),

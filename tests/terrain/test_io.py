@@ -8,7 +8,12 @@ from rasterio.crs import CRS
 
 from terrain import io
 from terrain.core import outputs
-from terrain.core.errors import InvalidDEMError, MissingInputError, OutputPathError
+from terrain.core.errors import (
+    InvalidDEMError,
+    InvalidParameterError,
+    MissingInputError,
+    OutputPathError,
+)
 from terrain.core.tile import DEMTile
 
 MOON_EQC = ('PROJCS["Moon eqc",GEOGCS["Moon",DATUM["Moon",SPHEROID["Moon",1737400,0]],'
@@ -177,6 +182,21 @@ def test_float_tiffs_read_back_whole_in_the_same_bytes_and_a_cut_file_is_refused
     with file_size_limit(size // 2), pytest.raises(OutputPathError, match="c.tif"):
         io.write_float_tiff(a, tmp_path / "c.tif")
     assert not (tmp_path / "c.tif").exists()
+
+
+def test_one_pixel_of_a_float_tiff_is_the_whole_read_s_value_there(tmp_path):
+    # range images are tiled 256^2: pixels in several tiles, at their corners and the
+    # image's edges, bands and all, against the whole image as GDAL reads it
+    rng = np.random.default_rng(5)
+    a = rng.normal(size=(600, 530, 2)).astype(np.float32)
+    a[300, 0, 1] = np.nan
+    io.write_float_tiff(a, tmp_path / "a.tif")
+    whole = io.read_float_tiff(tmp_path / "a.tif")
+    for row, col in ((0, 0), (255, 256), (300, 0), (599, 529), (511, 300)):
+        assert io.read_float_tiff_pixel(tmp_path / "a.tif", row, col).tobytes() == \
+            whole[row, col].tobytes()
+    with pytest.raises(InvalidParameterError, match="outside image"):
+        io.read_float_tiff_pixel(tmp_path / "a.tif", 600, 3)
 
 
 def test_writes_on_threads_keep_the_process_stderr(tmp_path):
