@@ -487,8 +487,10 @@ def write_float_tiff(array: np.ndarray, path, *, tags: dict | None = None, input
     return Path(path)
 
 
-def read_float_tiff(path) -> np.ndarray:
-    """Read a float TIFF written by :func:`write_float_tiff`: (h, w) or (h, w, bands)."""
+def _read_float_bands(path, pixel: tuple[int, int] | None = None) -> np.ndarray:
+    """(bands, h, w) of a float TIFF, or of its one pixel ``(row, col)``: (bands, 1, 1)."""
+    from rasterio.windows import Window as RioWindow
+
     path = Path(path)
     if not path.exists():
         raise MissingInputError(f"image '{path}' does not exist")
@@ -496,9 +498,21 @@ def read_float_tiff(path) -> np.ndarray:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
             with rasterio.open(path) as src:
-                a = src.read()
+                if pixel is None:
+                    return src.read()
+                row, col = pixel
+                if not (0 <= row < src.height and 0 <= col < src.width):
+                    raise InvalidParameterError(
+                        f"pixel (row {row}, column {col}) lies outside image '{path}' "
+                        f"({src.width}x{src.height})")
+                return src.read(window=RioWindow(col, row, 1, 1))
     except (RasterioIOError, RasterioError) as exc:
         raise InvalidDEMError(f"cannot read image '{path}': {_first_line(exc)}") from exc
+
+
+def read_float_tiff(path) -> np.ndarray:
+    """Read a float TIFF written by :func:`write_float_tiff`: (h, w) or (h, w, bands)."""
+    a = _read_float_bands(path)
     return a[0] if a.shape[0] == 1 else np.moveaxis(a, 0, 2)
 
 
@@ -509,23 +523,7 @@ def read_float_tiff_pixel(path, row: int, col: int) -> np.ndarray:
     values are those :func:`read_float_tiff` gives there. A pixel outside the image raises
     :class:`~terrain.core.errors.InvalidParameterError`.
     """
-    from rasterio.windows import Window as RioWindow
-
-    path = Path(path)
-    if not path.exists():
-        raise MissingInputError(f"image '{path}' does not exist")
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotGeoreferencedWarning)
-            with rasterio.open(path) as src:
-                if not (0 <= row < src.height and 0 <= col < src.width):
-                    raise InvalidParameterError(
-                        f"pixel (row {row}, column {col}) lies outside image '{path}' "
-                        f"({src.width}x{src.height})")
-                a = src.read(window=RioWindow(col, row, 1, 1))
-    except (RasterioIOError, RasterioError) as exc:
-        raise InvalidDEMError(f"cannot read image '{path}': {_first_line(exc)}") from exc
-    return a[:, 0, 0]
+    return _read_float_bands(path, (row, col))[:, 0, 0]
 
 
 def raster_layout(path) -> dict:
