@@ -9,6 +9,7 @@ import trimesh
 from evaluation.gravity import (
     _CUBE_FACES,
     GRAVITATIONAL_CONSTANT,
+    LANES,
     Polyhedron,
     centrifugal,
     closed_chain,
@@ -84,6 +85,24 @@ def test_cube_field_matches_the_closed_form_inside_on_and_outside():
     expected = np.array([prism_attraction(p, (-1, -1, -1), (1, 1, 1), RHO) for p in points])
     scale = G * RHO * 2.0  # about the surface field of the cube
     assert np.max(np.linalg.norm(g - expected, axis=1)) < 1e-9 * scale
+
+
+def test_a_points_field_does_not_depend_on_the_points_computed_with_it():
+    """The kernel carries points in blocks of lanes: a point alone, in any block, in any
+    position and with any company (the last block padded) gets the same bits."""
+    v, f = cube(2.0)
+    body = Polyhedron.build(v, f, RHO)
+    rng = np.random.default_rng(7)
+    points = np.concatenate([rng.uniform(-3.0, 3.0, (2 * LANES + 5, 3)),
+                             [[1.0, 0.2, 0.3], [1.0, 1.0, 0.0]]])  # on a face, on an edge
+    u, g = body.field(points)
+    for k in range(len(points)):
+        uk, gk = body.field(points[k:k + 1])
+        assert uk[0] == u[k] and np.array_equal(gk[0], g[k])
+    order = rng.permutation(len(points))
+    u2, g2 = body.field(points[order])
+    assert np.array_equal(u2, u[order]) and np.array_equal(g2, g[order])
+    assert np.all(np.isfinite(g))
 
 
 def test_sphere_field_is_a_point_mass_outside_and_linear_inside():
