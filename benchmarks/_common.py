@@ -175,6 +175,7 @@ def run_child(script, spec: dict, timeout: float, log) -> dict:
     where = f", round {spec['round'] + 1}" if "round" in spec else ""
     log(f"{spec['name']}: starting child ({spec.get('repeat', 1)} runs{where})")
     t0 = time.perf_counter()
+    before = host_cpu_ticks()
     proc = subprocess.run([sys.executable, str(Path(script).resolve()), "--child",
                            json.dumps(spec)], stdout=subprocess.PIPE, stderr=None, text=True,
                           timeout=timeout, cwd=ROOT, check=False)
@@ -182,7 +183,39 @@ def run_child(script, spec: dict, timeout: float, log) -> dict:
         raise RuntimeError(f"child {spec['name']} failed with exit status {proc.returncode}")
     out = json.loads(proc.stdout)
     out["_child_s"] = time.perf_counter() - t0
+    out["host_steal_share"] = steal_share(before, host_cpu_ticks())
     return out
+
+
+def host_cpu_ticks() -> list[int] | None:
+    """The machine's CPU time counters (``/proc/stat``'s first line, in ticks), or None.
+
+    Fields: user, nice, system, idle, iowait, irq, softirq, steal (and guests, which user
+    already counts).
+    """
+    try:
+        with open("/proc/stat") as f:
+            fields = f.readline().split()
+    except OSError:
+        return None
+    if not fields or fields[0] != "cpu" or len(fields) < 9:
+        return None
+    return [int(x) for x in fields[1:9]]
+
+
+def steal_share(before: list[int] | None, after: list[int] | None) -> float | None:
+    """Share of the machine's CPU time the hypervisor gave other guests between two readings.
+
+    On a virtual machine that shares its host's cores, time the host runs others on our
+    virtual CPUs ("steal") is neither our processes' CPU time nor idle: a parallel run looks
+    as if fewer cores were busy (a run of the crater benchmark here measured 1.15 cores busy
+    in one child and 1.8 in the next, the same code). None where the counters are missing.
+    """
+    if before is None or after is None:
+        return None
+    delta = [b - a for a, b in zip(before, after, strict=True)]
+    total = sum(delta)
+    return round(delta[7] / total, 4) if total > 0 else None
 
 
 def machine_facts(**extra) -> dict:
