@@ -378,11 +378,12 @@ def tracking_report(name: str, run_dir: Path, folder: Path, limits: dict, seed: 
     run = load_run(run_dir)
     scored = score(track(run, TrackerSettings()), run,
                    outlier_px=limits["tracking"]["outlier_px"])
-    summary = save_tracks(scored, run, folder / f"{name}_tracks")
+    drawn: dict = {}  # the tracks' figures, drawn once for their folder and the report
+    summary = save_tracks(scored, run, folder / f"{name}_tracks", drawn=drawn)
     facts = dict(tracks=summary["tracking"]["tracks"],
                  median_px=(summary["errors"] or {}).get("median_px"))
     sec = tracking_section(scored, run.image(len(run) - 1), limits,
-                           run_label=f"the {key} ({run_dir})", key=key)
+                           run_label=f"the {key} ({run_dir})", key=key, drawn=drawn)
     consistency = truth_round_trip(run)
     facts["truth_round_trip_px"] = consistency
     sec.table("Tracking").append(
@@ -518,13 +519,17 @@ def measure_consistency(run_dir: Path, folder: Path):
     result : evaluation.consistency.Consistency
     summary : dict
         What :func:`evaluation.consistency.save_consistency` returned.
+    drawn : dict
+        The figure it drew, as PNG bytes (:func:`evaluation.figures.drawn_once`), for the
+        report's consistency section.
     """
     from evaluation.consistency import consistency, sampling_stride, save_consistency
     from evaluation.tracking import load_run
 
     run = load_run(run_dir)
     result = consistency(run, stride=sampling_stride(run.image(0).shape))
-    return result, save_consistency(result, folder)
+    drawn: dict = {}
+    return result, save_consistency(result, folder, drawn=drawn), drawn
 
 
 def consistency_report(run, scored, tracking_sec, folder: Path, limits, key, facts, seed,
@@ -575,8 +580,8 @@ def consistency_report(run, scored, tracking_sec, folder: Path, limits, key, fac
     # consistency is asked for, so that another process measuring it has the time to.
     every = 2 if len(run) - 1 >= IDEAL_SAMPLED_STEPS else 1
     ideal, noisy = ideal_one_steps(scored, run, noises=(None, seed), every=every)
-    result, summary = (measure_consistency(Path(run.dir), folder) if measured is None
-                       else measured.result())
+    result, summary, drawn = (measure_consistency(Path(run.dir), folder) if measured is None
+                              else measured.result())
     ideal = ideal[np.isfinite(ideal)]
     noisy = noisy[np.isfinite(noisy)]
     errors = scored.error_summary() or {}
@@ -611,7 +616,7 @@ def consistency_report(run, scored, tracking_sec, folder: Path, limits, key, fac
             "sun, and anything the renderer changes between frames; the consistency "
             "section measures that). The accumulated error grows with a track's age by "
             "the sum of those steps.")
-    return consistency_section(result, limits, run_label=f"the {key}", key=key)
+    return consistency_section(result, limits, run_label=f"the {key}", key=key, drawn=drawn)
 
 
 def site(ev, folder: Path, stack_dir: Path, run, facts: dict, say, *, stack=None):

@@ -566,15 +566,17 @@ def _pair_record(k: int, pr: PairResidual, layer, lod) -> dict:
             lod_change=bool(lod[k + 1]))
 
 
-def save_consistency(result: Consistency, folder, *, inputs=()) -> dict:
+def save_consistency(result: Consistency, folder, *, inputs=(),
+                     drawn: dict | None = None) -> dict:
     """Write ``consistency.json``, ``consistency.csv`` and ``consistency.png`` atomically.
 
-    Returns the summary.
+    Returns the summary. The figure's PNG bytes go to ``drawn`` when it is a dict
+    (:func:`evaluation.figures.drawn_once`), for a report that shows it too.
     """
     import csv
     import io
 
-    from evaluation.figures import consistency_figure, save_png
+    from evaluation.figures import consistency_figure, drawn_once, save_png
     from terrain.core.outputs import atomic_path
 
     folder = Path(folder)
@@ -592,5 +594,6 @@ def save_consistency(result: Consistency, folder, *, inputs=()) -> dict:
                        ("consistency.json", json.dumps(result.as_dict(), indent=1))):
         with atomic_path(folder / name, inputs) as tmp:
             tmp.write_text(text, encoding="utf-8")
-    save_png(consistency_figure(result), folder / "consistency.png", inputs=inputs)
+    save_png(drawn_once(drawn, "consistency", lambda: consistency_figure(result)),
+             folder / "consistency.png", inputs=inputs)
     return result.summary()

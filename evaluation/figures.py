@@ -20,7 +20,8 @@ import numpy as np
 
 from terrain.core.outputs import atomic_path
 
-__all__ = ["consistency_figure", "crater_sfd_figure", "depth_diameter_figure", "error_figure",
+__all__ = ["consistency_figure", "crater_sfd_figure", "depth_diameter_figure", "drawn_once",
+           "error_figure",
            "png_bytes", "range_thumbnail", "read_png", "save_png", "slope_area_figure",
            "slope_baseline_figure", "slope_distribution_figure", "spectrum_figure",
            "structure_function_figure", "thumbnail", "tracks_figure"]
@@ -61,10 +62,34 @@ def png_bytes(fig) -> bytes:
 
 
 def save_png(fig, path, *, inputs=()) -> None:
-    """Write the figure as a PNG, atomically."""
-    data = png_bytes(fig)
+    """Write the figure (or PNG bytes already drawn) as a PNG, atomically."""
+    data = fig if isinstance(fig, bytes) else png_bytes(fig)
     with atomic_path(path, inputs) as tmp:
         tmp.write_bytes(data)
+
+
+def drawn_once(drawn: dict | None, name: str, draw) -> bytes:
+    """Return the PNG bytes of ``draw()`` (a figure), drawn once per ``name`` in ``drawn``.
+
+    A figure written to a run's folder is often shown in the report too; the caller that
+    draws it first keeps its bytes in ``drawn`` (a dict, or None to keep nothing) and the
+    second takes them from there instead of drawing the same figure again.
+
+    >>> drawn = {}
+    >>> calls = []
+    >>> def draw():
+    ...     import matplotlib.figure
+    ...     calls.append(1)
+    ...     return matplotlib.figure.Figure(figsize=(1, 1))
+    >>> drawn_once(drawn, "a", draw) == drawn_once(drawn, "a", draw), len(calls)
+    (True, 1)
+    """
+    if drawn is not None and name in drawn:
+        return drawn[name]
+    data = png_bytes(draw())
+    if drawn is not None:
+        drawn[name] = data
+    return data
 
 
 def _legend(fig, ax) -> None:

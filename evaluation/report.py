@@ -385,8 +385,8 @@ def figure_record(fig_id, title, fig, data, caption="") -> Figure:
     ----------
     fig_id, title : str
         The figure's anchor and heading.
-    fig : matplotlib.figure.Figure
-        The drawing (closed once rendered).
+    fig : matplotlib.figure.Figure or bytes
+        The drawing (closed once rendered), or its PNG bytes already drawn.
     data : dict
         The plotted numbers, written to the report's JSON (:func:`jsonable`).
     caption : str
@@ -397,7 +397,8 @@ def figure_record(fig_id, title, fig, data, caption="") -> Figure:
     """
     from evaluation.figures import png_bytes
 
-    return Figure(fig_id, title, png_bytes(fig), jsonable(data), caption)
+    png = fig if isinstance(fig, bytes) else png_bytes(fig)
+    return Figure(fig_id, title, png, jsonable(data), caption)
 
 
 def jsonable(obj):
@@ -500,7 +501,7 @@ def fmt(value, digits=4) -> str:
 
 
 def tracking_section(scored, last_image, thresholds: dict | None = None, *,
-                     run_label: str = "", key: str = "") -> Section:
+                     run_label: str = "", key: str = "", drawn: dict | None = None) -> Section:
     """Feature tracking against truth: tracks over the last frame, errors, survival.
 
     Parameters
@@ -515,8 +516,11 @@ def tracking_section(scored, last_image, thresholds: dict | None = None, *,
     key : str
         Distinguishes this section from other tracking sections of the same report (its id,
         figure ids and the section named by its checks); empty for a report of one run.
+    drawn : dict, optional
+        Figures already drawn by :func:`evaluation.tracking.save_tracks` for the same tracks
+        and frame (:func:`evaluation.figures.drawn_once`): used, not drawn again.
     """
-    from evaluation.figures import error_figure, tracks_figure
+    from evaluation.figures import drawn_once, error_figure, tracks_figure
 
     t = (thresholds or DEFAULT_THRESHOLDS)["tracking"]
     summary = scored.summary()
@@ -568,7 +572,8 @@ def tracking_section(scored, last_image, thresholds: dict | None = None, *,
     sec.data = jsonable(summary)
     tracks = scored.tracks
     sec.figures.append(figure_record(
-        "tracks", "Tracks over the last frame", tracks_figure(last_image, scored),
+        "tracks", "Tracks over the last frame",
+        drawn_once(drawn, "tracks", lambda: tracks_figure(last_image, scored)),
         dict(positions=tracks.positions, start=tracks.start, stop=tracks.stop,
              final_error_px=(scored.errors[:, -1] if scored.errors is not None else None)),
         "Each line is one feature's track; the paper's Fig. 15."))
@@ -591,7 +596,8 @@ def tracking_section(scored, last_image, thresholds: dict | None = None, *,
                                 t["min_survival_at_layer_change"], ">="))
     if err is not None and err["observations"]:
         sec.figures.append(figure_record(
-            "tracking_error", "Tracking error", error_figure(scored),
+            "tracking_error", "Tracking error",
+            drawn_once(drawn, "tracking_error", lambda: error_figure(scored)),
             dict(errors_px=scored.error_values(),
                  median_px_by_track_age=err["median_px_by_track_age"],
                  one_step_median_px_by_track_age=err.get("one_step_median_px_by_track_age")),
@@ -602,7 +608,7 @@ def tracking_section(scored, last_image, thresholds: dict | None = None, *,
 
 
 def consistency_section(result, thresholds: dict | None = None, *, run_label: str = "",
-                        key: str = "") -> Section:
+                        key: str = "", drawn: dict | None = None) -> Section:
     """Frame-to-frame consistency of a run (:mod:`evaluation.consistency`).
 
     Parameters
@@ -614,8 +620,11 @@ def consistency_section(result, thresholds: dict | None = None, *, run_label: st
         How the text names the run.
     key : str
         Distinguishes this section from other consistency sections of the same report.
+    drawn : dict, optional
+        Figures already drawn by :func:`evaluation.consistency.save_consistency` for the
+        same result (:func:`evaluation.figures.drawn_once`): used, not drawn again.
     """
-    from evaluation.figures import consistency_figure
+    from evaluation.figures import consistency_figure, drawn_once
 
     t = (thresholds or DEFAULT_THRESHOLDS)["consistency"]
     s = result.summary()
@@ -644,7 +653,8 @@ def consistency_section(result, thresholds: dict | None = None, *, run_label: st
     sec.tables.append(("Consistency", ["measure", "value"], rows))
     sec.data = jsonable(result.as_dict())
     sec.figures.append(figure_record(
-        "consistency", "Consistency residual per frame", consistency_figure(result),
+        "consistency", "Consistency residual per frame",
+        drawn_once(drawn, "consistency", lambda: consistency_figure(result)),
         dict(frames=result.frames),
         "Residual rms of each frame warped into the previous one, with the sensor noise of a "
         "pair; orange lines: the drawn layers change, green: levels of detail change."))

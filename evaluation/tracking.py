@@ -1055,20 +1055,23 @@ def ideal_one_steps(scored: ScoredTracks, run, *, noises: tuple[int | None, ...]
     return outs
 
 
-def save_tracks(scored: ScoredTracks, run, folder, *, inputs=()) -> dict:
+def save_tracks(scored: ScoredTracks, run, folder, *, inputs=(),
+                drawn: dict | None = None) -> dict:
     """Write a scored run's tracks where a user looks for them, each file atomically.
 
     ``tracks.csv`` (one row per observation: track, frame, tracked u/v and, with truth, the
     true u/v and the error, all in pixels), ``tracking.json`` (:meth:`ScoredTracks.summary`),
     ``tracks.png`` (the tracks over the last frame) and, with errors, ``tracking_error.png``.
-    ``inputs`` are files none of these may replace. Returns the summary.
+    ``inputs`` are files none of these may replace. Returns the summary. The figures' PNG
+    bytes go to ``drawn`` when it is a dict (:func:`evaluation.figures.drawn_once`), for a
+    report that shows them too.
     """
     import csv
     import io
     import json
     from pathlib import Path
 
-    from evaluation.figures import error_figure, save_png, tracks_figure
+    from evaluation.figures import drawn_once, error_figure, save_png, tracks_figure
     from terrain.core.outputs import atomic_path
 
     folder = Path(folder)
@@ -1104,8 +1107,9 @@ def save_tracks(scored: ScoredTracks, run, folder, *, inputs=()) -> dict:
                        ("tracking.json", json.dumps(summary, indent=1))):
         with atomic_path(folder / name, inputs) as tmp:
             tmp.write_text(text, encoding="utf-8")
-    save_png(tracks_figure(run.image(len(run) - 1), scored), folder / "tracks.png",
-             inputs=inputs)
+    save_png(drawn_once(drawn, "tracks", lambda: tracks_figure(run.image(len(run) - 1), scored)),
+             folder / "tracks.png", inputs=inputs)
     if scored.has_errors and scored.error_values().size:
-        save_png(error_figure(scored), folder / "tracking_error.png", inputs=inputs)
+        save_png(drawn_once(drawn, "tracking_error", lambda: error_figure(scored)),
+                 folder / "tracking_error.png", inputs=inputs)
     return summary

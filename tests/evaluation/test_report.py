@@ -206,3 +206,27 @@ def test_jsonable_float_arrays_match_element_by_element(dtype, shape):
     assert out == reference(a.tolist())
     assert json.dumps(out) == json.dumps(reference(a.tolist()))
     assert "NaN" not in json.dumps(out) and "Infinity" not in json.dumps(out)
+
+
+def test_figures_written_with_the_tracks_are_the_reports_drawn_once(planar_run, tmp_path,
+                                                                    monkeypatch):
+    """save_tracks and tracking_section show the same two figures: drawn once, shared, and
+    the bytes each would draw alone."""
+    import evaluation.figures as figures
+    from evaluation.tracking import save_tracks
+
+    reader = RunReader(planar_run)
+    scored = score(track(reader), reader)
+    last = reader.image(len(reader) - 1)
+    alone = {f.id: f.png for f in tracking_section(scored, last).figures}
+    drawn: dict = {}
+    calls = []
+    real_png = figures.png_bytes
+    monkeypatch.setattr(figures, "png_bytes", lambda fig: calls.append(1) or real_png(fig))
+    save_tracks(scored, reader, tmp_path / "tracks", drawn=drawn)
+    shared = {f.id: f.png for f in tracking_section(scored, last, drawn=drawn).figures}
+    assert set(alone) == set(shared) == {"tracks", "tracking_error"}
+    assert len(calls) == 2  # two figures, each drawn once for the folder and the report
+    assert shared == alone
+    assert (tmp_path / "tracks" / "tracks.png").read_bytes() == alone["tracks"]
+    assert (tmp_path / "tracks" / "tracking_error.png").read_bytes() == alone["tracking_error"]
