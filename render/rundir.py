@@ -348,6 +348,11 @@ class RunWriter:
 #: Decoded range images a :class:`RunReader` keeps (the evaluation reads a frame's range
 #: once for each pair it belongs to, and again in each pass over the run).
 RANGE_CACHE = 4
+#: Bytes of decoded frame images a :class:`RunReader` keeps, first read first kept, none
+#: dropped: the evaluation passes over a run's frames twice in one process (the tracker, then
+#: the tracker on truth-warped frames), and a 1024^2 8-bit frame costs about 20 ms to decode.
+#: A run larger than this keeps its first frames and reads the rest each time.
+IMAGE_KEEP_BYTES = 256 * 2**20
 
 
 class RunReader:
@@ -355,7 +360,9 @@ class RunReader:
 
     def __init__(self, run_dir):
         self._ranges: OrderedDict[int, np.ndarray] = OrderedDict()
-        self._ranges_lock = threading.Lock()
+        self._lock = threading.Lock()
+        self._images: dict[int, np.ndarray] = {}
+        self._images_bytes = 0
         self.dir = Path(run_dir)
         if not self.dir.is_dir():
             raise MissingInputError(f"run directory '{self.dir}' does not exist")
@@ -397,25 +404,33 @@ class RunReader:
         return len(self.images)
 
     def image(self, k: int) -> np.ndarray:
-        """Return frame ``k``'s image as stored (uint8 or uint16)."""
+        """Return frame ``k``'s image as stored (uint8 or uint16): the caller's own copy."""
         import cv2
 
+        with self._lock:
+            kept = self._images.get(k)
+        if kept is not None:
+            return kept.copy()
         img = cv2.imread(str(self.images[k]), cv2.IMREAD_UNCHANGED)
         if img is None:
             raise MissingInputError(f"cannot read frame '{self.images[k]}'")
+        with self._lock:
+            if k not in self._images and self._images_bytes + img.nbytes <= IMAGE_KEEP_BYTES:
+                self._images[k] = img.copy()
+                self._images_bytes += img.nbytes
         return img
 
     def range(self, k: int) -> np.ndarray | None:
         """Return frame ``k``'s range in metres, (h, w), or None without truth."""
         if not self.truth or not self.truth[k].range:
             return None
-        with self._ranges_lock:
+        with self._lock:
             cached = self._ranges.get(k)
             if cached is not None:
                 self._ranges.move_to_end(k)
                 return cached.copy()  # callers may change theirs
         a = read_float_tiff(self.dir / self.truth[k].range)
-        with self._ranges_lock:
+        with self._lock:
             self._ranges[k] = a.copy()
             while len(self._ranges) > RANGE_CACHE:
                 self._ranges.popitem(last=False)
@@ -428,7 +443,7 @@ class RunReader:
         """
         if not self.truth or not self.truth[k].range:
             return None
-        with self._ranges_lock:
+        with self._lock:
             cached = self._ranges.get(k)
         if cached is not None:
             return float(cached[row, col])

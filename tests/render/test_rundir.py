@@ -47,6 +47,22 @@ def test_the_range_at_one_pixel_is_the_range_image_s_value_there(run_dir):
     assert RunReader(run_dir).range_at(0, 0, 0) == 1.0  # read from the file, not a cache
 
 
+def test_frames_read_again_are_the_file_s_pixels_and_the_caller_s_own(run_dir, monkeypatch):
+    import cv2
+
+    import render.rundir as rundir
+
+    monkeypatch.setattr(rundir, "IMAGE_KEEP_BYTES", 12)  # one 4x3 8-bit frame
+    run = RunReader(run_dir)
+    stored = [cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in run.images]
+    for _ in range(2):  # the first pass decodes, the second reads the kept frame 0
+        for k in range(len(run)):
+            img = run.image(k)
+            assert img.dtype == stored[k].dtype and np.array_equal(img, stored[k])
+            img[...] = 7  # the caller's copy: the reader's kept frame is unchanged
+    assert list(run._images) == [0]  # the budget held frame 0 only, none dropped
+
+
 @pytest.mark.parametrize("change, key, near", [
     (lambda t: t[1].update(tme=0.5), "tme", "time"),
     (lambda t: t[0]["camera"].update(positon=[0, 0, 1]), "positon", "position"),
