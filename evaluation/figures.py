@@ -21,10 +21,9 @@ import numpy as np
 from terrain.core.outputs import atomic_path
 
 __all__ = ["consistency_figure", "crater_sfd_figure", "depth_diameter_figure", "drawn_once",
-           "error_figure",
-           "png_bytes", "range_thumbnail", "read_png", "save_png", "slope_area_figure",
-           "slope_baseline_figure", "slope_distribution_figure", "spectrum_figure",
-           "structure_function_figure", "thumbnail", "tracks_figure"]
+           "error_figure", "png_bytes", "range_thumbnail", "read_png", "save_png",
+           "slope_area_figure", "slope_baseline_figure", "slope_distribution_figure",
+           "spectrum_figure", "structure_function_figure", "thumbnail", "tracks_figure"]
 
 #: Figure size (inches) and resolution (dots per inch) of every figure.
 FIGSIZE = (7.0, 4.5)
