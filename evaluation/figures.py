@@ -20,10 +20,11 @@ import numpy as np
 
 from terrain.core.outputs import atomic_path
 
-__all__ = ["consistency_figure", "crater_sfd_figure", "depth_diameter_figure", "drawn_once",
-           "error_figure", "png_bytes", "range_thumbnail", "read_png", "save_png",
-           "slope_area_figure", "slope_baseline_figure", "slope_distribution_figure",
-           "spectrum_figure", "structure_function_figure", "thumbnail", "tracks_figure"]
+__all__ = ["as_png", "consistency_figure", "crater_sfd_figure", "depth_diameter_figure",
+           "drawn_once", "error_figure", "png_bytes", "range_thumbnail", "read_png",
+           "save_png", "slope_area_figure", "slope_baseline_figure",
+           "slope_distribution_figure", "spectrum_figure", "structure_function_figure",
+           "thumbnail", "tracks_figure"]
 
 #: Figure size (inches) and resolution (dots per inch) of every figure.
 FIGSIZE = (7.0, 4.5)
@@ -60,9 +61,14 @@ def png_bytes(fig) -> bytes:
     return buf.getvalue()
 
 
+def as_png(fig) -> bytes:
+    """Return a figure's PNG bytes: :func:`png_bytes` of a figure, PNG bytes as they are."""
+    return fig if isinstance(fig, bytes) else png_bytes(fig)
+
+
 def save_png(fig, path, *, inputs=()) -> None:
     """Write the figure (or PNG bytes already drawn) as a PNG, atomically."""
-    data = fig if isinstance(fig, bytes) else png_bytes(fig)
+    data = as_png(fig)
     with atomic_path(path, inputs) as tmp:
         tmp.write_bytes(data)
 

@@ -395,10 +395,9 @@ def figure_record(fig_id, title, fig, data, caption="") -> Figure:
     -------
     Figure
     """
-    from evaluation.figures import png_bytes
+    from evaluation.figures import as_png
 
-    png = fig if isinstance(fig, bytes) else png_bytes(fig)
-    return Figure(fig_id, title, png, jsonable(data), caption)
+    return Figure(fig_id, title, as_png(fig), jsonable(data), caption)
 
 
 def jsonable(obj):
