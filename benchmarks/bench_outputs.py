@@ -8,8 +8,8 @@ alternately (A B, B A, ...) so that both see the same load:
   Target: at most 1.6x the direct write (the read-back is what turns a full disk into an
   error instead of a truncated file).
 * ``sensor_tiff``: a frame's range (1024^2) and normals (1024^2 x 3) written the way every
-  rendered frame writes them (:func:`terrain.io.write_float_tiff`: ZSTD, safe) against
-  rasterio writing the same two TIFFs directly with DEFLATE (the earlier setting, no
+  rendered frame writes them (:func:`terrain.io.write_float_tiff`: uncompressed, safe)
+  against rasterio writing the same two TIFFs directly with DEFLATE (an earlier setting, no
   safety); with both files' sizes. Target: at most the direct DEFLATE write.
 * ``transaction``: committing four files as one set (journal, renames) against writing the
   same four files one by one with :func:`terrain.core.outputs.atomic_path`. Target: at most 1.5x

@@ -52,11 +52,16 @@ log = logging.getLogger(__name__)
 #: GeoTIFF block size of written tiles (pixels).
 BLOCK_SIZE = 256
 #: Compression of the sensor images (:func:`write_float_tiff`, every frame's range and
-#: normals): Zstandard at level 1 with the floating-point predictor, GDAL's ZSTD codec
-#: (GDAL >= 2.3). On the demo's 1024^2 range and normal images it writes about four times
-#: faster than DEFLATE at its default level 6, for files 7 % larger (range) and 1 %
-#: smaller (normals); the bytes are the same for the same pixels.
-SENSOR_TIFF_COMPRESSION = dict(compress="zstd", predictor=3, zstd_level=1)
+#: normals): none. They are written every frame and read several times by the evaluation
+#: (pairs, warps, truth round trips), and their mantissas barely compress: on the demo
+#: descent's 1024^2 images (medians of five, this 2-core machine) Zstandard level 1 with the
+#: floating-point predictor made the normals 21 % smaller (9.95 MB against 12.58) for 6 times
+#: the write (105 ms against 17) and 4 times the read (56 ms against 14), and the range half
+#: the size (2.06 MB against 4.19) for 6 and 5 times (36 against 6 ms, 21 against 4). The
+#: demo's evaluation stage reading uncompressed runs took about 16 CPU s less of some 125.
+#: Any GDAL tool compresses a run afterwards (``gdal_translate -co COMPRESS=ZSTD
+#: -co PREDICTOR=3``) and every reader here reads it the same.
+SENSOR_TIFF_COMPRESSION = dict(compress="none")
 
 
 def _first_line(exc: BaseException) -> str:
@@ -454,12 +459,12 @@ def xy_to_lonlat(crs_wkt: str | None, x: float, y: float) -> tuple[float, float]
 
 
 def write_float_tiff(array: np.ndarray, path, *, tags: dict | None = None, inputs=()) -> Path:
-    """Write a (h, w) or (h, w, bands) float32 image as a compressed TIFF, atomically.
+    """Write a (h, w) or (h, w, bands) float32 image as a tiled TIFF, atomically.
 
     Not georeferenced (sensor images: range, normals); NaN marks invalid pixels and is the
-    nodata value. Bands keep their order (band 1 = channel 0). Compressed with
-    :data:`SENSOR_TIFF_COMPRESSION`; the file is checked to hold every block it lists
-    (:func:`_verify_blocks`) before it is put in place.
+    nodata value. Bands keep their order (band 1 = channel 0). Stored as
+    :data:`SENSOR_TIFF_COMPRESSION` says (uncompressed); the file is checked to hold every
+    block it lists (:func:`_verify_blocks`) before it is put in place.
     """
     check_output_path(path, inputs, suffixes=DEM_SUFFIXES, what="TIFF")
     a = np.asarray(array, dtype=np.float32)
