@@ -52,12 +52,34 @@ def new_figure(figsize=FIGSIZE):
 
 
 def png_bytes(fig) -> bytes:
-    """Return the figure as PNG bytes (Agg renderer)."""
+    """Return the figure as PNG bytes (Agg renderer): the bytes ``fig.savefig`` writes.
+
+    With a layout engine, ``savefig`` first draws the whole figure with rendering turned off
+    to run the layout, then draws it again to render. Here the layout runs alone (the
+    engine's ``execute``, which measures what it needs), and the figure is saved with the
+    engine set aside: one whole draw fewer, the same positions, the same bytes
+    (``tests/evaluation/test_figures.py`` compares them with ``savefig``'s), about a sixth
+    of the time of the stage's figures. A figure at another resolution than :data:`DPI` is
+    saved by ``savefig`` alone (the layout depends on it).
+    """
+    import matplotlib
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
     FigureCanvasAgg(fig)
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=DPI)
+    engine = fig.get_layout_engine()
+    if engine is None or fig.dpi != DPI:
+        fig.savefig(buf, format="png", dpi=DPI)
+        return buf.getvalue()
+    engine.execute(fig)
+    # None is "no engine" only where the rc parameters choose none by default
+    with matplotlib.rc_context({"figure.autolayout": False,
+                                "figure.constrained_layout.use": False}):
+        fig.set_layout_engine(None)
+    try:
+        fig.savefig(buf, format="png", dpi=DPI)
+    finally:
+        fig.set_layout_engine(engine)
     return buf.getvalue()
 
 
