@@ -42,7 +42,6 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
-from scipy.stats import poisson
 
 from terrain.core import memory
 from terrain.core.errors import InvalidParameterError
@@ -160,6 +159,8 @@ def sample(population: Population, area_m2: float, *, seed: int, stream: str,
             f"the limit of {max_features:,}; raise dmin or lower the density")
     memory.require((total + 10.0 * math.sqrt(total + 1.0)) * _BYTES_PER_FEATURE
                    * (1 + extra_fields / 4.0), f"sampling about {total:.3g} {stream} features")
+    from scipy.stats import poisson  # here: scipy.stats costs every importer of asteroid ~1 s
+
     sid = stream_id(stream)
     count_stream = stream_id(stream + "-count")
     uid_stream = stream_id(stream + "-uid")
