@@ -53,6 +53,7 @@ import json
 import logging
 import os
 import re
+import secrets
 import shutil
 import signal
 import stat
@@ -249,19 +250,28 @@ def _temp_beside(path: Path) -> Path:
     parent = path.parent if str(path.parent) else Path(".")
     if _is_special(path):  # bytes for a device or FIFO are copied in: stage them elsewhere
         parent = Path(tempfile.gettempdir())
-    # create and register with interrupts held back, so no temporary escapes the registry
-    mask = signal.pthread_sigmask(signal.SIG_BLOCK, _INTERRUPTS)
-    try:
+    # The name is registered before the file exists, so no temporary escapes the registry:
+    # an interrupt's Python handler runs in the main thread between any two bytecodes, even
+    # while this thread blocks the signal, when the signal reached another thread (numba's,
+    # GDAL's); a file made first and registered next could be left behind (it was, under a
+    # SIGTERM during a threaded expansion). An interrupt before the file exists leaves a name
+    # that remove_temporaries does not find.
+    flags = os.O_RDWR | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) \
+        | getattr(os, "O_CLOEXEC", 0)
+    for _ in range(100):
+        tmp = parent / f".{path.name}.{os.getpid()}-{secrets.token_hex(4)}{PARTIAL_SUFFIX}"
+        _LIVE.add(tmp)
         try:
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}-",
-                                       suffix=PARTIAL_SUFFIX, dir=parent)
+            fd = os.open(tmp, flags, 0o600)
+        except FileExistsError:
+            _LIVE.discard(tmp)
+            continue
         except OSError as exc:
+            _LIVE.discard(tmp)
             raise cannot_write(path, exc) from exc
         os.close(fd)
-        _LIVE.add(Path(tmp))
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
-    return Path(tmp)
+        return tmp
+    raise cannot_write(path, FileExistsError(errno.EEXIST, "no free temporary name", str(parent)))
 
 
 def _forget(tmp: Path) -> None:

@@ -93,3 +93,29 @@ def test_a_full_disk_under_a_zarr_store_names_the_chunk(tmp_path):
     with file_size_limit(2_000), pytest.raises(OutputPathError) as info:
         run(SynthSource(129, seed=1), tmp_path / "full.zarr", chunk=64)
     assert "full.zarr" in str(info.value) and "File too large" in str(info.value)
+
+
+def test_an_interrupt_while_a_temporary_is_made_leaves_none_behind(tmp_path, monkeypatch):
+    # an interrupt's handler may run between any two lines (the signal reached a worker
+    # thread, so blocking it here does not hold it back): whenever it lands, from the name
+    # to the open file, the command line's cleanup finds what was made
+    from terrain.core import outputs
+
+    real_close = os.close
+    for when in ("open", "close"):
+        original = getattr(os, when)
+
+        def interrupt(*args, real=original, when=when):
+            fd = real(*args)  # the file exists (or is closed) when the interrupt lands
+            if when == "open":
+                real_close(fd)
+            monkeypatch.undo()
+            raise KeyboardInterrupt
+
+        monkeypatch.setattr(outputs.os, when, interrupt)
+        with pytest.raises(KeyboardInterrupt):
+            with outputs.atomic_path(tmp_path / "out.tif") as tmp:
+                tmp.write_bytes(b"never")
+        outputs.remove_temporaries()
+        assert not list(tmp_path.glob("*.partial")) and not (tmp_path / "out.tif").exists()
+    assert os.close is real_close
