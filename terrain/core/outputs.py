@@ -351,7 +351,7 @@ def atomic_path(path, inputs: Iterable = ()) -> Iterator[Path]:
         try:
             yield tmp
             _fsync_file(tmp)
-            os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give what open() would
+            os.chmod(tmp, 0o666 & ~_umask())  # made 0600; give what open() would
             if active is not None:
                 active._stage(tmp, final)
             else:
