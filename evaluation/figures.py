@@ -68,18 +68,18 @@ def png_bytes(fig) -> bytes:
     FigureCanvasAgg(fig)
     buf = io.BytesIO()
     engine = fig.get_layout_engine()
-    if engine is None or fig.dpi != DPI:
-        fig.savefig(buf, format="png", dpi=DPI)
-        return buf.getvalue()
-    engine.execute(fig)
-    # None is "no engine" only where the rc parameters choose none by default
-    with matplotlib.rc_context({"figure.autolayout": False,
-                                "figure.constrained_layout.use": False}):
-        fig.set_layout_engine(None)
+    laid_out = engine is not None and fig.dpi == DPI
+    if laid_out:
+        engine.execute(fig)
+        # None is "no engine" only where the rc parameters choose none by default
+        with matplotlib.rc_context({"figure.autolayout": False,
+                                    "figure.constrained_layout.use": False}):
+            fig.set_layout_engine(None)
     try:
         fig.savefig(buf, format="png", dpi=DPI)
     finally:
-        fig.set_layout_engine(engine)
+        if laid_out:
+            fig.set_layout_engine(engine)
     return buf.getvalue()
 
 
