@@ -98,15 +98,18 @@ def start_server(scenario: Path):
                              "render", "serve", str(scenario), "--port", "0"],
                             stderr=subprocess.PIPE, text=True, cwd=ROOT)
     deadline = time.monotonic() + 600
+    said = []
     while time.monotonic() < deadline and proc.poll() is None:
         ready, _, _ = select.select([proc.stderr], [], [], 1.0)
         if ready:
             line = proc.stderr.readline()
+            said.append(line.rstrip())
             m = re.search(r"serving .* on [\d.]+:(\d+)\s*$", line)
             if m:
                 return proc, int(m.group(1))
     proc.kill()
-    raise RuntimeError("the server did not start")
+    said += proc.stderr.read().splitlines()
+    raise RuntimeError("the server did not start; it said: " + " | ".join(said[-5:]))
 
 
 def stats(times: list[float], requests_per_frame: int) -> dict:
