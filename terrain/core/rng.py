@@ -31,6 +31,8 @@ import math
 import numba
 import numpy as np
 
+from terrain.core.parallel import run_blocks
+
 __all__ = [
     "MAX_SEED",
     "check_seed",
@@ -252,34 +254,54 @@ def normal_at(prefix, ix, iy):
     return gaussian(uniform_at(prefix, ix, iy))
 
 
-@numba.njit(cache=True)
-def _uniform_flat(seed, stream, level, ix, iy, k, out):
-    for i in range(out.size):
-        out[i] = uniform_scalar(seed, stream, level, ix[i], iy[i], k[i])
+@numba.njit(nogil=True, cache=True)
+def _uniform_rows(seed, stream, level, ix, iy, k, out, first, last):
+    for i in range(first, last):
+        for j in range(out.shape[1]):
+            out[i, j] = uniform_scalar(seed, stream, level, ix[i, j], iy[i, j], k[i, j])
 
 
-@numba.njit(cache=True)
-def _normal_flat(seed, stream, level, ix, iy, k, out):
-    for i in range(out.size):
-        out[i] = normal_scalar(seed, stream, level, ix[i], iy[i], k[i])
+@numba.njit(nogil=True, cache=True)
+def _normal_rows(seed, stream, level, ix, iy, k, out, first, last):
+    for i in range(first, last):
+        for j in range(out.shape[1]):
+            out[i, j] = normal_scalar(seed, stream, level, ix[i, j], iy[i, j], k[i, j])
+
+
+#: Below this many deviates a call runs on the calling thread (a dispatch costs more).
+_PARALLEL_FROM = 1 << 16
 
 
 def _keyed(kernel, seed, stream, level, ix, iy, k):
+    """Deviates of broadcast keys, read through the broadcast views (never materialised).
+
+    The positions of an image are a row and a column (``cols[None, :]``, ``rows[:, None]``):
+    broadcasting them to the image's shape and copying each (24 bytes a pixel) cost more
+    than the hashing. The rows go to every core; each deviate depends only on its key, so
+    the values are the same on any number of threads.
+    """
     seed = check_seed(seed)
-    ix, iy, k = np.broadcast_arrays(
-        np.asarray(ix, dtype=np.int64), np.asarray(iy, dtype=np.int64),
-        np.asarray(k, dtype=np.int64))
-    out = np.empty(ix.shape, dtype=np.float64)
-    kernel(seed, int(stream), int(level), np.ascontiguousarray(ix).ravel(),
-           np.ascontiguousarray(iy).ravel(), np.ascontiguousarray(k).ravel(), out.reshape(-1))
+    keys = [np.asarray(a, dtype=np.int64) for a in (ix, iy, k)]
+    shape = np.broadcast_shapes(*(a.shape for a in keys))
+    out = np.empty(shape, dtype=np.float64)
+    if out.size == 0:
+        return out
+    shape2 = (out.size, 1) if out.ndim < 2 else (-1, out.shape[-1])
+    keys = [np.broadcast_to(a, shape).reshape(shape2) for a in keys]
+    flat = out.reshape(shape2)
+    rows = flat.shape[0]
+    if out.size < _PARALLEL_FROM:
+        kernel(seed, int(stream), int(level), *keys, flat, 0, rows)
+    else:
+        run_blocks(kernel, rows, seed, int(stream), int(level), *keys, flat)
     return out
 
 
 def uniform(seed, stream, level, ix, iy, k=0):
     """Uniform (0, 1) deviates for broadcast integer positions ``ix, iy`` (float64 array)."""
-    return _keyed(_uniform_flat, seed, stream, level, ix, iy, k)
+    return _keyed(_uniform_rows, seed, stream, level, ix, iy, k)
 
 
 def normal(seed, stream, level, ix, iy, k=0):
     """Return standard normal deviates for broadcast integer positions ``ix, iy`` (float64)."""
-    return _keyed(_normal_flat, seed, stream, level, ix, iy, k)
+    return _keyed(_normal_rows, seed, stream, level, ix, iy, k)

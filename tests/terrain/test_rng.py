@@ -69,6 +69,27 @@ def test_any_subset_draws_the_same_numbers():
     assert rng.normal_scalar(1, s, 2, 10, -3, 0) == full[17, 60]
 
 
+def test_broadcast_keys_of_any_shape_and_size_draw_each_keys_own_deviate():
+    """An image's worth (parallel rows), a 3-d broadcast and a 1-d run equal the scalars."""
+    from terrain.core.parallel import limited
+
+    s = rng.stream_id("broadcast")
+    cols, rows = np.arange(-300, 300)[None, :], np.arange(0, 150)[:, None]
+    image = rng.normal(5, s, 1, cols, rows, 3)
+    with limited(1):
+        assert np.array_equal(rng.normal(5, s, 1, cols, rows, 3), image)
+    for i, j in ((0, 0), (149, 599), (77, 301)):
+        assert image[i, j] == rng.normal_scalar(5, s, 1, int(cols[0, j]), int(rows[i, 0]), 3)
+    cube = rng.uniform(5, s, 1, np.arange(4)[None, None, :], np.arange(3)[None, :, None],
+                       np.arange(2)[:, None, None])
+    assert cube.shape == (2, 3, 4)
+    assert cube[1, 2, 3] == rng.uniform_scalar(5, s, 1, 3, 2, 1)
+    run = rng.uniform(5, s, 1, np.arange(70_000), 9)
+    assert run.shape == (70_000,) and run[69_999] == rng.uniform_scalar(5, s, 1, 69_999, 9, 0)
+    assert rng.uniform(5, s, 1, np.arange(0), 9).shape == (0,)
+    assert rng.normal(5, s, 1, 4, 9).shape == ()
+
+
 def test_keys_separate_streams_levels_and_seeds():
     base = rng.uniform(1, 2, 3, np.arange(1000), 0)
     for other in (rng.uniform(2, 2, 3, np.arange(1000), 0),
