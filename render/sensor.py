@@ -73,6 +73,7 @@ from pathlib import Path
 
 import numpy as np
 
+from render.sensor_kernels import quantise, shot_gaussian
 from terrain.core.checks import check_keys, number
 from terrain.core.errors import InvalidParameterError, MissingInputError
 from terrain.core.rng import check_seed, normal, stream_id, uniform
@@ -455,40 +456,31 @@ class Sensor:
         """Apply steps 3-8 of the chain on a mean-signal image in electrons."""
         e = np.asarray(electrons, dtype=np.float64)
         h, w = e.shape
-        cols = np.arange(w)[None, :]
-        rows = np.arange(h)[:, None]
         if self.prnu > 0:
             e = e * self.prnu_map((h, w))
         if self.physical:
             e = e + self.dark_rate * self.exposure_time
         shot = self.shot_noise and (self.physical or self.gain > 0)
         if shot:
-            e = self._shot(e, frame, cols, rows)
+            e = self._shot(e, frame)
         gain = self._gain()
         well = self.full_well if self.full_well > 0 else None
-        if well is not None:
-            e = np.minimum(e, well)
         read_e = self.read_noise * (gain if not self.physical else 1.0)
-        if read_e > 0:
-            e = e + read_e * normal(self.seed, STREAM_READ, frame, cols, rows)
-        dn = e / gain + self.bias
-        out = np.clip(np.rint(dn), 0, self.full_scale)
-        return out.astype(np.uint8 if self.bits <= 8 else np.uint16)
+        return quantise(e, well, read_e, check_seed(self.seed), STREAM_READ, frame, gain,
+                        self.bias, self.full_scale, np.uint8 if self.bits <= 8 else np.uint16)
 
-    def _shot(self, e, frame, cols, rows):
+    def _shot(self, e, frame):
         """Draw Poisson electrons of mean ``e``.
 
         Exact below :data:`POISSON_EXACT_BELOW`, else Gaussian; one keyed uniform per pixel
-        either way.
+        either way (:mod:`render.sensor_kernels`).
         """
-        from scipy.special import ndtri
-
-        u = uniform(self.seed, STREAM_SHOT, frame, cols, rows)
-        out = e + np.sqrt(e) * ndtri(u)
-        low = e < POISSON_EXACT_BELOW
-        if np.any(low):
-            out[low] = _poisson_inverse(u[low], e[low])
-        return np.maximum(out, 0.0)
+        out = shot_gaussian(e, check_seed(self.seed), STREAM_SHOT, frame, POISSON_EXACT_BELOW)
+        rows, cols = np.nonzero(e < POISSON_EXACT_BELOW)
+        if rows.size:
+            out[rows, cols] = _poisson_inverse(uniform(self.seed, STREAM_SHOT, frame, cols, rows),
+                                               e[rows, cols])
+        return out
 
 
 class ExposureControl:
