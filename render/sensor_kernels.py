@@ -35,10 +35,18 @@ from terrain.core.rng import normal_scalar, uniform_scalar
 __all__ = ["quantise", "shot_gaussian"]
 
 #: SciPy's inverse normal CDF, the function ``scipy.special.ndtri`` calls, by its C symbol
-#: (registered under a name of ours, so compiled code cached on disk finds it again).
+#: (registered under a name of ours, so compiled code cached on disk finds it again; on
+#: first use, as importing SciPy's table of C functions takes a tenth of a second).
 _NDTRI = "craterscape_scipy_special_ndtri"
-llvm.add_symbol(_NDTRI, get_cython_function_address("scipy.special.cython_special", "ndtri"))
 _ndtri = types.ExternalFunction(_NDTRI, types.float64(types.float64))
+_registered: list[bool] = []
+
+
+def _register_ndtri() -> None:
+    if not _registered:
+        llvm.add_symbol(_NDTRI, get_cython_function_address("scipy.special.cython_special",
+                                                            "ndtri"))
+        _registered.append(True)
 
 
 @numba.njit(nogil=True, cache=True)
@@ -76,6 +84,7 @@ def _quantise_rows(e, well, read_e, seed, stream, frame, gain, bias, full_scale,
 def shot_gaussian(e: np.ndarray, seed: int, stream: int, frame: int,
                   exact_below: float) -> np.ndarray:
     """Return Gaussian shot noise draws of mean ``e`` (float64), 0 where ``e < exact_below``."""
+    _register_ndtri()
     e = np.ascontiguousarray(e, dtype=np.float64)
     out = np.empty_like(e)
     run_blocks(_shot_rows, e.shape[0], e, int(seed), int(stream), int(frame),
