@@ -17,6 +17,8 @@ the picture itself takes a few milliseconds (docs/speed.md, "A frame on a GPU").
 
 from __future__ import annotations
 
+from typing import Literal, overload
+
 import numba
 import numpy as np
 
@@ -67,6 +69,16 @@ class Staging:
         self.radiance = np.empty((h, w), dtype=np.float32)
         self.range = np.empty((h, w), dtype=np.float32)
         self.normals = np.empty((h, w, 4), dtype=np.float32)
+
+
+@overload
+def unpack(staging: Staging, with_radiance: Literal[True] = ...
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+
+@overload
+def unpack(staging: Staging, with_radiance: Literal[False]
+           ) -> tuple[None, np.ndarray, np.ndarray]: ...
 
 
 def unpack(staging: Staging, with_radiance: bool = True

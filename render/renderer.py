@@ -1112,8 +1112,10 @@ class Renderer:
             fbo.read_into(staging.radiance, attachment=0, components=1, dtype="f4")
         fbo.read_into(staging.range, attachment=1, components=1, dtype="f4")
         fbo.read_into(staging.normals, attachment=2, components=4, dtype="f4")
-        read_rad, range_m, normals = unpack(staging, with_radiance=rad is None)
-        rad = read_rad if rad is None else rad
+        if rad is None:
+            rad, range_m, normals = unpack(staging)
+        else:
+            _, range_m, normals = unpack(staging, with_radiance=False)
         return Frame(rad, range_m, normals, dict(state.drawn))
 
     def _centre_samples(self, fbo: Any, size: tuple[int, int], a: int) -> Any:
