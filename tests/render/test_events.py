@@ -50,6 +50,37 @@ def test_events_count_the_log_change_and_time_each_crossing_within_a_step():
         assert np.max(np.abs(times - exact)) <= cam.max_step
 
 
+def test_a_pixel_that_jumps_at_every_step_does_not_pin_the_step_to_its_minimum():
+    """A rendered image has pixels that jump at any step, however short (an edge crossing a
+    pixel centre, sub-pixel flicker). Held to every pixel, the step shrinks towards min_step
+    (each longer step rejected and rendered again); with the outlier allowance the rest of
+    the image sets it, and the slow ramp's events are the same count either way."""
+    h, w = 40, 50  # 2,000 pixels: 1e-3 of them is 2
+    ramp = np.linspace(0.05, 0.2, w)[None, :].repeat(h, axis=0)
+
+    calls = [0]
+
+    def render(t):
+        img = ramp * (1.0 + 20.0 * t)  # log change ln(1.4) over 20 ms: about 1.7 thresholds
+        calls[0] += 1
+        img[7, 9] = 0.5 if calls[0] % 2 else 0.05  # a different surface at every render
+        return img
+
+    runs = {}
+    for frac in (0.0, 1e-3):
+        cam = EventCamera(contrast_on=0.2, contrast_off=0.2, contrast_spread=0.0,
+                          min_step=1e-4, max_step=5e-3, outlier_fraction=frac)
+        ev, stats = simulate(render, 0.0, 0.02, cam, seed=3)
+        smooth = ~((ev.y == 7) & (ev.x == 9))
+        runs[frac] = (stats, int(np.count_nonzero(smooth & (ev.p > 0))))
+    pinned, allowed = runs[0.0][0], runs[1e-3][0]
+    assert pinned["instants"] + pinned["rejected"] >= 200  # renders, steps near min_step
+    assert allowed["instants"] <= 10 and allowed["rejected"] == allowed["forced"] == 0
+    # each smooth pixel crosses floor(ln 1.4 / 0.2) = 1 ON threshold either way
+    assert runs[0.0][1] == runs[1e-3][1] == (h * w - 1)
+    assert allowed["largest_crossings"] > 5  # the flicker is still reported
+
+
 def test_spread_thresholds_refractory_and_noise_stay_deterministic():
     cam = EventCamera(contrast_on=0.2, contrast_off=0.2, contrast_spread=0.1,
                       refractory=5e-3, noise_rate=2.0, leak_rate=0.5, max_step=2e-3)
