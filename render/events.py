@@ -13,8 +13,8 @@ OFF (-1) down (Lichtsteiner et al. 2008, IEEE JSSC 43, 566). The simulator follo
   sub-pixel triangles at grazing view flickering between two surfaces), and held to every
   pixel the step shrank to ``min_step`` and stayed there (the benchmark's 0.1 s of motion took
   10,000 renders: 11 pixels of 512^2 moved more than a threshold in any 10 us, the largest
-  almost two). Those pixels' crossings
-  are timed by the same interpolation across the step, as a forced step's are;
+  almost two). Those pixels' crossings are timed by the same interpolation across the step,
+  as a forced step's are;
 - between two instants the log intensity is linear in time, so each threshold crossing gets
   its own timestamp by interpolation;
 - thresholds ``contrast_on`` and ``contrast_off`` vary from pixel to pixel as
@@ -348,11 +348,11 @@ def simulate(render: Callable[[float], np.ndarray], t0: float, t1: float, camera
     while t < t1:
         dt = min(dt, t1 - t)
         nxt = log_of(t + dt)
-        moved = np.abs(nxt - prev).ravel()
-        most = float(np.max(moved))
-        # the step's change: the largest but the outlier_fraction of the pixels (a jump)
-        change = most if allowed == 0 else float(
-            np.partition(moved, moved.size - 1 - allowed)[moved.size - 1 - allowed])
+        # the step's change: the largest but the outlier_fraction of the pixels (a jump);
+        # the largest of all is among those the partition puts above it
+        kth = first.size - 1 - allowed
+        moved = np.partition(np.abs(nxt - prev).ravel(), kth)
+        change, most = float(moved[kth]), float(moved[kth:].max())
         if change > limit and dt > cam.min_step * 1.0000001:
             dt = max(dt / 2.0, cam.min_step)
             rejected += 1

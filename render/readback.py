@@ -17,14 +17,14 @@ the picture itself takes a few milliseconds (docs/speed.md, "A frame on a GPU").
 
 from __future__ import annotations
 
-from typing import Literal, overload
+from typing import Any, Literal, overload
 
 import numba
 import numpy as np
 
 from terrain.core.parallel import run_blocks
 
-__all__ = ["Staging", "unpack"]
+__all__ = ["Staging", "read", "unpack"]
 
 
 #: Rows per block of :func:`unpack`: a block is one dispatch to a thread (tens of
@@ -102,3 +102,39 @@ def unpack(staging: Staging, with_radiance: bool = True
     run_blocks(_unpack_rows, -(-h // BAND_ROWS), bool(with_radiance), staging.radiance,
                staging.range, staging.normals, rad, rng, nrm)
     return (rad if with_radiance else None), rng, nrm
+
+
+@overload
+def read(fbo: Any, size: tuple[int, int], with_radiance: Literal[True] = ...
+         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+
+@overload
+def read(fbo: Any, size: tuple[int, int], with_radiance: Literal[False]
+         ) -> tuple[None, np.ndarray, np.ndarray]: ...
+
+
+def read(fbo: Any, size: tuple[int, int], with_radiance: bool = True
+         ) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
+    """Read a frame's attachments (0 radiance, 1 range, 2 normals) and :func:`unpack` them.
+
+    Read into fresh buffers, not kept ones: a server's memory budget counts the frames it
+    holds, and buffers kept at the largest size asked for would stay outside it.
+
+    Parameters
+    ----------
+    fbo : moderngl.Framebuffer
+        The frame's framebuffer.
+    size : (width, height)
+        Its size in pixels.
+    with_radiance : bool
+        Whether to read attachment 0 too (an antialiased frame averages it elsewhere).
+    """
+    staging = Staging(size)
+    if with_radiance:
+        fbo.read_into(staging.radiance, attachment=0, components=1, dtype="f4")
+    fbo.read_into(staging.range, attachment=1, components=1, dtype="f4")
+    fbo.read_into(staging.normals, attachment=2, components=4, dtype="f4")
+    if with_radiance:
+        return unpack(staging)
+    return unpack(staging, with_radiance=False)

@@ -52,7 +52,7 @@ from render.camera import Intrinsics, Pose
 from render.context import create_context, gl_function
 from render.errors import RenderUnavailableError
 from render.imposter import blend, composite
-from render.readback import Staging, unpack
+from render.readback import read as read_frame
 from render.reflectance import BRDF_CODES, MCEWEN_MOON, SATO_643NM, Hapke, check_brdf
 from render.scene import DrawBatch, Imposter, Scene
 from terrain.core.errors import InvalidParameterError
@@ -1098,24 +1098,15 @@ class Renderer:
             raise RuntimeError(f"OpenGL error while rendering: {err}")
         w, h = ka.width, ka.height
         fbo = target.frame
-        rad = None
-        if a != 1:  # radiance: the mean of each pixel's samples; range, normals: its centre's
-            rad = np.frombuffer(fbo.read(attachment=0, components=1, dtype="f4"),
-                                dtype=np.float32).reshape(h, w)[::-1].copy()
-            rad = rad.reshape(k.height, a, k.width, a).mean(axis=(1, 3), dtype=np.float64) \
+        if a == 1:
+            rad, range_m, normals = read_frame(fbo, (w, h))
+        else:  # radiance: the mean of each pixel's samples; range, normals: its centre's
+            samples = np.frombuffer(fbo.read(attachment=0, components=1, dtype="f4"),
+                                    dtype=np.float32).reshape(h, w)[::-1].copy()
+            rad = samples.reshape(k.height, a, k.width, a).mean(axis=(1, 3), dtype=np.float64) \
                 .astype(np.float32)
             fbo = self._centre_samples(fbo, (k.width, k.height), a)
-        # read into fresh buffers, not kept ones: a server's memory budget counts the frames
-        # it holds, and buffers kept at the largest size asked for would stay outside it
-        staging = Staging((k.width, k.height))
-        if rad is None:
-            fbo.read_into(staging.radiance, attachment=0, components=1, dtype="f4")
-        fbo.read_into(staging.range, attachment=1, components=1, dtype="f4")
-        fbo.read_into(staging.normals, attachment=2, components=4, dtype="f4")
-        if rad is None:
-            rad, range_m, normals = unpack(staging)
-        else:
-            _, range_m, normals = unpack(staging, with_radiance=False)
+            _, range_m, normals = read_frame(fbo, (k.width, k.height), with_radiance=False)
         return Frame(rad, range_m, normals, dict(state.drawn))
 
     def _centre_samples(self, fbo: Any, size: tuple[int, int], a: int) -> Any:

@@ -21,6 +21,7 @@ _poisson_inverse`, in numpy, as before).
 
 from __future__ import annotations
 
+import functools
 import math
 
 import llvmlite.binding as llvm
@@ -39,14 +40,11 @@ __all__ = ["quantise", "shot_gaussian"]
 #: first use, as importing SciPy's table of C functions takes a tenth of a second).
 _NDTRI = "craterscape_scipy_special_ndtri"
 _ndtri = types.ExternalFunction(_NDTRI, types.float64(types.float64))
-_registered: list[bool] = []
 
 
+@functools.cache
 def _register_ndtri() -> None:
-    if not _registered:
-        llvm.add_symbol(_NDTRI, get_cython_function_address("scipy.special.cython_special",
-                                                            "ndtri"))
-        _registered.append(True)
+    llvm.add_symbol(_NDTRI, get_cython_function_address("scipy.special.cython_special", "ndtri"))
 
 
 @numba.njit(nogil=True, cache=True)
