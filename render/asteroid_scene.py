@@ -80,6 +80,7 @@ from render.scene import (
     body_shadow_map,
     far_plane,
 )
+from render.terrain_buffers import half_floats
 from terrain.core.errors import InvalidParameterError
 
 if TYPE_CHECKING:
@@ -661,7 +662,7 @@ def _normal_cube(gpu, mesh, radii, normals):
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     nrm = _coarser_surface(dirs, mesh, radii, normals)[:, 4:]
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-    return gpu.texture_cube((n, n), 3, nrm.astype("f2").tobytes(), dtype="f2")
+    return gpu.texture_cube((n, n), 3, half_floats(nrm).tobytes(), dtype="f2")
 
 
 def _coarser_surface(directions, coarse, c_radii, c_normals) -> np.ndarray:

@@ -22,7 +22,7 @@ import numpy as np
 
 from terrain.core.parallel import run_blocks
 
-__all__ = ["block_indices", "fade_in", "layer_buffers", "morph_targets"]
+__all__ = ["block_indices", "fade_in", "half_floats", "layer_buffers", "morph_targets"]
 
 
 @numba.njit(nogil=True, cache=True)
@@ -96,42 +96,159 @@ def _morph_rows(z, n, rl, cl, ra, rb, rt, ca, cb, ct, block, target, tnormal, le
 
 
 @numba.njit(nogil=True, cache=True)
-def _put(out, v, first_normal, x, y, z, extra, normal, i, j):
-    """Write vertex ``v``: position, ``extra[i, j]`` (``first_normal`` 4), ``normal[i, j]``."""
-    out[v, 0] = x
-    out[v, 1] = y
-    out[v, 2] = z
-    if first_normal == 4:
-        out[v, 3] = extra[i, j]
-    for k in range(3):
-        out[v, first_normal + k] = normal[i, j, k]
+def _fill_vertex_rows(out, xs, ys, height, normal, brows, bcols, depth, first, last):
+    """Write rows ``first .. last - 1`` of the ``3f 3f`` buffer (flat), skirts included.
 
-
-@numba.njit(nogil=True, cache=True)
-def _fill_rows(out, first_normal, xs, ys, height, normal, extra, brows, bcols, depth, first,
-               last):
-    """Write rows ``first .. last - 1`` of the main vertices and of every skirt column.
-
-    ``out`` is ``(h w + len(brows) w + len(bcols) h, c)`` float32: position, ``extra`` (the
-    level, when ``first_normal`` is 4) and normal. Skirt row ``k`` is written by the range
-    holding main row ``brows[k]``.
+    ``out`` is ``(h w + len(brows) w + len(bcols) h) * 6`` float32: position and normal per
+    vertex; the main vertices, then skirt rows ``brows``, then skirt columns ``bcols``
+    (``depth`` below their edge). Skirt row ``k`` is written by the range holding main row
+    ``brows[k]``. Straight-line stores into a flat array: the compiler keeps the row in
+    registers (indexing a 2-D output through a helper cost ten times as much).
     """
     h, w = height.shape
     n_main = h * w
     n_rows = len(brows) * w
     for i in range(first, last):
+        y = ys[i]
+        o = i * w * 6
         for j in range(w):
-            _put(out, i * w + j, first_normal, xs[j], ys[i], height[i, j], extra, normal, i, j)
+            out[o] = xs[j]
+            out[o + 1] = y
+            out[o + 2] = height[i, j]
+            out[o + 3] = normal[i, j, 0]
+            out[o + 4] = normal[i, j, 1]
+            out[o + 5] = normal[i, j, 2]
+            o += 6
         for kb in range(len(bcols)):
             c = bcols[kb]
-            _put(out, n_main + n_rows + kb * h + i, first_normal, xs[c], ys[i],
-                 height[i, c] - depth, extra, normal, i, c)
+            o = (n_main + n_rows + kb * h + i) * 6
+            out[o] = xs[c]
+            out[o + 1] = y
+            out[o + 2] = height[i, c] - depth
+            out[o + 3] = normal[i, c, 0]
+            out[o + 4] = normal[i, c, 1]
+            out[o + 5] = normal[i, c, 2]
     for kb in range(len(brows)):
         r = brows[kb]
         if first <= r < last:
+            o = (n_main + kb * w) * 6
             for j in range(w):
-                _put(out, n_main + kb * w + j, first_normal, xs[j], ys[r], height[r, j] - depth,
-                     extra, normal, r, j)
+                out[o] = xs[j]
+                out[o + 1] = ys[r]
+                out[o + 2] = height[r, j] - depth
+                out[o + 3] = normal[r, j, 0]
+                out[o + 4] = normal[r, j, 1]
+                out[o + 5] = normal[r, j, 2]
+                o += 6
+
+
+@numba.njit(nogil=True, cache=True)
+def _fill_morph_rows(out, xs, ys, height, level, normal, brows, bcols, depth, first, last):
+    """As :func:`_fill_vertex_rows` for the ``4f 3f`` buffer: position, level, normal."""
+    h, w = height.shape
+    n_main = h * w
+    n_rows = len(brows) * w
+    for i in range(first, last):
+        y = ys[i]
+        o = i * w * 7
+        for j in range(w):
+            out[o] = xs[j]
+            out[o + 1] = y
+            out[o + 2] = height[i, j]
+            out[o + 3] = level[i, j]
+            out[o + 4] = normal[i, j, 0]
+            out[o + 5] = normal[i, j, 1]
+            out[o + 6] = normal[i, j, 2]
+            o += 7
+        for kb in range(len(bcols)):
+            c = bcols[kb]
+            o = (n_main + n_rows + kb * h + i) * 7
+            out[o] = xs[c]
+            out[o + 1] = y
+            out[o + 2] = height[i, c] - depth
+            out[o + 3] = level[i, c]
+            out[o + 4] = normal[i, c, 0]
+            out[o + 5] = normal[i, c, 1]
+            out[o + 6] = normal[i, c, 2]
+    for kb in range(len(brows)):
+        r = brows[kb]
+        if first <= r < last:
+            o = (n_main + kb * w) * 7
+            for j in range(w):
+                out[o] = xs[j]
+                out[o + 1] = ys[r]
+                out[o + 2] = height[r, j] - depth
+                out[o + 3] = level[r, j]
+                out[o + 4] = normal[r, j, 0]
+                out[o + 5] = normal[r, j, 1]
+                out[o + 6] = normal[r, j, 2]
+                o += 7
+
+
+@numba.njit(nogil=True, cache=True)
+def _half(d):  # pragma: no cover - compiled
+    """Give the bits of the IEEE half nearest the double of bits ``d``, ties to even.
+
+    NumPy's conversion (``npy_doublebits_to_halfbits``), step by step: overflow to
+    infinity, NaN keeping its payload's top bits, underflow to a signed zero, subnormals
+    rounded at their own precision, then the normal case.
+    """
+    sign = np.uint16((d & np.uint64(0x8000000000000000)) >> np.uint64(48))
+    exp = d & np.uint64(0x7FF0000000000000)
+    if exp >= np.uint64(0x40F0000000000000):  # beyond the largest half: inf, or NaN
+        sig = d & np.uint64(0x000FFFFFFFFFFFFF)
+        if exp == np.uint64(0x7FF0000000000000) and sig != np.uint64(0):
+            bits = np.uint16(0x7C00 + (sig >> np.uint64(42)))
+            if bits == np.uint16(0x7C00):
+                bits += np.uint16(1)  # a NaN whose payload is below half's: keep it NaN
+            return sign + bits
+        return sign + np.uint16(0x7C00)
+    if exp <= np.uint64(0x3F00000000000000):  # a half subnormal, or zero
+        if exp < np.uint64(0x3E60000000000000):
+            return sign
+        e = exp >> np.uint64(52)
+        sig = (np.uint64(0x0010000000000000) + (d & np.uint64(0x000FFFFFFFFFFFFF))) \
+            << (e - np.uint64(998))
+        if (sig & np.uint64(0x003FFFFFFFFFFFFF)) != np.uint64(0x0010000000000000):
+            sig += np.uint64(0x0010000000000000)  # round half to even
+        return sign + np.uint16(sig >> np.uint64(53))
+    sig = d & np.uint64(0x000FFFFFFFFFFFFF)
+    if (sig & np.uint64(0x000007FFFFFFFFFF)) != np.uint64(0x0000020000000000):
+        sig += np.uint64(0x0000020000000000)  # round half to even (a carry bumps the exponent)
+    return sign + np.uint16(((exp - np.uint64(0x3F00000000000000)) >> np.uint64(42))
+                            + (sig >> np.uint64(42)))
+
+
+@numba.njit(nogil=True, cache=True)
+def _half_rows(bits, out, first, last):
+    """Convert rows ``first .. last - 1`` of ``bits`` (float64 as uint64) to half bits."""
+    w = bits.shape[1]
+    for i in range(first, last):
+        for j in range(w):
+            out[i, j] = _half(bits[i, j])
+
+
+def half_floats(a: np.ndarray) -> np.ndarray:
+    """Give ``a.astype(numpy.float16)``'s values, compiled and on every core.
+
+    NumPy converts float64 to float16 one element at a time in C (a 1025^2 layer's normals
+    took 14 ms, more than building its vertex buffer); this is its arithmetic on the bits.
+
+    Parameters
+    ----------
+    a : float64 array
+        Any shape.
+
+    Returns
+    -------
+    float16 array
+        Same shape, ties rounded to even, as NumPy rounds them.
+    """
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    rows = a.reshape(a.shape[0] if a.ndim > 1 else 1, -1)
+    out = np.empty(rows.shape, dtype=np.uint16)
+    run_blocks(_half_rows, rows.shape[0], rows.view(np.uint64), out)
+    return out.view(np.float16).reshape(a.shape)
 
 
 def layer_buffers(z: np.ndarray, xs: np.ndarray, ys: np.ndarray, res: float,
@@ -174,16 +291,16 @@ def layer_buffers(z: np.ndarray, xs: np.ndarray, ys: np.ndarray, res: float,
     n_all = h * w + len(brows) * w + len(bcols) * h
     n = np.empty((h, w, 3))
     run_blocks(_normals_rows, h, z, float(res), n)
-    none2 = np.zeros((1, 1))
     vert = morph_buf = None
     if vertices:
         vert = np.empty((n_all, 6), dtype=np.float32)
-        run_blocks(_fill_rows, h, vert, 3, xs, ys, z, n, none2, brows, bcols, float(depth))
+        run_blocks(_fill_vertex_rows, h, vert.reshape(-1), xs, ys, z, n, brows, bcols,
+                   float(depth))
     if morph:
         target, level, tnormal = morph_targets(z, n, cells)
         morph_buf = np.empty((n_all, 7), dtype=np.float32)
-        run_blocks(_fill_rows, h, morph_buf, 4, xs, ys, target, tnormal, level, brows, bcols,
-                   float(depth))
+        run_blocks(_fill_morph_rows, h, morph_buf.reshape(-1), xs, ys, target, level, tnormal,
+                   brows, bcols, float(depth))
     return n, vert, morph_buf
 
 

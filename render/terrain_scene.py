@@ -96,8 +96,10 @@ blended in), and :meth:`TerrainScene.height_at` reads the layers' own heights.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -122,7 +124,13 @@ from render.scene import (
     ortho_light,
     render_shadow_map,
 )
-from render.terrain_buffers import block_indices, fade_in, layer_buffers, morph_targets
+from render.terrain_buffers import (
+    block_indices,
+    fade_in,
+    half_floats,
+    layer_buffers,
+    morph_targets,
+)
 from terrain.core import metakeys as mk
 from terrain.core.errors import InvalidParameterError
 
@@ -523,7 +531,7 @@ class TerrainScene:
         if morph:
             # the full-resolution normals as a texture (shading independent of the level of
             # detail, module docstring): texel (i, j) at pixel centre (xs[j], ys[i])
-            normal_tex = gpu.texture((w, h), 3, n.astype("f2").tobytes(), dtype="f2")
+            normal_tex = gpu.texture((w, h), 3, half_floats(n).tobytes(), dtype="f2")
             normal_rect = (xs[0] - 0.5 * res, ys[0] + 0.5 * res, 1.0 / (w * res),
                            1.0 / (h * res))
         if layer.vbo is None:
@@ -623,16 +631,29 @@ class TerrainScene:
                         low = mid
                 plan, total = self._plan(visible, dist, focal, fits)
             target = fits
+        scatter = None
+        grids = None
+        if lighting is not None and (options.scattering or (
+                options.earthshine and lighting.earth is not None and lighting.earthshine > 0)):
+            scatter = self._scatter_maps(gpu, lighting)
+            # the grids of scattered light this frame lacks, computed on a thread of their
+            # own while the vertex buffers and the shadow maps are built (most of their
+            # time is the interpreter's; the buffers' kernels and GL's are not)
+            missing = sorted({self._scatter_source(layer.level,
+                                                   float(d[blocks].min()) / focal)
+                              for layer, (_, blocks), d in zip(self._layers, plan, dist,
+                                                               strict=True)
+                              if blocks.size} - set(scatter))
+            if missing:
+                grids = _background().submit(
+                    lambda: {k: self._scatter_grid(self._layers[k], lighting) for k in missing})
         for layer, (_, blocks) in zip(self._layers, plan, strict=True):
             if blocks.size:  # drawn: every buffer at once (before a map casts with it)
                 self._vertex_buffers(gpu, layer, morph=True)
         shadows = None
         if options.shadows and lighting is not None:
             shadows = self._shadow_maps(gpu, lighting, options)
-        scatter = None
-        if lighting is not None and (options.scattering or (
-                options.earthshine and lighting.earth is not None and lighting.earthshine > 0)):
-            scatter = self._scatter_maps(gpu, lighting)
+        computed = grids.result() if grids is not None else {}
         batches: list[DrawBatch] = []
         drawn_layers: list[dict[str, Any]] = []
         for layer, (lods, blocks), d in zip(self._layers, plan, dist, strict=True):
@@ -648,7 +669,8 @@ class TerrainScene:
             light = None
             if scatter is not None:
                 source = self._layers[self._scatter_source(layer.level, footprint)]
-                light = self._layer_scatter(gpu, scatter, lighting, source)
+                light = self._layer_scatter(gpu, scatter, lighting, source,
+                                            computed.get(source.level))
             by_lod: dict = {}
             for b, s in zip(blocks, lods, strict=True):
                 by_lod.setdefault(int(s), []).append(int(b))
@@ -801,12 +823,26 @@ class TerrainScene:
             source -= 1
         return source
 
-    def _layer_scatter(self, gpu, maps, lighting, layer):
-        """Give the layer's grid in ``maps`` (:mod:`render.scattering`), computed if missing."""
-        from render.scattering import horizon_light
+    def _layer_scatter(self, gpu, maps, lighting, layer, grid=None):
+        """Give the layer's grid in ``maps`` (:mod:`render.scattering`), computed if missing.
 
+        ``grid``: its :meth:`_scatter_grid`, where already computed.
+        """
         if layer.level in maps:
             return maps[layer.level]
+        data, rect = grid if grid is not None else self._scatter_grid(layer, lighting)
+        n = data.shape[0]
+        tex = gpu.texture((n, n), 2, data.tobytes(), dtype="f4")
+        maps[layer.level] = (tex, rect)
+        return maps[layer.level]
+
+    def _scatter_grid(self, layer, lighting):
+        """Give the layer's grid of scattered light and Earth visibility, and its window.
+
+        ``((n, n, 2) float32, rect)``: no GL (a worker thread may compute it).
+        """
+        from render.scattering import horizon_light
+
         x0, y0, x1, y1 = layer.extent
         spacing = max(x1 - x0, y1 - y0) / SCATTER_CELLS
         n = 2 * SCATTER_CELLS + 1
@@ -817,12 +853,11 @@ class TerrainScene:
         light = horizon_light(self._local_heights(xs, ys), spacing, lighting.sun,
                               albedo=lighting.albedo, sun_radius=lighting.sun_angular_radius,
                               earth=earth)
-        data = np.stack([light["scattered"], light["earth"]], axis=-1).astype("f4")
-        tex = gpu.texture((n, n), 2, np.ascontiguousarray(data).tobytes(), dtype="f4")
+        data = np.ascontiguousarray(
+            np.stack([light["scattered"], light["earth"]], axis=-1).astype("f4"))
         rect = (xs[0] - 0.5 * spacing, ys[0] + 0.5 * spacing, 1.0 / (n * spacing),
                 1.0 / (n * spacing))
-        maps[layer.level] = (tex, rect)
-        return maps[layer.level]
+        return data, rect
 
     def _local_heights(self, xs, ys):
         """(len(ys), len(xs)) world heights at scene-local points, from the finest layer there.
@@ -1006,6 +1041,12 @@ def _line_cells(n: int):
         for lines, la, lb, lt in _coarse_cells(n, s):
             a[q, lines], b[q, lines], t[q, lines] = la, lb, lt
     return _levels_1d(n).astype(np.int64), a, b, t
+
+
+@functools.cache
+def _background() -> ThreadPoolExecutor:
+    """Give the thread that computes a frame's missing grids of scattered light (one, shared)."""
+    return ThreadPoolExecutor(max_workers=1, thread_name_prefix="craterscape-scatter")
 
 
 def _cell_tables(h: int, w: int) -> tuple:

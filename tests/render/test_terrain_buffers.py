@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from render.terrain_buffers import block_indices, layer_buffers
+from render.terrain_buffers import block_indices, half_floats, layer_buffers
 from render.terrain_scene import BLOCK, _cell_tables, _samples
 from terrain.core.parallel import limited
 
@@ -66,3 +66,26 @@ def test_every_index_names_a_vertex_and_every_block_is_its_cells_and_skirts():
     assert idx.dtype == np.uint32 and int(idx.max()) < n_vertices
     assert offsets[0] == 0 and np.array_equal(offsets[1:], np.cumsum(counts)[:-1])
     assert int(counts.sum()) == idx.size and idx.size % 3 == 0
+
+
+def test_half_floats_round_as_numpy_does_ties_subnormals_and_overflow_included():
+    rng = np.random.default_rng(11)
+    # halves and the doubles exactly between neighbouring halves (ties go to even), a hair
+    # either side of the ties, subnormal and underflowing magnitudes, overflow, inf and NaN
+    halves = rng.integers(0, 0x7BFF, 20_000).astype(np.uint16).view(np.float16)
+    up = np.nextafter(halves, np.float16(np.inf)).astype(np.float64)
+    ties = (halves.astype(np.float64) + up) / 2
+    values = np.concatenate([
+        rng.normal(size=20_000), rng.uniform(-1, 1, 20_000), ties, -ties,
+        np.nextafter(ties, 0.0), np.nextafter(ties, 1e9), rng.normal(size=5_000) * 1e-5,
+        rng.normal(size=5_000) * 1e-8, rng.normal(size=5_000) * 1e5,
+        [0.0, -0.0, 65504.0, 65519.99, 65520.0, 1e300, np.inf, -np.inf, np.nan, 2.0 ** -25,
+         2.0 ** -24, 3 * 2.0 ** -26, 2.0 ** -14, 2.0 ** -14 * (1 - 2.0 ** -11)]])
+    with np.errstate(all="ignore"):
+        expect = values.astype(np.float16)
+    got = half_floats(values.reshape(-1, 1, 1))
+    assert got.shape == (values.size, 1, 1) and got.dtype == np.float16
+    assert got.reshape(-1).view(np.uint16).tobytes() == expect.view(np.uint16).tobytes()
+    z = rng.normal(size=(150, 97)).cumsum(axis=0)
+    n = _build(z, np.arange(97) * 1.5, -np.arange(150) * 1.5, 1.5)[0]
+    assert half_floats(n).tobytes() == n.astype(np.float16).tobytes()
