@@ -31,6 +31,7 @@ import json
 import logging
 import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
@@ -40,6 +41,7 @@ from terrain.core import metakeys as mk
 from terrain.core.checks import check_keys
 from terrain.core.errors import InvalidDEMError, InvalidParameterError, MissingInputError
 from terrain.core.outputs import remove_path
+from terrain.core.parallel import threads
 from terrain.craters.catalog import CraterCatalog, RockCatalog
 from terrain.stack.model import CATALOG, LayerStack, layer_records, merge_catalogs
 
@@ -427,32 +429,44 @@ def _read_stack(outdir: Path) -> LayerStack:
         origins = [tuple(e["origin"]) for e in layers]
     except (ValueError, KeyError, TypeError, AttributeError, UnicodeDecodeError) as exc:
         raise InvalidDEMError(f"manifest '{mpath}' is corrupt: {exc}") from None
-    tiles = []
-    for k, name in enumerate(files):
+    for name in files:
         if Path(name).name != name:
             raise InvalidDEMError(f"manifest '{mpath}' names a file outside the stack: {name}")
-        tile = read_dem(outdir / name)
+    cat_name = manifest.get("catalog", CATALOG)
+    cat_bad = not isinstance(cat_name, str) or Path(cat_name).name != cat_name
+    info = {k: v for k, v in manifest.items()
+            if k not in ("layers", "format", "version", "crs", "catalog", "crater_counts")}
+    rock_name = info.get("rock_catalog", ROCK_CATALOG)
+    rock_bad = not isinstance(rock_name, str) or Path(rock_name).name != rock_name
+    # the catalogues parsed and the layers decoded side by side (GDAL releases the
+    # interpreter while it decodes); the failures are raised in the order the checks below
+    # make them, the first layer's in the manifest's order first
+    with ThreadPoolExecutor(max_workers=max(1, min(threads(), len(files)))) as pool:
+        cat_path = None if cat_bad else outdir / cat_name
+        cat_future = (pool.submit(CraterCatalog.from_csv, cat_path)
+                      if cat_path is not None and cat_path.exists() else None)
+        rock_path = None if rock_bad else outdir / rock_name
+        rock_future = (pool.submit(RockCatalog.from_csv, rock_path)
+                       if rock_path is not None and "rock_catalog" in info
+                       and rock_path.exists() else None)
+        futures = [pool.submit(read_dem, outdir / name) for name in files]
+    tiles = []
+    for k, (name, future) in enumerate(zip(files, futures, strict=True)):
+        tile = future.result()
         expected = layers[k]
         if tile.shape != (expected["height"], expected["width"]):
             raise InvalidDEMError(
                 f"layer file '{name}' is {tile.shape[1]}x{tile.shape[0]}; the manifest says "
                 f"{expected['width']}x{expected['height']}")
         tiles.append(tile)
-    cat_name = manifest.get("catalog", CATALOG)
-    if not isinstance(cat_name, str) or Path(cat_name).name != cat_name:
+    if cat_bad:
         raise InvalidDEMError(f"manifest '{mpath}' names a catalogue outside the stack: "
                               f"{cat_name!r}")
-    cat_path = outdir / cat_name
-    catalog = CraterCatalog.from_csv(cat_path) if cat_path.exists() else merge_catalogs([])
-    info = {k: v for k, v in manifest.items()
-            if k not in ("layers", "format", "version", "crs", "catalog", "crater_counts")}
-    rock_name = info.get("rock_catalog", ROCK_CATALOG)
-    if not isinstance(rock_name, str) or Path(rock_name).name != rock_name:
+    catalog = cat_future.result() if cat_future is not None else merge_catalogs([])
+    if rock_bad:
         raise InvalidDEMError(f"manifest '{mpath}' names a rock catalogue outside the stack: "
                               f"{rock_name!r}")
-    rock_path = outdir / rock_name
-    rocks = (RockCatalog.from_csv(rock_path) if "rock_catalog" in info and rock_path.exists()
-             else None)
+    rocks = rock_future.result() if rock_future is not None else None
     return LayerStack(layer_records(tiles, windows, origins, files), catalog, info, rocks,
                       catalog_file=cat_name)
 
