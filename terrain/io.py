@@ -151,9 +151,9 @@ def _read_dem(path, band: int, exact: bool) -> tuple[DEMTile, np.ndarray | None]
     if transform.b != 0 or transform.d != 0:
         raise InvalidDEMError(f"DEM '{path}' is rotated; warp it to a north-up grid first")
 
-    data = np.ma.getdata(raw).astype(np.float64)
+    data = np.ma.getdata(raw)
     valid = ~np.ma.getmaskarray(raw) & np.isfinite(data)
-    stored = str(np.ma.getdata(raw).dtype)
+    stored = str(data.dtype)
     metadata = {k: v for k, v in tags.items() if mk.is_key(k)}
     metadata[mk.SOURCE] = str(path)
     scale = 1.0 if scale is None else float(scale)
@@ -162,7 +162,11 @@ def _read_dem(path, band: int, exact: bool) -> tuple[DEMTile, np.ndarray | None]
         metadata[mk.DATUM_RADIUS] = repr(offset)
         offset = 0.0
     if scale != 1.0 or offset != 0.0:
-        data = data * scale + offset
+        data = data.astype(np.float64) * scale + offset
+    elif data.dtype == np.float32 and data.flags.c_contiguous:
+        data.flags.writeable = False  # float32 metres already: the tile shares the array
+    else:
+        data = data.astype(np.float64)
     if not valid.any():
         raise InvalidDEMError(f"DEM '{path}' band {band} has no valid pixels (all nodata)")
     exact_heights = None
