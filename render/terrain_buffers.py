@@ -185,38 +185,41 @@ def _fill_morph_rows(out, xs, ys, height, level, normal, brows, bcols, depth, fi
                 o += 7
 
 
-@numba.njit(nogil=True, cache=True)
+@numba.njit(nogil=True, cache=True, inline="always")
 def _half(d):  # pragma: no cover - compiled
     """Give the bits of the IEEE half nearest the double of bits ``d``, ties to even.
 
-    NumPy's conversion (``npy_doublebits_to_halfbits``), step by step: overflow to
-    infinity, NaN keeping its payload's top bits, underflow to a signed zero, subnormals
-    rounded at their own precision, then the normal case.
+    NumPy's conversion (``npy_doublebits_to_halfbits``): every case's result is formed and
+    the right one selected (branch-free, so a row's conversions share vector lanes): the
+    normal case, a half subnormal rounded at its own precision, a signed zero below that,
+    infinity beyond the largest half, a NaN keeping its payload's top bits.
     """
-    sign = np.uint16((d & np.uint64(0x8000000000000000)) >> np.uint64(48))
+    sign = (d >> np.uint64(48)) & np.uint64(0x8000)
     exp = d & np.uint64(0x7FF0000000000000)
-    if exp >= np.uint64(0x40F0000000000000):  # beyond the largest half: inf, or NaN
-        sig = d & np.uint64(0x000FFFFFFFFFFFFF)
-        if exp == np.uint64(0x7FF0000000000000) and sig != np.uint64(0):
-            bits = np.uint16(0x7C00 + (sig >> np.uint64(42)))
-            if bits == np.uint16(0x7C00):
-                bits += np.uint16(1)  # a NaN whose payload is below half's: keep it NaN
-            return sign + bits
-        return sign + np.uint16(0x7C00)
-    if exp <= np.uint64(0x3F00000000000000):  # a half subnormal, or zero
-        if exp < np.uint64(0x3E60000000000000):
-            return sign
-        e = exp >> np.uint64(52)
-        sig = (np.uint64(0x0010000000000000) + (d & np.uint64(0x000FFFFFFFFFFFFF))) \
-            << (e - np.uint64(998))
-        if (sig & np.uint64(0x003FFFFFFFFFFFFF)) != np.uint64(0x0010000000000000):
-            sig += np.uint64(0x0010000000000000)  # round half to even
-        return sign + np.uint16(sig >> np.uint64(53))
-    sig = d & np.uint64(0x000FFFFFFFFFFFFF)
-    if (sig & np.uint64(0x000007FFFFFFFFFF)) != np.uint64(0x0000020000000000):
-        sig += np.uint64(0x0000020000000000)  # round half to even (a carry bumps the exponent)
-    return sign + np.uint16(((exp - np.uint64(0x3F00000000000000)) >> np.uint64(42))
-                            + (sig >> np.uint64(42)))
+    mant = d & np.uint64(0x000FFFFFFFFFFFFF)
+    # normal: round the 52-bit significand to 10 bits, half to even (a carry bumps the
+    # exponent, which is right)
+    add = (np.uint64(0x0000020000000000)
+           if (mant & np.uint64(0x000007FFFFFFFFFF)) != np.uint64(0x0000020000000000)
+           else np.uint64(0))
+    result = (((exp - np.uint64(0x3F00000000000000)) >> np.uint64(42))
+              + ((mant + add) >> np.uint64(42)))
+    # subnormal (2^-25 <= |x| < 2^-14): the implicit bit made explicit, shifted into place
+    shift = min(max(exp >> np.uint64(52), np.uint64(998)), np.uint64(1008)) - np.uint64(998)
+    sub = (np.uint64(0x0010000000000000) + mant) << shift
+    add = (np.uint64(0x0010000000000000)
+           if (sub & np.uint64(0x003FFFFFFFFFFFFF)) != np.uint64(0x0010000000000000)
+           else np.uint64(0))
+    if exp <= np.uint64(0x3F00000000000000):
+        result = (sub + add) >> np.uint64(53)
+    if exp < np.uint64(0x3E60000000000000):
+        result = np.uint64(0)
+    special = np.uint64(0x7C00)  # infinity, or a NaN that stays one
+    if exp == np.uint64(0x7FF0000000000000) and mant != np.uint64(0):
+        special = np.uint64(0x7C00) + max(mant >> np.uint64(42), np.uint64(1))
+    if exp >= np.uint64(0x40F0000000000000):
+        result = special
+    return np.uint16(sign + result)
 
 
 @numba.njit(nogil=True, cache=True)
