@@ -256,8 +256,14 @@ def half_floats(a: np.ndarray) -> np.ndarray:
 
 def layer_buffers(z: np.ndarray, xs: np.ndarray, ys: np.ndarray, res: float,
                   brows: np.ndarray, bcols: np.ndarray, depth: float, cells,
-                  vertices: bool, morph: bool):
+                  vertices: bool, morph: bool, step: int = 1):
     """Give a layer's normals and the buffers asked for.
+
+    With ``step`` > 1 the buffers hold only every ``step``-th row and column of vertices
+    (and the skirts of those), each vertex's values those of the full buffers (the normals
+    and geomorphing targets of the full grid, sampled): a layer drawn at level ``step`` or
+    coarser draws the same triangles from them with :func:`block_indices` of the sampled
+    grid. Every block-boundary line must be a multiple of ``step``.
 
     Parameters
     ----------
@@ -278,6 +284,8 @@ def layer_buffers(z: np.ndarray, xs: np.ndarray, ys: np.ndarray, res: float,
         block: the coarsest level.
     vertices, morph : bool
         Build the ``3f 3f`` vertex buffer; the ``4f 3f`` geomorphing buffer.
+    step : int
+        Keep every ``step``-th vertex line (1: all).
 
     Returns
     -------
@@ -291,18 +299,33 @@ def layer_buffers(z: np.ndarray, xs: np.ndarray, ys: np.ndarray, res: float,
     ys = np.ascontiguousarray(ys, dtype=np.float64)
     brows = np.ascontiguousarray(brows, dtype=np.int64)
     bcols = np.ascontiguousarray(bcols, dtype=np.int64)
-    n_all = h * w + len(brows) * w + len(bcols) * h
     n = np.empty((h, w, 3))
     run_blocks(_normals_rows, h, z, float(res), n)
+    target = level = tnormal = None
+    if morph:
+        target, level, tnormal = morph_targets(z, n, cells)
+    zs, ns = z, n
+    if step > 1:
+        if (h - 1) % step or (w - 1) % step or np.any(brows % step) or np.any(bcols % step):
+            raise ValueError(f"a {h} x {w} layer's blocks do not fall on every {step}-th line")
+
+        def sampled(a):
+            return np.ascontiguousarray(a[::step, ::step])
+
+        xs, ys, zs, ns = xs[::step].copy(), ys[::step].copy(), sampled(z), sampled(n)
+        brows, bcols = brows // step, bcols // step
+        if morph:
+            target, level, tnormal = sampled(target), sampled(level), sampled(tnormal)
+    hs, ws = zs.shape
+    n_all = hs * ws + len(brows) * ws + len(bcols) * hs
     vert = morph_buf = None
     if vertices:
         vert = np.empty((n_all, 6), dtype=np.float32)
-        run_blocks(_fill_vertex_rows, h, vert.reshape(-1), xs, ys, z, n, brows, bcols,
+        run_blocks(_fill_vertex_rows, hs, vert.reshape(-1), xs, ys, zs, ns, brows, bcols,
                    float(depth))
     if morph:
-        target, level, tnormal = morph_targets(z, n, cells)
         morph_buf = np.empty((n_all, 7), dtype=np.float32)
-        run_blocks(_fill_morph_rows, h, morph_buf.reshape(-1), xs, ys, target, level, tnormal,
+        run_blocks(_fill_morph_rows, hs, morph_buf.reshape(-1), xs, ys, target, level, tnormal,
                    brows, bcols, float(depth))
     return n, vert, morph_buf
 

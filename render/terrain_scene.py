@@ -146,6 +146,12 @@ log = logging.getLogger(__name__)
 
 #: Cells per block side (a power of two).
 BLOCK = 64
+#: A layer first drawn (or casting a shadow) at this level of detail or coarser gets vertex
+#: buffers of only the vertices that level draws (every level-th row and column): from the
+#: demo descent's first pose eight of its twelve drawn layers are drawn at levels 4 to 64,
+#: and their full buffers (56 MB each at 1025^2) were most of the first frame's uploads. A
+#: finer level later builds the full buffers once (a second build of a sixteenth or less).
+SPARSE_FROM = 4
 #: Skirt depth in pixels of the layer.
 SKIRT_PIXELS = 8.0
 #: Caster cells in a shadow map may be this many texels wide (along the map's coarser axis).
@@ -211,6 +217,9 @@ class _Layer:
     # (z, xs, ys): the curved, faded heights and pixel centres the vertex buffers are built
     # from when a frame first needs them (:meth:`TerrainScene._vertex_buffers`)
     heights: tuple | None = None
+    # the vertex buffers hold every step-th row and column (1: every vertex; 0: none built
+    # since sparse ones were retired, the next are full; see SPARSE_FROM)
+    step: int = 1
 
 
 def _lods() -> list[int]:
@@ -277,6 +286,7 @@ class TerrainScene:
         self._layers: list[_Layer] = []
         self._bounds: tuple | None = None
         self._index_cache: dict = {}
+        self._retired: list = []  # vertex buffers of a frame gone sparse -> full (_retire_buffers)
         self._ctx: object = None  # the context the layers were uploaded to
         self._shadow_cache: dict = {}
         self._scatter_cache: dict = {}
@@ -424,6 +434,7 @@ class TerrainScene:
             self._ctx = gpu.context
             self._layers = []
             self._index_cache = {}
+            self._retired = []  # (another context's: dropped with it)
             tiles = self.stack.tiles
             total = 0
             parent = None
@@ -508,17 +519,27 @@ class TerrainScene:
                        covered, (x0, y0, x1, y1), heights=(z, xs, ys))
         return layer, surface
 
-    def _vertex_buffers(self, gpu, layer: _Layer, morph: bool) -> None:
+    def _vertex_buffers(self, gpu, layer: _Layer, morph: bool, finest: int = 1) -> None:
         """Upload what the layer lacks of its buffers, from its prepared heights.
 
-        Its vertex buffer, and with ``morph`` its geomorphing buffer and normals texture.
+        Its vertex buffer, and with ``morph`` its geomorphing buffer and normals texture,
+        able to draw level ``finest`` and the coarser ones. A layer first needed at level
+        :data:`SPARSE_FROM` or coarser gets buffers of only the vertices that level draws
+        (``layer.step``: the same values per vertex, so the same frames); a finer level later
+        replaces them with the full ones.
         """
+        if layer.vbo is not None and layer.step > finest:
+            self._retire_buffers(layer)  # too sparse now: every vertex from here on
+            layer.step = 0
         if layer.vbo is not None and (layer.morph_vbo is not None or not morph):
             return
         assert layer.heights is not None  # dropped only once every buffer is built
         z, xs, ys = layer.heights
         h, w = layer.shape
         res = layer.resolution
+        if layer.vbo is None:
+            # sparse only the first time (0: once sparse, now full)
+            layer.step = _sparse_step(h, w, finest) if layer.step else 1
         # vertices: every pixel centre, then the skirt rows (lowered copies of every
         # block-boundary row), then the skirt columns; the vertex buffer interleaves position
         # and normal (3f 3f), the geomorphing buffer the target position, the level and the
@@ -527,26 +548,62 @@ class TerrainScene:
         n, vert, morph_buf = layer_buffers(
             z, xs, ys, res, _samples(0, h - 1, BLOCK), _samples(0, w - 1, BLOCK),
             SKIRT_PIXELS * res, _cell_tables(h, w) if morph else None,
-            vertices=layer.vbo is None, morph=morph)
-        if morph:
+            vertices=layer.vbo is None, morph=morph, step=layer.step)
+        if morph and layer.normal_map is None:
             # the full-resolution normals as a texture (shading independent of the level of
             # detail, module docstring): texel (i, j) at pixel centre (xs[j], ys[i])
             normal_tex = gpu.texture((w, h), 3, half_floats(n).tobytes(), dtype="f2")
-            normal_rect = (xs[0] - 0.5 * res, ys[0] + 0.5 * res, 1.0 / (w * res),
-                           1.0 / (h * res))
+            layer.normal_map = (normal_tex, (xs[0] - 0.5 * res, ys[0] + 0.5 * res,
+                                             1.0 / (w * res), 1.0 / (h * res)))
         if layer.vbo is None:
             layer.vbo = gpu.buffer(vert)
         if morph:
             layer.morph_vbo = gpu.buffer(morph_buf)
-            layer.normal_map = (normal_tex, normal_rect)
-            layer.heights = None  # every buffer is built
+            if layer.step == 1:
+                layer.heights = None  # every buffer is built
+
+    def _retire_buffers(self, layer: _Layer) -> None:
+        """Take the layer's vertex buffers and their vertex arrays out of use.
+
+        Released when the next frame is planned (:meth:`_release_retired`): a batch of this
+        frame may still draw them.
+        """
+        self._retired.append((list(layer.vaos.values()), layer.vbo, layer.morph_vbo))
+        layer.vaos.clear()
+        layer.vbo = layer.morph_vbo = None
+
+    def _release_retired(self) -> None:
+        for arrays, *buffers in self._retired:
+            for pair in arrays:
+                for mesh in pair if isinstance(pair, tuple) else (pair,):
+                    mesh.release()
+            for buffer in buffers:
+                if buffer is not None:
+                    buffer.release()
+        self._retired.clear()
+
+    def _ibo(self, gpu, layer: _Layer, s: int):
+        """Give the index buffer that draws level s from the layer's vertex buffers."""
+        if layer.step == 1:
+            return layer.ibos[s]
+        h, w = layer.shape
+        key = (h, w, layer.step, s)
+        if key not in self._index_cache:
+            f = layer.step
+            idx, offsets, counts = block_indices(
+                (h - 1) // f + 1, (w - 1) // f + 1, s // f, _samples(0, h - 1, BLOCK) // f,
+                _samples(0, w - 1, BLOCK) // f)
+            # the same blocks, each the same number of indices as at level s of every vertex
+            assert np.array_equal(counts, layer.counts[s])
+            self._index_cache[key] = gpu.buffer(idx)
+        return self._index_cache[key]
 
     def _vaos(self, gpu, layer: _Layer, s: int):
         """Give the layer's (camera, depth) vertex arrays at level s (its buffers built)."""
         key = (gpu.token, s)
         if key not in layer.vaos:
-            self._vertex_buffers(gpu, layer, morph=True)
-            layer.vaos[key] = gpu.vertex_arrays(layer.vbo, layer.ibos[s],
+            self._vertex_buffers(gpu, layer, morph=True, finest=s)
+            layer.vaos[key] = gpu.vertex_arrays(layer.vbo, self._ibo(gpu, layer, s),
                                                 morph=layer.morph_vbo)
         return layer.vaos[key]
 
@@ -557,8 +614,8 @@ class TerrainScene:
             return pair[1]
         key = (gpu.token, s, "depth")
         if key not in layer.vaos:
-            self._vertex_buffers(gpu, layer, morph=False)
-            layer.vaos[key] = gpu.vertex_arrays(layer.vbo, layer.ibos[s])[1]
+            self._vertex_buffers(gpu, layer, morph=False, finest=s)
+            layer.vaos[key] = gpu.vertex_arrays(layer.vbo, self._ibo(gpu, layer, s))[1]
         return layer.vaos[key]
 
     # ------------------------------------------------------------------ per frame
@@ -601,6 +658,7 @@ class TerrainScene:
             The batches (finest layer first: front to back) and what they draw.
         """
         self.upload(gpu)
+        self._release_retired()
         k = view.intrinsics
         cam = np.asarray(view.pose.position) - self.origin
         rot = view.pose.rotation
@@ -647,9 +705,13 @@ class TerrainScene:
             if missing:
                 grids = _background().submit(
                     lambda: {k: self._scatter_grid(self._layers[k], lighting) for k in missing})
-        for layer, (_, blocks) in zip(self._layers, plan, strict=True):
+        shadowed = options.shadows and lighting is not None
+        for layer, (lods, blocks) in zip(self._layers, plan, strict=True):
             if blocks.size:  # drawn: every buffer at once (before a map casts with it)
-                self._vertex_buffers(gpu, layer, morph=True)
+                # a shadowed frame's maps draw the coarser layers whole (from the demo
+                # descent's first pose every layer at level 1): full buffers at once
+                self._vertex_buffers(gpu, layer, morph=True,
+                                     finest=1 if shadowed else int(lods.min()))
         shadows = None
         if options.shadows and lighting is not None:
             shadows = self._shadow_maps(gpu, lighting, options)
@@ -1047,6 +1109,17 @@ def _line_cells(n: int):
 def _background() -> ThreadPoolExecutor:
     """Give the thread that computes a frame's missing grids of scattered light (one, shared)."""
     return ThreadPoolExecutor(max_workers=1, thread_name_prefix="craterscape-scatter")
+
+
+def _sparse_step(h: int, w: int, finest: int) -> int:
+    """Give the vertex step of a (h, w) layer's buffers first needed at level ``finest``.
+
+    ``finest`` itself from :data:`SPARSE_FROM` on, where every block boundary falls on its
+    lines (a side of ``k finest + 1`` pixels, as the stacks' ``2^n + 1``); else 1.
+    """
+    if finest < SPARSE_FROM or (h - 1) % finest or (w - 1) % finest:
+        return 1
+    return finest
 
 
 def _cell_tables(h: int, w: int) -> tuple:

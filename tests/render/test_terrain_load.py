@@ -136,3 +136,51 @@ def test_shadow_maps_skip_the_discard_test_only_where_it_would_discard_nothing(
     for a, b in ((split.radiance, every.radiance), (split.range, every.range),
                  (split.normals, every.normals)):
         assert np.array_equal(a, b, equal_nan=True)
+
+
+def test_a_layer_first_seen_coarse_gets_sparse_buffers_and_draws_the_same_frames(renderer):
+    """Buffers of only the vertices a coarse level draws: the frames of the full buffers.
+
+    A scene loaded lazily and seen from afar gives its finer layers buffers of every s-th
+    vertex line (their first frame's finest level s); coming closer, a finer level replaces
+    them with the full buffers, once. Every frame of the approach, with and without shadows,
+    is byte for byte the frame of a scene uploaded whole.
+    """
+    from render.camera import Intrinsics, look_at
+    from render.renderer import Lighting, RenderOptions, View
+    from render.terrain_scene import TerrainScene
+    from terrain.core.tile import DEMTile
+    from terrain.craters.catalog import CraterCatalog
+    from terrain.stack.model import Layer, LayerStack
+
+    def tile(n, res, x0, y0):
+        x = x0 + (np.arange(n) + 0.5) * res
+        y = y0 - (np.arange(n) + 0.5) * res
+        h = (30.0 * np.sin(x[None, :] / 53.0) * np.cos(y[:, None] / 37.0)
+             + 2.0 * np.sin(x[None, :] * y[:, None] / 3e3)).astype(np.float32)
+        return DEMTile(h, np.ones(h.shape, bool), Affine(res, 0.0, x0, 0.0, -res, y0), None,
+                       float("nan"), {})
+
+    # 129 px layers (2^7 + 1: every level's lines fall on the blocks' boundaries)
+    layers = (Layer(tile(129, 8.0, 0.0, 1032.0), None, (0, 0)),
+              Layer(tile(129, 2.0, 387.0, 645.0), (48, 48, 33, 33), (384, 384)),
+              Layer(tile(129, 0.5, 483.75, 548.25), (48, 48, 33, 33), (1536, 1536)))
+    stack = LayerStack(layers, CraterCatalog.empty(optional=("layer",)), {"site": [516.0, 516.0]})
+    k = Intrinsics.from_fov(64, 48, 50.0)
+    light = Lighting.from_angles(120.0, 20.0)
+    poses = [look_at((516.0 + 0.3 * d, 516.0 - 0.4 * d, d), (516.0, 516.0, 0.0))
+             for d in (3000.0, 800.0, 150.0, 25.0)]
+    for shadows in (False, True):
+        lazy, whole = TerrainScene(stack), TerrainScene(stack)
+        whole.upload(renderer.gpu, eager=True)
+        steps = []
+        for pose in poses:
+            options = RenderOptions(shadows=shadows, shadow_size=256, lod_pixels=6.0)
+            a = renderer.render(lazy, View(pose, k), light, options)
+            b = renderer.render(whole, View(pose, k), light, options)
+            steps.append([layer.step for layer in lazy._layers])
+            for x, y in ((a.radiance, b.radiance), (a.range, b.range), (a.normals, b.normals)):
+                assert np.array_equal(x, y, equal_nan=True)
+        if not shadows:
+            assert max(steps[0]) > 1, steps  # the far view drew the fine layers sparse
+        assert steps[-1] == [1, 1, 1], steps  # and close by, every vertex
