@@ -144,7 +144,12 @@ def _fill_vertex_rows(out, xs, ys, height, normal, brows, bcols, depth, first, l
 
 @numba.njit(nogil=True, cache=True)
 def _fill_morph_rows(out, xs, ys, height, level, normal, brows, bcols, depth, first, last):
-    """As :func:`_fill_vertex_rows` for the ``4f 3f`` buffer: position, level, normal."""
+    """As :func:`_fill_vertex_rows` for the ``4f 3f`` buffer: position, level, normal.
+
+    A kernel of its own, not one shared with the stride as an argument: that cost nine
+    times as much (a run-time stride and level test per vertex), and ``numba.literally``
+    compiled it anew on every call.
+    """
     h, w = height.shape
     n_main = h * w
     n_rows = len(brows) * w

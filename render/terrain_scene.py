@@ -589,10 +589,7 @@ class TerrainScene:
         h, w = layer.shape
         key = (h, w, layer.step, s)
         if key not in self._index_cache:
-            f = layer.step
-            idx, offsets, counts = block_indices(
-                (h - 1) // f + 1, (w - 1) // f + 1, s // f, _samples(0, h - 1, BLOCK) // f,
-                _samples(0, w - 1, BLOCK) // f)
+            idx, _, counts = _block_indices(h, w, s, layer.step)
             # the same blocks, each the same number of indices as at level s of every vertex
             assert np.array_equal(counts, layer.counts[s])
             self._index_cache[key] = gpu.buffer(idx)
@@ -689,6 +686,10 @@ class TerrainScene:
                         low = mid
                 plan, total = self._plan(visible, dist, focal, fits)
             target = fits
+        # m per image pixel at each drawn layer's nearest block
+        footprints = {layer.level: float(d[blocks].min()) / focal
+                      for layer, (_, blocks), d in zip(self._layers, plan, dist, strict=True)
+                      if blocks.size}
         scatter = None
         grids = None
         if lighting is not None and (options.scattering or (
@@ -697,11 +698,9 @@ class TerrainScene:
             # the grids of scattered light this frame lacks, computed on a thread of their
             # own while the vertex buffers and the shadow maps are built (most of their
             # time is the interpreter's; the buffers' kernels and GL's are not)
-            missing = sorted({self._scatter_source(layer.level,
-                                                   float(d[blocks].min()) / focal)
-                              for layer, (_, blocks), d in zip(self._layers, plan, dist,
-                                                               strict=True)
-                              if blocks.size} - set(scatter))
+            missing = sorted({self._scatter_source(layer.level, footprints[layer.level])
+                              for layer in self._layers if layer.level in footprints}
+                             - set(scatter))
             if missing:
                 grids = _background().submit(
                     lambda: {k: self._scatter_grid(self._layers[k], lighting) for k in missing})
@@ -712,18 +711,16 @@ class TerrainScene:
                 # descent's first pose every layer at level 1): full buffers at once
                 self._vertex_buffers(gpu, layer, morph=True,
                                      finest=1 if shadowed else int(lods.min()))
-        shadows = None
-        if options.shadows and lighting is not None:
-            shadows = self._shadow_maps(gpu, lighting, options)
+        shadows = self._shadow_maps(gpu, lighting, options) if shadowed else None
         computed = grids.result() if grids is not None else {}
         batches: list[DrawBatch] = []
         drawn_layers: list[dict[str, Any]] = []
-        for layer, (lods, blocks), d in zip(self._layers, plan, dist, strict=True):
+        for layer, (lods, blocks) in zip(self._layers, plan, strict=True):
             if not blocks.size:
                 continue
             layer_batches: list[DrawBatch] = []
             tris = 0
-            footprint = float(d[blocks].min()) / focal  # m per image pixel, nearest block
+            footprint = footprints[layer.level]
             shadow = None
             if shadows is not None:
                 coarse = _shadow_coarsening(footprint, layer.resolution)
@@ -1038,11 +1035,12 @@ def _block_extremes(z: np.ndarray, brows: np.ndarray, bcols: np.ndarray):
     return zmin, zmax
 
 
-def _block_indices(h: int, w: int, s: int):
+def _block_indices(h: int, w: int, s: int, step: int = 1):
     """Index buffer of a layer of (h, w) vertices at level s, with every block's range.
 
     Blocks of :data:`BLOCK` cells (:func:`render.terrain_buffers.block_indices`: each
-    block's cells' two triangles, then its skirts).
+    block's cells' two triangles, then its skirts). With ``step`` > 1, the indices into
+    buffers of every ``step``-th vertex line (:func:`_sparse_step`): the same triangles.
 
     Returns
     -------
@@ -1050,7 +1048,8 @@ def _block_indices(h: int, w: int, s: int):
     offsets, counts : (n_blocks,) int64
         Each block's first index and number of indices.
     """
-    return block_indices(h, w, s, _samples(0, h - 1, BLOCK), _samples(0, w - 1, BLOCK))
+    return block_indices((h - 1) // step + 1, (w - 1) // step + 1, s // step,
+                         _samples(0, h - 1, BLOCK) // step, _samples(0, w - 1, BLOCK) // step)
 
 
 def _levels_1d(n: int) -> np.ndarray:
