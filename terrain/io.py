@@ -75,6 +75,41 @@ PNG_SUFFIXES = (".png",)
 #: Stored types whose values float32 may not hold exactly.
 _WIDE_TYPES = ("float64", "int32", "uint32", "int64", "uint64")
 
+#: The one warnings filter this module adds, while any of its threads opens a file that may
+#: not be georeferenced (frames, truth, scratch tiles: rasterio warns at each).
+_QUIET_FILTER = ("ignore", None, NotGeoreferencedWarning, None, 0)
+_quiet_lock = threading.Lock()
+_quiet_users = 0
+_quiet_added = False  # whether the filter went in at the first entry (not already there)
+
+
+@contextlib.contextmanager
+def _not_georeferenced_quiet():
+    """Silence rasterio's NotGeoreferencedWarning for the ``with`` block, on any thread.
+
+    ``warnings.catch_warnings`` is not for threads: it saves the process-wide filter list on
+    entry and puts that copy back on exit, so two threads that overlap leave behind (or
+    throw away) each other's filters and anyone else's. Files are read on several threads
+    at once (stacks, runs, chunks): here the filter goes in when the first reader enters and
+    that one entry comes out when the last leaves, nothing else touched.
+    """
+    global _quiet_users, _quiet_added
+    with _quiet_lock:
+        if _quiet_users == 0:
+            _quiet_added = _QUIET_FILTER not in warnings.filters
+            if _quiet_added:
+                warnings.filterwarnings("ignore", category=NotGeoreferencedWarning)
+        _quiet_users += 1
+    try:
+        yield
+    finally:
+        with _quiet_lock:
+            _quiet_users -= 1
+            if _quiet_users == 0 and _quiet_added:
+                with contextlib.suppress(ValueError):  # someone reset the filters meanwhile
+                    warnings.filters.remove(_QUIET_FILTER)
+                warnings._filters_mutated()
+
 
 def read_dem_exact(path, *, band: int = 1) -> tuple[DEMTile, np.ndarray | None]:
     """:func:`read_dem`, and the DEM's exact heights when float32 cannot hold them.
@@ -119,8 +154,7 @@ def _read_dem(path, band: int, exact: bool) -> tuple[DEMTile, np.ndarray | None]
     if path.is_dir():
         return _read_zarr_dem(path), None
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        with _not_georeferenced_quiet():
             src = rasterio.open(path)
         with src:
             if not 1 <= band <= src.count:
@@ -237,8 +271,7 @@ def _verify(tmp, expected: np.ndarray, path, messages: str = "") -> None:
     error, naming the first message, before the file is put in place.
     """
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        with _not_georeferenced_quiet():
             with rasterio.open(tmp) as src:
                 back = src.read()
         whole = back.shape == expected.shape and np.array_equal(back, expected, equal_nan=True)
@@ -263,8 +296,7 @@ def _verify_blocks(tmp, path, messages: str = "", *, bands: int,
     whole = False
     try:
         size = os.path.getsize(tmp)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        with _not_georeferenced_quiet():
             with rasterio.open(tmp) as src:
                 bh, bw = src.block_shapes[0]
                 nx, ny = -(-src.width // bw), -(-src.height // bh)
@@ -480,8 +512,7 @@ def write_float_tiff(array: np.ndarray, path, *, tags: dict | None = None, input
     profile = dict(driver="GTiff", dtype="float32", count=bands, width=w, height=h,
                    nodata=float("nan"), tiled=True, blockxsize=BLOCK_SIZE,
                    blockysize=BLOCK_SIZE, **SENSOR_TIFF_COMPRESSION)
-    with atomic_path(path, inputs) as tmp, warnings.catch_warnings():
-        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+    with atomic_path(path, inputs) as tmp, _not_georeferenced_quiet():
         with _c_stderr() as captured:
             try:
                 with rasterio.open(tmp, "w", **profile) as dst:
@@ -504,8 +535,7 @@ def _read_float_bands(path, pixel: tuple[int, int] | None = None) -> np.ndarray:
     if not path.exists():
         raise MissingInputError(f"image '{path}' does not exist")
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        with _not_georeferenced_quiet():
             with rasterio.open(path) as src:
                 if pixel is None:
                     return src.read()
@@ -554,8 +584,7 @@ def raster_layout(path) -> dict:
     if not path.exists():
         raise MissingInputError(f"raster '{path}' does not exist")
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        with _not_georeferenced_quiet():
             with rasterio.open(path) as ds:
                 return dict(width=ds.width, height=ds.height, transform=list(ds.transform)[:6],
                             overviews=ds.overviews(1), driver=ds.driver,
@@ -580,8 +609,7 @@ def write_bands(bands, tile: DEMTile, path, *, descriptions=(), tags: dict | Non
         height=tile.shape[0], crs=CRS.from_wkt(tile.crs) if tile.crs else None,
         transform=tile.transform, nodata=float("nan"), compress="deflate", predictor=3,
         tiled=True, blockxsize=BLOCK_SIZE, blockysize=BLOCK_SIZE, BIGTIFF="IF_SAFER")
-    with atomic_path(path, inputs) as tmp, warnings.catch_warnings():
-        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+    with atomic_path(path, inputs) as tmp, _not_georeferenced_quiet():
         with _c_stderr() as captured:
             try:
                 with rasterio.open(tmp, "w", **profile) as dst:
@@ -624,8 +652,7 @@ class RasterReader:
             raise InvalidDEMError(f"input DEM '{path}' is a folder, not a file")
         self.path, self.band = path, int(band)
         try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with _not_georeferenced_quiet():
                 src = rasterio.open(path)
             with src:
                 if not 1 <= band <= src.count:
@@ -692,8 +719,7 @@ class RasterReader:
         window.check_inside(*self.shape)
         memory.require(window.width * window.height * 20, f"reading a window of '{self.path}'")
         try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with _not_georeferenced_quiet():
                 with rasterio.open(self.path) as src:
                     raw = src.read(self.band, masked=True, window=RioWindow(
                         window.col, window.row, window.width, window.height))

@@ -21,7 +21,6 @@ import csv
 import io
 import math
 import os
-import warnings
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from typing import IO, ClassVar, TypeVar
 
@@ -363,22 +362,27 @@ def _read_fast(lines: list[str], names: list[str],
     """:func:`read_table` by NumPy's C parser, or None where it cannot (an empty value)."""
     if not names or len(lines) < 2 or len(set(names)) != len(names):
         return None
+    # integer columns are read as text and converted here: NumPy's parser takes "1.5" for an
+    # integer with only a DeprecationWarning, and turning that into an error would need a
+    # warnings filter, which is process-wide: catalogues are read on several threads at once
+    # (terrain.stack.store), and one thread's "error" filter would raise another's warnings
     fields = [(name, "<U17" if name == "id" else
-               np.dtype(np.int64 if np.dtype(dtypes.get(name, np.float64)).kind in "iub"
-                        else np.float64)) for name in names]
+               "<U32" if np.dtype(dtypes.get(name, np.float64)).kind in "iub" else
+               np.dtype(np.float64)) for name in names]
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("error")  # e.g. a float in an integer column
-            table = np.loadtxt(lines[1:], delimiter=",", dtype=fields, ndmin=1,
-                               comments=None, encoding=None)
-    except (ValueError, TypeError, Warning):
+        table = np.loadtxt(lines[1:], delimiter=",", dtype=fields, ndmin=1,
+                           comments=None, encoding=None)
+    except (ValueError, TypeError):
         return None
     out = {}
     for name in names:
         if name == "id":
             out[name] = _parse_hex(table[name])
-        elif name in dtypes and np.dtype(dtypes[name]).kind in "iub":
-            out[name] = table[name].astype(dtypes[name])
+        elif table.dtype[name].kind == "U":
+            try:
+                out[name] = table[name].astype(np.int64).astype(dtypes[name])
+            except (ValueError, OverflowError):
+                return None  # the csv path names the value
         else:
             out[name] = np.ascontiguousarray(table[name])
     return out

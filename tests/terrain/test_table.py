@@ -70,3 +70,48 @@ def test_a_bad_id_or_integer_is_refused_with_the_file(tmp_path):
         bad.write_text(header + "\n" + row + "\n")
         with pytest.raises(InvalidParameterError, match="bad.csv"):
             CraterCatalog.from_csv(bad)
+
+
+def test_reading_on_threads_leaves_every_warnings_filter_as_it_was(tmp_path):
+    """Catalogues and sensor images are read on several threads at once (stacks, runs).
+
+    ``warnings.catch_warnings`` puts back on exit the filter list it saw on entry, so two
+    readers that overlap used to leave one's filter behind for the whole process: once an
+    "error" filter of the table reader (a float in an integer column) outlived it, and a
+    library's harmless PendingDeprecationWarning later stopped the demo's evaluation.
+    """
+    import threading
+    import warnings
+
+    from terrain.io import read_float_tiff, write_float_tiff
+
+    table = tmp_path / "t.csv"
+    write_table(table, {"x_m": np.arange(50.0), "layer": np.arange(50)}, ("x_m", "layer"))
+    image = write_float_tiff(np.ones((8, 8), np.float32), tmp_path / "range.tif")
+    before = list(warnings.filters)
+    errors: list = []
+
+    def work(k):
+        try:
+            for _ in range(40):
+                if k % 2:
+                    assert read_table(table, {"layer": np.int16})["layer"][-1] == 49
+                else:
+                    assert read_float_tiff(image).shape == (8, 8)
+                # what another part of the process may say meanwhile: a warning, never an
+                # exception
+                warnings.warn("a library's notice", PendingDeprecationWarning, stacklevel=1)
+        except BaseException as exc:  # noqa: BLE001 - reported below, whatever it is
+            errors.append(exc)
+
+    with warnings.catch_warnings():  # this test's own notices stay out of the report
+        warnings.simplefilter("ignore", PendingDeprecationWarning)
+        inside = list(warnings.filters)
+        threads = [threading.Thread(target=work, args=(k,)) for k in range(6)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        assert warnings.filters == inside
+    assert not errors, errors[0]
+    assert warnings.filters == before
