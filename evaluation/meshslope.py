@@ -416,33 +416,108 @@ def _plane_fit(src_points, src_values, tree, points, normals, k, tolerance):
     """Weighted least-squares planes through each point's ``k`` nearest source values.
 
     Returns the planes' values at the points, (n, 3), and whether each plane misses one of
-    its own neighbours by more than ``tolerance`` of its value, (n,) bool.
+    its own neighbours by more than ``tolerance`` of its value, (n,) bool. Each point's
+    plane is fitted alone (:func:`_plane_fits`, compiled), so the values do not depend on
+    how many threads fit them.
     """
-    dist, nb = tree.query(points, k=k)
+    dist, nb = tree.query(points, k=k, workers=-1)
     if k == 1:
         dist, nb = dist[:, None], nb[:, None]
-    # tangent-plane coordinates of the neighbours about each point
-    n = np.nan_to_num(normals)
-    ref = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    e1 = np.cross(n, ref)
-    e1 /= np.maximum(np.linalg.norm(e1, axis=1), 1e-300)[:, None]
-    e2 = np.cross(n, e1)
-    d = src_points[nb] - points[:, None, :]
-    scale = np.maximum(dist[:, -1:], 1e-300)
-    a = np.stack([np.ones(dist.shape), np.einsum("nkd,nd->nk", d, e1) / scale,
-                  np.einsum("nkd,nd->nk", d, e2) / scale], axis=2)
-    w = (1.0 - (dist / (1.0001 * scale)) ** 2) ** 2  # Wendland-like taper: far ones count less
-    aw = a * w[:, :, None]
-    lhs = np.einsum("nki,nkj->nij", aw, a) + 1e-9 * np.eye(3)
-    values = src_values[nb]
-    rhs = np.einsum("nki,nkc->nic", aw, values)
-    coef = np.linalg.solve(lhs, rhs)
-    # where the plane misses its own neighbours by more than FIELD_FIT_TOLERANCE of the
-    # field (a coarse edge or vertex close by: the field bends within a sample spacing),
-    # the caller evaluates the field there
-    miss = np.linalg.norm(values - np.einsum("nki,nic->nkc", a, coef), axis=2)
-    return coef[:, 0, :], np.max(miss, axis=1) > tolerance * np.linalg.norm(coef[:, 0, :],
-                                                                             axis=1)
+    values = np.empty((len(points), 3))
+    missed = np.empty(len(points), dtype=np.bool_)
+    _plane_fits(np.ascontiguousarray(src_points, dtype=np.float64),
+                np.ascontiguousarray(src_values, dtype=np.float64),
+                np.ascontiguousarray(points, dtype=np.float64),
+                np.nan_to_num(np.asarray(normals, dtype=np.float64)),
+                np.ascontiguousarray(dist), np.ascontiguousarray(nb, dtype=np.int64),
+                float(tolerance), values, missed)
+    return values, missed
+
+
+@numba.njit(cache=True, parallel=True)
+def _plane_fits(src, src_values, points, normals, dist, nb, tolerance, out,
+                missed):  # pragma: no cover - compiled
+    n, k = nb.shape
+    for i in numba.prange(n):
+        # tangent-plane axes: the normal crossed with the coordinate axis least along it
+        nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
+        if abs(nx) < 0.9:
+            ax, ay, az = 1.0, 0.0, 0.0
+        else:
+            ax, ay, az = 0.0, 1.0, 0.0
+        e1x, e1y, e1z = ny * az - nz * ay, nz * ax - nx * az, nx * ay - ny * ax
+        e1n = max(math.sqrt(e1x * e1x + e1y * e1y + e1z * e1z), 1e-300)
+        e1x, e1y, e1z = e1x / e1n, e1y / e1n, e1z / e1n
+        e2x, e2y, e2z = ny * e1z - nz * e1y, nz * e1x - nx * e1z, nx * e1y - ny * e1x
+        scale = max(dist[i, k - 1], 1e-300)
+        # normal equations of the weighted fit: lhs (3, 3), rhs (3 coefficients, 3 components)
+        lhs = np.zeros((3, 3))
+        rhs = np.zeros((3, 3))
+        a = np.empty((k, 3))
+        for j in range(k):
+            s = nb[i, j]
+            dx = src[s, 0] - points[i, 0]
+            dy = src[s, 1] - points[i, 1]
+            dz = src[s, 2] - points[i, 2]
+            a[j, 0] = 1.0
+            a[j, 1] = (dx * e1x + dy * e1y + dz * e1z) / scale
+            a[j, 2] = (dx * e2x + dy * e2y + dz * e2z) / scale
+            r = dist[i, j] / (1.0001 * scale)
+            w = (1.0 - r * r) ** 2  # Wendland-like taper: far ones count less
+            for p in range(3):
+                wp = w * a[j, p]
+                for q in range(3):
+                    lhs[p, q] += wp * a[j, q]
+                    rhs[p, q] += wp * src_values[s, q]
+        for p in range(3):
+            lhs[p, p] += 1e-9
+        coef = _solve3(lhs, rhs)
+        # where the plane misses its own neighbours by more than the tolerance of the field
+        # (a coarse edge or vertex close by: the field bends within a sample spacing), the
+        # caller evaluates the field there
+        worst = 0.0
+        for j in range(k):
+            s = nb[i, j]
+            m = 0.0
+            for q in range(3):
+                e = src_values[s, q] - (a[j, 0] * coef[0, q] + a[j, 1] * coef[1, q]
+                                        + a[j, 2] * coef[2, q])
+                m += e * e
+            worst = max(worst, math.sqrt(m))
+        size = math.sqrt(coef[0, 0] ** 2 + coef[0, 1] ** 2 + coef[0, 2] ** 2)
+        for q in range(3):
+            out[i, q] = coef[0, q]
+        missed[i] = worst > tolerance * size
+
+
+@numba.njit(cache=True)
+def _solve3(lhs, rhs):  # pragma: no cover - compiled
+    """``lhs^-1 rhs`` for a 3x3 system, by elimination with partial pivoting (as LAPACK)."""
+    m = lhs.copy()
+    b = rhs.copy()
+    for c in range(3):
+        p = c
+        for r in range(c + 1, 3):
+            if abs(m[r, c]) > abs(m[p, c]):
+                p = r
+        if p != c:
+            for q in range(3):
+                m[c, q], m[p, q] = m[p, q], m[c, q]
+                b[c, q], b[p, q] = b[p, q], b[c, q]
+        for r in range(c + 1, 3):
+            f = m[r, c] / m[c, c]
+            for q in range(c, 3):
+                m[r, q] -= f * m[c, q]
+            for q in range(3):
+                b[r, q] -= f * b[c, q]
+    x = np.empty((3, 3))
+    for c in range(2, -1, -1):
+        for q in range(3):
+            t = b[c, q]
+            for r in range(c + 1, 3):
+                t -= m[c, r] * x[r, q]
+            x[c, q] = t / m[c, c]
+    return x
 
 
 # ------------------------------------------------------------------------------ result

@@ -198,3 +198,54 @@ def test_spin_and_density_are_validated():
     s = trimesh.creation.icosphere(subdivisions=1, radius=5.0)
     with pytest.raises(InvalidParameterError, match="density or the mass"):
         mesh_slopes(s.vertices, s.faces, density=1.0, mass=1.0)
+
+
+def test_fitted_planes_are_exact_for_a_linear_field_and_miss_at_a_step():
+    """The interpolation of :func:`sampled_attraction`, against fields known everywhere."""
+    import numba
+    from scipy.spatial import cKDTree
+
+    from evaluation.meshslope import FIELD_FIT_TOLERANCE, FIELD_NEIGHBOURS, _plane_fit
+
+    rng = np.random.default_rng(4)
+    u = rng.normal(size=(6000, 3))
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    v = u * [9e3, 5e3, 4e3]  # an ellipsoid's surface, metres
+    normals = u / [9e3, 5e3, 4e3]
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    src, pend = np.arange(0, 6000, 3), np.setdiff1d(np.arange(6000), np.arange(0, 6000, 3))
+    tree = cKDTree(v[src])
+    # on a flat surface a field linear in position is linear in the tangent plane: recovered
+    # (to the 1e-9 the normal equations' diagonal is raised by), whichever axis the plane's
+    # normal lies near (they pick its tangent axes)
+    m = np.array([[1e-6, 2e-7, -3e-7], [4e-7, -1e-6, 5e-8], [0.0, 3e-7, 2e-6]])
+    for normal in ([0.0, 0.0, 1.0], [0.95, 0.3, 0.1]):
+        n = np.array(normal) / np.linalg.norm(normal)
+        t1 = np.cross(n, [0.0, 1.0, 0.0] if abs(n[1]) < 0.9 else [1.0, 0.0, 0.0])
+        t1 /= np.linalg.norm(t1)
+        t2 = np.cross(n, t1)
+        st = rng.uniform(-5e3, 5e3, size=(3000, 2))
+        flat = [2e3, -1e3, 7e3] + st[:, :1] * t1 + st[:, 1:] * t2
+        linear = flat @ m.T + [1e-3, -2e-3, 4e-3]
+        got, missed = _plane_fit(flat[::3], linear[::3], cKDTree(flat[::3]), flat[1::3],
+                                 np.tile(n, (1000, 1)), FIELD_NEIGHBOURS, FIELD_FIT_TOLERANCE)
+        np.testing.assert_allclose(got, linear[1::3], rtol=1e-6)
+        assert not missed.any()
+    # a field with a step across x = 0 (a coarse edge): the planes straddling it miss their
+    # own neighbours, the others do not
+    step = np.where(v[:, :1] > 0, 1.0, 1.5) * np.array([[0.0, 0.0, 1.0]])
+    got, missed = _plane_fit(v[src], step[src], tree, v[pend], normals[pend],
+                             FIELD_NEIGHBOURS, FIELD_FIT_TOLERANCE)
+    near = np.abs(v[pend, 0]) < 200.0
+    far = np.abs(v[pend, 0]) > 3000.0
+    assert missed[near].mean() > 0.9 and not missed[far].any()
+    np.testing.assert_allclose(got[far], step[pend][far], atol=1e-9)
+    # each point's plane is fitted alone: the same bytes on one thread or several
+    threads = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        alone = _plane_fit(v[src], step[src], tree, v[pend], normals[pend],
+                           FIELD_NEIGHBOURS, FIELD_FIT_TOLERANCE)
+    finally:
+        numba.set_num_threads(threads)
+    assert alone[0].tobytes() == got.tobytes() and (alone[1] == missed).all()
