@@ -503,22 +503,28 @@ def near_dark(image: np.ndarray, level: int, margin: int, min_area: int) -> np.n
     if img.ndim != 2 or img.dtype != np.uint8:
         raise InvalidParameterError(f"near_dark needs an (h, w) uint8 image; got {img.shape} "
                                     f"{img.dtype}")
-    dark = (img <= int(img.min()) + level).astype(np.uint8)
-    _, labels, stats, _ = cv2.connectedComponentsWithStats(dark, connectivity=8)
+    from evaluation.warpkernels import label_mask
+
+    # 1 at and below the frame's darkest level + level (OpenCV's threshold: the same 0/1)
+    _, dark = cv2.threshold(img, int(img.min()) + level, 1, cv2.THRESH_BINARY_INV)
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(dark, connectivity=8)
     big = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= min_area)
     big = big[big > 0]  # label 0: the pixels with signal
     if not big.size or margin < 0:
         return np.zeros(img.shape, dtype=bool)
-    lookup = np.zeros(len(stats), dtype=bool)  # a table by label: one gather per pixel
-    lookup[big] = True
-    region = lookup[labels]
+    if big.size == count - 1:
+        region = dark  # every dark region counts
+    else:
+        lookup = np.zeros(count, dtype=np.uint8)  # a table by label: one gather per pixel
+        lookup[big] = 1
+        region = label_mask(labels, lookup)
     # within ``margin`` (Euclidean) of the region: the region grown by every integer offset
     # (dx, dy) with dx^2 + dy^2 <= margin^2: the same pixels as an exact Euclidean distance
     # transform's ``distance <= margin`` (cv2.DIST_MASK_PRECISE; a distance between pixels is
     # the root of an integer), at a fifth of its cost for the default margin
     reach = np.arange(-math.floor(margin), math.floor(margin) + 1)
     disk = (reach[:, None] ** 2 + reach[None, :] ** 2 <= margin * margin).astype(np.uint8)
-    return cv2.dilate(region.view(np.uint8), disk) > 0  # the border adds nothing
+    return cv2.dilate(region, disk).view(bool)  # 0 or 1, as the region; the border adds nothing
 
 
 #: Fewest first-pass tracks from which a step's homography is estimated for prewarping.

@@ -328,6 +328,9 @@ def test_near_dark_is_an_exact_euclidean_distance_within_the_margin(margin):
                                  cv2.DIST_MASK_PRECISE)
     assert region.any() and not region[60, 145]
     assert np.array_equal(near, dist <= margin)
+    # without the speck every dark region counts (near_dark then skips its table by label)
+    img[60, 145] = 100
+    assert np.array_equal(near_dark(img, 2, margin, 9), dist <= margin)
 
 
 
