@@ -345,7 +345,8 @@ def field_sample(vertices: np.ndarray, points: int) -> np.ndarray:
 
 
 def sampled_attraction(body: Polyhedron, vertices: np.ndarray, normals: np.ndarray,
-                       points: int, *, progress=None) -> tuple[np.ndarray, int]:
+                       points: int, *, tolerance: float = FIELD_FIT_TOLERANCE,
+                       progress=None) -> tuple[np.ndarray, int]:
     """Return a polyhedron's attraction at every vertex, evaluated at a sample, interpolated.
 
     The field is evaluated exactly (:meth:`evaluation.gravity.Polyhedron.field`) at about
@@ -354,7 +355,7 @@ def sampled_attraction(body: Polyhedron, vertices: np.ndarray, normals: np.ndarr
     plane, to the :data:`FIELD_NEIGHBOURS` nearest sampled vertices by weighted least squares
     (a moving least-squares fit of degree one: exact for a field that varies linearly over
     the surface). Where that plane misses one of its own neighbours by more than
-    :data:`FIELD_FIT_TOLERANCE` of the field, the field bends within a sample spacing (a
+    ``tolerance`` of the field, the field bends within a sample spacing (a
     coarse edge close by): there the field is evaluated at one of those vertices per cell
     of half the spacing, and the others are fitted again from the denser sample, under the
     same tolerance (:data:`FIELD_LEVELS` fits in all); a vertex whose last plane still
@@ -371,6 +372,9 @@ def sampled_attraction(body: Polyhedron, vertices: np.ndarray, normals: np.ndarr
         Unit surface normals at the vertices (they define each tangent plane).
     points : int
         The sample size aimed at.
+    tolerance : float
+        Largest miss of a plane at its own neighbours, as a fraction of the field, that is
+        kept (default :data:`FIELD_FIT_TOLERANCE`).
     progress : callable, optional
         Passed to the field evaluation.
 
@@ -395,7 +399,7 @@ def sampled_attraction(body: Polyhedron, vertices: np.ndarray, normals: np.ndarr
         src = np.flatnonzero(known)
         fitted, missed = _plane_fit(v[src], out[src], cKDTree(v[src]), v[pending],
                                     normals[pending], min(FIELD_NEIGHBOURS, src.size),
-                                    FIELD_FIT_TOLERANCE)
+                                    tolerance)
         out[pending[~missed]] = fitted[~missed]
         bad = pending[missed]
         if level == FIELD_LEVELS:  # the field bends within the finest spacing: exact there
@@ -656,7 +660,8 @@ def _density(volume: float, density, mass) -> tuple[float, str]:
 def mesh_slopes(vertices, faces, *, label: str = "", radius_deg: float = DEFAULT_RADIUS_DEG,
                 gravity: bool = True, density: float | None = None, mass: float | None = None,
                 spin: Spin | None = None, coarse_faces: int = DEFAULT_COARSE_FACES,
-                field_points: int | None = None, progress=None) -> MeshSlopes:
+                field_points: int | None = None, field_tolerance: float = FIELD_FIT_TOLERANCE,
+                progress=None) -> MeshSlopes:
     """Radial and gravitational slopes of a closed body (see the module docstring).
 
     Parameters
@@ -681,6 +686,9 @@ def mesh_slopes(vertices, faces, *, label: str = "", radius_deg: float = DEFAULT
         Evaluate the attraction at about this many vertices, evenly spread, and interpolate
         it to the others (:func:`sampled_attraction`); None (the default), or at least as
         many as the body has: at every vertex. The centrifugal term is exact at every vertex.
+    field_tolerance : float
+        With ``field_points``: the largest miss of a fitted plane, as a fraction of the field,
+        that is kept (:func:`sampled_attraction`).
     progress : callable, optional
         ``progress(done, total)`` over the gravity evaluation.
 
@@ -726,8 +734,10 @@ def mesh_slopes(vertices, faces, *, label: str = "", radius_deg: float = DEFAULT
         t1 = time.perf_counter()
         if field_points is not None and 0 < int(field_points) < len(v):
             attraction, sampled = sampled_attraction(body, v, normals, int(field_points),
+                                                     tolerance=field_tolerance,
                                                      progress=progress)
-            info.update(field_points=sampled, field_neighbours=FIELD_NEIGHBOURS)
+            info.update(field_points=sampled, field_neighbours=FIELD_NEIGHBOURS,
+                        field_tolerance=float(field_tolerance))
         else:
             _, attraction = body.field(v, progress=progress)
         g_eff = attraction + centrifugal(v, rate=spin.rate, axis=spin.axis)

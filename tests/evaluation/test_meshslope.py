@@ -68,6 +68,13 @@ def test_sampled_gravity_agrees_with_the_field_at_every_vertex():
     a, b = exact.summary("gravitational"), sampled.summary("gravitational")
     assert all(abs(a[k] - b[k]) < 0.05 for k in ("p10", "p50", "p90", "mean")), (a, b)
     np.testing.assert_array_equal(sampled.radial_deg, exact.radial_deg)
+    # a looser tolerance keeps more planes: fewer evaluations, a larger error (the campaign
+    # takes 2 % only on a sample far denser than this body's coarse copy: docs/speed.md)
+    loose = mesh_slopes(v, f, radius_deg=0.0, density=2000.0, spin=spin, coarse_faces=400,
+                        field_points=len(v) // 3, field_tolerance=0.5)
+    assert loose.info["field_points"] < sampled.info["field_points"]
+    assert np.percentile(np.abs(loose.gravitational_deg - exact.gravitational_deg), 99) \
+        > np.percentile(diff, 99)
     # as many field points as vertices, or none asked for: the field at every vertex
     every = mesh_slopes(v, f, radius_deg=0.0, density=2000.0, spin=spin, coarse_faces=400,
                         field_points=len(v))
