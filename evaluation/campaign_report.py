@@ -158,7 +158,7 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     stage.begin()
     t0 = time.perf_counter()
     # Independent parts run in two worker processes while this one tracks the descent (most
-    # of it on one core): the asteroid's slopes (polyhedron gravity), the lunar layers
+    # of it on one core): the asteroid's slopes and its section (polyhedron gravity), the lunar layers
     # (slopes, realism, real DEMs, hazards), the descent's consistency, the approach's
     # tracking. Each part computes what it computed in one process: the same figures,
     # sooner. Fresh interpreters ("spawn"): this process runs threads (frame readers,
@@ -166,10 +166,11 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     with ProcessPoolExecutor(max_workers=2, mp_context=get_context("spawn")) as pool:
         # the two longest parts first, one per worker; the descent's consistency (wanted
         # after this process has tracked the descent) and the approach's tracking next
-        slopes = pool.submit(asteroid_slopes, Path(asteroid_facts["body"]),
+        slopes = pool.submit(asteroid_report, Path(asteroid_facts["body"]),
                              Path(real["eros"]) if have.get("eros") else None,
                              float(ev.get("eros_density", 2670.0)),
-                             float(ev.get("eros_period_h", 5.27)))
+                             float(ev.get("eros_period_h", 5.27)), str(real.get("eros")),
+                             json.loads(json.dumps(DEFAULT_THRESHOLDS)))
         layers = pool.submit(lunar_layers, getattr(c.synth, "terrain", None) or "south-polar",
                              dict(ev), stage.dir, Path(lunar_facts["stack"]),
                              Path(lunar_facts["run"]), real, have,
@@ -225,68 +226,21 @@ def asteroid_slopes(body_path: Path, eros_path: Path | None, density: float, per
     return body, reference, matched
 
 
-def _evaluate_stage(c: Campaign, out: Path, stage: Stage, t0: float, lunar_facts: dict,
-                    asteroid_facts: dict, real: dict, have: dict, descent, layers, approach,
-                    slopes, say, summary_name: str) -> Path:
-    """Do :func:`evaluate`'s work once its stage has begun.
+def asteroid_report(body_path: Path, eros_path: Path | None, density: float, period_h: float,
+                    eros_name: str, limits: dict):
+    """Return the report's asteroid section and its KS distance against Eros (or None).
 
-    ``descent``, ``layers``, ``approach`` and ``slopes`` are the futures of
-    :func:`measure_consistency` (the descent's), :func:`lunar_layers`,
-    :func:`tracking_report` (the approach's) and :func:`asteroid_slopes`; the other
-    parameters are
-    :func:`evaluate`'s, ``have`` which real data exist, ``t0`` when the stage began.
+    :func:`asteroid_slopes`, and the section drawn from them with the body's boulder check
+    and the facet-matched comparison, in the process that computed them (the per-vertex
+    slopes stay there).
     """
     from asteroid.body import load_native
     from asteroid.build import boulders_of
-    from evaluation.report import (
-        DEFAULT_THRESHOLDS,
-        Report,
-        asteroid_section,
-        write_report,
-    )
-    from evaluation.tracking import (
-        load_run,
-    )
-    from evaluation.validate import (
-        body_slope_check,
-        boulder_check,
-    )
-    from evaluation.validate_report import (
-        as_check,
-        regroup_campaign_checks,
-    )
+    from evaluation.report import asteroid_section
+    from evaluation.validate import body_slope_check, boulder_check
+    from evaluation.validate_report import as_check
 
-    report_path = stage.dir / "report.html"
-    limits = json.loads(json.dumps(DEFAULT_THRESHOLDS))
-    sections: list = []
-    facts: dict = {}
-
-    # -- feature tracking against truth, both runs (the approach's in a second process)
-    tracked = {}
-    for name, run_dir in (("lunar", lunar_facts["run"]), ("asteroid", asteroid_facts["run"])):
-        if name == "lunar":
-            run_sections, run_facts, _ = tracking_report(name, Path(run_dir), stage.dir,
-                                                         limits, c.seed, say, descent)
-        else:
-            say("evaluation: tracking Harris corners through the asteroid approach")
-            run_sections, run_facts, messages = approach.result()
-            for message in messages[1:]:
-                say(message)
-        sections += run_sections
-        facts[f"tracking_{name}"] = run_facts
-        tracked[name] = load_run(Path(run_dir))
-
-    # -- slopes per layer, realism, real DEMs, the site (computed in the second process)
-    say("evaluation: slope distributions and spectra of every layer")
-    layer_sections, layer_facts, messages = layers.result()
-    for message in messages:
-        say(message)
-    sections += layer_sections
-    facts.update(layer_facts)
-
-    # -- the asteroid's slopes next to real Eros
-    say("evaluation: asteroid slopes (polyhedron gravity and spin)")
-    body, reference, matched = slopes.result()
+    body, reference, matched = asteroid_slopes(body_path, eros_path, density, period_h)
     sec = asteroid_section([body], reference, limits)
     if "field_points" in body.info:
         sec.notes.append(
@@ -297,30 +251,75 @@ def _evaluate_stage(c: Campaign, out: Path, stage: Stage, t0: float, lunar_facts
             "0.14 deg at the 99th percentile, the body's slope quantiles within 0.02 deg, "
             "the KS distance against Eros within 0.001.")
     if reference is None:
-        sec.notes.append(f"{real.get('eros')} not found: the body is not compared with real "
-                         "Eros")
-    boulders = boulders_of(load_native(Path(asteroid_facts["body"])))
+        sec.notes.append(f"{eros_name} not found: the body is not compared with real Eros")
+    boulders = boulders_of(load_native(body_path))
     sec.checks.append(as_check(boulder_check(
         boulders.catalog.diameter_m if boulders is not None else [], label="body: ")))
     if matched is not None:
         sec.checks.append(as_check(body_slope_check(*matched, label="body: ")))
-    sections.append(sec)
     ks = [x for x in sec.checks if x.name.startswith("KS distance")]
-    facts["asteroid_ks"] = ks[0].value if ks else None
+    return sec, ks[0].value if ks else None
 
-    # -- the closed-loop landing through the render server
+
+def _evaluate_stage(c: Campaign, out: Path, stage: Stage, t0: float, lunar_facts: dict,
+                    asteroid_facts: dict, real: dict, have: dict, descent, layers, approach,
+                    slopes, say, summary_name: str) -> Path:
+    """Do :func:`evaluate`'s work once its stage has begun.
+
+    ``descent``, ``layers``, ``approach`` and ``slopes`` are the futures of
+    :func:`measure_consistency` (the descent's), :func:`lunar_layers`,
+    :func:`tracking_report` (the approach's) and :func:`asteroid_report`; the other
+    parameters are :func:`evaluate`'s, ``have`` which real data exist, ``t0`` when the stage
+    began.
+    """
+    from evaluation.report import DEFAULT_THRESHOLDS, Report, write_report
+    from evaluation.tracking import load_run
+    from evaluation.validate_report import regroup_campaign_checks
+
+    report_path = stage.dir / "report.html"
+    limits = json.loads(json.dumps(DEFAULT_THRESHOLDS))
+    sections: list = []
+    facts: dict = {}
+
+    # -- feature tracking against truth, both runs (the approach's in a second process)
+    lunar_sections, facts["tracking_lunar"], _ = tracking_report(
+        "lunar", Path(lunar_facts["run"]), stage.dir, limits, c.seed, say, descent)
+    tracked = {"lunar": load_run(Path(lunar_facts["run"])),
+               "asteroid": load_run(Path(asteroid_facts["run"]))}
+
+    # -- what needs no other process, made while the others finish: the closed-loop landing
+    # through the render server, crater-based navigation on the descent
+    # (examples/crater_navigation.py) and the campaign overview (timings, gallery, links)
+    late: list = []
     summary_path = out / "lunar" / "closed_loop" / "summary.json"
     if summary_path.exists():
-        sections.append(closed_loop_section(summary_path.parent, stage.dir))
-
-    # -- crater-based navigation on the descent (examples/crater_navigation.py)
+        late.append(closed_loop_section(summary_path.parent, stage.dir))
     nav_path = out / "lunar" / "crater_navigation" / "summary.json"
     if nav_path.exists():
-        sections.append(crater_navigation_section(nav_path.parent, stage.dir))
-
-    # -- campaign overview: timings, gallery, links
+        late.append(crater_navigation_section(nav_path.parent, stage.dir))
     overview = campaign_section(c, out, stage.dir, lunar_facts, asteroid_facts, tracked,
                                 summary_name)
+
+    say("evaluation: tracking Harris corners through the asteroid approach")
+    approach_sections, facts["tracking_asteroid"], messages = approach.result()
+    for message in messages[1:]:
+        say(message)
+    sections += lunar_sections + approach_sections
+
+    # -- slopes per layer, realism, real DEMs, the site (computed in the second process)
+    say("evaluation: slope distributions and spectra of every layer")
+    layer_sections, layer_facts, messages = layers.result()
+    for message in messages:
+        say(message)
+    sections += layer_sections
+    facts.update(layer_facts)
+
+    # -- the asteroid's slopes next to real Eros (section made in the second process)
+    say("evaluation: asteroid slopes (polyhedron gravity and spin)")
+    sec, facts["asteroid_ks"] = slopes.result()
+    sections.append(sec)
+    sections += late
+
     regroup_campaign_checks(sections, facts)
     rep = Report(c.title, [overview] + sections, limits,
                  dict(output=str(out), seed=c.seed, quick=c.quick,
