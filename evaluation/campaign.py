@@ -793,9 +793,12 @@ def run_campaign(c: Campaign, out, *, shared=None, fresh: bool = False,
         The report (``out/evaluation/report.html``).
     """
     from evaluation.campaign_report import evaluate
+    from terrain.core.memory import keep_freed_memory
 
     say = say or log.info
     out = claim_output(out, fresh=fresh)
+    # a campaign's process makes and drops frame-sized arrays from start to end
+    keep_freed_memory()
     if fresh:
         remove_path(out / summary_name)
     t0 = time.perf_counter()

@@ -17,6 +17,7 @@ outliers of long tracks measure the tracker and are shown as information
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
@@ -28,6 +29,7 @@ from pathlib import Path
 
 from evaluation.campaign import STAGES, Campaign, Stage
 from terrain.core import metakeys as mk
+from terrain.core.memory import keep_freed_memory
 
 __all__ = ["asteroid_slopes", "evaluate"]
 
@@ -48,11 +50,14 @@ BODY_FIELD_POINTS = 2 ** 15
 #: 0.016 deg median and 0.14 deg at the 99th percentile (0.012 and 0.11 at 1 %), and the
 #: body's slope quantiles by at most 0.013 deg (0.008 at 1 %).
 BODY_FIELD_TOLERANCE = 2e-2
-#: Steps of a run from which the tracker on truth-warped frames follows every second step
-#: only. On the demo's descent (119 steps) that moves the medians of its one-step errors by
-#: 0.3 % without noise and 0.4 % with it (docs/speed.md); on the approach's 29 steps it
-#: would move them by 4 %, so shorter runs are measured at every step.
+#: Steps of a run from which the tracker on truth-warped frames follows only every
+#: :data:`IDEAL_STEP_STRIDE`-th step. On the demo's descent (119 steps) every fourth step
+#: moves the medians of its one-step errors by +0.8 % without noise and -0.3 % with it
+#: (every second: +0.3 / -0.4 %; every fifth: +0.5 / +2.1 %; docs/speed.md); on the
+#: approach's 29 steps even every second would move them by 4 %, so shorter runs are
+#: measured at every step.
 IDEAL_SAMPLED_STEPS = 100
+IDEAL_STEP_STRIDE = 4
 
 TRACKING_NOTES = {
     "lunar": (
@@ -158,12 +163,14 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
     stage.begin()
     t0 = time.perf_counter()
     # Independent parts run in two worker processes while this one tracks the descent (most
-    # of it on one core): the asteroid's slopes and its section (polyhedron gravity), the lunar layers
-    # (slopes, realism, real DEMs, hazards), the descent's consistency, the approach's
-    # tracking. Each part computes what it computed in one process: the same figures,
-    # sooner. Fresh interpreters ("spawn"): this process runs threads (frame readers,
-    # numba's), which a forked child would inherit half-made.
-    with ProcessPoolExecutor(max_workers=2, mp_context=get_context("spawn")) as pool:
+    # of it on one core): the asteroid's slopes and its section (polyhedron gravity), the
+    # lunar layers (slopes, realism, real DEMs, hazards), the descent's consistency, the
+    # approach's tracking. Each part computes what it computed in one process: the same
+    # figures, sooner. Fresh interpreters ("spawn"): this process runs threads (frame
+    # readers, numba's), which a forked child would inherit half-made. The workers keep
+    # freed memory for their large arrays, as the campaign's process does.
+    with ProcessPoolExecutor(max_workers=2, mp_context=get_context("spawn"),
+                             initializer=_worker_setup) as pool, _fewer_collections():
         # the two longest parts first, one per worker; the descent's consistency (wanted
         # after this process has tracked the descent) and the approach's tracking next
         slopes = pool.submit(asteroid_report, Path(asteroid_facts["body"]),
@@ -181,6 +188,38 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
                                stage.dir, json.loads(json.dumps(DEFAULT_THRESHOLDS)), c.seed)
         return _evaluate_stage(c, out, stage, t0, lunar_facts, asteroid_facts, real, have,
                                descent, layers, approach, slopes, say, summary_name)
+
+
+#: CPython's collector thresholds in the evaluation's processes (default (700, 10, 10)): the
+#: tracker and the report make millions of short-lived containers (a tuple per tracked point
+#: and frame, the figures' artists), and at 700 allocations per collection the collector
+#: took 1.4 s of the stage's main process (1,800 collections, measured in the demo). Objects
+#: made before the stage are frozen out of its collections.
+EVALUATION_GC_THRESHOLDS = (20000, 50, 100)
+
+
+@contextlib.contextmanager
+def _fewer_collections():
+    """Collect less often inside the block (:data:`EVALUATION_GC_THRESHOLDS`), as before after."""
+    import gc
+
+    before = gc.get_threshold()
+    gc.freeze()  # what exists now lives through the stage: not traversed again
+    gc.set_threshold(*EVALUATION_GC_THRESHOLDS)
+    try:
+        yield
+    finally:
+        gc.set_threshold(*before)
+        gc.unfreeze()
+
+
+def _worker_setup() -> None:
+    """Prepare an evaluation worker process: its allocator and its collector."""
+    import gc
+
+    keep_freed_memory()
+    gc.freeze()
+    gc.set_threshold(*EVALUATION_GC_THRESHOLDS)
 
 
 def asteroid_slopes(body_path: Path, eros_path: Path | None, density: float, period_h: float):
@@ -584,9 +623,9 @@ def consistency_report(run, scored, tracking_sec, folder: Path, limits, key, fac
 
     say(f"evaluation: frame-to-frame consistency of the {key}")
     # without and with fresh sensor noise, each truth-warped frame made once for both; a
-    # long run on every second step (docs/speed.md: the uncertainty). Measured before the
+    # long run on every fourth step (docs/speed.md: the uncertainty). Measured before the
     # consistency is asked for, so that another process measuring it has the time to.
-    every = 2 if len(run) - 1 >= IDEAL_SAMPLED_STEPS else 1
+    every = IDEAL_STEP_STRIDE if len(run) - 1 >= IDEAL_SAMPLED_STEPS else 1
     ideal, noisy = ideal_one_steps(scored, run, noises=(None, seed), every=every)
     result, summary, drawn = (measure_consistency(Path(run.dir), folder) if measured is None
                               else measured.result())
@@ -605,10 +644,11 @@ def consistency_report(run, scored, tracking_sec, folder: Path, limits, key, fac
                  consistency_noise_floor_dn_median=summary["noise_floor_dn_median"])
     if ideal.size and noisy.size and one is not None:
         if every > 1:
+            ordinal = {2: "second", 3: "third", 4: "fourth"}.get(every, f"{every}th")
             tracking_sec.notes.append(
-                "The tracker on truth-warped frames follows every second step of this run; "
-                "measured on the demo's descent against every step (docs/speed.md), that "
-                "moves its medians by 0.4 % at most.")
+                f"The tracker on truth-warped frames follows every {ordinal} step of this run; "
+                "measured on the demo's descent against every step (docs/speed.md), every "
+                "fourth step moves its medians by 0.8 % at most.")
         tracking_sec.table("Tracking").append(
             ["one-step error of the same tracker on truth-warped frames, without / with "
              "fresh sensor noise (median px)", f"{np.median(ideal):.3g} / "

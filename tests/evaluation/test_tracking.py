@@ -111,7 +111,8 @@ def test_ideal_tracker_tells_the_trackers_share_from_the_images(scored, planar_r
     assert np.array_equal(plain_and_noisy[1], noisy, equal_nan=True)
     assert np.array_equal(plain_and_noisy[0], ideal_one_step(scored, noisy_run),
                           equal_nan=True)
-    # every second step (the campaign's on long runs): those steps' errors, no others
+    # every second step (the campaign takes every fourth on long runs): those steps' errors,
+    # no others
     halves = ideal_one_steps(scored, noisy_run, noises=(None, 0), every=2)
     for full, half in zip(plain_and_noisy, halves, strict=True):
         np.testing.assert_array_equal(half[:, ::2], full[:, ::2])
