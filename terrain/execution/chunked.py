@@ -1072,17 +1072,40 @@ def _prepare_workers(client) -> None:
 
 
 @contextlib.contextmanager
+def _inherited(env: dict):
+    """Put ``env`` in this process's environment for the block, then back as it was."""
+    before = {k: os.environ.get(k) for k in env}
+    os.environ.update(env)
+    try:
+        yield
+    finally:
+        for k, v in before.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+@contextlib.contextmanager
 def _local_client(workers, processes, memory_limit, env):
     from dask.distributed import Client, LocalCluster
 
-    # Worker processes get single-threaded numerics through the nanny's environment. This
-    # process's own environment is left alone: numba re-reads NUMBA_NUM_THREADS and refuses
-    # a value that differs from the one its thread pool started with.
+    # Worker processes get single-threaded numerics. The nanny sets its ``env`` in a worker
+    # only once the worker's interpreter has started, and a spawned worker first imports the
+    # program's main module again: a program that imports craterscape (numba) at its top had
+    # workers whose numba read NUMBA_NUM_THREADS before it was set, and ran every core's
+    # threads in each of them. So the variables are also in this process's environment
+    # while the workers start (they inherit it), and put back as they were once they have:
+    # numba here re-reads NUMBA_NUM_THREADS when it compiles and refuses a value that
+    # differs from the one its thread pool started with. (A worker the nanny restarts later
+    # gets them through ``env`` alone.)
     # The scheduler, the workers and the dashboard listen on loopback only: none of them asks
     # for credentials, so nothing else on the network may reach them.
     extra = {"env": env, "host": "127.0.0.1"} if processes else {}  # threads: in-process
-    with LocalCluster(
-            n_workers=int(workers), threads_per_worker=1, processes=processes,
-            dashboard_address="127.0.0.1:0", memory_limit=memory_limit,
-            silence_logs=logging.ERROR, **extra) as cluster, Client(cluster) as client:
-        yield client
+    with contextlib.ExitStack() as stack:
+        with _inherited(env if processes else {}):
+            cluster = stack.enter_context(LocalCluster(
+                n_workers=int(workers), threads_per_worker=1, processes=processes,
+                dashboard_address="127.0.0.1:0", memory_limit=memory_limit,
+                silence_logs=logging.ERROR, **extra))
+        yield stack.enter_context(Client(cluster))

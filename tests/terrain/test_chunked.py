@@ -481,3 +481,30 @@ def test_a_finished_store_missing_a_chunk_is_refused_instead_of_read_as_a_hole(t
         open_reader(out)
     one_line_error(cli("terrain", "cog", out, "-o", tmp_path / "h.tif"), "chunk 1,1")
     assert not (tmp_path / "h.tif").exists()
+
+
+def test_workers_are_single_threaded_even_when_the_program_imports_craterscape_first(tmp_path):
+    """A spawned worker runs the program's main module again before the nanny's environment
+    is set: a program that imports craterscape (and so numba) at its top had workers with a
+    thread per core each, two workers on two cores then four threads fighting for them."""
+    script = tmp_path / "program.py"
+    script.write_text(
+        "import os\n"
+        "import numba\n"
+        "from terrain.execution.chunked import dask_client\n"
+        "def probe():\n"
+        "    import numba\n"
+        "    from terrain.core.parallel import threads\n"
+        "    return numba.config.NUMBA_NUM_THREADS, threads()\n"
+        "if __name__ == '__main__':\n"
+        "    before = os.environ.get('NUMBA_NUM_THREADS')\n"
+        "    with dask_client(2) as client:\n"
+        "        print(sorted(client.run(probe).values()))\n"
+        "        print(os.environ.get('NUMBA_NUM_THREADS') == before)\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_NUM_THREADS",
+                                                              "OMP_NUM_THREADS")}
+    env["PYTHONPATH"] = str(Path(__file__).resolve().parents[2])
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                         env=env, timeout=300, check=True).stdout.splitlines()
+    assert out[0] == "[(1, 1), (1, 1)]"
+    assert out[1] == "True"  # this process's own environment is as it was
