@@ -198,14 +198,22 @@ def evaluate(c: Campaign, out: Path, lunar_facts: dict, asteroid_facts: dict, re
 EVALUATION_GC_THRESHOLDS = (20000, 50, 100)
 
 
-@contextlib.contextmanager
-def _fewer_collections():
-    """Collect less often inside the block (:data:`EVALUATION_GC_THRESHOLDS`), as before after."""
+def _collect_less() -> tuple:
+    """Set :data:`EVALUATION_GC_THRESHOLDS`, what exists now frozen out; return the old ones."""
     import gc
 
     before = gc.get_threshold()
     gc.freeze()  # what exists now lives through the stage: not traversed again
     gc.set_threshold(*EVALUATION_GC_THRESHOLDS)
+    return before
+
+
+@contextlib.contextmanager
+def _fewer_collections():
+    """Collect less often inside the block (:func:`_collect_less`), as before after."""
+    import gc
+
+    before = _collect_less()
     try:
         yield
     finally:
@@ -214,12 +222,9 @@ def _fewer_collections():
 
 
 def _worker_setup() -> None:
-    """Prepare an evaluation worker process: its allocator and its collector."""
-    import gc
-
+    """Prepare an evaluation worker process (for its life): its allocator and collector."""
     keep_freed_memory()
-    gc.freeze()
-    gc.set_threshold(*EVALUATION_GC_THRESHOLDS)
+    _collect_less()
 
 
 def asteroid_slopes(body_path: Path, eros_path: Path | None, density: float, period_h: float):
@@ -257,7 +262,7 @@ def asteroid_slopes(body_path: Path, eros_path: Path | None, density: float, per
     eros = load_body(eros_path, units="km")
     reference = mesh_slopes(eros.vertices, eros.faces, label="433 Eros (Gaskell)",
                             density=density, spin=spin, field_points=BODY_FIELD_POINTS,
-                       field_tolerance=BODY_FIELD_TOLERANCE)
+                            field_tolerance=BODY_FIELD_TOLERANCE)
     # slopes rise with facet count: compare at the same count
     matched = facet_matched_slopes((shape.vertices, shape.faces), (eros.vertices, eros.faces),
                                    density=density, spin=spin,

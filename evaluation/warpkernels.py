@@ -4,11 +4,13 @@ The evaluation carries every pixel of a frame through its range image into anoth
 (:func:`evaluation.consistency.camera_map`), samples range images at fractional pixels
 (``evaluation.tracking._sample_range``) and adds fresh sensor noise to truth-warped frames
 (``evaluation.tracking._fresh_noise``), a million pixels at a time for every step of a
-run. Written as NumPy expressions each of these made a dozen full-frame temporaries; here
-each pixel is computed once, by the same floating-point operations in the same order (no
-fused multiply-adds, no reassociation), so the results are those of the expressions, bit for
-bit. Rows or runs of points are blocks of :func:`terrain.core.parallel.run_blocks`: each
-block writes only its own pixels, so the bytes do not depend on the number of threads.
+run; and it masks a frame's large dark regions by component label for the tracker
+(:func:`label_mask`, ``evaluation.tracking.near_dark``). Written as NumPy expressions each
+of these made a dozen full-frame temporaries; here each pixel is computed once, by the same
+floating-point operations in the same order (no fused multiply-adds, no reassociation), so
+the results are those of the expressions, bit for bit. Rows or runs of points are blocks
+of :func:`terrain.core.parallel.run_blocks`: each block writes only its own pixels, so the
+bytes do not depend on the number of threads.
 """
 
 from __future__ import annotations
