@@ -19,8 +19,9 @@ What the issue asks to show, each against a baseline measured in the same run:
 
 Every configuration runs in its own child process, one per round, the configurations of a
 comparison alternating between rounds (baseline first, then the reverse order, and so on);
-each reports the median over its rounds. A worker's peak memory is read inside the worker
-process (its own high-water mark, not the ``ru_maxrss`` it inherits from its parent). Usage::
+each reports the median over its rounds (5 for the throughput, 3 for the rest). A worker's
+peak memory is read inside the worker process (its own high-water mark, not the
+``ru_maxrss`` it inherits from its parent). Usage::
 
     .venv/bin/python benchmarks/bench_dask.py            # full benchmark (~15 minutes;
                                                          # chunks of the default side)
@@ -363,6 +364,9 @@ def main(argv=None) -> int:
     from terrain.execution.chunked import DEFAULT_CHUNK
 
     size, chunk, rounds = (513, 128, 1) if args.quick else (4097, args.chunk or DEFAULT_CHUNK, 3)
+    # Runs of 1 and 2 workers each take a second or two and differ by 10-20 % from one fresh
+    # cluster to the next on this machine: the throughput comparison takes 5 rounds.
+    throughput_rounds = 1 if args.quick else 5
     work = Path(tempfile.mkdtemp(prefix="bench-dask-"))
     results = dict(machine=machine_facts(note="shared machine: other jobs ran concurrently"))
     try:
@@ -374,7 +378,7 @@ def main(argv=None) -> int:
                                        ("cluster2", 2))
                  if not (args.quick and mode == "cluster1")}  # cluster2 runs the same code
         runs = {mode: _pooled(children) for mode, children in
-                run_rounds(__file__, specs, rounds, 3600, log).items()}
+                run_rounds(__file__, specs, throughput_rounds, 3600, log).items()}
         base = runs["memory"]["pixels_per_s"]
         results["throughput"] = dict(
             input_size=size, output_size=2 * size - 1, chunk=chunk, runs=runs,

@@ -860,43 +860,28 @@ def run(source, output, *, chunk: int = DEFAULT_CHUNK, client=None,
 
 def _run_store(source, store: ZarrDEM, client, progress) -> RunReport:
     """Compute the chunks of ``store`` not yet written (:func:`run`, once the store is open)."""
-    import dask
-    import dask.array as da
+    import dask.array  # noqa: F401  (imported before the clock starts: a second, once)
 
     path = store.path
     ny, nx = store.grid
     done_before = store.done_chunks()
     todo = [(i, j) for i in range(ny) for j in range(nx) if (i, j) not in done_before]
-    blocks = da.map_blocks(_chunk_task, source, store, dtype=np.float64,
-                           chunks=((1,) * ny, (2,) * nx), meta=np.empty((0, 0)),
-                           name=f"craterscape-chunk-{uuid.uuid4().hex}")
-    delayed = blocks.to_delayed()
     t0 = time.perf_counter()
-    pixels = 0
-    busy = 0.0
+    shown = 0  # pixels of the chunks finished so far, for progress
     done = len(done_before)
     total = ny * nx
     if progress is not None:
         progress(done, total, "")
-    futures: list = []
-    if client is None:
-        results = (dask.compute(delayed[i, j], scheduler="synchronous")[0] for i, j in todo)
-    else:
-        from dask.distributed import as_completed
-
-        futures = client.compute([delayed[i, j] for i, j in todo])
-        results = (future.result() for future in as_completed(futures))
-    try:
-        for value in results:  # each chunk's (pixels, busy seconds), as chunks finish
-            pixels += int(value[0, 0])
-            busy += float(value[0, 1])
+    values: list = []
+    with contextlib.closing(_compute_chunks(source, store, client, todo, values)) as finished:
+        for i, j in finished:
+            w = store.chunk_window(i, j)
+            shown += w.width * w.height
             done += 1
             if progress is not None:
-                progress(done, total, _rate(pixels, t0))
-    finally:
-        pending = [f for f in futures if not f.done()]
-        if pending:
-            client.cancel(pending)
+                progress(done, total, _rate(shown, t0))
+    pixels = sum(int(v[0, 0]) for v in values)
+    busy = sum(float(v[0, 1]) for v in values)
     seconds = time.perf_counter() - t0
     catalog = merge_chunk_catalogs(store) if source.has_catalog else None
     store.mark_complete()
@@ -904,6 +889,43 @@ def _run_store(source, store: ZarrDEM, client, progress) -> RunReport:
              len(done_before), pixels / max(seconds, 1e-9) / 1e6)
     return RunReport(path, total, len(todo), len(done_before), pixels, seconds, catalog, todo,
                      busy)
+
+
+def _compute_chunks(source, store: ZarrDEM, client, chunks: list, values: list):
+    """Yield each chunk's (row, col) as it finishes (:func:`_chunk_task`).
+
+    Once all have finished, ``values`` holds their ``[[pixels, seconds]]``. On a cluster
+    they are fetched together then: fetching each as it finished cost the client and the
+    scheduler a round trip to a worker per chunk (a third of this process's CPU during a
+    run), CPU that a local cluster's workers share with them.
+    """
+    import dask
+    import dask.array as da
+
+    ny, nx = store.grid
+    blocks = da.map_blocks(_chunk_task, source, store, dtype=np.float64,
+                           chunks=((1,) * ny, (2,) * nx), meta=np.empty((0, 0)),
+                           name=f"craterscape-chunk-{uuid.uuid4().hex}")
+    delayed = blocks.to_delayed()
+    if client is None:
+        for i, j in chunks:
+            values.append(dask.compute(delayed[i, j], scheduler="synchronous")[0])
+            yield i, j
+        return
+    from dask.distributed import as_completed
+
+    futures = client.compute([delayed[i, j] for i, j in chunks])
+    where = {future.key: chunk for future, chunk in zip(futures, chunks, strict=True)}
+    try:
+        for future in as_completed(futures):
+            if future.status != "finished":
+                future.result()  # raises the chunk's error
+            yield where[future.key]
+        values.extend(client.gather(futures))
+    finally:
+        pending = [f for f in futures if not f.done()]
+        if pending:
+            client.cancel(pending)
 
 
 def scratch_path(source, output) -> Path:
@@ -1041,7 +1063,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None,
     with contextlib.ExitStack() as undo:
         undo.callback(quiet.setLevel, level)
         client = undo.enter_context(_local_client(workers, processes, memory_limit, env))
-        _prepare_workers(client)
+        _prepare_workers(client, keep_freed=processes)
         yield client
 
 
@@ -1054,21 +1076,43 @@ WORKER_MODULES = ("dask.array", "terrain.execution.chunked", "terrain.fractal.ex
                   "terrain.craters.cratering", "zarr", "numcodecs.blosc")
 
 
-def prepare_worker() -> list[str]:
+def prepare_worker(keep_freed: bool = False) -> list[str]:
     """Import :data:`WORKER_MODULES` in this process; return their names.
 
-    Run on every worker when a client is made (:func:`dask_client`), so that the imports
-    (a second or more, dask.array's and Zarr's most of it) are paid once per worker, when
-    the cluster starts, and not by the first chunk of every run on it.
+    Run on every worker when a client is made (:func:`dask_client`) and on every worker
+    that joins later, so that the imports (a second or more, dask.array's and Zarr's most
+    of it) are paid once per worker, when it starts, and not by the first chunk of every
+    run on it.
+
+    Parameters
+    ----------
+    keep_freed : bool
+        Also have the worker's allocator keep freed memory
+        (:func:`terrain.core.memory.keep_freed_memory`): a chunk task makes and drops
+        arrays of tens of megabytes, and with glibc's defaults (which Dask's nanny makes
+        stricter still, ``MALLOC_TRIM_THRESHOLD_``) each comes from fresh pages the kernel
+        faults in and zeroes: a third of the workers' CPU time of an expansion was system
+        time. Given to the local cluster's workers, which live for one command; not to
+        the workers of a cluster the user runs, whose processes are theirs.
     """
     import importlib
 
+    if keep_freed:
+        from terrain.core.memory import keep_freed_memory
+
+        keep_freed_memory()
     return [importlib.import_module(name).__name__ for name in WORKER_MODULES]
 
 
-def _prepare_workers(client) -> None:
-    """Run :func:`prepare_worker` on the client's workers (those connected now)."""
-    client.run(prepare_worker)
+def _prepare_workers(client, keep_freed: bool = False) -> None:
+    """Run :func:`prepare_worker` on the client's workers, and on those that join later.
+
+    A plugin (:class:`terrain.execution.workers.PrepareWorker`): a worker that a nanny
+    restarts after a crash, or one that joins a running cluster, is prepared too.
+    """
+    from terrain.execution.workers import PrepareWorker
+
+    client.register_plugin(PrepareWorker(keep_freed))
 
 
 @contextlib.contextmanager

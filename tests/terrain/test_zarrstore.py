@@ -27,7 +27,7 @@ def _store(path, heights, complete=True):
 
 def _heights(seed):
     h = np.random.default_rng(seed).normal(size=SHAPE).astype(np.float32)
-    h[3:20, 30:] = np.nan  # chunk (0, 2) is all nodata: Zarr keeps no file for it
+    h[3:20, 30:] = np.nan  # chunk (0, 2) is all nodata
     return h
 
 
