@@ -1028,9 +1028,10 @@ def dask_client(workers: int | None = None, scheduler: str | None = None,
     Parameters
     ----------
     workers : int, optional
-        Local workers, each single-threaded (the kernels hold the GIL, so processes are
-        what runs in parallel; threads share one process and its memory). The local
-        cluster, its workers and its dashboard listen on loopback (127.0.0.1) only.
+        Local workers, each single-threaded. The compiled kernels release the GIL, but
+        the Python around them (Zarr, the task's own steps) does not, and a thread shares
+        its process's memory: processes are the default. The local cluster, its workers
+        and its dashboard listen on loopback (127.0.0.1) only.
     scheduler : str, optional
         Address of a running scheduler, e.g. ``tcp://10.0.0.5:8786``.
     processes : bool

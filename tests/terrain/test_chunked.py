@@ -558,7 +558,9 @@ def test_a_chunk_that_fails_on_a_worker_stops_the_run_and_the_finished_chunks_ar
     finished = ZarrDEM(out).done_chunks()
     assert finished and (4, 4) not in finished
     report = run(SynthSource(129, seed=3), out, chunk=32, client=client)
-    assert report.skipped == len(finished) and report.computed == 25 - len(finished)
+    # (a chunk still running on the other worker when the error came may have finished since)
+    assert report.skipped >= len(finished) and report.computed == 25 - report.skipped
+    assert (4, 4) in report.computed_chunks
     assert np.array_equal(stored(out), synthesize_tile(129, seed=3).tile.heights)
 
 
