@@ -571,3 +571,36 @@ def test_a_chunk_all_nodata_is_written_and_counts_as_done(tmp_path):
     store.write_chunk(0, 1, np.full((16, 14), np.nan, np.float32))
     assert store.chunk_file(0, 1).is_file() and store.is_done(0, 1)
     assert not store.is_done(0, 0)
+
+
+@dataclass(frozen=True)
+class FailsFirst(SynthSource):
+    """Synthesis whose first chunk to start fails at once; every other takes half a second."""
+
+    guard: str = ""
+
+    def compute(self, window):
+        try:
+            os.close(os.open(self.guard, os.O_CREAT | os.O_EXCL))
+        except FileExistsError:
+            time.sleep(0.5)
+            return super().compute(window)
+        raise Interrupted("stopped part way")
+
+
+def test_a_failed_run_waits_for_its_running_chunks_and_leaves_no_stray_files(client,
+                                                                            tmp_path):
+    """A chunk running on the other worker when the first fails goes on to write: the run
+    waits for it, so the output is a resumable store, never a folder rebuilt after the run
+    removed it (Zarr makes the array's folder again when it writes a chunk)."""
+    from terrain.core.zarrstore import is_zarr
+
+    out = tmp_path / "w.zarr"
+    with pytest.raises(Exception, match="stopped part way"):
+        run(FailsFirst(65, seed=3, guard=str(tmp_path / "failed")), out, chunk=32,
+            client=client)
+    time.sleep(1.0)  # anything still running would have written by now
+    assert is_zarr(out) and ZarrDEM(out).done_chunks()  # the running chunk finished, kept
+    report = run(SynthSource(65, seed=3), out, chunk=32, client=client)
+    assert 1 <= report.skipped < report.total
+    assert np.array_equal(stored(out), synthesize_tile(65, seed=3).tile.heights)
