@@ -929,25 +929,24 @@ def _compute_chunks(source, store: ZarrDEM, client, chunks: list, values: list):
             # A cancelled chunk already running goes on writing: wait for it, so that it
             # is finished (and resumable) before the run ends, never writing into an
             # output the run has removed meanwhile (Zarr would make its folders again).
-            _wait_until_stopped(client, blocks.name)
+            _wait_until_stopped(client, {f.key for f in pending})
 
 
 #: How long a failed or interrupted run waits for its chunks still running on the workers.
 STOP_WAIT_SECONDS = 600.0
 
 
-def _running(prefix: str, dask_worker=None) -> int:
-    """How many tasks whose key starts with ``prefix`` this worker is executing now."""
-    return sum(1 for ts in dask_worker.state.executing
-               if str(ts.key[0] if isinstance(ts.key, tuple) else ts.key).startswith(prefix))
+def _running(keys: set, dask_worker=None) -> int:
+    """How many of the tasks ``keys`` this worker is executing now."""
+    return sum(1 for ts in dask_worker.state.executing if ts.key in keys)
 
 
-def _wait_until_stopped(client, prefix: str) -> None:
-    """Wait until no worker runs a task of ``prefix`` (at most :data:`STOP_WAIT_SECONDS`)."""
+def _wait_until_stopped(client, keys: set) -> None:
+    """Wait until no worker runs any of the tasks ``keys`` (at most :data:`STOP_WAIT_SECONDS`)."""
     deadline = time.monotonic() + STOP_WAIT_SECONDS
     while time.monotonic() < deadline:
         try:
-            if not sum(client.run(_running, prefix).values()):
+            if not sum(client.run(_running, keys).values()):
                 return
         except (OSError, RuntimeError, TimeoutError):  # a cluster that is gone runs nothing
             return

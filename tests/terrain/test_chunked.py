@@ -39,6 +39,7 @@ from terrain.fractal.synthetic import synthesize_tile
 from terrain.io import raster_layout, read_dem, write_cog, write_dem
 from tests.cli_helpers import one_line_error
 from tests.cli_helpers import run as cli
+from tests.terrain.test_allocator import churn_faults
 
 # Workers unpickle the test's own source subclasses by value (they cannot import this file).
 cloudpickle.register_pickle_by_value(sys.modules[__name__])
@@ -511,28 +512,13 @@ def test_workers_are_single_threaded_even_when_the_program_imports_craterscape_f
 
 
 
-def _churn_faults() -> int:
-    """Page faults of 40 rounds of 8 MB arrays made and dropped, after one such round."""
-    import resource
-
-    a = np.ones((1024, 1024))
-    del a
-    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-    for _ in range(40):
-        a = np.empty((1024, 1024))
-        a[:] = 1.0
-        b = a * 2.0
-        del a, b
-    return resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
-
-
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt only")
 def test_a_local_clusters_workers_reuse_freed_memory_on_their_task_threads(client):
     """A Dask worker with glibc's defaults faults in about 1,000 pages again every round
     (41,281 measured for the 40; tests/terrain/test_allocator.py compares the default in a
     plain process); the local cluster's workers keep what they free (515 measured)."""
     workers = sorted(client.scheduler_info()["workers"])
-    faults = client.gather([client.submit(_churn_faults, workers=[w], pure=False)
+    faults = client.gather([client.submit(churn_faults, workers=[w], pure=False)
                             for w in workers])
     assert len(faults) == 2 and max(faults) < 40 * 1000 / 20
 
